@@ -1,0 +1,45 @@
+"""The `mgpusim` command line: one sub-command per module in :mod:`mgpusim.commands`.
+
+Each command module exposes ``register(subparsers)`` which adds its parser and sets
+``func(args) -> int``. Errors meant for users (:class:`MgpusimError`) print as one line.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from .errors import MgpusimError
+
+#: Command modules, in the order `mgpusim --help` lists them.
+COMMANDS = ("simulate", "bench", "devices", "measure", "calibrate", "validate", "main_job")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="mgpusim", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name in COMMANDS:
+        try:
+            module = importlib.import_module(f"mgpusim.commands.{name}")
+        except ModuleNotFoundError as exc:  # a command not written yet
+            if exc.name != f"mgpusim.commands.{name}":
+                raise
+            continue
+        module.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except MgpusimError as exc:
+        print(f"mgpusim {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,17 @@
+#!/usr/bin/env bash
+# Idempotent set-up on a fresh Debian machine: system packages (lavapipe, Vulkan loader,
+# shader compiler, validation layers), a virtual environment in .venv, and the package.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+pkgs="python3 python3-venv mesa-vulkan-drivers libvulkan1 vulkan-tools glslc spirv-tools vulkan-validationlayers"
+missing=""
+for p in $pkgs; do dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"; done
+if [ -n "$missing" ]; then
+  echo "setup: installing Debian packages:$missing" >&2
+  sudo_cmd=""; [ "$(id -u)" = 0 ] || sudo_cmd="sudo"
+  $sudo_cmd apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $sudo_cmd apt-get install -y -qq $missing >/dev/null
+fi
+[ -x .venv/bin/python ] || python3 -m venv .venv
+.venv/bin/python -m pip install -q --upgrade pip >/dev/null
+.venv/bin/python -m pip install -q -e '.[test]'

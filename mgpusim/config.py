@@ -1,0 +1,100 @@
+"""Reading TOML tables with validation: every error names the file and the dotted field.
+
+Used by the profile and experiment loaders so that bad input stops before time 0 with one
+clear message (missing field, wrong type, out-of-range value, unknown key).
+"""
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Any, Iterable
+
+from .errors import InputError
+
+_MISSING = object()
+_TYPE_NAMES = {int: "an integer", float: "a number", str: "a string", bool: "true or false",
+               list: "a list", dict: "a table"}
+
+
+def read_toml(path: Path) -> dict[str, Any]:
+    """Parse a TOML file; syntax errors and missing files become InputError."""
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise InputError("file not found", file=str(path)) from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"not valid TOML ({exc})", file=str(path)) from None
+
+
+class Table:
+    """A view of one TOML table that hands out validated fields and rejects unknown keys."""
+
+    def __init__(self, data: Any, file: str, path: str = ""):
+        if not isinstance(data, dict):
+            raise InputError("expected a table", file=file, field=path or "<top>")
+        self.data, self.file, self.path = data, file, path
+        self._used: set[str] = set()
+
+    def field(self, key: str) -> str:
+        return f"{self.path}.{key}" if self.path else key
+
+    def error(self, key: str, message: str) -> InputError:
+        return InputError(message, file=self.file, field=self.field(key))
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def get(self, key: str, kind: type, default: Any = _MISSING, *, minimum: float | None = None,
+            above: float | None = None, choices: Iterable[Any] | None = None) -> Any:
+        """The value at `key`, checked for type and range; `default` if absent (else an error)."""
+        self._used.add(key)
+        if key not in self.data:
+            if default is _MISSING:
+                raise self.error(key, f"missing (expected {_TYPE_NAMES[kind]})")
+            return default
+        value = self.data[key]
+        value = _coerce(value, kind)
+        if value is None:
+            raise self.error(key, f"expected {_TYPE_NAMES[kind]}, got {self.data[key]!r}")
+        if minimum is not None and value < minimum:
+            raise self.error(key, f"must be >= {minimum}, got {value!r}")
+        if above is not None and value <= above:
+            raise self.error(key, f"must be > {above}, got {value!r}")
+        if choices is not None and value not in tuple(choices):
+            raise self.error(key, f"must be one of {sorted(choices)}, got {value!r}")
+        return value
+
+    def table(self, key: str, default: Any = _MISSING) -> "Table":
+        self._used.add(key)
+        if key not in self.data:
+            if default is _MISSING:
+                raise self.error(key, "missing table")
+            return Table({} if default is None else default, self.file, self.field(key))
+        return Table(self.data[key], self.file, self.field(key))
+
+    def tables(self, key: str) -> list["Table"]:
+        """An array of tables ([[key]]), each a Table with an indexed path."""
+        self._used.add(key)
+        items = self.data.get(key)
+        if not isinstance(items, list) or not items:
+            raise self.error(key, "missing or empty array of tables")
+        return [Table(item, self.file, f"{self.field(key)}[{i}]") for i, item in enumerate(items)]
+
+    def rest(self) -> dict[str, Any]:
+        """Keys not read yet (for tables whose keys are open, like cost coefficients)."""
+        return {k: v for k, v in self.data.items() if k not in self._used}
+
+    def finish(self) -> None:
+        """Reject keys that were never read: a typo must not be silently ignored."""
+        unknown = sorted(set(self.data) - self._used)
+        if unknown:
+            raise self.error(unknown[0], "unknown key")
+
+
+def _coerce(value: Any, kind: type) -> Any:
+    if kind is float:
+        return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
+    if kind is int:
+        return value if isinstance(value, int) and not isinstance(value, bool) else None
+    return value if isinstance(value, kind) else None

@@ -1,0 +1,114 @@
+"""The cost model: (pass, GPU) -> duration, (bytes, path, queue) -> transfer parameters.
+
+Costs are linear in work terms so that calibration is a least-squares fit. Durations are
+computed in floating point and rounded once (half up) to integer ns where they enter the engine.
+"""
+from __future__ import annotations
+
+import math
+from fractions import Fraction
+from typing import Callable, Mapping
+
+from .errors import InputError
+from .profile import HardwareProfile
+from .scene import PassSpec
+
+WorkFn = Callable[[PassSpec, float, float], dict[str, float]]
+
+#: For each pass kind: (spec, pixels, geometry_share) -> work terms (singular names).
+WORK_TERMS: dict[str, WorkFn] = {
+    "fragment_loop": lambda s, px, g: {"pixel": px, "pixel_iteration": px * s.param("iterations")},
+    "mesh": lambda s, px, g: {"triangle": s.param("triangles") * g, "pixel": px},
+    "composite_sort_first": lambda s, px, g: {"input": s.param("inputs"), "pixel": px},
+    "composite_sort_last": lambda s, px, g: {"input": s.param("inputs"), "pixel": px},
+    "present": lambda s, px, g: {"pixel": px},
+    "particle_update": lambda s, px, g: {"particle": s.param("particles") * g},
+    "particle_render": lambda s, px, g: {"particle": s.param("particles") * g, "pixel": px},
+    # A pass known only by a measured or estimated time on a reference GPU (e.g. the DX12 case
+    # study's passes); the GPU's ns_per_reference_ns scales it (1 if the profile has no entry).
+    "timed": lambda s, px, g: {"reference_ns": s.param("duration_ms") * 1e6 * g},
+}
+
+
+def ns(value: float) -> int:
+    """Round a non-negative duration to integer ns, half up (the one rounding rule)."""
+    return int(math.floor(value + 0.5))
+
+
+def round_half_up(x: Fraction) -> int:
+    return math.floor(x + Fraction(1, 2))
+
+
+def gbps_fraction(gbps: float) -> Fraction:
+    """Bytes per ns as an exact fraction of the decimal the user wrote."""
+    return Fraction(repr(float(gbps)))
+
+
+def pass_work(spec: PassSpec, pixels: float, geometry_share: float = 1.0) -> dict[str, float]:
+    return WORK_TERMS[spec.kind](spec, pixels, geometry_share)
+
+
+class CostModel:
+    """Turns tasks into engine inputs using one hardware profile's coefficients."""
+
+    def __init__(self, profile: HardwareProfile):
+        self.profile = profile
+
+    def pass_ns(self, device: int, kind: str, work: Mapping[str, float]) -> int:
+        gpu = self.profile.gpus[device]
+        cost = gpu.costs.get(kind)
+        where = f"gpus[{device}].costs.{kind}"
+        if cost is None:
+            if kind == "timed":
+                return ns(work.get("reference_ns", 0.0))
+            raise InputError(f"no cost coefficients for pass kind {kind!r} on {gpu.name}",
+                             file=self.profile.source, field=where)
+        total = cost.fixed_ns
+        for term, amount in work.items():
+            if amount == 0:
+                continue
+            coef = cost.ns_per.get(term)
+            if coef is None:
+                if kind == "timed" and term == "reference_ns":
+                    coef = 1.0
+                else:
+                    raise InputError(f"missing coefficient for work term {term!r}",
+                                     file=self.profile.source, field=f"{where}.ns_per_{term}")
+            total += coef * amount
+        return ns(total)
+
+    def copy_setup_ns(self, device: int, family: str, path: str, peer: int | None = None) -> int:
+        """Fixed cost of a copy command plus the latency of the path it crosses."""
+        gpu = self.profile.gpus[device]
+        fixed = gpu.copy[family].fixed_ns if family in gpu.copy else 0
+        if path in ("d2h", "h2d"):
+            return fixed + gpu.link.latency_ns
+        if path == "p2p":
+            link = self.profile.peer(device, peer if peer is not None else -1)
+            return fixed + (link.latency_ns if link else 0)
+        return fixed
+
+    def copy_cap(self, device: int, family: str, path: str) -> Fraction | None:
+        """A queue family's own rate limit for a path (None = only the channel limits it)."""
+        gpu = self.profile.gpus[device]
+        cap = gpu.copy[family].caps_gbps.get(path) if family in gpu.copy else None
+        return gbps_fraction(cap) if cap is not None else None
+
+    def link_bandwidth(self, device: int, path: str) -> Fraction:
+        gpu = self.profile.gpus[device]
+        if path == "d2d":
+            return gbps_fraction(gpu.local_copy_gbps)
+        return gbps_fraction(gpu.link.bandwidth_gbps(path))
+
+    def peer_bandwidth(self, a: int, b: int) -> Fraction:
+        link = self.profile.peer(a, b)
+        if link is None:
+            raise InputError(f"no peer link between gpu{a} and gpu{b}", file=self.profile.source,
+                             field="peer_links")
+        return gbps_fraction(link.bandwidth_gbps)
+
+    def host_memory_bandwidth(self) -> Fraction:
+        return gbps_fraction(self.profile.host.memory_bandwidth_gbps)
+
+    def memcpy_thread_cap(self) -> Fraction:
+        return gbps_fraction(self.profile.host.memcpy_thread_gbps)

@@ -1,0 +1,102 @@
+"""Results: the trace, the per-frame table and the summary, from what the engine observed.
+
+Pure functions of data, shared by simulated and measured runs (a measured trace goes through
+:func:`frames_from_trace` and :func:`summarize` just the same).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from .trace import FRAME_COLUMNS, make_trace
+
+
+@dataclass
+class Result:
+    """One run: `.trace` (per task), `.frames` (per frame), `.summary` (dict), `.links`."""
+
+    summary: dict[str, Any]
+    trace: pd.DataFrame
+    frames: pd.DataFrame
+    links: pd.DataFrame = field(default_factory=pd.DataFrame)
+    config: dict[str, Any] = field(default_factory=dict)
+
+
+def frames_table(frame_start: np.ndarray, present_end: np.ndarray) -> pd.DataFrame:
+    frames = np.arange(len(present_end), dtype=np.int64)
+    return pd.DataFrame({"frame": frames, "start_ns": frame_start.astype(np.int64),
+                         "present_ns": present_end.astype(np.int64),
+                         "latency_ns": (present_end - frame_start).astype(np.int64)},
+                        columns=list(FRAME_COLUMNS))
+
+
+def frames_from_trace(trace: pd.DataFrame, present_step: str = "present") -> pd.DataFrame:
+    """Per-frame start (first task start) and present (end of the present step)."""
+    start = trace.groupby("frame")["start_ns"].min()
+    present = trace[trace["step"] == present_step].groupby("frame")["end_ns"].max()
+    df = pd.DataFrame({"start_ns": start, "present_ns": present}).dropna().astype("int64")
+    df["latency_ns"] = df["present_ns"] - df["start_ns"]
+    return df.reset_index().rename(columns={"index": "frame"})[list(FRAME_COLUMNS)]
+
+
+def summarize(frames: pd.DataFrame, trace: pd.DataFrame | None, warmup_frames: int,
+              links: pd.DataFrame | None = None) -> dict[str, Any]:
+    """Steady-state figures after `warmup_frames`: frame time = mean period between presents."""
+    steady = frames[frames["frame"] >= warmup_frames]
+    presents = steady["present_ns"].to_numpy(dtype=np.int64)
+    periods = np.diff(presents)
+    if len(periods) == 0:
+        periods = presents[:1] - steady["start_ns"].to_numpy(dtype=np.int64)[:1]
+    frame_time = float(periods.mean())
+    window = (int(presents[0]) if len(presents) > 1 else 0, int(presents[-1]))
+    out: dict[str, Any] = {
+        "frame_time_ms": frame_time / 1e6,
+        "fps": 1e9 / frame_time if frame_time > 0 else float("inf"),
+        "latency_ms": float(steady["latency_ns"].mean()) / 1e6,
+        "frame_time_jitter_ms": float(periods.std()) / 1e6,
+        "frame_time_min_ms": float(periods.min()) / 1e6,
+        "frame_time_max_ms": float(periods.max()) / 1e6,
+        "frames": int(len(frames)),
+        "warmup_frames": int(warmup_frames),
+        "window_ns": list(window),
+    }
+    if trace is not None and len(trace):
+        out["utilization"] = utilization(trace, links, window)
+    return out
+
+
+def utilization(trace: pd.DataFrame, links: pd.DataFrame | None, window: tuple[int, int]) -> dict[str, float]:
+    """Busy fraction of every queue, host thread and link over the steady-state window."""
+    lo, hi = window
+    span = max(hi - lo, 1)
+    busy = _busy(trace.assign(resource=trace["device"] + "." + trace["engine"]), lo, hi)
+    if links is not None and len(links):
+        busy.update(_busy(links.rename(columns={"channel": "resource"}), lo, hi))
+    return {name: round(b / span, 6) for name, b in sorted(busy.items())}
+
+
+def _busy(df: pd.DataFrame, lo: int, hi: int) -> dict[str, int]:
+    s = df["start_ns"].clip(lo, hi).to_numpy()
+    e = df["end_ns"].clip(lo, hi).to_numpy()
+    d = pd.DataFrame({"resource": df["resource"].to_numpy(), "dur": e - s})
+    return {str(k): int(v) for k, v in d.groupby("resource")["dur"].sum().items()}
+
+
+def links_table(channels: dict) -> pd.DataFrame:
+    rows = [(name, s, e) for name, ch in channels.items() for s, e in ch.busy]
+    return pd.DataFrame(rows, columns=["channel", "start_ns", "end_ns"]).astype(
+        {"channel": "string", "start_ns": "int64", "end_ns": "int64"})
+
+
+def build_result(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
+    trace = make_trace(raw.rows) if raw.rows else make_trace([])
+    frames = frames_table(raw.frame_start, raw.present_end)
+    links = links_table(raw.channels)
+    summary = summarize(frames, trace if len(trace) else None, warmup_frames, links)
+    summary["effects"] = raw.effects
+    if raw.skipped:
+        summary["skipped_tasks"] = raw.skipped
+    return Result(summary, trace, frames, links, config)

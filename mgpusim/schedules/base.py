@@ -1,0 +1,139 @@
+"""Schedules as data: a registry of builders that turn (config, scene, profile) into a
+:class:`FrameProgram`, the per-frame task lists both executors run.
+
+Adding a schedule is adding one module that calls :func:`register`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any, Callable, Mapping
+
+from ..config import Table
+from ..errors import InputError, ScheduleError
+from ..profile import HardwareProfile
+from ..scene import Scene
+from ..tasks import CopyTask, HostCopyTask, PassTask, QueueRef, Task
+
+
+@dataclass(frozen=True)
+class FrameProgram:
+    """The work of every frame. Frame f runs `templates[f % len(templates)]`, in that
+    submission order; `present_task` names the task whose end is the frame's present."""
+
+    schedule: str
+    gpus: int
+    frames: int
+    warmup_frames: int
+    templates: tuple[tuple[Task, ...], ...]
+    present_task: str = "present"
+    notes: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
+
+    def tasks(self, frame: int) -> tuple[Task, ...]:
+        return self.templates[frame % len(self.templates)]
+
+
+@dataclass(frozen=True)
+class Option:
+    """A schedule-specific key of the experiment's [schedule] table."""
+
+    kind: type
+    default: Any
+    doc: str
+    choices: tuple[Any, ...] | None = None
+    minimum: float | None = None
+
+
+@dataclass(frozen=True)
+class ScheduleConfig:
+    name: str
+    gpus: int
+    frames: int
+    warmup_frames: int
+    frames_in_flight: int
+    options: Mapping[str, Any]
+
+    def opt(self, key: str) -> Any:
+        return self.options[key]
+
+
+Builder = Callable[[ScheduleConfig, Scene, HardwareProfile], FrameProgram]
+
+
+@dataclass(frozen=True)
+class ScheduleDef:
+    name: str
+    build: Builder
+    options: Mapping[str, Option]
+    doc: str
+
+
+SCHEDULES: dict[str, ScheduleDef] = {}
+
+
+def register(name: str, doc: str, options: Mapping[str, Option] | None = None) -> Callable[[Builder], Builder]:
+    def wrap(build: Builder) -> Builder:
+        SCHEDULES[name] = ScheduleDef(name, build, MappingProxyType(dict(options or {})), doc)
+        return build
+    return wrap
+
+
+def parse_schedule_config(t: Table) -> ScheduleConfig:
+    from . import ensure_loaded
+    ensure_loaded()
+    name = t.get("name", str, choices=SCHEDULES.keys())
+    sdef = SCHEDULES[name]
+    options = {key: t.get(key, o.kind, o.default, choices=o.choices, minimum=o.minimum)
+               for key, o in sdef.options.items()}
+    cfg = ScheduleConfig(
+        name=name,
+        gpus=t.get("gpus", int, 1, minimum=1),
+        frames=t.get("frames", int, 60, minimum=1),
+        warmup_frames=t.get("warmup_frames", int, 5, minimum=0),
+        frames_in_flight=t.get("frames_in_flight", int, 2, minimum=1),
+        options=MappingProxyType(options),
+    )
+    t.finish()
+    if cfg.warmup_frames >= cfg.frames:
+        raise t.error("warmup_frames", f"must be < frames ({cfg.frames}), got {cfg.warmup_frames}")
+    return cfg
+
+
+def queue_or_graphics(profile: HardwareProfile, device: int, family: str) -> QueueRef:
+    """The device's first queue of `family`, or its graphics queue when it has none."""
+    if profile.gpus[device].has_queue(family):
+        return QueueRef(device, family)  # type: ignore[arg-type]
+    return QueueRef(device, "graphics")
+
+
+def check_program(program: FrameProgram, profile: HardwareProfile) -> None:
+    """Build-time checks: every queue exists, dependencies name real tasks, names are unique."""
+    for phase, tasks in enumerate(program.templates):
+        names = [t.name for t in tasks]
+        if len(set(names)) != len(names):
+            raise ScheduleError(f"{program.schedule}: duplicate task names in frame phase {phase}")
+        if program.present_task not in names:
+            raise ScheduleError(f"{program.schedule}: phase {phase} has no {program.present_task!r} task")
+        for task in tasks:
+            _check_task(program, profile, phase, task)
+
+
+def _check_task(program: FrameProgram, profile: HardwareProfile, phase: int, task: Task) -> None:
+    period = len(program.templates)
+    if isinstance(task, (PassTask, CopyTask)):
+        q = task.queue
+        if not 0 <= q.device < len(profile.gpus) or not profile.gpus[q.device].has_queue(q.family, q.index):
+            raise ScheduleError(f"task {task.name!r} uses {q}, which profile {profile.name!r} lacks")
+    for dep in task.deps:
+        if dep.offset > 0:
+            raise ScheduleError(f"task {task.name!r} depends on a later frame ({dep})")
+        other = program.templates[(phase + dep.offset) % period]
+        if dep.task not in {t.name for t in other}:
+            raise ScheduleError(f"task {task.name!r} depends on {dep.task!r} (frame offset "
+                                f"{dep.offset}), which that frame does not have")
+    if isinstance(task, HostCopyTask) and task.chunk_min_bytes < 1:
+        raise ScheduleError(f"task {task.name!r}: chunk_min_bytes must be >= 1")
+
+
+def bad_option(cfg: ScheduleConfig, key: str, message: str) -> InputError:
+    return InputError(message, field=f"schedule.{key}")

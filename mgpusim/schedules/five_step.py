@@ -1,0 +1,112 @@
+"""The five-step sort-first / sort-last pipeline of the 2018 Vulkan thesis (DOMAIN.md 3.1).
+
+Per frame: (1) every GPU renders its contribution; (2) each secondary copies it to a host
+staging buffer; (3) a host-to-host copy moves it to the primary's staging buffer (skipped when
+both devices import one host allocation, VK_EXT_external_memory_host); (4) the primary uploads
+it; (5) the primary composites, then presents. Contributions and staging buffers are
+multi-buffered (`buffers`, default 2), and at most `frames_in_flight` frames are submitted
+ahead of the last present.
+"""
+from __future__ import annotations
+
+from types import MappingProxyType
+
+from ..costs import pass_work
+from ..profile import HardwareProfile
+from ..scene import PassSpec, Scene
+from ..tasks import CopyTask, Dep, HostCopyTask, PassTask, QueueRef, Task
+from .base import FrameProgram, Option, ScheduleConfig, queue_or_graphics, register
+
+OPTIONS = {
+    "host_copy": Option(bool, True, "step 3: copy between the two staging buffers on host "
+                                    "threads (false: one shared host allocation)"),
+    "buffers": Option(int, 2, "contribution and staging buffers per secondary", minimum=1),
+}
+
+
+def tile_rows(height: int, gpus: int) -> list[int]:
+    """Sort-first tile heights: equal, the last GPU takes the remainder."""
+    base = height // gpus
+    return [base] * (gpus - 1) + [height - base * (gpus - 1)]
+
+
+@register("sort_first", "Five-step sort-first (split-frame) pipeline: horizontal tiles, colour only",
+          OPTIONS)
+def build_sort_first(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> FrameProgram:
+    rows = tile_rows(scene.height, cfg.gpus)
+    pixels = [scene.width * r for r in rows]
+    contribution = [p * scene.color_bytes_per_pixel for p in pixels]
+    composite = _composite("composite_sort_first", cfg.gpus - 1, sum(pixels[1:]))
+    return _build(cfg, scene, profile, pixels, [1.0] * cfg.gpus, contribution, composite,
+                  {"tile_rows": tuple(rows)})
+
+
+@register("sort_last", "Five-step sort-last pipeline: geometry split evenly, full-frame colour + depth",
+          OPTIONS)
+def build_sort_last(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> FrameProgram:
+    n = cfg.gpus
+    per_gpu = scene.color_bytes + scene.depth_bytes
+    composite = _composite("composite_sort_last", n - 1, (n - 1) * scene.pixels)
+    return _build(cfg, scene, profile, [scene.pixels] * n, [1.0 / n] * n, [per_gpu] * n,
+                  composite, {"geometry_share": 1.0 / n})
+
+
+def _composite(kind: str, inputs: int, pixels: int) -> PassSpec:
+    return PassSpec("composite", kind, MappingProxyType({"inputs": inputs, "pixels": pixels}))
+
+
+def _build(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, pixels: list[int],
+           shares: list[float], contribution: list[int], composite: PassSpec,
+           notes: dict) -> FrameProgram:
+    n, buffers, fif = cfg.gpus, cfg.opt("buffers"), cfg.frames_in_flight
+    host_copy = cfg.opt("host_copy")
+    tasks: list[Task] = []
+    last_render: list[str] = []
+    for i in range(n):
+        tasks.extend(_renders(i, scene, pixels[i], shares[i], fif, buffers))
+        last_render.append(tasks[-1].name)
+    uploads = []
+    h2d_queue = queue_or_graphics(profile, 0, "transfer")
+    for i in range(1, n):
+        d2h_queue = queue_or_graphics(profile, i, "transfer")
+        staged = f"d2h{i}"
+        tasks.append(CopyTask(staged, "d2h", d2h_queue, "d2h", contribution[i],
+                              (Dep(last_render[i]), Dep(f"{'host_copy' if host_copy else 'h2d'}{i}", -buffers))))
+        if host_copy:
+            tasks.append(HostCopyTask(f"host_copy{i}", "host_copy", contribution[i],
+                                      (Dep(staged), Dep(f"h2d{i}", -buffers))))
+            staged = f"host_copy{i}"
+        tasks.append(CopyTask(f"h2d{i}", "h2d", h2d_queue, "h2d", contribution[i],
+                              (Dep(staged), Dep("composite", -buffers))))
+        uploads.append(f"h2d{i}")
+    primary = QueueRef(0, "graphics")
+    if n > 1:
+        work = pass_work(composite, composite.param("pixels"))
+        tasks.append(PassTask("composite", "composite", primary, composite.kind, MappingProxyType(work),
+                              tuple(Dep(t) for t in [last_render[0], *uploads])))
+    before_present = "composite" if n > 1 else last_render[0]
+    present = PassSpec("present", "present")
+    tasks.append(PassTask("present", "present", primary, "present",
+                          MappingProxyType(pass_work(present, scene.pixels)), (Dep(before_present),)))
+    notes.update(buffers=buffers, host_copy=host_copy,
+                 contribution_bytes_per_frame=sum(contribution[1:]))
+    return FrameProgram(cfg.name, n, cfg.frames, cfg.warmup_frames, (tuple(tasks),),
+                        notes=MappingProxyType(notes))
+
+
+def _renders(gpu: int, scene: Scene, pixels: int, share: float, fif: int,
+             buffers: int) -> list[PassTask]:
+    """The scene's passes on one GPU's graphics queue; the first waits for frame f-fif's
+    present (frames in flight) and, on a secondary, for its contribution buffer to be free."""
+    queue = QueueRef(gpu, "graphics")
+    out: list[PassTask] = []
+    for k, spec in enumerate(scene.passes):
+        name = f"render{gpu}" if len(scene.passes) == 1 else f"render{gpu}.{spec.name}"
+        deps: tuple[Dep, ...]
+        if k == 0:
+            deps = (Dep("present", -fif),) + ((Dep(f"d2h{gpu}", -buffers),) if gpu > 0 else ())
+        else:
+            deps = (Dep(out[-1].name),)
+        out.append(PassTask(name, "render", queue, spec.kind,
+                            MappingProxyType(pass_work(spec, pixels, share)), deps))
+    return out

@@ -1,0 +1,268 @@
+"""A simulated GPU: one VkDevice with its queues by family, and timestamped submissions.
+
+Why one class: the runner needs, per simulated GPU, "record this on that queue, wait for these
+semaphores, signal those, and tell me when it ran on the host clock". `Gpu.submit` does exactly
+that: it brackets the recorded work with timestamps (behind full barriers, so the stamps enclose
+the work) and returns a :class:`Submission` whose `timestamps_ns()` are time.monotonic_ns()
+values. Each queue has a lock: VkQueue and VkCommandPool need external synchronization, and the
+runner submits from several Python threads (cffi releases the GIL).
+"""
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+from ..errors import InputError
+from .errors import call, vk
+from .instance import Instance, PhysicalDeviceInfo, QueueFamilyInfo
+from .memory import Buffer, Image
+
+Recorder = Callable[[Any], None]
+QUEUE_KINDS = ("graphics", "compute", "transfer")
+
+
+@dataclass(eq=False)
+class Queue:
+    """One VkQueue with its own command pool and a free list of (cmd, fence, query pool)."""
+
+    gpu: "Gpu"
+    kind: str
+    family: QueueFamilyInfo
+    index: int
+    handle: Any
+    pool: Any
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    free: list[tuple[Any, Any, Any]] = field(default_factory=list)
+
+    @property
+    def dedicated(self) -> bool:
+        """True when this is its own family (a copy engine / async compute), not graphics."""
+        return self.family.kind == self.kind
+
+
+class Semaphore:
+    """A binary VkSemaphore of one device (signal once, wait once)."""
+
+    def __init__(self, gpu: "Gpu"):
+        v = vk()
+        self.gpu = gpu
+        self.handle = call("vkCreateSemaphore", v.vkCreateSemaphore, gpu.device,
+                           v.VkSemaphoreCreateInfo(), None)
+
+    def destroy(self) -> None:
+        if self.handle is not None:
+            vk().vkDestroySemaphore(self.gpu.device, self.handle, None)
+            self.handle = None
+
+
+class Submission:
+    """Work submitted on a queue; `wait()` then `timestamps_ns()` gives its host-clock span."""
+
+    def __init__(self, queue: Queue, slot: tuple[Any, Any, Any], label: str):
+        self.queue, self.label = queue, label
+        self._slot: tuple[Any, Any, Any] | None = slot
+        self._ticks: tuple[int, int] | None = None
+
+    def done(self) -> bool:
+        """True once the GPU finished (never blocks)."""
+        if self._ticks is not None:
+            return True
+        assert self._slot is not None
+        return vk().vkGetFenceStatus(self.queue.gpu.device, self._slot[1]) == vk().VK_SUCCESS
+
+    def wait(self, timeout_ns: int = 60_000_000_000) -> "Submission":
+        """Block until the work finished; reads the timestamps and recycles the slot."""
+        if self._ticks is not None:
+            return self
+        v = vk()
+        assert self._slot is not None
+        cmd, fence, pool = self._slot
+        dev = self.queue.gpu.device
+        call("vkWaitForFences", v.vkWaitForFences, dev, 1, [fence], v.VK_TRUE, timeout_ns)
+        data = v.ffi.new("uint64_t[2]")
+        call("vkGetQueryPoolResults", v.vkGetQueryPoolResults, dev, pool, 0, 2, 16, data, 8,
+             v.VK_QUERY_RESULT_64_BIT | v.VK_QUERY_RESULT_WAIT_BIT)
+        self._ticks = (int(data[0]), int(data[1]))
+        call("vkResetFences", v.vkResetFences, dev, 1, [fence])
+        with self.queue.lock:
+            self.queue.free.append(self._slot)
+        self._slot = None
+        return self
+
+    def raw_ticks(self) -> tuple[int, int]:
+        """Device timestamp ticks (start, end)."""
+        self.wait()
+        assert self._ticks is not None
+        return self._ticks
+
+    def timestamps_ns(self) -> tuple[int, int]:
+        """(start, end) on the host clock, time.monotonic_ns() based."""
+        start, end = self.raw_ticks()
+        clock = self.queue.gpu.clock
+        return clock.to_host_ns(start), clock.to_host_ns(end)
+
+    @property
+    def duration_ns(self) -> int:
+        start, end = self.raw_ticks()
+        return int(round((end - start) * self.queue.gpu.info.timestamp_period))
+
+
+class Gpu:
+    """One simulated GPU: a VkDevice on `instance.physical_handles[physical_index]`.
+
+    `queues` maps graphics/compute/transfer to a Queue; compute and transfer fall back to the
+    graphics queue when the device has no dedicated family (lavapipe has one family).
+    """
+
+    def __init__(self, instance: Instance, physical_index: int = 0, name: str = "gpu0", *,
+                 owns_instance: bool = False):
+        v = vk()
+        if not 0 <= physical_index < len(instance.devices):
+            raise InputError(f"no physical device {physical_index}; found "
+                             f"{len(instance.devices)}")
+        self.instance, self.name, self.owns_instance = instance, name, owns_instance
+        self.physical = instance.physical_handles[physical_index]
+        self.info: PhysicalDeviceInfo = instance.devices[physical_index]
+        fams = self.info.queue_families
+        chosen: dict[str, QueueFamilyInfo] = {}
+        for kind in QUEUE_KINDS:
+            fam = next((f for f in fams if f.kind == kind and f.timestamp_valid_bits), None)
+            if fam is not None:
+                chosen[kind] = fam
+        if "graphics" not in chosen:
+            raise InputError(f"{self.info.name}: no graphics queue family with timestamps")
+        self.family_indices = sorted({f.index for f in chosen.values()})
+        prio = [1.0]
+        qinfos = [v.VkDeviceQueueCreateInfo(queueFamilyIndex=i, queueCount=1,
+                                            pQueuePriorities=prio) for i in self.family_indices]
+        self.enabled_extensions = [e for e in (self.info.calibrated_timestamps,) if e]
+        exts = self.enabled_extensions
+        info = v.VkDeviceCreateInfo(queueCreateInfoCount=len(qinfos), pQueueCreateInfos=qinfos,
+                                    ppEnabledExtensionNames=exts or None)
+        self.device = call("vkCreateDevice", v.vkCreateDevice, self.physical, info, None)
+        self.memory_properties = v.vkGetPhysicalDeviceMemoryProperties(self.physical)
+        by_family: dict[int, Queue] = {}
+        self.queues: dict[str, Queue] = {}
+        for kind in QUEUE_KINDS:
+            fam = chosen.get(kind, chosen["graphics"])
+            if fam.index not in by_family:
+                pool_info = v.VkCommandPoolCreateInfo(
+                    flags=v.VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT,
+                    queueFamilyIndex=fam.index)
+                pool = call("vkCreateCommandPool", v.vkCreateCommandPool, self.device,
+                            pool_info, None)
+                handle = v.vkGetDeviceQueue(self.device, fam.index, 0)
+                by_family[fam.index] = Queue(self, fam.kind, fam, 0, handle, pool)
+            self.queues[kind] = by_family[fam.index]
+        self._semaphores: list[Semaphore] = []
+        from .timestamps import calibrate  # noqa: PLC0415 - needs a working Gpu
+        self.clock = calibrate(self)
+
+    # -- queues and sync ---------------------------------------------------------------------
+    def queue(self, kind: str | Queue) -> Queue:
+        if isinstance(kind, Queue):
+            return kind
+        if kind not in self.queues:
+            raise InputError(f"unknown queue {kind!r}; expected one of {', '.join(QUEUE_KINDS)}")
+        return self.queues[kind]
+
+    def has_dedicated(self, kind: str) -> bool:
+        """True if `kind` (compute/transfer) has its own queue family on this device."""
+        return self.queue(kind).family.kind == kind
+
+    def semaphore(self) -> Semaphore:
+        sem = Semaphore(self)
+        self._semaphores.append(sem)
+        return sem
+
+    def proc(self, name: str) -> Any:
+        return call("vkGetDeviceProcAddr", vk().vkGetDeviceProcAddr, self.device, name)
+
+    # -- resources ---------------------------------------------------------------------------
+    def buffer(self, size: int, *, host_visible: bool, usage: int | None = None) -> Buffer:
+        return Buffer(self, size, host_visible=host_visible, usage=usage)
+
+    def image(self, width: int, height: int, fmt: str = "R8G8B8A8_UNORM") -> Image:
+        return Image(self, width, height, fmt)
+
+    # -- submission --------------------------------------------------------------------------
+    def _slot(self, q: Queue) -> tuple[Any, Any, Any]:
+        if q.free:
+            return q.free.pop()
+        v = vk()
+        alloc = v.VkCommandBufferAllocateInfo(commandPool=q.pool,
+                                              level=v.VK_COMMAND_BUFFER_LEVEL_PRIMARY,
+                                              commandBufferCount=1)
+        cmd = call("vkAllocateCommandBuffers", v.vkAllocateCommandBuffers, self.device, alloc)[0]
+        fence = call("vkCreateFence", v.vkCreateFence, self.device, v.VkFenceCreateInfo(), None)
+        qp_info = v.VkQueryPoolCreateInfo(queryType=v.VK_QUERY_TYPE_TIMESTAMP, queryCount=2)
+        pool = call("vkCreateQueryPool", v.vkCreateQueryPool, self.device, qp_info, None)
+        return cmd, fence, pool
+
+    def submit(self, queue: str | Queue, record: Recorder, *, wait: Sequence[Semaphore] = (),
+               signal: Sequence[Semaphore] = (), label: str = "") -> Submission:
+        """Record `record(cmd)` between two timestamps and submit it on `queue`."""
+        v = vk()
+        q = self.queue(queue)
+        all_cmds = v.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT
+        mem = v.VK_ACCESS_MEMORY_READ_BIT | v.VK_ACCESS_MEMORY_WRITE_BIT
+        barrier = v.VkMemoryBarrier(srcAccessMask=mem, dstAccessMask=mem)
+        barriers = [barrier]
+        with q.lock:
+            slot = self._slot(q)
+            cmd, fence, pool = slot
+            begin = v.VkCommandBufferBeginInfo(flags=v.VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT)
+            call("vkBeginCommandBuffer", v.vkBeginCommandBuffer, cmd, begin)
+            v.vkCmdResetQueryPool(cmd, pool, 0, 2)
+            v.vkCmdPipelineBarrier(cmd, all_cmds, all_cmds, 0, 1, barriers, 0, None, 0, None)
+            v.vkCmdWriteTimestamp(cmd, v.VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, pool, 0)
+            v.vkCmdPipelineBarrier(cmd, all_cmds, all_cmds, 0, 1, barriers, 0, None, 0, None)
+            record(cmd)
+            v.vkCmdPipelineBarrier(cmd, all_cmds, all_cmds, 0, 1, barriers, 0, None, 0, None)
+            v.vkCmdWriteTimestamp(cmd, v.VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, pool, 1)
+            call("vkEndCommandBuffer", v.vkEndCommandBuffer, cmd)
+            wait_handles = [s.handle for s in wait]
+            stages = [all_cmds] * len(wait_handles)
+            signal_handles = [s.handle for s in signal]
+            cmds = [cmd]
+            info = v.VkSubmitInfo(waitSemaphoreCount=len(wait_handles),
+                                  pWaitSemaphores=wait_handles or None,
+                                  pWaitDstStageMask=stages or None, commandBufferCount=1,
+                                  pCommandBuffers=cmds, signalSemaphoreCount=len(signal_handles),
+                                  pSignalSemaphores=signal_handles or None)
+            infos = [info]
+            call("vkQueueSubmit", v.vkQueueSubmit, q.handle, 1, infos, fence)
+        return Submission(q, slot, label)
+
+    def run(self, queue: str | Queue, record: Recorder, label: str = "") -> Submission:
+        """Submit and wait: for set-up work and measurements."""
+        return self.submit(queue, record, label=label).wait()
+
+    def wait_idle(self) -> None:
+        call("vkDeviceWaitIdle", vk().vkDeviceWaitIdle, self.device)
+
+    def close(self) -> None:
+        """Destroy the device (after its resources), and the instance if this Gpu owns it."""
+        v = vk()
+        if self.device is None:
+            return
+        self.wait_idle()
+        for sem in self._semaphores:
+            sem.destroy()
+        for q in {id(q): q for q in self.queues.values()}.values():
+            for _cmd, fence, pool in q.free:
+                v.vkDestroyFence(self.device, fence, None)
+                v.vkDestroyQueryPool(self.device, pool, None)
+            q.free.clear()
+            v.vkDestroyCommandPool(self.device, q.pool, None)
+        v.vkDestroyDevice(self.device, None)
+        self.device = None
+        if self.owns_instance:
+            self.instance.close()
+
+    def __enter__(self) -> "Gpu":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -42,11 +42,11 @@ class LinkProfile:
     lanes: int
     latency_ns: int
     efficiency: float = 1.0
-    h2d_gbps_measured: float | None = None
-    d2h_gbps_measured: float | None = None
+    h2d_gbps: float | None = None
+    d2h_gbps: float | None = None
 
     def bandwidth_gbps(self, path: str) -> float:
-        measured = self.h2d_gbps_measured if path == "h2d" else self.d2h_gbps_measured
+        measured = self.h2d_gbps if path == "h2d" else self.d2h_gbps
         if measured is not None:
             return measured
         return PCIE_LANE_GBPS[self.pcie_gen] * self.lanes * self.efficiency
@@ -165,8 +165,8 @@ def _parse_link(t: Table) -> LinkProfile:
         lanes=t.get("lanes", int, choices=(1, 2, 4, 8, 16, 32)),
         latency_ns=t.get("latency_ns", int, minimum=0),
         efficiency=t.get("efficiency", float, 1.0, above=0),
-        h2d_gbps_measured=t.get("h2d_gbps_measured", float, None, above=0),
-        d2h_gbps_measured=t.get("d2h_gbps_measured", float, None, above=0),
+        h2d_gbps=t.get("h2d_gbps", float, None, above=0),
+        d2h_gbps=t.get("d2h_gbps", float, None, above=0),
     )
     if link.efficiency > 1:
         raise t.error("efficiency", f"must be <= 1, got {link.efficiency}")

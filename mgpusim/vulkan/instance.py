@@ -196,8 +196,8 @@ class Instance:
             messageSeverity=(lib.VK_DEBUG_UTILS_MESSAGE_SEVERITY_WARNING_BIT_EXT
                              | lib.VK_DEBUG_UTILS_MESSAGE_SEVERITY_ERROR_BIT_EXT),
             messageType=(lib.VK_DEBUG_UTILS_MESSAGE_TYPE_GENERAL_BIT_EXT
-                         | lib.VK_DEBUG_UTILS_MESSAGE_TYPE_VALIDATION_BIT_EXT
-                         | lib.VK_DEBUG_UTILS_MESSAGE_TYPE_PERFORMANCE_BIT_EXT),
+                         | lib.VK_DEBUG_UTILS_MESSAGE_TYPE_VALIDATION_BIT_EXT),
+            # performance warnings left out: GENERAL layouts are a deliberate choice (memory.py)
             pfnUserCallback=_messenger_callback)
         create = call("vkGetInstanceProcAddr", v.vkGetInstanceProcAddr, self.handle,
                       "vkCreateDebugUtilsMessengerEXT")

@@ -1,0 +1,74 @@
+"""`mgpusim measure`: time a pass of the Vulkan pass library over a parameter sweep.
+
+Writes a tidy table (CSV or Parquet by extension: device, gpu, pass, one column per parameter,
+repetition, duration_ns, bytes) and FILE.machine.json (CPU, driver, threads, library versions).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from ..errors import InputError
+
+
+def _list() -> int:
+    from ..vulkan.measure import PASSES  # noqa: PLC0415 - keeps `--help` free of numpy/pandas
+
+    for spec in PASSES.values():
+        params = ", ".join(f"{k}={v}" for k, v in spec.params.items())
+        print(f"{spec.name:22s} {params}\n{'':22s} {spec.doc}")
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.list:
+        return _list()
+    if not args.pass_name or not args.out:
+        raise InputError("need --pass NAME and --out FILE (or --list)")
+    from tqdm import tqdm  # noqa: PLC0415
+
+    from ..vulkan import measure as m  # noqa: PLC0415
+    from ..vulkan.machine import close_gpus, machine_record, make_gpus  # noqa: PLC0415
+
+    sweeps = m.parse_sweeps(args.pass_name, args.sweep or [])
+    if not args.out.lower().endswith((".csv", ".parquet", ".pq")):
+        raise InputError("expected a .csv or .parquet file", file=args.out, field="--out")
+    combos = len(m.combinations(args.pass_name, sweeps))
+    lp = [int(t) for t in args.lp_threads.split(",")] if args.lp_threads else None
+    gpus = [] if m.spec(args.pass_name).host else make_gpus(args.gpus, lp_threads=lp,
+                                                             physical=args.device)
+    try:
+        with tqdm(total=combos, desc=args.pass_name, unit="point", file=sys.stderr,
+                  disable=args.quiet) as bar:
+            df = m.measure(args.pass_name, gpus, sweeps, reps=args.reps, warmup=args.warmup,
+                           progress=bar.update)
+        m.write_table(df, args.out)
+        record = machine_record(gpus, {"command": sys.argv, "pass": args.pass_name,
+                                       "sweeps": sweeps, "reps": args.reps,
+                                       "warmup": args.warmup})
+    finally:
+        close_gpus(gpus)
+    with open(args.out + ".machine.json", "w", encoding="utf-8") as fh:
+        json.dump(record, fh, indent=2, default=str)
+    if not args.quiet:
+        print(f"wrote {len(df)} rows to {args.out} (+ .machine.json)")
+    return 0
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("measure", help="time Vulkan passes over parameter sweeps",
+                              description=__doc__)
+    p.add_argument("--list", action="store_true", help="list the passes and their parameters")
+    p.add_argument("--pass", dest="pass_name", metavar="NAME", help="pass to measure")
+    p.add_argument("--sweep", action="append", metavar="PARAM=V1,V2,...",
+                   help="values of one parameter (repeatable; the product is measured)")
+    p.add_argument("--reps", type=int, default=5, help="measured repetitions (default 5)")
+    p.add_argument("--warmup", type=int, default=2, help="discarded warm-up runs (default 2)")
+    p.add_argument("--gpus", type=int, default=1, help="simulated GPUs run at once (default 1)")
+    p.add_argument("--lp-threads", metavar="N[,N...]",
+                   help="lavapipe LP_NUM_THREADS per simulated GPU (one value: all)")
+    p.add_argument("--device", type=int, help="physical device index for every simulated GPU")
+    p.add_argument("--out", metavar="FILE", help="output .csv or .parquet")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)

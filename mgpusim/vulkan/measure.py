@@ -1,0 +1,163 @@
+"""Microbenchmark sweeps of the pass library: the data the cost-model calibration fits.
+
+Why this shape: one tidy row per (simulated GPU, parameter combination, repetition), with every
+parameter of the pass as a column (defaults filled in), so the calibration can group by any
+knob. Warm-up runs (first-use page faults, shader JIT) are run and discarded; every measured
+repetition is kept. With several GPUs every repetition is submitted to all of them at once, so
+the table shows their contention (on lavapipe they share the CPU).
+"""
+from __future__ import annotations
+
+import itertools
+import re
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable, Sequence
+
+import pandas as pd
+
+from ..errors import InputError
+from .copies import CopyD2D, CopyD2H, CopyH2D
+from .device import Gpu
+from .hostcopy import HostCopy
+from .particles import ParticleUpdate
+from .passes import CompositeSortFirst, CompositeSortLast, FragmentLoop, Mesh, ParticleRender
+
+
+@dataclass(frozen=True)
+class PassSpec:
+    """A measurable pass: its parameters with defaults and how to build it on a Gpu."""
+
+    name: str
+    params: dict[str, int | str]
+    build: Callable[..., Any]
+    doc: str
+    host: bool = False
+
+
+PASSES: dict[str, PassSpec] = {s.name: s for s in (
+    PassSpec("fragment_loop", {"width": 1024, "height": 768, "iterations": 1000},
+             lambda g, p: FragmentLoop(g, p["width"], p["height"], p["iterations"]),
+             "full-screen rectangle, fragment shader loops ITER times"),
+    PassSpec("mesh", {"width": 1024, "height": 768, "triangles": 100_000},
+             lambda g, p: Mesh(g, p["width"], p["height"], p["triangles"]),
+             "T triangles of a generated torus into RGBA8 + D16"),
+    PassSpec("composite_sort_first", {"width": 1024, "height": 768, "inputs": 2},
+             lambda g, p: CompositeSortFirst(g, p["width"], p["height"], p["inputs"]),
+             "one rectangle per contribution sampling its tile"),
+    PassSpec("composite_sort_last", {"width": 1024, "height": 768, "inputs": 2},
+             lambda g, p: CompositeSortLast(g, p["width"], p["height"], p["inputs"]),
+             "full-screen quad per contribution, colour + depth, depth-tested"),
+    PassSpec("particle_update", {"particles": 65_536},
+             lambda g, p: ParticleUpdate(g, p["particles"]),
+             "compute: update P particles and build 6-vertex billboards"),
+    PassSpec("particle_render", {"width": 1024, "height": 768, "particles": 65_536},
+             lambda g, p: ParticleRender(g, p["width"], p["height"], p["particles"]),
+             "draw P additive billboards"),
+    PassSpec("copy_d2h", {"bytes": 1 << 22, "queue": "graphics"},
+             lambda g, p: CopyD2H(g, p["bytes"], p["queue"]), "image -> host-visible buffer"),
+    PassSpec("copy_h2d", {"bytes": 1 << 22, "queue": "graphics"},
+             lambda g, p: CopyH2D(g, p["bytes"], p["queue"]), "host-visible buffer -> image"),
+    PassSpec("copy_d2d", {"bytes": 1 << 22, "queue": "graphics"},
+             lambda g, p: CopyD2D(g, p["bytes"], p["queue"]), "device buffer -> device buffer"),
+    PassSpec("host_copy", {"bytes": 1 << 22, "threads": 1},
+             lambda g, p: HostCopy(p["bytes"], p["threads"]),
+             "host -> host on K threads, chunks >= 512 KiB", host=True),
+)}
+
+_SUFFIX = {"": 1, "k": 1000, "m": 10**6, "g": 10**9, "kib": 1 << 10, "mib": 1 << 20,
+           "gib": 1 << 30, "ki": 1 << 10, "mi": 1 << 20, "gi": 1 << 30}
+
+
+def parse_value(text: str, default: int | str, field: str) -> int | str:
+    """An int (with optional k/M/G or KiB/MiB/GiB suffix) where the default is an int."""
+    if isinstance(default, str):
+        return text
+    m = re.fullmatch(r"\s*(\d+)\s*([A-Za-z]*)\s*", text)
+    if not m or m.group(2).lower() not in _SUFFIX:
+        raise InputError(f"expected an integer (optionally with k/M/G or KiB/MiB/GiB), "
+                         f"got {text!r}", field=field)
+    return int(m.group(1)) * _SUFFIX[m.group(2).lower()]
+
+
+def spec(name: str) -> PassSpec:
+    if name not in PASSES:
+        raise InputError(f"unknown pass {name!r}; known: {', '.join(PASSES)}", field="--pass")
+    return PASSES[name]
+
+
+def parse_sweeps(pass_name: str, sweeps: Iterable[str]) -> dict[str, list[int | str]]:
+    """`PARAM=V1,V2,...` strings -> {param: [values]} checked against the pass's parameters."""
+    params = spec(pass_name).params
+    out: dict[str, list[int | str]] = {}
+    for item in sweeps:
+        key, sep, values = item.partition("=")
+        key = key.strip()
+        if not sep or not values:
+            raise InputError(f"expected PARAM=V1,V2,..., got {item!r}", field="--sweep")
+        if key not in params:
+            raise InputError(f"{pass_name} has no parameter {key!r}; it has "
+                             f"{', '.join(params)}", field="--sweep")
+        out[key] = [parse_value(v, params[key], key) for v in values.split(",")]
+    return out
+
+
+def combinations(pass_name: str, sweeps: dict[str, list[int | str]]) -> list[dict[str, Any]]:
+    params = spec(pass_name).params
+    keys = list(sweeps)
+    return [{**params, **dict(zip(keys, combo))}
+            for combo in itertools.product(*(sweeps[k] for k in keys))]
+
+
+def measure(pass_name: str, gpus: Sequence[Gpu], sweeps: dict[str, list[int | str]], *,
+            reps: int = 5, warmup: int = 2,
+            progress: Callable[[int], None] | None = None) -> pd.DataFrame:
+    """Run every combination on every GPU; one row per GPU x combination x repetition."""
+    if reps < 1 or warmup < 0:
+        raise InputError(f"need reps >= 1 and warmup >= 0, got {reps}, {warmup}")
+    ps = spec(pass_name)
+    rows: list[dict[str, Any]] = []
+    for params in combinations(pass_name, sweeps):
+        if ps.host:
+            work = ps.build(None, params)
+            try:
+                for rep in range(-warmup, reps):
+                    start, end = work.run()
+                    if rep >= 0:
+                        rows.append({"device": "host", "gpu": "host", "pass": pass_name,
+                                     **params, "repetition": rep, "duration_ns": end - start,
+                                     "bytes": work.bytes})
+            finally:
+                work.destroy()
+        else:
+            works = [ps.build(g, params) for g in gpus]
+            try:
+                for rep in range(-warmup, reps):
+                    subs = [g.submit(w.queue,
+                                     w.record, label=pass_name) for g, w in zip(gpus, works)]
+                    for g, w, s in zip(gpus, works, subs):
+                        s.wait()
+                        if rep >= 0:
+                            rows.append({"device": g.info.name, "gpu": g.name, "pass": pass_name,
+                                         **params, "repetition": rep,
+                                         "duration_ns": s.duration_ns, "bytes": w.bytes})
+            finally:
+                for w in works:
+                    w.destroy()
+        if progress is not None:
+            progress(1)
+    return pd.DataFrame(rows)
+
+
+def write_table(df: pd.DataFrame, path: str) -> None:
+    """CSV or Parquet by the file's extension."""
+    lower = path.lower()
+    if lower.endswith(".csv"):
+        df.to_csv(path, index=False)
+    elif lower.endswith((".parquet", ".pq")):
+        try:
+            df.to_parquet(path, index=False)
+        except ImportError as exc:
+            raise InputError(f"writing Parquet needs pyarrow ({exc}); use a .csv file",
+                             file=path) from None
+    else:
+        raise InputError("expected a .csv or .parquet file", file=path, field="--out")

@@ -1,0 +1,96 @@
+"""Particle update + billboard build (DOMAIN.md 3.3) as a compute pass, and its numpy reference.
+
+Why a numpy reference here: the tests compare the shader with it, and the runner can use it to
+check offloaded particle results. Layout per particle (std430): pos, dir (w = velocity),
+spawn (w = billboard half-size), life (x = alive, y = maxLife) = 64 B of state; the pass writes
+2 float4 to the calc buffer and 12 float4 (6 vertices x (pos, uv)) = 192 B to the vertex buffer.
+"""
+from __future__ import annotations
+
+import struct
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..errors import InputError
+from .copies import upload
+from .errors import vk
+from .pipelines import compute_pipeline
+
+if TYPE_CHECKING:
+    from .device import Gpu
+
+STATE_BYTES, CALC_BYTES, VERTEX_BYTES = 64, 32, 192
+RIGHT = (1.0, 0.0, 0.0, 0.0)
+UP = (0.0, 1.0, 0.0, 0.0)
+_CORNERS = np.array([(-1, -1), (1, -1), (-1, 1), (1, -1), (1, 1), (-1, 1)], dtype=np.float32)
+
+
+def initial_state(particles: int, seed: int = 0) -> np.ndarray:
+    """float32 (P, 4, 4): pos, dir+vel, spawn+size, life; a reproducible fountain."""
+    rng = np.random.default_rng(seed)
+    s = np.zeros((particles, 4, 4), dtype=np.float32)
+    s[:, 3, 1] = rng.uniform(0.5, 2.0, particles)            # maxLife
+    s[:, 3, 0] = rng.uniform(0.0, 1.0, particles) * s[:, 3, 1]  # alive
+    s[:, 2, :3] = rng.uniform(-0.3, 0.3, (particles, 3))     # spawn position
+    s[:, 2, 3] = 0.02                                         # half-size
+    d = rng.normal(size=(particles, 3)) + (0, 2, 0)
+    s[:, 1, :3] = d / np.linalg.norm(d, axis=1, keepdims=True)
+    s[:, 1, 3] = rng.uniform(0.2, 0.6, particles)             # velocity
+    s[:, 0, :3] = s[:, 2, :3] + s[:, 1, :3] * s[:, 1, 3:4] * s[:, 3, 0:1]
+    s[:, 0, 3] = 1.0
+    return s
+
+
+def reference_update(state: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """numpy version of particles.comp: (new state, calc (P,2,4), vertices (P,12,4))."""
+    s = state.astype(np.float32).copy()
+    dt32 = np.float32(dt)
+    if dt32 > 0:
+        s[:, 3, 0] += dt32
+        dead = s[:, 3, 0] > s[:, 3, 1]
+        moved = s[:, 0, :3] + s[:, 1, :3] * s[:, 1, 3:4] * dt32
+        s[:, 0, :3] = np.where(dead[:, None], s[:, 2, :3], moved)
+        s[:, 0, 3] = np.where(dead, s[:, 2, 3], s[:, 0, 3])
+        s[:, 3, 0] = np.where(dead, 0.0, s[:, 3, 0])
+    calc = np.zeros((len(s), 2, 4), dtype=np.float32)
+    calc[:, 0] = s[:, 0]
+    calc[:, 1, :2] = s[:, 3, :2]
+    right, up = np.array(RIGHT[:3], np.float32), np.array(UP[:3], np.float32)
+    offs = (_CORNERS[:, :1] * right + _CORNERS[:, 1:] * up)[None] * s[:, 2, 3][:, None, None]
+    verts = np.zeros((len(s), 6, 2, 4), dtype=np.float32)
+    verts[:, :, 0, :3] = s[:, None, 0, :3] + offs
+    verts[:, :, 0, 3] = 1.0
+    verts[:, :, 1, :2] = _CORNERS * 0.5 + 0.5
+    return s, calc, verts.reshape(len(s), 12, 4)
+
+
+class ParticleUpdate:
+    """The compute pass: update P particles by `dt` and build their billboards."""
+
+    queue = "compute"
+
+    def __init__(self, gpu: "Gpu", particles: int, *, dt: float = 1 / 60, seed: int = 0,
+                 state: np.ndarray | None = None):
+        if particles <= 0:
+            raise InputError(f"must be positive, got {particles}", field="particles")
+        self.gpu, self.particles, self.dt = gpu, particles, dt
+        self.state = gpu.buffer(particles * STATE_BYTES, host_visible=False)
+        self.calc = gpu.buffer(particles * CALC_BYTES, host_visible=False)
+        self.vertices = gpu.buffer(particles * VERTEX_BYTES, host_visible=False)
+        upload(gpu, self.state, initial_state(particles, seed) if state is None else state)
+        self.pipeline = compute_pipeline(gpu, "particles.comp", buffers=3, push_size=40)
+        self.set = self.pipeline.descriptor_set([self.state, self.calc, self.vertices])
+        self._pc = struct.pack("8ffI", *RIGHT, *UP, dt, particles)
+        self.bytes = particles * (STATE_BYTES + CALC_BYTES + VERTEX_BYTES)
+
+    def record(self, cmd: Any) -> None:
+        v = vk()
+        self.pipeline.bind(cmd, self.set)
+        self.pipeline.push(cmd, v.VK_SHADER_STAGE_COMPUTE_BIT, self._pc)
+        v.vkCmdDispatch(cmd, -(-self.particles // 64), 1, 1)
+
+    def destroy(self) -> None:
+        self.pipeline.destroy()
+        for buf in (self.state, self.calc, self.vertices):
+            buf.destroy()

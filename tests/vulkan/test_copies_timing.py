@@ -1,0 +1,106 @@
+"""Copies move the right bytes; timestamps sit on the host clock and grow with the work;
+semaphores order work; simulated GPUs are separate instances."""
+from __future__ import annotations
+
+import statistics
+import time
+
+import numpy as np
+import pytest
+
+from mgpusim.vulkan.copies import (CopyD2D, CopyD2H, CopyH2D, copy_image_to_buffer, download,
+                                   upload)
+from mgpusim.vulkan.hostcopy import MIN_CHUNK, HostCopier
+from mgpusim.vulkan.machine import close_gpus, make_gpus
+from mgpusim.vulkan.passes import FragmentLoop, Mesh
+
+pytestmark = pytest.mark.vulkan
+
+
+def test_h2d_then_d2h_round_trip(gpu):
+    h2d = CopyH2D(gpu, 64 * 1024, queue="transfer")  # falls back to graphics on lavapipe
+    d2h = CopyD2H(gpu, 64 * 1024)
+    pattern = np.random.default_rng(0).integers(0, 256, h2d.bytes, dtype=np.uint8)
+    h2d.buffer.array[:] = pattern
+    gpu.run(h2d.queue, h2d.record)
+    gpu.run("graphics", lambda cmd: copy_image_to_buffer(cmd, h2d.image, d2h.buffer))
+    assert np.array_equal(d2h.buffer.array, pattern)
+    h2d.destroy()
+    d2h.destroy()
+
+
+def test_d2d_copies_buffer(gpu):
+    c = CopyD2D(gpu, 10_000)
+    data = np.arange(10_000, dtype=np.uint32).astype(np.uint8)
+    upload(gpu, c.src, data)
+    gpu.run(c.queue, c.record)
+    assert np.array_equal(download(gpu, c.dst), data)
+    c.destroy()
+
+
+def test_host_copy_chunks_and_content():
+    copier = HostCopier(3)
+    assert all(b - a >= MIN_CHUNK for a, b in copier.chunks(4 * MIN_CHUNK)[:-1])
+    assert len(copier.chunks(100)) == 1
+    src = np.random.default_rng(0).integers(0, 256, 3 * MIN_CHUNK + 5, dtype=np.uint8)
+    dst = np.zeros_like(src)
+    start, end = copier.copy(dst, src)
+    assert np.array_equal(dst, src) and end >= start
+    copier.close()
+
+
+def test_timestamps_are_host_monotonic_ns(gpu):
+    p = FragmentLoop(gpu, 16, 16, 10)
+    before = time.monotonic_ns()
+    sub = gpu.submit("graphics", p.record)
+    start, end = sub.wait().timestamps_ns()
+    after = time.monotonic_ns()
+    assert before <= start <= end <= after
+    assert sub.duration_ns == end - start
+    p.destroy()
+
+
+def _median(gpu, work, reps=3):
+    gpu.run(work.queue, work.record)  # warm-up
+    return statistics.median(gpu.run(work.queue, work.record).duration_ns for _ in range(reps))
+
+
+def test_ten_times_iterations_take_clearly_longer(gpu):
+    small, big = FragmentLoop(gpu, 64, 64, 300), FragmentLoop(gpu, 64, 64, 3000)
+    t_small, t_big = _median(gpu, small), _median(gpu, big)
+    assert t_big > 3 * t_small, (t_small, t_big)
+    small.destroy()
+    big.destroy()
+
+
+def test_ten_times_triangles_take_clearly_longer(gpu):
+    small, big = Mesh(gpu, 64, 64, 3000), Mesh(gpu, 64, 64, 30000)
+    t_small, t_big = _median(gpu, small), _median(gpu, big)
+    assert t_big > 3 * t_small, (t_small, t_big)
+    small.destroy()
+    big.destroy()
+
+
+def test_semaphore_orders_submissions(gpu):
+    a, b = FragmentLoop(gpu, 32, 32, 2000), FragmentLoop(gpu, 16, 16, 1)
+    sem = gpu.semaphore()
+    first = gpu.submit("graphics", a.record, signal=[sem])
+    second = gpu.submit("graphics", b.record, wait=[sem])
+    assert second.wait().timestamps_ns()[0] >= first.wait().timestamps_ns()[1]
+    a.destroy()
+    b.destroy()
+
+
+def test_simulated_gpus_are_separate_instances_with_thread_counts():
+    gpus = make_gpus(2, lp_threads=[1, 2])
+    try:
+        assert gpus[0].instance is not gpus[1].instance
+        assert [g.instance.lp_num_threads for g in gpus] == [1, 2]
+        works = [FragmentLoop(g, 32, 32, 500) for g in gpus]
+        subs = [g.submit("graphics", w.record) for g, w in zip(gpus, works)]
+        spans = [s.wait().timestamps_ns() for s in subs]
+        assert all(e > s for s, e in spans)
+        for w in works:
+            w.destroy()
+    finally:
+        close_gpus(gpus)

@@ -45,7 +45,8 @@ def parse_experiment(data: dict, file: str, base: Path = Path("."),
     top = Table(data, file)
     name = top.get("name", str, Path(file).stem)
     top.get("description", str, "")
-    profile_ref = top.get("profile", str) if profile is None else None
+    # A profile given by the caller (--profile, what-ifs) replaces the file's reference.
+    profile_ref = top.get("profile", str) if profile is None else top.get("profile", str, None)
     if isinstance(profile, HardwareProfile):
         prof = profile
     else:

@@ -1,0 +1,89 @@
+"""Timeline pictures: one row per GPU queue, copy engine, host thread and link direction.
+
+Works on any trace in the common schema; `frames` limits the picture to a window of frames
+so that long runs stay readable. Matplotlib only, no display needed (Agg backend).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import pandas as pd  # noqa: E402
+
+STEP_COLOURS = {
+    "render": "#4c72b0", "d2h": "#dd8452", "host_copy": "#937860", "h2d": "#55a868",
+    "composite": "#c44e52", "present": "#8172b3", "link": "#bbbbbb",
+}
+
+
+def _rows(trace: pd.DataFrame) -> list[str]:
+    labels = (trace["device"].astype(str) + "." + trace["engine"].astype(str)).unique().tolist()
+
+    def key(label: str) -> tuple:
+        dev, _, eng = label.partition(".")
+        num = int(eng[6:]) if eng.startswith("thread") and eng[6:].isdigit() else -1
+        return (dev == "host", dev, eng.startswith("link"), num, eng)
+    return sorted(labels, key=key)
+
+
+def draw_timeline(ax, trace: pd.DataFrame, links: pd.DataFrame | None = None,
+                  title: str = "", frames: Sequence[int] | None = None) -> None:
+    """Draw one timeline on `ax` (time in ms on x)."""
+    df = trace
+    if frames is not None:
+        df = df[df["frame"].isin(list(frames))]
+    if len(df) == 0:
+        ax.set_title(title + " (empty)")
+        return
+    lo, hi = int(df["start_ns"].min()), int(df["end_ns"].max())
+    parts = [df.assign(label=df["device"].astype(str) + "." + df["engine"].astype(str))]
+    if links is not None and len(links):
+        lk = links[(links["end_ns"] > lo) & (links["start_ns"] < hi)]
+        parts.append(pd.DataFrame({"label": lk["channel"].astype(str).map(lambda c: _link_label(c)),
+                                   "start_ns": lk["start_ns"].clip(lo, hi), "end_ns": lk["end_ns"].clip(lo, hi),
+                                   "step": "link", "frame": -1}))
+    both = pd.concat(parts, ignore_index=True)
+    rows = _rows(both.assign(device=both["label"].str.partition(".")[0], engine=both["label"].str.partition(".")[2]))
+    y = {label: i for i, label in enumerate(reversed(rows))}
+    for step, group in both.groupby("step"):
+        for label, g2 in group.groupby("label"):
+            sp = [((s - lo) / 1e6, max((e - s) / 1e6, 1e-6)) for s, e in zip(g2["start_ns"], g2["end_ns"])]
+            ax.broken_barh(sp, (y[label] - 0.4, 0.8), facecolors=STEP_COLOURS.get(str(step), "#999999"),
+                           edgecolor="black", linewidth=0.2, label=str(step))
+    ax.set_yticks(range(len(rows)), list(reversed(rows)), fontsize=7)
+    ax.set_xlabel("time (ms)")
+    ax.set_title(title, fontsize=9)
+    handles, labels = ax.get_legend_handles_labels()
+    uniq = dict(zip(labels, handles))
+    ax.legend(uniq.values(), uniq.keys(), fontsize=6, loc="upper right", ncols=min(len(uniq), 7))
+
+
+def _link_label(channel: str) -> str:
+    if channel.startswith("host."):
+        return "host.memory bw"
+    if channel.startswith("peer"):
+        return f"gpu{channel[4:].split('-')[0]}.link {channel}"
+    dev, _, path = channel.partition(".")
+    return f"{dev}.link {path}"
+
+
+def last_frames(trace: pd.DataFrame, count: int = 4) -> list[int]:
+    top = int(trace["frame"].max()) if len(trace) else 0
+    return list(range(max(0, top - count + 1), top + 1))
+
+
+def timeline_png(trace: pd.DataFrame, path: str | Path, links: pd.DataFrame | None = None,
+                 title: str = "", frames: Sequence[int] | None = None) -> Path:
+    """Write a timeline PNG of `frames` (default: the last four frames)."""
+    frames = last_frames(trace) if frames is None else frames
+    n_rows = max(3, len(_rows(trace)) + (0 if links is None else links["channel"].nunique()))
+    fig, ax = plt.subplots(figsize=(12, 1.2 + 0.3 * n_rows))
+    draw_timeline(ax, trace, links, title, frames)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)

@@ -1,0 +1,128 @@
+"""XR multi-GPU stereo (NVIDIA's xr_multi_gpu Vulkan sample, DOMAIN.md 3.4).
+
+The scene's width x height is ONE eye. With 2 views each GPU renders one eye; with 4 views
+each renders half an eye (the eye's columns split in two). A frame, in four steps:
+(1) each GPU renders its view into device-local colour + depth on its graphics queue and
+releases the images to the transfer queue family (a queue-family hand-off, `handoff_us`);
+(2) the first GPU waits for all; (3) its dedicated transfer queue copies every view (its own
+d2d, the others' over a peer link or through host memory) into the final image; (4) the
+final image is handed to a separate present queue (a second graphics queue) and presented,
+so GPU 0's main graphics queue can start the next frame.
+- weak scaling: frame f+1's rendering starts after frame f's present;
+- strong scaling: it starts as soon as every GPU finished rendering frame f (the transfer is
+  hidden); view targets are then multi-buffered (`buffers`) so rendering never overwrites an
+  image the transfer queue still reads. At most `frames_in_flight` (<= 3) frames in flight.
+- mode 'simulated' runs every view on the first GPU (one graphics queue, views in turn) with
+  d2d copies: the sample's single-GPU stand-in for a multi-GPU machine.
+Latency (start of rendering to present) and frame time are reported separately as always.
+"""
+from __future__ import annotations
+
+from types import MappingProxyType
+
+from ..costs import pass_work
+from ..errors import InputError
+from ..profile import HardwareProfile
+from ..scene import PassSpec, Scene
+from ..tasks import Dep, PassTask, QueueRef, Task
+from .afr import present_queue
+from .base import FrameProgram, Option, ScheduleConfig, queue_or_graphics, register
+from .crossing import Route, cross
+
+MAX_FRAMES_IN_FLIGHT = 3
+
+OPTIONS = {
+    "scaling": Option(str, "weak", "'weak': next frame after the present; 'strong': next frame "
+                      "as soon as all GPUs finished rendering", choices=("weak", "strong")),
+    "mode": Option(str, "multi", "'multi': one view per GPU; 'simulated': every view on GPU 0",
+                   choices=("multi", "simulated")),
+    "views": Option(int, 0, "2 (one eye per view) or 4 (half an eye); 0 = one per GPU",
+                    choices=(0, 2, 4)),
+    "path": Option(str, "auto", "how views reach GPU 0: 'peer', 'host' or 'auto' (peer if the "
+                   "profile has a link)", choices=("auto", "host", "peer")),
+    "host_copy": Option(bool, False, "host-to-host memcpy between staging buffers on the host path"),
+    "handoff_us": Option(float, 0.0, "cost of one queue-family ownership hand-off (a barrier), "
+                         "in reference microseconds (a 'timed' pass)", minimum=0.0),
+    "buffers": Option(int, 2, "view render targets per GPU under strong scaling", minimum=1),
+}
+
+
+@register("xr", "XR stereo: 2 GPUs (an eye each) or 4 (half an eye each), weak or strong scaling",
+          OPTIONS)
+def build_xr(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> FrameProgram:
+    views, simulated = _views(cfg)
+    widths = _split(scene.width, views // 2)
+    pixels = [widths[v % len(widths)] * scene.height for v in range(views)]
+    bpp = scene.color_bytes_per_pixel + scene.depth_bytes_per_pixel
+    route = Route("transfer", cfg.opt("path"), cfg.opt("host_copy"))
+    gpu_of = [0 if simulated else v for v in range(views)]
+    tasks: list[Task] = []
+    for v in range(views):
+        tasks.extend(_render_view(v, gpu_of, scene, pixels[v], cfg))
+    arrivals = []
+    for v in range(views):
+        moved = cross(f"view{v}", profile, gpu_of[v], 0, pixels[v] * bpp,
+                      (Dep(f"release{v}"),), route, pull=True)
+        tasks.extend(moved)
+        arrivals.append(moved[-1].name)
+    pq = present_queue(profile, "separate")
+    tasks.append(_handoff("acquire", pq, cfg, tuple(Dep(a) for a in arrivals)))
+    present = PassSpec("present", "present")
+    tasks.append(PassTask("present", "present", pq, "present",
+                          MappingProxyType(pass_work(present, 2 * scene.pixels)), (Dep("acquire"),)))
+    notes = {"views": views, "mode": cfg.opt("mode"), "scaling": cfg.opt("scaling"),
+             "view_pixels": tuple(pixels), "bytes_per_frame": sum(pixels) * bpp,
+             "transfer_queue": str(queue_or_graphics(profile, 0, "transfer")), "present_queue": str(pq)}
+    return FrameProgram(cfg.name, cfg.gpus, cfg.frames, cfg.warmup_frames, (tuple(tasks),),
+                        notes=MappingProxyType(notes))
+
+
+def _views(cfg: ScheduleConfig) -> tuple[int, bool]:
+    simulated = cfg.opt("mode") == "simulated"
+    views = cfg.opt("views") or cfg.gpus
+    if views not in (2, 4):
+        raise InputError(f"XR renders 2 or 4 views, got {views} (set schedule.views or gpus)",
+                         field="schedule.views")
+    if not simulated and views != cfg.gpus:
+        raise InputError(f"mode 'multi' renders one view per GPU: views = {views} but gpus = "
+                         f"{cfg.gpus} (use mode = 'simulated' to run them all on GPU 0)",
+                         field="schedule.views")
+    if cfg.frames_in_flight > MAX_FRAMES_IN_FLIGHT:
+        raise InputError(f"the XR sample keeps at most {MAX_FRAMES_IN_FLIGHT} frames in flight, "
+                         f"got {cfg.frames_in_flight}", field="schedule.frames_in_flight")
+    return views, simulated
+
+
+def _split(width: int, parts: int) -> list[int]:
+    base = width // parts
+    return [base] * (parts - 1) + [width - base * (parts - 1)]
+
+
+def _render_view(v: int, gpu_of: list[int], scene: Scene, pixels: int,
+                 cfg: ScheduleConfig) -> list[PassTask]:
+    """View v's passes on its GPU's graphics queue, then the release to the transfer queue."""
+    queue = QueueRef(gpu_of[v], "graphics")
+    out: list[PassTask] = []
+    for k, spec in enumerate(scene.passes):
+        deps = _frame_gate(v, len(gpu_of), scene, cfg) if k == 0 else (Dep(out[-1].name),)
+        out.append(PassTask(f"render{v}.{spec.name}", "render", queue, spec.kind,
+                            MappingProxyType(pass_work(spec, pixels)), deps))
+    out.append(_handoff(f"release{v}", queue, cfg, (Dep(out[-1].name),)))
+    return out
+
+
+def _frame_gate(v: int, views: int, scene: Scene, cfg: ScheduleConfig) -> tuple[Dep, ...]:
+    """When view v of frame f may start: weak after present f-1; strong after every view of
+    f-1 rendered and its own target of frame f-buffers was copied out."""
+    fif = cfg.frames_in_flight
+    if cfg.opt("scaling") == "weak":
+        return (Dep("present", -1),)
+    last = scene.passes[-1].name
+    rendered = tuple(Dep(f"render{w}.{last}", -1) for w in range(views))
+    return rendered + (Dep("present", -fif), Dep("acquire", -cfg.opt("buffers")))
+
+
+def _handoff(name: str, queue: QueueRef, cfg: ScheduleConfig, deps: tuple[Dep, ...]) -> PassTask:
+    """A queue-family ownership transfer (release or acquire barrier) as a short timed pass."""
+    spec = PassSpec(name, "timed", MappingProxyType({"duration_ms": cfg.opt("handoff_us") / 1000}))
+    return PassTask(name, "handoff", queue, "timed", MappingProxyType(pass_work(spec, 0)), deps)

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from .costs import CostModel
 from .experiment import Experiment
+from .memory import check_memory, memory_report
 from .results import Result, build_result
 from .schedules import SCHEDULES, ensure_loaded
 from .schedules.base import FrameProgram, check_program
@@ -19,8 +20,29 @@ def build_program(exp: Experiment) -> FrameProgram:
 def simulate(exp: Experiment, record_trace: bool = True) -> Result:
     """Run `exp` in the model. Same experiment, same result, bit for bit."""
     program = build_program(exp)
+    check_memory(program, exp)  # overflow is an input error, reported before time 0
     raw = Engine(program, CostModel(exp.profile), record_trace=record_trace).run()
     config = {"experiment": exp.name, "file": exp.file, "profile": exp.profile.name,
               "schedule": exp.schedule.name, "gpus": exp.schedule.gpus,
               "width": exp.scene.width, "height": exp.scene.height, **dict(program.notes)}
-    return build_result(raw, program.warmup_frames, config)
+    result = build_result(raw, program.warmup_frames, config)
+    result.summary["memory"] = memory_report(program, exp)
+    _task_rates(program, raw, result)
+    return result
+
+
+def _task_rates(program: FrameProgram, raw, result: Result) -> None:
+    """Steady-state completion rate of skippable tasks (e.g. particle updates under "new
+    wait"), beside the frame rate: runs in frames after warm-up over the present window."""
+    names = program.notes.get("rate_tasks", ())
+    if not names:
+        return
+    lo, hi = result.summary["window_ns"]
+    first = program.warmup_frames + 1
+    frames = program.frames - first
+    rates = {}
+    for name in names:
+        skipped = sum(1 for f in raw.skipped_frames.get(name, ()) if f >= first)
+        rates[name] = (frames - skipped) * 1e9 / (hi - lo) if hi > lo else 0.0
+    rates["frames"] = result.summary["fps"]
+    result.summary["task_rates_hz"] = rates

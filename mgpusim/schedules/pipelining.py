@@ -56,7 +56,7 @@ def build_pipelining(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile
                           MappingProxyType(pass_work(present, scene.pixels)), (Dep(last),)))
     moved = sum(_output_bytes(p) for p in first)
     notes = {"split_at": split, "gpu1_passes": tuple(p.name for p in first),
-             "bytes_per_frame": moved, "chunks": cfg.opt("chunks"),
+             "bytes_per_frame": moved, "chunks": cfg.opt("chunks"), "buffers": buffers,
              "copy_granularity": cfg.opt("copy_granularity")}
     return FrameProgram(cfg.name, cfg.gpus, cfg.frames, cfg.warmup_frames, (tuple(tasks),),
                         notes=MappingProxyType(notes))

@@ -71,7 +71,7 @@ def build_xr(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> Fra
     tasks.append(PassTask("present", "present", pq, "present",
                           MappingProxyType(pass_work(present, 2 * scene.pixels)), (Dep("acquire"),)))
     notes = {"views": views, "mode": cfg.opt("mode"), "scaling": cfg.opt("scaling"),
-             "view_pixels": tuple(pixels), "bytes_per_frame": sum(pixels) * bpp,
+             "view_pixels": tuple(pixels), "buffers": cfg.opt("buffers"), "bytes_per_frame": sum(pixels) * bpp,
              "transfer_queue": str(queue_or_graphics(profile, 0, "transfer")), "present_queue": str(pq)}
     return FrameProgram(cfg.name, cfg.gpus, cfg.frames, cfg.warmup_frames, (tuple(tasks),),
                         notes=MappingProxyType(notes))

@@ -1,0 +1,92 @@
+"""Particle simulation offloaded to a secondary GPU (the DX12 thesis, DOMAIN.md 3.3).
+
+The scene's passes (shadow, geometry, SSAO, deferred lighting, ...) run in order on the
+primary's graphics queue; the particles are drawn by a `particle_render` pass right after the
+pass named `draw_after`. The particle update (a compute pass) runs on the secondary GPU's
+compute queue (its graphics queue if it has none) or, with `particle_gpu = 0`, on the
+primary's compute queue in parallel with the shadow pass. From a secondary, the vertex
+buffer (192 B per particle: 6 vertices x position + uv) is downloaded to the host, copied
+from the readback to the upload buffer by the CPU, and uploaded to the primary.
+- policy 'wait': the particle draw of frame f waits for frame f's update and upload.
+- policy 'new_wait': the CPU never blocks on the particle GPU. When the previous update (or
+  its copies) has not finished at submit time, this frame's update and its copies are
+  skipped (the skipped time accumulates into the next dt) and the draw uses the last
+  uploaded vertex buffer, so particles tick at a lower rate than frames. The summary's
+  task_rates_hz gives the update rate beside the frame rate.
+Vertex buffers are double-buffered on both GPUs.
+"""
+from __future__ import annotations
+
+from types import MappingProxyType
+
+from ..costs import pass_work
+from ..errors import InputError
+from ..profile import HardwareProfile
+from ..scene import PassSpec, Scene
+from ..tasks import Dep, PassTask, QueueRef, Task
+from .base import FrameProgram, Option, ScheduleConfig, queue_or_graphics, register
+from .crossing import Route, cross
+
+OPTIONS = {
+    "particles": Option(int, 4096, "number of particles", minimum=0),
+    "particle_gpu": Option(int, 1, "GPU that updates the particles (0 = the primary's compute "
+                           "queue)", minimum=0),
+    "policy": Option(str, "new_wait", "'wait': the draw waits for this frame's particles; "
+                     "'new_wait': skip the update when the previous one is unfinished",
+                     choices=("wait", "new_wait")),
+    "draw_after": Option(str, "geometry", "scene pass after which the particles are drawn "
+                         "(the geometry pass draws them into the G-buffer)"),
+    "vertex_bytes_per_particle": Option(int, 192, "billboard vertex data per particle "
+                                        "(6 vertices x 2 float4)", minimum=0),
+    "host_copy": Option(bool, True, "the CPU copies the readback buffer into the upload buffer"),
+}
+
+
+@register("particles", "Engine passes on the primary, particle update on a secondary GPU or the "
+          "primary's compute queue, 'wait' or 'new wait' policy", OPTIONS)
+def build_particles(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> FrameProgram:
+    pg, new_wait, n = cfg.opt("particle_gpu"), cfg.opt("policy") == "new_wait", cfg.opt("particles")
+    _check(cfg, scene, pg)
+    nbytes = n * cfg.opt("vertex_bytes_per_particle")
+    update = PassTask("particle_update", "particle_update", queue_or_graphics(profile, pg, "compute"),
+                      "particle_update", MappingProxyType({"particle": float(n)}),
+                      (Dep("present", -cfg.frames_in_flight),), skip_if_busy=new_wait)
+    chain: list[Task] = [update]
+    if pg != 0:
+        chain += cross("particles", profile, pg, 0, nbytes, (Dep(update.name),),
+                       Route("transfer", "host", cfg.opt("host_copy")),
+                       dst_deps=(Dep("particle_render", -2),), skip=new_wait)
+    draw_deps = () if new_wait else (Dep(chain[-1].name),)
+    tasks = chain + _engine(cfg, scene, n, draw_deps)
+    notes = {"particles": n, "particle_gpu": pg, "policy": cfg.opt("policy"),
+             "vertex_bytes_per_frame": nbytes if pg != 0 else 0, "rate_tasks": ("particle_update",)}
+    return FrameProgram(cfg.name, cfg.gpus, cfg.frames, cfg.warmup_frames, (tuple(tasks),),
+                        notes=MappingProxyType(notes))
+
+
+def _check(cfg: ScheduleConfig, scene: Scene, pg: int) -> None:
+    if pg >= cfg.gpus:
+        raise InputError(f"particle_gpu = {pg} but the schedule uses {cfg.gpus} GPU(s)",
+                         field="schedule.particle_gpu")
+    if cfg.opt("draw_after") not in {p.name for p in scene.passes}:
+        raise InputError(f"no scene pass named {cfg.opt('draw_after')!r} "
+                         f"(passes: {[p.name for p in scene.passes]})", field="schedule.draw_after")
+
+
+def _engine(cfg: ScheduleConfig, scene: Scene, n: int, draw_deps: tuple[Dep, ...]) -> list[Task]:
+    """The primary's passes in order, the particle draw after `draw_after`, then present."""
+    queue = QueueRef(0, "graphics")
+    out: list[Task] = []
+    for spec in scene.passes:
+        deps = (Dep(out[-1].name),) if out else (Dep("present", -cfg.frames_in_flight),)
+        out.append(PassTask(f"render.{spec.name}", "render", queue, spec.kind,
+                            MappingProxyType(pass_work(spec, scene.pixels)), deps))
+        if spec.name == cfg.opt("draw_after"):
+            draw = PassSpec("particles", "particle_render", MappingProxyType({"particles": n}))
+            out.append(PassTask("particle_render", "particle_render", queue, "particle_render",
+                                MappingProxyType(pass_work(draw, scene.pixels)),
+                                (Dep(out[-1].name),) + draw_deps))
+    present = PassSpec("present", "present")
+    out.append(PassTask("present", "present", queue, "present",
+                        MappingProxyType(pass_work(present, scene.pixels)), (Dep(out[-1].name),)))
+    return out

@@ -10,11 +10,10 @@ Dependencies are counted, not stored as events per task, so memory stays flat ov
 """
 from __future__ import annotations
 
-from collections import defaultdict
+import heapq
+from collections import defaultdict, deque
 from dataclasses import dataclass, field
 from fractions import Fraction
-from typing import Iterator
-
 import numpy as np
 import simpy
 
@@ -25,6 +24,19 @@ from ..tasks import CopyTask, HostCopyTask, PassTask, QueueRef, Task
 from .channel import Channel
 
 Key = tuple[int, str]
+
+
+@dataclass(frozen=True, slots=True)
+class _Op:
+    task: Task
+    duration: int
+    channel: Channel | None
+    cap: Fraction | None
+    nbytes: int
+    device: str
+    engine: str
+    waits_for: str
+    is_present: bool
 
 
 @dataclass
@@ -60,7 +72,6 @@ class Engine:
         self._skip_groups()
         self._dependents = self._reverse_deps()
         self._waits_for = self._waits_for_labels()
-        self._durations: dict[tuple[int, str], int] = {}
         self.channels: dict[str, Channel] = {}
         self._unfinished = sum(len(program.tasks(f)) for f in range(program.frames))
         self._setup_resources()
@@ -93,26 +104,37 @@ class Engine:
         return labels
 
     def _setup_resources(self) -> None:
-        queues: dict[QueueRef, list[list[Task]]] = {}
-        host_tasks: list[list[Task]] = [[] for _ in range(self.period)]
+        queues: dict[QueueRef, list[list[_Op]]] = {}
+        host_ops: list[list[_Op]] = [[] for _ in range(self.period)]
         for phase, tasks in enumerate(self.program.templates):
             for task in tasks:
-                self._durations[(phase, task.name)] = self._duration(task)
+                op = self._op(phase, task)
                 if isinstance(task, HostCopyTask):
-                    host_tasks[phase].append(task)
-                    continue
-                plan = queues.setdefault(task.queue, [[] for _ in range(self.period)])
-                plan[phase].append(task)
-                if isinstance(task, CopyTask):
-                    self._channel_for(task)
-        for qref, plan in queues.items():
-            self.env.process(self._queue_proc(qref, plan))
-        if any(host_tasks):
+                    host_ops[phase].append(op)
+                else:
+                    queues.setdefault(task.queue, [[] for _ in range(self.period)])[phase].append(op)
+        for plan in queues.values():
+            self.env.process(self._queue_proc(plan))
+        if any(host_ops):
             host = self.costs.profile.host
-            self.threads = simpy.Store(self.env, capacity=host.memcpy_threads)
-            self.threads.items.extend(range(host.memcpy_threads))
-            self.channels["host.memory"] = Channel(self.env, "host.memory", self.costs.host_memory_bandwidth())
-            self.env.process(self._host_proc(host_tasks))
+            self._threads_all = [f"thread{i}" for i in range(host.memcpy_threads)]
+            self._free_threads = list(range(host.memcpy_threads))
+            self._part_queue: deque = deque()
+            self._thread_cap = self.costs.memcpy_thread_cap()
+            self._host_memory = self.channels["host.memory"] = Channel(
+                self.env, "host.memory", self.costs.host_memory_bandwidth())
+            self.env.process(self._host_proc(host_ops))
+
+    def _op(self, phase: int, task: Task) -> _Op:
+        """Everything the hot loop needs about one task, computed once."""
+        channel, cap, nbytes = None, None, 0
+        if isinstance(task, CopyTask):
+            channel, nbytes = self._channel_for(task), task.bytes
+            cap = self.costs.copy_cap(task.queue.device, task.queue.family, task.path)
+        device, engine = ("host", "memcpy") if isinstance(task, HostCopyTask) else \
+            (task.queue.device_name, task.queue.engine)
+        return _Op(task, self._duration(task), channel, cap, nbytes, device, engine,
+                   self._waits_for[phase][task.name], task.name == self.program.present_task)
 
     def _duration(self, task: Task) -> int:
         if isinstance(task, PassTask):
@@ -238,87 +260,95 @@ class Engine:
             else:
                 self._ready.add(key)
 
-    def _wait(self, frame: int, task: Task) -> Iterator[simpy.Event]:
-        key = (frame, task.name)
-        if not self._check_ready(key, task):
-            ev = self.env.event()
-            self._waiters[key] = ev
-            yield ev
-
     # ----- processes ---------------------------------------------------------------------
-    def _queue_proc(self, qref: QueueRef, plan: list[list[Task]]):
-        env, period = self.env, self.period
-        dev, engine = qref.device_name, qref.engine
+    def _queue_proc(self, plan: list[list[_Op]]):
+        """One queue: its tasks in submission order, each after its dependencies."""
+        env, period, skip = self.env, self.period, self._skip
         for frame in range(self.program.frames):
-            phase = frame % period
-            for task in plan[phase]:
-                yield from self._wait(frame, task)
-                key = (frame, task.name)
-                if key in self._skip:
-                    self._skip.discard(key)
-                    self._skipped[task.name] += 1
-                    self._complete(frame, task, skipped=True)
+            for op in plan[frame % period]:
+                key = (frame, op.task.name)
+                if not self._check_ready(key, op.task):
+                    ev = self._waiters[key] = env.event()
+                    yield ev
+                if skip and key in skip:
+                    self._skip_task(key, op.task)
                     continue
                 start = env.now
-                yield env.timeout(self._durations[(phase, task.name)])
-                nbytes = 0
-                if isinstance(task, CopyTask):
-                    nbytes = task.bytes
-                    cap = self.costs.copy_cap(task.queue.device, task.queue.family, task.path)
-                    yield self._channel_for(task).transfer(nbytes, cap)
-                self._finish(frame, task, dev, engine, start, nbytes)
+                if op.duration:
+                    yield env.timeout(op.duration)
+                if op.channel is not None:
+                    yield op.channel.transfer(op.nbytes, op.cap)
+                self._finish(frame, op, op.engine, start, op.nbytes)
 
-    def _finish(self, frame: int, task: Task, dev: str, engine: str, start: int, nbytes: int) -> None:
+    def _skip_task(self, key: Key, task: Task) -> None:
+        self._skip.discard(key)
+        self._skipped[task.name] += 1
+        self._complete(key[0], task, skipped=True)
+
+    def _finish(self, frame: int, op: _Op, engine: str, start: int, nbytes: int) -> None:
         end = self.env.now
         if start < self.frame_start[frame]:
             self.frame_start[frame] = start
-        if task.name == self.program.present_task:
+        if op.is_present:
             self.present_end[frame] = end
         if self.record:
-            self.rows.append((frame, dev, engine, task.step, task.name, start, end, nbytes,
-                              self._waits_for[frame % self.period][task.name]))
-        self._complete(frame, task)
+            self.rows.append((frame, op.device, engine, op.task.step, op.task.name, start, end, nbytes,
+                              op.waits_for))
+        self._complete(frame, op.task)
 
-    def _host_proc(self, plan: list[list[Task]]):
+    def _host_proc(self, plan: list[list[_Op]]):
         """The host thread: dispatches host copies in order once their inputs are ready."""
+        env, period = self.env, self.period
         for frame in range(self.program.frames):
-            for task in plan[frame % self.period]:
-                yield from self._wait(frame, task)
-                key = (frame, task.name)
+            for op in plan[frame % period]:
+                key = (frame, op.task.name)
+                if not self._check_ready(key, op.task):
+                    ev = self._waiters[key] = env.event()
+                    yield ev
                 if key in self._skip:
-                    self._skip.discard(key)
-                    self._skipped[task.name] += 1
-                    self._complete(frame, task, skipped=True)
+                    self._skip_task(key, op.task)
                     continue
-                self._dispatch_host_copy(frame, task)  # type: ignore[arg-type]
+                self._dispatch_host_copy(frame, op)
 
-    def _dispatch_host_copy(self, frame: int, task: HostCopyTask) -> None:
-        threads = self.costs.profile.host.memcpy_threads
-        parts = max(1, min(threads, task.bytes // task.chunk_min_bytes))
+    def _dispatch_host_copy(self, frame: int, op: _Op) -> None:
+        """Split into parts of >= chunk_min_bytes, at most one per memcpy thread."""
+        task: HostCopyTask = op.task  # type: ignore[assignment]
+        parts = max(1, min(len(self._threads_all), task.bytes // task.chunk_min_bytes))
         base = task.bytes // parts
-        sizes = [base] * (parts - 1) + [task.bytes - base * (parts - 1)]
-        state = {"left": parts}
-        for size in sizes:
-            self.env.process(self._host_part(frame, task, size, state))
+        state = [parts]
+        for i in range(parts):
+            size = base if i < parts - 1 else task.bytes - base * (parts - 1)
+            part = (frame, op, size, state)
+            if self._free_threads:
+                self._start_part(heapq.heappop(self._free_threads), part)
+            else:
+                self._part_queue.append(part)
 
-    def _host_part(self, frame: int, task: HostCopyTask, size: int, state: dict):
-        tid = yield self.threads.get()
+    def _start_part(self, tid: int, part: tuple) -> None:
         start = self.env.now
-        fixed = self._durations[(frame % self.period, task.name)]
-        if fixed:
-            yield self.env.timeout(fixed)
-        yield self.channels["host.memory"].transfer(size, self.costs.memcpy_thread_cap())
-        self.threads.put(tid)
-        state["left"] -= 1
-        last = state["left"] == 0
-        end = self.env.now
+        if part[1].duration:
+            self.env.timeout(part[1].duration).callbacks.append(lambda _e: self._part_copy(tid, part, start))
+        else:
+            self._part_copy(tid, part, start)
+
+    def _part_copy(self, tid: int, part: tuple, start: int) -> None:
+        ev = self._host_memory.transfer(part[2], self._thread_cap)
+        ev.callbacks.append(lambda _e: self._part_done(tid, part, start))
+
+    def _part_done(self, tid: int, part: tuple, start: int) -> None:
+        frame, op, size, state = part
+        if self._part_queue:
+            self._start_part(tid, self._part_queue.popleft())
+        else:
+            heapq.heappush(self._free_threads, tid)
+        state[0] -= 1
         if start < self.frame_start[frame]:
             self.frame_start[frame] = start
         if self.record:
-            self.rows.append((frame, "host", f"thread{tid}", task.step, task.name, start, end, size,
-                              self._waits_for[frame % self.period][task.name]))
-        if last:
-            self._complete(frame, task)
+            self.rows.append((frame, "host", self._threads_all[tid], op.task.step, op.task.name, start,
+                              self.env.now, size, op.waits_for))
+        if state[0] == 0:
+            self._complete(frame, op.task)
 
     # ----- run ---------------------------------------------------------------------------
     def run(self) -> RawResult:

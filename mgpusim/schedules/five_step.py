@@ -11,7 +11,8 @@ from __future__ import annotations
 
 from types import MappingProxyType
 
-from ..costs import pass_work
+from ..costs import CostModel, pass_work
+from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
 from ..tasks import CopyTask, Dep, HostCopyTask, PassTask, QueueRef, Task
@@ -22,6 +23,14 @@ OPTIONS = {
                                     "threads (false: one shared host allocation)"),
     "buffers": Option(int, 2, "contribution and staging buffers per secondary", minimum=1),
 }
+SORT_FIRST_OPTIONS = {
+    **OPTIONS,
+    "tile_rows": Option(list, (), "sort-first: tile height per GPU, top to bottom (sum = scene "
+                        "height); empty = equal tiles, the last GPU takes the remainder"),
+    "balance": Option(bool, False, "sort-first: size the tiles from the GPUs' pass costs so "
+                      "that every graphics queue carries the same load per frame (the primary's "
+                      "includes compositing and present); overrides tile_rows"),
+}
 
 
 def tile_rows(height: int, gpus: int) -> list[int]:
@@ -31,14 +40,71 @@ def tile_rows(height: int, gpus: int) -> list[int]:
 
 
 @register("sort_first", "Five-step sort-first (split-frame) pipeline: horizontal tiles, colour only",
-          OPTIONS)
+          SORT_FIRST_OPTIONS)
 def build_sort_first(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> FrameProgram:
-    rows = tile_rows(scene.height, cfg.gpus)
+    rows = _sort_first_rows(cfg, scene, profile)
     pixels = [scene.width * r for r in rows]
     contribution = [p * scene.color_bytes_per_pixel for p in pixels]
     composite = _composite("composite_sort_first", cfg.gpus - 1, sum(pixels[1:]))
     return _build(cfg, scene, profile, pixels, [1.0] * cfg.gpus, contribution, composite,
-                  {"tile_rows": tuple(rows)})
+                  {"tile_rows": tuple(rows), "balanced": bool(cfg.opt("balance"))})
+
+
+def _sort_first_rows(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> list[int]:
+    """Tile heights: balanced from costs, as given per GPU, or equal."""
+    if cfg.opt("balance"):
+        return balanced_rows(scene, profile, cfg.gpus)
+    given = list(cfg.opt("tile_rows"))
+    if not given:
+        return tile_rows(scene.height, cfg.gpus)
+    if len(given) != cfg.gpus or not all(isinstance(r, int) and not isinstance(r, bool) and r >= 0
+                                         for r in given) or sum(given) != scene.height:
+        raise InputError(f"expected {cfg.gpus} non-negative integers summing to the scene height "
+                         f"{scene.height}, got {given!r}", field="schedule.tile_rows")
+    return given
+
+
+def _graphics_load(scene: Scene, costs: CostModel, gpu: int, rows: int, n: int) -> int:
+    """ns of work one frame puts on `gpu`'s graphics queue when its tile has `rows` rows."""
+    px = scene.width * rows
+    load = sum(costs.pass_ns(gpu, s.kind, pass_work(s, px)) for s in scene.passes)
+    if gpu == 0 and n > 1:
+        comp = _composite("composite_sort_first", n - 1, scene.width * (scene.height - rows))
+        present = PassSpec("present", "present")
+        load += costs.pass_ns(0, comp.kind, pass_work(comp, comp.param("pixels")))
+        load += costs.pass_ns(0, "present", pass_work(present, scene.pixels))
+    return load
+
+
+def balanced_rows(scene: Scene, profile: HardwareProfile, n: int) -> list[int]:
+    """Tile heights that minimise the largest per-frame graphics load (the thesis's proposed
+    load balancing, from the GPUs' costs): the smallest time T for which the rows each GPU
+    can render within T cover the screen, found by bisection on integer ns. Copies run on
+    other queues and overlap the next frame, so they do not enter the balance."""
+    costs, h = CostModel(profile), scene.height
+
+    def rows_within(gpu: int, t: int) -> int:
+        lo, hi = -1, h  # largest r in [0, h] with load <= t, or -1
+        while lo < hi:
+            mid = (lo + hi + 1) // 2
+            if _graphics_load(scene, costs, gpu, mid, n) <= t:
+                lo = mid
+            else:
+                hi = mid - 1
+        return lo
+
+    lo, hi = 0, max(_graphics_load(scene, costs, g, h, n) for g in range(n))
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if sum(max(rows_within(g, mid), 0) for g in range(n)) >= h:
+            hi = mid
+        else:
+            lo = mid + 1
+    rows = [max(rows_within(g, lo), 0) for g in range(n)]
+    for g in reversed(range(n)):  # trim the excess, last GPUs first
+        cut = min(rows[g], sum(rows) - h)
+        rows[g] -= cut
+    return rows
 
 
 @register("sort_last", "Five-step sort-last pipeline: geometry split evenly, full-frame colour + depth",

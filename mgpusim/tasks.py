@@ -8,7 +8,8 @@ Nothing here knows about time: costs come from :mod:`mgpusim.costs`.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal, Mapping
+from types import MappingProxyType
+from typing import Any, Literal, Mapping
 
 QueueFamily = Literal["graphics", "compute", "transfer"]
 CopyPath = Literal["d2h", "h2d", "d2d", "p2p"]
@@ -60,6 +61,12 @@ class PassTask:
     #: Skip this instance (record nothing, finish at once) when the previous frame's instance
     #: is still running at submit time: the particle demo's "new wait" policy.
     skip_if_busy: bool = False
+    #: Logical resources (names of :class:`Resource`) the pass samples and renders into, and
+    #: the knobs a real renderer needs (tile rectangle, iterations, geometry share, ...). Only
+    #: the Vulkan runner reads these; the simulator costs the pass from `kind` and `work`.
+    reads: tuple[str, ...] = ()
+    writes: tuple[str, ...] = ()
+    params: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
 
 
 @dataclass(frozen=True, slots=True)
@@ -78,6 +85,9 @@ class CopyTask:
     deps: tuple[Dep, ...] = ()
     peer: int | None = None
     skip_if_busy: bool = False
+    #: Logical resources copied from and to (the Vulkan runner's binding; the simulator ignores it).
+    src: str | None = None
+    dst: str | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -90,9 +100,35 @@ class HostCopyTask:
     deps: tuple[Dep, ...] = ()
     chunk_min_bytes: int = 512 * 1024
     skip_if_busy: bool = False
+    #: Host-visible buffers copied from and to (the Vulkan runner's binding).
+    src: str | None = None
+    dst: str | None = None
 
 
 Task = PassTask | CopyTask | HostCopyTask
+
+
+@dataclass(frozen=True, slots=True)
+class Resource:
+    """A buffer or image that tasks name in reads/writes/src/dst, declared by the schedule in
+    `FrameProgram.notes["resources"]` so that a real executor can allocate it.
+
+    `device` None is host memory imported by every device in `shared_by`
+    (VK_EXT_external_memory_host). An image is RGBA8 colour, plus a D16 depth image when `depth`;
+    in a buffer the colour bytes come first, then the depth bytes. A resource with `buffers` > 1
+    is multi-buffered: frame f uses copy `f % buffers`.
+    """
+
+    name: str
+    device: int | None
+    kind: Literal["image", "buffer"]
+    width: int = 0
+    height: int = 0
+    depth: bool = False
+    bytes: int = 0
+    buffers: int = 1
+    host_visible: bool = False
+    shared_by: tuple[int, ...] = ()
 
 
 def engine_of(task: Task) -> tuple[str, str]:

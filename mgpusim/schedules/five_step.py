@@ -17,6 +17,7 @@ from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
 from ..tasks import CopyTask, Dep, HostCopyTask, PassTask, QueueRef, Task
 from .base import FrameProgram, Option, ScheduleConfig, queue_or_graphics, register
+from .five_step_io import bind_io
 
 OPTIONS = {
     "host_copy": Option(bool, True, "step 3: copy between the two staging buffers on host "
@@ -156,6 +157,8 @@ def _build(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, pixels: 
                           MappingProxyType(pass_work(present, scene.pixels)), (Dep(before_present),)))
     notes.update(buffers=buffers, host_copy=host_copy,
                  contribution_bytes_per_frame=sum(contribution[1:]))
+    tasks, resources = bind_io(tasks, scene, n, composite.kind, notes, buffers, host_copy)
+    notes["resources"] = resources  # what each task reads and writes: for the Vulkan runner
     return FrameProgram(cfg.name, n, cfg.frames, cfg.warmup_frames, (tuple(tasks),),
                         notes=MappingProxyType(notes))
 

@@ -1,0 +1,102 @@
+"""Which buffer or image each five-step task reads and writes, for the Vulkan runner.
+
+Why a separate pass over the tasks: the schedule's timing structure (five_step.py) stays as it
+is, and this module adds the data a real renderer needs on top of it: the logical resources
+(render targets, staging buffers, uploaded contributions, the frame and the displayed image),
+the tile rectangle or geometry share of every render, the rectangles the composite draws. The
+simulator ignores all of it.
+
+Resource names: `gpu{i}.target` (secondary i's contribution), `gpu{i}.staging` (its host-visible
+read-back buffer), `gpu0.staging{i}` (the primary's staging buffer for it; `host.staging{i}`, one
+host allocation imported by both devices, when there is no host-to-host copy), `gpu0.input{i}`
+(the uploaded contribution), `gpu0.frame` (the primary renders and composites into it) and
+`gpu0.display` (what present copies the frame to).
+"""
+from __future__ import annotations
+
+import dataclasses
+from types import MappingProxyType
+from typing import Any
+
+from ..scene import Scene
+from ..tasks import CopyTask, HostCopyTask, PassTask, Resource, Task
+
+Rect = tuple[int, int, int, int]  # x, y, width, height in frame pixels
+
+
+def bind_io(tasks: list[Task], scene: Scene, gpus: int, composite_kind: str,
+            notes: dict[str, Any], buffers: int, host_copy: bool) -> tuple[list[Task], tuple[Resource, ...]]:
+    """The tasks with reads/writes/src/dst/params filled in, and the resources they name."""
+    w, h = scene.width, scene.height
+    depth = composite_kind == "composite_sort_last"
+    if depth:
+        rects: list[Rect] = [(0, 0, w, h)] * gpus
+    else:
+        rows = list(notes.get("tile_rows", (h,)))
+        tops = [sum(rows[:i]) for i in range(gpus)]
+        rects = [(0, tops[i], w, rows[i]) for i in range(gpus)]
+    bpp = scene.color_bytes_per_pixel + (scene.depth_bytes_per_pixel if depth else 0)
+    res: dict[str, Resource] = {}
+
+    def image(name: str, device: int, rect: Rect, nbuf: int) -> str:
+        res[name] = Resource(name, device, "image", rect[2], rect[3], depth, buffers=nbuf)
+        return name
+
+    def buffer(name: str, device: int | None, rect: Rect) -> str:
+        shared = (0, int(name.removeprefix("host.staging"))) if device is None else ()
+        res[name] = Resource(name, device, "buffer", bytes=rect[2] * rect[3] * bpp, buffers=buffers,
+                             host_visible=True, shared_by=shared)
+        return name
+
+    image("gpu0.frame", 0, (0, 0, w, h), 1)
+    res["gpu0.display"] = Resource("gpu0.display", 0, "image", w, h, False)
+    out: list[Task] = []
+    for task in tasks:
+        if isinstance(task, PassTask) and task.step == "render":
+            i = task.queue.device
+            target = "gpu0.frame" if i == 0 else image(f"gpu{i}.target", i, rects[i], buffers)
+            origin = (0, 0) if i == 0 else rects[i][:2]
+            out.append(dataclasses.replace(task, writes=(target,), params=MappingProxyType(
+                _render_params(task, scene, rects[i], origin, gpus, i, depth))))
+        elif isinstance(task, PassTask) and task.step == "composite":
+            ins = tuple(f"gpu0.input{i}" for i in range(1, gpus))
+            for i in range(1, gpus):
+                image(ins[i - 1], 0, rects[i], buffers)
+            out.append(dataclasses.replace(task, reads=ins, writes=("gpu0.frame",), params=MappingProxyType(
+                {"inputs": tuple(rects[1:]), "frame": (w, h), "depth": depth})))
+        elif isinstance(task, PassTask) and task.step == "present":
+            out.append(dataclasses.replace(task, reads=("gpu0.frame",), writes=("gpu0.display",)))
+        elif isinstance(task, CopyTask) and task.path == "d2h":
+            i = task.queue.device
+            dst = buffer(f"gpu{i}.staging" if host_copy else f"host.staging{i}",
+                         i if host_copy else None, rects[i])
+            out.append(dataclasses.replace(task, src=f"gpu{i}.target", dst=dst))
+        elif isinstance(task, HostCopyTask):
+            i = int(task.name.removeprefix("host_copy"))
+            out.append(dataclasses.replace(task, src=f"gpu{i}.staging",
+                                           dst=buffer(f"gpu0.staging{i}", 0, rects[i])))
+        elif isinstance(task, CopyTask) and task.path == "h2d":
+            i = int(task.name.removeprefix("h2d"))
+            src = f"gpu0.staging{i}" if host_copy else f"host.staging{i}"
+            out.append(dataclasses.replace(task, src=src, dst=f"gpu0.input{i}"))
+        else:
+            out.append(task)
+    return out, tuple(res.values())
+
+
+def _render_params(task: PassTask, scene: Scene, rect: Rect, origin: tuple[int, int], gpus: int,
+                   gpu: int, depth: bool) -> dict[str, Any]:
+    """Tile rectangle (frame pixels), the target's origin in the frame, and the pass's knobs;
+    sort-last GPU i draws triangles [first, first + count) of the scene's mesh."""
+    spec = next(s for s in scene.passes if task.name in (f"render{gpu}", f"render{gpu}.{s.name}"))
+    params: dict[str, Any] = {"rect": rect, "origin": origin, "frame": (scene.width, scene.height),
+                              "clear": spec is scene.passes[0], "depth": depth,
+                              **{k: v for k, v in spec.params.items()}}
+    if "triangles" in spec.params:
+        total = int(spec.params["triangles"])
+        first = total * gpu // gpus if depth else 0
+        params.update(triangles=total, first=first,
+                      count=(total * (gpu + 1) // gpus if depth else total) - first)
+    if "iterations" in spec.params:
+        params["iterations"] = int(spec.params["iterations"])
+    return params

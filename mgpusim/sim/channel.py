@@ -2,34 +2,37 @@
 
 Concurrent transfers share the channel's bandwidth max-min fairly, each limited by its own
 cap (a copy queue's rate, a memcpy thread's speed). Rates are recomputed only when a transfer
-starts or ends, as SimGrid's flow model does. Remaining bytes are exact fractions, so no error
-accumulates; a transfer completes at its exact finish time rounded half up to the nanosecond,
-and all transfers that round to the same nanosecond complete together.
+starts or ends, as SimGrid's flow model does. A transfer completes at its exact finish time
+rounded half up to the nanosecond; transfers that round to the same nanosecond complete
+together.
 
-A transfer that has the channel to itself takes the fast path: its end is computed once in
-integer arithmetic and no solver runs. Only when a second transfer arrives does the channel
-switch to the fluid solver (same answer: the solo case is the solver's one-flow case).
-Arrivals in the same nanosecond are settled together, so a burst of N transfers costs one
-rate computation, not N.
+Exactness without floats: the solver counts bytes in units of 1/S byte, where the scale S is
+a multiple of every rate's denominator and of lcm(1..n) for up to n concurrent flows. Every
+fair share, every cap and every byte count is then an integer, so remaining bytes are exact,
+nothing drifts, and Python's integers keep it fast. S grows (and remainders are rescaled)
+when a new cap or a larger crowd of flows appears.
+
+A transfer that has the channel to itself takes the fast path: its end is computed once and
+no solver runs. Arrivals in the same nanosecond are settled together, so a burst of N
+transfers costs one rate computation, not N.
 """
 from __future__ import annotations
 
+import math
 from fractions import Fraction
 
 import simpy
 
-from ..costs import round_half_up
-
-_HALF = Fraction(1, 2)
-
 
 class _Flow:
-    __slots__ = ("remaining", "cap", "rate", "done", "start", "nbytes")
+    __slots__ = ("remaining", "cap", "cap_s", "rate", "done", "start", "nbytes", "solo_rate")
 
     def __init__(self, nbytes: int, cap: Fraction | None, done: simpy.Event, start: int):
         self.nbytes, self.cap, self.done, self.start = nbytes, cap, done, start
-        self.remaining: Fraction | None = None  # set when the fluid solver takes over
-        self.rate = Fraction(0)
+        self.remaining = 0  # in 1/S bytes, set when the solver takes over
+        self.rate = 0  # in 1/S bytes per ns
+        self.cap_s: int | None = None
+        self.solo_rate: Fraction = Fraction(0)  # non-zero while the flow runs alone
 
 
 class Channel:
@@ -38,7 +41,7 @@ class Channel:
     def __init__(self, env: simpy.Environment, name: str, bandwidth: Fraction):
         if bandwidth <= 0:
             raise ValueError(f"channel {name}: bandwidth must be > 0")
-        self.env, self.name, self.bandwidth = env, name, bandwidth
+        self.env, self.name, self.bandwidth = env, name, Fraction(bandwidth)
         self.flows: list[_Flow] = []
         self.busy: list[tuple[int, int]] = []
         self.max_concurrent = 0
@@ -47,7 +50,10 @@ class Channel:
         self._gen = 0
         self._busy_since = 0
         self._settle_pending = False
-        self._solo_rate: dict[Fraction | None, tuple[Fraction, int, int]] = {}
+        self._solo: dict[Fraction | None, tuple[Fraction, int, int]] = {}
+        self._crowd = 4  # flows the scale can split among exactly
+        self._denoms = self.bandwidth.denominator
+        self._scale = self._denoms * math.lcm(*range(1, self._crowd + 1))
 
     def transfer(self, nbytes: int, cap: Fraction | None = None) -> simpy.Event:
         """An event that fires when `nbytes` have crossed the channel."""
@@ -59,11 +65,12 @@ class Channel:
         if not self.flows:
             self._start_solo(flow, now)
             return done
-        if len(self.flows) == 1 and self.flows[0].remaining is None:
+        if len(self.flows) == 1 and self.flows[0].solo_rate:
             self._to_fluid(self.flows[0], now)
         self._advance()
-        flow.remaining = Fraction(nbytes)
         self.flows.append(flow)
+        self._fit_scale(flow)
+        flow.remaining = nbytes * self._scale
         self.max_concurrent = max(self.max_concurrent, len(self.flows))
         if not self._settle_pending:
             self._settle_pending = True
@@ -71,10 +78,13 @@ class Channel:
             self.env.timeout(0).callbacks.append(self._settle)
         return done
 
-    # ----- one transfer alone: integer arithmetic ----------------------------------------
+    # ----- one transfer alone -------------------------------------------------------------
     def _start_solo(self, flow: _Flow, now: int) -> None:
-        rate, num, den = self._rate_parts(flow.cap)
-        flow.rate = rate
+        parts = self._solo.get(flow.cap)
+        if parts is None:
+            rate = self.bandwidth if flow.cap is None or flow.cap >= self.bandwidth else flow.cap
+            parts = self._solo[flow.cap] = (rate, rate.numerator, rate.denominator)
+        flow.solo_rate, num, den = parts
         self.flows.append(flow)
         self.max_concurrent = max(self.max_concurrent, 1)
         self._busy_since = now
@@ -82,13 +92,6 @@ class Channel:
         self._gen += 1
         gen = self._gen
         self.env.timeout(end - now).callbacks.append(lambda _e: self._solo_done(gen))
-
-    def _rate_parts(self, cap: Fraction | None) -> tuple[Fraction, int, int]:
-        parts = self._solo_rate.get(cap)
-        if parts is None:
-            rate = self.bandwidth if cap is None or cap >= self.bandwidth else cap
-            parts = self._solo_rate[cap] = (rate, rate.numerator, rate.denominator)
-        return parts
 
     def _solo_done(self, gen: int) -> None:
         if gen != self._gen:
@@ -98,10 +101,30 @@ class Channel:
         flow.done.succeed()
 
     def _to_fluid(self, flow: _Flow, now: int) -> None:
-        flow.remaining = flow.nbytes - flow.rate * (now - flow.start)
+        self._fit_scale(flow)
+        rate_s = flow.solo_rate.numerator * (self._scale // flow.solo_rate.denominator)
+        flow.remaining = flow.nbytes * self._scale - rate_s * (now - flow.start)
+        flow.solo_rate = Fraction(0)
         self._t = now
 
-    # ----- several transfers: the fluid solver -------------------------------------------
+    # ----- several transfers: the fluid solver --------------------------------------------
+    def _fit_scale(self, flow: _Flow) -> None:
+        """Grow S so that this flow's cap and the current crowd divide it."""
+        need_denoms = self._denoms if flow.cap is None else math.lcm(self._denoms, flow.cap.denominator)
+        crowd = self._crowd
+        while crowd < len(self.flows):
+            crowd *= 2
+        if need_denoms == self._denoms and crowd == self._crowd:
+            return
+        new_scale = need_denoms * math.lcm(*range(1, crowd + 1))
+        new_scale = math.lcm(new_scale, self._scale)
+        factor = new_scale // self._scale
+        for f in self.flows:
+            f.remaining *= factor
+        self._denoms, self._crowd, self._scale = need_denoms, crowd, new_scale
+        for f in self.flows:
+            f.cap_s = None
+
     def _advance(self) -> None:
         now = self.env.now
         dt = now - self._t
@@ -111,12 +134,18 @@ class Channel:
             self._t = now
 
     def _reshare(self) -> None:
-        """Max-min fair shares with per-flow caps (water-filling)."""
+        """Max-min fair shares with per-flow caps (water-filling), all in integers."""
         self.solver_runs += 1
-        left, flows = self.bandwidth, sorted(self.flows, key=_cap_key)
+        scale = self._scale
+        left = self.bandwidth.numerator * (scale // self.bandwidth.denominator)
+        for f in self.flows:
+            if f.cap is not None and f.cap_s is None:
+                f.cap_s = f.cap.numerator * (scale // f.cap.denominator)
+        flows = sorted(self.flows, key=_cap_key)
+        n = len(flows)
         for k, flow in enumerate(flows):
-            fair = left / (len(flows) - k)
-            flow.rate = fair if flow.cap is None or flow.cap >= fair else flow.cap
+            fair = left // (n - k)  # exact: see the module docstring
+            flow.rate = fair if flow.cap_s is None or flow.cap_s >= fair else flow.cap_s
             left -= flow.rate
 
     def _settle(self, _event=None) -> None:
@@ -124,25 +153,25 @@ class Channel:
         self._settle_pending = False
         self._advance()
         self._reshare()
-        finished = [f for f in self.flows if f.remaining < f.rate * _HALF]
+        finished = [f for f in self.flows if 2 * f.remaining < f.rate]
         if finished:
-            self.flows = [f for f in self.flows if f.remaining >= f.rate * _HALF]
+            self.flows = [f for f in self.flows if 2 * f.remaining >= f.rate]
             for flow in finished:
                 flow.done.succeed()
             if not self.flows:
                 self.busy.append((self._busy_since, self.env.now))
+                self._gen += 1
+                return
             self._reshare()
         self._plan()
 
     def _plan(self) -> None:
         self._gen += 1
-        if not self.flows:
-            return
-        finish = min(self._t + f.remaining / f.rate for f in self.flows)
-        wake = max(round_half_up(finish), self.env.now)
+        wake = min(self._t + (2 * f.remaining + f.rate) // (2 * f.rate) for f in self.flows)
+        wake = max(wake, self.env.now)
         gen = self._gen
         self.env.timeout(wake - self.env.now).callbacks.append(lambda _e: gen == self._gen and self._settle())
 
 
-def _cap_key(flow: _Flow) -> tuple[int, Fraction]:
-    return (1, Fraction(0)) if flow.cap is None else (0, flow.cap)
+def _cap_key(flow: _Flow) -> tuple[int, int]:
+    return (1, 0) if flow.cap_s is None else (0, flow.cap_s)

@@ -77,14 +77,16 @@ class Engine:
         self._setup_resources()
 
     # ----- build -------------------------------------------------------------------------
-    def _reverse_deps(self) -> list[dict[str, list[tuple[str, int]]]]:
-        """dependents[phase][name] = [(dependent task, frame distance k >= 0)]."""
-        out: list[dict[str, list[tuple[str, int]]]] = [defaultdict(list) for _ in range(self.period)]
+    def _reverse_deps(self) -> list[dict[str, list[tuple[str, int, Task, int, int]]]]:
+        """dependents[phase][name] = [(dependent, frame distance k >= 0, its task, its number
+        of dependencies, the frame from which all of them exist)]."""
+        out: list[dict[str, list]] = [defaultdict(list) for _ in range(self.period)]
         for q, tasks in enumerate(self.program.templates):
             for task in tasks:
+                lag = max((-d.offset for d in task.deps), default=0)
                 for dep in task.deps:
                     k = -dep.offset
-                    out[(q - k) % self.period][dep.task].append((task.name, k))
+                    out[(q - k) % self.period][dep.task].append((task.name, k, task, len(task.deps), lag))
         return out
 
     def _waits_for_labels(self) -> list[dict[str, str]]:
@@ -166,10 +168,11 @@ class Engine:
             return True
         if key in self._pending:
             return False
-        if self._initial(key[0], task) == 0:
+        count = self._initial(key[0], task)
+        if count == 0:
             self._mark_ready(key, task)
             return True
-        self._pending[key] = self._initial(key[0], task)
+        self._pending[key] = count
         return False
 
     # ----- skippable chains ("new wait") ------------------------------------------------
@@ -238,19 +241,18 @@ class Engine:
         self._unfinished -= 1
         if not skipped and task.skip_if_busy:
             self._inflight[self._leader[frame % self.period][task.name]] -= 1
-        frames = self.program.frames
-        for name, k in self._dependents[frame % self.period].get(task.name, ()):
+        frames, pending = self.program.frames, self._pending
+        for name, k, dtask, ndeps, lag in self._dependents[frame % self.period].get(task.name, ()):
             g = frame + k
             if g >= frames:
                 continue
             key = (g, name)
-            dtask = self._index[g % self.period][name]
-            left = self._pending.get(key)
+            left = pending.get(key)
             if left is None:
-                left = self._initial(g, dtask)
+                left = ndeps if g >= lag else self._initial(g, dtask)
             left -= 1
             if left:
-                self._pending[key] = left
+                pending[key] = left
                 continue
             self._pending.pop(key, None)
             self._mark_ready(key, dtask)
@@ -263,11 +265,13 @@ class Engine:
     # ----- processes ---------------------------------------------------------------------
     def _queue_proc(self, plan: list[list[_Op]]):
         """One queue: its tasks in submission order, each after its dependencies."""
-        env, period, skip = self.env, self.period, self._skip
+        env, period, skip, ready = self.env, self.period, self._skip, self._ready
         for frame in range(self.program.frames):
             for op in plan[frame % period]:
                 key = (frame, op.task.name)
-                if not self._check_ready(key, op.task):
+                if key in ready:  # the common case, inlined: dependencies already met
+                    ready.discard(key)
+                elif not self._check_ready(key, op.task):
                     ev = self._waiters[key] = env.event()
                     yield ev
                 if skip and key in skip:

@@ -1,0 +1,77 @@
+"""Particle offload: exact 'wait' timeline, 'new wait' never blocks the primary, skipped
+updates skip their copies, update rate beside frame rate, no drift."""
+from __future__ import annotations
+
+from hypothesis import given, settings, strategies as st
+
+from mgpusim import InputError, simulate
+from tests.schedule_helpers import assert_no_drift, experiment, gpu, presents, profile, rows, timed
+
+import pytest
+
+ENGINE = [timed("shadow", 100), timed("geometry", 200), timed("lighting", 300)]
+PRIMARY_FRAME = 100 + 200 + 5 + 300 + 10  # passes + particle draw + present
+
+
+def run(prof=None, **kw):
+    kw.setdefault("particles", 500)
+    kw.setdefault("vertex_bytes_per_particle", 1)
+    kw.setdefault("host_copy", False)
+    kw.setdefault("warmup", 1)
+    return simulate(experiment(prof or profile(), "particles", ENGINE, **kw))
+
+
+def test_wait_policy_exact_timeline():
+    """Update 500 ns on GPU 1, 500 B down (500 ns) and up (500 ns); the draw waits for them."""
+    r = run(frames=2, policy="wait")
+    assert rows(r, "particle_update", 0) == [(0, 500)]
+    assert rows(r, "particles.d2h", 0) == [(500, 1000)] and rows(r, "particles.h2d", 0) == [(1000, 1500)]
+    assert rows(r, "render.geometry", 0) == [(100, 300)]
+    assert rows(r, "particle_render", 0) == [(1500, 1505)]
+    assert rows(r, "present", 0) == [(1805, 1815)]
+
+
+def test_new_wait_exact_skip_pattern():
+    """The chain (1500 ns) outlasts a 615 ns frame: updates run in frames 0, 4, 7, 10, ...
+    (submitted at present f-2), the others are skipped with their copies."""
+    r = run(frames=14)
+    ran = sorted(r.trace[r.trace.task == "particle_update"].frame)
+    assert ran == [0, 4, 7, 10, 13]
+    for task in ("particles.d2h", "particles.h2d"):
+        assert sorted(r.trace[r.trace.task == task].frame) == ran
+    assert presents(r) == [PRIMARY_FRAME * (f + 1) for f in range(14)]
+    assert r.summary["skipped_tasks"]["particle_update"] == 9
+    rates = r.summary["task_rates_hz"]
+    assert rates["particle_update"] < rates["frames"]
+
+
+@settings(max_examples=20, deadline=None)
+@given(particles=st.integers(0, 200_000), gbps=st.sampled_from([0.05, 1.0, 7 / 3, 100.0]),
+       host_copy=st.booleans(), fif=st.integers(1, 3))
+def test_new_wait_never_blocks_the_primary(particles, gbps, host_copy, fif):
+    r = run(profile(gbps=gbps), frames=30, particles=particles, host_copy=host_copy, fif=fif)
+    assert presents(r) == [PRIMARY_FRAME * (f + 1) for f in range(30)]
+    gfx = r.trace[(r.trace.device == "gpu0") & (r.trace.engine == "graphics")]
+    assert not gfx.waits_for.str.contains("particle").any()
+
+
+def test_update_on_primary_compute_queue_runs_beside_the_shadow_pass():
+    r = run(frames=2, gpus=1, particle_gpu=0, policy="wait")
+    assert rows(r, "particle_update", 0) == [(0, 500)]
+    assert r.trace[r.trace.task == "particle_update"].engine.iloc[0] == "compute"
+    assert rows(r, "particle_render", 0) == [(500, 505)]
+    assert not r.trace.step.isin(["d2h", "h2d"]).any()
+
+
+def test_rejects_bad_options():
+    with pytest.raises(InputError, match="particle_gpu"):
+        run(gpus=1)
+    with pytest.raises(InputError, match="draw_after"):
+        run(draw_after="nope")
+
+
+@pytest.mark.parametrize("policy", ["wait", "new_wait"])
+def test_20000_frames_no_drift(policy):
+    r = simulate(experiment(profile(gbps=7 / 3), "particles", ENGINE, frames=20_000, particles=777,
+                            vertex_bytes_per_particle=3, policy=policy), record_trace=False)
+    assert assert_no_drift(r.frames.present_ns) <= 2

@@ -1,0 +1,75 @@
+"""Frame pipelining: exact timelines, chunking, copy placement, peer path, no drift."""
+from __future__ import annotations
+
+from mgpusim import InputError, simulate
+from tests.schedule_helpers import assert_no_drift, experiment, presents, profile, rows, timed
+
+import pytest
+
+PASSES = [timed("a", 1000, output_bytes=200), timed("b", 400, output_bytes=100), timed("c", 300)]
+
+
+def run(**kw):
+    kw.setdefault("split_at", 2)
+    kw.setdefault("fif", 3)
+    kw.setdefault("warmup", 1)
+    return simulate(experiment(kw.pop("prof", profile()), "pipelining", PASSES, **kw))
+
+
+def test_exact_timeline_per_pass_copies():
+    """GPU 1: a 0-1000, b 1000-1400; a's 200 B cross 1000-1200-1400, b's 100 B 1400-1500-1600;
+    GPU 0: c 1600-1900, present 1900-1910. GPU 1 bounds the period: 1400 ns."""
+    r = run(frames=4)
+    assert rows(r, "render.a") == [(0, 1000), (1400, 2400), (2800, 3800), (4200, 5200)]
+    assert rows(r, "out.a.d2h", 0) == [(1000, 1200)] and rows(r, "out.a.h2d", 0) == [(1200, 1400)]
+    assert rows(r, "out.b.d2h", 0) == [(1400, 1500)] and rows(r, "out.b.h2d", 0) == [(1500, 1600)]
+    assert rows(r, "render.c", 0) == [(1600, 1900)]
+    assert presents(r) == [1910, 3310, 4710, 6110]
+    assert list(r.frames.latency_ns) == [1910] * 4
+    assert r.config["bytes_per_frame"] == 300
+
+
+def test_chunks_overlap_download_and_upload():
+    r = run(frames=2, chunks=2)
+    assert rows(r, "out.a#1.h2d", 0) == [(1200, 1300)]
+    assert rows(r, "out.b#1.h2d", 0) == [(1500, 1550)]
+    assert presents(r)[0] == 1860  # 50 ns less latency than whole copies
+
+
+def test_frame_granularity_copies_once_after_gpu1():
+    r = run(frames=2, copy_granularity="frame")
+    assert rows(r, "out.d2h", 0) == [(1400, 1700)] and rows(r, "out.h2d", 0) == [(1700, 2000)]
+    assert presents(r)[0] == 2310
+
+
+def test_copies_on_graphics_queue_serialize_with_rendering():
+    r = run(frames=6, copy_queue="graphics")
+    assert rows(r, "out.a.d2h", 0) == [(1000, 1200)] and rows(r, "render.b", 0) == [(1200, 1600)]
+    p = presents(r)
+    assert p[5] - p[4] == 1700  # a + 200 + b + 100 on GPU 1, vs 1400 with a copy engine
+    assert set(r.trace[r.trace.step.isin(["d2h", "h2d"])].engine) == {"graphics"}
+
+
+def test_peer_link_one_copy_per_piece():
+    r = run(frames=2, prof=profile(peer_gbps=2.0))
+    assert rows(r, "out.a.p2p", 0) == [(1000, 1100)] and rows(r, "out.b.p2p", 0) == [(1400, 1450)]
+    with pytest.raises(InputError, match="peer"):
+        run(frames=2, path="peer")
+
+
+def test_pipelining_improves_frame_time_not_latency():
+    one = run(frames=20, gpus=1)
+    two = run(frames=20)
+    assert two.summary["frame_time_ms"] < one.summary["frame_time_ms"]
+    assert two.summary["latency_ms"] >= one.summary["latency_ms"]
+
+
+def test_split_beyond_passes_rejected():
+    with pytest.raises(InputError, match="split_at"):
+        run(split_at=4)
+
+
+def test_20000_frames_no_drift():
+    r = simulate(experiment(profile(gbps=7 / 3), "pipelining", PASSES, frames=20_000, split_at=2,
+                            fif=3, chunks=3), record_trace=False)
+    assert assert_no_drift(r.frames.present_ns) == 1

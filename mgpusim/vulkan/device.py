@@ -136,7 +136,9 @@ class Gpu:
         prio = [1.0]
         qinfos = [v.VkDeviceQueueCreateInfo(queueFamilyIndex=i, queueCount=1,
                                             pQueuePriorities=prio) for i in self.family_indices]
-        self.enabled_extensions = [e for e in (self.info.calibrated_timestamps,) if e]
+        # VK_EXT_external_memory_host: the runner's variant without the host-to-host copy
+        host_mem = "VK_EXT_external_memory_host" if self.info.external_memory_host else None
+        self.enabled_extensions = [e for e in (self.info.calibrated_timestamps, host_mem) if e]
         exts = self.enabled_extensions
         info = v.VkDeviceCreateInfo(queueCreateInfoCount=len(qinfos), pQueueCreateInfos=qinfos,
                                     ppEnabledExtensionNames=exts or None)

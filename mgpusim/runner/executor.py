@@ -1,0 +1,191 @@
+"""Executing the planned nodes: a submit thread and a reap thread per VkQueue, a host dispatcher
+and K memcpy threads; trace rows on the host clock.
+
+Why threads per queue: each stream must submit in its own order while waiting (on the host) for
+producers on other devices, as the reference renderer's per-GPU threads do; cffi releases the
+GIL during fence waits and submits, and numpy during copies, so they really overlap. The reap
+thread reads every submission's timestamps in order and recycles its command buffer, fence and
+semaphores. Any error in any thread stops them all and is raised from `execute`.
+"""
+from __future__ import annotations
+
+import queue as queue_mod
+import threading
+import time
+from collections import defaultdict
+from typing import Any, Callable
+
+import numpy as np
+
+from ..errors import ScheduleError
+from ..vulkan.device import Gpu
+from ..vulkan.errors import vk
+from .plan import HOST_STREAM, Node
+from .work import GpuWork, HostWork
+
+POLL_S = 0.05
+
+
+class _Abort(Exception):
+    """Another thread failed; this one stops quietly."""
+
+
+class Executor:
+    """Runs `nodes` once; `rows` are trace tuples (TRACE_COLUMNS order, absolute host ns)."""
+
+    def __init__(self, nodes: list[Node], host_threads: int, stall_timeout_s: float = 120.0):
+        self.nodes, self.host_threads, self.stall_s = nodes, host_threads, stall_timeout_s
+        self.abort = threading.Event()
+        self.errors: list[BaseException] = []
+        self.rows: list[tuple] = []
+        self._rows_lock = threading.Lock()
+        self._sem_pool: dict[int, list[Any]] = defaultdict(list)
+        self._sem_lock = threading.Lock()
+        self._parts: queue_mod.Queue = queue_mod.Queue()
+
+    # -- waiting ---------------------------------------------------------------------------
+    def _wait(self, event: threading.Event, who: Node, what: str) -> None:
+        deadline = time.monotonic() + self.stall_s
+        while not event.wait(POLL_S):
+            if self.abort.is_set():
+                raise _Abort()
+            if time.monotonic() > deadline:
+                raise ScheduleError(f"{who.label} waited {self.stall_s:.0f} s for {what}: the "
+                                    f"schedule is stuck (blocked dependency)")
+
+    def _finish(self, node: Node, waiter: Node) -> None:
+        """Block until `node` completed (fence wait for GPU work, event for host copies)."""
+        if isinstance(node.work, HostWork):
+            self._wait(node.completed, waiter, f"{node.label} to finish")
+            return
+        self._wait(node.submitted, waiter, f"{node.label} to be submitted")
+        if node.completed.is_set():
+            return
+        timeout = vk().VkTimeout
+        deadline = time.monotonic() + self.stall_s
+        with node.lock:
+            while not node.completed.is_set():
+                try:
+                    node.submission.wait(int(POLL_S * 1e9))
+                except timeout:
+                    if self.abort.is_set():
+                        raise _Abort() from None
+                    if time.monotonic() > deadline:
+                        raise ScheduleError(f"{node.label} did not finish on the device within "
+                                            f"{self.stall_s:.0f} s") from None
+                    continue
+                node.span = node.submission.timestamps_ns()
+                node.completed.set()
+
+    # -- semaphores --------------------------------------------------------------------------
+    def _semaphore(self, gpu: Gpu) -> Any:
+        with self._sem_lock:
+            pool = self._sem_pool[id(gpu)]
+            return pool.pop() if pool else gpu.semaphore()
+
+    def _release(self, node: Node) -> None:
+        with self._sem_lock:
+            for sem in node.waits:
+                self._sem_pool[id(sem.gpu)].append(sem)
+        node.waits = []
+
+    # -- threads ---------------------------------------------------------------------------
+    def _guard(self, fn: Callable[..., None], *args: Any) -> None:
+        try:
+            fn(*args)
+        except _Abort:
+            pass
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller of execute()
+            self.errors.append(exc)
+            self.abort.set()
+
+    def _submit_stream(self, nodes: list[Node]) -> None:
+        for node in nodes:
+            work = node.work
+            assert isinstance(work, GpuWork)
+            for prod, kind in node.deps:
+                if kind == "host":
+                    self._finish(prod, node)
+                elif kind == "semaphore":
+                    self._wait(prod.submitted, node, f"{prod.label} to be submitted")
+                    node.waits.append(prod.signals.pop(id(node)))
+            if self.abort.is_set():
+                raise _Abort()
+            for cons in node.sem_consumers:
+                node.signals[id(cons)] = self._semaphore(work.gpu)
+            frame = node.frame
+            node.submission = work.gpu.submit(
+                work.queue, lambda cmd, r=work.record, f=frame: r(cmd, f), wait=node.waits,
+                signal=list(node.signals.values()), label=node.label)
+            node.submitted.set()
+
+    def _reap_stream(self, nodes: list[Node]) -> None:
+        for node in nodes:
+            self._finish(node, node)
+            self._release(node)
+            work = node.work
+            assert isinstance(work, GpuWork) and node.span is not None
+            row = (node.frame, f"gpu{work.device}", work.engine, node.task.step, node.task.name,
+                   node.span[0], node.span[1], work.nbytes, node.waits_for)
+            with self._rows_lock:
+                self.rows.append(row)
+
+    def _host_dispatch(self, nodes: list[Node]) -> None:
+        for node in nodes:
+            for prod, _kind in node.deps:
+                self._finish(prod, node)
+            assert isinstance(node.work, HostWork)
+            parts = node.work.parts(node.frame)
+            node.parts_left = len(parts)
+            node.submitted.set()
+            for dst, src in parts:
+                self._parts.put((node, dst, src))
+        for _ in range(self.host_threads):
+            self._parts.put(None)
+
+    def _host_worker(self, k: int) -> None:
+        while True:
+            try:
+                item = self._parts.get(timeout=POLL_S)
+            except queue_mod.Empty:
+                if self.abort.is_set():
+                    return
+                continue
+            if item is None:
+                return
+            node, dst, src = item
+            start = time.monotonic_ns()
+            np.copyto(dst, src)
+            end = time.monotonic_ns()
+            with self._rows_lock:
+                self.rows.append((node.frame, "host", f"thread{k}", node.task.step, node.task.name,
+                                  start, end, int(dst.size), node.waits_for))
+                node.parts_left -= 1
+                last = node.parts_left == 0
+            if last:
+                node.completed.set()
+
+    def execute(self) -> list[tuple]:
+        """Run every node; raise the first error any thread hit."""
+        streams: dict[str, list[Node]] = defaultdict(list)
+        for node in self.nodes:
+            streams[node.stream].append(node)
+        threads = []
+        for name, nodes in streams.items():
+            if name == HOST_STREAM:
+                threads.append(threading.Thread(target=self._guard, args=(self._host_dispatch, nodes),
+                                                name="host-dispatch"))
+                threads += [threading.Thread(target=self._guard, args=(self._host_worker, k),
+                                             name=f"memcpy{k}") for k in range(self.host_threads)]
+            else:
+                threads.append(threading.Thread(target=self._guard, args=(self._submit_stream, nodes),
+                                                name=f"submit-{name}"))
+                threads.append(threading.Thread(target=self._guard, args=(self._reap_stream, nodes),
+                                                name=f"reap-{name}"))
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        if self.errors:
+            raise self.errors[0]
+        return self.rows

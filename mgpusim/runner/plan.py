@@ -1,0 +1,114 @@
+"""The concrete task graph of a run: one node per (frame, task), streams, and how each
+dependency is honoured.
+
+Why three kinds of edge: Vulkan gives different tools for each.
+- `order`: producer and consumer on the same VkQueue, producer submitted first. Submission order
+  plus the full barriers `Gpu.submit` puts around every task is enough.
+- `semaphore`: same device, different queues (render -> copy engine -> composite). A binary
+  semaphore the producer signals and the consumer waits; the consumer is only submitted after
+  the producer (the binary-semaphore rule).
+- `host`: different devices (each simulated GPU is its own VkInstance on lavapipe, so nothing is
+  shared between them) or a host copy on either side: the host waits for the producer's fence
+  (or the host copy's end) before it submits or copies.
+Every stream handles its nodes in (frame, template position) order; the plan checks that each
+dependency points to an earlier position, so that order can never deadlock.
+"""
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+from ..errors import ScheduleError
+from ..schedules.base import FrameProgram
+from ..tasks import HostCopyTask, Task
+from .work import GpuWork, HostWork, Work
+
+EdgeKind = Literal["order", "semaphore", "host"]
+HOST_STREAM = "host"
+
+
+@dataclass(eq=False)
+class Node:
+    """One task of one frame, with the events the executor threads meet on."""
+
+    frame: int
+    index: int
+    task: Task
+    work: Work
+    stream: str
+    waits_for: str
+    deps: list[tuple["Node", EdgeKind]] = field(default_factory=list)
+    #: consumers that wait on a semaphore this node signals
+    sem_consumers: list["Node"] = field(default_factory=list)
+    signals: dict[int, Any] = field(default_factory=dict)  # id(consumer) -> Semaphore
+    waits: list[Any] = field(default_factory=list)  # Semaphores this node waited on
+    submitted: threading.Event = field(default_factory=threading.Event)
+    completed: threading.Event = field(default_factory=threading.Event)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    submission: Any = None
+    span: tuple[int, int] | None = None
+    parts_left: int = 0
+
+    @property
+    def label(self) -> str:
+        return f"frame {self.frame} {self.task.name}"
+
+
+def stream_of(work: Work) -> str:
+    if isinstance(work, HostWork):
+        return HOST_STREAM
+    return f"gpu{work.device}/{work.queue.family.index}"
+
+
+def waits_for_labels(program: FrameProgram) -> list[dict[str, str]]:
+    """As the simulator writes them: dependencies on other frames or devices, 'offset:task'."""
+    period = len(program.templates)
+    index = [{t.name: t for t in tasks} for tasks in program.templates]
+
+    def device(t: Task) -> str:
+        return "host" if isinstance(t, HostCopyTask) else t.queue.device_name
+
+    out = []
+    for phase, tasks in enumerate(program.templates):
+        out.append({t.name: ";".join(f"{d.offset}:{d.task}" for d in t.deps
+                                     if d.offset or device(index[(phase + d.offset) % period][d.task]) != device(t))
+                    for t in tasks})
+    return out
+
+
+def build_nodes(program: FrameProgram, works: list[dict[str, Work]], frames: int) -> list[Node]:
+    """Nodes of frames 0..frames-1 in (frame, position) order, with their classified edges."""
+    period = len(program.templates)
+    labels = waits_for_labels(program)
+    nodes: list[Node] = []
+    by_key: dict[tuple[int, str], Node] = {}
+    for f in range(frames):
+        phase = f % period
+        for i, task in enumerate(program.templates[phase]):
+            work = works[phase][task.name]
+            node = Node(f, i, task, work, stream_of(work), labels[phase][task.name])
+            nodes.append(node)
+            by_key[(f, task.name)] = node
+    for node in nodes:
+        for dep in node.task.deps:
+            pf = node.frame + dep.offset
+            if pf < 0:
+                continue
+            prod = by_key[(pf, dep.task)]
+            if (prod.frame, prod.index) >= (node.frame, node.index):
+                raise ScheduleError(f"{node.label} depends on {prod.label}, which comes later in "
+                                    f"the frame's submission order: the runner submits in order")
+            kind = _edge(prod.work, node.work, prod.stream == node.stream)
+            node.deps.append((prod, kind))
+            if kind == "semaphore":
+                prod.sem_consumers.append(node)
+    return nodes
+
+
+def _edge(prod: Work, cons: Work, same_stream: bool) -> EdgeKind:
+    if same_stream:
+        return "order" if isinstance(prod, GpuWork) else "host"
+    if isinstance(prod, GpuWork) and isinstance(cons, GpuWork) and prod.device == cons.device:
+        return "semaphore"
+    return "host"

@@ -1,0 +1,138 @@
+"""`run_program` / `run_experiment`: execute the simulator's FrameProgram on Vulkan devices.
+
+Why the same program: `mgpusim.simulate.build_program(exp)` is what the simulator runs; the
+runner executes those very tasks (queues, dependencies, submission order, buffering), so a
+measured trace and a simulated one differ only in where the durations come from.
+
+Timing: `prewarm_frames` untimed frames first (shader JIT, first-touch page faults, every
+buffered copy used once), then `program.frames` frames, all traced; the summary counts
+steady state from `program.warmup_frames` on, exactly as the simulator's does.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+import pandas as pd
+
+from ..errors import InputError, ScheduleError
+from ..experiment import Experiment
+from ..results import frames_from_trace, summarize
+from ..schedules.base import FrameProgram
+from ..trace import make_trace
+from ..vulkan.copies import download
+from ..vulkan.device import Gpu
+from .executor import Executor
+from .plan import build_nodes
+from .resources import Resources
+from .work import GpuWork, Work, build_work
+
+
+@dataclass
+class RunResult:
+    """A measured run: `.trace`, `.frames`, `.summary` as the simulator's Result, plus the final
+    displayed image (H x W x 4 uint8) and the frame's depth (H x W uint16, sort-last only)."""
+
+    summary: dict[str, Any]
+    trace: pd.DataFrame
+    frames: pd.DataFrame
+    image: np.ndarray
+    depth: np.ndarray | None = None
+    config: dict[str, Any] = field(default_factory=dict)
+    machine: dict[str, Any] = field(default_factory=dict)
+
+
+def run_program(program: FrameProgram, gpus: Sequence[Gpu], *, host_threads: int = 1,
+                prewarm_frames: int | None = None, rebase: bool = True,
+                stall_timeout_s: float = 120.0) -> RunResult:
+    """Execute `program` on `gpus` (simulated GPU i = gpus[i]); the GPUs stay open."""
+    if len(gpus) < program.gpus:
+        raise InputError(f"the program needs {program.gpus} GPU(s), got {len(gpus)}", field="gpus")
+    declared = program.notes.get("resources")
+    if declared is None:
+        raise ScheduleError(f"schedule {program.schedule!r} declares no resources "
+                            f"(notes['resources']): the Vulkan runner cannot execute it yet")
+    gpus = list(gpus)
+    res = Resources(declared, gpus)
+    owned: list[Any] = []
+    try:
+        works: list[dict[str, Work]] = [
+            {t.name: build_work(t, gpus, res, host_threads, owned) for t in tasks}
+            for tasks in program.templates]
+        warm = prewarm_frames if prewarm_frames is not None else max(
+            2, int(program.notes.get("buffers", 1)), len(program.templates))
+        if warm:
+            Executor(build_nodes(program, works, warm), host_threads, stall_timeout_s).execute()
+        rows = Executor(build_nodes(program, works, program.frames), host_threads,
+                        stall_timeout_s).execute()
+        for g in gpus:
+            g.wait_idle()
+        image, depth = _final_image(gpus[0], res)
+    finally:
+        for g in gpus:
+            g.wait_idle()
+        for obj in reversed(owned):
+            obj.destroy()
+        res.destroy()
+    origin = min(r[5] for r in rows)
+    if rebase:
+        rows = [r[:5] + (r[5] - origin, r[6] - origin) + r[7:] for r in rows]
+    trace = make_trace(rows)
+    frames = frames_from_trace(trace, _present_step(program))
+    summary = summarize(frames, trace, program.warmup_frames)
+    summary["clock_origin_ns"] = int(origin) if rebase else 0
+    summary["step_mean_ms"] = {k: float(v) / 1e6 for k, v in (trace["end_ns"] - trace["start_ns"])
+                               .groupby(trace["step"]).mean().items()}
+    fallbacks = sorted({f"{w.task.name}: {w.task.queue} -> gpu{w.device}.graphics"
+                        for ws in works for w in ws.values()
+                        if isinstance(w, GpuWork) and w.fallback})
+    if fallbacks:
+        summary["queue_fallbacks"] = fallbacks
+    return RunResult(summary, trace, frames, image, depth)
+
+
+def _present_step(program: FrameProgram) -> str:
+    task = next(t for t in program.templates[0] if t.name == program.present_task)
+    return task.step
+
+
+def _final_image(gpu: Gpu, res: Resources) -> tuple[np.ndarray, np.ndarray | None]:
+    """The displayed image (RGBA8) and the frame's depth (D16), read back after the run."""
+    display = res.declared.get("gpu0.display")
+    name = "gpu0.display" if display is not None else "gpu0.frame"
+    colour = res.images(name)[0][0]
+    image = download(gpu, colour).reshape(colour.height, colour.width, 4)
+    depth_img = res.images("gpu0.frame")[0][1] if "gpu0.frame" in res.declared else None
+    depth = None
+    if depth_img is not None:
+        depth = download(gpu, depth_img).view(np.uint16).reshape(depth_img.height, depth_img.width)
+    return image, depth
+
+
+def run_experiment(exp: Experiment, *, devices: Sequence[int] | None = None,
+                   lp_threads: Sequence[int | None] | None = None, host_threads: int | None = None,
+                   prewarm_frames: int | None = None, validation: bool | None = None) -> RunResult:
+    """Build `exp`'s program as the simulator does, open its GPUs, run it, close them.
+
+    `devices[i]`: physical device of simulated GPU i (NVIDIA; default i mod count; lavapipe
+    always gives each simulated GPU its own instance). `host_threads`: memcpy threads
+    (default: the profile's `host.memcpy_threads`, the simulator's split)."""
+    from ..simulate import build_program  # noqa: PLC0415 - keeps import order simple
+    from ..vulkan.machine import close_gpus, machine_record  # noqa: PLC0415
+    from .machine import open_gpus  # noqa: PLC0415
+
+    program = build_program(exp)
+    threads = host_threads or exp.profile.host.memcpy_threads
+    gpus = open_gpus(program.gpus, devices=devices, lp_threads=lp_threads, validation=validation)
+    try:
+        result = run_program(program, gpus, host_threads=threads, prewarm_frames=prewarm_frames)
+        result.machine = machine_record(gpus, {"host_threads": threads})
+    finally:
+        close_gpus(gpus)
+    result.config = {"experiment": exp.name, "file": exp.file, "profile": exp.profile.name,
+                     "schedule": exp.schedule.name, "gpus": exp.schedule.gpus,
+                     "width": exp.scene.width, "height": exp.scene.height, "measured": True,
+                     "host_threads": threads,
+                     **{k: v for k, v in program.notes.items() if k != "resources"}}
+    return result

@@ -1,0 +1,181 @@
+"""Passes that render into images the caller owns: the runner's multi-buffered targets.
+
+Why not passes.py: those passes own their render target, one per instance. The runner needs one
+pipeline recorded into any of B buffered targets (`record(cmd, slot)`), a primary that renders
+its tile straight into the frame it composites into, and compositing that loads the frame
+instead of clearing it. Render passes that differ only in load/store ops are compatible, so one
+pipeline serves the clearing and the loading target alike.
+
+Sort-first tiles are exact: a tile is rendered with the *full-frame* viewport shifted by the
+tile's origin and a scissor on the tile, so every fragment sees the same rasterizer inputs as
+in a single-GPU render of the whole frame.
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, Sequence
+
+from ..errors import InputError
+from .copies import upload
+from .errors import vk
+from .memory import Image
+from .passes import _quad_pc, _stages, _view_matrix, torus_mesh
+from .pipelines import Pipeline, RenderTarget, graphics_pipeline
+
+if TYPE_CHECKING:
+    from .device import Gpu
+
+Rect = tuple[int, int, int, int]  # x, y, width, height
+
+
+def target_over(gpu: "Gpu", color: Image, depth: Image | None, clear: bool) -> RenderTarget:
+    """A render target over existing images (never destroys them)."""
+    return RenderTarget(gpu, color.width, color.height, depth=depth is not None, clear=clear,
+                        color=color, depth_image=depth)
+
+
+def begin(target: RenderTarget, cmd: Any, area: Rect, viewport: Rect) -> None:
+    """Begin `target`'s render pass on `area` (scissor too) with `viewport` (may lie partly
+    outside the target: a tile's view of the whole frame)."""
+    v = vk()
+    clears = [v.VkClearValue(color=v.VkClearColorValue(float32=[0.0, 0.0, 0.0, 0.0]))]
+    if target.depth is not None:
+        clears.append(v.VkClearValue(depthStencil=v.VkClearDepthStencilValue(depth=1.0, stencil=0)))
+    rect = v.VkRect2D(offset=v.VkOffset2D(x=area[0], y=area[1]),
+                      extent=v.VkExtent2D(width=area[2], height=area[3]))
+    info = v.VkRenderPassBeginInfo(renderPass=target.render_pass, framebuffer=target.framebuffer,
+                                   renderArea=rect, clearValueCount=len(clears), pClearValues=clears)
+    v.vkCmdBeginRenderPass(cmd, info, v.VK_SUBPASS_CONTENTS_INLINE)
+    viewports = [v.VkViewport(x=viewport[0], y=viewport[1], width=viewport[2],
+                              height=viewport[3], minDepth=0.0, maxDepth=1.0)]
+    scissors = [rect]
+    v.vkCmdSetViewport(cmd, 0, 1, viewports)
+    v.vkCmdSetScissor(cmd, 0, 1, scissors)
+
+
+def _local(rect: Rect, origin: tuple[int, int]) -> Rect:
+    return (rect[0] - origin[0], rect[1] - origin[1], rect[2], rect[3])
+
+
+class _FramePass:
+    """Common part: per-slot targets, one pipeline, owned objects destroyed in reverse."""
+
+    def __init__(self, gpu: "Gpu", targets: Sequence[RenderTarget]):
+        if not targets:
+            raise InputError("a pass needs at least one target")
+        self.gpu, self.targets = gpu, list(targets)
+        self._owned: list[Any] = list(self.targets)
+
+    def destroy(self) -> None:
+        for obj in reversed(self._owned):
+            obj.destroy()
+        self._owned.clear()
+
+
+class FragmentLoopTile(_FramePass):
+    """The fragment-loop benchmark on the frame rectangle `rect`, into targets whose pixel (0, 0)
+    is frame pixel `origin`."""
+
+    def __init__(self, gpu: "Gpu", targets: Sequence[RenderTarget], frame: tuple[int, int],
+                 rect: Rect, origin: tuple[int, int], iterations: int):
+        super().__init__(gpu, targets)
+        self.pipeline: Pipeline = graphics_pipeline(gpu, self.targets[0], "quad.vert", "loop.frag")
+        self._owned.append(self.pipeline)
+        self.area, self.empty = _local(rect, origin), rect[2] * rect[3] == 0
+        self.viewport = (-origin[0], -origin[1], frame[0], frame[1])
+        self._pc = _quad_pc((-1, -1, 1, 1), (0, 0, 1, 1), (iterations, 0, 0, 0))
+
+    def record(self, cmd: Any, slot: int = 0) -> None:
+        if self.empty:
+            return
+        v = vk()
+        begin(self.targets[slot], cmd, self.area, self.viewport)
+        self.pipeline.bind(cmd)
+        self.pipeline.push(cmd, _stages(), self._pc)
+        v.vkCmdDraw(cmd, 6, 1, 0, 0)
+        v.vkCmdEndRenderPass(cmd)
+
+
+class MeshShare(_FramePass):
+    """Triangles [first, first + count) of the generated torus of `triangles` triangles, drawn
+    full-frame with depth: sort-last's geometry share (only the share is uploaded)."""
+
+    def __init__(self, gpu: "Gpu", targets: Sequence[RenderTarget], frame: tuple[int, int],
+                 triangles: int, first: int, count: int):
+        super().__init__(gpu, targets)
+        if self.targets[0].depth is None:
+            raise InputError("a mesh pass needs a target with depth", field="depth")
+        self.count, self.frame = count, frame
+        self.vertices = None
+        if count > 0:
+            verts = torus_mesh(triangles)[3 * first:3 * (first + count)]
+            self.vertices = gpu.buffer(verts.nbytes, host_visible=False)
+            upload(gpu, self.vertices, verts)
+            self._owned.insert(0, self.vertices)
+        self.pipeline = graphics_pipeline(
+            gpu, self.targets[0], "mesh.vert", "mesh.frag", push_size=64, stride=24,
+            vertex_attributes=[(0, "R32G32B32_SFLOAT", 0), (1, "R32G32B32_SFLOAT", 12)],
+            depth_test=True)
+        self._owned.append(self.pipeline)
+        self._mvp = _view_matrix()
+
+    def record(self, cmd: Any, slot: int = 0) -> None:
+        v = vk()
+        full = (0, 0, self.frame[0], self.frame[1])
+        begin(self.targets[slot], cmd, full, full)  # clears even an empty share
+        if self.vertices is not None:
+            self.pipeline.bind(cmd)
+            self.pipeline.push(cmd, _stages(), self._mvp)
+            buffers, offsets = [self.vertices.handle], [0]
+            v.vkCmdBindVertexBuffers(cmd, 0, 1, buffers, offsets)
+            v.vkCmdDraw(cmd, 3 * self.count, 1, 0, 0)
+        v.vkCmdEndRenderPass(cmd)
+
+
+class CompositeInto(_FramePass):
+    """Draws each input (colour, or colour + depth with the depth test) into its frame
+    rectangle of a *loading* target; `inputs[slot][k]` is input k's images in buffer `slot`."""
+
+    def __init__(self, gpu: "Gpu", target: RenderTarget, frame: tuple[int, int],
+                 inputs: Sequence[Sequence[tuple[Image, Image | None]]], rects: Sequence[Rect],
+                 depth: bool):
+        super().__init__(gpu, [target])
+        if target.clear:
+            raise InputError("the composite must load the frame, not clear it")
+        self.frame = frame
+        slots, k = len(inputs), len(rects)
+        frag, samplers = ("sample_depth.frag", 2) if depth else ("sample.frag", 1)
+        self.pipeline = graphics_pipeline(gpu, target, "quad.vert", frag, samplers=samplers,
+                                          depth_test=depth, max_sets=max(1, slots * k))
+        self._owned.append(self.pipeline)
+        self.sets = [[self.pipeline.descriptor_set([c, d] if depth else [c]) for c, d in per_slot]
+                     for per_slot in inputs]
+        w, h = frame
+        self._pcs = [_quad_pc((-1 + 2 * x / w, -1 + 2 * y / h, -1 + 2 * (x + rw) / w,
+                               -1 + 2 * (y + rh) / h), (0, 0, 1, 1))
+                     for x, y, rw, rh in rects]
+        self._nonempty = [r[2] * r[3] > 0 for r in rects]
+
+    def record(self, cmd: Any, slot: int = 0) -> None:
+        v = vk()
+        full = (0, 0, self.frame[0], self.frame[1])
+        begin(self.targets[0], cmd, full, full)
+        for dset, pc, live in zip(self.sets[slot], self._pcs, self._nonempty):
+            if live:
+                self.pipeline.bind(cmd, dset)
+                self.pipeline.push(cmd, _stages(), pc)
+                v.vkCmdDraw(cmd, 6, 1, 0, 0)
+        v.vkCmdEndRenderPass(cmd)
+
+
+def copy_image(cmd: Any, src: Image, dst: Image) -> None:
+    """Record a whole-image copy (present: frame -> displayed image)."""
+    v = vk()
+    layers = v.VkImageSubresourceLayers(aspectMask=src.aspect, mipLevel=0, baseArrayLayer=0,
+                                        layerCount=1)
+    zero = v.VkOffset3D(x=0, y=0, z=0)
+    region = v.VkImageCopy(srcSubresource=layers, srcOffset=zero, dstSubresource=layers,
+                           dstOffset=zero,
+                           extent=v.VkExtent3D(width=src.width, height=src.height, depth=1))
+    regions = [region]
+    general = v.VK_IMAGE_LAYOUT_GENERAL
+    v.vkCmdCopyImage(cmd, src.handle, general, dst.handle, general, 1, regions)

@@ -32,6 +32,8 @@ class HostProfile:
     memcpy_thread_gbps: float
     cpu_cores: int
     host_copy_fixed_ns: int = 0
+    #: The GPUs are emulated on the host CPU (lavapipe): their passes share `cpu_cores`.
+    gpus_share_cpu: bool = False
 
 
 @dataclass(frozen=True)
@@ -77,6 +79,8 @@ class GpuProfile:
     costs: Mapping[str, PassCost]
     copy: Mapping[str, CopyCosts]
     local_copy_gbps: float = 300.0
+    #: CPU threads a CPU-emulated GPU renders with (LP_NUM_THREADS); None = all cores.
+    cpu_threads: int | None = None
 
     def has_queue(self, family: str, index: int = 0) -> bool:
         return self.queues.get(family, 0) > index
@@ -135,6 +139,7 @@ def _parse_host(t: Table) -> HostProfile:
         memcpy_thread_gbps=t.get("memcpy_thread_gbps", float, above=0),
         cpu_cores=t.get("cpu_cores", int, minimum=1),
         host_copy_fixed_ns=t.get("host_copy_fixed_ns", int, 0, minimum=0),
+        gpus_share_cpu=t.get("gpus_share_cpu", bool, False),
     )
     t.finish()
     return host
@@ -154,6 +159,7 @@ def _parse_gpu(t: Table) -> GpuProfile:
         costs=_parse_costs(t.table("costs")),
         copy=_parse_copy(t.table("copy", None)),
         local_copy_gbps=t.get("local_copy_gbps", float, 300.0, above=0),
+        cpu_threads=t.get("cpu_threads", int, None, minimum=1),
     )
     t.finish()
     return gpu

@@ -37,6 +37,9 @@ class _Op:
     engine: str
     waits_for: str
     is_present: bool
+    #: CPU threads of a CPU-emulated GPU (lavapipe): the pass is `duration * cpu` core-ns of
+    #: work on the shared host.cpu channel, at most `cpu` cores at once. 0 = a real GPU.
+    cpu: int = 0
 
 
 @dataclass
@@ -136,7 +139,18 @@ class Engine:
         device, engine = ("host", "memcpy") if isinstance(task, HostCopyTask) else \
             (task.queue.device_name, task.queue.engine)
         return _Op(task, self._duration(task), channel, cap, nbytes, device, engine,
-                   self._waits_for[phase][task.name], task.name == self.program.present_task)
+                   self._waits_for[phase][task.name], task.name == self.program.present_task,
+                   self._cpu_threads(task))
+
+    def _cpu_threads(self, task: Task) -> int:
+        """Cores a pass of a CPU-emulated GPU can use (0 when the GPUs are real)."""
+        host = self.costs.profile.host
+        if not host.gpus_share_cpu or not isinstance(task, PassTask):
+            return 0
+        if not hasattr(self, "_cpu"):
+            self._cpu = self.channels["host.cpu"] = Channel(self.env, "host.cpu", Fraction(host.cpu_cores))
+        threads = self.costs.profile.gpus[task.queue.device].cpu_threads or host.cpu_cores
+        return min(threads, host.cpu_cores)
 
     def _duration(self, task: Task) -> int:
         if isinstance(task, PassTask):
@@ -278,7 +292,9 @@ class Engine:
                     self._skip_task(key, op.task)
                     continue
                 start = env.now
-                if op.duration:
+                if op.cpu:
+                    yield self._cpu.transfer(op.duration * op.cpu, op.cpu)
+                elif op.duration:
                     yield env.timeout(op.duration)
                 if op.channel is not None:
                     yield op.channel.transfer(op.nbytes, op.cap)
@@ -359,13 +375,15 @@ class Engine:
         self.env.run()
         if self._unfinished:
             raise ScheduleError(self._blocked_message())
+        ch = self.channels
         effects = {
-            "link_model": any(not n.startswith("host.") for n in self.channels),
-            "link_contention": any(c.max_concurrent > 1 for n, c in self.channels.items() if n != "host.memory"),
-            "host_copies": "host.memory" in self.channels,
-            "host_memory_contention": self.channels.get("host.memory", None) is not None
-            and self.channels["host.memory"].max_concurrent > 1,
+            "link_model": any(not n.startswith("host.") for n in ch),
+            "link_contention": any(c.max_concurrent > 1 for n, c in ch.items() if not n.startswith("host.")),
+            "host_copies": "host.memory" in ch,
+            "host_memory_contention": "host.memory" in ch and ch["host.memory"].max_concurrent > 1,
         }
+        if "host.cpu" in ch:  # only reported for CPU-emulated GPUs (lavapipe profiles)
+            effects["cpu_contention"] = ch["host.cpu"].max_concurrent > 1
         return RawResult(self.rows, self.frame_start, self.present_end, self.channels,
                          dict(self._skipped), effects, dict(self._skipped_frames))
 

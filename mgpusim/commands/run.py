@@ -1,0 +1,83 @@
+"""`mgpusim run EXPERIMENT.toml [--set k=v ...] [--devices I,J,..] [--out DIR]`: the measured run.
+
+Executes the experiment's schedule (the very FrameProgram `simulate` runs) on Vulkan devices and
+writes what `mgpusim validate --measured DIR` reads: trace.csv|parquet, frames.csv|parquet,
+summary.json (with the config), machine.json, and image.png (the final displayed frame).
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ..errors import InputError
+
+
+def _ints(text: str | None, field: str) -> list[int] | None:
+    if not text:
+        return None
+    try:
+        return [int(t) for t in text.split(",")]
+    except ValueError:
+        raise InputError(f"expected comma-separated integers, got {text!r}", field=field) from None
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..experiment import load_experiment, parse_overrides  # noqa: PLC0415
+    from ..output import write_json, write_table  # noqa: PLC0415
+    from ..runner.run import run_experiment  # noqa: PLC0415
+
+    exp = load_experiment(args.experiment, parse_overrides(args.overrides))
+    devices = _ints(args.devices, "--devices")
+    if args.gpus_per_device:
+        if devices is not None:
+            raise InputError("give --devices or --gpus-per-device, not both")
+        if args.gpus_per_device < 1:
+            raise InputError("must be >= 1", field="--gpus-per-device")
+        devices = [i // args.gpus_per_device for i in range(exp.schedule.gpus)]
+    result = run_experiment(exp, devices=devices, lp_threads=_ints(args.lp_threads, "--lp-threads"),
+                            host_threads=args.host_threads, prewarm_frames=args.prewarm)
+    out = args.out or Path("out") / f"{exp.name}-measured"
+    out.mkdir(parents=True, exist_ok=True)
+    write_table(result.trace, out / f"trace.{args.format}")
+    write_table(result.frames, out / f"frames.{args.format}")
+    write_json({**result.summary, "config": result.config}, out / "summary.json")
+    write_json(result.machine, out / "machine.json")
+    _write_png(result.image, out / "image.png")
+    s = result.summary
+    print(f"{exp.name}: measured {exp.schedule.name} on {exp.schedule.gpus} GPU(s) "
+          f"({result.machine['gpus'][0]['device']}), {exp.scene.width}x{exp.scene.height}")
+    print(f"  frame time {s['frame_time_ms']:.3f} ms ({s['fps']:.1f} fps), latency "
+          f"{s['latency_ms']:.3f} ms, jitter {s['frame_time_jitter_ms']:.3f} ms")
+    print("  mean step (ms): " + ", ".join(f"{k} {v:.3f}" for k, v in s["step_mean_ms"].items()))
+    for line in s.get("queue_fallbacks", []):
+        print(f"  note: {line} (no such queue family on this device)")
+    print(f"  wrote {out}")
+    return 0
+
+
+def _write_png(image, path: Path) -> None:
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    plt.imsave(path, image)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("run", help="run an experiment's schedule on Vulkan devices (measured)",
+                              description=__doc__)
+    p.add_argument("experiment", type=Path, help="experiment TOML file")
+    p.add_argument("--set", dest="overrides", action="append", metavar="KEY=VALUE",
+                   help="override a field, e.g. schedule.gpus=2 (repeatable)")
+    p.add_argument("--devices", metavar="I,J,...",
+                   help="physical device of each simulated GPU (default: GPU i on device i mod count)")
+    p.add_argument("--gpus-per-device", type=int, metavar="K",
+                   help="put K simulated GPUs on each physical device (GPU i on device i // K)")
+    p.add_argument("--lp-threads", metavar="N[,N...]",
+                   help="lavapipe LP_NUM_THREADS per simulated GPU (one value: all)")
+    p.add_argument("--host-threads", type=int, help="memcpy threads (default: the profile's)")
+    p.add_argument("--prewarm", type=int, help="untimed frames before the run (default: buffers)")
+    p.add_argument("--out", type=Path, help="output folder (default: out/<experiment>-measured)")
+    p.add_argument("--format", choices=("csv", "parquet"), default="csv", help="table format")
+    p.set_defaults(func=run)

@@ -1,0 +1,128 @@
+"""Turn `mgpusim measure` tables into cost-model coefficients and a hardware profile.
+
+- pass kinds: fixed_ns + ns_per_<term> * work, the work terms of :mod:`mgpusim.costs`;
+- copies: per path and queue family, fixed_ns + bytes / bandwidth;
+- host copies: throughput against thread count, min(threads * per_thread, memory bandwidth);
+- lavapipe: each simulated GPU's passes are CPU work on the host's cores (`host.gpus_share_cpu`),
+  with `cpu_threads` per GPU, so GPUs and host threads running at once slow each other down.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from ..costs import WORK_TERMS
+from ..errors import InputError
+from ..scene import PassSpec
+from .fit import Fit, fit_nonnegative
+
+PASS_KINDS = ("fragment_loop", "mesh", "composite_sort_first", "composite_sort_last",
+              "particle_update", "particle_render")
+COPY_PASSES = {"copy_d2h": "d2h", "copy_h2d": "h2d", "copy_d2d": "d2d"}
+
+
+@dataclass
+class Calibration:
+    pass_fits: dict[str, Fit] = field(default_factory=dict)
+    copy_fits: dict[tuple[str, str], Fit] = field(default_factory=dict)
+    host: dict[str, float] = field(default_factory=dict)
+    machine: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+
+def read_measurements(paths: list[Path]) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """Concatenate measure tables (CSV or Parquet); return them and the first machine record."""
+    frames, machine = [], {}
+    for path in paths:
+        if not path.is_file():
+            raise InputError("measurement table not found", file=str(path))
+        df = pd.read_parquet(path) if path.suffix == ".parquet" else pd.read_csv(path)
+        for col in ("pass", "duration_ns"):
+            if col not in df.columns:
+                raise InputError(f"not a measure table (no {col!r} column)", file=str(path))
+        df["source"] = path.name
+        frames.append(df)
+        record = path.with_name(path.name + ".machine.json")
+        if record.is_file() and not machine:
+            machine = json.loads(record.read_text())
+    return pd.concat(frames, ignore_index=True), machine
+
+
+def pass_work(row: pd.Series) -> dict[str, float]:
+    """Work terms of one measured pass, as the schedules would give them."""
+    kind = row["pass"]
+    pixels = float(row.get("width", 0) or 0) * float(row.get("height", 0) or 0)
+    params = {k: float(row[k]) for k in ("iterations", "triangles", "inputs", "particles")
+              if k in row and pd.notna(row[k])}
+    if kind == "composite_sort_last":
+        pixels *= params.get("inputs", 1)  # one full-screen quad per input
+    return WORK_TERMS[kind](PassSpec(kind, kind, params), pixels, 1.0)
+
+
+def fit_passes(df: pd.DataFrame, cal: Calibration) -> None:
+    """One fit per pass kind, on single-GPU rows (concurrent runs feed the CPU-sharing fit)."""
+    solo = df[_solo(df)]
+    for kind in PASS_KINDS:
+        rows = solo[solo["pass"] == kind]
+        if rows.empty:
+            continue
+        works = [pass_work(r) for _, r in rows.iterrows()]
+        terms = sorted({t for w in works for t in w})
+        X = np.array([[1.0] + [w.get(t, 0.0) for t in terms] for w in works])
+        fit = fit_nonnegative(X, rows["duration_ns"].to_numpy(), ["fixed_ns"] + [f"ns_per_{t}" for t in terms], kind)
+        cal.pass_fits[kind] = fit
+        cal.warnings.extend(fit.warnings)
+
+
+def fit_copies(df: pd.DataFrame, cal: Calibration) -> None:
+    for name, path in COPY_PASSES.items():
+        rows = df[(df["pass"] == name) & _solo(df)]
+        for queue, group in rows.groupby("queue"):
+            X = np.column_stack([np.ones(len(group)), group["bytes"].to_numpy(dtype=float)])
+            fit = fit_nonnegative(X, group["duration_ns"].to_numpy(), ["fixed_ns", "ns_per_byte"], f"{name} on {queue}")
+            cal.copy_fits[(path, str(queue))] = fit
+            cal.warnings.extend(fit.warnings)
+
+
+def fit_host_copies(df: pd.DataFrame, cal: Calibration) -> None:
+    """Throughput per thread count; per-thread speed from 1 thread, the plateau from the most."""
+    rows = df[df["pass"] == "host_copy"]
+    if rows.empty:
+        return
+    throughput: dict[int, float] = {}
+    fixed: list[float] = []
+    for threads, group in rows.groupby("threads"):
+        X = np.column_stack([np.ones(len(group)), group["bytes"].to_numpy(dtype=float)])
+        fit = fit_nonnegative(X, group["duration_ns"].to_numpy(), ["fixed_ns", "ns_per_byte"], f"host_copy x{threads}")
+        cal.warnings.extend(fit.warnings)
+        throughput[int(threads)] = 1.0 / fit.coef[1] if fit.coef[1] > 0 else float("inf")
+        fixed.append(fit.coef[0])
+    one = throughput.get(1, min(throughput.values()))
+    most = max(throughput)
+    plateau = throughput[most]
+    cal.host = {"memcpy_thread_gbps": one, "host_copy_fixed_ns": float(np.median(fixed)),
+                "throughput_by_threads_gbps": {str(k): v for k, v in sorted(throughput.items())}}
+    if plateau >= 0.9 * most * one:
+        cal.warnings.append(f"host copies still scale at {most} threads: memory bandwidth is at least "
+                            f"{plateau:.1f} GB/s (not saturated in the measured range)")
+    cal.host["memory_bandwidth_gbps"] = max(plateau, one)
+
+
+def _solo(df: pd.DataFrame) -> pd.Series:
+    """Rows measured with one simulated GPU at a time."""
+    if "gpus" in df.columns:
+        return df["gpus"].fillna(1) <= 1
+    return ~df["source"].str.contains("gpus")
+
+
+def calibrate(df: pd.DataFrame, machine: dict[str, Any]) -> Calibration:
+    cal = Calibration(machine=machine)
+    fit_passes(df, cal)
+    fit_copies(df, cal)
+    fit_host_copies(df, cal)
+    return cal

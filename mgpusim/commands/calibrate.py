@@ -1,0 +1,42 @@
+"""`mgpusim calibrate MEASUREMENTS... --out PROFILE.toml [--base PROFILE.toml]`."""
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+
+import tomli_w
+
+from ..calibrate import apply, calibrate, lavapipe_base, read_measurements, report
+from ..calibrate.profile_out import fit_details
+from ..config import read_toml
+from ..output import write_json
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("calibrate", help="fit profile coefficients to measurement tables")
+    p.add_argument("measurements", nargs="+", type=Path, help="tables from `mgpusim measure` (CSV/Parquet)")
+    p.add_argument("--out", type=Path, required=True, help="profile TOML to write")
+    p.add_argument("--base", type=Path, help="profile whose structure to keep (default: a lavapipe "
+                   "machine made from the measurements' machine record)")
+    p.add_argument("--gpus", type=int, default=4, help="simulated GPUs in a lavapipe profile (default 4)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    df, machine = read_measurements(args.measurements)
+    cal = calibrate(df, machine)
+    base = read_toml(args.base) if args.base else lavapipe_base(machine, args.gpus)
+    command = "mgpusim calibrate " + " ".join(shlex.quote(str(p)) for p in args.measurements)
+    profile = apply(cal, base, command)
+    text = report(cal)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    header = "# Fitted by mgpusim calibrate. Fit report:\n" + "".join(f"#   {line}\n" for line in text.splitlines())
+    tmp = args.out.with_suffix(".tmp")
+    tmp.write_text(header + "\n" + tomli_w.dumps(profile))
+    tmp.replace(args.out)
+    write_json(fit_details(cal), args.out.with_suffix(".fit.json"))
+    print(text)
+    print(f"wrote {args.out} and {args.out.with_suffix('.fit.json')}", file=sys.stderr)
+    return 0

@@ -1,0 +1,73 @@
+"""Calibration: known coefficients are recovered; bad designs are flagged; output loads."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from mgpusim import load_profile
+from mgpusim.calibrate import calibrate, fit_nonnegative
+from mgpusim.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def synthetic(rng: np.random.Generator, noise: float = 0.01) -> pd.DataFrame:
+    rows = []
+    for width, height in [(128, 64), (256, 192), (512, 384)]:
+        for it in (10, 100, 1000):
+            true = 5000 + 0.5 * width * height + 0.02 * width * height * it
+            for rep in range(4):
+                rows.append({"pass": "fragment_loop", "width": width, "height": height, "iterations": it,
+                             "repetition": rep, "duration_ns": true * (1 + noise * rng.standard_normal())})
+    for nbytes in (1 << 18, 1 << 22, 1 << 25):
+        for queue in ("graphics", "transfer"):
+            true = 3000 + nbytes / (8.0 if queue == "graphics" else 4.0)
+            rows.append({"pass": "copy_d2h", "bytes": nbytes, "queue": queue, "repetition": 0, "duration_ns": true})
+    for threads, tput in ((1, 5.0), (2, 9.0), (4, 12.0)):
+        for nbytes in (1 << 22, 1 << 25):
+            rows.append({"pass": "host_copy", "bytes": nbytes, "threads": threads, "repetition": 0,
+                         "duration_ns": 1000 + nbytes / tput})
+    df = pd.DataFrame(rows)
+    df["source"] = "synthetic"
+    return df
+
+
+def test_recovers_known_coefficients_with_honest_uncertainty():
+    cal = calibrate(synthetic(np.random.default_rng(1)), {})
+    fit = cal.pass_fits["fragment_loop"]
+    got = dict(zip(fit.names, fit.coef))
+    err = dict(zip(fit.names, fit.stderr))
+    assert got["ns_per_pixel_iteration"] == pytest.approx(0.02, rel=0.01)
+    assert abs(got["ns_per_pixel_iteration"] - 0.02) < 4 * err["ns_per_pixel_iteration"] + 1e-12
+    assert fit.rel_rms < 0.02 and not fit.warnings
+    d2h = cal.copy_fits[("d2h", "graphics")]
+    assert 1 / d2h.coef[1] == pytest.approx(8.0, rel=1e-6)
+    assert d2h.coef[0] == pytest.approx(3000, rel=1e-3)
+    assert cal.host["memcpy_thread_gbps"] == pytest.approx(5.0, rel=1e-3)
+    assert cal.host["memory_bandwidth_gbps"] == pytest.approx(12.0, rel=1e-3)
+
+
+def test_unidentifiable_and_ill_conditioned_fits_warn():
+    x = np.linspace(1, 2, 10)
+    fit = fit_nonnegative(np.column_stack([np.ones(10), x, 2 * x]), 3 + x, ["a", "b", "c"], "collinear")
+    assert any("cannot tell" in w for w in fit.warnings)
+    near = np.column_stack([np.ones(10), x, x + 1e-7 * np.arange(10)])
+    fit = fit_nonnegative(near, 3 + x, ["a", "b", "c"], "near")
+    assert any("ill-conditioned" in w or "cannot tell" in w for w in fit.warnings)
+
+
+def test_calibrate_command_writes_a_loadable_lavapipe_profile(tmp_path, capsys):
+    out = tmp_path / "lavapipe.toml"
+    tables = sorted((ROOT / "data" / "lavapipe").glob("*.csv"))
+    assert main(["calibrate", *map(str, tables), "--out", str(out)]) == 0
+    profile = load_profile(out)
+    assert profile.host.gpus_share_cpu and len(profile.gpus) == 4
+    costs = profile.gpus[0].costs
+    assert costs["fragment_loop"].ns_per["pixel_iteration"] > 0
+    assert profile.gpus[0].queues["transfer"] == 0
+    text = capsys.readouterr().out
+    assert "+-" in text and "rms" in text  # coefficients with uncertainty, residuals
+    assert (tmp_path / "lavapipe.fit.json").is_file()

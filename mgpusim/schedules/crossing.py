@@ -9,7 +9,9 @@ Shared by the AFR, pipelining and XR schedules so they route copies the same way
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, Callable
 
+from ..errors import InputError
 from ..profile import HardwareProfile
 from ..tasks import CopyTask, Dep, HostCopyTask, QueueRef, Task
 from .base import Option, queue_or_graphics
@@ -36,7 +38,7 @@ class Route:
     host_copy: bool = False
 
     @classmethod
-    def from_options(cls, opt) -> "Route":
+    def from_options(cls, opt: Callable[[str], Any]) -> "Route":
         return cls(opt("copy_queue"), opt("path"), opt("host_copy"))
 
 
@@ -51,7 +53,6 @@ def use_peer(profile: HardwareProfile, src: int, dst: int, route: Route) -> bool
     """True if the buffer crosses over a peer link; 'peer' without a link is an input error."""
     has = profile.peer(src, dst) is not None
     if route.path == "peer" and not has:
-        from ..errors import InputError
         raise InputError(f"no peer link between gpu{src} and gpu{dst} in profile {profile.name!r}",
                          field="schedule.path")
     return has and route.path != "host"

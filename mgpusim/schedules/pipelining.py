@@ -10,6 +10,7 @@ and the rest of the frame's work. Intermediate buffers are multi-buffered (`buff
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from types import MappingProxyType
 
 from ..costs import pass_work
@@ -119,7 +120,6 @@ def _split_bytes(nbytes: int, chunks: int) -> list[int]:
 
 
 def _with_deps(task: PassTask, extra: tuple[Dep, ...]) -> PassTask:
-    from dataclasses import replace
     return replace(task, deps=task.deps + extra)
 
 

@@ -47,12 +47,12 @@ def run_program(program: FrameProgram, gpus: Sequence[Gpu], *, host_threads: int
                 prewarm_frames: int | None = None, rebase: bool = True,
                 stall_timeout_s: float = 120.0) -> RunResult:
     """Execute `program` on `gpus` (simulated GPU i = gpus[i]); the GPUs stay open."""
-    if len(gpus) < program.gpus:
-        raise InputError(f"the program needs {program.gpus} GPU(s), got {len(gpus)}", field="gpus")
     declared = program.notes.get("resources")
     if declared is None:
         raise ScheduleError(f"schedule {program.schedule!r} declares no resources "
                             f"(notes['resources']): the Vulkan runner cannot execute it yet")
+    if len(gpus) < program.gpus:
+        raise InputError(f"the program needs {program.gpus} GPU(s), got {len(gpus)}", field="gpus")
     gpus = list(gpus)
     res = Resources(declared, gpus)
     owned: list[Any] = []

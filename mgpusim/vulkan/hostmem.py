@@ -55,9 +55,11 @@ class ImportedBuffer:
         self.memory = None
         try:
             pointer = v.ffi.cast("void *", address)
-            props = call("vkGetMemoryHostPointerPropertiesEXT",
-                         gpu.proc("vkGetMemoryHostPointerPropertiesEXT"), gpu.device,
-                         handle_type, pointer)
+            props = v.VkMemoryHostPointerPropertiesEXT(
+                sType=lib.VK_STRUCTURE_TYPE_MEMORY_HOST_POINTER_PROPERTIES_EXT)
+            call("vkGetMemoryHostPointerPropertiesEXT",
+                 gpu.proc("vkGetMemoryHostPointerPropertiesEXT"), gpu.device, handle_type,
+                 pointer, props)
             req = v.vkGetBufferMemoryRequirements(gpu.device, self.handle)
             bits = int(props.memoryTypeBits) & int(req.memoryTypeBits)
             if not bits:

@@ -1,0 +1,38 @@
+"""`mgpusim run` writes the measured run that `mgpusim validate --measured` reads."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pandas as pd
+import pytest
+
+pytestmark = pytest.mark.vulkan
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(__file__)))
+
+
+def test_run_command_writes_the_measured_run(tmp_path):
+    out = tmp_path / "m"
+    cmd = [sys.executable, "-m", "mgpusim.cli", "run", "experiments/sort_first_tc1.toml",
+           "--set", "schedule.gpus=2", "--set", "scene.width=64", "--set", "scene.height=32",
+           "--set", 'scene.passes=[{name="f",kind="fragment_loop",iterations=20}]',
+           "--set", "schedule.frames=4", "--set", "schedule.warmup_frames=1",
+           "--host-threads", "2", "--out", str(out)]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert {p.name for p in out.iterdir()} >= {"trace.csv", "frames.csv", "summary.json",
+                                               "machine.json", "image.png"}
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["config"]["measured"] and summary["frame_time_ms"] > 0
+    assert len(pd.read_csv(out / "frames.csv")) == 4
+    assert json.loads((out / "machine.json").read_text())["gpus"][0]["device"]
+
+
+def test_bad_device_is_one_line(tmp_path):
+    cmd = [sys.executable, "-m", "mgpusim.cli", "run", "experiments/sort_first_tc1.toml",
+           "--devices", "7,8", "--out", str(tmp_path)]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "no physical device 7" in proc.stderr
+    assert "Traceback" not in proc.stderr

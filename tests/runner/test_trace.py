@@ -1,0 +1,84 @@
+"""The measured trace has the simulator's schema and names, and honours the schedule."""
+from __future__ import annotations
+
+import pandas as pd
+import pytest
+
+from mgpusim.errors import ScheduleError
+from mgpusim.runner import run_experiment
+from mgpusim.simulate import build_program, simulate
+from mgpusim.trace import TRACE_COLUMNS
+
+from .conftest import experiment, lavapipe_profile
+
+pytestmark = pytest.mark.vulkan
+
+
+@pytest.fixture(scope="module")
+def sort_first_3():
+    exp = experiment("sort_first", 3, width=64, height=256, work=200, frames=6)
+    return exp, run_experiment(exp)
+
+
+def _keys(trace: pd.DataFrame) -> set[tuple]:
+    gpu = trace[trace["device"] != "host"]
+    return set(map(tuple, gpu[["frame", "device", "engine", "step", "task"]].to_numpy()))
+
+
+def test_same_rows_and_names_as_the_simulator(sort_first_3):
+    exp, measured = sort_first_3
+    simulated = simulate(exp)
+    assert list(measured.trace.columns) == list(TRACE_COLUMNS)
+    assert dict(measured.trace.dtypes.astype(str)) == dict(simulated.trace.dtypes.astype(str))
+    assert _keys(measured.trace) == _keys(simulated.trace)
+    host = measured.trace[measured.trace["device"] == "host"]
+    assert set(host["engine"]) <= {"thread0", "thread1"} and set(host["step"]) == {"host_copy"}
+    # host copies: one row per thread part, parts add up to the task's bytes
+    program = build_program(exp)
+    want = {t.name: t.bytes for t in program.tasks(0) if t.step == "host_copy"}
+    got = host.groupby(["frame", "task"])["bytes"].sum()
+    assert all(got[(f, name)] == b for f in range(6) for name, b in want.items())
+    sim_waits = dict(zip(simulated.trace["task"], simulated.trace["waits_for"]))
+    assert all(sim_waits[t] == w for t, w in zip(measured.trace["task"], measured.trace["waits_for"]))
+
+
+def test_dependencies_and_queue_order_are_honoured(sort_first_3):
+    exp, measured = sort_first_3
+    program = build_program(exp)
+    tr = measured.trace
+    spans = tr.groupby(["frame", "task"]).agg(start=("start_ns", "min"), end=("end_ns", "max"))
+    for frame in range(program.frames):
+        for task in program.tasks(frame):
+            for dep in task.deps:
+                if frame + dep.offset >= 0:
+                    before = spans.loc[(frame + dep.offset, dep.task), "end"]
+                    assert spans.loc[(frame, task.name), "start"] >= before, (frame, task.name, dep)
+    for (_dev, _eng), rows in tr[tr["device"] != "host"].groupby(["device", "engine"]):
+        rows = rows.sort_values("start_ns")
+        assert (rows["start_ns"].to_numpy()[1:] >= rows["end_ns"].to_numpy()[:-1]).all()
+    assert (tr["end_ns"] >= tr["start_ns"]).all() and tr["start_ns"].min() == 0
+    s = measured.summary
+    assert s["frame_time_ms"] > 0 and s["frames"] == 6 and set(s["step_mean_ms"]) == {
+        "render", "d2h", "host_copy", "h2d", "composite", "present"}
+
+
+def test_without_host_copy_there_is_no_step_3():
+    result = run_experiment(experiment("sort_last", 2, work=500, frames=3, host_copy=False))
+    assert "host_copy" not in set(result.trace["step"])
+    assert set(result.trace["step"]) == {"render", "d2h", "h2d", "composite", "present"}
+
+
+def test_missing_transfer_queue_is_reported():
+    exp = experiment("sort_first", 2, frames=3, profile=lavapipe_profile(2, transfer=1))
+    result = run_experiment(exp)
+    assert any("d2h1: gpu1.transfer -> gpu1.graphics" in f for f in result.summary["queue_fallbacks"])
+    assert set(result.trace.loc[result.trace["step"] == "d2h", "engine"]) == {"graphics"}
+
+
+def test_schedule_without_resources_is_a_clear_error():
+    from mgpusim.runner.run import run_program
+    from mgpusim.schedules.base import FrameProgram
+
+    program = FrameProgram("x", 1, 2, 0, (tuple(build_program(experiment()).tasks(0)),))
+    with pytest.raises(ScheduleError, match="declares no resources"):
+        run_program(program, [])

@@ -87,3 +87,25 @@ def timeline_png(trace: pd.DataFrame, path: str | Path, links: pd.DataFrame | No
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return Path(path)
+
+
+def comparison_png(measured: pd.DataFrame, simulated: pd.DataFrame, path: str | Path, title: str = "",
+                   frames: Sequence[int] | None = None, sim_links: pd.DataFrame | None = None) -> Path:
+    """Measured and simulated timelines one above the other, same frames, same time axis."""
+    frames = last_frames(measured) if frames is None else frames
+    rows = max(len(_rows(measured)), len(_rows(simulated)), 3)
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(12, 2.5 + 0.6 * rows), sharex=True)
+    lo_m = measured[measured["frame"].isin(list(frames))]
+    lo_s = simulated[simulated["frame"].isin(list(frames))]
+    draw_timeline(top, lo_m, None, f"measured: {title}", frames)
+    draw_timeline(bottom, lo_s, sim_links, f"simulated: {title}", frames)
+    span = max(_span(lo_m), _span(lo_s))
+    bottom.set_xlim(0, span * 1.02 if span else 1)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def _span(df: pd.DataFrame) -> float:
+    return (int(df["end_ns"].max()) - int(df["start_ns"].min())) / 1e6 if len(df) else 0.0

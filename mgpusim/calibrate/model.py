@@ -117,7 +117,7 @@ def _solo(df: pd.DataFrame) -> pd.Series:
     """Rows measured with one simulated GPU at a time."""
     if "gpus" in df.columns:
         return df["gpus"].fillna(1) <= 1
-    return ~df["source"].str.contains("gpus")
+    return ~df["source"].str.contains("gpus")  # tables written before the column existed
 
 
 def calibrate(df: pd.DataFrame, machine: dict[str, Any]) -> Calibration:

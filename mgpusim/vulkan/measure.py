@@ -123,7 +123,7 @@ def measure(pass_name: str, gpus: Sequence[Gpu], sweeps: dict[str, list[int | st
                 for rep in range(-warmup, reps):
                     start, end = work.run()
                     if rep >= 0:
-                        rows.append({"device": "host", "gpu": "host", "pass": pass_name,
+                        rows.append({"device": "host", "gpu": "host", "gpus": 1, "pass": pass_name,
                                      **params, "repetition": rep, "duration_ns": end - start,
                                      "bytes": work.bytes})
             finally:
@@ -137,8 +137,8 @@ def measure(pass_name: str, gpus: Sequence[Gpu], sweeps: dict[str, list[int | st
                     for g, w, s in zip(gpus, works, subs):
                         s.wait()
                         if rep >= 0:
-                            rows.append({"device": g.info.name, "gpu": g.name, "pass": pass_name,
-                                         **params, "repetition": rep,
+                            rows.append({"device": g.info.name, "gpu": g.name, "gpus": len(gpus),
+                                         "pass": pass_name, **params, "repetition": rep,
                                          "duration_ns": s.duration_ns, "bytes": w.bytes})
             finally:
                 for w in works:

@@ -32,8 +32,12 @@ class HostProfile:
     memcpy_thread_gbps: float
     cpu_cores: int
     host_copy_fixed_ns: int = 0
-    #: The GPUs are emulated on the host CPU (lavapipe): their passes share `cpu_cores`.
+    #: The GPUs are emulated on the host CPU (lavapipe): their passes, copies and the host
+    #: copies all share `cpu_cores`.
     gpus_share_cpu: bool = False
+    #: Host work before a task whose input comes from another device or the host: a thread
+    #: wakes on a fence, then submits (or copies). Real GPUs: a delay; lavapipe: CPU work.
+    dispatch_ns: int = 0
 
 
 @dataclass(frozen=True)
@@ -140,6 +144,7 @@ def _parse_host(t: Table) -> HostProfile:
         cpu_cores=t.get("cpu_cores", int, minimum=1),
         host_copy_fixed_ns=t.get("host_copy_fixed_ns", int, 0, minimum=0),
         gpus_share_cpu=t.get("gpus_share_cpu", bool, False),
+        dispatch_ns=t.get("dispatch_ns", int, 0, minimum=0),
     )
     t.finish()
     return host

@@ -37,9 +37,11 @@ class _Op:
     engine: str
     waits_for: str
     is_present: bool
-    #: CPU threads of a CPU-emulated GPU (lavapipe): the pass is `duration * cpu` core-ns of
+    #: CPU threads of a CPU-emulated GPU (lavapipe): the task is `duration * cpu` core-ns of
     #: work on the shared host.cpu channel, at most `cpu` cores at once. 0 = a real GPU.
     cpu: int = 0
+    #: Host dispatch before the task (its input comes from another device or the host).
+    dispatch: int = 0
 
 
 @dataclass
@@ -109,6 +111,10 @@ class Engine:
         return labels
 
     def _setup_resources(self) -> None:
+        host = self.costs.profile.host
+        self._cpu: Channel | None = None
+        if host.gpus_share_cpu:
+            self._cpu = self.channels["host.cpu"] = Channel(self.env, "host.cpu", Fraction(host.cpu_cores))
         queues: dict[QueueRef, list[list[_Op]]] = {}
         host_ops: list[list[_Op]] = [[] for _ in range(self.period)]
         for phase, tasks in enumerate(self.program.templates):
@@ -133,24 +139,45 @@ class Engine:
     def _op(self, phase: int, task: Task) -> _Op:
         """Everything the hot loop needs about one task, computed once."""
         channel, cap, nbytes = None, None, 0
+        duration, cpu = self._duration(task), self._cpu_threads(task)
         if isinstance(task, CopyTask):
-            channel, nbytes = self._channel_for(task), task.bytes
+            nbytes = task.bytes
             cap = self.costs.copy_cap(task.queue.device, task.queue.family, task.path)
+            if cpu:  # lavapipe: a copy is a memcpy in the queue thread, one core's work
+                bw = self._path_bandwidth(task)
+                rate = bw if cap is None else min(cap, bw)
+                duration += -(-nbytes * rate.denominator // rate.numerator)
+                cap = None
+            else:
+                channel = self._channel_for(task)
         device, engine = ("host", "memcpy") if isinstance(task, HostCopyTask) else \
             (task.queue.device_name, task.queue.engine)
-        return _Op(task, self._duration(task), channel, cap, nbytes, device, engine,
+        return _Op(task, duration, channel, cap, nbytes, device, engine,
                    self._waits_for[phase][task.name], task.name == self.program.present_task,
-                   self._cpu_threads(task))
+                   cpu, self._dispatch(phase, task))
 
     def _cpu_threads(self, task: Task) -> int:
-        """Cores a pass of a CPU-emulated GPU can use (0 when the GPUs are real)."""
+        """Cores a task of a CPU-emulated GPU can use (0 when the GPUs are real): a pass uses
+        the GPU's rasterizer threads, a copy the queue thread."""
         host = self.costs.profile.host
-        if not host.gpus_share_cpu or not isinstance(task, PassTask):
+        if self._cpu is None or isinstance(task, HostCopyTask):
             return 0
-        if not hasattr(self, "_cpu"):
-            self._cpu = self.channels["host.cpu"] = Channel(self.env, "host.cpu", Fraction(host.cpu_cores))
+        if isinstance(task, CopyTask):
+            return 1
         threads = self.costs.profile.gpus[task.queue.device].cpu_threads or host.cpu_cores
         return min(threads, host.cpu_cores)
+
+    def _dispatch(self, phase: int, task: Task) -> int:
+        """Host dispatch cost when an input comes from another device or from the host."""
+        ns = self.costs.profile.host.dispatch_ns
+        if not ns:
+            return 0
+        here = _device(task)
+        for dep in task.deps:
+            other = self._index[(phase + dep.offset) % self.period][dep.task]
+            if _device(other) != here or here == "host":
+                return ns
+        return 0
 
     def _duration(self, task: Task) -> int:
         if isinstance(task, PassTask):
@@ -159,16 +186,24 @@ class Engine:
             return self.costs.copy_setup_ns(task.queue.device, task.queue.family, task.path, task.peer)
         return self.costs.profile.host.host_copy_fixed_ns
 
-    def _channel_for(self, task: CopyTask) -> Channel:
+    def _channel_name(self, task: CopyTask) -> str:
         dev = task.queue.device
         if task.path == "p2p":
             if task.peer is None:
                 raise ScheduleError(f"copy {task.name!r} on a peer path names no peer")
-            name, bw = f"peer{dev}-{task.peer}", self.costs.peer_bandwidth(dev, task.peer)
-        else:
-            name, bw = f"gpu{dev}.{task.path}", self.costs.link_bandwidth(dev, task.path)
+            return f"peer{dev}-{task.peer}"
+        return f"gpu{dev}.{task.path}"
+
+    def _path_bandwidth(self, task: CopyTask) -> Fraction:
+        dev = task.queue.device
+        if task.path == "p2p":
+            return self.costs.peer_bandwidth(dev, task.peer)  # type: ignore[arg-type]
+        return self.costs.link_bandwidth(dev, task.path)
+
+    def _channel_for(self, task: CopyTask) -> Channel:
+        name = self._channel_name(task)
         if name not in self.channels:
-            self.channels[name] = Channel(self.env, name, bw)
+            self.channels[name] = Channel(self.env, name, self._path_bandwidth(task))
         return self.channels[name]
 
     # ----- dependencies ------------------------------------------------------------------
@@ -291,6 +326,8 @@ class Engine:
                 if skip and key in skip:
                     self._skip_task(key, op.task)
                     continue
+                if op.dispatch:
+                    yield self._host_work(op.dispatch)
                 start = env.now
                 if op.cpu:
                     yield self._cpu.transfer(op.duration * op.cpu, op.cpu)
@@ -328,6 +365,8 @@ class Engine:
                 if key in self._skip:
                     self._skip_task(key, op.task)
                     continue
+                if op.dispatch:
+                    yield self._host_work(op.dispatch)
                 self._dispatch_host_copy(frame, op)
 
     def _dispatch_host_copy(self, frame: int, op: _Op) -> None:
@@ -351,8 +390,18 @@ class Engine:
         else:
             self._part_copy(tid, part, start)
 
+    def _host_work(self, ns: int) -> simpy.Event:
+        """`ns` of one host thread's time: CPU work where the GPUs share the CPU, else a delay."""
+        if self._cpu is not None:
+            return self._cpu.transfer(ns, 1)
+        return self.env.timeout(ns)
+
     def _part_copy(self, tid: int, part: tuple, start: int) -> None:
-        ev = self._host_memory.transfer(part[2], self._thread_cap)
+        if self._cpu is not None:  # lavapipe: a memcpy thread is one core's work
+            ns = -(-part[2] * self._thread_cap.denominator // self._thread_cap.numerator)
+            ev = self._cpu.transfer(ns, 1)
+        else:
+            ev = self._host_memory.transfer(part[2], self._thread_cap)
         ev.callbacks.append(lambda _e: self._part_done(tid, part, start))
 
     def _part_done(self, tid: int, part: tuple, start: int) -> None:

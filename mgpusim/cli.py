@@ -21,12 +21,25 @@ def build_parser() -> argparse.ArgumentParser:
     for name in COMMANDS:
         try:
             module = importlib.import_module(f"mgpusim.commands.{name}")
-        except ModuleNotFoundError as exc:  # a command not written yet
+        except ModuleNotFoundError as exc:  # a command not written yet, or a missing dependency
             if exc.name != f"mgpusim.commands.{name}":
-                raise
+                _unavailable(sub, name, exc)  # e.g. no scipy on a device machine: other commands still run
             continue
         module.register(sub)
     return parser
+
+
+def _unavailable(sub: argparse._SubParsersAction, name: str, exc: ModuleNotFoundError) -> None:
+    """A command whose module needs a package this Python lacks: listed, and one line if used."""
+    command = name.replace("_job", "").replace("_", "-")
+    p = sub.add_parser(command, help=f"(unavailable here: needs {exc.name})", add_help=False)
+    p.add_argument("rest", nargs=argparse.REMAINDER)
+
+    def fail(args: argparse.Namespace) -> int:
+        print(f"mgpusim {command}: error: needs the Python package {exc.name!r} "
+              f"(pip install {exc.name.split('.')[0]})", file=sys.stderr)
+        return 2
+    p.set_defaults(func=fail)
 
 
 def main(argv: list[str] | None = None) -> int:

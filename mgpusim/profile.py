@@ -38,6 +38,9 @@ class HostProfile:
     #: Host work before a task whose input comes from another device or the host: a thread
     #: wakes on a fence, then submits (or copies). Real GPUs: a delay; lavapipe: CPU work.
     dispatch_ns: int = 0
+    #: Lavapipe: the fraction of the cores' time left for work when more threads than cores
+    #: are busy (context switches, cache misses); 1 = perfect sharing.
+    oversubscribed_efficiency: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -145,9 +148,16 @@ def _parse_host(t: Table) -> HostProfile:
         host_copy_fixed_ns=t.get("host_copy_fixed_ns", int, 0, minimum=0),
         gpus_share_cpu=t.get("gpus_share_cpu", bool, False),
         dispatch_ns=t.get("dispatch_ns", int, 0, minimum=0),
+        oversubscribed_efficiency=t.get("oversubscribed_efficiency", float, 1.0, above=0),
     )
+    _check_host(t, host)
     t.finish()
     return host
+
+
+def _check_host(t: Table, host: HostProfile) -> None:
+    if host.oversubscribed_efficiency > 1:
+        raise t.error("oversubscribed_efficiency", f"must be <= 1, got {host.oversubscribed_efficiency}")
 
 
 def _parse_gpu(t: Table) -> GpuProfile:

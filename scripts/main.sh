@@ -4,4 +4,4 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
-exec .venv/bin/mgpusim main --out "${1:-out/main}"
+exec .venv/bin/mgpusim main --held-out --out "${1:-out/main}"

@@ -37,3 +37,24 @@ def test_enough_cores_means_no_slowdown():
 
 def test_real_gpus_report_no_cpu_effect():
     assert "cpu_contention" not in simulate(make_experiment(gpus=2)).summary["effects"]
+
+
+def test_oversubscribed_cores_lose_efficiency():
+    """4 rasterizer threads on 2 cores at 80% efficiency: each render gets 0.8 core, so the
+    1600 ns (2-core) render takes 1600 * 2 / 0.8 = 4000 ns."""
+    prof = lavapipe_profile(2, None)
+    prof["host"]["oversubscribed_efficiency"] = 0.8
+    assert renders(make_experiment(prof, gpus=2, iterations=100)) == {"render0": 4000, "render1": 4000}
+    alone = renders(make_experiment(prof, gpus=1, iterations=100, width=8, height=2), names=("render0",))
+    assert alone == {"render0": 1600}  # not oversubscribed: full speed
+
+
+def test_dispatch_delays_tasks_fed_by_another_device():
+    prof = profile_dict(gpus=2)
+    prof["host"]["dispatch_ns"] = 7
+    base = simulate(make_experiment(gpus=2, frames=3)).trace
+    slow = simulate(make_experiment(prof, gpus=2, frames=3)).trace
+    first = lambda t: t[t.frame == 0].set_index("task")  # noqa: E731
+    # d2h1 follows render1 on the same device: no dispatch; host_copy1 and h2d1 each wait 7 ns.
+    assert first(slow).loc["d2h1", "start_ns"] == first(base).loc["d2h1", "start_ns"]
+    assert first(slow).loc["h2d1", "start_ns"] == first(base).loc["h2d1", "start_ns"] + 14

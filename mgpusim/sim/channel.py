@@ -38,10 +38,15 @@ class _Flow:
 class Channel:
     """One direction of one link; `busy` records the intervals with at least one transfer."""
 
-    def __init__(self, env: simpy.Environment, name: str, bandwidth: Fraction):
+    def __init__(self, env: simpy.Environment, name: str, bandwidth: Fraction,
+                 oversubscribed: Fraction | None = None):
+        """`oversubscribed`: the capacity when the flows' caps add up to more than `bandwidth`
+        (CPU cores lose time to context switches and cache misses when threads outnumber them);
+        None keeps `bandwidth`."""
         if bandwidth <= 0:
             raise ValueError(f"channel {name}: bandwidth must be > 0")
         self.env, self.name, self.bandwidth = env, name, Fraction(bandwidth)
+        self.oversubscribed = Fraction(oversubscribed) if oversubscribed is not None else None
         self.flows: list[_Flow] = []
         self.busy: list[tuple[int, int]] = []
         self.max_concurrent = 0
@@ -53,6 +58,8 @@ class Channel:
         self._solo: dict[Fraction | None, tuple[Fraction, int, int]] = {}
         self._crowd = 4  # flows the scale can split among exactly
         self._denoms = self.bandwidth.denominator
+        if self.oversubscribed is not None:
+            self._denoms = math.lcm(self._denoms, self.oversubscribed.denominator)
         self._scale = self._denoms * math.lcm(*range(1, self._crowd + 1))
 
     def transfer(self, nbytes: int, cap: Fraction | None = None) -> simpy.Event:
@@ -137,7 +144,10 @@ class Channel:
         """Max-min fair shares with per-flow caps (water-filling), all in integers."""
         self.solver_runs += 1
         scale = self._scale
-        left = self.bandwidth.numerator * (scale // self.bandwidth.denominator)
+        capacity = self.bandwidth
+        if self.oversubscribed is not None and self._demand() > self.bandwidth:
+            capacity = self.oversubscribed
+        left = capacity.numerator * (scale // capacity.denominator)
         for f in self.flows:
             if f.cap is not None and f.cap_s is None:
                 f.cap_s = f.cap.numerator * (scale // f.cap.denominator)
@@ -147,6 +157,12 @@ class Channel:
             fair = left // (n - k)  # exact: see the module docstring
             flow.rate = fair if flow.cap_s is None or flow.cap_s >= fair else flow.cap_s
             left -= flow.rate
+
+    def _demand(self) -> Fraction:
+        """What the flows would take if alone together: the sum of their caps."""
+        if any(f.cap is None for f in self.flows):
+            return self.bandwidth + 1
+        return sum((f.cap for f in self.flows), Fraction(0))
 
     def _settle(self, _event=None) -> None:
         """Complete the flows due now, share the bandwidth anew and plan the next wake-up."""

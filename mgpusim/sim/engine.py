@@ -40,8 +40,6 @@ class _Op:
     #: CPU threads of a CPU-emulated GPU (lavapipe): the task is `duration * cpu` core-ns of
     #: work on the shared host.cpu channel, at most `cpu` cores at once. 0 = a real GPU.
     cpu: int = 0
-    #: Host dispatch before the task (its input comes from another device or the host).
-    dispatch: int = 0
 
 
 @dataclass
@@ -76,22 +74,28 @@ class Engine:
         self._index = [{t.name: t for t in tasks} for tasks in program.templates]
         self._skip_groups()
         self._dependents = self._reverse_deps()
+        self._dispatch_ns = costs.profile.host.dispatch_ns
+        self._cross_done: dict[Key, int] = {}  # instance -> when its last cross-device input ended
         self._waits_for = self._waits_for_labels()
         self.channels: dict[str, Channel] = {}
         self._unfinished = sum(len(program.tasks(f)) for f in range(program.frames))
         self._setup_resources()
 
     # ----- build -------------------------------------------------------------------------
-    def _reverse_deps(self) -> list[dict[str, list[tuple[str, int, Task, int, int]]]]:
+    def _reverse_deps(self) -> list[dict[str, list[tuple[str, int, Task, int, int, bool]]]]:
         """dependents[phase][name] = [(dependent, frame distance k >= 0, its task, its number
-        of dependencies, the frame from which all of them exist)]."""
+        of dependencies, the frame from which all of them exist, whether the edge crosses
+        devices or the host: a host thread must wake to act on it)]."""
         out: list[dict[str, list]] = [defaultdict(list) for _ in range(self.period)]
         for q, tasks in enumerate(self.program.templates):
             for task in tasks:
                 lag = max((-d.offset for d in task.deps), default=0)
                 for dep in task.deps:
                     k = -dep.offset
-                    out[(q - k) % self.period][dep.task].append((task.name, k, task, len(task.deps), lag))
+                    producer = self._index[(q - k) % self.period][dep.task]
+                    cross = _device(producer) != _device(task) or _device(task) == "host"
+                    out[(q - k) % self.period][dep.task].append(
+                        (task.name, k, task, len(task.deps), lag, cross))
         return out
 
     def _waits_for_labels(self) -> list[dict[str, str]]:
@@ -114,7 +118,10 @@ class Engine:
         host = self.costs.profile.host
         self._cpu: Channel | None = None
         if host.gpus_share_cpu:
-            self._cpu = self.channels["host.cpu"] = Channel(self.env, "host.cpu", Fraction(host.cpu_cores))
+            cores = Fraction(host.cpu_cores)
+            eff = Fraction(repr(host.oversubscribed_efficiency))
+            self._cpu = self.channels["host.cpu"] = Channel(
+                self.env, "host.cpu", cores, cores * eff if eff != 1 else None)
         queues: dict[QueueRef, list[list[_Op]]] = {}
         host_ops: list[list[_Op]] = [[] for _ in range(self.period)]
         for phase, tasks in enumerate(self.program.templates):
@@ -154,7 +161,7 @@ class Engine:
             (task.queue.device_name, task.queue.engine)
         return _Op(task, duration, channel, cap, nbytes, device, engine,
                    self._waits_for[phase][task.name], task.name == self.program.present_task,
-                   cpu, self._dispatch(phase, task))
+                   cpu)
 
     def _cpu_threads(self, task: Task) -> int:
         """Cores a task of a CPU-emulated GPU can use (0 when the GPUs are real): a pass uses
@@ -167,17 +174,13 @@ class Engine:
         threads = self.costs.profile.gpus[task.queue.device].cpu_threads or host.cpu_cores
         return min(threads, host.cpu_cores)
 
-    def _dispatch(self, phase: int, task: Task) -> int:
-        """Host dispatch cost when an input comes from another device or from the host."""
-        ns = self.costs.profile.host.dispatch_ns
-        if not ns:
+    def _dispatch_wait(self, key: Key) -> int:
+        """Host dispatch still owed before `key` starts: `dispatch_ns` after the last of its
+        inputs from another device or the host finished (0 if that is long past)."""
+        done = self._cross_done.pop(key, None)
+        if done is None:
             return 0
-        here = _device(task)
-        for dep in task.deps:
-            other = self._index[(phase + dep.offset) % self.period][dep.task]
-            if _device(other) != here or here == "host":
-                return ns
-        return 0
+        return max(0, done + self._dispatch_ns - self.env.now)
 
     def _duration(self, task: Task) -> int:
         if isinstance(task, PassTask):
@@ -291,11 +294,13 @@ class Engine:
         if not skipped and task.skip_if_busy:
             self._inflight[self._leader[frame % self.period][task.name]] -= 1
         frames, pending = self.program.frames, self._pending
-        for name, k, dtask, ndeps, lag in self._dependents[frame % self.period].get(task.name, ()):
+        for name, k, dtask, ndeps, lag, cross in self._dependents[frame % self.period].get(task.name, ()):
             g = frame + k
             if g >= frames:
                 continue
             key = (g, name)
+            if cross and self._dispatch_ns:
+                self._cross_done[key] = self.env.now
             left = pending.get(key)
             if left is None:
                 left = ndeps if g >= lag else self._initial(g, dtask)
@@ -326,8 +331,10 @@ class Engine:
                 if skip and key in skip:
                     self._skip_task(key, op.task)
                     continue
-                if op.dispatch:
-                    yield self._host_work(op.dispatch)
+                if self._cross_done:
+                    wait = self._dispatch_wait(key)
+                    if wait:
+                        yield self._host_work(wait)
                 start = env.now
                 if op.cpu:
                     yield self._cpu.transfer(op.duration * op.cpu, op.cpu)
@@ -365,8 +372,10 @@ class Engine:
                 if key in self._skip:
                     self._skip_task(key, op.task)
                     continue
-                if op.dispatch:
-                    yield self._host_work(op.dispatch)
+                if self._cross_done:
+                    wait = self._dispatch_wait(key)
+                    if wait:
+                        yield self._host_work(wait)
                 self._dispatch_host_copy(frame, op)
 
     def _dispatch_host_copy(self, frame: int, op: _Op) -> None:

@@ -14,6 +14,8 @@ import heapq
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 from fractions import Fraction
+from typing import Callable, Iterator
+
 import numpy as np
 import simpy
 
@@ -132,7 +134,7 @@ class Engine:
                 else:
                     queues.setdefault(task.queue, [[] for _ in range(self.period)])[phase].append(op)
         for plan in queues.values():
-            self.env.process(self._queue_proc(plan))
+            self.env.process(self._stream_proc(plan, self._execute))
         if any(host_ops):
             host = self.costs.profile.host
             self._threads_all = [f"thread{i}" for i in range(host.memcpy_threads)]
@@ -141,7 +143,7 @@ class Engine:
             self._thread_cap = self.costs.memcpy_thread_cap()
             self._host_memory = self.channels["host.memory"] = Channel(
                 self.env, "host.memory", self.costs.host_memory_bandwidth())
-            self.env.process(self._host_proc(host_ops))
+            self.env.process(self._stream_proc(host_ops, self._dispatch_host_copy))
 
     def _op(self, phase: int, task: Task) -> _Op:
         """Everything the hot loop needs about one task, computed once."""
@@ -317,8 +319,10 @@ class Engine:
                 self._ready.add(key)
 
     # ----- processes ---------------------------------------------------------------------
-    def _queue_proc(self, plan: list[list[_Op]]):
-        """One queue: its tasks in submission order, each after its dependencies."""
+    def _stream_proc(self, plan: list[list[_Op]], act: Callable[[int, _Op], Iterator[simpy.Event] | None]):
+        """One in-order stream (a queue, or the host thread that dispatches host copies): each
+        task after its dependencies and any host dispatch it owes, then `act` on it; `act`
+        returns the events the task spends its time on, or None if it takes none here."""
         env, period, skip, ready = self.env, self.period, self._skip, self._ready
         for frame in range(self.program.frames):
             for op in plan[frame % period]:
@@ -335,14 +339,21 @@ class Engine:
                     wait = self._dispatch_wait(key)
                     if wait:
                         yield self._host_work(wait)
-                start = env.now
-                if op.cpu:
-                    yield self._cpu.transfer(op.duration * op.cpu, op.cpu)
-                elif op.duration:
-                    yield env.timeout(op.duration)
-                if op.channel is not None:
-                    yield op.channel.transfer(op.nbytes, op.cap)
-                self._finish(frame, op, op.engine, start, op.nbytes)
+                work = act(frame, op)
+                if work is not None:
+                    yield from work
+
+    def _execute(self, frame: int, op: _Op) -> Iterator[simpy.Event]:
+        """A task on a queue: its pass or copy time, then the transfer over its channel."""
+        env = self.env
+        start = env.now
+        if op.cpu:
+            yield self._cpu.transfer(op.duration * op.cpu, op.cpu)
+        elif op.duration:
+            yield env.timeout(op.duration)
+        if op.channel is not None:
+            yield op.channel.transfer(op.nbytes, op.cap)
+        self._finish(frame, op, op.engine, start, op.nbytes)
 
     def _skip_task(self, key: Key, task: Task) -> None:
         self._skip.discard(key)
@@ -359,24 +370,6 @@ class Engine:
             self.rows.append((frame, op.device, engine, op.task.step, op.task.name, start, end, nbytes,
                               op.waits_for))
         self._complete(frame, op.task)
-
-    def _host_proc(self, plan: list[list[_Op]]):
-        """The host thread: dispatches host copies in order once their inputs are ready."""
-        env, period = self.env, self.period
-        for frame in range(self.program.frames):
-            for op in plan[frame % period]:
-                key = (frame, op.task.name)
-                if not self._check_ready(key, op.task):
-                    ev = self._waiters[key] = env.event()
-                    yield ev
-                if key in self._skip:
-                    self._skip_task(key, op.task)
-                    continue
-                if self._cross_done:
-                    wait = self._dispatch_wait(key)
-                    if wait:
-                        yield self._host_work(wait)
-                self._dispatch_host_copy(frame, op)
 
     def _dispatch_host_copy(self, frame: int, op: _Op) -> None:
         """Split into parts of >= chunk_min_bytes, at most one per memcpy thread."""

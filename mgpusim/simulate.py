@@ -17,15 +17,21 @@ def build_program(exp: Experiment) -> FrameProgram:
     return program
 
 
+def run_config(exp: Experiment, program: FrameProgram) -> dict:
+    """What a result records of its configuration (simulated and measured runs alike); the
+    runner's buffer bindings (notes["resources"]) are left out."""
+    return {"experiment": exp.name, "file": exp.file, "profile": exp.profile.name,
+            "schedule": exp.schedule.name, "gpus": exp.schedule.gpus,
+            "width": exp.scene.width, "height": exp.scene.height,
+            **{k: v for k, v in program.notes.items() if k != "resources"}}
+
+
 def simulate(exp: Experiment, record_trace: bool = True) -> Result:
     """Run `exp` in the model. Same experiment, same result, bit for bit."""
     program = build_program(exp)
     check_memory(program, exp)  # overflow is an input error, reported before time 0
     raw = Engine(program, CostModel(exp.profile), record_trace=record_trace).run()
-    config = {"experiment": exp.name, "file": exp.file, "profile": exp.profile.name,
-              "schedule": exp.schedule.name, "gpus": exp.schedule.gpus,
-              "width": exp.scene.width, "height": exp.scene.height, **dict(program.notes)}
-    result = build_result(raw, program.warmup_frames, config)
+    result = build_result(raw, program.warmup_frames, run_config(exp, program))
     result.summary["memory"] = memory_report(program, exp)
     _task_rates(program, raw, result)
     return result

@@ -118,7 +118,7 @@ def run_experiment(exp: Experiment, *, devices: Sequence[int] | None = None,
     `devices[i]`: physical device of simulated GPU i (NVIDIA; default i mod count; lavapipe
     always gives each simulated GPU its own instance). `host_threads`: memcpy threads
     (default: the profile's `host.memcpy_threads`, the simulator's split)."""
-    from ..simulate import build_program  # noqa: PLC0415 - keeps import order simple
+    from ..simulate import build_program, run_config  # noqa: PLC0415 - keeps import order simple
     from ..vulkan.machine import close_gpus, machine_record  # noqa: PLC0415
     from .machine import open_gpus  # noqa: PLC0415
 
@@ -130,9 +130,5 @@ def run_experiment(exp: Experiment, *, devices: Sequence[int] | None = None,
         result.machine = machine_record(gpus, {"host_threads": threads})
     finally:
         close_gpus(gpus)
-    result.config = {"experiment": exp.name, "file": exp.file, "profile": exp.profile.name,
-                     "schedule": exp.schedule.name, "gpus": exp.schedule.gpus,
-                     "width": exp.scene.width, "height": exp.scene.height, "measured": True,
-                     "host_threads": threads,
-                     **{k: v for k, v in program.notes.items() if k != "resources"}}
+    result.config = {**run_config(exp, program), "measured": True, "host_threads": threads}
     return result

@@ -30,6 +30,9 @@ def run(args: argparse.Namespace) -> int:
           f"{exp.scene.width}x{exp.scene.height}")
     print(f"  frame time {s['frame_time_ms']:.3f} ms ({s['fps']:.1f} fps), latency {s['latency_ms']:.3f} ms, "
           f"jitter {s['frame_time_jitter_ms']:.3f} ms")
+    for name, hz in s.get("task_rates_hz", {}).items():
+        if name != "frames":
+            print(f"  {name}: {hz:.1f} Hz (frames {s['fps']:.1f} Hz)")
     busiest = sorted(s.get("utilization", {}).items(), key=lambda kv: -kv[1])[:4]
     print("  busiest: " + ", ".join(f"{k} {v:.0%}" for k, v in busiest))
     print(f"  wrote {', '.join(str(p) for p in files.values())}")

@@ -88,6 +88,9 @@ class GpuProfile:
     local_copy_gbps: float = 300.0
     #: CPU threads a CPU-emulated GPU renders with (LP_NUM_THREADS); None = all cores.
     cpu_threads: int | None = None
+    #: Idle time a queue spends between two of its tasks (switching command buffers, writing
+    #: timestamps, signalling fences): not inside any task's own timestamps.
+    task_gap_ns: int = 0
 
     def has_queue(self, family: str, index: int = 0) -> bool:
         return self.queues.get(family, 0) > index
@@ -175,6 +178,7 @@ def _parse_gpu(t: Table) -> GpuProfile:
         copy=_parse_copy(t.table("copy", None)),
         local_copy_gbps=t.get("local_copy_gbps", float, 300.0, above=0),
         cpu_threads=t.get("cpu_threads", int, None, minimum=1),
+        task_gap_ns=t.get("task_gap_ns", int, 0, minimum=0),
     )
     t.finish()
     return gpu

@@ -118,3 +118,13 @@ def test_same_input_same_trace():
     b = simulate(make_experiment(profile_dict(threads=4, mem_gbps=3.0), gpus=2, frames=30, width=700, height=500))
     pd.testing.assert_frame_equal(a.trace, b.trace)
     assert a.summary == b.summary
+
+
+def test_task_gap_idles_the_queue_between_tasks():
+    prof = profile_dict()
+    prof["gpus"][0]["task_gap_ns"] = 5
+    trace = simulate(make_experiment(prof, gpus=1, frames=3, iterations=20)).trace.set_index(["frame", "task"])
+    # One GPU renders all 32 px x 20 iterations = 640 ns, present 10 ns; each after a 5 ns gap.
+    assert trace.loc[(0, "render0"), "start_ns"] == 5
+    assert trace.loc[(0, "present"), "start_ns"] == 5 + 640 + 5
+    assert trace.loc[(1, "render0"), "start_ns"] == 650 + 10 + 5

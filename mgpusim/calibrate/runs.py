@@ -52,6 +52,22 @@ def fit_passes_from_runs(runs: Sequence[Run]) -> dict[str, Fit]:
     return fits
 
 
+def fit_task_gap(runs: Sequence[Run]) -> int | None:
+    """Median idle time between consecutive tasks of one queue in 1-GPU runs (where no other
+    device or host thread feeds the queue, so every gap is the queue's own overhead)."""
+    gaps: list[np.ndarray] = []
+    for exp, trace in runs:
+        if exp.schedule.gpus != 1:
+            continue
+        steady = trace[(trace["frame"] >= exp.schedule.warmup_frames) & (trace["device"] != "host")]
+        for _, queue in steady.groupby(["device", "engine"]):
+            queue = queue.sort_values("start_ns")
+            gaps.append(queue["start_ns"].to_numpy()[1:] - queue["end_ns"].to_numpy()[:-1])
+    if not gaps:
+        return None
+    return int(np.median(np.concatenate(gaps)))
+
+
 def with_pass_fits(profile_data: dict[str, Any], fits: dict[str, Fit]) -> dict[str, Any]:
     """Profile data with these kinds' coefficients replaced in every GPU entry. A kind fitted
     on runs at one size only keeps its microbenchmark coefficients for the terms the runs could

@@ -9,7 +9,7 @@ from pathlib import Path
 import tomli_w
 
 from ..calibrate import apply, calibrate, lavapipe_base, read_measurements, report
-from ..calibrate.runs import fit_host_effects, fit_passes_from_runs, with_pass_fits
+from ..calibrate.runs import fit_host_effects, fit_passes_from_runs, fit_task_gap, with_pass_fits
 from ..mainjob import (CALIBRATION, HELD_OUT, MAIN_CONFIGS, load_runs, measure_all, measure_configs,
                        validate_saved, write_report)
 
@@ -43,9 +43,13 @@ def run(args: argparse.Namespace) -> int:
     runs = load_runs(CALIBRATION, chosen, base)
     pass_fits = fit_passes_from_runs(runs)
     data = with_pass_fits(data, pass_fits)
+    gap = fit_task_gap(runs)
+    if gap is not None:
+        for gpu in data["gpus"]:
+            gpu["task_gap_ns"] = gap
     host_fit, score = fit_host_effects(data, runs)
     data["host"].update(host_fit)
-    data["sources"]["runs"] = ("pass costs refitted on 1-GPU runs of the runner; host dispatch_ns and "
+    data["sources"]["runs"] = ("pass costs and task_gap_ns from 1-GPU runs of the runner; host dispatch_ns and "
                                "oversubscribed_efficiency by a grid search on the 2-GPU calibration runs' "
                                "frame-time error")
     profile = out / "profile.toml"
@@ -54,7 +58,8 @@ def run(args: argparse.Namespace) -> int:
                          [f"  {k}: " + ", ".join(f"{n}={v:.4g}+-{e:.2g}" for n, v, e in zip(f.names, f.coef, f.stderr))
                           + f"; rms {f.rel_rms:.1%}" + (f" ({'; '.join(f.warnings)})" if f.warnings else "")
                           for k, f in pass_fits.items()] +
-                         [f"host {host_fit} (mean |frame error| {score:.1%} on the 2-GPU calibration runs)"])
+                         [f"queue task_gap_ns = {gap} (median idle between tasks of a queue, 1-GPU runs)",
+                          f"host {host_fit} (mean |frame error| {score:.1%} on the 2-GPU calibration runs)"])
     result_tables = {"Calibration runs (seen by the fit)": validate_saved(
         CALIBRATION, chosen, profile, out / "validation", progress)}
     if held:

@@ -42,6 +42,8 @@ class _Op:
     #: CPU threads of a CPU-emulated GPU (lavapipe): the task is `duration * cpu` core-ns of
     #: work on the shared host.cpu channel, at most `cpu` cores at once. 0 = a real GPU.
     cpu: int = 0
+    #: The queue's idle time before the task (the GPU's task_gap_ns).
+    gap: int = 0
 
 
 @dataclass
@@ -159,11 +161,15 @@ class Engine:
                 cap = None
             else:
                 channel = self._channel_for(task)
-        device, engine = ("host", "memcpy") if isinstance(task, HostCopyTask) else \
-            (task.queue.device_name, task.queue.engine)
+        gap = 0
+        if isinstance(task, HostCopyTask):
+            device, engine = "host", "memcpy"
+        else:
+            device, engine = task.queue.device_name, task.queue.engine
+            gap = self.costs.profile.gpus[task.queue.device].task_gap_ns
         return _Op(task, duration, channel, cap, nbytes, device, engine,
                    self._waits_for[phase][task.name], task.name == self.program.present_task,
-                   cpu)
+                   cpu, gap)
 
     def _cpu_threads(self, task: Task) -> int:
         """Cores a task of a CPU-emulated GPU can use (0 when the GPUs are real): a pass uses
@@ -346,6 +352,8 @@ class Engine:
     def _execute(self, frame: int, op: _Op) -> Iterator[simpy.Event]:
         """A task on a queue: its pass or copy time, then the transfer over its channel."""
         env = self.env
+        if op.gap:
+            yield self._host_work(op.gap) if op.cpu else env.timeout(op.gap)
         start = env.now
         if op.cpu:
             yield self._cpu.transfer(op.duration * op.cpu, op.cpu)

@@ -81,7 +81,7 @@ def with_pass_fits(profile_data: dict[str, Any], fits: dict[str, Fit]) -> dict[s
     return out
 
 
-DISPATCH_GRID_NS = (0, 25_000, 50_000, 100_000, 200_000, 400_000, 800_000)
+DISPATCH_GRID_NS = (0, 50_000, 100_000, 200_000, 400_000, 800_000, 1_200_000, 1_600_000)
 EFFICIENCY_GRID = (1.0, 0.95, 0.9, 0.85, 0.8, 0.75, 0.7)
 
 

@@ -1,0 +1,48 @@
+"""Calibration from runs recovers what generated the runs (the model as ground truth)."""
+from __future__ import annotations
+
+import copy
+
+import pytest
+
+from mgpusim import simulate
+from mgpusim.calibrate.runs import fit_host_effects, fit_passes_from_runs, fit_task_gap
+from tests.conftest import make_experiment, profile_dict
+
+
+def truth() -> dict:
+    prof = profile_dict(gpus=2)
+    prof["host"].update(cpu_cores=2, gpus_share_cpu=True, dispatch_ns=400, oversubscribed_efficiency=0.8)
+    prof["gpus"][0]["task_gap_ns"] = 30
+    prof["gpus"][0]["costs"]["fragment_loop"] = {"fixed_ns": 500.0, "ns_per_pixel": 2.0,
+                                                 "ns_per_pixel_iteration": 0.5}
+    return prof
+
+
+def runs(prof: dict, configs) -> list:
+    out = []
+    for gpus, w, h, it in configs:
+        exp = make_experiment(copy.deepcopy(prof), gpus=gpus, width=w, height=h, iterations=it, frames=12)
+        out.append((exp, simulate(exp).trace))
+    return out
+
+
+def test_pass_costs_and_queue_gap_from_single_gpu_runs():
+    single = runs(truth(), [(1, 16, 8, 10), (1, 32, 16, 40), (1, 64, 8, 5), (1, 8, 8, 100)])
+    fit = fit_passes_from_runs(single)["fragment_loop"]
+    got = dict(zip(fit.names, fit.coef))
+    assert got["ns_per_pixel_iteration"] == pytest.approx(0.5, rel=0.02)
+    assert got["ns_per_pixel"] == pytest.approx(2.0, rel=0.1)
+    assert got["fixed_ns"] == pytest.approx(500, abs=60)  # durations are rounded to the ns
+    assert fit_task_gap(single) == 30
+
+
+def test_host_effects_from_multi_gpu_runs():
+    prof = truth()
+    multi = runs(prof, [(2, 32, 16, 40), (2, 16, 16, 10)])
+    start = copy.deepcopy(prof)
+    start["host"].update(dispatch_ns=0, oversubscribed_efficiency=1.0)
+    found, score = fit_host_effects(start, multi, dispatch_grid=(0, 200, 400, 800),
+                                    efficiency_grid=(1.0, 0.9, 0.8, 0.7))
+    assert found == {"dispatch_ns": 400, "oversubscribed_efficiency": 0.8}
+    assert score == pytest.approx(0.0, abs=1e-9)

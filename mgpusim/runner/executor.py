@@ -9,7 +9,9 @@ semaphores. Any error in any thread stops them all and is raised from `execute`.
 """
 from __future__ import annotations
 
+import os
 import queue as queue_mod
+import sys
 import threading
 import time
 from collections import defaultdict
@@ -17,13 +19,27 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import ScheduleError
+from ..errors import InputError, ScheduleError
 from ..vulkan.device import Gpu
 from ..vulkan.errors import vk
 from .plan import HOST_STREAM, Node
 from .work import GpuWork, HostWork
 
 POLL_S = 0.05
+
+
+def switch_interval() -> float | None:
+    """The interpreter's GIL switch interval during a run, from MGPUSIM_SWITCH_INTERVAL_S
+    (default: Python's 5 ms). A thread woken by a fence or a finished host copy must get the
+    GIL back before it can submit the next task; while other runner threads run Python (command
+    recording), that can take up to one switch interval."""
+    raw = os.environ.get("MGPUSIM_SWITCH_INTERVAL_S")
+    if not raw:
+        return None
+    value = float(raw)
+    if not value > 0:
+        raise InputError(f"MGPUSIM_SWITCH_INTERVAL_S must be > 0, got {raw!r}", field="MGPUSIM_SWITCH_INTERVAL_S")
+    return value
 
 
 class _Abort(Exception):
@@ -182,10 +198,17 @@ class Executor:
                                                 name=f"submit-{name}"))
                 threads.append(threading.Thread(target=self._guard, args=(self._reap_stream, nodes),
                                                 name=f"reap-{name}"))
-        for t in threads:
-            t.start()
-        for t in threads:
-            t.join()
+        interval = switch_interval()
+        old = sys.getswitchinterval()
+        if interval:
+            sys.setswitchinterval(interval)
+        try:
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join()
+        finally:
+            sys.setswitchinterval(old)
         if self.errors:
             raise self.errors[0]
         return self.rows

@@ -1,0 +1,13 @@
+#!/usr/bin/env bash
+# Third call on the two-H200 machine (issue 5): the light calibration runs showed 0.5-1.4 ms
+# between a task's end and its dependant's start across devices/host. Measure fence wake-up
+# latency with and without busy Python threads, then every calibration and validation run again
+# with a 0.2 ms GIL switch interval (MGPUSIM_SWITCH_INTERVAL_S). From the project root:
+#   source .gl/env.sh; export PYTHONPATH=$PWD:$PYTHONPATH; MGPUSIM_CACHE=$PWD/.spvcache bash data/nvidia/run_h200x2_c.sh $OUT/h200x2_c
+set -u
+out=${1:?output folder}; t0=$SECONDS; py=${PYTHON:-python3}; mkdir -p "$out"
+timeout 60 $py data/nvidia/host_latency.py "$out/host_latency.csv" 2>&1 | tee "$out/host_latency.log"
+export MGPUSIM_SWITCH_INTERVAL_S=0.0002
+$py -m mgpusim.nvidia run "$out/calibration_si" --configs experiments/h200/calibration.toml --devices 0,1 --budget ${CAL_BUDGET:-100} 2>&1 | tee "$out/calibration_si.log"
+$py -m mgpusim.nvidia run "$out/runs_si" --devices 0,1 --budget ${RUN_BUDGET:-180} 2>&1 | tee "$out/runs_si.log"
+echo "total $((SECONDS - t0))s"

@@ -48,6 +48,8 @@ CALIBRATION = [
     Config("sf_1gpu_128x96_it500", "sort_first.toml", {"schedule.gpus": 1, "scene.width": 128,
                                                        "scene.height": 96, "iterations": 500}),
     Config("sl_1gpu_256x192_t20k", "sort_last.toml", {"schedule.gpus": 1}),
+    Config("sl_1gpu_256x192_t5k", "sort_last.toml", {"schedule.gpus": 1, "triangles": 5000}),
+    Config("sl_1gpu_256x192_t10k", "sort_last.toml", {"schedule.gpus": 1, "triangles": 10000}),
     Config("sf_1gpu_320x240_it4000", "sort_first.toml", {"schedule.gpus": 1, "scene.width": 320,
                                                          "scene.height": 240, "iterations": 4000}),
     Config("sl_1gpu_128x96_t5k", "sort_last.toml", {"schedule.gpus": 1, "scene.width": 128,

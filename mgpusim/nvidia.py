@@ -106,9 +106,11 @@ def main(argv: list[str] | None = None) -> int:
     c = sub.add_parser("calibrate-h200")
     c.add_argument("--out", type=Path, default=PROFILE)
     c.add_argument("--base", type=Path, default=PROFILE)
+    c.add_argument("--runs", type=Path, default=MEASURED.parent / "calibration_si",
+                   help="calibration runs folder (default: the 0.2 ms switch-interval set)")
     args = p.parse_args(argv)
     if args.cmd == "calibrate-h200":
-        print(calibrate_h200(args.out, args.base))
+        print(calibrate_h200(args.out, args.base, calibration_runs=args.runs))
         return 0
     if args.cmd == "run":
         run_all(args.out, args.devices, args.budget, configs=args.configs)
@@ -134,7 +136,7 @@ H100_TABLES = H200_TABLES + ("particle_update.csv", "particle_render.csv")
 #: frame the primary already rendered; present is an image copy in GENERAL layout): fitted on
 #: the calibration runs' own rows instead.
 RUN_FITTED = ("composite_sort_first", "composite_sort_last", "present")
-DISPATCH_GRID_NS = tuple(range(0, 400_001, 25_000))
+DISPATCH_GRID_NS = tuple(range(0, 2_000_001, 50_000))
 
 
 def saved_runs(configs: Path, root: Path, profile: Path | str | None = None) -> list[tuple[Any, pd.DataFrame]]:
@@ -187,7 +189,7 @@ def fit_host_copy(table: Path, threads: int) -> tuple[float, float, int]:
 
 
 def calibrate_h200(out: Path = PROFILE, base: Path = PROFILE, tables: Path = MEASURED.parent,
-                   calibration_runs: Path = MEASURED.parent / "calibration") -> str:
+                   calibration_runs: Path = MEASURED.parent / "calibration_si") -> str:
     """hardware_profiles/h200_x2.toml from the H200 tables (`mgpusim calibrate --base`), then the
     runner-form pass costs and the host dispatch delay from the calibration runs. Returns the report."""
     import copy  # noqa: PLC0415
@@ -197,7 +199,6 @@ def calibrate_h200(out: Path = PROFILE, base: Path = PROFILE, tables: Path = MEA
 
     import tomli_w  # noqa: PLC0415
 
-    from .calibrate.runs import fit_host_effects  # noqa: PLC0415
     from .cli import main as cli  # noqa: PLC0415
     from .profile import parse_profile  # noqa: PLC0415
 
@@ -227,9 +228,8 @@ def calibrate_h200(out: Path = PROFILE, base: Path = PROFILE, tables: Path = MEA
                      f"ns_per_pixel={fit.coef[1]:.5f}+-{fit.stderr[1]:.1e}; rms {fit.rel_rms:.1%} ({len(fit.rel_residuals)} rows)")
     probe = parse_profile(copy.deepcopy(data), "<calibration>")
     runs = [(_with_profile(exp, probe), trace) for exp, trace in runs]
-    effects, score = fit_host_effects(data, runs, DISPATCH_GRID_NS, (1.0,))
-    host["dispatch_ns"] = int(effects["dispatch_ns"])
-    lines.append(f"host dispatch_ns={host['dispatch_ns']} (grid 0..400 us on {len(runs)} calibration runs; "
+    host["dispatch_ns"], score = fit_dispatch(data, runs)
+    lines.append(f"host dispatch_ns={host['dispatch_ns']} (grid 0..2 ms on {len(runs)} calibration runs; "
                  f"mean |frame-time error| {score:.1%})")
     data["sources"]["calibration"] = (
         "pass costs (fragment_loop, mesh), copy rates per queue and path: `mgpusim calibrate "
@@ -244,6 +244,30 @@ def calibrate_h200(out: Path = PROFILE, base: Path = PROFILE, tables: Path = MEA
         f"#   {line}\n" for text in lines for line in text.splitlines())
     out.write_text(header + "\n" + tomli_w.dumps(data))
     return "\n".join(lines)
+
+
+def fit_dispatch(data: dict[str, Any], runs, grid=DISPATCH_GRID_NS) -> tuple[int, float]:
+    """host.dispatch_ns (delay before a task whose input came from another device or the host)
+    minimising the mean |frame-time error| over `runs`: a one-parameter grid search."""
+    import copy  # noqa: PLC0415
+
+    from .profile import parse_profile  # noqa: PLC0415
+    from .simulate import simulate  # noqa: PLC0415
+    from .validate import compare  # noqa: PLC0415
+    best: tuple[float, int] | None = None
+    for ns in grid:
+        trial = copy.deepcopy(data)
+        trial["host"]["dispatch_ns"] = int(ns)
+        profile = parse_profile(trial, "<calibration>")
+        errors = []
+        for exp, trace in runs:
+            e = _with_profile(exp, profile)
+            errors.append(abs(compare(trace, simulate(e).trace, e.schedule.warmup_frames)["frame_time_error"]))
+        score = float(sum(errors) / len(errors))
+        if best is None or score < best[0] - 1e-12:
+            best = (score, int(ns))
+    assert best is not None
+    return best[1], best[0]
 
 
 def _with_profile(exp, profile):

@@ -38,6 +38,9 @@ class HostProfile:
     #: Host work before a task whose input comes from another device or the host: a thread
     #: wakes on a fence, then submits (or copies). Real GPUs: a delay; lavapipe: CPU work.
     dispatch_ns: int = 0
+    #: Host CPU time per task (recording, submitting, reaping its fence). It runs beside the
+    #: task, so it only matters where the GPUs share the CPU (lavapipe): it takes cores from them.
+    submit_ns: int = 0
     #: Lavapipe: the fraction of the cores' time left for work when more threads than cores
     #: are busy (context switches, cache misses); 1 = perfect sharing.
     oversubscribed_efficiency: float = 1.0
@@ -151,6 +154,7 @@ def _parse_host(t: Table) -> HostProfile:
         host_copy_fixed_ns=t.get("host_copy_fixed_ns", int, 0, minimum=0),
         gpus_share_cpu=t.get("gpus_share_cpu", bool, False),
         dispatch_ns=t.get("dispatch_ns", int, 0, minimum=0),
+        submit_ns=t.get("submit_ns", int, 0, minimum=0),
         oversubscribed_efficiency=t.get("oversubscribed_efficiency", float, 1.0, above=0),
     )
     _check_host(t, host)

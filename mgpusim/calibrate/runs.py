@@ -5,14 +5,15 @@ Two things microbenchmarks cannot give:
   the frame's own targets, tiles and geometry shares): fitted from single-GPU runs, where no
   other simulated GPU competes for the cores, row by row with the work terms the schedule
   itself assigns to each task;
-- the host's dispatch cost (a thread waking on a fence, then submitting or copying) and how
-  much of the cores' time is lost when simulated GPUs oversubscribe them, which only show in
-  multi-GPU runs: fitted by a small grid search on the model's frame-time error over the
-  multi-GPU calibration runs.
+- the host's dispatch cost (a thread waking on a fence, then submitting or copying), the host
+  CPU time per task, and how much of the cores' time is lost when simulated GPUs oversubscribe
+  them, which only show in multi-GPU runs: fitted by a small grid search on the model's
+  frame-time error over the multi-GPU calibration runs.
 """
 from __future__ import annotations
 
 import copy
+import itertools
 from collections import defaultdict
 from dataclasses import replace
 from typing import Any, Sequence
@@ -81,31 +82,35 @@ def with_pass_fits(profile_data: dict[str, Any], fits: dict[str, Fit]) -> dict[s
     return out
 
 
-DISPATCH_GRID_NS = (0, 50_000, 100_000, 200_000, 400_000, 800_000, 1_200_000, 1_600_000)
-EFFICIENCY_GRID = (1.0, 0.95, 0.9, 0.85, 0.8, 0.75, 0.7)
+#: The host effects searched on multi-GPU runs, and the values tried.
+HOST_GRID: dict[str, tuple] = {
+    "dispatch_ns": (0, 100_000, 200_000, 400_000, 800_000, 1_600_000),
+    "submit_ns": (0, 50_000, 100_000, 200_000, 400_000),
+    "oversubscribed_efficiency": (1.0, 0.9, 0.8, 0.7),
+}
 
 
 def fit_host_effects(profile_data: dict[str, Any], runs: Sequence[Run],
-                     dispatch_grid: Sequence[int] = DISPATCH_GRID_NS,
-                     efficiency_grid: Sequence[float] = EFFICIENCY_GRID) -> tuple[dict[str, Any], float]:
-    """The host dispatch cost and the oversubscribed-core efficiency that minimise the mean
-    |frame-time error| of the multi-GPU calibration runs (a grid: two parameters, few runs)."""
+                     grid: dict[str, tuple] | None = None) -> tuple[dict[str, Any], float]:
+    """The host effects (dispatch cost, per-task host CPU time, oversubscribed-core efficiency)
+    that minimise the mean |frame-time error| of the multi-GPU calibration runs: a grid search,
+    since there are three parameters, few runs, and each evaluation is a short simulation."""
+    grid = grid or HOST_GRID
     multi = [(exp, trace) for exp, trace in runs if exp.schedule.gpus > 1]
     host = profile_data["host"]
     if not multi:
-        return {"dispatch_ns": int(host.get("dispatch_ns", 0)),
-                "oversubscribed_efficiency": float(host.get("oversubscribed_efficiency", 1.0))}, float("nan")
-    best: tuple[float, int, float] | None = None
-    for ns in dispatch_grid:
-        for eff in efficiency_grid:
-            data = copy.deepcopy(profile_data)
-            data["host"].update(dispatch_ns=int(ns), oversubscribed_efficiency=float(eff))
-            profile = parse_profile(data, "<calibration>")
-            score = float(np.mean([abs(_error(exp, trace, profile)) for exp, trace in multi]))
-            if best is None or score < best[0] - 1e-12:
-                best = (score, int(ns), float(eff))
+        return {k: host.get(k, v[0]) for k, v in grid.items()}, float("nan")
+    best: tuple[float, dict[str, Any]] | None = None
+    for values in itertools.product(*grid.values()):
+        trial = dict(zip(grid, values))
+        data = copy.deepcopy(profile_data)
+        data["host"].update(trial)
+        profile = parse_profile(data, "<calibration>")
+        score = float(np.mean([abs(_error(exp, trace, profile)) for exp, trace in multi]))
+        if best is None or score < best[0] - 1e-12:
+            best = (score, trial)
     assert best is not None
-    return {"dispatch_ns": best[1], "oversubscribed_efficiency": best[2]}, best[0]
+    return best[1], best[0]
 
 
 def _error(exp: Experiment, trace: pd.DataFrame, profile: HardwareProfile) -> float:

@@ -126,6 +126,7 @@ class Engine:
             eff = Fraction(repr(host.oversubscribed_efficiency))
             self._cpu = self.channels["host.cpu"] = Channel(
                 self.env, "host.cpu", cores, cores * eff if eff != 1 else None)
+        self._submit_ns = host.submit_ns if self._cpu is not None else 0
         queues: dict[QueueRef, list[list[_Op]]] = {}
         host_ops: list[list[_Op]] = [[] for _ in range(self.period)]
         for phase, tasks in enumerate(self.program.templates):
@@ -352,6 +353,8 @@ class Engine:
     def _execute(self, frame: int, op: _Op) -> Iterator[simpy.Event]:
         """A task on a queue: its pass or copy time, then the transfer over its channel."""
         env = self.env
+        if self._submit_ns:
+            self._cpu.transfer(self._submit_ns, 1)  # the host thread's share, beside the task
         if op.gap:
             yield self._host_work(op.gap) if op.cpu else env.timeout(op.gap)
         start = env.now

@@ -85,7 +85,7 @@ def with_pass_fits(profile_data: dict[str, Any], fits: dict[str, Fit]) -> dict[s
 #: The host effects searched on multi-GPU runs, and the values tried.
 HOST_GRID: dict[str, tuple] = {
     "dispatch_ns": (0, 100_000, 200_000, 400_000, 800_000, 1_600_000),
-    "submit_ns": (0, 50_000, 100_000, 200_000, 400_000),
+    "submit_ns": (0, 100_000, 200_000, 400_000, 800_000),
     "oversubscribed_efficiency": (1.0, 0.9, 0.8, 0.7),
 }
 

@@ -61,7 +61,9 @@ def run_all(out: Path, devices: str = "0,1", budget_s: float = 300, timeout_s: f
         if left < 15:
             print(f"SKIP (time) {c.name}", flush=True)
             continue
-        cmd = [sys.executable, "-m", "mgpusim.cli", "run", str(c.experiment), "--devices", devices,
+        gpus = experiment_for(c).schedule.gpus
+        cmd = [sys.executable, "-m", "mgpusim.cli", "run", str(c.experiment),
+               "--devices", ",".join(devices.split(",")[:gpus]),
                *[a for s in c.sets for a in ("--set", s)], "--out", str(out / c.name)]
         s = time.monotonic()
         try:
@@ -138,9 +140,7 @@ def main(argv: list[str] | None = None) -> int:
 # -- calibration -------------------------------------------------------------------------------
 H200_TABLES = ("copy_d2h.csv", "copy_h2d.csv", "copy_d2d.csv", "host_copy.csv", "fragment_loop.csv",
                "mesh.csv", "composite_sort_first.csv", "composite_sort_last.csv",
-               # not measured on the H200: the H100's (same GH100 chip; fragment_loop and the
-               # composites agree within 1% between the two)
-               "../h100/particle_update.csv", "../h100/particle_render.csv")
+               "particle_update.csv", "particle_render.csv")
 H100_TABLES = ("copy_d2h.csv", "copy_h2d.csv", "copy_d2d.csv", "host_copy.csv", "fragment_loop.csv",
                "mesh.csv", "composite_sort_first.csv", "composite_sort_last.csv",
                "particle_update.csv", "particle_render.csv")
@@ -250,7 +250,7 @@ def calibrate_h200(out: Path = PROFILE, base: Path = PROFILE, tables: Path = MEA
               "data/nvidia/h200x2/host_copy.csv). Host copy cost and dispatch_ns: see calibration."),
         gpus=("memory 141 GB HBM3e (public spec). Queue families from `mgpusim devices` (data/nvidia/h200x2/"
               "devices.txt): graphics+compute+transfer x16, transfer-only x2, compute+transfer x8. Costs and "
-              "copy rates: see calibration. particle_update/particle_render: from the H100 tables (same chip)."),
+              "copy rates: see calibration. particle_update/particle_render: measured in the fourth call (run_h200x2_d.sh)."),
         link=("PCIe 5.0 x16 per GPU, rates fitted (calibration). Both GPUs copying at once keep ~the same "
               "rate each (copy_d2h_2gpus.csv, copy_h2d_2gpus.csv): the links are independent. peer_links: "
               "CUDA peer copy over NVLink ~375 GB/s (DOMAIN.md 5), not reachable from Vulkan without device "
@@ -359,6 +359,8 @@ def nvlink_whatif(profile: Path = PROFILE, extra: list[str] | None = None) -> pd
     profiles = nvlink_profiles(profile)
     rows = []
     for c in load_configs():
+        if experiment_for(c).schedule.gpus < 2:
+            continue  # one GPU: nothing crosses
         row: dict[str, Any] = {"config": c.name}
         for label, prof in profiles.items():
             sets = list(extra or []) + ([] if label == "measured_links" else ["schedule.host_copy=false"])

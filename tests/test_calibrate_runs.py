@@ -42,7 +42,7 @@ def test_host_effects_from_multi_gpu_runs():
     multi = runs(prof, [(2, 32, 16, 40), (2, 16, 16, 10)])
     start = copy.deepcopy(prof)
     start["host"].update(dispatch_ns=0, oversubscribed_efficiency=1.0)
-    found, score = fit_host_effects(start, multi, dispatch_grid=(0, 200, 400, 800),
-                                    efficiency_grid=(1.0, 0.9, 0.8, 0.7))
+    found, score = fit_host_effects(start, multi, {"dispatch_ns": (0, 200, 400, 800),
+                                                   "oversubscribed_efficiency": (1.0, 0.9, 0.8, 0.7)})
     assert found == {"dispatch_ns": 400, "oversubscribed_efficiency": 0.8}
     assert score == pytest.approx(0.0, abs=1e-9)

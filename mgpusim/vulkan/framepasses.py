@@ -18,7 +18,7 @@ from ..errors import InputError
 from .copies import upload
 from .errors import vk
 from .memory import Image
-from .passes import _quad_pc, _stages, _view_matrix, torus_mesh
+from .passes import _quad_pc, _stages, _view_matrix, draw_vertices, torus_mesh
 from .pipelines import Pipeline, RenderTarget, graphics_pipeline
 
 if TYPE_CHECKING:
@@ -123,11 +123,7 @@ class MeshShare(_FramePass):
         full = (0, 0, self.frame[0], self.frame[1])
         begin(self.targets[slot], cmd, full, full)  # clears even an empty share
         if self.vertices is not None:
-            self.pipeline.bind(cmd)
-            self.pipeline.push(cmd, _stages(), self._mvp)
-            buffers, offsets = [self.vertices.handle], [0]
-            v.vkCmdBindVertexBuffers(cmd, 0, 1, buffers, offsets)
-            v.vkCmdDraw(cmd, 3 * self.count, 1, 0, 0)
+            draw_vertices(cmd, self.pipeline, self._mvp, self.vertices, 3 * self.count)
         v.vkCmdEndRenderPass(cmd)
 
 

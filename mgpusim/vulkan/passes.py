@@ -91,6 +91,16 @@ class FragmentLoop(_GraphicsPass):
         v.vkCmdEndRenderPass(cmd)
 
 
+def draw_vertices(cmd: Any, pipeline: Any, push: bytes, vertices: Any, count: int, first: int = 0) -> None:
+    """Inside a begun render pass: bind `pipeline`, push constants, one vertex buffer, draw."""
+    v = vk()
+    pipeline.bind(cmd)
+    pipeline.push(cmd, _stages(), push)
+    buffers, offsets = [vertices.handle], [0]  # bound to names: they must outlive the call
+    v.vkCmdBindVertexBuffers(cmd, 0, 1, buffers, offsets)
+    v.vkCmdDraw(cmd, count, 1, first, 0)
+
+
 def torus_mesh(triangles: int, radius: float = 0.6, tube: float = 0.25) -> np.ndarray:
     """A tessellated torus of exactly `triangles` triangles: float32 (3*T, 6) = position, normal."""
     _positive(triangles=triangles)
@@ -144,14 +154,9 @@ class Mesh(_GraphicsPass):
         self.bytes = width * height * 6
 
     def record(self, cmd: Any) -> None:
-        v = vk()
         self.target.begin(cmd)
-        self.pipeline.bind(cmd)
-        self.pipeline.push(cmd, _stages(), self._mvp)
-        buffers, offsets = [self.vertices.handle], [0]
-        v.vkCmdBindVertexBuffers(cmd, 0, 1, buffers, offsets)
-        v.vkCmdDraw(cmd, 3 * self.count, 1, 3 * self.first, 0)
-        v.vkCmdEndRenderPass(cmd)
+        draw_vertices(cmd, self.pipeline, self._mvp, self.vertices, 3 * self.count, 3 * self.first)
+        vk().vkCmdEndRenderPass(cmd)
 
 
 class CompositeSortFirst(_GraphicsPass):
@@ -245,11 +250,6 @@ class ParticleRender(_GraphicsPass):
         self.bytes = width * height * 4
 
     def record(self, cmd: Any) -> None:
-        v = vk()
         self.target.begin(cmd)
-        self.pipeline.bind(cmd)
-        self.pipeline.push(cmd, _stages(), self._mvp)
-        buffers, offsets = [self.vertices.handle], [0]
-        v.vkCmdBindVertexBuffers(cmd, 0, 1, buffers, offsets)
-        v.vkCmdDraw(cmd, 6 * self.particles, 1, 0, 0)
-        v.vkCmdEndRenderPass(cmd)
+        draw_vertices(cmd, self.pipeline, self._mvp, self.vertices, 6 * self.particles)
+        vk().vkCmdEndRenderPass(cmd)

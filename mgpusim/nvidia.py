@@ -244,7 +244,9 @@ def calibrate_h200(out: Path = PROFILE, base: Path = PROFILE, tables: Path = MEA
                      f"ns_per_pixel={fit.coef[1]:.5f}+-{fit.stderr[1]:.1e}; rms {fit.rel_rms:.1%} ({len(fit.rel_residuals)} rows)")
     probe = parse_profile(copy.deepcopy(data), "<calibration>")
     runs = [(_with_profile(exp, probe), trace) for exp, trace in runs]
-    host["dispatch_ns"], score = fit_dispatch(data, runs)
+    from .calibrate.runs import fit_host_effects  # noqa: PLC0415
+    found, score = fit_host_effects(data, runs, {"dispatch_ns": DISPATCH_GRID_NS})
+    host["dispatch_ns"] = found["dispatch_ns"]
     lines.append(f"host dispatch_ns={host['dispatch_ns']} (grid 0..2 ms on {len(runs)} calibration runs; "
                  f"mean |frame-time error| {score:.1%})")
     data["sources"].update(
@@ -373,30 +375,6 @@ def nvlink_whatif(profile: Path = PROFILE, extra: list[str] | None = None) -> pd
             row[f"{label}_latency_ms"] = s["latency_ms"]
         rows.append(row)
     return pd.DataFrame(rows)
-
-
-def fit_dispatch(data: dict[str, Any], runs, grid=DISPATCH_GRID_NS) -> tuple[int, float]:
-    """host.dispatch_ns (delay before a task whose input came from another device or the host)
-    minimising the mean |frame-time error| over `runs`: a one-parameter grid search."""
-    import copy  # noqa: PLC0415
-
-    from .profile import parse_profile  # noqa: PLC0415
-    from .simulate import simulate  # noqa: PLC0415
-    from .validate import compare  # noqa: PLC0415
-    best: tuple[float, int] | None = None
-    for ns in grid:
-        trial = copy.deepcopy(data)
-        trial["host"]["dispatch_ns"] = int(ns)
-        profile = parse_profile(trial, "<calibration>")
-        errors = []
-        for exp, trace in runs:
-            e = _with_profile(exp, profile)
-            errors.append(abs(compare(trace, simulate(e).trace, e.schedule.warmup_frames)["frame_time_error"]))
-        score = float(sum(errors) / len(errors))
-        if best is None or score < best[0] - 1e-12:
-            best = (score, int(ns))
-    assert best is not None
-    return best[1], best[0]
 
 
 def _with_profile(exp, profile):

@@ -9,6 +9,7 @@
 """
 from __future__ import annotations
 
+import copy
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,7 +17,8 @@ from typing import Any, Callable
 
 import pandas as pd
 
-from .experiment import load_experiment
+from .config import read_toml
+from .experiment import Experiment, parse_experiment, set_dotted
 from .validate import error_stats, error_table
 
 EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments" / "lavapipe"
@@ -102,19 +104,17 @@ def measure_all(out: Path, progress: Callable[[str], None]) -> list[Path]:
     return paths
 
 
-def experiment_for(config: Config, profile: Path):
-    """The config's experiment with its overrides; `iterations` / `triangles` set the pass."""
-    overrides = {k: v for k, v in config.overrides.items()
-                 if k not in ("iterations", "triangles")}
-    exp = load_experiment(EXPERIMENTS / config.experiment, overrides, profile=profile)
-    for key in ("iterations", "triangles"):
-        if key in config.overrides:
-            raw = json.loads(json.dumps(exp.raw))
-            raw["scene"]["passes"][0][key] = config.overrides[key]
-            from .experiment import parse_experiment  # noqa: PLC0415
-            exp = parse_experiment(raw, exp.file, base=(EXPERIMENTS / config.experiment).parent,
-                                   profile=exp.profile)
-    return exp
+def experiment_for(config: Config, profile: Path) -> Experiment:
+    """The config's experiment with its overrides; `iterations` / `triangles` set the scene's
+    one pass (dotted keys cannot index the array of passes)."""
+    path = EXPERIMENTS / config.experiment
+    data = copy.deepcopy(read_toml(path))
+    for key, value in config.overrides.items():
+        if key in ("iterations", "triangles"):
+            data["scene"]["passes"][0][key] = value
+        else:
+            set_dotted(data, key, value, str(path))
+    return parse_experiment(data, str(path), base=path.parent, profile=profile)
 
 
 def measure_configs(configs: list[Config], profile: Path, out: Path, repeats: int,

@@ -24,6 +24,9 @@ from fractions import Fraction
 import simpy
 
 
+_ZERO = Fraction(0)
+
+
 class _Flow:
     __slots__ = ("remaining", "cap", "cap_s", "rate", "done", "start", "nbytes", "solo_rate")
 
@@ -32,7 +35,7 @@ class _Flow:
         self.remaining = 0  # in 1/S bytes, set when the solver takes over
         self.rate = 0  # in 1/S bytes per ns
         self.cap_s: int | None = None
-        self.solo_rate: Fraction = Fraction(0)  # non-zero while the flow runs alone
+        self.solo_rate: Fraction = _ZERO  # non-zero while the flow runs alone
 
 
 class Channel:
@@ -111,7 +114,7 @@ class Channel:
         self._fit_scale(flow)
         rate_s = flow.solo_rate.numerator * (self._scale // flow.solo_rate.denominator)
         flow.remaining = flow.nbytes * self._scale - rate_s * (now - flow.start)
-        flow.solo_rate = Fraction(0)
+        flow.solo_rate = _ZERO
         self._t = now
 
     # ----- several transfers: the fluid solver --------------------------------------------

@@ -14,8 +14,6 @@ import heapq
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 from fractions import Fraction
-from typing import Callable, Iterator
-
 import numpy as np
 import simpy
 
@@ -137,7 +135,7 @@ class Engine:
                 else:
                     queues.setdefault(task.queue, [[] for _ in range(self.period)])[phase].append(op)
         for plan in queues.values():
-            self.env.process(self._stream_proc(plan, self._execute))
+            self.env.process(self._stream_proc(plan))
         if any(host_ops):
             host = self.costs.profile.host
             self._threads_all = [f"thread{i}" for i in range(host.memcpy_threads)]
@@ -146,7 +144,7 @@ class Engine:
             self._thread_cap = self.costs.memcpy_thread_cap()
             self._host_memory = self.channels["host.memory"] = Channel(
                 self.env, "host.memory", self.costs.host_memory_bandwidth())
-            self.env.process(self._stream_proc(host_ops, self._dispatch_host_copy))
+            self.env.process(self._stream_proc(host_ops, host=True))
 
     def _op(self, phase: int, task: Task) -> _Op:
         """Everything the hot loop needs about one task, computed once."""
@@ -317,8 +315,9 @@ class Engine:
             if left:
                 pending[key] = left
                 continue
-            self._pending.pop(key, None)
-            self._mark_ready(key, dtask)
+            pending.pop(key, None)
+            if dtask.skip_if_busy:
+                self._mark_ready(key, dtask)
             waiter = self._waiters.pop(key, None)
             if waiter is not None:
                 waiter.succeed()
@@ -326,15 +325,16 @@ class Engine:
                 self._ready.add(key)
 
     # ----- processes ---------------------------------------------------------------------
-    def _stream_proc(self, plan: list[list[_Op]], act: Callable[[int, _Op], Iterator[simpy.Event] | None]):
-        """One in-order stream (a queue, or the host thread that dispatches host copies): each
-        task after its dependencies and any host dispatch it owes, then `act` on it; `act`
-        returns the events the task spends its time on, or None if it takes none here."""
+    def _stream_proc(self, plan: list[list[_Op]], host: bool = False):
+        """One in-order stream: a queue, or (`host`) the host thread that dispatches host copies.
+        Each task runs after its dependencies and any host dispatch it owes; a queue task then
+        spends its pass or copy time and crosses its channel, a host copy is handed to the
+        memcpy threads. (One loop for both, inlined: this is the hot path.)"""
         env, period, skip, ready = self.env, self.period, self._skip, self._ready
         for frame in range(self.program.frames):
             for op in plan[frame % period]:
                 key = (frame, op.task.name)
-                if key in ready:  # the common case, inlined: dependencies already met
+                if key in ready:  # the common case: dependencies already met
                     ready.discard(key)
                 elif not self._check_ready(key, op.task):
                     ev = self._waiters[key] = env.event()
@@ -346,25 +346,21 @@ class Engine:
                     wait = self._dispatch_wait(key)
                     if wait:
                         yield self._host_work(wait)
-                work = act(frame, op)
-                if work is not None:
-                    yield from work
-
-    def _execute(self, frame: int, op: _Op) -> Iterator[simpy.Event]:
-        """A task on a queue: its pass or copy time, then the transfer over its channel."""
-        env = self.env
-        if self._submit_ns:
-            self._cpu.transfer(self._submit_ns, 1)  # the host thread's share, beside the task
-        if op.gap:
-            yield self._host_work(op.gap) if op.cpu else env.timeout(op.gap)
-        start = env.now
-        if op.cpu:
-            yield self._cpu.transfer(op.duration * op.cpu, op.cpu)
-        elif op.duration:
-            yield env.timeout(op.duration)
-        if op.channel is not None:
-            yield op.channel.transfer(op.nbytes, op.cap)
-        self._finish(frame, op, op.engine, start, op.nbytes)
+                if host:
+                    self._dispatch_host_copy(frame, op)
+                    continue
+                if self._submit_ns:
+                    self._cpu.transfer(self._submit_ns, 1)  # the host thread's share, beside the task
+                if op.gap:
+                    yield self._host_work(op.gap) if op.cpu else env.timeout(op.gap)
+                start = env.now
+                if op.cpu:
+                    yield self._cpu.transfer(op.duration * op.cpu, op.cpu)
+                elif op.duration:
+                    yield env.timeout(op.duration)
+                if op.channel is not None:
+                    yield op.channel.transfer(op.nbytes, op.cap)
+                self._finish(frame, op, op.engine, start, op.nbytes)
 
     def _skip_task(self, key: Key, task: Task) -> None:
         self._skip.discard(key)

@@ -35,11 +35,12 @@ class HostProfile:
     #: The GPUs are emulated on the host CPU (lavapipe): their passes, copies and the host
     #: copies all share `cpu_cores`.
     gpus_share_cpu: bool = False
-    #: Host work before a task whose input comes from another device or the host: a thread
-    #: wakes on a fence, then submits (or copies). Real GPUs: a delay; lavapipe: CPU work.
+    #: Host wake-up before a task whose input comes from another device or the host: a thread
+    #: waits on a fence, wakes, then submits (or copies).
     dispatch_ns: int = 0
-    #: Host CPU time per task (recording, submitting, reaping its fence). It runs beside the
-    #: task, so it only matters where the GPUs share the CPU (lavapipe): it takes cores from them.
+    #: Host time to record and submit one task, on its queue's submit thread: tasks of one
+    #: queue are submitted one after another, a task fed by another device or the host only
+    #: after the thread woke (dispatch_ns). Where the GPUs share the CPU it also takes cores.
     submit_ns: int = 0
     #: Lavapipe: the fraction of the cores' time left for work when more threads than cores
     #: are busy (context switches, cache misses); 1 = perfect sharing.

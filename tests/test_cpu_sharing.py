@@ -58,3 +58,16 @@ def test_dispatch_delays_tasks_fed_by_another_device():
     # d2h1 follows render1 on the same device: no dispatch; host_copy1 and h2d1 each wait 7 ns.
     assert first(slow).loc["d2h1", "start_ns"] == first(base).loc["d2h1", "start_ns"]
     assert first(slow).loc["h2d1", "start_ns"] == first(base).loc["h2d1", "start_ns"] + 14
+
+
+def test_submit_thread_submits_in_order_after_waking():
+    """dispatch 100 ns, submit 50 ns: the primary's h2d is submitted 150 ns after the host copy
+    ends; the composite behind it needs 50 ns more of the submit thread, but the 64 ns upload
+    outlasts that, so it starts when the upload ends."""
+    prof = profile_dict(gpus=2)
+    prof["host"].update(dispatch_ns=100, submit_ns=50)
+    t = simulate(make_experiment(prof, gpus=2, frames=3)).trace
+    f0 = t[t.frame == 0].set_index("task")
+    assert f0.loc["h2d1", "start_ns"] == f0.loc["host_copy1", "end_ns"] + 150
+    assert f0.loc["composite", "start_ns"] == f0.loc["h2d1", "end_ns"]
+    assert f0.loc["render0", "start_ns"] == 50  # even the first task waits to be submitted

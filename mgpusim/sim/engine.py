@@ -77,6 +77,7 @@ class Engine:
         self._skip_groups()
         self._dependents = self._reverse_deps()
         self._dispatch_ns = costs.profile.host.dispatch_ns
+        self._host_timeline = bool(self._dispatch_ns or costs.profile.host.submit_ns)
         self._cross_done: dict[Key, int] = {}  # instance -> when its last cross-device input ended
         self._waits_for = self._waits_for_labels()
         self.channels: dict[str, Channel] = {}
@@ -124,7 +125,7 @@ class Engine:
             eff = Fraction(repr(host.oversubscribed_efficiency))
             self._cpu = self.channels["host.cpu"] = Channel(
                 self.env, "host.cpu", cores, cores * eff if eff != 1 else None)
-        self._submit_ns = host.submit_ns if self._cpu is not None else 0
+        self._submit_ns = host.submit_ns
         queues: dict[QueueRef, list[list[_Op]]] = {}
         host_ops: list[list[_Op]] = [[] for _ in range(self.period)]
         for phase, tasks in enumerate(self.program.templates):
@@ -188,6 +189,13 @@ class Engine:
         if done is None:
             return 0
         return max(0, done + self._dispatch_ns - self.env.now)
+
+    def _submitted(self, key: Key, previous: int) -> int:
+        """When the queue's submit thread has recorded and submitted `key`: after the task
+        before it, and after waking on its last input from another device or the host."""
+        done = self._cross_done.pop(key, None)
+        ready = previous if done is None else max(previous, done + self._dispatch_ns)
+        return ready + self._submit_ns
 
     def _duration(self, task: Task) -> int:
         if isinstance(task, PassTask):
@@ -306,7 +314,7 @@ class Engine:
             if g >= frames:
                 continue
             key = (g, name)
-            if cross and self._dispatch_ns:
+            if cross and self._host_timeline:
                 self._cross_done[key] = self.env.now
             left = pending.get(key)
             if left is None:
@@ -331,6 +339,7 @@ class Engine:
         spends its pass or copy time and crosses its channel, a host copy is handed to the
         memcpy threads. (One loop for both, inlined: this is the hot path.)"""
         env, period, skip, ready = self.env, self.period, self._skip, self._ready
+        submitted = 0  # the queue's host submit thread: when it submitted the last task
         for frame in range(self.program.frames):
             for op in plan[frame % period]:
                 key = (frame, op.task.name)
@@ -342,15 +351,19 @@ class Engine:
                 if skip and key in skip:
                     self._skip_task(key, op.task)
                     continue
-                if self._cross_done:
-                    wait = self._dispatch_wait(key)
-                    if wait:
-                        yield self._host_work(wait)
                 if host:
+                    if self._cross_done:
+                        wait = self._dispatch_wait(key)
+                        if wait:
+                            yield self._host_work(wait)
                     self._dispatch_host_copy(frame, op)
                     continue
-                if self._submit_ns:
-                    self._cpu.transfer(self._submit_ns, 1)  # the host thread's share, beside the task
+                if self._host_timeline:
+                    submitted = self._submitted(key, submitted)
+                    if submitted > env.now:
+                        yield env.timeout(submitted - env.now)
+                    if self._submit_ns and self._cpu is not None:
+                        self._cpu.transfer(self._submit_ns, 1)  # the submit thread's cores
                 if op.gap:
                     yield self._host_work(op.gap) if op.cpu else env.timeout(op.gap)
                 start = env.now

@@ -5,10 +5,10 @@ Two things microbenchmarks cannot give:
   the frame's own targets, tiles and geometry shares): fitted from single-GPU runs, where no
   other simulated GPU competes for the cores, row by row with the work terms the schedule
   itself assigns to each task;
-- the host's dispatch cost (a thread waking on a fence, then submitting or copying), the host
-  CPU time per task, and how much of the cores' time is lost when simulated GPUs oversubscribe
-  them, which only show in multi-GPU runs: fitted by a small grid search on the model's
-  frame-time error over the multi-GPU calibration runs.
+- the host's dispatch cost (a thread waking on a fence, then submitting or copying), the submit
+  time per task, and how much of the cores' time is lost when simulated GPUs oversubscribe
+  them, which show mostly in multi-GPU runs: fitted by a small grid search on the model's
+  frame-time error over all the calibration runs.
 """
 from __future__ import annotations
 
@@ -92,11 +92,12 @@ HOST_GRID: dict[str, tuple] = {
 
 def fit_host_effects(profile_data: dict[str, Any], runs: Sequence[Run],
                      grid: dict[str, tuple] | None = None) -> tuple[dict[str, Any], float]:
-    """The host effects (dispatch cost, per-task host CPU time, oversubscribed-core efficiency)
-    that minimise the mean |frame-time error| of the multi-GPU calibration runs: a grid search,
-    since there are three parameters, few runs, and each evaluation is a short simulation."""
+    """The host effects (dispatch cost, per-task submit time, oversubscribed-core efficiency)
+    that minimise the mean |frame-time error| over all calibration runs: a grid search, since
+    there are three parameters, few runs, and each evaluation is a short simulation. Single-GPU
+    runs take part too: a submit thread that is too slow would throttle them."""
     grid = grid or HOST_GRID
-    multi = [(exp, trace) for exp, trace in runs if exp.schedule.gpus > 1]
+    multi = list(runs)
     host = profile_data["host"]
     if not multi:
         return {k: host.get(k, v[0]) for k, v in grid.items()}, float("nan")

@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     host_fit, score = fit_host_effects(data, runs)
     data["host"].update(host_fit)
     data["sources"]["runs"] = ("pass costs and task_gap_ns from 1-GPU runs of the runner; host dispatch_ns and "
-                               "oversubscribed_efficiency by a grid search on the 2-GPU calibration runs' "
+                               "oversubscribed_efficiency by a grid search on the calibration runs' "
                                "frame-time error")
     profile = out / "profile.toml"
     profile.write_text(tomli_w.dumps(data))
@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
                           + f"; rms {f.rel_rms:.1%}" + (f" ({'; '.join(f.warnings)})" if f.warnings else "")
                           for k, f in pass_fits.items()] +
                          [f"queue task_gap_ns = {gap} (median idle between tasks of a queue, 1-GPU runs)",
-                          f"host {host_fit} (mean |frame error| {score:.1%} on the 2-GPU calibration runs)"])
+                          f"host {host_fit} (mean |frame error| {score:.1%} on the calibration runs)"])
     result_tables = {"Calibration runs (seen by the fit)": validate_saved(
         CALIBRATION, chosen, profile, out / "validation", progress)}
     if held:

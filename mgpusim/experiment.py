@@ -15,7 +15,7 @@ from typing import Any, Mapping
 from .config import Table, read_toml
 from .costs import WORK_TERMS
 from .errors import InputError
-from .profile import HardwareProfile, load_profile, parse_profile, require_gpus
+from .profile import HardwareProfile, load_profile, require_gpus
 from .scene import Scene, parse_scene
 from .schedules.base import ScheduleConfig, parse_schedule_config
 
@@ -95,6 +95,3 @@ def parse_overrides(items: list[str] | None) -> dict[str, Any]:
         out[key.strip()] = parse_value(text.strip())
     return out
 
-
-def profile_from_dict(data: dict, file: str = "<profile>") -> HardwareProfile:
-    return parse_profile(data, file)

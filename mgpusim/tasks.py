@@ -130,9 +130,3 @@ class Resource:
     host_visible: bool = False
     shared_by: tuple[int, ...] = ()
 
-
-def engine_of(task: Task) -> tuple[str, str]:
-    """(device, engine) a task occupies; host copies are placed on threads when they run."""
-    if isinstance(task, HostCopyTask):
-        return "host", "memcpy"
-    return task.queue.device_name, task.queue.engine

@@ -1,7 +1,6 @@
 """AFR: exact timelines, N x speed-up with free copies, temporal copies, no drift."""
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from mgpusim import simulate

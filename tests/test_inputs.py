@@ -1,7 +1,6 @@
 """Bad input stops with one clear message naming the file and the field; no traceback, no hang."""
 from __future__ import annotations
 
-import copy
 import subprocess
 import sys
 from pathlib import Path

@@ -5,7 +5,7 @@ from __future__ import annotations
 from hypothesis import given, settings, strategies as st
 
 from mgpusim import InputError, simulate
-from tests.schedule_helpers import assert_no_drift, experiment, gpu, presents, profile, rows, timed
+from tests.schedule_helpers import assert_no_drift, experiment, presents, profile, rows, timed
 
 import pytest
 

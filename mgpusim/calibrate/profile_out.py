@@ -11,7 +11,6 @@ from typing import Any
 
 import numpy as np
 
-from ..config import Table
 from ..profile import parse_profile
 from .model import Calibration
 
@@ -143,7 +142,3 @@ def _driver(machine: dict[str, Any]) -> str:
     gpus = machine.get("gpus") or [{}]
     return f"{gpus[0].get('driver', '?')} {gpus[0].get('driver_info', '')}".strip()
 
-
-def base_from_table(data: dict[str, Any], file: str) -> dict[str, Any]:
-    Table(data, file)  # must be a table; full validation happens after fitting
-    return data

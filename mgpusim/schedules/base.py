@@ -10,7 +10,7 @@ from types import MappingProxyType
 from typing import Any, Callable, Mapping
 
 from ..config import Table
-from ..errors import InputError, ScheduleError
+from ..errors import ScheduleError
 from ..profile import HardwareProfile
 from ..scene import Scene
 from ..tasks import CopyTask, HostCopyTask, PassTask, QueueRef, Task
@@ -134,6 +134,3 @@ def _check_task(program: FrameProgram, profile: HardwareProfile, phase: int, tas
     if isinstance(task, HostCopyTask) and task.chunk_min_bytes < 1:
         raise ScheduleError(f"task {task.name!r}: chunk_min_bytes must be >= 1")
 
-
-def bad_option(cfg: ScheduleConfig, key: str, message: str) -> InputError:
-    return InputError(message, field=f"schedule.{key}")

@@ -92,6 +92,16 @@ class Table:
             raise self.error(unknown[0], "unknown key")
 
 
+def int_list(text: str | None, field: str) -> list[int] | None:
+    """A command-line list like "0,1" (None when not given); bad items are one InputError."""
+    if not text:
+        return None
+    try:
+        return [int(t) for t in text.split(",")]
+    except ValueError:
+        raise InputError(f"expected comma-separated integers, got {text!r}", field=field) from None
+
+
 def _coerce(value: Any, kind: type) -> Any:
     if kind is float:
         return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None

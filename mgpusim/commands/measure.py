@@ -9,6 +9,7 @@ import argparse
 import json
 import sys
 
+from ..config import int_list
 from ..errors import InputError
 
 
@@ -35,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.out.lower().endswith((".csv", ".parquet", ".pq")):
         raise InputError("expected a .csv or .parquet file", file=args.out, field="--out")
     combos = len(m.combinations(args.pass_name, sweeps))
-    lp = [int(t) for t in args.lp_threads.split(",")] if args.lp_threads else None
+    lp = int_list(args.lp_threads, "--lp-threads")
     gpus = [] if m.spec(args.pass_name).host else make_gpus(args.gpus, lp_threads=lp,
                                                              physical=args.device)
     try:

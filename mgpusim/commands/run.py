@@ -9,16 +9,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ..config import int_list
 from ..errors import InputError
-
-
-def _ints(text: str | None, field: str) -> list[int] | None:
-    if not text:
-        return None
-    try:
-        return [int(t) for t in text.split(",")]
-    except ValueError:
-        raise InputError(f"expected comma-separated integers, got {text!r}", field=field) from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -27,14 +19,14 @@ def run(args: argparse.Namespace) -> int:
     from ..runner.run import run_experiment  # noqa: PLC0415
 
     exp = load_experiment(args.experiment, parse_overrides(args.overrides))
-    devices = _ints(args.devices, "--devices")
-    if args.gpus_per_device:
+    devices = int_list(args.devices, "--devices")
+    if args.gpus_per_device is not None:
         if devices is not None:
             raise InputError("give --devices or --gpus-per-device, not both")
         if args.gpus_per_device < 1:
             raise InputError("must be >= 1", field="--gpus-per-device")
         devices = [i // args.gpus_per_device for i in range(exp.schedule.gpus)]
-    result = run_experiment(exp, devices=devices, lp_threads=_ints(args.lp_threads, "--lp-threads"),
+    result = run_experiment(exp, devices=devices, lp_threads=int_list(args.lp_threads, "--lp-threads"),
                             host_threads=args.host_threads, prewarm_frames=args.prewarm)
     out = args.out or Path("out") / f"{exp.name}-measured"
     out.mkdir(parents=True, exist_ok=True)
@@ -77,7 +69,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--lp-threads", metavar="N[,N...]",
                    help="lavapipe LP_NUM_THREADS per simulated GPU (one value: all)")
     p.add_argument("--host-threads", type=int, help="memcpy threads (default: the profile's)")
-    p.add_argument("--prewarm", type=int, help="untimed frames before the run (default: buffers)")
+    p.add_argument("--prewarm", type=int, help="untimed frames before the run (default: max(2, buffers, frame phases))")
     p.add_argument("--out", type=Path, help="output folder (default: out/<experiment>-measured)")
     p.add_argument("--format", choices=("csv", "parquet"), default="csv", help="table format")
     p.set_defaults(func=run)

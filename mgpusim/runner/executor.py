@@ -34,7 +34,7 @@ POLL_S = 0.05
 DEFAULT_SWITCH_INTERVAL_S = 0.0002
 
 
-def switch_interval() -> float | None:
+def switch_interval() -> float:
     """The interpreter's GIL switch interval during a run, from MGPUSIM_SWITCH_INTERVAL_S
     (default DEFAULT_SWITCH_INTERVAL_S). A thread woken by a fence or a finished host copy must
     get the GIL back before it can submit the next task; while other runner threads run Python
@@ -42,7 +42,10 @@ def switch_interval() -> float | None:
     raw = os.environ.get("MGPUSIM_SWITCH_INTERVAL_S")
     if not raw:
         return DEFAULT_SWITCH_INTERVAL_S
-    value = float(raw)
+    try:
+        value = float(raw)
+    except ValueError:
+        value = float("nan")
     if not value > 0:
         raise InputError(f"MGPUSIM_SWITCH_INTERVAL_S must be > 0, got {raw!r}", field="MGPUSIM_SWITCH_INTERVAL_S")
     return value
@@ -206,8 +209,7 @@ class Executor:
                                                 name=f"reap-{name}"))
         interval = switch_interval()
         old = sys.getswitchinterval()
-        if interval:
-            sys.setswitchinterval(interval)
+        sys.setswitchinterval(interval)
         try:
             for t in threads:
                 t.start()

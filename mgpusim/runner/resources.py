@@ -105,8 +105,8 @@ class Resources:
             if self.declared[name].device is not None:
                 for b in bufs:
                     b.destroy()
+        self._images.clear()
+        self._buffers.clear()  # drop the views into shared host memory before unmapping it
         for mem in self._shared:
             mem.destroy()
-        self._images.clear()
-        self._buffers.clear()
         self._shared.clear()

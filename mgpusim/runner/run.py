@@ -16,7 +16,7 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
-from ..errors import InputError, ScheduleError
+from ..errors import InputError, MgpusimError, ScheduleError
 from ..experiment import Experiment
 from ..results import frames_from_trace, summarize
 from ..schedules.base import FrameProgram
@@ -47,6 +47,8 @@ def run_program(program: FrameProgram, gpus: Sequence[Gpu], *, host_threads: int
                 prewarm_frames: int | None = None, rebase: bool = True,
                 stall_timeout_s: float = 120.0) -> RunResult:
     """Execute `program` on `gpus` (simulated GPU i = gpus[i]); the GPUs stay open."""
+    if host_threads < 1:
+        raise InputError(f"must be >= 1, got {host_threads}", field="host_threads")
     declared = program.notes.get("resources")
     if declared is None:
         raise ScheduleError(f"schedule {program.schedule!r} declares no resources "
@@ -71,7 +73,10 @@ def run_program(program: FrameProgram, gpus: Sequence[Gpu], *, host_threads: int
         image, depth = _final_image(gpus[0], res)
     finally:
         for g in gpus:
-            g.wait_idle()
+            try:
+                g.wait_idle()
+            except MgpusimError:  # e.g. a lost device: clean up anyway, keep the first error
+                pass
         for obj in reversed(owned):
             obj.destroy()
         res.destroy()
@@ -123,7 +128,7 @@ def run_experiment(exp: Experiment, *, devices: Sequence[int] | None = None,
     from .machine import open_gpus  # noqa: PLC0415
 
     program = build_program(exp)
-    threads = host_threads or exp.profile.host.memcpy_threads
+    threads = exp.profile.host.memcpy_threads if host_threads is None else host_threads
     gpus = open_gpus(program.gpus, devices=devices, lp_threads=lp_threads, validation=validation)
     try:
         result = run_program(program, gpus, host_threads=threads, prewarm_frames=prewarm_frames)

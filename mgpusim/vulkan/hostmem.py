@@ -85,6 +85,7 @@ class ImportedBuffer:
         if self.memory is not None:
             v.vkFreeMemory(self.gpu.device, self.memory, None)
         self.handle = self.memory = None
+        self.array = None  # a view into the shared mmap: it must go before the mmap can close
 
 
 class SharedHostMemory:

@@ -35,16 +35,27 @@ def make_gpus(n: int, *, lp_threads: Sequence[int | None] | None = None,
         first.close()
         raise InputError(f"no physical device {pick}; found {len(first.devices)}",
                          field="device")
-    if first.devices[pick].is_lavapipe:
-        gpus = [Gpu(first, pick, "gpu0", owns_instance=True)]
-        for i in range(1, n):
-            inst = Instance(validation=validation, lp_num_threads=threads[i])
-            gpus.append(Gpu(inst, pick, f"gpu{i}", owns_instance=True))
+    gpus: list[Gpu] = []
+    try:  # a failure part-way closes what was opened
+        if first.devices[pick].is_lavapipe:
+            gpus.append(Gpu(first, pick, "gpu0", owns_instance=True))
+            for i in range(1, n):
+                inst = Instance(validation=validation, lp_num_threads=threads[i])
+                try:
+                    gpus.append(Gpu(inst, pick, f"gpu{i}", owns_instance=True))
+                except BaseException:
+                    inst.close()
+                    raise
+            return gpus
+        count = len(first.devices)
+        for i in range(n):
+            gpus.append(Gpu(first, physical if physical is not None else i % count, f"gpu{i}"))
         return gpus
-    count = len(first.devices)
-    gpus = [Gpu(first, physical if physical is not None else i % count, f"gpu{i}")
-            for i in range(n)]
-    return gpus
+    except BaseException:
+        close_gpus(gpus)
+        if not any(g.instance is first for g in gpus):
+            first.close()
+        raise
 
 
 def close_gpus(gpus: Sequence[Gpu]) -> None:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -10,9 +11,6 @@ import pandas as pd
 from .perfetto import chrome_trace
 from .plot import timeline_png
 from .results import Result
-
-SUMMARY_KEYS = ("frame_time_ms", "fps", "latency_ms", "utilization")
-
 
 def write_table(df: pd.DataFrame, path: Path) -> Path:
     """CSV or Parquet by the file's extension."""
@@ -24,10 +22,23 @@ def write_table(df: pd.DataFrame, path: Path) -> Path:
 
 
 def write_json(obj: Any, path: Path) -> Path:
+    """Strict JSON (NaN and infinities become null), written whole or not at all."""
     tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=2, sort_keys=True, default=_jsonable) + "\n")
+    tmp.write_text(json.dumps(_finite(obj), indent=2, sort_keys=True, default=_jsonable, allow_nan=False) + "\n")
     tmp.replace(path)
     return path
+
+
+def _finite(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    if hasattr(value, "item") and not isinstance(value, (str, bytes)):
+        value = value.item() if getattr(value, "ndim", 0) == 0 else value
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
 
 
 def _jsonable(value: Any) -> Any:

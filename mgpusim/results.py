@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from .errors import InputError
 from .trace import FRAME_COLUMNS, make_trace
 
 
@@ -44,14 +45,21 @@ def frames_from_trace(trace: pd.DataFrame, present_step: str = "present") -> pd.
 
 def summarize(frames: pd.DataFrame, trace: pd.DataFrame | None, warmup_frames: int,
               links: pd.DataFrame | None = None) -> dict[str, Any]:
-    """Steady-state figures after `warmup_frames`: frame time = mean period between presents."""
+    """Steady-state figures after `warmup_frames`: frame time = mean period between presents.
+    With a single steady frame its period is measured from the last warm-up frame's present
+    (or, with no warm-up, from its own start)."""
     steady = frames[frames["frame"] >= warmup_frames]
+    if steady.empty:
+        raise InputError(f"no frame presents after the {warmup_frames} warm-up frames "
+                         f"(the run has {len(frames)})", field="schedule.warmup_frames")
     presents = steady["present_ns"].to_numpy(dtype=np.int64)
+    if len(presents) == 1:
+        before = frames.loc[frames["frame"] < warmup_frames, "present_ns"].to_numpy(dtype=np.int64)
+        origin = int(before[-1]) if len(before) else int(steady["start_ns"].iloc[0])
+        presents = np.array([origin, presents[0]], dtype=np.int64)
     periods = np.diff(presents)
-    if len(periods) == 0:
-        periods = presents[:1] - steady["start_ns"].to_numpy(dtype=np.int64)[:1]
     frame_time = float(periods.mean())
-    window = (int(presents[0]) if len(presents) > 1 else 0, int(presents[-1]))
+    window = (int(presents[0]), int(presents[-1]))
     out: dict[str, Any] = {
         "frame_time_ms": frame_time / 1e6,
         "fps": 1e9 / frame_time if frame_time > 0 else float("inf"),

@@ -61,3 +61,16 @@ def test_effects_report_what_was_simulated():
                       "host_memory_contention": False}
     multi = simulate(make_experiment(profile_dict(gpus=3, threads=2), gpus=3, width=64, height=64)).summary["effects"]
     assert multi["link_model"] and multi["host_copies"] and multi["host_memory_contention"]
+
+
+def test_summary_with_one_or_no_steady_frame():
+    import numpy as np
+    import pytest
+
+    from mgpusim import InputError
+    from mgpusim.results import frames_table, summarize
+    frames = frames_table(np.array([0, 100, 200]), np.array([150, 260, 370]))
+    assert summarize(frames, None, warmup_frames=2)["frame_time_ms"] * 1e6 == 110  # 370 - 260
+    assert summarize(frames, None, warmup_frames=1)["frame_time_ms"] * 1e6 == 110
+    with pytest.raises(InputError, match="no frame presents after the 3 warm-up frames"):
+        summarize(frames, None, warmup_frames=3)

@@ -66,7 +66,7 @@ def fit_task_gap(runs: Sequence[Run]) -> int | None:
             gaps.append(queue["start_ns"].to_numpy()[1:] - queue["end_ns"].to_numpy()[:-1])
     if not gaps:
         return None
-    return int(np.median(np.concatenate(gaps)))
+    return max(0, int(np.median(np.concatenate(gaps))))  # overlapping slices must not make it < 0
 
 
 def with_pass_fits(profile_data: dict[str, Any], fits: dict[str, Fit]) -> dict[str, Any]:

@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 from ..bench import DEFAULT_EXPERIMENT, run_bench
+from ..errors import InputError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -19,6 +20,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.frames < 2 or args.repeats < 1:
+        raise InputError(f"need --frames >= 2 and --repeats >= 1, got {args.frames} and {args.repeats}")
     out = run_bench(args.experiment, args.frames, args.repeats)
     if args.json:
         print(json.dumps(out, sort_keys=True))

@@ -56,7 +56,7 @@ def validate_experiment(exp: Experiment, out: Path, measured_dir: Path | None = 
     write_json(report, out / "summary.json")
     write_table(sim.trace, out / "simulated_trace.parquet")
     title = f"{exp.schedule.name}, {exp.schedule.gpus} GPU(s), {exp.scene.width}x{exp.scene.height}"
-    comparison_png(measured, sim.trace, out / "timelines.png", title)
+    comparison_png(measured, sim.trace, out / "timelines.png", title, sim_links=sim.links)
     write_json(chrome_trace(measured, None, f"measured {title}"), out / "measured.perfetto.json")
     write_json(chrome_trace(sim.trace, sim.links, f"simulated {title}"), out / "simulated.perfetto.json")
     return report

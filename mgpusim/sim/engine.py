@@ -377,6 +377,7 @@ class Engine:
 
     def _skip_task(self, key: Key, task: Task) -> None:
         self._skip.discard(key)
+        self._cross_done.pop(key, None)
         self._skipped[task.name] += 1
         self._complete(key[0], task, skipped=True)
 

@@ -48,7 +48,7 @@ def model_speed(experiment: Path, gpus: int, frames: int) -> dict[str, float]:
     program = build_program(exp)
     tasks = program.tasks(0)
     threads = exp.profile.host.memcpy_threads
-    parts = sum(max(1, min(threads, t.bytes // t.chunk_min_bytes)) for t in tasks if isinstance(t, HostCopyTask))
+    parts = sum(t.parts(threads) for t in tasks if isinstance(t, HostCopyTask))
     task_uses = sum(1 for t in tasks if not isinstance(t, HostCopyTask)) + parts
     link_uses = sum(1 for t in tasks if isinstance(t, CopyTask)) + parts
     t0 = time.perf_counter()

@@ -100,9 +100,15 @@ class HostCopyTask:
     deps: tuple[Dep, ...] = ()
     chunk_min_bytes: int = 512 * 1024
     skip_if_busy: bool = False
+
     #: Host-visible buffers copied from and to (the Vulkan runner's binding).
     src: str | None = None
     dst: str | None = None
+
+    def parts(self, threads: int) -> int:
+        """How many parts the copy is split into: one per thread, each >= chunk_min_bytes
+        (the reference renderer's rule; the simulator and the runner both use it)."""
+        return max(1, min(threads, self.bytes // self.chunk_min_bytes))
 
 
 Task = PassTask | CopyTask | HostCopyTask

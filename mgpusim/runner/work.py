@@ -55,8 +55,8 @@ class HostWork:
         if src.size < t.bytes or dst.size < t.bytes:
             raise ScheduleError(f"host copy {t.name!r} of {t.bytes} bytes between buffers of "
                                 f"{src.size} and {dst.size} bytes")
-        # the simulator's split (sim/engine.py): equal parts, the last takes the remainder
-        n = max(1, min(self.threads, t.bytes // t.chunk_min_bytes))
+        # the simulator's split (HostCopyTask.parts): equal parts, the last takes the remainder
+        n = t.parts(self.threads)
         base = t.bytes // n
         bounds = [i * base for i in range(n)] + [t.bytes]
         return [(dst[a:b], src[a:b]) for a, b in zip(bounds, bounds[1:])]

@@ -395,7 +395,7 @@ class Engine:
     def _dispatch_host_copy(self, frame: int, op: _Op) -> None:
         """Split into parts of >= chunk_min_bytes, at most one per memcpy thread."""
         task: HostCopyTask = op.task  # type: ignore[assignment]
-        parts = max(1, min(len(self._threads_all), task.bytes // task.chunk_min_bytes))
+        parts = task.parts(len(self._threads_all))
         base = task.bytes // parts
         state = [parts]
         for i in range(parts):

@@ -19,6 +19,7 @@ import pandas as pd
 
 from .config import read_toml
 from .experiment import Experiment, parse_experiment, set_dotted
+from .output import write_measured
 from .validate import error_stats, error_table
 
 EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments" / "lavapipe"
@@ -132,11 +133,7 @@ def measure_configs(configs: list[Config], profile: Path, out: Path, repeats: in
             progress(f"run {config.name} ({rep + 1}/{repeats})")
             exp = experiment_for(config, profile)
             result = run_experiment(exp)
-            folder = out / config.name / f"run{rep}"
-            folder.mkdir(parents=True, exist_ok=True)
-            result.trace.to_csv(folder / "trace.csv", index=False)
-            summary = {**result.summary, "config": result.config}
-            (folder / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
+            folder = write_measured(result, out / config.name / f"run{rep}")
             times[config.name].append((float(result.summary["frame_time_ms"]), folder))
     chosen = {}
     for name, runs in times.items():

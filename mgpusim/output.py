@@ -49,6 +49,17 @@ def _jsonable(value: Any) -> Any:
     return str(value)
 
 
+def write_measured(result: Any, out: Path, trace_format: str = "csv") -> Path:
+    """A measured run (`mgpusim.runner.RunResult`) as `validate --measured` reads it: trace,
+    frames, summary.json with the configuration, machine.json."""
+    out.mkdir(parents=True, exist_ok=True)
+    write_table(result.trace, out / f"trace.{trace_format}")
+    write_table(result.frames, out / f"frames.{trace_format}")
+    write_json({**result.summary, "config": result.config}, out / "summary.json")
+    write_json(result.machine, out / "machine.json")
+    return out
+
+
 def write_result(result: Result, out: Path, trace_format: str = "parquet", title: str = "") -> dict[str, Path]:
     """summary.json, trace + frames tables, timeline.png and trace.perfetto.json in `out`."""
     out.mkdir(parents=True, exist_ok=True)

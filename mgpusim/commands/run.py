@@ -15,7 +15,7 @@ from ..errors import InputError
 
 def run(args: argparse.Namespace) -> int:
     from ..experiment import load_experiment, parse_overrides  # noqa: PLC0415
-    from ..output import write_json, write_table  # noqa: PLC0415
+    from ..output import write_measured  # noqa: PLC0415
     from ..runner.run import run_experiment  # noqa: PLC0415
 
     exp = load_experiment(args.experiment, parse_overrides(args.overrides))
@@ -29,11 +29,7 @@ def run(args: argparse.Namespace) -> int:
     result = run_experiment(exp, devices=devices, lp_threads=int_list(args.lp_threads, "--lp-threads"),
                             host_threads=args.host_threads, prewarm_frames=args.prewarm)
     out = args.out or Path("out") / f"{exp.name}-measured"
-    out.mkdir(parents=True, exist_ok=True)
-    write_table(result.trace, out / f"trace.{args.format}")
-    write_table(result.frames, out / f"frames.{args.format}")
-    write_json({**result.summary, "config": result.config}, out / "summary.json")
-    write_json(result.machine, out / "machine.json")
+    write_measured(result, out, args.format)
     _write_png(result.image, out / "image.png")
     s = result.summary
     print(f"{exp.name}: measured {exp.schedule.name} on {exp.schedule.gpus} GPU(s) "

@@ -14,7 +14,7 @@ import pandas as pd
 
 from ..errors import InputError
 from ..experiment import Experiment, load_experiment, parse_overrides
-from ..output import write_json, write_table
+from ..output import write_json, write_measured, write_table
 from ..perfetto import chrome_trace
 from ..plot import comparison_png
 from ..simulate import simulate
@@ -65,11 +65,7 @@ def validate_experiment(exp: Experiment, out: Path, measured_dir: Path | None = 
 def _measure(exp: Experiment, out: Path) -> pd.DataFrame:
     from ..runner.run import run_experiment  # noqa: PLC0415 - needs Vulkan only here
     result = run_experiment(exp)
-    out.mkdir(parents=True, exist_ok=True)
-    write_table(result.trace, out / "trace.csv")
-    write_table(result.frames, out / "frames.csv")
-    write_json({**result.summary, "config": result.config}, out / "summary.json")
-    write_json(result.machine, out / "machine.json")
+    write_measured(result, out)
     return result.trace
 
 

@@ -192,8 +192,18 @@ def _layouts(gpu: "Gpu", dtype: int | None, count: int, stage: int, push_size: i
     set_layouts = [set_layout]
     linfo = v.VkPipelineLayoutCreateInfo(setLayoutCount=1, pSetLayouts=set_layouts,
                                          pushConstantRangeCount=1, pPushConstantRanges=ranges)
-    layout = call("vkCreatePipelineLayout", v.vkCreatePipelineLayout, gpu.device, linfo, None)
+    try:
+        layout = call("vkCreatePipelineLayout", v.vkCreatePipelineLayout, gpu.device, linfo, None)
+    except BaseException:
+        v.vkDestroyDescriptorSetLayout(gpu.device, set_layout, None)
+        raise
     return set_layout, layout
+
+
+def _destroy_layouts(gpu: "Gpu", set_layout: Any, layout: Any) -> None:
+    v = vk()
+    v.vkDestroyPipelineLayout(gpu.device, layout, None)
+    v.vkDestroyDescriptorSetLayout(gpu.device, set_layout, None)
 
 
 def graphics_pipeline(gpu: "Gpu", target: RenderTarget, vert: str, frag: str, *,
@@ -206,53 +216,59 @@ def graphics_pipeline(gpu: "Gpu", target: RenderTarget, vert: str, frag: str, *,
     stage_v, stage_f = v.VK_SHADER_STAGE_VERTEX_BIT, v.VK_SHADER_STAGE_FRAGMENT_BIT
     dtype = v.VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER
     set_layout, layout = _layouts(gpu, dtype, samplers, stage_f, push_size, stage_v | stage_f)
-    vmod, fmod = shader_module(gpu, vert), shader_module(gpu, frag)
-    entry = "main"
-    stages = [v.VkPipelineShaderStageCreateInfo(stage=stage_v, module=vmod, pName=entry),
-              v.VkPipelineShaderStageCreateInfo(stage=stage_f, module=fmod, pName=entry)]
-    binding = v.VkVertexInputBindingDescription(binding=0, stride=stride,
-                                                inputRate=v.VK_VERTEX_INPUT_RATE_VERTEX)
-    vbindings = [binding] if vertex_attributes else []
-    attrs = [v.VkVertexInputAttributeDescription(location=loc, binding=0,
-                                                 format=getattr(v, f"VK_FORMAT_{fmt}"), offset=off)
-             for loc, fmt, off in vertex_attributes]
-    vinput = v.VkPipelineVertexInputStateCreateInfo(
-        vertexBindingDescriptionCount=len(vbindings), pVertexBindingDescriptions=vbindings or None,
-        vertexAttributeDescriptionCount=len(attrs), pVertexAttributeDescriptions=attrs or None)
-    assembly = v.VkPipelineInputAssemblyStateCreateInfo(
-        topology=v.VK_PRIMITIVE_TOPOLOGY_TRIANGLE_LIST, primitiveRestartEnable=v.VK_FALSE)
-    viewport = v.VkPipelineViewportStateCreateInfo(viewportCount=1, scissorCount=1)
-    raster = v.VkPipelineRasterizationStateCreateInfo(
-        polygonMode=v.VK_POLYGON_MODE_FILL, cullMode=v.VK_CULL_MODE_NONE,
-        frontFace=v.VK_FRONT_FACE_COUNTER_CLOCKWISE, lineWidth=1.0)
-    multisample = v.VkPipelineMultisampleStateCreateInfo(
-        rasterizationSamples=v.VK_SAMPLE_COUNT_1_BIT)
-    depth = v.VkPipelineDepthStencilStateCreateInfo(
-        depthTestEnable=v.VK_TRUE if depth_test else v.VK_FALSE,
-        depthWriteEnable=v.VK_TRUE if depth_test else v.VK_FALSE,
-        depthCompareOp=v.VK_COMPARE_OP_LESS, maxDepthBounds=1.0)
-    one = v.VK_BLEND_FACTOR_ONE
-    attachment = v.VkPipelineColorBlendAttachmentState(
-        blendEnable=v.VK_TRUE if blend_add else v.VK_FALSE, srcColorBlendFactor=one,
-        dstColorBlendFactor=one, colorBlendOp=v.VK_BLEND_OP_ADD, srcAlphaBlendFactor=one,
-        dstAlphaBlendFactor=one, alphaBlendOp=v.VK_BLEND_OP_ADD, colorWriteMask=0xF)
-    attachments = [attachment]
-    blend = v.VkPipelineColorBlendStateCreateInfo(attachmentCount=1, pAttachments=attachments)
-    dyn_states = [v.VK_DYNAMIC_STATE_VIEWPORT, v.VK_DYNAMIC_STATE_SCISSOR]
-    dynamic = v.VkPipelineDynamicStateCreateInfo(dynamicStateCount=2, pDynamicStates=dyn_states)
-    info = v.VkGraphicsPipelineCreateInfo(
-        stageCount=2, pStages=stages, pVertexInputState=vinput, pInputAssemblyState=assembly,
-        pViewportState=viewport, pRasterizationState=raster, pMultisampleState=multisample,
-        pDepthStencilState=depth if target.depth is not None else None,
-        pColorBlendState=blend, pDynamicState=dynamic, layout=layout,
-        renderPass=target.render_pass, subpass=0)
-    infos = [info]
+    modules: list[Any] = []  # destroyed once the pipeline exists (or failed to)
     try:
+        modules.append(shader_module(gpu, vert))
+        modules.append(shader_module(gpu, frag))
+        vmod, fmod = modules
+        entry = "main"
+        stages = [v.VkPipelineShaderStageCreateInfo(stage=stage_v, module=vmod, pName=entry),
+                  v.VkPipelineShaderStageCreateInfo(stage=stage_f, module=fmod, pName=entry)]
+        binding = v.VkVertexInputBindingDescription(binding=0, stride=stride,
+                                                    inputRate=v.VK_VERTEX_INPUT_RATE_VERTEX)
+        vbindings = [binding] if vertex_attributes else []
+        attrs = [v.VkVertexInputAttributeDescription(location=loc, binding=0,
+                                                     format=getattr(v, f"VK_FORMAT_{fmt}"), offset=off)
+                 for loc, fmt, off in vertex_attributes]
+        vinput = v.VkPipelineVertexInputStateCreateInfo(
+            vertexBindingDescriptionCount=len(vbindings), pVertexBindingDescriptions=vbindings or None,
+            vertexAttributeDescriptionCount=len(attrs), pVertexAttributeDescriptions=attrs or None)
+        assembly = v.VkPipelineInputAssemblyStateCreateInfo(
+            topology=v.VK_PRIMITIVE_TOPOLOGY_TRIANGLE_LIST, primitiveRestartEnable=v.VK_FALSE)
+        viewport = v.VkPipelineViewportStateCreateInfo(viewportCount=1, scissorCount=1)
+        raster = v.VkPipelineRasterizationStateCreateInfo(
+            polygonMode=v.VK_POLYGON_MODE_FILL, cullMode=v.VK_CULL_MODE_NONE,
+            frontFace=v.VK_FRONT_FACE_COUNTER_CLOCKWISE, lineWidth=1.0)
+        multisample = v.VkPipelineMultisampleStateCreateInfo(
+            rasterizationSamples=v.VK_SAMPLE_COUNT_1_BIT)
+        depth = v.VkPipelineDepthStencilStateCreateInfo(
+            depthTestEnable=v.VK_TRUE if depth_test else v.VK_FALSE,
+            depthWriteEnable=v.VK_TRUE if depth_test else v.VK_FALSE,
+            depthCompareOp=v.VK_COMPARE_OP_LESS, maxDepthBounds=1.0)
+        one = v.VK_BLEND_FACTOR_ONE
+        attachment = v.VkPipelineColorBlendAttachmentState(
+            blendEnable=v.VK_TRUE if blend_add else v.VK_FALSE, srcColorBlendFactor=one,
+            dstColorBlendFactor=one, colorBlendOp=v.VK_BLEND_OP_ADD, srcAlphaBlendFactor=one,
+            dstAlphaBlendFactor=one, alphaBlendOp=v.VK_BLEND_OP_ADD, colorWriteMask=0xF)
+        attachments = [attachment]
+        blend = v.VkPipelineColorBlendStateCreateInfo(attachmentCount=1, pAttachments=attachments)
+        dyn_states = [v.VK_DYNAMIC_STATE_VIEWPORT, v.VK_DYNAMIC_STATE_SCISSOR]
+        dynamic = v.VkPipelineDynamicStateCreateInfo(dynamicStateCount=2, pDynamicStates=dyn_states)
+        info = v.VkGraphicsPipelineCreateInfo(
+            stageCount=2, pStages=stages, pVertexInputState=vinput, pInputAssemblyState=assembly,
+            pViewportState=viewport, pRasterizationState=raster, pMultisampleState=multisample,
+            pDepthStencilState=depth if target.depth is not None else None,
+            pColorBlendState=blend, pDynamicState=dynamic, layout=layout,
+            renderPass=target.render_pass, subpass=0)
+        infos = [info]
         handle = call("vkCreateGraphicsPipelines", v.vkCreateGraphicsPipelines, gpu.device, None,
                       1, infos, None)[0]
+    except BaseException:
+        _destroy_layouts(gpu, set_layout, layout)
+        raise
     finally:
-        v.vkDestroyShaderModule(gpu.device, vmod, None)
-        v.vkDestroyShaderModule(gpu.device, fmod, None)
+        for module in modules:
+            v.vkDestroyShaderModule(gpu.device, module, None)
     return Pipeline(gpu, bind_point=v.VK_PIPELINE_BIND_POINT_GRAPHICS, set_layout=set_layout,
                     layout=layout, handle=handle, descriptor_type=dtype if samplers else None,
                     max_sets=max_sets)
@@ -265,15 +281,20 @@ def compute_pipeline(gpu: "Gpu", comp: str, *, buffers: int, push_size: int,
     stage = v.VK_SHADER_STAGE_COMPUTE_BIT
     dtype = v.VK_DESCRIPTOR_TYPE_STORAGE_BUFFER
     set_layout, layout = _layouts(gpu, dtype, buffers, stage, push_size, stage)
-    module = shader_module(gpu, comp)
-    entry = "main"
-    stage_info = v.VkPipelineShaderStageCreateInfo(stage=stage, module=module, pName=entry)
-    info = v.VkComputePipelineCreateInfo(stage=stage_info, layout=layout)
-    infos = [info]
+    module = None
     try:
+        module = shader_module(gpu, comp)
+        entry = "main"
+        stage_info = v.VkPipelineShaderStageCreateInfo(stage=stage, module=module, pName=entry)
+        info = v.VkComputePipelineCreateInfo(stage=stage_info, layout=layout)
+        infos = [info]
         handle = call("vkCreateComputePipelines", v.vkCreateComputePipelines, gpu.device, None,
                       1, infos, None)[0]
+    except BaseException:
+        _destroy_layouts(gpu, set_layout, layout)
+        raise
     finally:
-        v.vkDestroyShaderModule(gpu.device, module, None)
+        if module is not None:
+            v.vkDestroyShaderModule(gpu.device, module, None)
     return Pipeline(gpu, bind_point=v.VK_PIPELINE_BIND_POINT_COMPUTE, set_layout=set_layout,
                     layout=layout, handle=handle, descriptor_type=dtype, max_sets=max_sets)

@@ -120,3 +120,16 @@ def test_particle_render_draws_sprites(gpu):
     lit = out[..., 0] > 0
     assert 0.001 < lit.mean() < 0.9
     p.destroy()
+
+
+def test_failed_pipeline_creation_leaves_nothing_behind(gpu):
+    """The second shader is missing: the first module and the layouts are destroyed anyway
+    (the session's validation-layer check would report leaked objects at device destruction)."""
+    from mgpusim.vulkan.pipelines import RenderTarget, graphics_pipeline
+
+    target = RenderTarget(gpu, 8, 8, depth=False)
+    try:
+        with pytest.raises(FileNotFoundError):
+            graphics_pipeline(gpu, target, "quad.vert", "no_such_shader.frag")
+    finally:
+        target.destroy()

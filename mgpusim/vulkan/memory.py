@@ -68,14 +68,21 @@ class Buffer:
         info = v.VkBufferCreateInfo(size=self.size, usage=usage, sharingMode=mode,
                                     queueFamilyIndexCount=len(families),
                                     pQueueFamilyIndices=families or None)
-        self.handle = call("vkCreateBuffer", v.vkCreateBuffer, gpu.device, info, None)
-        req = v.vkGetBufferMemoryRequirements(gpu.device, self.handle)
-        self.memory = _allocate(gpu, req, host_visible)
-        call("vkBindBufferMemory", v.vkBindBufferMemory, gpu.device, self.handle, self.memory, 0)
+        self.memory: Any = None
         self.array: np.ndarray | None = None
-        if host_visible:
-            ptr = call("vkMapMemory", v.vkMapMemory, gpu.device, self.memory, 0, self.size, 0)
-            self.array = np.frombuffer(ptr, dtype=np.uint8, count=self.size)
+        self._mapped = False
+        self.handle = call("vkCreateBuffer", v.vkCreateBuffer, gpu.device, info, None)
+        try:  # a failure part-way destroys what was made
+            req = v.vkGetBufferMemoryRequirements(gpu.device, self.handle)
+            self.memory = _allocate(gpu, req, host_visible)
+            call("vkBindBufferMemory", v.vkBindBufferMemory, gpu.device, self.handle, self.memory, 0)
+            if host_visible:
+                ptr = call("vkMapMemory", v.vkMapMemory, gpu.device, self.memory, 0, self.size, 0)
+                self._mapped = True
+                self.array = np.frombuffer(ptr, dtype=np.uint8, count=self.size)
+        except BaseException:
+            self.destroy()
+            raise
 
     def view(self, dtype: Any) -> np.ndarray:
         """The mapped memory as an array of `dtype` (host-visible buffers only)."""
@@ -87,12 +94,14 @@ class Buffer:
         v = vk()
         if self.handle is None:
             return
-        if self.array is not None:
-            self.array = None
+        self.array = None
+        if self._mapped:
             v.vkUnmapMemory(self.gpu.device, self.memory)
+            self._mapped = False
         v.vkDestroyBuffer(self.gpu.device, self.handle, None)
-        v.vkFreeMemory(self.gpu.device, self.memory, None)
-        self.handle = None
+        if self.memory is not None:
+            v.vkFreeMemory(self.gpu.device, self.memory, None)
+        self.handle = self.memory = None
 
 
 class Image:
@@ -117,16 +126,22 @@ class Image:
             arrayLayers=1, samples=v.VK_SAMPLE_COUNT_1_BIT, tiling=v.VK_IMAGE_TILING_OPTIMAL,
             usage=usage, sharingMode=mode, queueFamilyIndexCount=len(families),
             pQueueFamilyIndices=families or None, initialLayout=v.VK_IMAGE_LAYOUT_UNDEFINED)
+        self.memory: Any = None
+        self.view: Any = None
         self.handle = call("vkCreateImage", v.vkCreateImage, gpu.device, info, None)
-        req = v.vkGetImageMemoryRequirements(gpu.device, self.handle)
-        self.memory = _allocate(gpu, req, host_visible=False)
-        call("vkBindImageMemory", v.vkBindImageMemory, gpu.device, self.handle, self.memory, 0)
-        self.range = v.VkImageSubresourceRange(aspectMask=self.aspect, baseMipLevel=0,
-                                               levelCount=1, baseArrayLayer=0, layerCount=1)
-        view_info = v.VkImageViewCreateInfo(image=self.handle, viewType=v.VK_IMAGE_VIEW_TYPE_2D,
-                                            format=self.format, subresourceRange=self.range)
-        self.view = call("vkCreateImageView", v.vkCreateImageView, gpu.device, view_info, None)
-        gpu.run("graphics", self._to_general)
+        try:  # a failure part-way destroys what was made
+            req = v.vkGetImageMemoryRequirements(gpu.device, self.handle)
+            self.memory = _allocate(gpu, req, host_visible=False)
+            call("vkBindImageMemory", v.vkBindImageMemory, gpu.device, self.handle, self.memory, 0)
+            self.range = v.VkImageSubresourceRange(aspectMask=self.aspect, baseMipLevel=0,
+                                                   levelCount=1, baseArrayLayer=0, layerCount=1)
+            view_info = v.VkImageViewCreateInfo(image=self.handle, viewType=v.VK_IMAGE_VIEW_TYPE_2D,
+                                                format=self.format, subresourceRange=self.range)
+            self.view = call("vkCreateImageView", v.vkCreateImageView, gpu.device, view_info, None)
+            gpu.run("graphics", self._to_general)
+        except BaseException:
+            self.destroy()
+            raise
 
     @property
     def bytes(self) -> int:
@@ -159,7 +174,9 @@ class Image:
         v = vk()
         if self.handle is None:
             return
-        v.vkDestroyImageView(self.gpu.device, self.view, None)
+        if self.view is not None:
+            v.vkDestroyImageView(self.gpu.device, self.view, None)
         v.vkDestroyImage(self.gpu.device, self.handle, None)
-        v.vkFreeMemory(self.gpu.device, self.memory, None)
-        self.handle = None
+        if self.memory is not None:
+            v.vkFreeMemory(self.gpu.device, self.memory, None)
+        self.handle = self.memory = self.view = None

@@ -45,9 +45,12 @@ class Resources:
         if res.kind == "image":
             gpu = self._gpu(res, res.device)
             w, h = max(res.width, 1), max(res.height, 1)  # an empty tile still gets a 1-row image
-            self._images[res.name] = [
-                (gpu.image(w, h), gpu.image(w, h, DEPTH_FORMAT) if res.depth else None)
-                for _ in range(res.buffers)]
+            pairs = self._images[res.name] = []  # stored first: destroy() sees every image made
+            for _ in range(res.buffers):
+                colour = gpu.image(w, h)
+                pairs.append((colour, None))
+                if res.depth:
+                    pairs[-1] = (colour, gpu.image(w, h, DEPTH_FORMAT))
         elif res.device is None:
             owners = [self._gpu(res, d) for d in res.shared_by]
             for d in res.shared_by:
@@ -59,9 +62,9 @@ class Resources:
                     self._buffers[(res.name, d)].append(mem.buffer(g))
         else:
             gpu = self._gpu(res, res.device)
-            self._buffers[(res.name, res.device)] = [
-                gpu.buffer(max(res.bytes, 1), host_visible=res.host_visible)
-                for _ in range(res.buffers)]
+            bufs = self._buffers[(res.name, res.device)] = []  # stored first, as images are
+            for _ in range(res.buffers):
+                bufs.append(gpu.buffer(max(res.bytes, 1), host_visible=res.host_visible))
 
     def slot(self, name: str, frame: int) -> int:
         return frame % self.resource(name).buffers

@@ -105,22 +105,29 @@ def _pass(task: PassTask, gpu: Gpu, res: Resources, owned: list[Any]) -> Callabl
         slots = max(res.resource(r).buffers for r in task.reads) if task.reads else 1
         inputs = [[res.images(r)[s % res.resource(r).buffers] for r in task.reads]
                   for s in range(slots)]
-        work: Any = CompositeInto(gpu, target, frame_size, inputs, p["inputs"], bool(p["depth"]))
+        try:
+            work: Any = CompositeInto(gpu, target, frame_size, inputs, p["inputs"], bool(p["depth"]))
+        except BaseException:
+            target.destroy()
+            raise
         owned.append(work)
         return lambda cmd, frame: work.record(cmd, frame % slots)
     targets = [target_over(gpu, c, d, clear=bool(p.get("clear", True)))
                for c, d in res.images(out)]
-    if task.kind == "fragment_loop":
-        work = FragmentLoopTile(gpu, targets, frame_size, p["rect"], p["origin"],
-                                int(p.get("iterations", 0)))
-    elif task.kind == "mesh":
-        work = MeshShare(gpu, targets, frame_size, int(p["triangles"]), int(p["first"]),
-                         int(p["count"]))
-    else:
+    try:
+        if task.kind == "fragment_loop":
+            work = FragmentLoopTile(gpu, targets, frame_size, p["rect"], p["origin"],
+                                    int(p.get("iterations", 0)))
+        elif task.kind == "mesh":
+            work = MeshShare(gpu, targets, frame_size, int(p["triangles"]), int(p["first"]),
+                             int(p["count"]))
+        else:
+            raise ScheduleError(f"pass {task.name!r}: kind {task.kind!r} has no Vulkan "
+                                f"implementation in the runner (fragment_loop, mesh, composite_*, present)")
+    except BaseException:  # the targets are not owned by anything yet
         for t in targets:
             t.destroy()
-        raise ScheduleError(f"pass {task.name!r}: kind {task.kind!r} has no Vulkan implementation "
-                            f"in the runner (fragment_loop, mesh, composite_*, present)")
+        raise
     owned.append(work)
     return lambda cmd, frame: work.record(cmd, res.slot(out, frame))
 

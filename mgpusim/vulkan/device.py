@@ -142,10 +142,20 @@ class Gpu:
         exts = self.enabled_extensions
         info = v.VkDeviceCreateInfo(queueCreateInfoCount=len(qinfos), pQueueCreateInfos=qinfos,
                                     ppEnabledExtensionNames=exts or None)
+        self.queues: dict[str, Queue] = {}
+        self._semaphores: list[Semaphore] = []
         self.device = call("vkCreateDevice", v.vkCreateDevice, self.physical, info, None)
+        try:  # from here on a failure destroys the device (and pools) it made
+            self._finish_setup(chosen)
+        except BaseException:
+            self.close()
+            raise
+
+    def _finish_setup(self, chosen: dict[str, Any]) -> None:
+        """Queues with their command pools, then the clock (which needs a working Gpu)."""
+        v = vk()
         self.memory_properties = v.vkGetPhysicalDeviceMemoryProperties(self.physical)
         by_family: dict[int, Queue] = {}
-        self.queues: dict[str, Queue] = {}
         for kind in QUEUE_KINDS:
             fam = chosen.get(kind, chosen["graphics"])
             if fam.index not in by_family:
@@ -157,7 +167,6 @@ class Gpu:
                 handle = v.vkGetDeviceQueue(self.device, fam.index, 0)
                 by_family[fam.index] = Queue(self, fam.kind, fam, 0, handle, pool)
             self.queues[kind] = by_family[fam.index]
-        self._semaphores: list[Semaphore] = []
         from .timestamps import calibrate  # noqa: PLC0415 - needs a working Gpu
         self.clock = calibrate(self)
 

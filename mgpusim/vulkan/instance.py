@@ -174,19 +174,28 @@ class Instance:
                                           f"install lavapipe with: {APT_RUNTIME}") from None
                 except v.VkException as exc:
                     raise VulkanError("vkCreateInstance", type(exc).__name__) from None
-                self._messenger = self._create_messenger() if self.validation else None
-                handles = call("vkEnumeratePhysicalDevices", v.vkEnumeratePhysicalDevices,
-                               self.handle)
+                self._messenger = None
+                try:  # from here on a failure destroys the instance it made
+                    self._messenger = self._create_messenger() if self.validation else None
+                    handles = call("vkEnumeratePhysicalDevices", v.vkEnumeratePhysicalDevices,
+                                   self.handle)
+                except BaseException:
+                    self.close()
+                    raise
             finally:
                 if lp_num_threads is not None:
                     if old is None:
                         os.environ.pop("LP_NUM_THREADS", None)
                     else:
                         os.environ["LP_NUM_THREADS"] = old
-        if not handles:
-            raise DependencyError(f"Vulkan found no device; install lavapipe with: {APT_RUNTIME}")
-        self.physical_handles = list(handles)
-        self.devices = [_describe(i, h) for i, h in enumerate(handles)]
+        try:
+            if not handles:
+                raise DependencyError(f"Vulkan found no device; install lavapipe with: {APT_RUNTIME}")
+            self.physical_handles = list(handles)
+            self.devices = [_describe(i, h) for i, h in enumerate(handles)]
+        except BaseException:
+            self.close()
+            raise
 
     def _create_messenger(self) -> Any:
         v = vk()

@@ -22,6 +22,7 @@ from ..errors import ScheduleError
 from ..schedules.base import FrameProgram
 from ..tasks import CopyTask, HostCopyTask, PassTask, QueueRef, Task
 from .channel import Channel
+from .skipping import SkipChains
 
 Key = tuple[int, str]
 
@@ -69,12 +70,10 @@ class Engine:
         self._pending: dict[Key, int] = {}
         self._waiters: dict[Key, simpy.Event] = {}
         self._ready: set[Key] = set()
-        self._skip: set[Key] = set()
-        self._inflight: dict[str, int] = defaultdict(int)
         self._skipped: dict[str, int] = defaultdict(int)
-        self._skipped_frames: dict[str, list[int]] = defaultdict(list)
         self._index = [{t.name: t for t in tasks} for tasks in program.templates]
-        self._skip_groups()
+        self._chains = SkipChains(program, self._index)
+        self._skip = self._chains.skip  # instances marked to be skipped, read in the hot loop
         self._dependents = self._reverse_deps()
         self._dispatch_ns = costs.profile.host.dispatch_ns
         self._host_timeline = bool(self._dispatch_ns or costs.profile.host.submit_ns)
@@ -237,77 +236,15 @@ class Engine:
             return False
         count = self._initial(key[0], task)
         if count == 0:
-            self._mark_ready(key, task)
+            self._chains.ready(key, task)
             return True
         self._pending[key] = count
         return False
 
-    # ----- skippable chains ("new wait") ------------------------------------------------
-    def _skip_groups(self) -> None:
-        """Group skippable tasks into chains. A skip_if_busy task with a same-frame dependency
-        on another skip_if_busy task is a *follower* (it consumes that task's output, e.g. the
-        copies of a particle update); one without is a *leader*. A leader is skipped when any
-        task of its chain from an earlier frame is still unfinished; a follower is skipped
-        exactly when one of its skippable inputs of the same frame was skipped."""
-        self._inputs: list[dict[str, tuple[str, ...]]] = []
-        self._leader: list[dict[str, str]] = []
-        self._chain: list[dict[str, int]] = []
-        self._readers: list[dict[str, int]] = []
-        for phase, tasks in enumerate(self.program.templates):
-            idx = self._index[phase]
-            inputs, leader, chain, readers = {}, {}, defaultdict(int), defaultdict(int)
-            for task in tasks:
-                if not task.skip_if_busy:
-                    continue
-                ins = tuple(d.task for d in task.deps if d.offset == 0 and idx[d.task].skip_if_busy)
-                leader[task.name] = leader[ins[0]] if ins else task.name
-                chain[leader[task.name]] += 1
-                for n in ins:
-                    readers[n] += 1
-                if ins:
-                    inputs[task.name] = ins
-            self._inputs.append(inputs)
-            self._leader.append(leader)
-            self._chain.append(dict(chain))
-            self._readers.append(dict(readers))
-        self._skipped_keys: dict[Key, int] = {}  # skipped key -> followers yet to look at it
-
-    def _mark_ready(self, key: Key, task: Task) -> None:
-        if not task.skip_if_busy:
-            return
-        phase = key[0] % self.period
-        ins = self._inputs[phase].get(task.name)
-        if ins is not None:
-            if self._take_skipped(key[0], ins):
-                self._set_skipped(key, phase, task.name)
-        elif self._inflight[task.name] > 0:
-            self._set_skipped(key, phase, task.name)
-        else:
-            self._inflight[task.name] += self._chain[phase][task.name]
-
-    def _take_skipped(self, frame: int, inputs: tuple[str, ...]) -> bool:
-        skipped = False
-        for name in inputs:
-            left = self._skipped_keys.get((frame, name))
-            if left is None:
-                continue
-            skipped = True
-            if left <= 1:
-                del self._skipped_keys[(frame, name)]
-            else:
-                self._skipped_keys[(frame, name)] = left - 1
-        return skipped
-
-    def _set_skipped(self, key: Key, phase: int, name: str) -> None:
-        self._skip.add(key)
-        self._skipped_frames[name].append(key[0])
-        if self._readers[phase].get(name):
-            self._skipped_keys[key] = self._readers[phase][name]
-
     def _complete(self, frame: int, task: Task, skipped: bool = False) -> None:
         self._unfinished -= 1
         if not skipped and task.skip_if_busy:
-            self._inflight[self._leader[frame % self.period][task.name]] -= 1
+            self._chains.finished(frame, task)
         frames, pending = self.program.frames, self._pending
         for name, k, dtask, ndeps, lag, cross in self._dependents[frame % self.period].get(task.name, ()):
             g = frame + k
@@ -325,7 +262,7 @@ class Engine:
                 continue
             pending.pop(key, None)
             if dtask.skip_if_busy:
-                self._mark_ready(key, dtask)
+                self._chains.ready(key, dtask)
             waiter = self._waiters.pop(key, None)
             if waiter is not None:
                 waiter.succeed()
@@ -457,7 +394,7 @@ class Engine:
         if "host.cpu" in ch:  # only reported for CPU-emulated GPUs (lavapipe profiles)
             effects["cpu_contention"] = ch["host.cpu"].max_concurrent > 1
         return RawResult(self.rows, self.frame_start, self.present_end, self.channels,
-                         dict(self._skipped), effects, dict(self._skipped_frames))
+                         dict(self._skipped), effects, dict(self._chains.skipped_frames))
 
     def _blocked_message(self) -> str:
         blocked = sorted(self._waiters)[:8]

@@ -75,3 +75,22 @@ def test_20000_frames_no_drift(policy):
     r = simulate(experiment(profile(gbps=7 / 3), "particles", ENGINE, frames=20_000, particles=777,
                             vertex_bytes_per_particle=3, policy=policy), record_trace=False)
     assert assert_no_drift(r.frames.present_ns) <= 2
+
+
+def test_a_follower_of_two_skip_chains_is_rejected():
+    from mgpusim.costs import CostModel
+    from mgpusim.errors import ScheduleError
+    from mgpusim.profile import parse_profile
+    from mgpusim.schedules.base import FrameProgram
+    from mgpusim.sim.engine import Engine
+    from mgpusim.tasks import Dep, PassTask, QueueRef
+    from tests.conftest import profile_dict
+
+    q = QueueRef(0, "graphics")
+    tasks = (PassTask("a", "update", q, "present", {}, skip_if_busy=True),
+             PassTask("b", "update", q, "present", {}, skip_if_busy=True),
+             PassTask("c", "copy", q, "present", {}, (Dep("a"), Dep("b")), skip_if_busy=True),
+             PassTask("present", "present", q, "present", {}, (Dep("c"),)))
+    program = FrameProgram("two_chains", 1, 2, 0, (tasks,))
+    with pytest.raises(ScheduleError, match="two skip chains"):
+        Engine(program, CostModel(parse_profile(profile_dict(), "p")))

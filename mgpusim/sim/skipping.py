@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections import defaultdict
 
+from ..errors import ScheduleError
 from ..schedules.base import FrameProgram
 from ..tasks import Task
 
@@ -39,6 +40,10 @@ class SkipChains:
             if not task.skip_if_busy:
                 continue
             ins = tuple(d.task for d in task.deps if d.offset == 0 and idx[d.task].skip_if_busy)
+            if len({leader[n] for n in ins}) > 1:
+                raise ScheduleError(f"skippable task {task.name!r} reads the outputs of two skip "
+                                    f"chains ({', '.join(sorted({leader[n] for n in ins}))}): "
+                                    "one of them could skip it while the other ran")
             leader[task.name] = leader[ins[0]] if ins else task.name
             chain[leader[task.name]] += 1
             for n in ins:

@@ -10,6 +10,8 @@ from typing import Any
 
 import pandas as pd
 
+from .results import link_track
+
 
 def chrome_trace(trace: pd.DataFrame, links: pd.DataFrame | None = None,
                  title: str = "mgpusim") -> dict[str, Any]:
@@ -46,17 +48,9 @@ def chrome_trace(trace: pd.DataFrame, links: pd.DataFrame | None = None,
 def _pids(trace: pd.DataFrame, links: pd.DataFrame | None) -> dict[str, int]:
     devices = set(trace["device"].astype(str))
     if links is not None and len(links):
-        devices |= {_link_device(c) for c in links["channel"].astype(str)}
+        devices |= {link_track(c)[0] for c in links["channel"].astype(str)}
     ordered = sorted(d for d in devices if d != "host") + (["host"] if "host" in devices else [])
     return {d: i + 1 for i, d in enumerate(ordered)}
-
-
-def _link_device(channel: str) -> str:
-    if channel.startswith("host."):
-        return "host"
-    if channel.startswith("peer"):
-        return "gpu" + channel[4:].split("-")[0]
-    return channel.split(".")[0]
 
 
 def _slices(trace: pd.DataFrame, links: pd.DataFrame | None) -> pd.DataFrame:
@@ -67,7 +61,7 @@ def _slices(trace: pd.DataFrame, links: pd.DataFrame | None) -> pd.DataFrame:
     if links is not None and len(links):
         ch = links["channel"].astype(str)
         parts.append(pd.DataFrame({
-            "frame": -1, "device": ch.map(_link_device), "track": "link " + ch.str.split(".").str[-1],
+            "frame": -1, "device": ch.map(lambda c: link_track(c)[0]), "track": ch.map(lambda c: link_track(c)[1]),
             "step": "link", "task": "busy", "start_ns": links["start_ns"], "end_ns": links["end_ns"],
             "bytes": 0, "waits_for": ""}))
     return pd.concat(parts, ignore_index=True)

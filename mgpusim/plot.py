@@ -14,6 +14,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from .results import link_track  # noqa: E402
+
 STEP_COLOURS = {
     "render": "#4c72b0", "d2h": "#dd8452", "host_copy": "#937860", "h2d": "#55a868",
     "composite": "#c44e52", "present": "#8172b3", "link": "#bbbbbb",
@@ -43,7 +45,7 @@ def draw_timeline(ax, trace: pd.DataFrame, links: pd.DataFrame | None = None,
     parts = [df.assign(label=df["device"].astype(str) + "." + df["engine"].astype(str))]
     if links is not None and len(links):
         lk = links[(links["end_ns"] > lo) & (links["start_ns"] < hi)]
-        parts.append(pd.DataFrame({"label": lk["channel"].astype(str).map(lambda c: _link_label(c)),
+        parts.append(pd.DataFrame({"label": lk["channel"].astype(str).map(lambda c: ".".join(link_track(c))),
                                    "start_ns": lk["start_ns"].clip(lo, hi), "end_ns": lk["end_ns"].clip(lo, hi),
                                    "step": "link", "frame": -1}))
     both = pd.concat(parts, ignore_index=True)
@@ -60,15 +62,6 @@ def draw_timeline(ax, trace: pd.DataFrame, links: pd.DataFrame | None = None,
     handles, labels = ax.get_legend_handles_labels()
     uniq = dict(zip(labels, handles))
     ax.legend(uniq.values(), uniq.keys(), fontsize=6, loc="upper right", ncols=min(len(uniq), 7))
-
-
-def _link_label(channel: str) -> str:
-    if channel.startswith("host."):
-        return "host.memory bw"
-    if channel.startswith("peer"):
-        return f"gpu{channel[4:].split('-')[0]}.link {channel}"
-    dev, _, path = channel.partition(".")
-    return f"{dev}.link {path}"
 
 
 def last_frames(trace: pd.DataFrame, count: int = 4) -> list[int]:

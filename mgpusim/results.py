@@ -93,6 +93,17 @@ def _busy(df: pd.DataFrame, lo: int, hi: int) -> dict[str, int]:
     return {str(k): int(v) for k, v in d.groupby("resource")["dur"].sum().items()}
 
 
+def link_track(channel: str) -> tuple[str, str]:
+    """(device, track) on which a channel's busy intervals are drawn: `gpu1.d2h` ->
+    ("gpu1", "link d2h"), `peer0-1` -> ("gpu0", "link peer0-1"), `host.memory` -> ("host", "memory")."""
+    if channel.startswith("host."):
+        return "host", channel.partition(".")[2]
+    if channel.startswith("peer"):
+        return "gpu" + channel[4:].split("-")[0], f"link {channel}"
+    device, _, path = channel.partition(".")
+    return device, f"link {path}"
+
+
 def links_table(channels: dict) -> pd.DataFrame:
     rows = [(name, s, e) for name, ch in channels.items() for s, e in ch.busy]
     return pd.DataFrame(rows, columns=["channel", "start_ns", "end_ns"]).astype(

@@ -61,6 +61,8 @@ CALIBRATION = [
                                                       "scene.height": 240, "triangles": 40000}),
     Config("sort_first_2gpu", "sort_first.toml", {}),
     Config("sort_last_2gpu", "sort_last.toml", {}),
+    Config("sf_2gpu_128x96_it2000", "sort_first.toml", {"scene.width": 128, "scene.height": 96}),
+    Config("sl_2gpu_256x192_t10k", "sort_last.toml", {"triangles": 10000}),
 ]
 #: Never seen by the calibration: other GPU counts, resolutions, loads, the shared-host variant.
 HELD_OUT = [

@@ -7,7 +7,8 @@ to a local variable first (the binding does not keep them alive, VULKAN_NOTES.md
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Sequence
+from contextlib import contextmanager
+from typing import TYPE_CHECKING, Any, Iterator, Sequence
 
 from .errors import call, vk
 from .memory import COLOR_FORMAT, DEPTH_FORMAT, Buffer, Image
@@ -200,10 +201,21 @@ def _layouts(gpu: "Gpu", dtype: int | None, count: int, stage: int, push_size: i
     return set_layout, layout
 
 
-def _destroy_layouts(gpu: "Gpu", set_layout: Any, layout: Any) -> None:
+@contextmanager
+def _building(gpu: "Gpu", set_layout: Any, layout: Any) -> Iterator[list[Any]]:
+    """Yields a list for the shader modules a pipeline is built from: they are destroyed once
+    the pipeline exists (or failed to); on failure the layouts are destroyed too."""
     v = vk()
-    v.vkDestroyPipelineLayout(gpu.device, layout, None)
-    v.vkDestroyDescriptorSetLayout(gpu.device, set_layout, None)
+    modules: list[Any] = []
+    try:
+        yield modules
+    except BaseException:
+        v.vkDestroyPipelineLayout(gpu.device, layout, None)
+        v.vkDestroyDescriptorSetLayout(gpu.device, set_layout, None)
+        raise
+    finally:
+        for module in modules:
+            v.vkDestroyShaderModule(gpu.device, module, None)
 
 
 def graphics_pipeline(gpu: "Gpu", target: RenderTarget, vert: str, frag: str, *,
@@ -216,8 +228,7 @@ def graphics_pipeline(gpu: "Gpu", target: RenderTarget, vert: str, frag: str, *,
     stage_v, stage_f = v.VK_SHADER_STAGE_VERTEX_BIT, v.VK_SHADER_STAGE_FRAGMENT_BIT
     dtype = v.VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER
     set_layout, layout = _layouts(gpu, dtype, samplers, stage_f, push_size, stage_v | stage_f)
-    modules: list[Any] = []  # destroyed once the pipeline exists (or failed to)
-    try:
+    with _building(gpu, set_layout, layout) as modules:
         modules.append(shader_module(gpu, vert))
         modules.append(shader_module(gpu, frag))
         vmod, fmod = modules
@@ -263,12 +274,6 @@ def graphics_pipeline(gpu: "Gpu", target: RenderTarget, vert: str, frag: str, *,
         infos = [info]
         handle = call("vkCreateGraphicsPipelines", v.vkCreateGraphicsPipelines, gpu.device, None,
                       1, infos, None)[0]
-    except BaseException:
-        _destroy_layouts(gpu, set_layout, layout)
-        raise
-    finally:
-        for module in modules:
-            v.vkDestroyShaderModule(gpu.device, module, None)
     return Pipeline(gpu, bind_point=v.VK_PIPELINE_BIND_POINT_GRAPHICS, set_layout=set_layout,
                     layout=layout, handle=handle, descriptor_type=dtype if samplers else None,
                     max_sets=max_sets)
@@ -281,20 +286,14 @@ def compute_pipeline(gpu: "Gpu", comp: str, *, buffers: int, push_size: int,
     stage = v.VK_SHADER_STAGE_COMPUTE_BIT
     dtype = v.VK_DESCRIPTOR_TYPE_STORAGE_BUFFER
     set_layout, layout = _layouts(gpu, dtype, buffers, stage, push_size, stage)
-    module = None
-    try:
-        module = shader_module(gpu, comp)
+    with _building(gpu, set_layout, layout) as modules:
+        modules.append(shader_module(gpu, comp))
+        module = modules[0]
         entry = "main"
         stage_info = v.VkPipelineShaderStageCreateInfo(stage=stage, module=module, pName=entry)
         info = v.VkComputePipelineCreateInfo(stage=stage_info, layout=layout)
         infos = [info]
         handle = call("vkCreateComputePipelines", v.vkCreateComputePipelines, gpu.device, None,
                       1, infos, None)[0]
-    except BaseException:
-        _destroy_layouts(gpu, set_layout, layout)
-        raise
-    finally:
-        if module is not None:
-            v.vkDestroyShaderModule(gpu.device, module, None)
     return Pipeline(gpu, bind_point=v.VK_PIPELINE_BIND_POINT_COMPUTE, set_layout=set_layout,
                     layout=layout, handle=handle, descriptor_type=dtype, max_sets=max_sets)

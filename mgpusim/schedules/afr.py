@@ -15,9 +15,9 @@ from types import MappingProxyType
 from ..costs import pass_work
 from ..errors import InputError
 from ..profile import HardwareProfile
-from ..scene import PassSpec, Scene
+from ..scene import Scene
 from ..tasks import Dep, PassTask, QueueRef, Task
-from .base import FrameProgram, Option, ScheduleConfig, register
+from .base import FrameProgram, Option, ScheduleConfig, present_task, register
 from .crossing import COPY_OPTIONS, Route, cross
 
 OPTIONS = {
@@ -89,9 +89,7 @@ def _phase(p: int, cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, 
                     dst_deps=(Dep("present", -n),))
         tasks.extend(out)
         last = out[-1].name
-    present = PassSpec("present", "present")
-    tasks.append(PassTask("present", "present", present_queue(profile, cfg.opt("present_queue")),
-                          "present", MappingProxyType(pass_work(present, scene.pixels)), (Dep(last),)))
+    tasks.append(present_task(present_queue(profile, cfg.opt("present_queue")), scene.pixels, last))
     return tasks
 
 

@@ -12,8 +12,9 @@ from typing import Any, Callable, Mapping
 from ..config import Table
 from ..errors import ScheduleError
 from ..profile import HardwareProfile
-from ..scene import Scene
-from ..tasks import CopyTask, HostCopyTask, PassTask, QueueRef, Task
+from ..scene import PassSpec, Scene
+from ..costs import pass_work
+from ..tasks import CopyTask, Dep, HostCopyTask, PassTask, QueueRef, Task
 
 
 @dataclass(frozen=True)
@@ -97,6 +98,16 @@ def parse_schedule_config(t: Table) -> ScheduleConfig:
     if cfg.warmup_frames >= cfg.frames:
         raise t.error("warmup_frames", f"must be < frames ({cfg.frames}), got {cfg.warmup_frames}")
     return cfg
+
+
+def present_work(pixels: float) -> Mapping[str, float]:
+    """The work terms of presenting a frame of `pixels` (a full-frame copy)."""
+    return MappingProxyType(pass_work(PassSpec("present", "present"), pixels))
+
+
+def present_task(queue: QueueRef, pixels: float, after: str) -> PassTask:
+    """The frame's `present` task (FrameProgram's default end of a frame), after task `after`."""
+    return PassTask("present", "present", queue, "present", present_work(pixels), (Dep(after),))
 
 
 def queue_or_graphics(profile: HardwareProfile, device: int, family: str) -> QueueRef:

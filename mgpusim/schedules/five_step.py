@@ -16,7 +16,8 @@ from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
 from ..tasks import CopyTask, Dep, HostCopyTask, PassTask, QueueRef, Task
-from .base import FrameProgram, Option, ScheduleConfig, queue_or_graphics, register
+from .base import (FrameProgram, Option, ScheduleConfig, present_task, present_work,
+                   queue_or_graphics, register)
 from .five_step_io import bind_io
 
 OPTIONS = {
@@ -71,9 +72,8 @@ def _graphics_load(scene: Scene, costs: CostModel, gpu: int, rows: int, n: int) 
     load = sum(costs.pass_ns(gpu, s.kind, pass_work(s, px)) for s in scene.passes)
     if gpu == 0 and n > 1:
         comp = _composite("composite_sort_first", n - 1, scene.width * (scene.height - rows))
-        present = PassSpec("present", "present")
         load += costs.pass_ns(0, comp.kind, pass_work(comp, comp.param("pixels")))
-        load += costs.pass_ns(0, "present", pass_work(present, scene.pixels))
+        load += costs.pass_ns(0, "present", present_work(scene.pixels))
     return load
 
 
@@ -152,9 +152,7 @@ def _build(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, pixels: 
         tasks.append(PassTask("composite", "composite", primary, composite.kind, MappingProxyType(work),
                               tuple(Dep(t) for t in [last_render[0], *uploads])))
     before_present = "composite" if n > 1 else last_render[0]
-    present = PassSpec("present", "present")
-    tasks.append(PassTask("present", "present", primary, "present",
-                          MappingProxyType(pass_work(present, scene.pixels)), (Dep(before_present),)))
+    tasks.append(present_task(primary, scene.pixels, before_present))
     notes.update(buffers=buffers, host_copy=host_copy,
                  contribution_bytes_per_frame=sum(contribution[1:]))
     tasks, resources = bind_io(tasks, scene, n, composite.kind, notes, buffers, host_copy)

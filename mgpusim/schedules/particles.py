@@ -24,7 +24,7 @@ from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
 from ..tasks import Dep, PassTask, QueueRef, Task
-from .base import FrameProgram, Option, ScheduleConfig, queue_or_graphics, register
+from .base import FrameProgram, Option, ScheduleConfig, present_task, queue_or_graphics, register
 from .crossing import Route, cross
 
 OPTIONS = {
@@ -86,7 +86,5 @@ def _engine(cfg: ScheduleConfig, scene: Scene, n: int, draw_deps: tuple[Dep, ...
             out.append(PassTask("particle_render", "particle_render", queue, "particle_render",
                                 MappingProxyType(pass_work(draw, scene.pixels)),
                                 (Dep(out[-1].name),) + draw_deps))
-    present = PassSpec("present", "present")
-    out.append(PassTask("present", "present", queue, "present",
-                        MappingProxyType(pass_work(present, scene.pixels)), (Dep(out[-1].name),)))
+    out.append(present_task(queue, scene.pixels, out[-1].name))
     return out

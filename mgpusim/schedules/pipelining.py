@@ -18,7 +18,7 @@ from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
 from ..tasks import Dep, PassTask, QueueRef, Task
-from .base import FrameProgram, Option, ScheduleConfig, register
+from .base import FrameProgram, Option, ScheduleConfig, present_task, register
 from .crossing import COPY_OPTIONS, Route, cross
 
 OPTIONS = {
@@ -52,9 +52,7 @@ def build_pipelining(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile
     gate = (Dep("present", -fif),) + tuple(Dep(a) for a in arrivals)
     tasks.extend(_passes(0, rest, scene, gate))
     last = tasks[-1].name if rest else arrivals[-1]
-    present = PassSpec("present", "present")
-    tasks.append(PassTask("present", "present", QueueRef(0, "graphics"), "present",
-                          MappingProxyType(pass_work(present, scene.pixels)), (Dep(last),)))
+    tasks.append(present_task(QueueRef(0, "graphics"), scene.pixels, last))
     moved = sum(_output_bytes(p) for p in first)
     notes = {"split_at": split, "gpu1_passes": tuple(p.name for p in first),
              "bytes_per_frame": moved, "chunks": cfg.opt("chunks"), "buffers": buffers,

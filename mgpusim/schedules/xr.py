@@ -26,7 +26,7 @@ from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
 from ..tasks import Dep, PassTask, QueueRef, Task
 from .afr import present_queue
-from .base import FrameProgram, Option, ScheduleConfig, queue_or_graphics, register
+from .base import FrameProgram, Option, ScheduleConfig, present_task, queue_or_graphics, register
 from .crossing import Route, cross
 
 MAX_FRAMES_IN_FLIGHT = 3
@@ -67,9 +67,7 @@ def build_xr(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> Fra
         arrivals.append(moved[-1].name)
     pq = present_queue(profile, "separate")
     tasks.append(_handoff("acquire", pq, cfg, tuple(Dep(a) for a in arrivals)))
-    present = PassSpec("present", "present")
-    tasks.append(PassTask("present", "present", pq, "present",
-                          MappingProxyType(pass_work(present, 2 * scene.pixels)), (Dep("acquire"),)))
+    tasks.append(present_task(pq, 2 * scene.pixels, "acquire"))
     notes = {"views": views, "mode": cfg.opt("mode"), "scaling": cfg.opt("scaling"),
              "view_pixels": tuple(pixels), "buffers": cfg.opt("buffers"), "bytes_per_frame": sum(pixels) * bpp,
              "transfer_queue": str(queue_or_graphics(profile, 0, "transfer")), "present_queue": str(pq)}

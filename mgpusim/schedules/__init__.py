@@ -10,11 +10,7 @@ def ensure_loaded() -> None:
     """Import the schedule modules (each registers itself)."""
     import importlib
     for name in _MODULES:
-        try:
-            importlib.import_module(f"{__name__}.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"{__name__}.{name}":
-                raise
+        importlib.import_module(f"{__name__}.{name}")
 
 
 __all__ = ["SCHEDULES", "FrameProgram", "ScheduleConfig", "ScheduleDef", "register", "ensure_loaded"]

@@ -53,7 +53,6 @@ class Channel:
         self.flows: list[_Flow] = []
         self.busy: list[tuple[int, int]] = []
         self.max_concurrent = 0
-        self.solver_runs = 0
         self._t = 0
         self._gen = 0
         self._busy_since = 0
@@ -145,7 +144,6 @@ class Channel:
 
     def _reshare(self) -> None:
         """Max-min fair shares with per-flow caps (water-filling), all in integers."""
-        self.solver_runs += 1
         scale = self._scale
         capacity = self.bandwidth
         if self.oversubscribed is not None and self._demand() > self.bandwidth:

@@ -70,7 +70,6 @@ class Engine:
         self._pending: dict[Key, int] = {}
         self._waiters: dict[Key, simpy.Event] = {}
         self._ready: set[Key] = set()
-        self._skipped: dict[str, int] = defaultdict(int)
         self._index = [{t.name: t for t in tasks} for tasks in program.templates]
         self._chains = SkipChains(program, self._index)
         self._skip = self._chains.skip  # instances marked to be skipped, read in the hot loop
@@ -315,7 +314,6 @@ class Engine:
     def _skip_task(self, key: Key, task: Task) -> None:
         self._skip.discard(key)
         self._cross_done.pop(key, None)
-        self._skipped[task.name] += 1
         self._complete(key[0], task, skipped=True)
 
     def _finish(self, frame: int, op: _Op, engine: str, start: int, nbytes: int) -> None:
@@ -394,7 +392,8 @@ class Engine:
         if "host.cpu" in ch:  # only reported for CPU-emulated GPUs (lavapipe profiles)
             effects["cpu_contention"] = ch["host.cpu"].max_concurrent > 1
         return RawResult(self.rows, self.frame_start, self.present_end, self.channels,
-                         dict(self._skipped), effects, dict(self._chains.skipped_frames))
+                         {n: len(f) for n, f in self._chains.skipped_frames.items()}, effects,
+                         dict(self._chains.skipped_frames))
 
     def _blocked_message(self) -> str:
         blocked = sorted(self._waiters)[:8]

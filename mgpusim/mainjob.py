@@ -19,7 +19,7 @@ import pandas as pd
 
 from .config import read_toml
 from .experiment import Experiment, parse_experiment, set_dotted
-from .output import write_measured
+from .output import write_json, write_measured
 from .validate import error_stats, error_table
 
 EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments" / "lavapipe"
@@ -100,7 +100,7 @@ def measure_all(out: Path, progress: Callable[[str], None]) -> list[Path]:
             m.write_table(df, str(path))
             record = machine_record(gpus, {"pass": name, "sweeps": sweeps, "reps": 5, "warmup": 2,
                                            "command": "mgpusim main (mgpusim/mainjob.py SWEEPS)"})
-            path.with_name(path.name + ".machine.json").write_text(json.dumps(record, indent=2, default=str))
+            write_json(record, path.with_name(path.name + ".machine.json"))
             paths.append(path)
     finally:
         close_gpus(gpus)
@@ -142,8 +142,8 @@ def measure_configs(configs: list[Config], profile: Path, out: Path, repeats: in
         runs.sort()
         chosen[name] = runs[0][1]
         spread = [t for t, _ in runs]
-        (out / name / "runs.json").write_text(json.dumps(
-            {"frame_time_ms": spread, "chosen_run": chosen[name].name, "policy": "fastest"}, indent=2))
+        write_json({"frame_time_ms": spread, "chosen_run": chosen[name].name, "policy": "fastest"},
+                   out / name / "runs.json")
     return chosen
 
 
@@ -193,7 +193,7 @@ def write_report(out: Path, tables: dict[str, pd.DataFrame], fit_text: str) -> P
     lines += ["## Calibration", "", "```", fit_text, "```", ""]
     path = out / "report.md"
     path.write_text("\n".join(lines))
-    (out / "errors.json").write_text(json.dumps(stats, indent=2))
+    write_json(stats, out / "errors.json")
     return path
 
 

@@ -126,12 +126,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.cmd == "run":
         run_all(args.out, args.devices, args.budget, configs=args.configs, only=args.only)
         return 0
+    from .output import write_json  # noqa: PLC0415
     from .validate import error_stats  # noqa: PLC0415
     table = validate_saved(args.measured, args.profile, args.out, extra=args.extra)
     args.out.mkdir(parents=True, exist_ok=True)
     table.to_csv(args.out / "errors.csv", index=False)
     stats = error_stats(table)
-    (args.out / "errors.json").write_text(json.dumps(stats, indent=2))
+    write_json(stats, args.out / "errors.json")
     with pd.option_context("display.width", 200, "display.max_columns", 20):
         print(table.to_string(index=False))
     print(json.dumps(stats, indent=2))

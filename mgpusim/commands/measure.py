@@ -6,11 +6,12 @@ repetition, duration_ns, bytes) and FILE.machine.json (CPU, driver, threads, lib
 from __future__ import annotations
 
 import argparse
-import json
 import sys
+from pathlib import Path
 
 from ..config import int_list
 from ..errors import InputError
+from ..output import write_json
 
 
 def _list() -> int:
@@ -50,8 +51,7 @@ def run(args: argparse.Namespace) -> int:
                                        "warmup": args.warmup})
     finally:
         close_gpus(gpus)
-    with open(args.out + ".machine.json", "w", encoding="utf-8") as fh:
-        json.dump(record, fh, indent=2, default=str)
+    write_json(record, Path(args.out + ".machine.json"))
     if not args.quiet:
         print(f"wrote {len(df)} rows to {args.out} (+ .machine.json)")
     return 0

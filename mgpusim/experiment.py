@@ -75,15 +75,29 @@ def parse_value(text: str) -> Any:
 
 
 def set_dotted(data: dict, key: str, value: Any, file: str) -> None:
+    """Set `key` (dotted; a number indexes an array of tables, e.g. scene.passes.0.iterations)."""
     parts = key.split(".")
-    node = data
+    node: Any = data
     for i, part in enumerate(parts[:-1]):
-        child = node.setdefault(part, {})
-        if not isinstance(child, dict):
+        if isinstance(node, list):
+            child = node[_index(node, part, key, file)]
+        else:
+            child = node.setdefault(part, {})
+        if not isinstance(child, (dict, list)):
             raise InputError(f"cannot set {key!r}: {'.'.join(parts[:i + 1])} is not a table",
                              file=file, field=key)
         node = child
-    node[parts[-1]] = value
+    if isinstance(node, list):
+        node[_index(node, parts[-1], key, file)] = value
+    else:
+        node[parts[-1]] = value
+
+
+def _index(items: list, part: str, key: str, file: str) -> int:
+    if not part.isdigit() or int(part) >= len(items):
+        raise InputError(f"cannot set {key!r}: {part!r} is not an index below {len(items)}",
+                         file=file, field=key)
+    return int(part)
 
 
 def parse_overrides(items: list[str] | None) -> dict[str, Any]:

@@ -9,7 +9,6 @@
 """
 from __future__ import annotations
 
-import copy
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,8 +16,7 @@ from typing import Any, Callable
 
 import pandas as pd
 
-from .config import read_toml
-from .experiment import Experiment, parse_experiment, set_dotted
+from .experiment import Experiment, load_experiment
 from .output import write_json, write_measured
 from .validate import error_stats, error_table
 
@@ -37,6 +35,10 @@ SWEEPS: list[tuple[str, dict[str, list[Any]]]] = [
 ]
 
 
+#: Overrides of the scene's one pass (dotted keys index the array of passes).
+IT, TRI = "scene.passes.0.iterations", "scene.passes.0.triangles"
+
+
 @dataclass(frozen=True)
 class Config:
     name: str
@@ -49,36 +51,36 @@ class Config:
 CALIBRATION = [
     Config("sf_1gpu_256x192_it2000", "sort_first.toml", {"schedule.gpus": 1}),
     Config("sf_1gpu_128x96_it500", "sort_first.toml", {"schedule.gpus": 1, "scene.width": 128,
-                                                       "scene.height": 96, "iterations": 500}),
+                                                       "scene.height": 96, IT: 500}),
     Config("sl_1gpu_256x192_t20k", "sort_last.toml", {"schedule.gpus": 1}),
-    Config("sl_1gpu_256x192_t5k", "sort_last.toml", {"schedule.gpus": 1, "triangles": 5000}),
-    Config("sl_1gpu_256x192_t10k", "sort_last.toml", {"schedule.gpus": 1, "triangles": 10000}),
+    Config("sl_1gpu_256x192_t5k", "sort_last.toml", {"schedule.gpus": 1, TRI: 5000}),
+    Config("sl_1gpu_256x192_t10k", "sort_last.toml", {"schedule.gpus": 1, TRI: 10000}),
     Config("sf_1gpu_320x240_it4000", "sort_first.toml", {"schedule.gpus": 1, "scene.width": 320,
-                                                         "scene.height": 240, "iterations": 4000}),
+                                                         "scene.height": 240, IT: 4000}),
     Config("sl_1gpu_128x96_t5k", "sort_last.toml", {"schedule.gpus": 1, "scene.width": 128,
-                                                    "scene.height": 96, "triangles": 5000}),
+                                                    "scene.height": 96, TRI: 5000}),
     Config("sl_1gpu_320x240_t40k", "sort_last.toml", {"schedule.gpus": 1, "scene.width": 320,
-                                                      "scene.height": 240, "triangles": 40000}),
+                                                      "scene.height": 240, TRI: 40000}),
     Config("sort_first_2gpu", "sort_first.toml", {}),
     Config("sort_last_2gpu", "sort_last.toml", {}),
     Config("sf_2gpu_128x96_it2000", "sort_first.toml", {"scene.width": 128, "scene.height": 96}),
-    Config("sl_2gpu_256x192_t10k", "sort_last.toml", {"triangles": 10000}),
+    Config("sl_2gpu_256x192_t10k", "sort_last.toml", {TRI: 10000}),
 ]
 #: Never seen by the calibration: other GPU counts, resolutions, loads, the shared-host variant.
 HELD_OUT = [
     Config("sf_3gpu_256x192_it2000", "sort_first.toml", {"schedule.gpus": 3}),
     Config("sf_4gpu_256x192_it2000", "sort_first.toml", {"schedule.gpus": 4}),
     Config("sf_2gpu_320x240_it1000", "sort_first.toml", {"scene.width": 320, "scene.height": 240,
-                                                         "iterations": 1000}),
+                                                         IT: 1000}),
     Config("sf_2gpu_128x96_it6000", "sort_first.toml", {"scene.width": 128, "scene.height": 96,
-                                                        "iterations": 6000}),
+                                                        IT: 6000}),
     Config("sf_2gpu_shared_host", "sort_first.toml", {"schedule.host_copy": False}),
     Config("sl_3gpu_256x192_t20k", "sort_last.toml", {"schedule.gpus": 3}),
     Config("sl_4gpu_256x192_t20k", "sort_last.toml", {"schedule.gpus": 4}),
     Config("sl_2gpu_320x240_t60k", "sort_last.toml", {"scene.width": 320, "scene.height": 240,
-                                                      "triangles": 60000}),
+                                                      TRI: 60000}),
     Config("sl_2gpu_128x96_t5k", "sort_last.toml", {"scene.width": 128, "scene.height": 96,
-                                                    "triangles": 5000}),
+                                                    TRI: 5000}),
     Config("sl_2gpu_shared_host", "sort_last.toml", {"schedule.host_copy": False}),
 ]
 MAIN_CONFIGS = [c for c in CALIBRATION if c.name in ("sort_first_2gpu", "sort_last_2gpu")]
@@ -108,16 +110,8 @@ def measure_all(out: Path, progress: Callable[[str], None]) -> list[Path]:
 
 
 def experiment_for(config: Config, profile: Path) -> Experiment:
-    """The config's experiment with its overrides; `iterations` / `triangles` set the scene's
-    one pass (dotted keys cannot index the array of passes)."""
-    path = EXPERIMENTS / config.experiment
-    data = copy.deepcopy(read_toml(path))
-    for key, value in config.overrides.items():
-        if key in ("iterations", "triangles"):
-            data["scene"]["passes"][0][key] = value
-        else:
-            set_dotted(data, key, value, str(path))
-    return parse_experiment(data, str(path), base=path.parent, profile=profile)
+    """The config's experiment with its overrides (dotted keys, as `--set` takes them)."""
+    return load_experiment(EXPERIMENTS / config.experiment, config.overrides, profile=profile)
 
 
 def measure_configs(configs: list[Config], profile: Path, out: Path, repeats: int,

@@ -114,3 +114,10 @@ def test_toml_syntax_error_names_the_file(tmp_path):
     bad.write_text("name = \n")
     with pytest.raises(InputError, match="x.toml: not valid TOML"):
         load_experiment(bad)
+
+
+def test_set_indexes_arrays_of_tables():
+    exp = load_experiment(ROOT / "experiments" / "sort_first_tc1.toml", {"scene.passes.0.iterations": 123})
+    assert exp.scene.passes[0].params["iterations"] == 123
+    with pytest.raises(InputError, match="'3' is not an index below 1"):
+        load_experiment(ROOT / "experiments" / "sort_first_tc1.toml", {"scene.passes.3.iterations": 1})

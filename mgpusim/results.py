@@ -111,7 +111,7 @@ def links_table(channels: dict) -> pd.DataFrame:
 
 
 def build_result(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
-    trace = make_trace(raw.rows) if raw.rows else make_trace([])
+    trace = make_trace(raw.rows)
     frames = frames_table(raw.frame_start, raw.present_end)
     links = links_table(raw.channels)
     summary = summarize(frames, trace if len(trace) else None, warmup_frames, links)

@@ -141,7 +141,7 @@ class Executor:
             frame = node.frame
             node.submission = work.gpu.submit(
                 work.queue, lambda cmd, r=work.record, f=frame: r(cmd, f), wait=node.waits,
-                signal=list(node.signals.values()), label=node.label)
+                signal=list(node.signals.values()), label=node.label, key=work.key(frame))
             node.submitted.set()
 
     def _reap_stream(self, nodes: list[Node]) -> None:

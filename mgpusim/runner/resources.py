@@ -8,6 +8,7 @@ each of them.
 """
 from __future__ import annotations
 
+import math
 from typing import Any, Sequence
 
 from ..errors import InputError, ScheduleError
@@ -65,6 +66,11 @@ class Resources:
             bufs = self._buffers[(res.name, res.device)] = []  # stored first, as images are
             for _ in range(res.buffers):
                 bufs.append(gpu.buffer(max(res.bytes, 1), host_visible=res.host_visible))
+
+    @property
+    def cycle(self) -> int:
+        """Frames after which every resource is back at the same buffered copy."""
+        return math.lcm(1, *(r.buffers for r in self.declared.values()))
 
     def slot(self, name: str, frame: int) -> int:
         return frame % self.resource(name).buffers

@@ -37,6 +37,12 @@ class GpuWork:
     record: Callable[[Any, int], None]
     nbytes: int
     fallback: bool  # the program asked for a queue family this device lacks
+    cycle: int  # record(cmd, f) depends on f only through f % cycle
+
+    def key(self, frame: int) -> tuple[int, int]:
+        """Submissions with one key record the same commands: the Gpu records each command
+        buffer once and submits it again (no Python recording in the steady state)."""
+        return id(self), frame % self.cycle
 
 
 @dataclass
@@ -86,7 +92,8 @@ def build_work(task: Task, gpus: list[Gpu], res: Resources, host_threads: int,
         record, nbytes = _pass(task, gpu, res, owned), 0
     else:
         record, nbytes = _copy(task, res), task.bytes
-    return GpuWork(task, q.device, gpu, gpu.queue(q.family), engine, record, nbytes, not dedicated)
+    return GpuWork(task, q.device, gpu, gpu.queue(q.family), engine, record, nbytes, not dedicated,
+                   res.cycle)
 
 
 def _pass(task: PassTask, gpu: Gpu, res: Resources, owned: list[Any]) -> Callable[[Any, int], None]:

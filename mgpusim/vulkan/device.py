@@ -34,6 +34,11 @@ class Queue:
     pool: Any
     lock: threading.Lock = field(default_factory=threading.Lock)
     free: list[tuple[Any, Any, Any]] = field(default_factory=list)
+    #: idle slots whose command buffer holds a recording that can be submitted again, by key
+    recorded: dict[Any, list[tuple[Any, Any, Any]]] = field(default_factory=dict)
+
+    def idle_slots(self) -> list[tuple[Any, Any, Any]]:
+        return self.free + [s for slots in self.recorded.values() for s in slots]
 
     @property
     def dedicated(self) -> bool:
@@ -59,8 +64,8 @@ class Semaphore:
 class Submission:
     """Work submitted on a queue; `wait()` then `timestamps_ns()` gives its host-clock span."""
 
-    def __init__(self, queue: Queue, slot: tuple[Any, Any, Any], label: str):
-        self.queue, self.label = queue, label
+    def __init__(self, queue: Queue, slot: tuple[Any, Any, Any], label: str, key: Any = None):
+        self.queue, self.label, self.key = queue, label, key
         self._slot: tuple[Any, Any, Any] | None = slot
         self._ticks: tuple[int, int] | None = None
 
@@ -86,7 +91,10 @@ class Submission:
         self._ticks = (int(data[0]), int(data[1]))
         call("vkResetFences", v.vkResetFences, dev, 1, [fence])
         with self.queue.lock:
-            self.queue.free.append(self._slot)
+            if self.key is None:
+                self.queue.free.append(self._slot)
+            else:
+                self.queue.recorded.setdefault(self.key, []).append(self._slot)
         self._slot = None
         return self
 
@@ -212,39 +220,54 @@ class Gpu:
         return cmd, fence, pool
 
     def submit(self, queue: str | Queue, record: Recorder, *, wait: Sequence[Semaphore] = (),
-               signal: Sequence[Semaphore] = (), label: str = "") -> Submission:
-        """Record `record(cmd)` between two timestamps and submit it on `queue`."""
+               signal: Sequence[Semaphore] = (), label: str = "", key: Any = None) -> Submission:
+        """Record `record(cmd)` between two timestamps and submit it on `queue`.
+
+        `key`: work that records the same commands every time it is submitted with this key.
+        Its command buffers are recorded once per slot and submitted again as they come back
+        (as a renderer submits pre-recorded command buffers), so repeated submissions cost no
+        recording on the host."""
         v = vk()
         q = self.queue(queue)
-        all_cmds = v.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT
-        mem = v.VK_ACCESS_MEMORY_READ_BIT | v.VK_ACCESS_MEMORY_WRITE_BIT
-        barrier = v.VkMemoryBarrier(srcAccessMask=mem, dstAccessMask=mem)
-        barriers = [barrier]
         with q.lock:
-            slot = self._slot(q)
-            cmd, fence, pool = slot
-            begin = v.VkCommandBufferBeginInfo(flags=v.VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT)
-            call("vkBeginCommandBuffer", v.vkBeginCommandBuffer, cmd, begin)
-            v.vkCmdResetQueryPool(cmd, pool, 0, 2)
-            v.vkCmdPipelineBarrier(cmd, all_cmds, all_cmds, 0, 1, barriers, 0, None, 0, None)
-            v.vkCmdWriteTimestamp(cmd, v.VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, pool, 0)
-            v.vkCmdPipelineBarrier(cmd, all_cmds, all_cmds, 0, 1, barriers, 0, None, 0, None)
-            record(cmd)
-            v.vkCmdPipelineBarrier(cmd, all_cmds, all_cmds, 0, 1, barriers, 0, None, 0, None)
-            v.vkCmdWriteTimestamp(cmd, v.VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, pool, 1)
-            call("vkEndCommandBuffer", v.vkEndCommandBuffer, cmd)
+            ready = q.recorded.get(key) if key is not None else None
+            if ready:
+                slot = ready.pop()
+            else:
+                slot = self._slot(q)
+                self._record(slot, record, once=key is None)
             wait_handles = [s.handle for s in wait]
-            stages = [all_cmds] * len(wait_handles)
+            stages = [v.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT] * len(wait_handles)
             signal_handles = [s.handle for s in signal]
-            cmds = [cmd]
+            cmds = [slot[0]]
             info = v.VkSubmitInfo(waitSemaphoreCount=len(wait_handles),
                                   pWaitSemaphores=wait_handles or None,
                                   pWaitDstStageMask=stages or None, commandBufferCount=1,
                                   pCommandBuffers=cmds, signalSemaphoreCount=len(signal_handles),
                                   pSignalSemaphores=signal_handles or None)
             infos = [info]
-            call("vkQueueSubmit", v.vkQueueSubmit, q.handle, 1, infos, fence)
-        return Submission(q, slot, label)
+            call("vkQueueSubmit", v.vkQueueSubmit, q.handle, 1, infos, slot[1])
+        return Submission(q, slot, label, key)
+
+    @staticmethod
+    def _record(slot: tuple[Any, Any, Any], record: Recorder, once: bool) -> None:
+        """`record(cmd)` between two timestamps, each behind a full barrier."""
+        v = vk()
+        cmd, _fence, pool = slot
+        all_cmds = v.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT
+        mem = v.VK_ACCESS_MEMORY_READ_BIT | v.VK_ACCESS_MEMORY_WRITE_BIT
+        barriers = [v.VkMemoryBarrier(srcAccessMask=mem, dstAccessMask=mem)]
+        flags = v.VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT if once else 0
+        call("vkBeginCommandBuffer", v.vkBeginCommandBuffer, cmd,
+             v.VkCommandBufferBeginInfo(flags=flags))
+        v.vkCmdResetQueryPool(cmd, pool, 0, 2)
+        v.vkCmdPipelineBarrier(cmd, all_cmds, all_cmds, 0, 1, barriers, 0, None, 0, None)
+        v.vkCmdWriteTimestamp(cmd, v.VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, pool, 0)
+        v.vkCmdPipelineBarrier(cmd, all_cmds, all_cmds, 0, 1, barriers, 0, None, 0, None)
+        record(cmd)
+        v.vkCmdPipelineBarrier(cmd, all_cmds, all_cmds, 0, 1, barriers, 0, None, 0, None)
+        v.vkCmdWriteTimestamp(cmd, v.VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, pool, 1)
+        call("vkEndCommandBuffer", v.vkEndCommandBuffer, cmd)
 
     def run(self, queue: str | Queue, record: Recorder, label: str = "") -> Submission:
         """Submit and wait: for set-up work and measurements."""
@@ -262,10 +285,11 @@ class Gpu:
         for sem in self._semaphores:
             sem.destroy()
         for q in {id(q): q for q in self.queues.values()}.values():
-            for _cmd, fence, pool in q.free:
+            for _cmd, fence, pool in q.idle_slots():
                 v.vkDestroyFence(self.device, fence, None)
                 v.vkDestroyQueryPool(self.device, pool, None)
             q.free.clear()
+            q.recorded.clear()
             v.vkDestroyCommandPool(self.device, q.pool, None)
         v.vkDestroyDevice(self.device, None)
         self.device = None

@@ -79,28 +79,21 @@ class Executor:
                                     f"schedule is stuck (blocked dependency)")
 
     def _finish(self, node: Node, waiter: Node) -> None:
-        """Block until `node` completed (fence wait for GPU work, event for host copies)."""
+        """Block until `node` completed: the end of its GPU work, or of a host copy. Several
+        threads may wait for one node."""
         if isinstance(node.work, HostWork):
             self._wait(node.completed, waiter, f"{node.label} to finish")
             return
         self._wait(node.submitted, waiter, f"{node.label} to be submitted")
-        if node.completed.is_set():
-            return
-        timeout = vk().VkTimeout
         deadline = time.monotonic() + self.stall_s
-        with node.lock:
-            while not node.completed.is_set():
-                try:
-                    node.submission.wait(int(POLL_S * 1e9))
-                except timeout:
-                    if self.abort.is_set():
-                        raise _Abort() from None
-                    if time.monotonic() > deadline:
-                        raise ScheduleError(f"{node.label} did not finish on the device within "
-                                            f"{self.stall_s:.0f} s") from None
-                    continue
-                node.span = node.submission.timestamps_ns()
+        while not node.completed.is_set():
+            if node.submission.finished(int(POLL_S * 1e9)):
                 node.completed.set()
+            elif self.abort.is_set():
+                raise _Abort()
+            elif time.monotonic() > deadline:
+                raise ScheduleError(f"{node.label} did not finish on the device within "
+                                    f"{self.stall_s:.0f} s")
 
     # -- semaphores --------------------------------------------------------------------------
     def _semaphore(self, gpu: Gpu) -> Any:
@@ -147,11 +140,12 @@ class Executor:
     def _reap_stream(self, nodes: list[Node]) -> None:
         for node in nodes:
             self._finish(node, node)
+            span = node.submission.timestamps_ns()  # also recycles the command buffer
             self._release(node)
             work = node.work
-            assert isinstance(work, GpuWork) and node.span is not None
+            assert isinstance(work, GpuWork)
             row = (node.frame, f"gpu{work.device}", work.engine, node.task.step, node.task.name,
-                   node.span[0], node.span[1], work.nbytes, node.waits_for)
+                   span[0], span[1], work.nbytes, node.waits_for)
             with self._rows_lock:
                 self.rows.append(row)
 

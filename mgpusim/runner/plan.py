@@ -45,9 +45,7 @@ class Node:
     waits: list[Any] = field(default_factory=list)  # Semaphores this node waited on
     submitted: threading.Event = field(default_factory=threading.Event)
     completed: threading.Event = field(default_factory=threading.Event)
-    lock: threading.Lock = field(default_factory=threading.Lock)
     submission: Any = None
-    span: tuple[int, int] | None = None
     parts_left: int = 0
 
     @property

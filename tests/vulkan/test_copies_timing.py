@@ -115,6 +115,22 @@ def test_keyed_submissions_record_once_and_still_do_the_work(gpu):
     c.destroy()
 
 
+def test_finished_sees_the_end_of_a_task_with_more_work_queued_behind_it(gpu):
+    """On lavapipe a fence wait returns only when the queue is idle; `finished` must report A's
+    end while B (queued behind it) still runs, as a GPU's fence would."""
+    a, b = FragmentLoop(gpu, 64, 64, 3000), FragmentLoop(gpu, 64, 64, 3000)
+    first = gpu.submit("graphics", a.record)
+    second = gpu.submit("graphics", b.record)
+    while not first.finished(1_000_000):
+        pass
+    seen = time.monotonic_ns()
+    a_end = first.wait().timestamps_ns()[1]
+    b_end = second.wait().timestamps_ns()[1]
+    assert a_end <= seen < b_end
+    a.destroy()
+    b.destroy()
+
+
 def test_simulated_gpus_are_separate_instances_with_thread_counts():
     gpus = make_gpus(2, lp_threads=[1, 2])
     try:

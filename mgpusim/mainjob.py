@@ -34,6 +34,16 @@ SWEEPS: list[tuple[str, dict[str, list[Any]]]] = [
     ("host_copy", {"bytes": [65536, 262144, 1048576, 4194304], "threads": [1, 2]}),
 ]
 
+#: The passes again on one rasterizer thread, at sizes SWEEPS also measures: time on one thread
+#: over time on all is the cores a pass keeps busy (`calibrate`'s fit_cores). lavapipe bins
+#: and shades vertices on one thread, so a mesh pass gains little from more threads.
+ONE_THREAD_SWEEPS: list[tuple[str, dict[str, list[Any]]]] = [
+    ("fragment_loop", {"width": [128, 256], "height": [192], "iterations": [1000]}),
+    ("mesh", {"width": [128, 256], "height": [192], "triangles": [10000, 40000]}),
+    ("composite_sort_first", {"width": [256], "height": [192], "inputs": [1, 3]}),
+    ("composite_sort_last", {"width": [256], "height": [192], "inputs": [1, 3]}),
+]
+
 
 #: Overrides of the scene's one pass (dotted keys index the array of passes).
 IT, TRI = "scene.passes.0.iterations", "scene.passes.0.triangles"
@@ -93,19 +103,23 @@ def measure_all(out: Path, progress: Callable[[str], None]) -> list[Path]:
 
     out.mkdir(parents=True, exist_ok=True)
     paths = []
-    gpus = make_gpus(1)
-    try:
-        for name, sweeps in SWEEPS:
-            progress(f"measure {name}")
-            df = m.measure(name, gpus, sweeps, reps=5, warmup=2)
-            path = out / f"{name}.csv"
-            m.write_table(df, str(path))
-            record = machine_record(gpus, {"pass": name, "sweeps": sweeps, "reps": 5, "warmup": 2,
-                                           "command": "mgpusim main (mgpusim/mainjob.py SWEEPS)"})
-            write_json(record, path.with_name(path.name + ".machine.json"))
-            paths.append(path)
-    finally:
-        close_gpus(gpus)
+    plans = ((SWEEPS, [None], "", "SWEEPS", 5),
+             (ONE_THREAD_SWEEPS, [1, None], "_threads", "ONE_THREAD_SWEEPS, interleaved", 15))
+    for sweeps_list, threads, suffix, what, reps in plans:
+        gpus = [make_gpus(1, lp_threads=[t])[0] for t in threads]
+        try:
+            for name, sweeps in sweeps_list:
+                progress(f"measure {name}{suffix}")
+                df = m.measure(name, gpus, sweeps, reps=reps, warmup=2, concurrent=False)
+                path = out / f"{name}{suffix}.csv"
+                m.write_table(df, str(path))
+                record = machine_record(gpus, {"pass": name, "sweeps": sweeps, "reps": reps,
+                                               "warmup": 2,
+                                               "command": f"mgpusim main (mgpusim/mainjob.py {what})"})
+                write_json(record, path.with_name(path.name + ".machine.json"))
+                paths.append(path)
+        finally:
+            close_gpus(gpus)
     return paths
 
 

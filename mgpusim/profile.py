@@ -79,6 +79,11 @@ class PassCost:
 
     fixed_ns: float
     ns_per: Mapping[str, float]
+    #: CPU-emulated GPUs only: the cores this pass keeps busy, measured as its time on one
+    #: rasterizer thread over its time on all of them. None = the GPU's `cpu_threads`. Why:
+    #: lavapipe shades and bins vertices on one thread, so a mesh pass barely gains from more
+    #: threads (and two GPUs drawing meshes hardly slow each other down), unlike a fragment pass.
+    cores: float | None = None
 
 
 @dataclass(frozen=True)
@@ -209,13 +214,15 @@ def _parse_costs(t: Table) -> Mapping[str, PassCost]:
     for kind in list(t.data):
         kt = t.table(kind)
         fixed = kt.get("fixed_ns", float, 0.0, minimum=0)
+        cores = kt.get("cores", float, None, minimum=0.01)
         ns_per: dict[str, float] = {}
         for key in list(kt.rest()):
             if not key.startswith("ns_per_"):
-                raise kt.error(key, "cost coefficients are named fixed_ns or ns_per_<work term>")
+                raise kt.error(key, "cost coefficients are named fixed_ns, ns_per_<work term> "
+                                    "or cores")
             ns_per[key.removeprefix("ns_per_")] = kt.get(key, float, minimum=0)
         kt.finish()
-        costs[kind] = PassCost(fixed, MappingProxyType(ns_per))
+        costs[kind] = PassCost(fixed, MappingProxyType(ns_per), cores)
     return MappingProxyType(costs)
 
 

@@ -71,3 +71,28 @@ def test_calibrate_command_writes_a_loadable_lavapipe_profile(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "+-" in text and "rms" in text  # coefficients with uncertainty, residuals
     assert (tmp_path / "lavapipe.fit.json").is_file()
+
+
+def test_cores_per_pass_from_one_thread_against_all():
+    """lavapipe tables with lp_threads: a pass 1.9x faster on 2 threads keeps 1.9 cores busy,
+    one that gains nothing keeps 1; the fastest repetition counts (outside load only adds
+    time), and the 1-thread rows do not enter the cost fit."""
+    rows = []
+    for kind, speedup in (("fragment_loop", 1.9), ("mesh", 1.0)):
+        for width in (128, 256):
+            for threads in (1, 2):
+                for rep, slow in enumerate((1.0, 1.7, 1.3)):  # one undisturbed repetition each
+                    base = 1e6 * width / 128
+                    rows.append({"pass": kind, "width": width, "height": 64, "lp_threads": threads,
+                                 "iterations" if kind == "fragment_loop" else "triangles": 100,
+                                 "gpus": 1, "repetition": rep,
+                                 "duration_ns": base * (speedup if threads == 1 else 1) * slow})
+    df = pd.DataFrame(rows)
+    df["source"] = "t"
+    cal = calibrate(df, {})
+    assert cal.cores["fragment_loop"][0] == pytest.approx(1.9)
+    assert cal.cores["mesh"][0] == pytest.approx(1.0)
+    # fitted on the 2-thread rows only: 1 ms at width 128 is 1e6 / (128 * 64) ns per pixel
+    fit = cal.pass_fits["fragment_loop"]
+    predicted = fit.coef @ np.array([1.0, 128 * 64, 128 * 64 * 100])
+    assert predicted == pytest.approx(1e6 * 1.3, rel=0.3)  # the 2-thread median, not 1.9x it

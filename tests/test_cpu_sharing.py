@@ -71,3 +71,16 @@ def test_submit_thread_submits_in_order_after_waking():
     assert f0.loc["h2d1", "start_ns"] == f0.loc["host_copy1", "end_ns"] + 150
     assert f0.loc["composite", "start_ns"] == f0.loc["h2d1", "end_ns"]
     assert f0.loc["render0", "start_ns"] == 50  # even the first task waits to be submitted
+
+
+def test_a_pass_that_keeps_fewer_cores_busy_is_slowed_less():
+    """fragment_loop measured to keep 1 core busy (lavapipe's serial mesh binning, say): two
+    GPUs rendering at once on 2 cores each get their one core, so neither is slowed; at 1.5
+    cores each they share 2 cores at 1 core each: 1600 * 1.5 = 2400 ns."""
+    prof = lavapipe_profile(2, None)
+    prof["gpus"][0]["costs"]["fragment_loop"]["cores"] = 1.0
+    assert renders(make_experiment(prof, gpus=2, iterations=100)) == {"render0": 1600, "render1": 1600}
+    prof["gpus"][0]["costs"]["fragment_loop"]["cores"] = 1.5
+    assert renders(make_experiment(prof, gpus=2, iterations=100)) == {"render0": 2400, "render1": 2400}
+    alone = renders(make_experiment(prof, gpus=1, iterations=100, width=8, height=2), names=("render0",))
+    assert alone == {"render0": 1600}  # alone, the measured time whatever the cores

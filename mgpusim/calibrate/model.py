@@ -26,9 +26,16 @@ PASS_KINDS = ("fragment_loop", "mesh", "composite_sort_first", "composite_sort_l
 COPY_PASSES = {"copy_d2h": "d2h", "copy_h2d": "h2d", "copy_d2d": "d2d"}
 
 
+#: Columns that identify one measured configuration of a pass.
+PARAM_COLUMNS = ("width", "height", "iterations", "triangles", "inputs", "particles")
+
+
 @dataclass
 class Calibration:
     pass_fits: dict[str, Fit] = field(default_factory=dict)
+    #: lavapipe: cores each pass kind keeps busy (time on 1 thread / time on all), with the
+    #: per-configuration ratios it is the median of
+    cores: dict[str, tuple[float, list[float]]] = field(default_factory=dict)
     copy_fits: dict[tuple[str, str], Fit] = field(default_factory=dict)
     host: dict[str, float] = field(default_factory=dict)
     machine: dict[str, Any] = field(default_factory=dict)
@@ -65,8 +72,9 @@ def pass_work(row: pd.Series) -> dict[str, float]:
 
 
 def fit_passes(df: pd.DataFrame, cal: Calibration) -> None:
-    """One fit per pass kind, on single-GPU rows (concurrent runs feed the CPU-sharing fit)."""
-    solo = df[_solo(df)]
+    """One fit per pass kind, on single-GPU rows at the GPU's full thread count (rows on fewer
+    lavapipe threads only feed `fit_cores`)."""
+    solo = df[_solo(df) & _all_threads(df)]
     for kind in PASS_KINDS:
         rows = solo[solo["pass"] == kind]
         if rows.empty:
@@ -79,9 +87,36 @@ def fit_passes(df: pd.DataFrame, cal: Calibration) -> None:
         cal.warnings.extend(fit.warnings)
 
 
+def fit_cores(df: pd.DataFrame, cal: Calibration) -> None:
+    """lavapipe: per pass kind, the cores it keeps busy = its time on one rasterizer thread
+    over its time on all of them: per configuration the fastest repetition of each (measured
+    interleaved; interference from outside only adds time, and a core taken away for a while
+    would make a multi-threaded pass look serial), then the median over configurations."""
+    if "lp_threads" not in df.columns:
+        return
+    solo = df[_solo(df) & df["lp_threads"].notna()]
+    for kind in PASS_KINDS:
+        rows = solo[solo["pass"] == kind]
+        full = rows["lp_threads"].max() if not rows.empty else 0
+        if not full > 1 or not (rows["lp_threads"] == 1).any():
+            continue
+        keys = [c for c in PARAM_COLUMNS if c in rows.columns and rows[c].notna().all()]
+        one = rows[rows["lp_threads"] == 1].groupby(keys)["duration_ns"].min()
+        many = rows[rows["lp_threads"] == full].groupby(keys)["duration_ns"].min()
+        ratios = (one / many).dropna()
+        if ratios.empty:
+            cal.warnings.append(f"{kind}: no configuration measured on 1 and on {full:.0f} "
+                                f"threads, so its cores are not fitted")
+            continue
+        value = float(np.clip(np.median(ratios), 0.1, full))
+        cal.cores[kind] = (value, [float(r) for r in ratios])
+
+
 def fit_copies(df: pd.DataFrame, cal: Calibration) -> None:
     for name, path in COPY_PASSES.items():
         rows = df[(df["pass"] == name) & _solo(df)]
+        if rows.empty:
+            continue
         for queue, group in rows.groupby("queue"):
             X = np.column_stack([np.ones(len(group)), group["bytes"].to_numpy(dtype=float)])
             fit = fit_nonnegative(X, group["duration_ns"].to_numpy(), ["fixed_ns", "ns_per_byte"], f"{name} on {queue}")
@@ -120,9 +155,18 @@ def _solo(df: pd.DataFrame) -> pd.Series:
     return ~df["source"].str.contains("gpus")  # tables written before the column existed
 
 
+def _all_threads(df: pd.DataFrame) -> pd.Series:
+    """Rows of real GPUs, or of lavapipe GPUs on the most threads measured for their pass."""
+    if "lp_threads" not in df.columns:
+        return pd.Series(True, index=df.index)
+    most = df.groupby("pass")["lp_threads"].transform("max")
+    return df["lp_threads"].isna() | (df["lp_threads"] == most)
+
+
 def calibrate(df: pd.DataFrame, machine: dict[str, Any]) -> Calibration:
     cal = Calibration(machine=machine)
     fit_passes(df, cal)
+    fit_cores(df, cal)
     fit_copies(df, cal)
     fit_host_copies(df, cal)
     return cal

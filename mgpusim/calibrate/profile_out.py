@@ -47,6 +47,8 @@ def apply(cal: Calibration, base: dict[str, Any], command: str) -> dict[str, Any
         costs = gpu.setdefault("costs", {})
         for kind, fit in cal.pass_fits.items():
             costs[kind] = {name: _num(v) for name, v in zip(fit.names, fit.coef)}
+            if kind in cal.cores:
+                costs[kind]["cores"] = round(cal.cores[kind][0], 3)
         if cal.copy_fits:
             _apply_copies(cal, gpu)
     if "present" not in out["gpus"][0].get("costs", {}):
@@ -113,6 +115,9 @@ def report(cal: Calibration) -> str:
         bw = 1 / fit.coef[1] if fit.coef[1] > 0 else float("inf")
         lines.append(f"  copy {path} on {queue}: fixed_ns={_fmt(fit.coef[0], fit.stderr[0])}, "
                      f"{bw:.3g} GB/s; rms {fit.rel_rms:.1%}")
+    for kind, (value, ratios) in cal.cores.items():
+        lines.append(f"  {kind}: cores={value:.3g} (time on 1 thread / on all, per configuration: "
+                     + ", ".join(f"{r:.2f}" for r in ratios) + ")")
     if cal.host:
         th = ", ".join(f"{k} thr: {v:.3g} GB/s" for k, v in cal.host.get("throughput_by_threads_gbps", {}).items())
         lines.append(f"  host copies: {th}")
@@ -126,6 +131,7 @@ def fit_details(cal: Calibration) -> dict[str, Any]:
                        "rel_residuals": [float(x) for x in f.rel_residuals]} for k, f in cal.pass_fits.items()},
         "copies": {f"{p}/{q}": {**f.as_dict(), "rel_rms": f.rel_rms} for (p, q), f in cal.copy_fits.items()},
         "host": {k: v for k, v in cal.host.items()},
+        "cores": {k: {"value": v, "ratios": r} for k, (v, r) in cal.cores.items()},
         "warnings": cal.warnings,
     }
 

@@ -78,7 +78,9 @@ def with_pass_fits(profile_data: dict[str, Any], fits: dict[str, Fit]) -> dict[s
         for kind, fit in fits.items():
             if any("cannot tell" in w for w in fit.warnings):
                 continue
-            gpu["costs"][kind] = {n: float(f"{v:.6g}") for n, v in zip(fit.names, fit.coef)}
+            kept = {k: v for k, v in gpu["costs"].get(kind, {}).items() if k == "cores"}
+            gpu["costs"][kind] = {**{n: float(f"{v:.6g}") for n, v in zip(fit.names, fit.coef)},
+                                  **kept}
     return out
 
 

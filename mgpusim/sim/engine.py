@@ -38,9 +38,10 @@ class _Op:
     engine: str
     waits_for: str
     is_present: bool
-    #: CPU threads of a CPU-emulated GPU (lavapipe): the task is `duration * cpu` core-ns of
-    #: work on the shared host.cpu channel, at most `cpu` cores at once. 0 = a real GPU.
-    cpu: int = 0
+    #: Cores a task of a CPU-emulated GPU (lavapipe) keeps busy: it is `cpu_work` core-ns
+    #: (duration x cpu) on the shared host.cpu channel, at most `cpu` cores at once. 0 = a real GPU.
+    cpu: Fraction | int = 0
+    cpu_work: int = 0
     #: The queue's idle time before the task (the GPU's task_gap_ns).
     gap: int = 0
 
@@ -167,18 +168,22 @@ class Engine:
             gap = self.costs.profile.gpus[task.queue.device].task_gap_ns
         return _Op(task, duration, channel, cap, nbytes, device, engine,
                    self._waits_for[phase][task.name], task.name == self.program.present_task,
-                   cpu, gap)
+                   cpu, -(-duration * cpu.numerator // cpu.denominator) if cpu else 0, gap)
 
-    def _cpu_threads(self, task: Task) -> int:
-        """Cores a task of a CPU-emulated GPU can use (0 when the GPUs are real): a pass uses
-        the GPU's rasterizer threads, a copy the queue thread."""
+    def _cpu_threads(self, task: Task) -> Fraction:
+        """Cores a task of a CPU-emulated GPU keeps busy (0 when the GPUs are real): a copy the
+        queue thread, a pass its kind's measured `cores`, else the GPU's rasterizer threads."""
         host = self.costs.profile.host
         if self._cpu is None or isinstance(task, HostCopyTask):
-            return 0
+            return Fraction(0)
         if isinstance(task, CopyTask):
-            return 1
-        threads = self.costs.profile.gpus[task.queue.device].cpu_threads or host.cpu_cores
-        return min(threads, host.cpu_cores)
+            return Fraction(1)
+        gpu = self.costs.profile.gpus[task.queue.device]
+        threads = Fraction(min(gpu.cpu_threads or host.cpu_cores, host.cpu_cores))
+        cost = gpu.costs.get(task.kind) if isinstance(task, PassTask) else None
+        if cost is None or cost.cores is None:
+            return threads
+        return min(Fraction(repr(cost.cores)).limit_denominator(1000), threads)
 
     def _dispatch_wait(self, key: Key) -> int:
         """Host dispatch still owed before `key` starts: `dispatch_ns` after the last of its
@@ -304,7 +309,7 @@ class Engine:
                     yield self._host_work(op.gap) if op.cpu else env.timeout(op.gap)
                 start = env.now
                 if op.cpu:
-                    yield self._cpu.transfer(op.duration * op.cpu, op.cpu)
+                    yield self._cpu.transfer(op.cpu_work, op.cpu)
                 elif op.duration:
                     yield env.timeout(op.duration)
                 if op.channel is not None:

@@ -9,6 +9,7 @@ runner submits from several Python threads (cffi releases the GIL).
 """
 from __future__ import annotations
 
+import os
 import threading
 from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
@@ -227,6 +228,16 @@ class Gpu:
         return Image(self, width, height, fmt)
 
     # -- submission --------------------------------------------------------------------------
+    @property
+    def cpu_threads(self) -> int | None:
+        """Rasterizer threads of a lavapipe GPU (LP_NUM_THREADS, default one per CPU); None
+        for a real GPU."""
+        if not self.info.is_lavapipe:
+            return None
+        from_env = os.environ.get("LP_NUM_THREADS", "")
+        return (self.instance.lp_num_threads or (int(from_env) if from_env.isdigit() else 0)
+                or os.cpu_count() or 1)
+
     def _slot(self, q: Queue) -> tuple[Any, Any, Any]:
         if q.free:
             return q.free.pop()

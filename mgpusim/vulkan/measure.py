@@ -109,9 +109,14 @@ def combinations(pass_name: str, sweeps: dict[str, list[int | str]]) -> list[dic
 
 
 def measure(pass_name: str, gpus: Sequence[Gpu], sweeps: dict[str, list[int | str]], *,
-            reps: int = 5, warmup: int = 2,
+            reps: int = 5, warmup: int = 2, concurrent: bool = True,
             progress: Callable[[int], None] | None = None) -> pd.DataFrame:
-    """Run every combination on every GPU; one row per GPU x combination x repetition."""
+    """Run every combination on every GPU; one row per GPU x combination x repetition.
+
+    `concurrent`: all GPUs run each repetition at once (they compete, as in a multi-GPU frame);
+    False: one after another, interleaved, so that GPUs set up differently (e.g. lavapipe on 1
+    and on all threads) are compared under the same machine conditions, repetition by
+    repetition, and each row counts as a one-GPU measurement."""
     if reps < 1 or warmup < 0:
         raise InputError(f"need reps >= 1 and warmup >= 0, got {reps}, {warmup}")
     ps = spec(pass_name)
@@ -132,13 +137,16 @@ def measure(pass_name: str, gpus: Sequence[Gpu], sweeps: dict[str, list[int | st
             works = [ps.build(g, params) for g in gpus]
             try:
                 for rep in range(-warmup, reps):
-                    subs = [g.submit(w.queue,
-                                     w.record, label=pass_name) for g, w in zip(gpus, works)]
+                    subs = [g.submit(w.queue, w.record, label=pass_name) for g, w in zip(gpus, works)] \
+                        if concurrent else [g.run(w.queue, w.record, label=pass_name)
+                                            for g, w in zip(gpus, works)]
                     for g, w, s in zip(gpus, works, subs):
                         s.wait()
                         if rep >= 0:
-                            rows.append({"device": g.info.name, "gpu": g.name, "gpus": len(gpus),
-                                         "pass": pass_name, **params, "repetition": rep,
+                            rows.append({"device": g.info.name, "gpu": g.name,
+                                         "gpus": len(gpus) if concurrent else 1,
+                                         "lp_threads": g.cpu_threads, "pass": pass_name,
+                                         **params, "repetition": rep,
                                          "duration_ns": s.duration_ns, "bytes": w.bytes})
             finally:
                 for w in works:

@@ -37,8 +37,9 @@ def test_measure_writes_tidy_table_and_machine_record(tmp_path, ext):
                "--gpus", "2", "--quiet", "--out", str(out)])
     assert rc == 0
     df = pd.read_csv(out) if ext == "csv" else pd.read_parquet(out)
-    assert list(df.columns) == ["device", "gpu", "gpus", "pass", "width", "height", "iterations",
-                                "repetition", "duration_ns", "bytes"]
+    assert list(df.columns) == ["device", "gpu", "gpus", "lp_threads", "pass", "width", "height",
+                                "iterations", "repetition", "duration_ns", "bytes"]
+    assert (df.lp_threads >= 1).all()  # lavapipe: the rasterizer threads of each row
     assert len(df) == 2 * 2 * 3 and set(df.repetition) == {0, 1, 2}
     assert (df.duration_ns > 0).all() and (df.bytes == 32 * 16 * 4).all()
     record = json.loads((tmp_path / f"t.{ext}.machine.json").read_text())

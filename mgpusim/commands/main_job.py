@@ -19,7 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, default=Path("out/main"))
     p.add_argument("--held-out", action="store_true",
                    help="also validate 10 held-out configurations (GPU counts, sizes, loads, variants)")
-    p.add_argument("--repeats", type=int, default=4, help="measured runs per configuration (fastest kept)")
+    p.add_argument("--repeats", type=int, default=5, help="measured runs per configuration (fastest kept)")
     p.set_defaults(func=run)
 
 

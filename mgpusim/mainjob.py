@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -49,6 +50,9 @@ ONE_THREAD_SWEEPS: list[tuple[str, dict[str, list[Any]]]] = [
 #: ~10 frames (measured: 2.2 ms falling to 1.5 ms at 5k triangles), so the runner's default of
 #: 2 left that trend inside the timed frames.
 PREWARM_FRAMES = 12
+
+#: Timed frames of one measured run at most (the runner keeps a trace row per task).
+MAX_FRAMES = 2000
 
 #: Overrides of the scene's one pass (dotted keys index the array of passes).
 IT, TRI = "scene.passes.0.iterations", "scene.passes.0.triangles"
@@ -131,6 +135,27 @@ def measure_all(out: Path, progress: Callable[[str], None]) -> list[Path]:
 def experiment_for(config: Config, profile: Path) -> Experiment:
     """The config's experiment with its overrides (dotted keys, as `--set` takes them)."""
     return load_experiment(EXPERIMENTS / config.experiment, config.overrides, profile=profile)
+
+
+def with_run_length(configs: list[Config], profile: Path, seconds: float) -> list[Config]:
+    """Each configuration with enough frames that its timed part lasts about `seconds` (as the
+    model, calibrated on microbenchmarks, predicts it; at least the experiment's own frames).
+
+    Why: this shared machine delivers between one and two cores in phases of 0.25-2 s under
+    sustained load (two busy processes each alternate between full and half speed, and no steal
+    time is reported), so a run of 0.1 s lands in one phase and repeats of it differ by up to 2x;
+    a run of a few seconds averages over the phases, as the calibration runs do."""
+    from .simulate import simulate  # noqa: PLC0415 - keeps the module's import light
+
+    out = []
+    for config in configs:
+        exp = experiment_for(config, profile)
+        frame_ms = float(simulate(exp).summary["frame_time_ms"])
+        frames = max(exp.schedule.frames,
+                     exp.schedule.warmup_frames + math.ceil(seconds * 1e3 / max(frame_ms, 1e-3)))
+        out.append(Config(config.name, config.experiment,
+                          {**config.overrides, "schedule.frames": min(frames, MAX_FRAMES)}))
+    return out
 
 
 def measure_configs(configs: list[Config], profile: Path, out: Path, repeats: int,

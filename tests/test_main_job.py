@@ -13,7 +13,7 @@ from mgpusim.mainjob import CALIBRATION
 @pytest.mark.vulkan
 def test_main_job_measures_calibrates_validates_and_reports(tmp_path):
     out = tmp_path / "main"
-    assert main(["main", "--out", str(out), "--repeats", "1"]) == 0
+    assert main(["main", "--out", str(out), "--repeats", "1", "--run-seconds", "0.1"]) == 0
     profile = load_profile(out / "profile.toml")
     assert profile.host.gpus_share_cpu and profile.gpus[0].task_gap_ns > 0
     stats = json.loads((out / "errors.json").read_text())["Calibration runs (seen by the fit)"]

@@ -102,7 +102,10 @@ def _estimate_present(cal: Calibration, out: dict[str, Any]) -> None:
     fixed, ns_per_byte = (float(c) for c in fit.coef)
     for gpu in out["gpus"]:
         gpu["costs"]["present"] = {"fixed_ns": _num(fixed), "ns_per_pixel": _num(4 * ns_per_byte)}
-    out["sources"]["present"] = "derived: a present copies the RGBA8 frame, costed from the d2d copy fit"
+        if out["host"].get("gpus_share_cpu"):  # lavapipe copies in its queue thread: one core
+            gpu["costs"]["present"]["cores"] = 1.0
+    out["sources"]["present"] = ("derived: a present copies the RGBA8 frame, costed from the d2d "
+                                 "copy fit (on lavapipe one core's work, as every copy)")
 
 
 def report(cal: Calibration) -> str:

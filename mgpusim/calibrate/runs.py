@@ -116,6 +116,13 @@ def fit_host_effects(profile_data: dict[str, Any], runs: Sequence[Run],
     return best[1], best[0]
 
 
+#: Simulated frames after the warm-up in the grid search: the model reaches its steady state
+#: within a few frames, so a measured run of thousands of frames needs no simulation as long.
+GRID_STEADY_FRAMES = 40
+
+
 def _error(exp: Experiment, trace: pd.DataFrame, profile: HardwareProfile) -> float:
-    sim = simulate(replace(exp, profile=profile))
-    return compare(trace, sim.trace, exp.schedule.warmup_frames)["frame_time_error"]
+    sched = exp.schedule
+    frames = min(sched.frames, sched.warmup_frames + GRID_STEADY_FRAMES)
+    sim = simulate(replace(exp, profile=profile, schedule=replace(sched, frames=frames)))
+    return compare(trace, sim.trace, sched.warmup_frames)["frame_time_error"]

@@ -1,4 +1,4 @@
-"""`mgpusim main [--out DIR] [--held-out] [--repeats R]`: measure, calibrate, validate on lavapipe."""
+"""`mgpusim main [--out DIR] [--held-out] [--repeats R] [--run-seconds S]`: measure, calibrate, validate on lavapipe."""
 from __future__ import annotations
 
 import argparse
@@ -11,6 +11,7 @@ import tomli_w
 from ..calibrate import apply, calibrate, lavapipe_base, read_measurements, report
 from ..calibrate.runs import fit_host_effects, fit_passes_from_runs, fit_task_gap, with_pass_fits
 from ..mainjob import (CALIBRATION, HELD_OUT, MAIN_CONFIGS, load_runs, measure_all, measure_configs,
+                       with_run_length,
                        validate_saved, write_report)
 
 
@@ -19,7 +20,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, default=Path("out/main"))
     p.add_argument("--held-out", action="store_true",
                    help="also validate 10 held-out configurations (GPU counts, sizes, loads, variants)")
-    p.add_argument("--repeats", type=int, default=5, help="measured runs per configuration (fastest kept)")
+    p.add_argument("--repeats", type=int, default=3, help="measured runs per configuration (fastest kept)")
+    p.add_argument("--run-seconds", type=float, default=1.5,
+                   help="timed length of each measured run (frames are added to reach it)")
     p.set_defaults(func=run)
 
 
@@ -37,10 +40,11 @@ def run(args: argparse.Namespace) -> int:
     data = apply(cal, lavapipe_base(machine), "mgpusim main")
     base = out / "profile_microbenchmarks.toml"
     base.write_text(tomli_w.dumps(data))
-    held = HELD_OUT if args.held_out else []
-    chosen = measure_configs(CALIBRATION + held, base, out / "runs", args.repeats, progress)
+    calibration = with_run_length(CALIBRATION, base, args.run_seconds)
+    held = with_run_length(HELD_OUT, base, args.run_seconds) if args.held_out else []
+    chosen = measure_configs(calibration + held, base, out / "runs", args.repeats, progress)
     progress("calibrate from runs")
-    runs = load_runs(CALIBRATION, chosen, base)
+    runs = load_runs(calibration, chosen, base)
     pass_fits = fit_passes_from_runs(runs)
     data = with_pass_fits(data, pass_fits)
     gap = fit_task_gap(runs)
@@ -61,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
                          [f"queue task_gap_ns = {gap} (median idle between tasks of a queue, 1-GPU runs)",
                           f"host {host_fit} (mean |frame error| {score:.1%} on the calibration runs)"])
     result_tables = {"Calibration runs (seen by the fit)": validate_saved(
-        CALIBRATION, chosen, profile, out / "validation", progress)}
+        calibration, chosen, profile, out / "validation", progress)}
     if held:
         result_tables["Held-out runs (never seen by the fit)"] = validate_saved(
             held, chosen, profile, out / "validation", progress)

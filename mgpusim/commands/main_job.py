@@ -1,4 +1,5 @@
-"""`mgpusim main [--out DIR] [--held-out] [--repeats R] [--run-seconds S]`: measure, calibrate, validate on lavapipe."""
+"""`mgpusim main [--out DIR] [--held-out] [--repeats R] [--run-seconds S]`: measure,
+calibrate and validate on lavapipe, and write a report."""
 from __future__ import annotations
 
 import argparse

@@ -5,7 +5,9 @@ Why threads per queue: each stream must submit in its own order while waiting (o
 producers on other devices, as the reference renderer's per-GPU threads do; cffi releases the
 GIL during fence waits and submits, and numpy during copies, so they really overlap. The reap
 thread reads every submission's timestamps in order and recycles its command buffer, fence and
-semaphores. Any error in any thread stops them all and is raised from `execute`.
+semaphores; a thread waiting for a task only waits on its fence (`Submission.finished`), because
+on lavapipe reading the timestamps blocks until the queue is idle. Any error in any thread stops
+them all and is raised from `execute`.
 """
 from __future__ import annotations
 
@@ -21,7 +23,6 @@ import numpy as np
 
 from ..errors import InputError, ScheduleError
 from ..vulkan.device import Gpu
-from ..vulkan.errors import vk
 from .plan import HOST_STREAM, Node
 from .work import GpuWork, HostWork
 

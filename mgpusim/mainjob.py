@@ -46,6 +46,9 @@ ONE_THREAD_SWEEPS: list[tuple[str, dict[str, list[Any]]]] = [
 ]
 
 
+#: Rounds of ONE_THREAD_SWEEPS (3 repetitions of each configuration per round).
+ROUNDS = 5
+
 #: Untimed frames before each measured run. lavapipe's mesh passes get faster over their first
 #: ~10 frames (measured: 2.2 ms falling to 1.5 ms at 5k triangles), so the runner's default of
 #: 2 left that trend inside the timed frames.
@@ -106,25 +109,34 @@ MAIN_CONFIGS = [c for c in CALIBRATION if c.name in ("sort_first_2gpu", "sort_la
 
 
 def measure_all(out: Path, progress: Callable[[str], None]) -> list[Path]:
-    """Run every sweep on lavapipe; write one table (+ machine record) per pass."""
+    """Run every sweep on lavapipe; write one table (+ machine record) per pass.
+
+    The one-thread sweeps run in ROUNDS rounds over all their passes, each pass on one thread
+    and on all threads back to back: a round takes about a second, so the repetitions of one
+    configuration are spread over the machine's 0.25-2 s phases of one and two usable cores
+    (a pass measured within one slow phase would look serial)."""
     from .vulkan import measure as m  # noqa: PLC0415 - Vulkan only when measuring
     from .vulkan.machine import close_gpus, machine_record, make_gpus  # noqa: PLC0415
 
     out.mkdir(parents=True, exist_ok=True)
+    plans = ((SWEEPS, [None], "", "SWEEPS", 1, 11),
+             (ONE_THREAD_SWEEPS, [1, None], "_threads", "ONE_THREAD_SWEEPS", ROUNDS, 3))
     paths = []
-    plans = ((SWEEPS, [None], "", "SWEEPS", 11),
-             (ONE_THREAD_SWEEPS, [1, None], "_threads", "ONE_THREAD_SWEEPS, interleaved", 15))
-    for sweeps_list, threads, suffix, what, reps in plans:
+    for sweeps_list, threads, suffix, what, rounds, reps in plans:
         gpus = [make_gpus(1, lp_threads=[t])[0] for t in threads]
+        tables: dict[str, list[pd.DataFrame]] = {name: [] for name, _ in sweeps_list}
         try:
+            for r in range(rounds):
+                for name, sweeps in sweeps_list:
+                    progress(f"measure {name}{suffix}" + (f" (round {r + 1}/{rounds})" if rounds > 1 else ""))
+                    df = m.measure(name, gpus, sweeps, reps=reps, warmup=2, concurrent=False)
+                    tables[name].append(df.assign(repetition=df["repetition"] + r * reps))
             for name, sweeps in sweeps_list:
-                progress(f"measure {name}{suffix}")
-                df = m.measure(name, gpus, sweeps, reps=reps, warmup=2, concurrent=False)
                 path = out / f"{name}{suffix}.csv"
-                m.write_table(df, str(path))
-                record = machine_record(gpus, {"pass": name, "sweeps": sweeps, "reps": reps,
-                                               "warmup": 2,
-                                               "command": f"mgpusim main (mgpusim/mainjob.py {what})"})
+                m.write_table(pd.concat(tables[name], ignore_index=True), str(path))
+                record = machine_record(gpus, {
+                    "pass": name, "sweeps": sweeps, "rounds": rounds, "reps": reps, "warmup": 2,
+                    "command": f"mgpusim main (mgpusim/mainjob.py {what})"})
                 write_json(record, path.with_name(path.name + ".machine.json"))
                 paths.append(path)
         finally:
@@ -144,7 +156,7 @@ def with_run_length(configs: list[Config], profile: Path, seconds: float) -> lis
     Why: this shared machine delivers between one and two cores in phases of 0.25-2 s under
     sustained load (two busy processes each alternate between full and half speed, and no steal
     time is reported), so a run of 0.1 s lands in one phase and repeats of it differ by up to 2x;
-    a run of a few seconds averages over the phases, as the calibration runs do."""
+    a run of a few seconds averages over the phases."""
     from .simulate import simulate  # noqa: PLC0415 - keeps the module's import light
 
     out = []

@@ -137,9 +137,9 @@ def measure(pass_name: str, gpus: Sequence[Gpu], sweeps: dict[str, list[int | st
             works = [ps.build(g, params) for g in gpus]
             try:
                 for rep in range(-warmup, reps):
-                    subs = [g.submit(w.queue, w.record, label=pass_name) for g, w in zip(gpus, works)] \
-                        if concurrent else [g.run(w.queue, w.record, label=pass_name)
-                                            for g, w in zip(gpus, works)]
+                    run = (lambda g, w: g.submit(w.queue, w.record, label=pass_name)) if concurrent \
+                        else (lambda g, w: g.run(w.queue, w.record, label=pass_name))  # one by one
+                    subs = [run(g, w) for g, w in zip(gpus, works)]
                     for g, w, s in zip(gpus, works, subs):
                         s.wait()
                         if rep >= 0:

@@ -10,7 +10,8 @@ from pathlib import Path
 import tomli_w
 
 from ..calibrate import apply, calibrate, lavapipe_base, read_measurements, report
-from ..calibrate.runs import fit_host_effects, fit_passes_from_runs, fit_task_gap, with_pass_fits
+from ..calibrate.runs import (fit_cores_from_runs, fit_host_effects, fit_passes_from_runs,
+                              fit_task_gap, with_pass_fits)
 from ..mainjob import (CALIBRATION, HELD_OUT, MAIN_CONFIGS, load_runs, measure_all, measure_configs,
                        with_run_length,
                        validate_saved, write_report)
@@ -54,9 +55,13 @@ def run(args: argparse.Namespace) -> int:
             gpu["task_gap_ns"] = gap
     host_fit, score = fit_host_effects(data, runs)
     data["host"].update(host_fit)
-    data["sources"]["runs"] = ("pass costs and task_gap_ns from 1-GPU runs of the runner; host dispatch_ns and "
-                               "oversubscribed_efficiency by a grid search on the calibration runs' "
-                               "frame-time error")
+    mesh_cores, mesh_score = fit_cores_from_runs(data, runs, "mesh")
+    if mesh_cores is not None:
+        for gpu in data["gpus"]:
+            gpu["costs"]["mesh"]["cores"] = mesh_cores
+    data["sources"]["runs"] = ("pass costs and task_gap_ns from 1-GPU runs of the runner; host dispatch_ns, "
+                               "submit_ns and oversubscribed_efficiency by a grid search on the calibration "
+                               "runs' frame-time error; mesh cores refined on the multi-GPU sort-last runs")
     profile = out / "profile.toml"
     profile.write_text(tomli_w.dumps(data))
     fit_text = "\n".join([report(cal), "refitted on 1-GPU runs:"] +
@@ -64,6 +69,8 @@ def run(args: argparse.Namespace) -> int:
                           + f"; rms {f.rel_rms:.1%}" + (f" ({'; '.join(f.warnings)})" if f.warnings else "")
                           for k, f in pass_fits.items()] +
                          [f"queue task_gap_ns = {gap} (median idle between tasks of a queue, 1-GPU runs)",
+                          f"mesh cores = {mesh_cores} (refined on the multi-GPU sort-last runs: mean "
+                          f"|frame error| {mesh_score:.1%})",
                           f"host {host_fit} (mean |frame error| {score:.1%} on the calibration runs)"])
     result_tables = {"Calibration runs (seen by the fit)": validate_saved(
         calibration, chosen, profile, out / "validation", progress)}

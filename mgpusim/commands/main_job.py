@@ -6,6 +6,7 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import tomli_w
 
@@ -47,6 +48,24 @@ def run(args: argparse.Namespace) -> int:
     chosen = measure_configs(calibration + held, base, out / "runs", args.repeats, progress)
     progress("calibrate from runs")
     runs = load_runs(calibration, chosen, base)
+    data, run_lines = calibrate_from_runs(data, runs)
+    profile = out / "profile.toml"
+    profile.write_text(tomli_w.dumps(data))
+    fit_text = "\n".join([report(cal)] + run_lines)
+    result_tables = {"Calibration runs (seen by the fit)": validate_saved(
+        calibration, chosen, profile, out / "validation", progress)}
+    if held:
+        result_tables["Held-out runs (never seen by the fit)"] = validate_saved(
+            held, chosen, profile, out / "validation", progress)
+    path = write_report(out, result_tables, fit_text)
+    print(path.read_text())
+    progress(f"done: {path} (main 2-GPU configurations: {', '.join(c.name for c in MAIN_CONFIGS)})")
+    return 0
+
+
+def calibrate_from_runs(data: dict[str, Any], runs: list) -> tuple[dict[str, Any], list[str]]:
+    """The profile refined on the calibration runs (pass costs and queue gap from 1-GPU runs,
+    host effects by grid search, the mesh pass's cores), and the report's lines about it."""
     pass_fits = fit_passes_from_runs(runs)
     data = with_pass_fits(data, pass_fits)
     gap = fit_task_gap(runs)
@@ -59,25 +78,17 @@ def run(args: argparse.Namespace) -> int:
     if mesh_cores is not None:
         for gpu in data["gpus"]:
             gpu["costs"]["mesh"]["cores"] = mesh_cores
-    data["sources"]["runs"] = ("pass costs and task_gap_ns from 1-GPU runs of the runner; host dispatch_ns, "
-                               "submit_ns and oversubscribed_efficiency by a grid search on the calibration "
-                               "runs' frame-time error; mesh cores refined on the multi-GPU sort-last runs")
-    profile = out / "profile.toml"
-    profile.write_text(tomli_w.dumps(data))
-    fit_text = "\n".join([report(cal), "refitted on 1-GPU runs:"] +
-                         [f"  {k}: " + ", ".join(f"{n}={v:.4g}+-{e:.2g}" for n, v, e in zip(f.names, f.coef, f.stderr))
-                          + f"; rms {f.rel_rms:.1%}" + (f" ({'; '.join(f.warnings)})" if f.warnings else "")
-                          for k, f in pass_fits.items()] +
-                         [f"queue task_gap_ns = {gap} (median idle between tasks of a queue, 1-GPU runs)",
-                          f"mesh cores = {mesh_cores} (refined on the multi-GPU sort-last runs: mean "
-                          f"|frame error| {mesh_score:.1%})",
-                          f"host {host_fit} (mean |frame error| {score:.1%} on the calibration runs)"])
-    result_tables = {"Calibration runs (seen by the fit)": validate_saved(
-        calibration, chosen, profile, out / "validation", progress)}
-    if held:
-        result_tables["Held-out runs (never seen by the fit)"] = validate_saved(
-            held, chosen, profile, out / "validation", progress)
-    path = write_report(out, result_tables, fit_text)
-    print(path.read_text())
-    progress(f"done: {path} (main 2-GPU configurations: {', '.join(c.name for c in MAIN_CONFIGS)})")
-    return 0
+    data["sources"]["runs"] = ("pass costs and task_gap_ns from 1-GPU runs of the runner; host "
+                               "dispatch_ns, submit_ns and oversubscribed_efficiency by a grid search "
+                               "on the calibration runs' frame-time error; mesh cores refined on the "
+                               "multi-GPU sort-last runs")
+    lines = ["refitted on 1-GPU runs:"]
+    for kind, f in pass_fits.items():
+        terms = ", ".join(f"{n}={v:.4g}+-{e:.2g}" for n, v, e in zip(f.names, f.coef, f.stderr))
+        warn = f" ({'; '.join(f.warnings)})" if f.warnings else ""
+        lines.append(f"  {kind}: {terms}; rms {f.rel_rms:.1%}{warn}")
+    lines += [f"queue task_gap_ns = {gap} (median idle between tasks of a queue, 1-GPU runs)",
+              f"mesh cores = {mesh_cores} (refined on the multi-GPU sort-last runs: mean |frame "
+              f"error| {mesh_score:.1%})",
+              f"host {host_fit} (mean |frame error| {score:.1%} on the calibration runs)"]
+    return data, lines

@@ -6,8 +6,7 @@ import copy
 import pytest
 
 from mgpusim import simulate
-from mgpusim.calibrate.runs import (fit_cores_from_runs, fit_host_effects, fit_passes_from_runs,
-                                   fit_task_gap)
+from mgpusim.calibrate.runs import fit_host_effects, fit_passes_from_runs, fit_task_gap
 from tests.conftest import make_experiment, profile_dict
 
 
@@ -48,16 +47,3 @@ def test_host_effects_from_multi_gpu_runs():
     assert found == {"dispatch_ns": 400, "oversubscribed_efficiency": 0.8}
     assert score == pytest.approx(0.0, abs=1e-9)
 
-
-def test_pass_cores_refined_on_multi_gpu_runs():
-    """Runs generated with fragment_loop keeping 1.5 cores busy; starting from a measured 1.25
-    (off by the microbenchmarks' noise) the search finds 1.5 (= 1.25 x 1.2) with no error, and
-    single-GPU runs (where the cores do not matter) are not used."""
-    prof = truth()
-    prof["gpus"][0]["costs"]["fragment_loop"]["cores"] = 1.5
-    multi = runs(prof, [(2, 32, 16, 40), (2, 16, 16, 10), (1, 16, 8, 10)])
-    start = copy.deepcopy(prof)
-    start["gpus"][0]["costs"]["fragment_loop"]["cores"] = 1.25
-    cores, score = fit_cores_from_runs(start, multi, "fragment_loop")
-    assert cores == 1.5 and score == pytest.approx(0.0, abs=1e-9)
-    assert fit_cores_from_runs(start, multi, "mesh") == (None, pytest.approx(float("nan"), nan_ok=True))

@@ -116,41 +116,6 @@ def fit_host_effects(profile_data: dict[str, Any], runs: Sequence[Run],
     return best[1], best[0]
 
 
-#: Factors tried on a pass kind's measured `cores` by `fit_cores_from_runs` (1.0 first: the
-#: measured value wins ties).
-CORES_FACTORS = (1.0, 0.8, 0.9, 1.1, 1.2)
-
-
-def fit_cores_from_runs(profile_data: dict[str, Any], runs: Sequence[Run], kind: str,
-                        factors: Sequence[float] = CORES_FACTORS) -> tuple[float | None, float]:
-    """The `cores` of pass kind `kind` (lavapipe) that minimises the mean |frame-time error| of
-    the multi-GPU calibration runs that draw it, searched around the measured value (clipped to
-    1..cpu_threads); returns (cores, score), or (None, nan) when nothing to fit.
-
-    Why refine a measured value: the one-thread microbenchmarks that measure it move from job
-    to job on a machine whose usable cores come and go (mesh: 1.04-1.52), while 2- and 3-GPU
-    runs drawing meshes show directly how much two GPUs' meshes slow each other."""
-    gpu = profile_data["gpus"][0]
-    measured = gpu.get("costs", {}).get(kind, {}).get("cores")
-    multi = [(exp, trace) for exp, trace in runs if exp.schedule.gpus > 1
-             and any(p.kind == kind for p in exp.scene.passes)]
-    if measured is None or not multi:
-        return None, float("nan")
-    top = float(gpu.get("cpu_threads") or profile_data["host"].get("cpu_cores", 1))
-    best: tuple[float, float] | None = None
-    for factor in factors:
-        cores = round(min(max(measured * factor, 1.0), top), 3)
-        data = copy.deepcopy(profile_data)
-        for g in data["gpus"]:
-            g["costs"][kind]["cores"] = cores
-        profile = parse_profile(data, "<calibration>")
-        score = float(np.mean([abs(_error(exp, trace, profile)) for exp, trace in multi]))
-        if best is None or score < best[1] - 1e-12:
-            best = (cores, score)
-    assert best is not None
-    return best
-
-
 #: Simulated frames after the warm-up in the grid search: the model reaches its steady state
 #: within a few frames, so a measured run of thousands of frames needs no simulation as long.
 GRID_STEADY_FRAMES = 40

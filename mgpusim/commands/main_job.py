@@ -11,8 +11,7 @@ from typing import Any
 import tomli_w
 
 from ..calibrate import apply, calibrate, lavapipe_base, read_measurements, report
-from ..calibrate.runs import (fit_cores_from_runs, fit_host_effects, fit_passes_from_runs,
-                              fit_task_gap, with_pass_fits)
+from ..calibrate.runs import fit_host_effects, fit_passes_from_runs, fit_task_gap, with_pass_fits
 from ..mainjob import (CALIBRATION, HELD_OUT, MAIN_CONFIGS, load_runs, measure_all, measure_configs,
                        with_run_length,
                        validate_saved, write_report)
@@ -65,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
 
 def calibrate_from_runs(data: dict[str, Any], runs: list) -> tuple[dict[str, Any], list[str]]:
     """The profile refined on the calibration runs (pass costs and queue gap from 1-GPU runs,
-    host effects by grid search, the mesh pass's cores), and the report's lines about it."""
+    host effects by grid search), and the report's lines about it."""
     pass_fits = fit_passes_from_runs(runs)
     data = with_pass_fits(data, pass_fits)
     gap = fit_task_gap(runs)
@@ -74,21 +73,14 @@ def calibrate_from_runs(data: dict[str, Any], runs: list) -> tuple[dict[str, Any
             gpu["task_gap_ns"] = gap
     host_fit, score = fit_host_effects(data, runs)
     data["host"].update(host_fit)
-    mesh_cores, mesh_score = fit_cores_from_runs(data, runs, "mesh")
-    if mesh_cores is not None:
-        for gpu in data["gpus"]:
-            gpu["costs"]["mesh"]["cores"] = mesh_cores
     data["sources"]["runs"] = ("pass costs and task_gap_ns from 1-GPU runs of the runner; host "
                                "dispatch_ns, submit_ns and oversubscribed_efficiency by a grid search "
-                               "on the calibration runs' frame-time error; mesh cores refined on the "
-                               "multi-GPU sort-last runs")
+                               "on the calibration runs' frame-time error")
     lines = ["refitted on 1-GPU runs:"]
     for kind, f in pass_fits.items():
         terms = ", ".join(f"{n}={v:.4g}+-{e:.2g}" for n, v, e in zip(f.names, f.coef, f.stderr))
         warn = f" ({'; '.join(f.warnings)})" if f.warnings else ""
         lines.append(f"  {kind}: {terms}; rms {f.rel_rms:.1%}{warn}")
     lines += [f"queue task_gap_ns = {gap} (median idle between tasks of a queue, 1-GPU runs)",
-              f"mesh cores = {mesh_cores} (refined on the multi-GPU sort-last runs: mean |frame "
-              f"error| {mesh_score:.1%})",
               f"host {host_fit} (mean |frame error| {score:.1%} on the calibration runs)"]
     return data, lines

@@ -25,13 +25,17 @@ def rel_error(simulated: float, measured: float) -> float:
     return float(simulated / measured - 1.0) if measured else float("nan")
 
 
+def steady_summary(trace: pd.DataFrame, warmup_frames: int,
+                   present_step: str = "present") -> dict[str, Any]:
+    """Frame time, latency and jitter of one trace after the warm-up (either side)."""
+    return summarize(frames_from_trace(trace, present_step), None, warmup_frames)
+
+
 def compare(measured: pd.DataFrame, simulated: pd.DataFrame, warmup_frames: int,
             present_step: str = "present") -> dict[str, Any]:
     """Frame time, latency and per-step mean durations of two traces, with relative errors."""
-    m_frames = frames_from_trace(measured, present_step)
-    s_frames = frames_from_trace(simulated, present_step)
-    m = summarize(m_frames, None, warmup_frames)
-    s = summarize(s_frames, None, warmup_frames)
+    m = steady_summary(measured, warmup_frames, present_step)
+    s = steady_summary(simulated, warmup_frames, present_step)
     m_steps, s_steps = step_means_ns(measured, warmup_frames), step_means_ns(simulated, warmup_frames)
     steps = {k: {"measured_ms": m_steps[k] / 1e6, "simulated_ms": s_steps[k] / 1e6,
                  "error": rel_error(s_steps[k], m_steps[k])}

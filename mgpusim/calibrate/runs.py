@@ -25,7 +25,7 @@ from ..experiment import Experiment
 from ..profile import HardwareProfile, parse_profile
 from ..simulate import build_program, simulate
 from ..tasks import PassTask
-from ..validate import compare
+from ..validate import rel_error, steady_summary
 from .fit import Fit, fit_nonnegative
 
 Run = tuple[Experiment, pd.DataFrame]  # an experiment and its measured trace
@@ -103,13 +103,17 @@ def fit_host_effects(profile_data: dict[str, Any], runs: Sequence[Run],
     host = profile_data["host"]
     if not multi:
         return {k: host.get(k, v[0]) for k, v in grid.items()}, float("nan")
+    # the measured side does not change with the trial: summarised once
+    measured = [steady_summary(trace, exp.schedule.warmup_frames)["frame_time_ms"]
+                for exp, trace in multi]
     best: tuple[float, dict[str, Any]] | None = None
     for values in itertools.product(*grid.values()):
         trial = dict(zip(grid, values))
         data = copy.deepcopy(profile_data)
         data["host"].update(trial)
         profile = parse_profile(data, "<calibration>")
-        score = float(np.mean([abs(_error(exp, trace, profile)) for exp, trace in multi]))
+        score = float(np.mean([abs(_error(exp, ms, profile))
+                               for (exp, _), ms in zip(multi, measured)]))
         if best is None or score < best[0] - 1e-12:
             best = (score, trial)
     assert best is not None
@@ -121,8 +125,10 @@ def fit_host_effects(profile_data: dict[str, Any], runs: Sequence[Run],
 GRID_STEADY_FRAMES = 40
 
 
-def _error(exp: Experiment, trace: pd.DataFrame, profile: HardwareProfile) -> float:
+def _error(exp: Experiment, measured_frame_ms: float, profile: HardwareProfile) -> float:
+    """Signed frame-time error of `exp` simulated on `profile` against the measured value."""
     sched = exp.schedule
     frames = min(sched.frames, sched.warmup_frames + GRID_STEADY_FRAMES)
     sim = simulate(replace(exp, profile=profile, schedule=replace(sched, frames=frames)))
-    return compare(trace, sim.trace, sched.warmup_frames)["frame_time_error"]
+    return rel_error(steady_summary(sim.trace, sched.warmup_frames)["frame_time_ms"],
+                     measured_frame_ms)

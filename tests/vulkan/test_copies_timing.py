@@ -121,12 +121,13 @@ def test_finished_sees_the_end_of_a_task_with_more_work_queued_behind_it(gpu):
     a, b = FragmentLoop(gpu, 64, 64, 3000), FragmentLoop(gpu, 64, 64, 3000)
     first = gpu.submit("graphics", a.record)
     second = gpu.submit("graphics", b.record)
+    assert second.done() is False  # queued behind A: a pending fence is "not done", no error
     while not first.finished(1_000_000):
         pass
     seen = time.monotonic_ns()
     a_end = first.wait().timestamps_ns()[1]
     b_end = second.wait().timestamps_ns()[1]
-    assert a_end <= seen < b_end
+    assert a_end <= seen < b_end and second.done() is True
     a.destroy()
     b.destroy()
 

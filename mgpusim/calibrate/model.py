@@ -26,8 +26,10 @@ PASS_KINDS = ("fragment_loop", "mesh", "composite_sort_first", "composite_sort_l
 COPY_PASSES = {"copy_d2h": "d2h", "copy_h2d": "h2d", "copy_d2d": "d2d"}
 
 
-#: Columns that identify one measured configuration of a pass.
-PARAM_COLUMNS = ("width", "height", "iterations", "triangles", "inputs", "particles")
+#: Pass parameters that enter the work terms, and all columns that identify one measured
+#: configuration of a pass.
+WORK_PARAMS = ("iterations", "triangles", "inputs", "particles")
+PARAM_COLUMNS = ("width", "height") + WORK_PARAMS
 
 
 @dataclass
@@ -64,8 +66,7 @@ def pass_work(row: pd.Series) -> dict[str, float]:
     """Work terms of one measured pass, as the schedules would give them."""
     kind = row["pass"]
     pixels = float(row.get("width", 0) or 0) * float(row.get("height", 0) or 0)
-    params = {k: float(row[k]) for k in ("iterations", "triangles", "inputs", "particles")
-              if k in row and pd.notna(row[k])}
+    params = {k: float(row[k]) for k in WORK_PARAMS if k in row and pd.notna(row[k])}
     if kind == "composite_sort_last":
         pixels *= params.get("inputs", 1)  # one full-screen quad per input
     return WORK_TERMS[kind](PassSpec(kind, kind, params), pixels, 1.0)

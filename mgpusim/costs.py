@@ -18,8 +18,7 @@ WorkFn = Callable[[PassSpec, float, float], dict[str, float]]
 #: For each pass kind: (spec, pixels, geometry_share) -> work terms (singular names).
 WORK_TERMS: dict[str, WorkFn] = {
     "fragment_loop": lambda s, px, g: {"pixel": px, "pixel_iteration": px * s.param("iterations")},
-    "mesh": lambda s, px, g: {"triangle": s.param("triangles") * g, "pixel": px,
-                              "triangle_squared": (s.param("triangles") * g) ** 2},
+    "mesh": lambda s, px, g: {"triangle": s.param("triangles") * g, "pixel": px},
     "composite_sort_first": lambda s, px, g: {"input": s.param("inputs"), "pixel": px},
     "composite_sort_last": lambda s, px, g: {"input": s.param("inputs"), "pixel": px},
     "present": lambda s, px, g: {"pixel": px},
@@ -29,12 +28,6 @@ WORK_TERMS: dict[str, WorkFn] = {
     # study's passes); the GPU's ns_per_reference_ns scales it (1 if the profile has no entry).
     "timed": lambda s, px, g: {"reference_ns": s.param("duration_ms") * 1e6 * g},
 }
-
-#: Terms whose coefficient a profile may leave out (it is then 0). triangle_squared: a mesh's
-#: time per triangle grows with the triangles drawn on lavapipe (binning, 0.13 us per triangle
-#: at 2,000 and 0.35 us at 40,000), while a GPU's stays flat.
-OPTIONAL_TERMS = frozenset({"triangle_squared"})
-
 
 def ns(value: float) -> int:
     """Round a non-negative duration to integer ns, half up (the one rounding rule)."""
@@ -77,8 +70,6 @@ class CostModel:
             if coef is None:
                 if kind == "timed" and term == "reference_ns":
                     coef = 1.0
-                elif term in OPTIONAL_TERMS:
-                    continue
                 else:
                     raise InputError(f"missing coefficient for work term {term!r}",
                                      file=self.profile.source, field=f"{where}.ns_per_{term}")

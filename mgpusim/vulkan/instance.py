@@ -14,6 +14,7 @@ from typing import Any
 
 from ..errors import DependencyError
 from .errors import APT_LAYERS, APT_RUNTIME, VulkanError, call, vk
+from .hostheap import keep_heap
 
 VALIDATION_LAYER = "VK_LAYER_KHRONOS_validation"
 EXT_CALIBRATED = ("VK_KHR_calibrated_timestamps", "VK_EXT_calibrated_timestamps")
@@ -145,6 +146,7 @@ class Instance:
 
     def __init__(self, *, validation: bool | None = None, lp_num_threads: int | None = None):
         v = vk()
+        keep_heap()  # before the driver allocates: see hostheap
         self.validation = _validation_wanted(validation)
         self.lp_num_threads = lp_num_threads
         layers: list[str] = []

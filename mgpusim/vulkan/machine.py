@@ -15,6 +15,7 @@ from typing import Any, Sequence
 
 from ..errors import InputError
 from .device import Gpu
+from .hostheap import keep_heap
 from .instance import Instance
 
 
@@ -97,7 +98,9 @@ def machine_record(gpus: Sequence[Gpu], extra: dict[str, Any] | None = None) -> 
         "libraries": {p: _version(p) for p in ("vulkan", "cffi", "numpy", "pandas", "pyarrow",
                                                "tqdm")},
         "env": {k: os.environ.get(k) for k in ("LP_NUM_THREADS", "VK_ICD_FILENAMES",
-                                               "VK_DRIVER_FILES", "MGPUSIM_VK_VALIDATION")},
+                                               "VK_DRIVER_FILES", "MGPUSIM_VK_VALIDATION",
+                                               "MGPUSIM_KEEP_HEAP")},
+        "host_heap": keep_heap(),
         "gpus": [{
             "name": g.name, "device": g.info.name, "device_type": g.info.device_type,
             "driver": g.info.driver_name, "driver_info": g.info.driver_info,

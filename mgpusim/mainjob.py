@@ -11,14 +11,17 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
 import pandas as pd
 
+from . import steady_window as sw
 from .experiment import Experiment, load_experiment
-from .output import write_json, write_measured
+from .output import write_json, write_measured, write_table
+from .results import frames_from_trace, summarize
 from .validate import error_stats, error_table
 
 EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments" / "lavapipe"
@@ -27,27 +30,20 @@ EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments" / "lavapipe"
 SWEEPS: list[tuple[str, dict[str, list[Any]]]] = [
     ("fragment_loop", {"width": [128, 256], "height": [96, 192], "iterations": [250, 1000, 4000]}),
     ("mesh", {"width": [128, 256], "height": [96, 192], "triangles": [2000, 10000, 40000]}),
-    ("composite_sort_first", {"width": [128, 256], "height": [96, 192], "inputs": [1, 3]}),
-    ("composite_sort_last", {"width": [128, 256], "height": [96, 192], "inputs": [1, 3]}),
+    # composites up to 512x384 too: at the validation sizes they last 0.1-0.7 ms, too short
+    # beside a submission's CPU time (~0.1-0.4 ms) to fit the cores they keep busy
+    ("composite_sort_first", {"width": [128, 256, 512], "height": [96, 192, 384], "inputs": [1, 3]}),
+    ("composite_sort_last", {"width": [128, 256, 512], "height": [96, 192, 384], "inputs": [1, 3]}),
     ("copy_d2h", {"bytes": [16384, 131072, 1048576], "queue": ["graphics"]}),
     ("copy_h2d", {"bytes": [16384, 131072, 1048576], "queue": ["graphics"]}),
     ("copy_d2d", {"bytes": [16384, 131072, 1048576], "queue": ["graphics"]}),
     ("host_copy", {"bytes": [65536, 262144, 1048576, 4194304], "threads": [1, 2]}),
 ]
 
-#: The passes again on one rasterizer thread, at sizes SWEEPS also measures: time on one thread
-#: over time on all is the cores a pass keeps busy (`calibrate`'s fit_cores). lavapipe bins
-#: and shades vertices on one thread, so a mesh pass gains little from more threads.
-ONE_THREAD_SWEEPS: list[tuple[str, dict[str, list[Any]]]] = [
-    ("fragment_loop", {"width": [128, 256], "height": [192], "iterations": [1000]}),
-    ("mesh", {"width": [128, 256], "height": [192], "triangles": [10000, 40000]}),
-    ("composite_sort_first", {"width": [256], "height": [192], "inputs": [1, 3]}),
-    ("composite_sort_last", {"width": [256], "height": [192], "inputs": [1, 3]}),
-]
+#: Rounds over all SWEEPS, REPS repetitions of each configuration per round: a round takes
+#: about 20 s, so the repetitions of one configuration are spread over the machine's phases.
+ROUNDS, REPS = 3, 4
 
-
-#: Rounds of ONE_THREAD_SWEEPS (3 repetitions of each configuration per round).
-ROUNDS = 5
 
 #: Untimed frames before each measured run. lavapipe's mesh passes get faster over their first
 #: ~10 frames (measured: 2.2 ms falling to 1.5 ms at 5k triangles), so the runner's default of
@@ -114,38 +110,32 @@ MAIN_CONFIGS = [c for c in CALIBRATION if c.name in ("sort_first_2gpu", "sort_la
 
 
 def measure_all(out: Path, progress: Callable[[str], None]) -> list[Path]:
-    """Run every sweep on lavapipe; write one table (+ machine record) per pass.
-
-    The one-thread sweeps run in ROUNDS rounds over all their passes, each pass on one thread
-    and on all threads back to back: a round takes about a second, so the repetitions of one
-    configuration are spread over the machine's 0.25-2 s phases of one and two usable cores
-    (a pass measured within one slow phase would look serial)."""
+    """Run every sweep on lavapipe, one simulated GPU, in ROUNDS rounds; write one table
+    (+ machine record) per pass. Each row has the pass's time and the process's CPU time while
+    it ran, from which `calibrate` fits the cores each pass kind keeps busy."""
     from .vulkan import measure as m  # noqa: PLC0415 - Vulkan only when measuring
     from .vulkan.machine import close_gpus, machine_record, make_gpus  # noqa: PLC0415
 
     out.mkdir(parents=True, exist_ok=True)
-    plans = ((SWEEPS, [None], "", "SWEEPS", 1, 11),
-             (ONE_THREAD_SWEEPS, [1, None], "_threads", "ONE_THREAD_SWEEPS", ROUNDS, 3))
+    gpus = make_gpus(1)
+    tables: dict[str, list[pd.DataFrame]] = {name: [] for name, _ in SWEEPS}
     paths = []
-    for sweeps_list, threads, suffix, what, rounds, reps in plans:
-        gpus = [make_gpus(1, lp_threads=[t])[0] for t in threads]
-        tables: dict[str, list[pd.DataFrame]] = {name: [] for name, _ in sweeps_list}
-        try:
-            for r in range(rounds):
-                for name, sweeps in sweeps_list:
-                    progress(f"measure {name}{suffix}" + (f" (round {r + 1}/{rounds})" if rounds > 1 else ""))
-                    df = m.measure(name, gpus, sweeps, reps=reps, warmup=2, concurrent=False)
-                    tables[name].append(df.assign(repetition=df["repetition"] + r * reps))
-            for name, sweeps in sweeps_list:
-                path = out / f"{name}{suffix}.csv"
-                m.write_table(pd.concat(tables[name], ignore_index=True), str(path))
-                record = machine_record(gpus, {
-                    "pass": name, "sweeps": sweeps, "rounds": rounds, "reps": reps, "warmup": 2,
-                    "command": f"mgpusim main (mgpusim/mainjob.py {what})"})
-                write_json(record, path.with_name(path.name + ".machine.json"))
-                paths.append(path)
-        finally:
-            close_gpus(gpus)
+    try:
+        for r in range(ROUNDS):
+            for name, sweeps in SWEEPS:
+                progress(f"measure {name} (round {r + 1}/{ROUNDS})")
+                df = m.measure(name, gpus, sweeps, reps=REPS, warmup=2, concurrent=False)
+                tables[name].append(df.assign(repetition=df["repetition"] + r * REPS))
+        for name, sweeps in SWEEPS:
+            path = out / f"{name}.csv"
+            m.write_table(pd.concat(tables[name], ignore_index=True), str(path))
+            record = machine_record(gpus, {
+                "pass": name, "sweeps": sweeps, "rounds": ROUNDS, "reps": REPS, "warmup": 2,
+                "command": "mgpusim main (mgpusim/mainjob.py SWEEPS)"})
+            write_json(record, path.with_name(path.name + ".machine.json"))
+            paths.append(path)
+    finally:
+        close_gpus(gpus)
     return paths
 
 
@@ -179,27 +169,47 @@ def measure_configs(configs: list[Config], profile: Path, out: Path, repeats: in
                     progress: Callable[[str], None]) -> dict[str, Path]:
     """Run every configuration `repeats` times, interleaved (so a slow phase of a noisy machine
     hits different configurations each round); keep every run; return, per configuration, the
-    folder of the fastest run. Interference from outside (other virtual machines on the host,
-    other processes) only ever adds time, so the fastest run is the best estimate of the machine
-    the model describes; the spread of the runs is reported beside the errors."""
+    folder of its steady window (`steady_window`: a fast window of the runs' frames, since
+    interference from outside only ever adds time). The spread of the whole runs' frame times
+    is reported beside the errors."""
     from .runner.run import run_experiment  # noqa: PLC0415 - Vulkan only when measuring
 
-    times: dict[str, list[tuple[float, Path]]] = {c.name: [] for c in configs}
+    folders: dict[str, list[Path]] = {c.name: [] for c in configs}
     for rep in range(repeats):
         for config in configs:
             progress(f"run {config.name} ({rep + 1}/{repeats})")
             exp = experiment_for(config, profile)
             result = run_experiment(exp, prewarm_frames=PREWARM_FRAMES)
-            folder = write_measured(result, out / config.name / f"run{rep}")
-            times[config.name].append((float(result.summary["frame_time_ms"]), folder))
-    chosen = {}
-    for name, runs in times.items():
-        runs.sort()
-        chosen[name] = runs[0][1]
-        spread = [t for t, _ in runs]
-        write_json({"frame_time_ms": spread, "chosen_run": chosen[name].name, "policy": "fastest"},
-                   out / name / "runs.json")
-    return chosen
+            folders[config.name].append(write_measured(result, out / config.name / f"run{rep}"))
+    return {c.name: write_steady_window(experiment_for(c, profile), folders[c.name], out / c.name)
+            for c in configs}
+
+
+def write_steady_window(exp: Experiment, runs: list[Path], out: Path) -> Path:
+    """Pick the steady window over `runs` (measured folders of one configuration), write it as a
+    measured folder `out/steady`, and the runs' frame times and the choice to `out/runs.json`."""
+    from .commands.validate import read_measured  # noqa: PLC0415
+
+    warmup = exp.schedule.warmup_frames
+    traces = [read_measured(folder, exp) for folder in runs]
+    frames = [frames_from_trace(trace) for trace in traces]
+    candidates = [w for i, f in enumerate(frames) for w in sw.windows(f, warmup, i)]
+    window = sw.pick(candidates)
+    steady = out / "steady"
+    steady.mkdir(parents=True, exist_ok=True)
+    write_table(sw.window_trace(traces[window.run], window, warmup), steady / "trace.csv")
+    run_summary = json.loads((runs[window.run] / "summary.json").read_text())
+    choice = {"policy": f"window at quantile {sw.QUANTILE} of frame time, windows of at least "
+                        f"{sw.WINDOW_MS:g} ms and {sw.MIN_PERIODS} frame periods",
+              "run": runs[window.run].name, "frames": [window.first, window.last],
+              "frames_renumbered_from": window.first - warmup,
+              "window_frame_time_ms": window.frame_time_ms, "windows": len(candidates)}
+    write_json({"config": run_summary.get("config", {}), "steady_window": choice},
+               steady / "summary.json")
+    shutil.copyfile(runs[window.run] / "machine.json", steady / "machine.json")
+    whole = [float(summarize(f, None, warmup)["frame_time_ms"]) for f in frames]
+    write_json({"frame_time_ms": whole, **choice}, out / "runs.json")
+    return steady
 
 
 def load_runs(configs: list[Config], chosen: dict[str, Path], profile: Path) -> list[tuple[Any, pd.DataFrame]]:
@@ -210,7 +220,7 @@ def load_runs(configs: list[Config], chosen: dict[str, Path], profile: Path) -> 
 
 def validate_saved(configs: list[Config], chosen: dict[str, Path], profile: Path, out: Path,
                    progress: Callable[[str], None]) -> pd.DataFrame:
-    """Compare each configuration's chosen measured run with the model (no device needed)."""
+    """Compare each configuration's steady window with the model (no device needed)."""
     from .commands.validate import format_report, validate_experiment  # noqa: PLC0415
 
     rows = []
@@ -230,9 +240,11 @@ def validate_saved(configs: list[Config], chosen: dict[str, Path], profile: Path
 def write_report(out: Path, tables: dict[str, pd.DataFrame], fit_text: str) -> Path:
     """report.md: per set (calibration runs, held-out runs) the error table and its statistics."""
     lines = ["# mgpusim main job: measured vs simulated on lavapipe", "",
-             "Errors are simulated / measured - 1. Measured: the fastest of the repeated, interleaved "
-             "runs of each configuration (outside interference only adds time); `spread` is "
-             "(slowest / fastest - 1) of those runs, the machine's own noise. Each configuration's "
+             "Errors are simulated / measured - 1. Measured: the steady window of the repeated, "
+             "interleaved runs of each configuration (the window of >= 200 ms at the 10th "
+             "percentile of frame time over all runs; outside interference only adds time); "
+             "`spread` is (slowest / fastest - 1) of the whole runs' frame times, the machine's own "
+             "noise. Each configuration's "
              "folder under validation/ holds `timelines.png` (measured above simulated) and both "
              "Perfetto traces.", ""]
     stats = {}

@@ -42,8 +42,9 @@ class HostProfile:
     #: queue are submitted one after another, a task fed by another device or the host only
     #: after the thread woke (dispatch_ns). Where the GPUs share the CPU it also takes cores.
     submit_ns: int = 0
-    #: Lavapipe: the fraction of the cores' time left for work when more threads than cores
-    #: are busy (context switches, cache misses); 1 = perfect sharing.
+    #: Lavapipe: the fraction of the cores' time left for work when busy threads want twice the
+    #: cores or more (context switches, cache misses); from 1 at as many threads as cores it
+    #: falls linearly to this. 1 = perfect sharing.
     oversubscribed_efficiency: float = 1.0
 
 

@@ -73,26 +73,34 @@ def test_calibrate_command_writes_a_loadable_lavapipe_profile(tmp_path, capsys):
     assert (tmp_path / "lavapipe.fit.json").is_file()
 
 
-def test_cores_per_pass_from_one_thread_against_all():
-    """lavapipe tables with lp_threads: a pass 1.9x faster on 2 threads keeps 1.9 cores busy,
-    one that gains nothing keeps 1; the fastest repetition counts (outside load only adds
-    time), and the 1-thread rows do not enter the cost fit."""
+def test_cores_per_pass_from_cpu_time_against_pass_time():
+    """lavapipe tables with cpu_ns: CPU time = cores x pass time + a submission's overhead;
+    the slope per kind (over the sizes' medians) is its cores, at least 1. Rows of another
+    thread count (here 1) are another GPU's and enter neither fit; a table without cpu_ns
+    fits no cores."""
+    overhead = 500_000.0
     rows = []
-    for kind, speedup in (("fragment_loop", 1.9), ("mesh", 1.0)):
-        for width in (128, 256):
+    for kind, cores in (("fragment_loop", 1.9), ("mesh", 1.1), ("composite_sort_first", 0.5)):
+        for width in (128, 256, 512):
             for threads in (1, 2):
-                for rep, slow in enumerate((1.0, 1.7, 1.3)):  # one undisturbed repetition each
-                    base = 1e6 * width / 128
+                for rep, noise in enumerate((1.0, 1.02, 0.98)):
+                    duration = 1e6 * width / 128 * (3 if threads == 1 else 1) * noise
+                    used = cores if threads == 2 else 1.0
+                    param = {"fragment_loop": "iterations", "mesh": "triangles"}.get(kind, "inputs")
                     rows.append({"pass": kind, "width": width, "height": 64, "lp_threads": threads,
-                                 "iterations" if kind == "fragment_loop" else "triangles": 100,
-                                 "gpus": 1, "repetition": rep,
-                                 "duration_ns": base * (speedup if threads == 1 else 1) * slow})
+                                 param: 100,
+                                 "gpus": 1, "repetition": rep, "duration_ns": duration,
+                                 "cpu_ns": used * duration + overhead})
     df = pd.DataFrame(rows)
     df["source"] = "t"
     cal = calibrate(df, {})
-    assert cal.cores["fragment_loop"][0] == pytest.approx(1.9)
-    assert cal.cores["mesh"][0] == pytest.approx(1.0)
-    # fitted on the 2-thread rows only: 1 ms at width 128 is 1e6 / (128 * 64) ns per pixel
+    assert cal.cores["fragment_loop"][0] == pytest.approx(1.9, rel=1e-3)
+    assert cal.cores["mesh"][0] == pytest.approx(1.1, rel=1e-3)
+    assert cal.cores["composite_sort_first"][0] == 1.0  # the queue thread's core at least
+    assert cal.submission_cpu_ns["mesh"] == pytest.approx(overhead, rel=1e-3)
+    assert all(r == pytest.approx(1.9, rel=1e-3) for r in cal.cores["fragment_loop"][1])
+    # the cost fit saw the 2-thread rows only: 1 ms at width 128
     fit = cal.pass_fits["fragment_loop"]
     predicted = fit.coef @ np.array([1.0, 128 * 64, 128 * 64 * 100])
-    assert predicted == pytest.approx(1e6 * 1.3, rel=0.3)  # the 2-thread median, not 1.9x it
+    assert predicted == pytest.approx(1e6, rel=0.05)
+    assert not calibrate(df.drop(columns="cpu_ns"), {}).cores

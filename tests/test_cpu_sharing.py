@@ -84,3 +84,16 @@ def test_a_pass_that_keeps_fewer_cores_busy_is_slowed_less():
     assert renders(make_experiment(prof, gpus=2, iterations=100)) == {"render0": 2400, "render1": 2400}
     alone = renders(make_experiment(prof, gpus=1, iterations=100, width=8, height=2), names=("render0",))
     assert alone == {"render0": 1600}  # alone, the measured time whatever the cores
+
+
+def test_slight_oversubscription_loses_little():
+    """Passes keeping 1.5 cores busy each: 3 cores wanted of 2, half-way to twice the cores,
+    so the cores deliver half the oversubscribed loss: 2 - 0.4 / 2 = 1.8, 0.9 per render; the
+    render's 1600 ns x 1.5 cores of work takes 2400 / 0.9 = 2667 ns (alone: 1600 ns)."""
+    prof = lavapipe_profile(2, None)
+    prof["host"]["oversubscribed_efficiency"] = 0.8
+    for gpu in prof["gpus"]:
+        gpu["costs"]["fragment_loop"]["cores"] = 1.5
+    assert renders(make_experiment(prof, gpus=2, iterations=100)) == {"render0": 2667, "render1": 2667}
+    alone = renders(make_experiment(prof, gpus=1, iterations=100, width=8, height=2), names=("render0",))
+    assert alone == {"render0": 1600}

@@ -119,7 +119,8 @@ def report(cal: Calibration) -> str:
         lines.append(f"  copy {path} on {queue}: fixed_ns={_fmt(fit.coef[0], fit.stderr[0])}, "
                      f"{bw:.3g} GB/s; rms {fit.rel_rms:.1%}")
     for kind, (value, ratios) in cal.cores.items():
-        lines.append(f"  {kind}: cores={value:.3g} (time on 1 thread / on all, per configuration: "
+        lines.append(f"  {kind}: cores={value:.3g} (slope of CPU time on pass time; submission "
+                     f"{cal.submission_cpu_ns.get(kind, 0) / 1e3:.0f} us; per size: "
                      + ", ".join(f"{r:.2f}" for r in ratios) + ")")
     if cal.host:
         th = ", ".join(f"{k} thr: {v:.3g} GB/s" for k, v in cal.host.get("throughput_by_threads_gbps", {}).items())

@@ -22,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, default=Path("out/main"))
     p.add_argument("--held-out", action="store_true",
                    help="also validate 10 held-out configurations (GPU counts, sizes, loads, variants)")
-    p.add_argument("--repeats", type=int, default=3, help="measured runs per configuration (fastest kept)")
+    p.add_argument("--repeats", type=int, default=3, help="measured runs per configuration (their steady window is compared)")
     p.add_argument("--run-seconds", type=float, default=1.5,
                    help="timed length of each measured run (frames are added to reach it)")
     p.set_defaults(func=run)

@@ -1,7 +1,7 @@
 """`mgpusim measure`: time a pass of the Vulkan pass library over a parameter sweep.
 
 Writes a tidy table (CSV or Parquet by extension: device, gpu, gpus, lp_threads, pass, one
-column per parameter, repetition, duration_ns, bytes) and FILE.machine.json (CPU, driver,
+column per parameter, repetition, duration_ns, cpu_ns, bytes) and FILE.machine.json (CPU, driver,
 threads, library versions).
 """
 from __future__ import annotations

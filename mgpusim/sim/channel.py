@@ -43,7 +43,8 @@ class Channel:
 
     def __init__(self, env: simpy.Environment, name: str, bandwidth: Fraction,
                  oversubscribed: Fraction | None = None):
-        """`oversubscribed`: the capacity when the flows' caps add up to more than `bandwidth`
+        """`oversubscribed`: the capacity when the flows' caps add up to twice `bandwidth` or
+        more; between `bandwidth` and twice it, the capacity falls linearly from `bandwidth`
         (CPU cores lose time to context switches and cache misses when threads outnumber them);
         None keeps `bandwidth`."""
         if bandwidth <= 0:
@@ -146,9 +147,9 @@ class Channel:
         """Max-min fair shares with per-flow caps (water-filling), all in integers."""
         scale = self._scale
         capacity = self.bandwidth
-        if self.oversubscribed is not None and self._demand() > self.bandwidth:
-            capacity = self.oversubscribed
-        left = capacity.numerator * (scale // capacity.denominator)
+        if self.oversubscribed is not None:
+            capacity = self._capacity(self._demand())
+        left = capacity.numerator * scale // capacity.denominator
         for f in self.flows:
             if f.cap is not None and f.cap_s is None:
                 f.cap_s = f.cap.numerator * (scale // f.cap.denominator)
@@ -159,10 +160,18 @@ class Channel:
             flow.rate = fair if flow.cap_s is None or flow.cap_s >= fair else flow.cap_s
             left -= flow.rate
 
+    def _capacity(self, demand: Fraction) -> Fraction:
+        """What the cores deliver under `demand`: all of `bandwidth` up to it, then less as
+        threads outnumber cores (context switches, caches), `oversubscribed` from twice it."""
+        assert self.oversubscribed is not None
+        excess = min(max(demand - self.bandwidth, _ZERO), self.bandwidth)
+        return self.bandwidth - (self.bandwidth - self.oversubscribed) * excess / self.bandwidth
+
     def _demand(self) -> Fraction:
-        """What the flows would take if alone together: the sum of their caps."""
+        """What the flows would take if alone together: the sum of their caps (an uncapped
+        flow takes everything)."""
         if any(f.cap is None for f in self.flows):
-            return self.bandwidth + 1
+            return 2 * self.bandwidth
         return sum((f.cap for f in self.flows), Fraction(0))
 
     def _settle(self, _event=None) -> None:

@@ -298,6 +298,13 @@ class Gpu:
         v.vkCmdWriteTimestamp(cmd, v.VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, pool, 1)
         call("vkEndCommandBuffer", v.vkEndCommandBuffer, cmd)
 
+    def forget(self, key: Any) -> None:
+        """Drop the command buffers recorded for `key` (before the work they draw is destroyed):
+        their slots go back to the free list, to be recorded afresh."""
+        for q in self.queues.values():
+            with q.lock:
+                q.free.extend(q.recorded.pop(key, []))
+
     def run(self, queue: str | Queue, record: Recorder, label: str = "") -> Submission:
         """Submit and wait: for set-up work and measurements."""
         return self.submit(queue, record, label=label).wait()

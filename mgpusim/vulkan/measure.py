@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import itertools
 import re
+import time
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Sequence
 
@@ -135,25 +136,55 @@ def measure(pass_name: str, gpus: Sequence[Gpu], sweeps: dict[str, list[int | st
                 work.destroy()
         else:
             works = [ps.build(g, params) for g in gpus]
+            keys = [("measure", next(_KEYS)) for _ in works]
+            together = concurrent and len(gpus) > 1
             try:
                 for rep in range(-warmup, reps):
-                    run = (lambda g, w: g.submit(w.queue, w.record, label=pass_name)) if concurrent \
-                        else (lambda g, w: g.run(w.queue, w.record, label=pass_name))  # one by one
-                    subs = [run(g, w) for g, w in zip(gpus, works)]
-                    for g, w, s in zip(gpus, works, subs):
-                        s.wait()
+                    subs, cpu = (_together(gpus, works, keys, pass_name) if together
+                                 else _one_by_one(gpus, works, keys, pass_name))
+                    for g, w, s, c in zip(gpus, works, subs, cpu):
                         if rep >= 0:
                             rows.append({"device": g.info.name, "gpu": g.name,
-                                         "gpus": len(gpus) if concurrent else 1,
+                                         "gpus": len(gpus) if together else 1,
                                          "lp_threads": g.cpu_threads, "pass": pass_name,
                                          **params, "repetition": rep,
-                                         "duration_ns": s.duration_ns, "bytes": w.bytes})
+                                         "duration_ns": s.duration_ns, "cpu_ns": c,
+                                         "bytes": w.bytes})
             finally:
-                for w in works:
+                for g, w, k in zip(gpus, works, keys):
+                    g.forget(k)
                     w.destroy()
         if progress is not None:
             progress(1)
     return pd.DataFrame(rows)
+
+
+#: Keys of the measured passes' pre-recorded command buffers (unique: ids of destroyed passes
+#: could come back).
+_KEYS = itertools.count()
+
+
+def _one_by_one(gpus: Sequence[Gpu], works: Sequence[Any], keys: Sequence[Any],
+                label: str) -> tuple[list, list]:
+    """Each GPU's pass alone, with the process's CPU time while it ran (all threads: on lavapipe
+    the GPU's rasterizer and queue threads; cpu_ns / duration_ns is the cores it keeps busy, plus
+    a per-submission overhead that `calibrate` fits). Command buffers are recorded once (`key`),
+    so that Python's recording is not in that time."""
+    subs, cpu = [], []
+    for g, w, k in zip(gpus, works, keys):
+        start = time.process_time_ns()
+        subs.append(g.submit(w.queue, w.record, label=label, key=k).wait())
+        cpu.append(time.process_time_ns() - start)
+    return subs, cpu
+
+
+def _together(gpus: Sequence[Gpu], works: Sequence[Any], keys: Sequence[Any],
+              label: str) -> tuple[list, list]:
+    """All GPUs' passes at once (they compete); CPU time is not one pass's here."""
+    subs = [g.submit(w.queue, w.record, label=label, key=k) for g, w, k in zip(gpus, works, keys)]
+    for s in subs:
+        s.wait()
+    return subs, [float("nan")] * len(subs)
 
 
 def write_table(df: pd.DataFrame, path: str) -> None:

@@ -38,12 +38,23 @@ def test_measure_writes_tidy_table_and_machine_record(tmp_path, ext):
     assert rc == 0
     df = pd.read_csv(out) if ext == "csv" else pd.read_parquet(out)
     assert list(df.columns) == ["device", "gpu", "gpus", "lp_threads", "pass", "width", "height",
-                                "iterations", "repetition", "duration_ns", "bytes"]
+                                "iterations", "repetition", "duration_ns", "cpu_ns", "bytes"]
     assert (df.lp_threads >= 1).all()  # lavapipe: the rasterizer threads of each row
+    assert df.cpu_ns.isna().all()  # two GPUs at once: CPU time is not one pass's
     assert len(df) == 2 * 2 * 3 and set(df.repetition) == {0, 1, 2}
     assert (df.duration_ns > 0).all() and (df.bytes == 32 * 16 * 4).all()
     record = json.loads((tmp_path / f"t.{ext}.machine.json").read_text())
     assert record["cpu"] and len(record["gpus"]) == 2 and record["libraries"]["vulkan"]
+
+
+def test_measure_records_the_cpu_time_of_each_pass_alone(tmp_path):
+    out = tmp_path / "m.csv"
+    assert main(["measure", "--pass", "fragment_loop", "--sweep", "iterations=2000",
+                 "--sweep", "width=128", "--sweep", "height=96", "--reps", "3", "--quiet",
+                 "--out", str(out)]) == 0
+    df = pd.read_csv(out)
+    # the pass's rasterizer threads: at least most of one core for the pass's duration
+    assert (df.cpu_ns > 0.5 * df.duration_ns).all()
 
 
 def test_measure_copy_and_host_copy(tmp_path):

@@ -112,6 +112,11 @@ def test_keyed_submissions_record_once_and_still_do_the_work(gpu):
     assert spans[0][1] <= spans[1][0] and spans[1][1] <= spans[2][0]
     gpu.submit(c.queue, record, key="other").wait()
     assert len(recorded) == 2
+    gpu.forget("copy")  # before the work it drew is destroyed: recorded afresh if used again
+    gpu.submit(c.queue, record, key="copy").wait()
+    assert len(recorded) == 3
+    gpu.forget("copy")
+    gpu.forget("other")
     c.destroy()
 
 

@@ -1,0 +1,46 @@
+"""How much a configuration's measured frame time moves between two main jobs, by estimator.
+
+    python experiments/lavapipe/steady_repeatability.py OUT_A OUT_B
+
+OUT_A and OUT_B are `mgpusim main` output folders (their runs/ are read, nothing is run).
+For every configuration in both, it prints the median and worst |A / B - 1| of the frame time
+estimated as the fastest whole run and as the steady window (mgpusim.steady_window).
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from mgpusim import steady_window as sw
+from mgpusim.results import frames_from_trace, summarize
+
+WARMUP = 2  # the lavapipe experiments' schedule.warmup_frames
+
+
+def estimates(config_dir: Path) -> dict[str, float]:
+    frames = [frames_from_trace(pd.read_csv(run / "trace.csv", keep_default_na=False))
+              for run in sorted(config_dir.glob("run*")) if run.is_dir()]
+    whole = [summarize(f, None, WARMUP)["frame_time_ms"] for f in frames]
+    wins = [w for i, f in enumerate(frames) for w in sw.windows(f, WARMUP, i)]
+    return {"fastest whole run": min(whole), "steady window": sw.pick(wins).frame_time_ms}
+
+
+def main(a: Path, b: Path) -> None:
+    names = sorted({p.name for p in (a / "runs").iterdir()} & {p.name for p in (b / "runs").iterdir()})
+    diffs: dict[str, list[float]] = {}
+    for name in names:
+        ea, eb = estimates(a / "runs" / name), estimates(b / "runs" / name)
+        for k in ea:
+            diffs.setdefault(k, []).append(abs(ea[k] / eb[k] - 1))
+    for k, d in diffs.items():
+        print(f"{k:18}: job-to-job |difference| median {np.median(d):.1%}, worst {max(d):.1%} "
+              f"over {len(d)} configurations")
+
+
+if __name__ == "__main__":
+    if len(sys.argv) != 3:
+        sys.exit(__doc__)
+    main(Path(sys.argv[1]), Path(sys.argv[2]))

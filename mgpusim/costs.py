@@ -29,6 +29,7 @@ WORK_TERMS: dict[str, WorkFn] = {
     "timed": lambda s, px, g: {"reference_ns": s.param("duration_ms") * 1e6 * g},
 }
 
+
 def ns(value: float) -> int:
     """Round a non-negative duration to integer ns, half up (the one rounding rule)."""
     return int(math.floor(value + 0.5))

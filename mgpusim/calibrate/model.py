@@ -100,7 +100,7 @@ def fit_cores(df: pd.DataFrame, cal: Calibration) -> None:
     Why not time on one rasterizer thread over time on all, as before: for meshes that ratio
     (1.2-1.45) counted idle hand-offs between the binning and the rasterizer threads as work,
     and two GPUs rendering 30k-triangle meshes at once were hardly slower than one alone
-    (the model, at 1.32 cores, made them 33 % slower); the CPU time says 1.05-1.1."""
+    (the model, at 1.32 cores, made them 33 % slower); the CPU time says 1.1-1.2."""
     if "cpu_ns" not in df.columns or "lp_threads" not in df.columns:
         return  # only lavapipe GPUs (lp_threads set) run their passes on the host's cores
     rows = df[_solo(df) & _all_threads(df) & df["cpu_ns"].notna() & df["lp_threads"].notna()]

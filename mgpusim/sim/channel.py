@@ -149,6 +149,7 @@ class Channel:
         capacity = self.bandwidth
         if self.oversubscribed is not None:
             capacity = self._capacity(self._demand())
+        # floored to 1/S byte per ns where an oversubscribed capacity has other denominators
         left = capacity.numerator * scale // capacity.denominator
         for f in self.flows:
             if f.cap is not None and f.cap_s is None:

@@ -174,14 +174,14 @@ def measure_configs(configs: list[Config], profile: Path, out: Path, repeats: in
     is reported beside the errors."""
     from .runner.run import run_experiment  # noqa: PLC0415 - Vulkan only when measuring
 
+    exps = {c.name: experiment_for(c, profile) for c in configs}
     folders: dict[str, list[Path]] = {c.name: [] for c in configs}
     for rep in range(repeats):
         for config in configs:
             progress(f"run {config.name} ({rep + 1}/{repeats})")
-            exp = experiment_for(config, profile)
-            result = run_experiment(exp, prewarm_frames=PREWARM_FRAMES)
+            result = run_experiment(exps[config.name], prewarm_frames=PREWARM_FRAMES)
             folders[config.name].append(write_measured(result, out / config.name / f"run{rep}"))
-    return {c.name: write_steady_window(experiment_for(c, profile), folders[c.name], out / c.name)
+    return {c.name: write_steady_window(exps[c.name], folders[c.name], out / c.name)
             for c in configs}
 
 

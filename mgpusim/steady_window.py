@@ -7,9 +7,9 @@ adds time, so the machine the model describes is the machine in its fast phases.
 frames after the warm-up are cut into consecutive windows of at least WINDOW_MS (and
 MIN_PERIODS frame periods; a shorter run is one window); over all runs of the configuration the window at the QUANTILE of
 frame time is taken (not the fastest, which a few lucky frames could set). Between the saved
-runs of two full jobs this estimate moved by 3.2 % (median) and 11 % (worst), the fastest whole
-run by 4.0 % and 23 %; between two later jobs by 2.9 % and 23 %, against 2.8 % and 27 %
-(experiments/lavapipe/steady_repeatability.py).
+runs of two full jobs this estimate moved by 2.7 % (median) and 12.8 % (worst), the fastest
+whole run by 4.0 % and 23 %; over two other pairs of jobs 2.2 / 21.6 % against 2.7 / 27.2 %
+and 1.7 / 7.3 % against 2.1 / 6.3 % (experiments/lavapipe/steady_repeatability.py).
 
 The window's frames, with the warm-up frames just before it, are written as a measured trace
 in the runner's schema (frames renumbered from 0), so calibration and validation read it like

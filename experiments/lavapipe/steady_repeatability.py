@@ -8,7 +8,9 @@ estimated as the fastest whole run and as the steady window (mgpusim.steady_wind
 """
 from __future__ import annotations
 
+import json
 import sys
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -17,14 +19,18 @@ import pandas as pd
 from mgpusim import steady_window as sw
 from mgpusim.results import frames_from_trace, summarize
 
-WARMUP = 2  # the lavapipe experiments' schedule.warmup_frames
+def warmup_frames(run: Path) -> int:
+    """The schedule's warm-up of the experiment the run was made from."""
+    experiment = json.loads((run / "summary.json").read_text())["config"]["file"]
+    return int(tomllib.loads(Path(experiment).read_text())["schedule"].get("warmup_frames", 2))
 
 
 def estimates(config_dir: Path) -> dict[str, float]:
-    frames = [frames_from_trace(pd.read_csv(run / "trace.csv", keep_default_na=False))
-              for run in sorted(config_dir.glob("run*")) if run.is_dir()]
-    whole = [summarize(f, None, WARMUP)["frame_time_ms"] for f in frames]
-    wins = [w for i, f in enumerate(frames) for w in sw.windows(f, WARMUP, i)]
+    runs = [run for run in sorted(config_dir.glob("run*")) if run.is_dir()]
+    warmup = warmup_frames(runs[0])
+    frames = [frames_from_trace(pd.read_csv(run / "trace.csv", keep_default_na=False)) for run in runs]
+    whole = [summarize(f, None, warmup)["frame_time_ms"] for f in frames]
+    wins = [w for i, f in enumerate(frames) for w in sw.windows(f, warmup, i)]
     return {"fastest whole run": min(whole), "steady window": sw.pick(wins).frame_time_ms}
 
 

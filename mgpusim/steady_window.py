@@ -5,8 +5,9 @@ Why: the 2-core development machine delivers between one and two cores, in phase
 phases it caught (runs of one configuration differed by up to 80 %). Interference only ever
 adds time, so the machine the model describes is the machine in its fast phases. Each run's
 frames after the warm-up are cut into consecutive windows of at least WINDOW_MS (and
-MIN_PERIODS frame periods; a shorter run is one window); over all runs of the configuration the window at the QUANTILE of
-frame time is taken (not the fastest, which a few lucky frames could set). Between the saved
+MIN_PERIODS frame periods; a shorter run is one window); over all runs of the configuration
+the window at the QUANTILE of frame time is taken (not the fastest, which a few lucky frames
+could set). Between the saved
 runs of two full jobs this estimate moved by 2.7 % (median) and 12.8 % (worst), the fastest
 whole run by 4.0 % and 23 %; over two other pairs of jobs 2.2 / 21.6 % against 2.7 / 27.2 %
 and 1.7 / 7.3 % against 2.1 / 6.3 % (experiments/lavapipe/steady_repeatability.py).

@@ -124,7 +124,7 @@ def measure_all(out: Path, progress: Callable[[str], None]) -> list[Path]:
         for r in range(ROUNDS):
             for name, sweeps in SWEEPS:
                 progress(f"measure {name} (round {r + 1}/{ROUNDS})")
-                df = m.measure(name, gpus, sweeps, reps=REPS, warmup=2, concurrent=False)
+                df = m.measure(name, gpus, sweeps, reps=REPS, warmup=2)
                 tables[name].append(df.assign(repetition=df["repetition"] + r * REPS))
         for name, sweeps in SWEEPS:
             path = out / f"{name}.csv"

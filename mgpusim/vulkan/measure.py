@@ -110,14 +110,11 @@ def combinations(pass_name: str, sweeps: dict[str, list[int | str]]) -> list[dic
 
 
 def measure(pass_name: str, gpus: Sequence[Gpu], sweeps: dict[str, list[int | str]], *,
-            reps: int = 5, warmup: int = 2, concurrent: bool = True,
+            reps: int = 5, warmup: int = 2,
             progress: Callable[[int], None] | None = None) -> pd.DataFrame:
-    """Run every combination on every GPU; one row per GPU x combination x repetition.
-
-    `concurrent`: all GPUs run each repetition at once (they compete, as in a multi-GPU frame);
-    False: one after another, interleaved, so that GPUs set up differently (e.g. lavapipe on 1
-    and on all threads) are compared under the same machine conditions, repetition by
-    repetition, and each row counts as a one-GPU measurement."""
+    """Run every combination on every GPU; one row per GPU x combination x repetition. Several
+    GPUs run each repetition at once (they compete, as in a multi-GPU frame); one GPU's rows
+    also have the process's CPU time of each pass."""
     if reps < 1 or warmup < 0:
         raise InputError(f"need reps >= 1 and warmup >= 0, got {reps}, {warmup}")
     ps = spec(pass_name)
@@ -137,7 +134,7 @@ def measure(pass_name: str, gpus: Sequence[Gpu], sweeps: dict[str, list[int | st
         else:
             works = [ps.build(g, params) for g in gpus]
             keys = [("measure", next(_KEYS)) for _ in works]
-            together = concurrent and len(gpus) > 1
+            together = len(gpus) > 1
             try:
                 for rep in range(-warmup, reps):
                     subs, cpu = (_together(gpus, works, keys, pass_name) if together

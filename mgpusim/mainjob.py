@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -21,7 +20,6 @@ import pandas as pd
 from . import steady_window as sw
 from .experiment import Experiment, load_experiment
 from .output import write_json, write_measured, write_table
-from .results import frames_from_trace, summarize
 from .validate import error_stats, error_table
 
 EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments" / "lavapipe"
@@ -175,39 +173,36 @@ def measure_configs(configs: list[Config], profile: Path, out: Path, repeats: in
     from .runner.run import run_experiment  # noqa: PLC0415 - Vulkan only when measuring
 
     exps = {c.name: experiment_for(c, profile) for c in configs}
-    folders: dict[str, list[Path]] = {c.name: [] for c in configs}
+    runs: dict[str, list[tuple[str, Any]]] = {c.name: [] for c in configs}
     for rep in range(repeats):
         for config in configs:
             progress(f"run {config.name} ({rep + 1}/{repeats})")
             result = run_experiment(exps[config.name], prewarm_frames=PREWARM_FRAMES)
-            folders[config.name].append(write_measured(result, out / config.name / f"run{rep}"))
-    return {c.name: write_steady_window(exps[c.name], folders[c.name], out / c.name)
+            write_measured(result, out / config.name / f"run{rep}")
+            runs[config.name].append((f"run{rep}", result))
+    return {c.name: write_steady_window(exps[c.name], runs[c.name], out / c.name)
             for c in configs}
 
 
-def write_steady_window(exp: Experiment, runs: list[Path], out: Path) -> Path:
-    """Pick the steady window over `runs` (measured folders of one configuration), write it as a
-    measured folder `out/steady`, and the runs' frame times and the choice to `out/runs.json`."""
-    from .commands.validate import read_measured  # noqa: PLC0415
-
+def write_steady_window(exp: Experiment, runs: list[tuple[str, Any]], out: Path) -> Path:
+    """Pick the steady window over `runs` ((name, RunResult) of one configuration), write it as
+    a measured folder `out/steady`, and the runs' frame times and the choice to
+    `out/runs.json`."""
     warmup = exp.schedule.warmup_frames
-    traces = [read_measured(folder, exp) for folder in runs]
-    frames = [frames_from_trace(trace) for trace in traces]
-    candidates = [w for i, f in enumerate(frames) for w in sw.windows(f, warmup, i)]
+    candidates = [w for i, (_, r) in enumerate(runs) for w in sw.windows(r.frames, warmup, i)]
     window = sw.pick(candidates)
+    name, chosen = runs[window.run]
     steady = out / "steady"
     steady.mkdir(parents=True, exist_ok=True)
-    write_table(sw.window_trace(traces[window.run], window, warmup), steady / "trace.csv")
-    run_summary = json.loads((runs[window.run] / "summary.json").read_text())
+    write_table(sw.window_trace(chosen.trace, window, warmup), steady / "trace.csv")
     choice = {"policy": f"window at quantile {sw.QUANTILE} of frame time, windows of at least "
                         f"{sw.WINDOW_MS:g} ms and {sw.MIN_PERIODS} frame periods",
-              "run": runs[window.run].name, "frames": [window.first, window.last],
+              "run": name, "frames": [window.first, window.last],
               "frames_renumbered_from": window.first - warmup,
               "window_frame_time_ms": window.frame_time_ms, "windows": len(candidates)}
-    write_json({"config": run_summary.get("config", {}), "steady_window": choice},
-               steady / "summary.json")
-    shutil.copyfile(runs[window.run] / "machine.json", steady / "machine.json")
-    whole = [float(summarize(f, None, warmup)["frame_time_ms"]) for f in frames]
+    write_json({"config": chosen.config, "steady_window": choice}, steady / "summary.json")
+    write_json(chosen.machine, steady / "machine.json")
+    whole = [float(r.summary["frame_time_ms"]) for _, r in runs]
     write_json({"frame_time_ms": whole, **choice}, out / "runs.json")
     return steady
 

@@ -80,8 +80,8 @@ class PassCost:
 
     fixed_ns: float
     ns_per: Mapping[str, float]
-    #: CPU-emulated GPUs only: the cores this pass keeps busy, measured as its time on one
-    #: rasterizer thread over its time on all of them. None = the GPU's `cpu_threads`. Why:
+    #: CPU-emulated GPUs only: the cores this pass keeps busy, measured as the slope of the
+    #: process's CPU time on the pass's time. None = the GPU's `cpu_threads`. Why:
     #: lavapipe shades and bins vertices on one thread, so a mesh pass barely gains from more
     #: threads (and two GPUs drawing meshes hardly slow each other down), unlike a fragment pass.
     cores: float | None = None

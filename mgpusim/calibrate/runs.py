@@ -123,8 +123,9 @@ def fit_host_effects(profile_data: dict[str, Any], runs: Sequence[Run],
     return best[1], best[0]
 
 
-#: Simulated frames after the warm-up in the grid search: the model reaches its steady state
-#: within a few frames, so a measured run of thousands of frames needs no simulation as long.
+#: Simulated frames after the warm-up in the grid search, for speed: a measured run of
+#: thousands of frames needs no simulation as long, though the model's mean frame time is then
+#: 0.5-1 % below its value over hundreds of frames (its first frames run into empty queues).
 GRID_STEADY_FRAMES = 40
 
 

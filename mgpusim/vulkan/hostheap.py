@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import functools
 import os
-import threading
 
 #: mallopt parameter numbers (glibc's malloc.h).
 M_TRIM_THRESHOLD = -1
@@ -29,19 +29,10 @@ M_MMAP_THRESHOLD = -3
 MMAP_THRESHOLD = 32 * 1024 * 1024
 TRIM_THRESHOLD = 1024 * 1024 * 1024
 
-_lock = threading.Lock()
-_state: dict[str, str] = {}
-
-
+@functools.cache
 def keep_heap() -> str:
-    """Apply the thresholds once per process; returns what was done (for the machine record)."""
-    with _lock:
-        if "heap" not in _state:
-            _state["heap"] = _apply()
-        return _state["heap"]
-
-
-def _apply() -> str:
+    """Apply the thresholds once per process; returns what was done (for the machine record).
+    Two threads making their first instance at once may both set them: same values."""
     if os.environ.get("MGPUSIM_KEEP_HEAP", "1") == "0":
         return "glibc defaults (MGPUSIM_KEEP_HEAP=0)"
     name = ctypes.util.find_library("c")

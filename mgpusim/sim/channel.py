@@ -202,3 +202,42 @@ class Channel:
 
 def _cap_key(flow: _Flow) -> tuple[int, int]:
     return (1, 0) if flow.cap_s is None else (0, flow.cap_s)
+
+
+class FixedRateChannel:
+    """A link direction without sharing: every transfer crosses at its own fixed rate (the
+    channel's bandwidth, or its cap if lower), however many overlap. The `queues` fidelity level
+    and scenes whose copies never overlap use it; `busy` and `max_concurrent` as in Channel."""
+
+    def __init__(self, env: simpy.Environment, name: str, bandwidth: Fraction):
+        if bandwidth <= 0:
+            raise ValueError(f"channel {name}: bandwidth must be > 0")
+        self.env, self.name, self.bandwidth = env, name, Fraction(bandwidth)
+        self.busy: list[tuple[int, int]] = []
+        self.max_concurrent = 0
+        self.active = 0
+        self._busy_since = 0
+        self._rates: dict[Fraction | None, tuple[int, int]] = {}
+
+    def transfer(self, nbytes: int, cap: Fraction | None = None) -> simpy.Event:
+        done = self.env.event()
+        if nbytes <= 0:
+            return done.succeed()
+        parts = self._rates.get(cap)
+        if parts is None:
+            rate = self.bandwidth if cap is None or cap >= self.bandwidth else cap
+            parts = self._rates[cap] = (rate.numerator, rate.denominator)
+        num, den = parts
+        if not self.active:
+            self._busy_since = self.env.now
+        self.active += 1
+        self.max_concurrent = max(self.max_concurrent, self.active)
+        self.env.timeout((2 * nbytes * den + num) // (2 * num)).callbacks.append(
+            lambda _e: self._done(done))
+        return done
+
+    def _done(self, done: simpy.Event) -> None:
+        self.active -= 1
+        if not self.active:
+            self.busy.append((self._busy_since, self.env.now))
+        done.succeed()

@@ -6,6 +6,10 @@
 - Host copies are dispatched in order by the host thread, split into parts of at least
   `chunk_min_bytes` over the memcpy thread pool, each part a flow on host memory bandwidth
   capped at one thread's speed.
+- Devices run their work on the executors the engine is given (:mod:`.executors`): their own
+  cores, or a pool shared with other devices (CPU-emulated GPUs); the engine asks each executor
+  for a runner once per task and never branches on its kind in the hot loop.
+- Only the effects a scene calls for are instantiated (:mod:`.effects`).
 Dependencies are counted, not stored as events per task, so memory stays flat over 10^5 frames.
 """
 from __future__ import annotations
@@ -14,6 +18,7 @@ import heapq
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 from fractions import Fraction
+from typing import Callable
 import numpy as np
 import simpy
 
@@ -21,29 +26,32 @@ from ..costs import CostModel
 from ..errors import ScheduleError
 from ..schedules.base import FrameProgram
 from ..tasks import CopyTask, HostCopyTask, PassTask, QueueRef, Task
-from .channel import Channel
+from .channel import Channel, FixedRateChannel
+from .effects import EFFECTS
+from .executors import Executor, Runner, make_executors
 from .skipping import SkipChains
 
 Key = tuple[int, str]
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, eq=False)
 class _Op:
     task: Task
     duration: int
-    channel: Channel | None
+    channel: Channel | FixedRateChannel | None
     cap: Fraction | None
     nbytes: int
     device: str
     engine: str
     waits_for: str
     is_present: bool
-    #: Cores a task of a CPU-emulated GPU (lavapipe) keeps busy: it is `cpu_work` core-ns
-    #: (duration x cpu) on the shared host.cpu channel, at most `cpu` cores at once. 0 = a real GPU.
-    cpu: Fraction | int = 0
-    cpu_work: int = 0
-    #: The queue's idle time before the task (the GPU's task_gap_ns).
+    #: What the executor makes of the task's work: `run(amount)` is the event to wait for
+    #: (None: no work to wait for).
+    run: Runner | None = None
+    amount: int = 0
+    #: The queue's idle time before the task (the GPU's task_gap_ns), on the host's executor.
     gap: int = 0
+    gap_run: Runner | None = None
 
 
 @dataclass
@@ -58,14 +66,26 @@ class RawResult:
     effects: dict[str, bool] = field(default_factory=dict)
     #: frames in which each skippable task was skipped (for update rates in steady state)
     skipped_frames: dict[str, list[int]] = field(default_factory=dict)
+    #: the effects instantiated for this run (names of :data:`.effects.EFFECTS`)
+    modelled: frozenset[str] = frozenset()
 
 
 class Engine:
-    def __init__(self, program: FrameProgram, costs: CostModel, record_trace: bool = True):
+    def __init__(self, program: FrameProgram, costs: CostModel, record_trace: bool = True,
+                 effects: frozenset[str] | None = None,
+                 executors: Callable[[simpy.Environment], dict[str, Executor]] | None = None):
+        """`effects`: the effects to instantiate (default: those the scene needs, see
+        :func:`.effects.choose_effects`). `executors`: builds the executor of every device and
+        the host (default: shared host cores where the shared_executor effect is on)."""
         self.program, self.costs, self.record = program, costs, record_trace
+        if effects is None:
+            effects = frozenset(n for n, e in EFFECTS.items() if e.needed(program, costs.profile))
+        self.effects = effects
         self.env = simpy.Environment()
-        self.period = len(program.templates)
+        #: frames the streams run (a fast-forward may shorten it while running)
+        self.horizon = program.frames
         self.rows: list[tuple] = []
+        self.period = len(program.templates)
         self.frame_start = np.full(program.frames, np.iinfo(np.int64).max, dtype=np.int64)
         self.present_end = np.full(program.frames, -1, dtype=np.int64)
         self._pending: dict[Key, int] = {}
@@ -75,12 +95,18 @@ class Engine:
         self._chains = SkipChains(program, self._index)
         self._skip = self._chains.skip  # instances marked to be skipped, read in the hot loop
         self._dependents = self._reverse_deps()
-        self._dispatch_ns = costs.profile.host.dispatch_ns
-        self._host_timeline = bool(self._dispatch_ns or costs.profile.host.submit_ns)
+        host = costs.profile.host
+        submission = "host_submission" in effects
+        self._dispatch_ns = host.dispatch_ns if submission else 0
+        self._submit_ns = host.submit_ns if submission else 0
+        self._host_timeline = bool(self._dispatch_ns or self._submit_ns)
         self._cross_done: dict[Key, int] = {}  # instance -> when its last cross-device input ended
         self._waits_for = self._waits_for_labels()
-        self.channels: dict[str, Channel] = {}
+        self.channels: dict[str, Channel | FixedRateChannel] = {}
         self._unfinished = sum(len(program.tasks(f)) for f in range(program.frames))
+        self._make_executors = executors or (
+            lambda env: make_executors(env, costs, "shared_executor" in effects))
+        self.processes: list[simpy.Process] = []
         self._setup_resources()
 
     # ----- build -------------------------------------------------------------------------
@@ -117,14 +143,13 @@ class Engine:
         return labels
 
     def _setup_resources(self) -> None:
-        host = self.costs.profile.host
-        self._cpu: Channel | None = None
-        if host.gpus_share_cpu:
-            cores = Fraction(host.cpu_cores)
-            eff = Fraction(repr(host.oversubscribed_efficiency))
-            self._cpu = self.channels["host.cpu"] = Channel(
-                self.env, "host.cpu", cores, cores * eff if eff != 1 else None)
-        self._submit_ns = host.submit_ns
+        self.executors = self._make_executors(self.env)
+        for ex in dict.fromkeys(self.executors.values()):  # a shared pool is one channel
+            if ex.shared:
+                self.channels[ex.channel.name] = ex.channel
+        host_ex = self.executors["host"]
+        self._host_work = host_ex.work  # one host thread's ns of time
+        self._submit_load = host_ex.background() if self._submit_ns else None
         queues: dict[QueueRef, list[list[_Op]]] = {}
         host_ops: list[list[_Op]] = [[] for _ in range(self.period)]
         for phase, tasks in enumerate(self.program.templates):
@@ -135,55 +160,50 @@ class Engine:
                 else:
                     queues.setdefault(task.queue, [[] for _ in range(self.period)])[phase].append(op)
         for plan in queues.values():
-            self.env.process(self._stream_proc(plan))
+            self.processes.append(self.env.process(self._stream_proc(plan)))
         if any(host_ops):
             host = self.costs.profile.host
             self._threads_all = [f"thread{i}" for i in range(host.memcpy_threads)]
             self._free_threads = list(range(host.memcpy_threads))
             self._part_queue: deque = deque()
-            self._thread_cap = self.costs.memcpy_thread_cap()
-            self._host_memory = self.channels["host.memory"] = Channel(
-                self.env, "host.memory", self.costs.host_memory_bandwidth())
-            self.env.process(self._stream_proc(host_ops, host=True))
+            self._thread_cap = cap = self.costs.memcpy_thread_cap()
+            kind = Channel if "host_memory_sharing" in self.effects else FixedRateChannel
+            memory = self.channels["host.memory"] = kind(self.env, "host.memory",
+                                                         self.costs.host_memory_bandwidth())
+            if host_ex.copies_on_cores:  # a memcpy thread is one core's work
+                self._part_event = lambda size: host_ex.work(-(-size * cap.denominator // cap.numerator))
+            else:
+                self._part_event = lambda size: memory.transfer(size, cap)
+            self.processes.append(self.env.process(self._stream_proc(host_ops, host=True)))
 
     def _op(self, phase: int, task: Task) -> _Op:
         """Everything the hot loop needs about one task, computed once."""
         channel, cap, nbytes = None, None, 0
-        duration, cpu = self._duration(task), self._cpu_threads(task)
+        duration = self._duration(task)
+        gap, gap_run = 0, None
+        if isinstance(task, HostCopyTask):
+            return _Op(task, duration, None, None, 0, "host", "memcpy", self._waits_for[phase][task.name],
+                       task.name == self.program.present_task)
+        executor = self.executors[task.queue.device_name]
         if isinstance(task, CopyTask):
             nbytes = task.bytes
-            cap = self.costs.copy_cap(task.queue.device, task.queue.family, task.path)
-            if cpu:  # lavapipe: a copy is a memcpy in the queue thread, one core's work
+            if "copy_engine_caps" in self.effects:
+                cap = self.costs.copy_cap(task.queue.device, task.queue.family, task.path)
+            if executor.copies_on_cores:  # the copy is a memcpy in the queue's thread
                 bw = self._path_bandwidth(task)
                 rate = bw if cap is None else min(cap, bw)
                 duration += -(-nbytes * rate.denominator // rate.numerator)
                 cap = None
             else:
                 channel = self._channel_for(task)
-        gap = 0
-        if isinstance(task, HostCopyTask):
-            device, engine = "host", "memcpy"
-        else:
-            device, engine = task.queue.device_name, task.queue.engine
+        if "task_gaps" in self.effects:
             gap = self.costs.profile.gpus[task.queue.device].task_gap_ns
-        return _Op(task, duration, channel, cap, nbytes, device, engine,
+            if gap:
+                gap_run = executor.work
+        run, amount = executor.runner(duration, executor.cores(task))
+        return _Op(task, duration, channel, cap, nbytes, task.queue.device_name, task.queue.engine,
                    self._waits_for[phase][task.name], task.name == self.program.present_task,
-                   cpu, -(-duration * cpu.numerator // cpu.denominator) if cpu else 0, gap)
-
-    def _cpu_threads(self, task: Task) -> Fraction:
-        """Cores a task of a CPU-emulated GPU keeps busy (0 when the GPUs are real): a copy the
-        queue thread, a pass its kind's measured `cores`, else the GPU's rasterizer threads."""
-        host = self.costs.profile.host
-        if self._cpu is None or isinstance(task, HostCopyTask):
-            return Fraction(0)
-        if isinstance(task, CopyTask):
-            return Fraction(1)
-        gpu = self.costs.profile.gpus[task.queue.device]
-        threads = Fraction(min(gpu.cpu_threads or host.cpu_cores, host.cpu_cores))
-        cost = gpu.costs.get(task.kind) if isinstance(task, PassTask) else None
-        if cost is None or cost.cores is None:
-            return threads
-        return min(Fraction(repr(cost.cores)).limit_denominator(1000), threads)
+                   run, amount, gap, gap_run)
 
     def _dispatch_wait(self, key: Key) -> int:
         """Host dispatch still owed before `key` starts: `dispatch_ns` after the last of its
@@ -221,10 +241,11 @@ class Engine:
             return self.costs.peer_bandwidth(dev, task.peer)  # type: ignore[arg-type]
         return self.costs.link_bandwidth(dev, task.path)
 
-    def _channel_for(self, task: CopyTask) -> Channel:
+    def _channel_for(self, task: CopyTask) -> Channel | FixedRateChannel:
         name = self._channel_name(task)
         if name not in self.channels:
-            self.channels[name] = Channel(self.env, name, self._path_bandwidth(task))
+            kind = Channel if "link_sharing" in self.effects else FixedRateChannel
+            self.channels[name] = kind(self.env, name, self._path_bandwidth(task))
         return self.channels[name]
 
     # ----- dependencies ------------------------------------------------------------------
@@ -249,7 +270,7 @@ class Engine:
         self._unfinished -= 1
         if not skipped and task.skip_if_busy:
             self._chains.finished(frame, task)
-        frames, pending = self.program.frames, self._pending
+        frames, pending = self.horizon, self._pending
         for name, k, dtask, ndeps, lag, cross in self._dependents[frame % self.period].get(task.name, ()):
             g = frame + k
             if g >= frames:
@@ -281,7 +302,8 @@ class Engine:
         memcpy threads. (One loop for both, inlined: this is the hot path.)"""
         env, period, skip, ready = self.env, self.period, self._skip, self._ready
         submitted = 0  # the queue's host submit thread: when it submitted the last task
-        for frame in range(self.program.frames):
+        frame = 0
+        while frame < self.horizon:
             for op in plan[frame % period]:
                 key = (frame, op.task.name)
                 if key in ready:  # the common case: dependencies already met
@@ -303,18 +325,17 @@ class Engine:
                     submitted = self._submitted(key, submitted)
                     if submitted > env.now:
                         yield env.timeout(submitted - env.now)
-                    if self._submit_ns and self._cpu is not None:
-                        self._cpu.transfer(self._submit_ns, 1)  # the submit thread's cores
+                    if self._submit_load is not None:
+                        self._submit_load(self._submit_ns)  # the submit thread's cores
                 if op.gap:
-                    yield self._host_work(op.gap) if op.cpu else env.timeout(op.gap)
+                    yield op.gap_run(op.gap)
                 start = env.now
-                if op.cpu:
-                    yield self._cpu.transfer(op.cpu_work, op.cpu)
-                elif op.duration:
-                    yield env.timeout(op.duration)
+                if op.run is not None:
+                    yield op.run(op.amount)
                 if op.channel is not None:
                     yield op.channel.transfer(op.nbytes, op.cap)
                 self._finish(frame, op, op.engine, start, op.nbytes)
+            frame += 1
 
     def _skip_task(self, key: Key, task: Task) -> None:
         self._skip.discard(key)
@@ -353,18 +374,8 @@ class Engine:
         else:
             self._part_copy(tid, part, start)
 
-    def _host_work(self, ns: int) -> simpy.Event:
-        """`ns` of one host thread's time: CPU work where the GPUs share the CPU, else a delay."""
-        if self._cpu is not None:
-            return self._cpu.transfer(ns, 1)
-        return self.env.timeout(ns)
-
     def _part_copy(self, tid: int, part: tuple, start: int) -> None:
-        if self._cpu is not None:  # lavapipe: a memcpy thread is one core's work
-            ns = -(-part[2] * self._thread_cap.denominator // self._thread_cap.numerator)
-            ev = self._cpu.transfer(ns, 1)
-        else:
-            ev = self._host_memory.transfer(part[2], self._thread_cap)
+        ev = self._part_event(part[2])
         ev.callbacks.append(lambda _e: self._part_done(tid, part, start))
 
     def _part_done(self, tid: int, part: tuple, start: int) -> None:
@@ -398,7 +409,7 @@ class Engine:
             effects["cpu_contention"] = ch["host.cpu"].max_concurrent > 1
         return RawResult(self.rows, self.frame_start, self.present_end, self.channels,
                          {n: len(f) for n, f in self._chains.skipped_frames.items()}, effects,
-                         dict(self._chains.skipped_frames))
+                         dict(self._chains.skipped_frames), self.effects)
 
     def _blocked_message(self) -> str:
         blocked = sorted(self._waiters)[:8]

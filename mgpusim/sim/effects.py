@@ -1,0 +1,157 @@
+"""The effects the model can simulate, when a scene calls for each, and fidelity levels.
+
+An effect is a mechanism of the event model that costs simulation time (a fluid solver, a
+shared pool of cores, a submit-thread timeline). Each says *when a scene needs it*: a test over
+the built program and the profile that is true whenever leaving the effect out could change
+the trace. The model instantiates only the effects a scene needs, so a run that cannot show an
+effect does not pay for it; `--effects +x,-y` forces one on or off (forcing an unneeded effect
+on gives the same trace: tests check it).
+
+Fidelity levels trade accuracy for time:
+
+- ``full``: every needed effect.
+- ``queues``: the event model with fixed-rate links (no link or host-memory sharing) and no
+  shared executor (CPU-emulated GPUs run as if each had its own cores).
+- ``analytic``: no event simulation at all (:mod:`mgpusim.sim.analytic`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Iterable, Mapping
+
+from ..errors import InputError
+from ..profile import HardwareProfile
+from ..schedules.base import FrameProgram
+from ..tasks import CopyTask, HostCopyTask, Task
+
+FIDELITIES: tuple[str, ...] = ("analytic", "queues", "full")
+
+Needed = Callable[[FrameProgram, HardwareProfile], bool]
+
+
+@dataclass(frozen=True)
+class Effect:
+    name: str
+    #: what the model does when the effect is on (and what it does instead when off)
+    doc: str
+    #: when a scene needs it, in words (the `needed` test, for the docs and `--help`)
+    when: str
+    needed: Needed
+    #: False: the effect cannot be forced on where the scene lacks its mechanism
+    forceable: bool = True
+
+
+def _all_tasks(program: FrameProgram) -> Iterable[Task]:
+    for tasks in program.templates:
+        yield from tasks
+
+
+def _link_channels_shared(program: FrameProgram, profile: HardwareProfile) -> bool:
+    """A link direction used by copies of more than one queue (a copy holds its queue while it
+    crosses the link, so copies of one queue never overlap)."""
+    users: dict[tuple, set] = {}
+    for t in _all_tasks(program):
+        if isinstance(t, CopyTask):
+            key = (t.queue.device, t.path, t.peer if t.path == "p2p" else None)
+            users.setdefault(key, set()).add(t.queue)
+    return any(len(q) > 1 for q in users.values())
+
+
+def _host_copies(program: FrameProgram) -> bool:
+    return any(isinstance(t, HostCopyTask) for t in _all_tasks(program))
+
+
+def _copy_caps_bind(program: FrameProgram, profile: HardwareProfile) -> bool:
+    """A copy whose queue family has a rate cap below its path's bandwidth."""
+    from ..costs import CostModel  # noqa: PLC0415 (costs imports nothing of ours back)
+    costs = CostModel(profile)
+    for t in _all_tasks(program):
+        if not isinstance(t, CopyTask):
+            continue
+        cap = costs.copy_cap(t.queue.device, t.queue.family, t.path)
+        if cap is None:
+            continue
+        bw = (costs.peer_bandwidth(t.queue.device, t.peer) if t.path == "p2p" and t.peer is not None
+              else costs.link_bandwidth(t.queue.device, t.path))
+        if cap < bw:
+            return True
+    return False
+
+
+def _gaps(program: FrameProgram, profile: HardwareProfile) -> bool:
+    return any(not isinstance(t, HostCopyTask) and profile.gpus[t.queue.device].task_gap_ns
+               for t in _all_tasks(program))
+
+
+EFFECTS: dict[str, Effect] = {e.name: e for e in (
+    Effect("link_sharing",
+           "concurrent copies share a link direction max-min fairly (fluid solver); off: each copy "
+           "crosses at its own fixed rate",
+           "a link direction is used by copies of more than one queue",
+           _link_channels_shared),
+    Effect("copy_engine_caps",
+           "a queue family's own copy rate limits its copies; off: only the link limits them",
+           "a copy queue's rate cap is below the bandwidth of a path it copies over",
+           _copy_caps_bind),
+    Effect("host_memory_sharing",
+           "host-copy parts share host memory bandwidth (fluid solver); off: each part at one "
+           "memcpy thread's speed",
+           "the schedule has host copies and the host has more than one memcpy thread",
+           lambda p, prof: _host_copies(p) and prof.host.memcpy_threads > 1),
+    Effect("shared_executor",
+           "the GPUs' passes and copies, host copies and submit threads are work on one pool of "
+           "host cores (CPU-emulated GPUs); off: every device runs its own work",
+           "the profile's GPUs share the host CPU (host.gpus_share_cpu)",
+           lambda p, prof: prof.host.gpus_share_cpu, forceable=False),
+    Effect("host_submission",
+           "per-queue submit threads (host.submit_ns) and host wake-up before work fed by another "
+           "device (host.dispatch_ns); off: work starts when its inputs are ready",
+           "host.submit_ns or host.dispatch_ns is non-zero",
+           lambda p, prof: bool(prof.host.submit_ns or prof.host.dispatch_ns)),
+    Effect("task_gaps",
+           "a GPU's idle time between two tasks on a queue (task_gap_ns); off: none",
+           "a GPU the schedule uses has task_gap_ns > 0",
+           _gaps),
+    Effect("memory_capacity",
+           "each GPU's resident data is checked against its memory before the run, and reported",
+           "always (it is a check before the run, not simulated time)",
+           lambda p, prof: True),
+)}
+
+#: Effects the `queues` level leaves out.
+QUEUES_OMITS = frozenset({"link_sharing", "host_memory_sharing", "shared_executor"})
+
+
+def parse_effects(text: str | None, option: str = "--effects") -> dict[str, bool]:
+    """`+x,-y` -> {"x": True, "y": False}; unknown names are an input error."""
+    out: dict[str, bool] = {}
+    for item in (text or "").split(","):
+        item = item.strip()
+        if not item:
+            continue
+        sign, name = item[0], item[1:]
+        if sign not in "+-" or name not in EFFECTS:
+            raise InputError(f"{option}: {item!r} is not +name or -name with a name among "
+                             f"{', '.join(EFFECTS)}", field=option)
+        out[name] = sign == "+"
+    return out
+
+
+def choose_effects(program: FrameProgram, profile: HardwareProfile, fidelity: str = "full",
+                   force: Mapping[str, bool] | None = None) -> frozenset[str]:
+    """The effects to instantiate: those the scene needs, less what the fidelity level leaves
+    out, with `force` applied last."""
+    if fidelity not in FIDELITIES:
+        raise InputError(f"fidelity must be one of {', '.join(FIDELITIES)}, got {fidelity!r}",
+                         field="fidelity")
+    chosen = {name for name, e in EFFECTS.items() if e.needed(program, profile)}
+    if fidelity != "full":
+        chosen -= QUEUES_OMITS
+    for name, on in (force or {}).items():
+        if name not in EFFECTS:
+            raise InputError(f"unknown effect {name!r} (known: {', '.join(EFFECTS)})", field="effects")
+        if on and not EFFECTS[name].forceable and not EFFECTS[name].needed(program, profile):
+            raise InputError(f"effect {name!r} cannot be forced on: {EFFECTS[name].when} is not "
+                             "the case here", field="effects")
+        (chosen.add if on else chosen.discard)(name)
+    return frozenset(chosen)

@@ -1,0 +1,71 @@
+"""Simulate every shipped experiment and write their summaries (and a trace digest) as one JSON
+file, so that two checkouts can be compared: results must not change when the engine does.
+
+    PYTHONPATH=CHECKOUT python scripts/summaries.py OUT.json [--root CHECKOUT]
+    python scripts/summaries.py --compare A.json B.json
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import sys
+from pathlib import Path
+
+
+def shipped_experiments(root: Path) -> list[Path]:
+    """experiments/*.toml and experiments/*/*.toml that are experiments (have a [schedule])."""
+    paths = sorted(root.glob("experiments/*.toml")) + sorted(root.glob("experiments/*/*.toml"))
+    return [p for p in paths if "[schedule]" in p.read_text()]
+
+
+def collect(root: Path) -> dict:
+    from mgpusim.experiment import load_experiment
+    from mgpusim.simulate import simulate
+    out = {}
+    for path in shipped_experiments(root):
+        result = simulate(load_experiment(path))
+        trace = result.trace.to_csv(index=False).encode()
+        out[str(path.relative_to(root))] = {
+            "summary": json.loads(json.dumps(result.summary, default=str)),
+            "trace_sha256": hashlib.sha256(trace).hexdigest(),
+            "frames_sha256": hashlib.sha256(result.frames.to_csv(index=False).encode()).hexdigest()}
+    return out
+
+
+def compare(a: dict, b: dict) -> int:
+    bad = 0
+    for name in sorted(set(a) | set(b)):
+        if name not in a or name not in b:
+            print(f"{name}: only in {'B' if name not in a else 'A'}")
+            bad += 1
+            continue
+        sa, sb = a[name]["summary"], b[name]["summary"]
+        changed = sorted(k for k in set(sa) & set(sb) if sa[k] != sb[k])
+        added = sorted(set(sb) - set(sa))
+        removed = sorted(set(sa) - set(sb))
+        same_trace = a[name]["trace_sha256"] == b[name]["trace_sha256"]
+        same_frames = a[name]["frames_sha256"] == b[name]["frames_sha256"]
+        ok = not changed and not removed and same_trace and same_frames
+        bad += not ok
+        print(f"{'same' if ok else 'DIFF'} {name}: changed {changed or '-'}, removed {removed or '-'}, "
+              f"new keys {added or '-'}, trace {'same' if same_trace else 'DIFF'}, "
+              f"frames {'same' if same_frames else 'DIFF'}")
+    print(f"{len(set(a) | set(b))} experiments, {bad} differ")
+    return 1 if bad else 0
+
+
+def main() -> int:
+    p = argparse.ArgumentParser()
+    p.add_argument("out", nargs="?", type=Path)
+    p.add_argument("--root", type=Path, default=Path.cwd())
+    p.add_argument("--compare", nargs=2, type=Path, metavar=("A", "B"))
+    args = p.parse_args()
+    if args.compare:
+        return compare(*(json.loads(x.read_text()) for x in args.compare))
+    args.out.write_text(json.dumps(collect(args.root.resolve()), indent=1, sort_keys=True))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -5,25 +5,58 @@ Pure functions of data, shared by simulated and measured runs (a measured trace 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable, Iterator
 
 import numpy as np
 import pandas as pd
 
 from .errors import InputError
+from .repeated import RepeatedIntervals, RepeatedRows, Shift, repeated_list
 from .trace import FRAME_COLUMNS, make_trace
 
+Table = pd.DataFrame | Callable[[], pd.DataFrame]
 
-@dataclass
+
 class Result:
-    """One run: `.trace` (per task), `.frames` (per frame), `.summary` (dict), `.links`."""
+    """One run: `.trace` (per task), `.frames` (per frame), `.summary` (dict), `.links`.
 
-    summary: dict[str, Any]
-    trace: pd.DataFrame
-    frames: pd.DataFrame
-    links: pd.DataFrame = field(default_factory=pd.DataFrame)
-    config: dict[str, Any] = field(default_factory=dict)
+    `.trace` and `.links` may be built on first use: a fast-forwarded long run keeps them in
+    compact form (:mod:`mgpusim.repeated`) and :meth:`trace_chunks` streams them."""
+
+    def __init__(self, summary: dict[str, Any], trace: Table, frames: pd.DataFrame,
+                 links: Table | None = None, config: dict[str, Any] | None = None,
+                 chunks: Callable[[int], Iterator[pd.DataFrame]] | None = None):
+        self.summary, self.frames, self.config = summary, frames, config if config is not None else {}
+        self._trace, self._links, self._chunks = trace, links if links is not None else pd.DataFrame(), chunks
+
+    @property
+    def trace(self) -> pd.DataFrame:
+        if callable(self._trace):
+            self._trace = self._trace()
+        return self._trace
+
+    @trace.setter
+    def trace(self, value: pd.DataFrame) -> None:
+        self._trace = value
+
+    @property
+    def links(self) -> pd.DataFrame:
+        if callable(self._links):
+            self._links = self._links()
+        return self._links
+
+    @links.setter
+    def links(self, value: pd.DataFrame) -> None:
+        self._links = value
+
+    def trace_chunks(self, rows_per_chunk: int = 1_000_000) -> Iterator[pd.DataFrame]:
+        """The trace in sorted chunks, without building it whole when it is kept compact."""
+        if self._chunks is not None and callable(self._trace):
+            yield from self._chunks(rows_per_chunk)
+            return
+        trace = self.trace
+        for lo in range(0, max(len(trace), 1), rows_per_chunk):
+            yield trace.iloc[lo:lo + rows_per_chunk]
 
 
 def frames_table(frame_start: np.ndarray, present_end: np.ndarray) -> pd.DataFrame:
@@ -44,7 +77,8 @@ def frames_from_trace(trace: pd.DataFrame, present_step: str = "present") -> pd.
 
 
 def summarize(frames: pd.DataFrame, trace: pd.DataFrame | None, warmup_frames: int,
-              links: pd.DataFrame | None = None) -> dict[str, Any]:
+              links: pd.DataFrame | None = None,
+              busy: Callable[[int, int], dict[str, int]] | None = None) -> dict[str, Any]:
     """Steady-state figures after `warmup_frames`: frame time = mean period between presents.
     With a single steady frame its period is measured from the last warm-up frame's present
     (or, with no warm-up, from its own start)."""
@@ -71,7 +105,10 @@ def summarize(frames: pd.DataFrame, trace: pd.DataFrame | None, warmup_frames: i
         "warmup_frames": int(warmup_frames),
         "window_ns": list(window),
     }
-    if trace is not None and len(trace):
+    if busy is not None:
+        span = max(window[1] - window[0], 1)
+        out["utilization"] = {name: round(b / span, 6) for name, b in sorted(busy(*window).items())}
+    elif trace is not None and len(trace):
         out["utilization"] = utilization(trace, links, window)
     return out
 
@@ -111,6 +148,8 @@ def links_table(channels: dict) -> pd.DataFrame:
 
 
 def build_result(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
+    if getattr(raw, "repeat", None) is not None:
+        return _build_repeated(raw, warmup_frames, config)
     trace = make_trace(raw.rows)
     frames = frames_table(raw.frame_start, raw.present_end)
     links = links_table(raw.channels)
@@ -119,3 +158,36 @@ def build_result(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
     if raw.skipped:
         summary["skipped_tasks"] = raw.skipped
     return Result(summary, trace, frames, links, config)
+
+
+def _build_repeated(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
+    """The result of a fast-forwarded run: tables from its compact logs (mgpusim.repeated)."""
+    r = raw.repeat
+    shift = Shift(r.frames, r.ns, r.copies)
+    rows = RepeatedRows(raw.rows, r.rows, shift)
+    start, present = rows.frame_arrays(len(raw.frame_start), raw.present_task)
+    frames = frames_table(start, present)
+    links = {name: RepeatedIntervals(ch.busy, r.busy.get(name, (len(ch.busy), len(ch.busy))), shift,
+                                     r.held_open.get(name))
+             for name, ch in raw.channels.items()}
+
+    def busy(lo: int, hi: int) -> dict[str, int]:
+        out = rows.busy(lo, hi)
+        out.update({name: log.busy(lo, hi) for name, log in links.items() if len(log)})
+        return out
+
+    def links_frame() -> pd.DataFrame:
+        parts = [pd.DataFrame({"channel": name, "start_ns": log.array()[:, 0], "end_ns": log.array()[:, 1]})
+                 for name, log in links.items()]
+        df = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=["channel", "start_ns", "end_ns"])
+        return df.astype({"channel": "string", "start_ns": "int64", "end_ns": "int64"})
+
+    summary = summarize(frames, None, warmup_frames, busy=busy if len(rows) and raw.recorded else None)
+    summary["effects"] = raw.effects
+    if raw.skipped:
+        raw.skipped_frames = {name: repeated_list(f, r.skipped.get(name, (len(f), len(f))), shift)
+                              for name, f in raw.skipped_frames.items()}
+        summary["skipped_tasks"] = {name: len(f) for name, f in raw.skipped_frames.items()}
+    if not raw.recorded:
+        return Result(summary, make_trace([]), frames, links_frame, config)
+    return Result(summary, rows.frame, frames, links_frame, config, chunks=rows.chunks)

@@ -7,6 +7,8 @@ from .memory import check_memory, memory_report
 from .results import Result, build_result
 from .schedules import SCHEDULES, ensure_loaded
 from .schedules.base import FrameProgram, check_program
+from .sim import fastforward
+from .sim.effects import choose_effects
 from .sim.engine import Engine
 
 
@@ -26,13 +28,27 @@ def run_config(exp: Experiment, program: FrameProgram) -> dict:
             **{k: v for k, v in program.notes.items() if k != "resources"}}
 
 
-def simulate(exp: Experiment, record_trace: bool = True) -> Result:
-    """Run `exp` in the model. Same experiment, same result, bit for bit."""
+def simulate(exp: Experiment, record_trace: bool = True, fidelity: str = "full",
+             effects: dict[str, bool] | None = None, fast_forward: bool = True) -> Result:
+    """Run `exp` in the model. Same experiment, same result, bit for bit.
+
+    `fidelity`: "full", "queues" or "analytic" (mgpusim.sim.effects); `effects`: effects forced
+    on (True) or off (False); `fast_forward`: skip repeats of the model's state (exact)."""
     program = build_program(exp)
-    check_memory(program, exp)  # overflow is an input error, reported before time 0
-    raw = Engine(program, CostModel(exp.profile), record_trace=record_trace).run()
+    chosen = choose_effects(program, exp.profile, fidelity, effects)
+    if "memory_capacity" in chosen:
+        check_memory(program, exp)  # overflow is an input error, reported before time 0
+    if fidelity == "analytic":
+        from .sim.analytic import analytic_raw  # noqa: PLC0415 (only this level needs it)
+        raw = analytic_raw(program, CostModel(exp.profile), chosen, record_trace)
+    else:
+        engine = Engine(program, CostModel(exp.profile), record_trace=record_trace or fast_forward,
+                        effects=chosen)
+        raw = fastforward.run(engine, fast_forward, record_trace)
     result = build_result(raw, program.warmup_frames, run_config(exp, program))
-    result.summary["memory"] = memory_report(program, exp)
+    if "memory_capacity" in chosen:
+        result.summary["memory"] = memory_report(program, exp)
+    result.summary.update(fidelity=fidelity, modelled_effects=sorted(chosen), fast_forward=raw.fast_forward)
     _task_rates(program, raw, result)
     return result
 

@@ -68,6 +68,12 @@ class RawResult:
     skipped_frames: dict[str, list[int]] = field(default_factory=dict)
     #: the effects instantiated for this run (names of :data:`.effects.EFFECTS`)
     modelled: frozenset[str] = frozenset()
+    present_task: str = "present"
+    #: whether `rows` holds the trace the caller asked for (else it is empty or internal)
+    recorded: bool = True
+    #: set by a fast-forward: how the logs repeat (mgpusim.sim.fastforward.Repeat)
+    repeat: object = None
+    fast_forward: dict = field(default_factory=dict)
 
 
 class Engine:
@@ -107,6 +113,9 @@ class Engine:
         self._make_executors = executors or (
             lambda env: make_executors(env, costs, "shared_executor" in effects))
         self.processes: list[simpy.Process] = []
+        self._ops: list[list[_Op]] = []
+        #: called with the frame number when a frame presents (the fast-forward's probe)
+        self.on_present: Callable[[int], None] | None = None
         self._setup_resources()
 
     # ----- build -------------------------------------------------------------------------
@@ -153,8 +162,10 @@ class Engine:
         queues: dict[QueueRef, list[list[_Op]]] = {}
         host_ops: list[list[_Op]] = [[] for _ in range(self.period)]
         for phase, tasks in enumerate(self.program.templates):
+            self._ops.append([])
             for task in tasks:
                 op = self._op(phase, task)
+                self._ops[-1].append(op)
                 if isinstance(task, HostCopyTask):
                     host_ops[phase].append(op)
                 else:
@@ -348,6 +359,8 @@ class Engine:
             self.frame_start[frame] = start
         if op.is_present:
             self.present_end[frame] = end
+            if self.on_present is not None:
+                self.on_present(frame)
         if self.record:
             self.rows.append((frame, op.device, engine, op.task.step, op.task.name, start, end, nbytes,
                               op.waits_for))
@@ -394,6 +407,19 @@ class Engine:
             self._complete(frame, op.task)
 
     # ----- run ---------------------------------------------------------------------------
+    def all_ops(self) -> list[list[_Op]]:
+        """Every task's _Op, per frame phase, in submission order."""
+        return self._ops
+
+    def shorten(self, frames: int) -> None:
+        """Stop the run after `frames` frames (fewer than now). Only safe while no process has
+        reached frame `frames - 1` (the fast-forward checks this)."""
+        per_phase = [len(t) for t in self.program.templates]
+        cycles, rest = divmod(self.horizon - frames, self.period)
+        dropped = cycles * sum(per_phase) + sum(per_phase[f % self.period] for f in range(frames, frames + rest))
+        self._unfinished -= dropped
+        self.horizon = frames
+
     def run(self) -> RawResult:
         self.env.run()
         if self._unfinished:
@@ -409,7 +435,7 @@ class Engine:
             effects["cpu_contention"] = ch["host.cpu"].max_concurrent > 1
         return RawResult(self.rows, self.frame_start, self.present_end, self.channels,
                          {n: len(f) for n, f in self._chains.skipped_frames.items()}, effects,
-                         dict(self._chains.skipped_frames), self.effects)
+                         dict(self._chains.skipped_frames), self.effects, self.program.present_task)
 
     def _blocked_message(self) -> str:
         blocked = sorted(self._waiters)[:8]

@@ -1,0 +1,361 @@
+"""Exact fast-forward: once the model's state repeats up to a shift, the rest is that repeat.
+
+The event model is deterministic, so its future is a function of its state. At the end of
+every frame (its present) the engine's whole state is written down relative to that moment
+and that frame: every queue's process (where its generator stands and its locals), every
+pending SimPy event (time from now, priority, order, what it will call), dependency counts,
+ready and skipped instances, host wake-ups, the memcpy threads and their queue, and every
+channel's flows (exact remaining bytes, rates, scale). Times are written relative to now and
+frame numbers relative to the frame, so two moments with equal descriptions are the same state
+shifted by P frames and T ns. From the first such pair on, the run is the block between them
+repeated, until the end of the run comes into view.
+
+The run is then shortened in place: the streams stop after N' = N - kP frames, for the largest
+k that keeps the end out of view at the repeat (every frame the state names is below N' - 1),
+so the shortened run passes through the same states. The full run's logs (trace rows, link busy
+intervals, skipped frames) are the shortened run's, with the block inserted k more times, each
+shifted by P frames and T ns, and what follows shifted by k blocks (:class:`Repeat`).
+
+Anything in the state that this module cannot describe exactly (an event or a local it does not
+know) stops the fast-forward for that run, and the summary says why; it never guesses.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import simpy
+
+from .channel import Channel, FixedRateChannel
+
+if TYPE_CHECKING:
+    from .engine import Engine
+
+#: Stop looking for a repeat after this many frames (the run then simply continues).
+PROBE_FRAMES = 4000
+
+
+class Unsupported(Exception):
+    """A part of the state this module cannot describe exactly."""
+
+
+@dataclass
+class Repeat:
+    """Where the logs of a shortened run split, and how the full run repeats its block.
+
+    Rows `[rows[0], rows[1])` of the shortened run (and likewise each channel's busy intervals
+    and each skipped-frame list) were logged between the two equal states, `frames` frames and
+    `ns` ns apart; the full run logs that block `copies` + 1 times, each shifted one step more,
+    and the rest of the shortened run shifted by `copies` steps."""
+
+    frames: int
+    ns: int
+    copies: int
+    anchor_frame: int
+    rows: tuple[int, int]
+    busy: dict[str, tuple[int, int]] = field(default_factory=dict)
+    skipped: dict[str, tuple[int, int]] = field(default_factory=dict)
+    #: channels busy without a break over the whole block: their open interval's start (it
+    #: does not move with the repeats)
+    held_open: dict[str, int] = field(default_factory=dict)
+
+
+class FastForward:
+    """Watches an engine's presents, finds a repeat, shortens the run (see the module doc)."""
+
+    def __init__(self, engine: Engine, probe_frames: int = PROBE_FRAMES):
+        self.engine = engine
+        self.probe_frames = probe_frames
+        self.seen: dict[tuple, tuple[int, int, tuple]] = {}
+        self.repeat: Repeat | None = None
+        self.reason = "no repeat found"
+        self.active = True
+        self._opid = {id(op): (i, j) for i, ops in enumerate(engine.all_ops()) for j, op in enumerate(ops)}
+        self._proc_index = {id(p): i for i, p in enumerate(engine.processes)}
+
+    # ----- driven by the engine -----------------------------------------------------------
+    def on_present(self, frame: int) -> None:
+        """Frame `frame` presented: look at the state once the current process has yielded."""
+        if not self.active:
+            return
+        if frame >= self.probe_frames:
+            self.active = False
+            self.reason = f"no repeat within the first {self.probe_frames} frames"
+            return
+        self.engine.env.timeout(0).callbacks.append(lambda _e: self._probe(frame))
+
+    def _probe(self, frame: int) -> None:
+        if not self.active:
+            return
+        try:
+            describer = _Describer(self.engine, frame, self._opid, self._proc_index)
+            sig = describer.signature()
+        except Unsupported as exc:
+            self.active = False
+            self.reason = f"state not described exactly ({exc})"
+            return
+        now = self.engine.env.now
+        marks = self._marks()
+        earlier = self.seen.get(sig)
+        if earlier is None:
+            self.seen[sig] = (frame, now, marks)
+            return
+        held = _held_open(earlier, (frame, now, marks))
+        if held is None:  # a channel's busy log does not repeat yet: keep looking
+            self.seen[sig] = (frame, now, marks)
+            return
+        self.active = False
+        self.seen.clear()
+        self._shorten(earlier, (frame, now, marks), describer.max_frame, held)
+
+    def _marks(self) -> tuple:
+        e = self.engine
+        return (len(e.rows), {n: len(c.busy) for n, c in e.channels.items()},
+                {n: len(f) for n, f in e._chains.skipped_frames.items()}, _open_since(e))
+
+    def _shorten(self, first: tuple, second: tuple, max_frame: int, held: dict[str, int]) -> None:
+        (f1, t1, m1), (f2, t2, m2) = first, second
+        period, shift = f2 - f1, t2 - t1
+        n = self.engine.horizon
+        copies = max(0, (n - (max_frame + 2)) // period)
+        self.reason = f"state repeats every {period} frame(s), {shift} ns, from frame {f1}"
+        if copies == 0:
+            return  # the end is already in view: nothing to skip
+        self.engine.shorten(n - copies * period)
+        busy = {name: (m1[1].get(name, 0), m2[1].get(name, 0)) for name in m2[1]}
+        skipped = {name: (m1[2].get(name, 0), m2[2].get(name, 0)) for name in m2[2]}
+        self.repeat = Repeat(period, shift, copies, f1, (m1[0], m2[0]), busy, skipped, held)
+
+    def summary(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"used": self.repeat is not None, "why": self.reason}
+        if self.repeat is not None:
+            r = self.repeat
+            out.update(period_frames=r.frames, period_ns=r.ns, from_frame=r.anchor_frame,
+                       frames_skipped=r.copies * r.frames)
+        return out
+
+
+def run(engine: Engine, enabled: bool = True, record_trace: bool = True) -> Any:
+    """Run `engine` (built with record_trace=True when `enabled`), fast-forwarding if its state
+    repeats; the RawResult carries the repeat and what the fast-forward did."""
+    ff = FastForward(engine) if enabled else None
+    if ff is not None:
+        engine.on_present = ff.on_present
+    raw = engine.run()
+    raw.recorded = record_trace
+    if ff is not None:
+        raw.repeat = ff.repeat
+        raw.fast_forward = ff.summary()
+    else:
+        raw.fast_forward = {"used": False, "why": "off"}
+    return raw
+
+
+def _open_since(engine: Engine) -> dict[str, int]:
+    """When each busy channel's current busy interval began."""
+    out = {}
+    for name, ch in engine.channels.items():
+        busy = ch.active if isinstance(ch, FixedRateChannel) else ch.flows
+        if busy:
+            out[name] = ch._busy_since
+    return out
+
+
+def _held_open(first: tuple, second: tuple) -> dict[str, int] | None:
+    """Channels open at both moments: each either reopened one shift later (periodic) or never
+    closed in between (held open: returned with its start). None if a log does not repeat."""
+    (_f1, t1, m1), (_f2, t2, m2) = first, second
+    held = {}
+    for name, s2 in m2[3].items():
+        s1 = m1[3].get(name)
+        if s1 is None or s2 - t2 == s1 - t1:
+            continue
+        if s1 != s2 or m2[1].get(name, 0) != m1[1].get(name, 0):
+            return None
+        held[name] = s1
+    return held
+
+
+class _Describer:
+    """The engine's state at one moment, as a hashable value relative to now and a frame."""
+
+    _CONSTANT_LOCALS = frozenset({"self", "plan", "host", "env", "period", "skip", "ready"})
+
+    def __init__(self, engine: Engine, frame: int, opid: dict, proc_index: dict):
+        self.e, self.now, self.frame = engine, engine.env.now, frame
+        self.opid, self.proc_index = opid, proc_index
+        self.ident: dict[int, tuple] = {}
+        self.objs: dict[int, int] = {}
+        self.max_frame = frame
+
+    # ----- relative values ---------------------------------------------------------------
+    def f(self, frame: int) -> int:
+        if frame > self.max_frame:
+            self.max_frame = frame
+        return frame - self.frame
+
+    def t(self, time: int) -> int:
+        return time - self.now
+
+    def key(self, key: tuple[int, str]) -> tuple[int, str]:
+        return (self.f(key[0]), key[1])
+
+    # ----- the whole state ---------------------------------------------------------------
+    def signature(self) -> tuple:
+        e = self.e
+        queue = [entry for entry in sorted(e.env._queue, key=lambda q: q[:3]) if not self._is_probe(entry[3])]
+        self._name_events(queue)
+        return (
+            tuple(self._entry(i, entry) for i, entry in enumerate(queue)),
+            tuple(self._process(p) for p in e.processes),
+            tuple(sorted((self.key(k), v) for k, v in e._pending.items())),
+            tuple(sorted(self.key(k) for k in e._ready)),
+            tuple(sorted((self.key(k), self.t(v)) for k, v in e._cross_done.items())),
+            tuple(sorted(self.key(k) for k in e._skip)),
+            self._chains(),
+            self._host_threads(),
+            tuple(self._channel(name, ch) for name, ch in e.channels.items()),
+        )
+
+    def _is_probe(self, event: simpy.Event) -> bool:
+        cbs = event.callbacks or ()
+        return any(getattr(cb, "__code__", None) is not None and cb.__code__.co_qualname.startswith(
+            "FastForward.on_present") for cb in cbs)
+
+    def _name_events(self, queue: list) -> None:
+        for i, (_t, _p, _eid, event) in enumerate(queue):
+            self.ident[id(event)] = ("q", i)
+            for cb in event.callbacks or ():
+                done = _closure(cb).get("done")
+                if isinstance(done, simpy.Event):
+                    self.ident.setdefault(id(done), ("fixed", i))
+        for name, ch in self.e.channels.items():
+            if isinstance(ch, Channel):
+                for j, flow in enumerate(ch.flows):
+                    self.ident.setdefault(id(flow.done), ("flow", name, j))
+        for key, ev in self.e._waiters.items():
+            self.ident.setdefault(id(ev), ("wait", self.key(key)))
+
+    def _event(self, ev: Any) -> Any:
+        if ev is None:
+            return None
+        tag = self.ident.get(id(ev))
+        if tag is not None:
+            return tag
+        if isinstance(ev, simpy.Event) and ev.callbacks is None:
+            return ("processed",)
+        raise Unsupported(f"an event the engine does not track: {ev!r}")
+
+    def _entry(self, i: int, entry: tuple) -> tuple:
+        time, priority, _eid, event = entry
+        if isinstance(event, simpy.Process):
+            return ("process-end", self.proc_index[id(event)])
+        return (self.t(time), int(priority), tuple(self._callback(cb) for cb in event.callbacks or ()))
+
+    def _callback(self, cb: Any) -> tuple:
+        owner = getattr(cb, "__self__", None)
+        if owner is not None:
+            name = cb.__func__.__name__
+            if isinstance(owner, simpy.Process):
+                return ("resume", self.proc_index[id(owner)])
+            if isinstance(owner, (Channel, FixedRateChannel)):
+                return ("channel", owner.name, name)
+            raise Unsupported(f"a callback {cb!r}")
+        code = getattr(cb, "__code__", None)
+        if code is None:
+            raise Unsupported(f"a callback {cb!r}")
+        cells = _closure(cb)
+        return (code.co_qualname, code.co_firstlineno,
+                tuple(self._cell(name, value, cells) for name, value in sorted(cells.items())))
+
+    def _cell(self, name: str, value: Any, cells: dict) -> Any:
+        if name == "self":
+            return getattr(value, "name", type(value).__name__)
+        if name == "gen":
+            return value == cells["self"]._gen  # only whether the wake-up is stale matters
+        if name == "start":
+            return self.t(value)
+        if name == "tid":
+            return value
+        if name == "part":
+            return self._part(value)
+        if name == "done":
+            return self._event(value)
+        raise Unsupported(f"a callback that holds {name!r}")
+
+    def _part(self, part: tuple) -> tuple:
+        frame, op, size, state = part
+        index = self.objs.setdefault(id(state), len(self.objs))
+        return ("part", self.f(frame), self.opid[id(op)], size, index, state[0])
+
+    def _process(self, proc: simpy.Process) -> tuple:
+        gen = proc._generator
+        frame = gen.gi_frame
+        if frame is None:
+            return ("finished",)
+        out = [frame.f_lasti, self._event(proc._target)]
+        is_host = frame.f_locals.get("host", False)
+        for name, value in sorted(frame.f_locals.items()):
+            if name in self._CONSTANT_LOCALS or (is_host and name == "submitted"):
+                continue  # the host-copy stream keeps no submit clock
+            out.append((name, self._local(name, value)))
+        return tuple(out)
+
+    def _local(self, name: str, value: Any) -> Any:
+        if name == "frame":
+            return self.f(value)
+        if name in ("start",):
+            return self.t(value)
+        if name == "submitted":
+            return self._submitted(value)
+        if name == "op":
+            return self.opid[id(value)]
+        if name == "key":
+            return self.key(value)
+        if name == "ev":
+            return self._event(value)
+        if name == "wait":
+            return value
+        raise Unsupported(f"a queue process local {name!r}")
+
+    def _submitted(self, value: int) -> int | None:
+        """A queue's submit-thread clock. Without a submit cost it only ever matters through
+        max(clock, input end + dispatch), with every such input end at least the earliest one
+        still pending (or now): all clocks below that bound are the same state."""
+        e = self.e
+        if not e._host_timeline:
+            return None
+        if e._submit_ns == 0:
+            floor = min([self.now] + [d + e._dispatch_ns for d in e._cross_done.values()])
+            value = max(value, floor)
+        return self.t(value)
+
+    def _chains(self) -> tuple:
+        c = self.e._chains
+        return (tuple(sorted((n, v) for n, v in c._inflight.items() if v)),
+                tuple(sorted((self.key(k), v) for k, v in c._skipped_keys.items())))
+
+    def _host_threads(self) -> tuple:
+        e = self.e
+        if not hasattr(e, "_free_threads"):
+            return ()
+        return (tuple(e._free_threads), tuple(self._part(p) for p in e._part_queue))
+
+    def _channel(self, name: str, ch: Any) -> tuple:
+        # (when the channel's current busy interval began only goes to its log: see _open_since)
+        if isinstance(ch, FixedRateChannel):
+            return (name, ch.active)
+        if not isinstance(ch, Channel):
+            raise Unsupported(f"channel {name!r} of type {type(ch).__name__}")
+        fluid = any(not f.solo_rate for f in ch.flows)
+        flows = tuple((f.remaining, f.cap, f.cap_s, f.rate, self.t(f.start), f.nbytes, f.solo_rate,
+                       self._event(f.done)) for f in ch.flows)
+        return (name, flows, self.t(ch._t) if fluid else None, ch._settle_pending,
+                ch._crowd, ch._denoms, ch._scale)
+
+
+def _closure(cb: Any) -> dict[str, Any]:
+    code = getattr(cb, "__code__", None)
+    if code is None or not cb.__closure__:
+        return {}
+    return {name: cell.cell_contents for name, cell in zip(code.co_freevars, cb.__closure__)}

@@ -1,0 +1,262 @@
+"""The `analytic` fidelity level: frame times from the task graph, without event simulation.
+
+Every task instance starts at the latest of: the ends of its dependencies (same and earlier
+frames: buffers and frames in flight are such dependencies), the end of the task before it on
+its queue, and (with host submission) its queue's submit clock; it ends after its pass or copy
+time. Links run at their fixed rate. That is a max-plus recurrence over frames, evaluated task by
+task in a topological order of each frame, with no event queue and no processes. Host copies are
+split into parts over the memcpy threads exactly as the event model does (each part on the first
+free thread, in dispatch order).
+
+Exact where nothing is shared: it equals the event model whenever the scene needs none of link
+sharing, host memory sharing and the shared executor, and has no skippable tasks (tests check
+it on every shipped experiment that qualifies). Otherwise it is an optimistic bound: shared
+links, host memory and cores are taken as if each transfer or pass had them alone (sharing only
+slows the model down), and every skippable task runs; the summary lists these approximations.
+
+The recurrence's state at a frame boundary (recent task ends, queue clocks, thread free times),
+relative to the frame's present, repeats once it is periodic; from then on frames are
+extrapolated (the same composition as the event model's fast-forward), so a 10^6-frame run costs
+what its first periodic frames cost. :func:`sweep` evaluates many hardware variants of one
+program at once with numpy (one array lane per configuration).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from fractions import Fraction
+from typing import Any
+
+import numpy as np
+
+from ..costs import CostModel
+from ..errors import ScheduleError
+from ..schedules.base import FrameProgram
+from ..tasks import CopyTask, HostCopyTask, PassTask, Task
+from .effects import EFFECTS
+from .fastforward import Repeat
+
+NEG = -(1 << 62)  # "no constraint" (before time 0)
+
+
+@dataclass(frozen=True)
+class _Node:
+    """One task of a frame phase, with what the recurrence needs, precomputed."""
+
+    name: str
+    task: Task
+    stream: str  # queue name, or "host" for host copies (dispatched in order)
+    #: (task name, frame offset <= 0, crosses devices or the host)
+    deps: tuple[tuple[str, int, bool], ...]
+    fixed: int  # pass time, or copy setup (+ latency), or a host-copy part's fixed time
+    nbytes: int
+    rate: Fraction | None  # a copy's fixed link rate
+    gap: int
+    parts: tuple[int, ...]  # host copy: the part sizes
+    device: str
+    engine: str
+    waits_for: str
+
+
+def _round_div(nbytes: int, rate: Fraction) -> int:
+    """bytes / rate, rounded half up, as the link channel computes it."""
+    num, den = rate.numerator, rate.denominator
+    return (2 * nbytes * den + num) // (2 * num)
+
+
+class Analytic:
+    """The recurrence for one program and cost model (see the module doc)."""
+
+    def __init__(self, program: FrameProgram, costs: CostModel, effects: frozenset[str]):
+        from .engine import Engine  # noqa: PLC0415 (reuse its duration rules, no simulation)
+        self.program, self.costs, self.effects = program, costs, effects
+        host = costs.profile.host
+        submission = "host_submission" in effects
+        self.dispatch = host.dispatch_ns if submission else 0
+        self.submit = host.submit_ns if submission else 0
+        self.timeline = bool(self.dispatch or self.submit)
+        # the engine's own rules for durations, channels and labels, without running it
+        probe = Engine(program, costs, record_trace=False,
+                       effects=effects - {"shared_executor", "link_sharing", "host_memory_sharing"})
+        self.threads = host.memcpy_threads
+        self.device_of = {t.name: ("host" if isinstance(t, HostCopyTask) else t.queue.device_name)
+                          for tasks in program.templates for t in tasks}
+        thread_cap = costs.memcpy_thread_cap()
+        mem = costs.host_memory_bandwidth()
+        self.part_rate = thread_cap if thread_cap < mem else mem
+        self.phases = [self._order([self._node(op) for op in ops]) for ops in probe.all_ops()]
+        self.lag = max([1] + [-d[1] for ph in self.phases for n in ph for d in n.deps])
+        self.approximations = self._approximations()
+
+    def _node(self, op: Any) -> _Node:
+        task = op.task
+        deps = tuple((d.task, d.offset, self._crosses(task, d.task, d.offset)) for d in task.deps)
+        if isinstance(task, HostCopyTask):
+            n = task.parts(self.threads)
+            base = task.bytes // n
+            parts = tuple(base if i < n - 1 else task.bytes - base * (n - 1) for i in range(n))
+            return _Node(task.name, task, "host", deps, op.duration, task.bytes, None, 0, parts,
+                         "host", "memcpy", op.waits_for)
+        rate = None
+        if op.channel is not None:
+            bw = op.channel.bandwidth
+            rate = bw if op.cap is None or op.cap >= bw else op.cap
+        return _Node(task.name, task, str(task.queue), deps, op.duration, op.nbytes, rate, op.gap, (),
+                     op.device, op.engine, op.waits_for)
+
+    def _crosses(self, task: Task, dep: str, offset: int) -> bool:
+        """Whether a host thread must wake to act on this input (as the engine decides)."""
+        if isinstance(task, HostCopyTask):
+            return True
+        return self.device_of[dep] != task.queue.device_name
+
+    @staticmethod
+    def _order(nodes: list[_Node]) -> list[_Node]:
+        """Submission order within each stream, same-frame dependencies first."""
+        by_name = {n.name: n for n in nodes}
+        stream_prev: dict[str, str] = {}
+        before: dict[str, set[str]] = {}
+        for n in nodes:
+            before[n.name] = {d for d, off, _ in n.deps if off == 0}
+            if n.stream in stream_prev:
+                before[n.name].add(stream_prev[n.stream])
+            stream_prev[n.stream] = n.name
+        out, done = [], set()
+        while len(out) < len(nodes):
+            ready = [n for n in nodes if n.name not in done and before[n.name] <= done]
+            if not ready:
+                raise ScheduleError("a frame's tasks depend on each other in a cycle")
+            out.append(ready[0])
+            done.add(ready[0].name)
+        return [by_name[n.name] for n in out]
+
+    def _approximations(self) -> list[str]:
+        needed = {n for n, e in EFFECTS.items() if e.needed(self.program, self.costs.profile)}
+        out = [f"{name}: taken as unshared (an optimistic bound)"
+               for name in ("link_sharing", "host_memory_sharing", "shared_executor") if name in needed]
+        if any(t.skip_if_busy for tasks in self.program.templates for t in tasks):
+            out.append("skippable tasks: every instance runs")
+        return out
+
+    # ----- one configuration ---------------------------------------------------------------
+    def run(self, record: bool = True) -> tuple[list[tuple], np.ndarray, np.ndarray, Repeat | None]:
+        """Rows, frame starts, presents, and the repeat (None: every frame computed)."""
+        frames = self.program.frames
+        period = len(self.phases)
+        ends: list[dict[str, int]] = []
+        queue_end: dict[str, int] = {}
+        sub: dict[str, int] = {}
+        threads = [0] * self.threads
+        host_prev = NEG
+        rows: list[tuple] = []
+        start = np.full(frames, np.iinfo(np.int64).max, dtype=np.int64)
+        present = np.full(frames, -1, dtype=np.int64)
+        seen: dict[tuple, tuple[int, int, int]] = {}
+        horizon, repeat = frames, None
+        f = 0
+        while f < horizon:
+            here: dict[str, int] = {}
+            ends.append(here)
+            first = None
+            for node in self.phases[f % period]:
+                ready, cross = NEG, NEG
+                for dep, off, crosses in node.deps:
+                    g = f + off
+                    if g < 0:
+                        continue
+                    e = ends[g][dep] if off else here[dep]
+                    if e > ready:
+                        ready = e
+                    if crosses and e > cross:
+                        cross = e
+                if node.stream == "host":
+                    t = max(ready, host_prev, 0)
+                    if self.timeline and cross > NEG:
+                        t = max(t, cross + self.dispatch)
+                    host_prev = t
+                    end = NEG
+                    for size in node.parts:
+                        tid = _thread(threads, t)
+                        s = max(t, threads[tid])
+                        e = s + node.fixed + _round_div(size, self.part_rate)
+                        threads[tid] = e
+                        end = max(end, e)
+                        first = s if first is None else min(first, s)
+                        if record:
+                            rows.append((f, "host", f"thread{tid}", node.task.step, node.name, s, e, size,
+                                         node.waits_for))
+                    here[node.name] = end
+                    continue
+                s = max(ready, queue_end.get(node.stream, 0))
+                if self.timeline:
+                    clock = sub.get(node.stream, 0)
+                    if cross > NEG:
+                        clock = max(clock, cross + self.dispatch)
+                    clock += self.submit
+                    sub[node.stream] = clock
+                    s = max(s, clock)
+                s += node.gap
+                e = s + node.fixed + (_round_div(node.nbytes, node.rate) if node.rate is not None and node.nbytes else 0)
+                queue_end[node.stream] = e
+                here[node.name] = e
+                first = s if first is None else min(first, s)
+                if record:
+                    rows.append((f, node.device, node.engine, node.task.step, node.name, s, e, node.nbytes,
+                                 node.waits_for))
+            start[f] = first if first is not None else start[f]
+            present[f] = here[self.program.present_task]
+            if repeat is None and f >= self.lag:
+                key = self._state(f, ends, queue_end, sub, threads, host_prev, int(present[f]))
+                earlier = seen.get(key)
+                if earlier is None:
+                    seen[key] = (f, int(present[f]), len(rows))
+                else:
+                    f1, t1, r1 = earlier
+                    p, shift = f - f1, int(present[f]) - t1
+                    copies = max(0, (frames - (f + 2)) // p)
+                    if copies:
+                        repeat = Repeat(p, shift, copies, f1 + 1, (r1, len(rows)))
+                        horizon = frames - copies * p
+                    seen.clear()
+            if len(ends) > self.lag + 1:
+                ends[f - self.lag - 1] = {}  # older frames are never read again
+            f += 1
+        return rows, start, present, repeat
+
+    def _state(self, f: int, ends: list[dict[str, int]], queue_end: dict[str, int], sub: dict[str, int],
+               threads: list[int], host_prev: int, ref: int) -> tuple:
+        """What the frames after `f` read, relative to frame f's present. A thread idle since
+        before the last dispatch and a submit clock (without submit cost) behind its queue are
+        the same state whatever their exact value, so they are written as those bounds."""
+        def rel(x: int) -> int:
+            return x - ref if x > NEG else NEG
+        recent = tuple(tuple(sorted((k, rel(v)) for k, v in ends[g].items()))
+                       for g in range(max(0, f - self.lag + 1), f + 1))
+        clocks = tuple(sorted((q, rel(max(c, queue_end.get(q, 0)) if not self.submit else c))
+                              for q, c in sub.items()))
+        return (f % len(self.phases), recent, tuple(sorted((q, rel(v)) for q, v in queue_end.items())),
+                clocks, tuple(rel(t) if t > max(host_prev, 0) else None for t in threads), rel(host_prev))
+
+
+def _thread(free: list[int], t: int) -> int:
+    """The memcpy thread a part dispatched at `t` runs on: the lowest-numbered idle one, else
+    the first to become idle (the engine's pool)."""
+    for tid, at in enumerate(free):
+        if at <= t:
+            return tid
+    return min(range(len(free)), key=lambda i: (free[i], i))
+
+
+def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str], record_trace: bool = True):
+    """A RawResult from the recurrence, for :func:`mgpusim.results.build_result`."""
+    from .engine import RawResult  # noqa: PLC0415
+    model = Analytic(program, costs, effects)
+    rows, start, present, repeat = model.run(record=True)
+    raw = RawResult(rows, start, present, {}, {}, {}, {}, effects, program.present_task)
+    raw.recorded = record_trace
+    raw.repeat = repeat
+    raw.fast_forward = {"used": repeat is not None,
+                        "why": "recurrence repeats" if repeat is not None else "no repeat found"}
+    raw.effects = {"analytic_exact": not model.approximations}
+    if model.approximations:
+        raw.effects["analytic_approximations"] = model.approximations
+    return raw

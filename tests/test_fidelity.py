@@ -1,0 +1,220 @@
+"""Fidelity levels, effects a scene calls for, the executors the engine is given, and the exact
+fast-forward: each checked against the full event model on every shipped experiment."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from mgpusim.costs import CostModel
+from mgpusim.errors import InputError
+from mgpusim.experiment import load_experiment
+from mgpusim.repeated import shifted_overlap
+from mgpusim.sim.effects import EFFECTS, choose_effects, parse_effects
+from mgpusim.sim.engine import Engine
+from mgpusim.sim.executors import make_executors
+from mgpusim.simulate import build_program, simulate
+from tests.conftest import make_experiment, profile_dict
+
+ROOT = Path(__file__).resolve().parents[1]
+SHIPPED = [p for p in sorted(ROOT.glob("experiments/*.toml")) + sorted(ROOT.glob("experiments/*/*.toml"))
+           if "[schedule]" in p.read_text()]
+IDS = [str(p.relative_to(ROOT / "experiments")) for p in SHIPPED]
+SHARING = {"link_sharing", "host_memory_sharing", "shared_executor"}
+
+
+def _summary(result) -> str:
+    return json.dumps({k: v for k, v in result.summary.items() if k != "fast_forward"},
+                      sort_keys=True, default=str)
+
+
+def _same(a, b) -> None:
+    assert _summary(a) == _summary(b)
+    pd.testing.assert_frame_equal(a.frames, b.frames)
+    pd.testing.assert_frame_equal(a.trace, b.trace)
+    pd.testing.assert_frame_equal(a.links.reset_index(drop=True), b.links.reset_index(drop=True))
+
+
+def test_shipped_experiments_found():
+    assert len(SHIPPED) >= 12
+
+
+# ----- fast-forward -----------------------------------------------------------------------
+@pytest.mark.parametrize("path", SHIPPED, ids=IDS)
+def test_fast_forward_changes_nothing(path: Path):
+    """Same summary, trace, frames and links with the fast-forward on and off, at the shipped
+    length and at a length where the repeat is extrapolated over hundreds of frames."""
+    used = []
+    for frames in (None, 400):
+        exp = load_experiment(path, {"schedule.frames": frames} if frames else None)
+        off, on = simulate(exp, fast_forward=False), simulate(exp, fast_forward=True)
+        _same(off, on)
+        assert off.summary["fast_forward"] == {"used": False, "why": "off"}
+        used.append(on.summary["fast_forward"]["used"])
+    if path.name != "sort_last_tc1.toml":  # its second GPU drifts for ~700 frames before repeating
+        assert used[-1], "the 400-frame run should have repeated"
+
+
+def test_fast_forward_long_run_streams_the_same_chunks():
+    exp = load_experiment(ROOT / "experiments" / "h200" / "sort_first.toml", {"schedule.frames": 3000})
+    off, on = simulate(exp, fast_forward=False), simulate(exp)
+    assert on.summary["fast_forward"]["frames_skipped"] > 2900
+    chunks = list(on.trace_chunks(rows_per_chunk=5000))
+    assert len(chunks) > 3
+    pd.testing.assert_frame_equal(pd.concat(chunks, ignore_index=True), off.trace)
+    _same(off, on)
+
+
+def test_fast_forward_with_skipped_tasks_counts_them():
+    exp = load_experiment(ROOT / "experiments" / "particles_machine.toml", {"schedule.frames": 500})
+    off, on = simulate(exp, fast_forward=False), simulate(exp)
+    assert on.summary["fast_forward"]["used"]
+    assert on.summary.get("skipped_tasks") == off.summary.get("skipped_tasks")
+    assert on.summary.get("task_rates_hz") == off.summary.get("task_rates_hz")
+
+
+@settings(max_examples=300, deadline=None)
+@given(s=st.integers(-50, 50), d=st.integers(0, 40), t=st.integers(0, 15), copies=st.integers(0, 12),
+       lo=st.integers(-20, 80), w=st.integers(0, 120))
+def test_shifted_overlap_matches_brute_force(s, d, t, copies, lo, w):
+    e, hi = s + d, lo + w
+    brute = sum(max(0, min(e + j * t, hi) - max(s + j * t, lo)) for j in range(copies + 1))
+    assert shifted_overlap(s, e, t, copies, lo, hi) == brute
+
+
+# ----- effects ----------------------------------------------------------------------------
+def test_parse_effects():
+    assert parse_effects("+link_sharing,-task_gaps") == {"link_sharing": True, "task_gaps": False}
+    for bad in ("link_sharing", "+nope", "+"):
+        with pytest.raises(InputError, match="--effects"):
+            parse_effects(bad)
+
+
+def test_effects_a_scene_needs():
+    one = make_experiment(gpus=1)
+    prog = build_program(one)
+    needed = choose_effects(prog, one.profile)
+    assert "link_sharing" not in needed and "host_memory_sharing" not in needed
+    assert "shared_executor" not in needed and "host_submission" not in needed
+    tc1 = load_experiment(ROOT / "experiments" / "sort_first_tc1.toml")
+    assert "host_memory_sharing" in choose_effects(build_program(tc1), tc1.profile)
+    lp = load_experiment(ROOT / "experiments" / "lavapipe" / "sort_first.toml")
+    full = choose_effects(build_program(lp), lp.profile)
+    assert "shared_executor" in full
+    assert not SHARING & choose_effects(build_program(lp), lp.profile, "queues")
+
+
+def test_shared_executor_cannot_be_forced_on_real_gpus():
+    exp = make_experiment(gpus=2)
+    with pytest.raises(InputError, match="shared_executor"):
+        simulate(exp, effects={"shared_executor": True})
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=IDS)
+def test_forcing_unneeded_effects_on_changes_nothing(path: Path):
+    exp = load_experiment(path)
+    needed = choose_effects(build_program(exp), exp.profile)
+    base = simulate(exp, fast_forward=False)
+    forced = [n for n, e in EFFECTS.items() if n not in needed and e.forceable]
+    assert forced, "every shipped experiment leaves some effect out"
+    for name in forced:
+        other = simulate(exp, effects={name: True}, fast_forward=False)
+        assert name in other.summary["modelled_effects"]
+        pd.testing.assert_frame_equal(base.trace, other.trace)
+        pd.testing.assert_frame_equal(base.frames, other.frames)
+
+
+def test_turning_a_needed_effect_off_is_seen():
+    # two host-copy parts at one thread's speed each on host memory of one thread's speed
+    two = make_experiment(profile_dict(gpus=3, threads=4, mem_gbps=1.0, thread_gbps=1.0), gpus=3,
+                          width=1024, height=1024)
+    full = simulate(two)
+    off = simulate(two, effects={"host_memory_sharing": False})
+    assert "host_memory_sharing" not in off.summary["modelled_effects"]
+    assert off.summary["frame_time_ms"] < full.summary["frame_time_ms"]
+    prof = profile_dict(gpus=2)
+    prof["host"]["submit_ns"] = 500
+    exp = make_experiment(prof, gpus=2)
+    assert not simulate(exp).frames.equals(simulate(exp, effects={"host_submission": False}).frames)
+
+
+# ----- executors --------------------------------------------------------------------------
+def test_engine_runs_on_the_executors_it_is_given():
+    """Real GPUs given one pool of 4 host cores behave like a CPU-emulated machine."""
+    prof = profile_dict(gpus=2)
+    exp = make_experiment(prof, gpus=2, iterations=100)
+    program, costs = build_program(exp), CostModel(exp.profile)
+    own = Engine(program, costs).run()
+    pooled = Engine(program, costs, executors=lambda env: make_executors(env, costs, shared=True)).run()
+    assert "host.cpu" in pooled.channels and "host.cpu" not in own.channels
+    prof["host"].update(gpus_share_cpu=True)
+    lava = simulate(make_experiment(prof, gpus=2, iterations=100), fast_forward=False)
+    rows = sorted(r[4:7] for r in pooled.rows)
+    assert rows == sorted(tuple(x) for x in lava.trace[["task", "start_ns", "end_ns"]].itertuples(index=False))
+
+
+# ----- fidelity levels --------------------------------------------------------------------
+def _analytic_cases() -> list[tuple[Path, dict]]:
+    """Shipped experiments (and host-copy-free variants) where the scene shares no resource."""
+    cases = []
+    for path in SHIPPED:
+        for sets in ({}, {"schedule.host_copy": False}):
+            try:
+                exp = load_experiment(path, sets)
+            except InputError:
+                continue
+            prog = build_program(exp)
+            skips = any(t.skip_if_busy for ts in prog.templates for t in ts)
+            if not skips and not SHARING & choose_effects(prog, exp.profile):
+                cases.append((path, sets))
+    return cases
+
+
+ANALYTIC = _analytic_cases()
+
+
+def test_analytic_has_cases_of_every_kind():
+    names = {p.name for p, _ in ANALYTIC}
+    assert len(ANALYTIC) >= 8
+    assert {"pipelining_miniengine_pcie3x8.toml", "sort_first_tc1.toml", "afr_tc1.toml"} <= names
+
+
+@pytest.mark.parametrize("case", ANALYTIC, ids=[f"{p.name}{'-' + ','.join(s) if s else ''}" for p, s in ANALYTIC])
+def test_analytic_equals_full_model_where_nothing_is_shared(case):
+    path, sets = case
+    exp = load_experiment(path, {**sets, "schedule.frames": 300})
+    full, analytic = simulate(exp, fast_forward=False), simulate(exp, fidelity="analytic")
+    pd.testing.assert_frame_equal(full.frames, analytic.frames)
+    for key in ("frame_time_ms", "latency_ms", "frame_time_jitter_ms", "window_ns"):
+        assert full.summary[key] == analytic.summary[key]
+    assert analytic.summary["effects"]["analytic_exact"] is True
+    assert analytic.summary["fidelity"] == "analytic"
+
+
+@pytest.mark.parametrize("path", [p for p in SHIPPED if "particles" not in p.name],
+                         ids=[i for i in IDS if "particles" not in i])
+def test_analytic_equals_queues_level(path: Path):
+    exp = load_experiment(path)
+    queues, analytic = simulate(exp, fidelity="queues"), simulate(exp, fidelity="analytic")
+    pd.testing.assert_frame_equal(queues.frames, analytic.frames)
+    assert queues.summary["fidelity"] == "queues"
+
+
+def test_analytic_says_what_it_approximates():
+    lp = load_experiment(ROOT / "experiments" / "lavapipe" / "sort_first.toml")
+    s = simulate(lp, fidelity="analytic").summary
+    assert s["effects"]["analytic_exact"] is False
+    assert any("shared_executor" in a for a in s["effects"]["analytic_approximations"])
+    assert s["frame_time_ms"] < simulate(lp).summary["frame_time_ms"]  # an optimistic bound
+
+
+def test_analytic_extrapolates_long_runs():
+    exp = load_experiment(ROOT / "experiments" / "sort_first_tc1.toml", {"schedule.frames": 200_000})
+    result = simulate(exp, fidelity="analytic", record_trace=False)
+    assert result.summary["fast_forward"]["used"] and len(result.frames) == 200_000
+    short = simulate(load_experiment(ROOT / "experiments" / "sort_first_tc1.toml", {"schedule.frames": 2000}),
+                     fidelity="analytic")
+    pd.testing.assert_frame_equal(result.frames.iloc[:1990], short.frames.iloc[:1990])

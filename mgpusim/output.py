@@ -11,6 +11,7 @@ import pandas as pd
 from .perfetto import chrome_trace
 from .plot import timeline_png
 from .results import Result
+from .trace import make_trace
 
 def write_table(df: pd.DataFrame, path: Path) -> Path:
     """CSV or Parquet by the file's extension."""
@@ -18,6 +19,28 @@ def write_table(df: pd.DataFrame, path: Path) -> Path:
         df.to_parquet(path, index=False)
     else:
         df.to_csv(path, index=False)
+    return path
+
+
+def write_trace(result: Result, path: Path, rows_per_group: int = 1_000_000) -> Path:
+    """The whole trace, streamed in sorted row groups when the run kept it compact (a long
+    fast-forwarded run never holds it whole); CSV or Parquet by the file's extension."""
+    if not result.compact:
+        return write_table(result.trace, path)
+    import pyarrow as pa  # noqa: PLC0415
+    import pyarrow.parquet as pq  # noqa: PLC0415
+    tmp = path.with_name(path.name + ".tmp")
+    schema = pa.Schema.from_pandas(make_trace([]), preserve_index=False)
+    if path.suffix == ".parquet":
+        with pq.ParquetWriter(tmp, schema) as writer:
+            for table in result.repeated.arrow_chunks(schema, rows_per_group):
+                writer.write_table(table)
+    else:
+        import pyarrow.csv as pcsv  # noqa: PLC0415
+        with pcsv.CSVWriter(tmp, schema) as writer:
+            for table in result.repeated.arrow_chunks(schema, rows_per_group):
+                writer.write_table(table)
+    tmp.replace(path)
     return path
 
 
@@ -65,7 +88,7 @@ def write_result(result: Result, out: Path, trace_format: str = "parquet", title
     out.mkdir(parents=True, exist_ok=True)
     files = {
         "summary": write_json({**result.summary, "config": result.config}, out / "summary.json"),
-        "trace": write_table(result.trace, out / f"trace.{trace_format}"),
+        "trace": write_trace(result, out / f"trace.{trace_format}"),
         "frames": write_table(result.frames, out / f"frames.{trace_format}"),
         "links": write_table(result.links, out / f"links.{trace_format}"),
     }

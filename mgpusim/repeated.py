@@ -11,7 +11,7 @@ sorts (by start, end, device, engine; ties in logging order).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterator
+from typing import Any, Iterator
 
 import numpy as np
 import pandas as pd
@@ -49,15 +49,19 @@ def _shifted(cols: dict[str, np.ndarray], frames: int, ns: int) -> dict[str, np.
 
 
 class RepeatedRows:
-    """The trace rows of a fast-forwarded run (see the module doc)."""
+    """The trace rows of a fast-forwarded run (see the module doc). String columns are kept as
+    codes into one sorted dictionary per column (code order is string order)."""
 
     def __init__(self, rows: list[tuple], split: tuple[int, int], shift: Shift):
-        self.prefix = _columns(rows[:split[0]])
-        self.block = _columns(rows[split[0]:split[1]])
-        self.rest = _shifted(_columns(rows[split[1]:]), shift.copies * shift.frames, shift.copies * shift.ns)
+        parts = [_columns(rows[:split[0]]), _columns(rows[split[0]:split[1]]), _columns(rows[split[1]:])]
+        self.dictionary = {c: np.unique(np.concatenate([p[c] for p in parts]).astype(str)) for c in _STR}
+        for p in parts:
+            for c in _STR:
+                p[c] = np.searchsorted(self.dictionary[c], p[c].astype(str)).astype(np.int32)
+        self.prefix, self.block = parts[0], parts[1]
+        self.rest = _shifted(parts[2], shift.copies * shift.frames, shift.copies * shift.ns)
         self.shift = shift
-        self._codes = {c: np.unique(np.concatenate([self.prefix[c], self.block[c], self.rest[c]]).astype(str))
-                       for c in ("device", "engine")}
+        self._host = _code(self.dictionary["device"], "host")
 
     def __len__(self) -> int:
         return len(self.prefix["frame"]) + (self.shift.copies + 1) * len(self.block["frame"]) + \
@@ -66,15 +70,16 @@ class RepeatedRows:
     # ----- per frame ---------------------------------------------------------------------
     def frame_arrays(self, frames: int, present_task: str) -> tuple[np.ndarray, np.ndarray]:
         """(first task start, present end) per frame, as the engine records them."""
+        present_code = _code(self.dictionary["task"], present_task)
         start = np.full(frames, np.iinfo(np.int64).max, dtype=np.int64)
         present = np.full(frames, -1, dtype=np.int64)
         for part in (self.prefix, self.rest):
             np.minimum.at(start, part["frame"], part["start_ns"])
-            mask = _present(part, present_task)
+            mask = _present(part, present_code, self._host)
             np.maximum.at(present, part["frame"][mask], part["end_ns"][mask])
         steps = np.arange(self.shift.copies + 1, dtype=np.int64)
         b = self.block
-        mask = _present(b, present_task)
+        mask = _present(b, present_code, self._host)
         for frame in np.unique(b["frame"]):
             idx = frame + self.shift.frames * steps
             in_frame = b["frame"] == frame
@@ -90,19 +95,54 @@ class RepeatedRows:
         """Busy ns of every queue and host thread (`device.engine`) inside [lo, hi]."""
         out: dict[str, int] = {}
         for part in (self.prefix, self.rest):
-            _add_clipped(out, _resource(part), part["start_ns"], part["end_ns"], lo, hi)
+            _add_clipped(out, self._resource(part), part["start_ns"], part["end_ns"], lo, hi)
         b = self.block
-        for name, s, e in zip(_resource(b), b["start_ns"].tolist(), b["end_ns"].tolist()):
+        for name, s, e in zip(self._resource(b), b["start_ns"].tolist(), b["end_ns"].tolist()):
             out[name] = out.get(name, 0) + shifted_overlap(s, e, self.shift.ns, self.shift.copies, lo, hi)
         return out
+
+    def _resource(self, part: dict[str, np.ndarray]) -> list[str]:
+        dev, eng = self.dictionary["device"][part["device"]], self.dictionary["engine"][part["engine"]]
+        return [f"{d}.{e}" for d, e in zip(dev.tolist(), eng.tolist())]
 
     # ----- the trace ---------------------------------------------------------------------
     def chunks(self, rows_per_chunk: int = 1_000_000) -> Iterator[pd.DataFrame]:
         """The whole trace, sorted as make_trace sorts it, in chunks of about `rows_per_chunk`
         rows (by start time: every row of one start time is in one chunk)."""
+        for cols in self._sorted_chunks(rows_per_chunk):
+            yield self._frame(cols)
+
+    def arrow_chunks(self, schema: Any, rows_per_chunk: int = 1_000_000) -> Iterator[Any]:
+        """The same chunks as pyarrow Tables of `schema` (strings built in Arrow, not Python)."""
+        import pyarrow as pa  # noqa: PLC0415 (only the streaming writer needs it)
+        dicts = {c: pa.array(self.dictionary[c].tolist(), type=pa.string()) for c in _STR}
+        for cols in self._sorted_chunks(rows_per_chunk):
+            arrays = []
+            for field in schema:
+                if field.name in _STR:
+                    codes = pa.array(cols[field.name], type=pa.int32())
+                    arrays.append(pa.DictionaryArray.from_arrays(codes, dicts[field.name]).cast(field.type))
+                else:
+                    arrays.append(pa.array(cols[field.name], type=field.type))
+            yield pa.Table.from_arrays(arrays, schema=schema)
+
+    def window(self, first: int, last: int) -> pd.DataFrame:
+        """The rows of frames first..last-1 only, sorted as the whole trace is."""
+        parts = [_frames_in(self.prefix, first, last)]
+        b = self.block
+        if len(b["frame"]) and self.shift.frames:
+            p = self.shift.frames
+            j0 = max(0, -((int(b["frame"].max()) - first) // p))
+            j1 = min(self.shift.copies, (last - 1 - int(b["frame"].min())) // p)
+            for j in range(j0, j1 + 1):
+                parts.append(_frames_in(_shifted(b, j * p, j * self.shift.ns), first, last))
+        parts.append(_frames_in(self.rest, first, last))
+        return self._frame(_sort({c: np.concatenate([x[c] for x in parts]) for c in TRACE_COLUMNS}))
+
+    def _sorted_chunks(self, rows_per_chunk: int) -> Iterator[dict[str, np.ndarray]]:
         starts = [p["start_ns"] for p in (self.prefix, self.block, self.rest) if len(p["start_ns"])]
         if not starts:
-            yield _frame(_columns([]), self._codes)
+            yield {c: self.prefix[c] for c in TRACE_COLUMNS}
             return
         lo = min(int(s.min()) for s in starts)
         hi = max(int(s.max()) for s in starts) + self.shift.copies * self.shift.ns + 1
@@ -112,14 +152,15 @@ class RepeatedRows:
         a = lo
         while a < hi:
             b = min(hi, a + width)
-            yield self._window(a, b)
+            yield self._between(a, b)
             a = b
 
     def frame(self) -> pd.DataFrame:
         """The whole trace as one DataFrame (what make_trace would build from every row)."""
         return pd.concat(list(self.chunks(rows_per_chunk=len(self) + 1)), ignore_index=True)
 
-    def _window(self, a: int, b: int) -> pd.DataFrame:
+    def _between(self, a: int, b: int) -> dict[str, np.ndarray]:
+        """Rows starting in [a, b), sorted."""
         parts = [_take(self.prefix, a, b)]
         blk = self.block
         if len(blk["frame"]):
@@ -129,19 +170,48 @@ class RepeatedRows:
                 j1 = min(self.shift.copies, (b - 1 - int(blk["start_ns"].min())) // t)
             else:
                 j0, j1 = 0, self.shift.copies
-            for j in range(j0, j1 + 1):
-                parts.append(_take(_shifted(blk, j * self.shift.frames, j * t), a, b))
+            if j1 >= j0:
+                parts.append(_tiled(blk, j0, j1, self.shift, a, b))
         parts.append(_take(self.rest, a, b))
-        cols = {c: np.concatenate([p[c] for p in parts]) for c in TRACE_COLUMNS}
-        return _frame(cols, self._codes)
+        return _sort({c: np.concatenate([p[c] for p in parts]) for c in TRACE_COLUMNS})
+
+    def _frame(self, cols: dict[str, np.ndarray]) -> pd.DataFrame:
+        data = {c: (self.dictionary[c][cols[c]] if c in _STR else cols[c]) for c in TRACE_COLUMNS}
+        df = pd.DataFrame(data, columns=list(TRACE_COLUMNS))
+        return df.astype(TRACE_DTYPES).reset_index(drop=True)
 
 
-def _present(part: dict[str, np.ndarray], present_task: str) -> np.ndarray:
-    return (part["task"] == present_task) & (part["device"] != "host")
+def _code(dictionary: np.ndarray, value: str) -> int:
+    i = int(np.searchsorted(dictionary, value))
+    return i if i < len(dictionary) and dictionary[i] == value else -1
 
 
-def _resource(part: dict[str, np.ndarray]) -> list[str]:
-    return [f"{d}.{e}" for d, e in zip(part["device"].tolist(), part["engine"].tolist())]
+def _present(part: dict[str, np.ndarray], present_code: int, host_code: int) -> np.ndarray:
+    return (part["task"] == present_code) & (part["device"] != host_code)
+
+
+def _tiled(block: dict[str, np.ndarray], j0: int, j1: int, shift: Shift, a: int, b: int) -> dict[str, np.ndarray]:
+    """Copies j0..j1 of the block, in order, keeping rows that start in [a, b)."""
+    n = j1 - j0 + 1
+    steps = np.repeat(np.arange(j0, j1 + 1, dtype=np.int64), len(block["frame"]))
+    out = {c: np.tile(v, n) for c, v in block.items()}
+    out["frame"] = out["frame"] + steps * shift.frames
+    out["start_ns"] = out["start_ns"] + steps * shift.ns
+    out["end_ns"] = out["end_ns"] + steps * shift.ns
+    return _take(out, a, b)
+
+
+def _frames_in(part: dict[str, np.ndarray], first: int, last: int) -> dict[str, np.ndarray]:
+    mask = (part["frame"] >= first) & (part["frame"] < last)
+    return {c: v[mask] for c, v in part.items()}
+
+
+def _sort(cols: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """make_trace's order: start, end, device, engine; ties in logging order (stable)."""
+    if not len(cols["frame"]):
+        return cols
+    order = np.lexsort((cols["engine"], cols["device"], cols["end_ns"], cols["start_ns"]))
+    return {c: v[order] for c, v in cols.items()}
 
 
 def _add_clipped(out: dict[str, int], names: list[str], s: np.ndarray, e: np.ndarray, lo: int, hi: int) -> None:
@@ -174,14 +244,6 @@ def shifted_overlap(s: int, e: int, t: int, copies: int, lo: int, hi: int) -> in
 def _take(part: dict[str, np.ndarray], a: int, b: int) -> dict[str, np.ndarray]:
     mask = (part["start_ns"] >= a) & (part["start_ns"] < b)
     return {c: v[mask] for c, v in part.items()}
-
-
-def _frame(cols: dict[str, np.ndarray], codes: dict[str, np.ndarray]) -> pd.DataFrame:
-    order = np.lexsort((np.searchsorted(codes["engine"], cols["engine"].astype(str)),
-                        np.searchsorted(codes["device"], cols["device"].astype(str)),
-                        cols["end_ns"], cols["start_ns"])) if len(cols["frame"]) else np.arange(0)
-    df = pd.DataFrame({c: cols[c][order] for c in TRACE_COLUMNS}, columns=list(TRACE_COLUMNS))
-    return df.astype(TRACE_DTYPES).reset_index(drop=True)
 
 
 class RepeatedIntervals:

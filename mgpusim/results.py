@@ -25,9 +25,11 @@ class Result:
 
     def __init__(self, summary: dict[str, Any], trace: Table, frames: pd.DataFrame,
                  links: Table | None = None, config: dict[str, Any] | None = None,
-                 chunks: Callable[[int], Iterator[pd.DataFrame]] | None = None):
+                 repeated: RepeatedRows | None = None):
         self.summary, self.frames, self.config = summary, frames, config if config is not None else {}
-        self._trace, self._links, self._chunks = trace, links if links is not None else pd.DataFrame(), chunks
+        self._trace, self._links = trace, links if links is not None else pd.DataFrame()
+        #: the compact trace of a fast-forwarded run (None: `.trace` is the whole table)
+        self.repeated = repeated
 
     @property
     def trace(self) -> pd.DataFrame:
@@ -49,14 +51,27 @@ class Result:
     def links(self, value: pd.DataFrame) -> None:
         self._links = value
 
+    @property
+    def compact(self) -> bool:
+        """True while the trace is kept compact (not built whole yet)."""
+        return self.repeated is not None and callable(self._trace)
+
     def trace_chunks(self, rows_per_chunk: int = 1_000_000) -> Iterator[pd.DataFrame]:
         """The trace in sorted chunks, without building it whole when it is kept compact."""
-        if self._chunks is not None and callable(self._trace):
-            yield from self._chunks(rows_per_chunk)
+        if self.compact:
+            yield from self.repeated.chunks(rows_per_chunk)
             return
         trace = self.trace
         for lo in range(0, max(len(trace), 1), rows_per_chunk):
             yield trace.iloc[lo:lo + rows_per_chunk]
+
+    def trace_window(self, first: int, last: int) -> pd.DataFrame:
+        """The trace rows of frames first..last-1 (sorted as the whole trace), without
+        building the whole trace of a long fast-forwarded run."""
+        if self.compact:
+            return self.repeated.window(first, last)
+        trace = self.trace
+        return trace[(trace["frame"] >= first) & (trace["frame"] < last)].reset_index(drop=True)
 
 
 def frames_table(frame_start: np.ndarray, present_end: np.ndarray) -> pd.DataFrame:
@@ -190,4 +205,4 @@ def _build_repeated(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
         summary["skipped_tasks"] = {name: len(f) for name, f in raw.skipped_frames.items()}
     if not raw.recorded:
         return Result(summary, make_trace([]), frames, links_frame, config)
-    return Result(summary, rows.frame, frames, links_frame, config, chunks=rows.chunks)
+    return Result(summary, rows.frame, frames, links_frame, config, repeated=rows)

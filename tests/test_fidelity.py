@@ -218,3 +218,19 @@ def test_analytic_extrapolates_long_runs():
     short = simulate(load_experiment(ROOT / "experiments" / "sort_first_tc1.toml", {"schedule.frames": 2000}),
                      fidelity="analytic")
     pd.testing.assert_frame_equal(result.frames.iloc[:1990], short.frames.iloc[:1990])
+
+
+def test_streamed_trace_file_is_the_whole_trace(tmp_path: Path):
+    from mgpusim.output import write_table, write_trace
+    exp = load_experiment(ROOT / "experiments" / "sort_first_tc1.toml", {"schedule.frames": 600})
+    on, off = simulate(exp), simulate(exp, fast_forward=False)
+    assert on.compact
+    window = on.trace_window(100, 140)
+    full = off.trace
+    pd.testing.assert_frame_equal(window, full[(full.frame >= 100) & (full.frame < 140)].reset_index(drop=True))
+    assert on.compact  # the window did not build the whole trace
+    for fmt in ("parquet", "csv"):
+        write_trace(on, tmp_path / f"a.{fmt}", rows_per_group=700)
+        write_table(off.trace, tmp_path / f"b.{fmt}")
+        read = pd.read_parquet if fmt == "parquet" else pd.read_csv
+        pd.testing.assert_frame_equal(read(tmp_path / f"a.{fmt}"), read(tmp_path / f"b.{fmt}"))

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from ..experiment import load_experiment, parse_overrides
 from ..output import write_result
+from ..sim.effects import EFFECTS, FIDELITIES, parse_effects
 from ..simulate import simulate
 
 
@@ -16,12 +17,20 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="override a field, e.g. schedule.gpus=3 or scene.width=1920 (repeatable)")
     p.add_argument("--out", type=Path, default=None, help="output folder (default: out/<experiment name>)")
     p.add_argument("--format", choices=("parquet", "csv"), default="parquet", help="trace table format")
+    p.add_argument("--fidelity", choices=FIDELITIES, default="full",
+                   help="analytic (no event simulation), queues (fixed-rate links, no shared executor) "
+                        "or full (default); see docs/fidelity.md")
+    p.add_argument("--effects", default=None, metavar="+X,-Y",
+                   help=f"force effects on (+) or off (-): {', '.join(EFFECTS)}")
+    p.add_argument("--no-fast-forward", dest="fast_forward", action="store_false",
+                   help="simulate every frame even once the model's state repeats (same results, slower)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     exp = load_experiment(args.experiment, parse_overrides(args.overrides))
-    result = simulate(exp)
+    result = simulate(exp, fidelity=args.fidelity, effects=parse_effects(args.effects),
+                      fast_forward=args.fast_forward)
     out = args.out or Path("out") / exp.name
     files = write_result(result, out, args.format, title=f"{exp.name}: {exp.schedule.name}, "
                          f"{exp.schedule.gpus} GPU(s), {exp.scene.width}x{exp.scene.height}")
@@ -33,6 +42,9 @@ def run(args: argparse.Namespace) -> int:
     for name, hz in s.get("task_rates_hz", {}).items():
         if name != "frames":
             print(f"  {name}: {hz:.1f} Hz (frames {s['fps']:.1f} Hz)")
+    ff = s.get("fast_forward", {})
+    print(f"  fidelity {s['fidelity']}; effects {', '.join(s['modelled_effects']) or 'none'}"
+          + (f"; fast-forward: {ff['why']}" if ff.get("used") else ""))
     busiest = sorted(s.get("utilization", {}).items(), key=lambda kv: -kv[1])[:4]
     print("  busiest: " + ", ".join(f"{k} {v:.0%}" for k, v in busiest))
     print(f"  wrote {', '.join(str(p) for p in files.values())}")

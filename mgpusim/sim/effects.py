@@ -131,7 +131,7 @@ def parse_effects(text: str | None, option: str = "--effects") -> dict[str, bool
             continue
         sign, name = item[0], item[1:]
         if sign not in "+-" or name not in EFFECTS:
-            raise InputError(f"{option}: {item!r} is not +name or -name with a name among "
+            raise InputError(f"{item!r} is not +name or -name with a name among "
                              f"{', '.join(EFFECTS)}", field=option)
         out[name] = sign == "+"
     return out

@@ -22,7 +22,7 @@ def write_table(df: pd.DataFrame, path: Path) -> Path:
     return path
 
 
-def write_trace(result: Result, path: Path, rows_per_group: int = 1_000_000) -> Path:
+def write_trace(result: Result, path: Path, rows_per_group: int = 250_000) -> Path:
     """The whole trace, streamed in sorted row groups when the run kept it compact (a long
     fast-forwarded run never holds it whole); CSV or Parquet by the file's extension."""
     if not result.compact:

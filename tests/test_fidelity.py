@@ -234,3 +234,16 @@ def test_streamed_trace_file_is_the_whole_trace(tmp_path: Path):
         write_table(off.trace, tmp_path / f"b.{fmt}")
         read = pd.read_parquet if fmt == "parquet" else pd.read_csv
         pd.testing.assert_frame_equal(read(tmp_path / f"a.{fmt}"), read(tmp_path / f"b.{fmt}"))
+
+
+@pytest.mark.parametrize("name", ["sort_first_tc1.toml", "afr_tc1.toml", "h200/sort_last.toml",
+                                  "pipelining_miniengine_pcie3x8.toml"])
+def test_sweep_lane_equals_analytic(name: str):
+    import numpy as np
+    from mgpusim.sim.analytic import sweep
+    exp = load_experiment(ROOT / "experiments" / name)
+    out = sweep(build_program(exp), CostModel(exp.profile), np.array([1.0, 2.0]), np.array([1.0, 1.0]))
+    s = simulate(exp, fidelity="analytic").summary
+    assert out["frame_time_ms"][0] == pytest.approx(s["frame_time_ms"], rel=1e-12)
+    assert out["latency_ms"][0] == pytest.approx(s["latency_ms"], rel=1e-12)
+    assert out["frame_time_ms"][1] > out["frame_time_ms"][0]  # slower passes, slower frames

@@ -5,7 +5,7 @@ import argparse
 import json
 from pathlib import Path
 
-from ..bench import DEFAULT_EXPERIMENT, run_bench
+from ..bench import DEFAULT_EXPERIMENT, analytic_speed, effect_costs, effects_saving, long_run, run_bench
 from ..errors import InputError
 
 
@@ -16,16 +16,54 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=int, default=5000)
     p.add_argument("--repeats", type=int, default=3, help="best of this many interleaved runs")
     p.add_argument("--json", action="store_true", help="print the figures as one JSON object")
+    p.add_argument("--what", choices=("all", "simpy", "long", "analytic", "effects"), default="all",
+                   help="simpy: cost per resource use vs raw SimPy; long: a 10^6-frame run with fast-forward "
+                        "(wall, peak memory); analytic: configurations/s; effects: time saved by leaving "
+                        "unneeded effects out (default: all)")
+    p.add_argument("--long-frames", type=int, default=1_000_000, help="frames of the long run")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     if args.frames < 2 or args.repeats < 1:
         raise InputError(f"need --frames >= 2 and --repeats >= 1, got {args.frames} and {args.repeats}")
-    out = run_bench(args.experiment, args.frames, args.repeats)
+    out: dict = {}
+    if args.what in ("all", "simpy"):
+        out["simpy"] = run_bench(args.experiment, args.frames, args.repeats)
+    if args.what in ("all", "long"):
+        out["long"] = long_run(args.experiment, args.long_frames)
+    if args.what in ("all", "analytic"):
+        out["analytic"] = analytic_speed(args.experiment)
+    if args.what in ("all", "effects"):
+        out["effects"] = effects_saving(args.experiment, repeats=args.repeats)
+        out["effect_costs"] = effect_costs(repeats=args.repeats)
     if args.json:
         print(json.dumps(out, sort_keys=True))
         return 0
+    if "simpy" in out:
+        _print_simpy(out["simpy"])
+    if "long" in out:
+        fig = out["long"]
+        print(f"long run: {fig['frames']:,} frames at full fidelity in {fig['simulate_s']:.2f} s "
+              f"({fig['process_s']:.2f} s with imports), peak memory {fig['peak_rss_mb']:.0f} MB; "
+              f"fast-forward: {fig['fast_forward']['why']}")
+    if "analytic" in out:
+        fig = out["analytic"]
+        print(f"analytic: {fig['sweep_configurations_per_s']:,.0f} configurations/s in a "
+              f"{fig['sweep_configurations']:,}-point sweep ({fig['sweep_s']:.2f} s); "
+              f"{fig['simulate_analytic_per_s']:,.0f}/s one at a time through simulate()")
+    if "effects" in out:
+        fig = out["effects"]
+        print(f"effects: {fig['frames']} frames with only the needed effects ({', '.join(fig['needed'])}) "
+              f"{fig['needed_s']:.3f} s, with {', '.join(fig['forced_on'])} forced on {fig['forced_s']:.3f} s: "
+              f"{fig['saved']:.0%} saved")
+        fig = out["effect_costs"]
+        print(f"needed effects of {Path(fig['experiment']).name} ({fig['frames']} frames): all {fig['all_s']:.3f} s; "
+              + ", ".join(f"without {n} {t:.3f} s" for n, t in fig["without_s"].items()))
+    return 0
+
+
+def _print_simpy(out: dict) -> None:
     print(f"raw SimPy (request/timeout/release on a Resource): {out['raw_simpy_uses_per_s']:,.0f} uses/s")
     for key in ("sort_first_2gpu", "sort_first_4gpu"):
         fig = out[key]
@@ -34,4 +72,3 @@ def run(args: argparse.Namespace) -> int:
               f"{fig['link_uses_per_frame']} on links)")
         print(f"  cost per resource use {fig['cost_ratio_vs_raw_simpy']:.2f}x raw SimPy "
               f"(per task, copies counted once: {fig['cost_ratio_per_task_vs_raw_simpy']:.2f}x)")
-    return 0

@@ -30,6 +30,8 @@ class Result:
         self._trace, self._links = trace, links if links is not None else pd.DataFrame()
         #: the compact trace of a fast-forwarded run (None: `.trace` is the whole table)
         self.repeated = repeated
+        #: seconds the model itself took (engine or recurrence), set by simulate()
+        self.model_wall_s: float | None = None
 
     @property
     def trace(self) -> pd.DataFrame:

@@ -20,8 +20,16 @@ TRACE_DTYPES: dict[str, str] = {
 FRAME_COLUMNS: tuple[str, ...] = ("frame", "start_ns", "present_ns", "latency_ns")
 
 
+_EMPTY: pd.DataFrame | None = None
+
+
 def make_trace(rows: list[tuple]) -> pd.DataFrame:
     """Build a trace DataFrame from row tuples in TRACE_COLUMNS order, sorted by time."""
+    global _EMPTY
+    if not rows:  # common (runs without a trace): build the empty table once
+        if _EMPTY is None:
+            _EMPTY = pd.DataFrame.from_records([], columns=list(TRACE_COLUMNS)).astype(TRACE_DTYPES)
+        return _EMPTY.copy()
     df = pd.DataFrame.from_records(rows, columns=list(TRACE_COLUMNS))
     df = df.astype(TRACE_DTYPES)
     return df.sort_values(["start_ns", "end_ns", "device", "engine"], kind="stable").reset_index(drop=True)

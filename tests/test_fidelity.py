@@ -247,3 +247,18 @@ def test_sweep_lane_equals_analytic(name: str):
     assert out["frame_time_ms"][0] == pytest.approx(s["frame_time_ms"], rel=1e-12)
     assert out["latency_ms"][0] == pytest.approx(s["latency_ms"], rel=1e-12)
     assert out["frame_time_ms"][1] > out["frame_time_ms"][0]  # slower passes, slower frames
+
+
+def test_fidelity_command_writes_the_table(tmp_path: Path):
+    from mgpusim.cli import main
+    from mgpusim.fidelity import configurations
+    assert len(configurations()) >= 20  # the committed H200 and H100 runs
+    assert main(["fidelity", "--out", str(tmp_path), "--repeats", "1"]) == 0
+    table = pd.read_csv(tmp_path / "per_config.csv")
+    assert set(table["level"]) == {"analytic", "queues", "full", "full, no fast-forward"}
+    assert table["frame_time_error"].abs().max() < 0.2 and table["wall_ms"].gt(0).all()
+    full = table[table.level == "full"].set_index("config")["frame_ms"]
+    noff = table[table.level == "full, no fast-forward"].set_index("config")["frame_ms"]
+    assert (full == noff).all()
+    assert (tmp_path / "fidelity_pareto.png").stat().st_size > 10_000
+    assert "| analytic | all |" in (tmp_path / "fidelity.md").read_text()

@@ -220,6 +220,10 @@ class Analytic:
             if len(ends) > self.lag + 1:
                 ends[f - self.lag - 1] = {}  # older frames are never read again
             f += 1
+        if repeat is not None and not record:  # no rows to compose: extend the arrays instead
+            _extend(start, horizon, repeat)
+            _extend(present, horizon, repeat)
+            repeat = None
         return rows, start, present, repeat
 
     def _state(self, f: int, ends: list[dict[str, int]], queue_end: dict[str, int], sub: dict[str, int],
@@ -237,6 +241,14 @@ class Analytic:
                 clocks, tuple(rel(t) if t > max(host_prev, 0) else None for t in threads), rel(host_prev))
 
 
+def _extend(values: np.ndarray, computed: int, repeat: Repeat) -> None:
+    """Fill frames from `computed` on: each is the one `repeat.frames` earlier plus the shift."""
+    p, t = repeat.frames, repeat.ns
+    for f in range(computed, len(values), p):
+        n = min(p, len(values) - f)
+        values[f:f + n] = values[f - p:f - p + n] + t
+
+
 def _thread(free: list[int], t: int) -> int:
     """The memcpy thread a part dispatched at `t` runs on: the lowest-numbered idle one, else
     the first to become idle (the engine's pool)."""
@@ -250,7 +262,7 @@ def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str
     """A RawResult from the recurrence, for :func:`mgpusim.results.build_result`."""
     from .engine import RawResult  # noqa: PLC0415
     model = Analytic(program, costs, effects)
-    rows, start, present, repeat = model.run(record=True)
+    rows, start, present, repeat = model.run(record=record_trace)
     raw = RawResult(rows, start, present, {}, {}, {}, {}, effects, program.present_task)
     raw.recorded = record_trace
     raw.repeat = repeat

@@ -139,7 +139,9 @@ class Analytic:
 
     # ----- one configuration ---------------------------------------------------------------
     def run(self, record: bool = True) -> tuple[list[tuple], np.ndarray, np.ndarray, Repeat | None]:
-        """Rows, frame starts, presents, and the repeat (None: every frame computed)."""
+        """Rows, frame starts, presents, and the repeat (None: every frame computed, or the
+        arrays already extended when no rows were asked for)."""
+        self.found: dict[str, int] | None = None
         frames = self.program.frames
         period = len(self.phases)
         ends: list[dict[str, int]] = []
@@ -212,6 +214,7 @@ class Analytic:
                 else:
                     f1, t1, r1 = earlier
                     p, shift = f - f1, int(present[f]) - t1
+                    self.found = {"period_frames": p, "period_ns": shift, "from_frame": f1 + 1}
                     copies = max(0, (frames - (f + 2)) // p)
                     if copies:
                         repeat = Repeat(p, shift, copies, f1 + 1, (r1, len(rows)))
@@ -266,8 +269,13 @@ def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str
     raw = RawResult(rows, start, present, {}, {}, {}, {}, effects, program.present_task)
     raw.recorded = record_trace
     raw.repeat = repeat
-    raw.fast_forward = {"used": repeat is not None,
-                        "why": "recurrence repeats" if repeat is not None else "no repeat found"}
+    found = model.found
+    raw.fast_forward = {"used": found is not None}
+    if found is None:
+        raw.fast_forward["why"] = "no repeat found"
+    else:
+        raw.fast_forward.update(why=f"state repeats every {found['period_frames']} frame(s), "
+                                    f"{found['period_ns']} ns, from frame {found['from_frame']}", **found)
     raw.effects = {"analytic_exact": not model.approximations}
     if model.approximations:
         raw.effects["analytic_approximations"] = model.approximations

@@ -67,6 +67,9 @@ class FastForward:
         self.engine = engine
         self.probe_frames = probe_frames
         self.seen: dict[tuple, tuple[int, int, tuple]] = {}
+        #: cheap keys met so far: the full description is only written for a moment whose
+        #: cheap key was met before (a repeat is then found one period later than it could be)
+        self.cheap: set[tuple] = set()
         self.repeat: Repeat | None = None
         self.reason = "no repeat found"
         self.active = True
@@ -87,6 +90,10 @@ class FastForward:
     def _probe(self, frame: int) -> None:
         if not self.active:
             return
+        key = self._cheap_key(frame)
+        if key not in self.cheap:
+            self.cheap.add(key)
+            return
         try:
             describer = _Describer(self.engine, frame, self._opid, self._proc_index)
             sig = describer.signature()
@@ -106,7 +113,15 @@ class FastForward:
             return
         self.active = False
         self.seen.clear()
+        self.cheap.clear()
         self._shorten(earlier, (frame, now, marks), describer.max_frame, held)
+
+    def _cheap_key(self, frame: int) -> tuple:
+        """A part of the state that is quick to write down: when pending events fire, and how
+        many instances wait on what. Equal full states have equal cheap keys."""
+        e, now = self.engine, self.engine.env.now
+        times = tuple(sorted(t - now for t, _p, _i, ev in e.env._queue))
+        return (frame % e.period, times, len(e._pending), len(e._ready), len(e._cross_done), len(e._skip))
 
     def _marks(self) -> tuple:
         e = self.engine

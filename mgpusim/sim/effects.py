@@ -66,12 +66,12 @@ def _copy_caps_bind(program: FrameProgram, profile: HardwareProfile) -> bool:
     from ..costs import CostModel  # noqa: PLC0415 (costs imports nothing of ours back)
     costs = CostModel(profile)
     for t in _all_tasks(program):
-        if not isinstance(t, CopyTask):
+        if not isinstance(t, CopyTask) or (t.path == "p2p" and t.peer is None):
             continue
         cap = costs.copy_cap(t.queue.device, t.queue.family, t.path)
         if cap is None:
             continue
-        bw = (costs.peer_bandwidth(t.queue.device, t.peer) if t.path == "p2p" and t.peer is not None
+        bw = (costs.peer_bandwidth(t.queue.device, t.peer) if t.path == "p2p"  # type: ignore[arg-type]
               else costs.link_bandwidth(t.queue.device, t.path))
         if cap < bw:
             return True

@@ -202,7 +202,8 @@ def _build_repeated(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
     summary = summarize(frames, None, warmup_frames, busy=busy if len(rows) and raw.recorded else None)
     summary["effects"] = raw.effects
     if raw.skipped:
-        raw.skipped_frames = {name: repeated_list(f, r.skipped.get(name, (len(f), len(f))), shift)
+        # a task first skipped after the repeat was found has all its skips in the rest
+        raw.skipped_frames = {name: repeated_list(f, r.skipped.get(name, (0, 0)), shift)
                               for name, f in raw.skipped_frames.items()}
         summary["skipped_tasks"] = {name: len(f) for name, f in raw.skipped_frames.items()}
     if not raw.recorded:

@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable, Iterable, Mapping
 
+from ..costs import CostModel
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..schedules.base import FrameProgram
@@ -63,7 +64,6 @@ def _host_copies(program: FrameProgram) -> bool:
 
 def _copy_caps_bind(program: FrameProgram, profile: HardwareProfile) -> bool:
     """A copy whose queue family has a rate cap below its path's bandwidth."""
-    from ..costs import CostModel  # noqa: PLC0415 (costs imports nothing of ours back)
     costs = CostModel(profile)
     for t in _all_tasks(program):
         if not isinstance(t, CopyTask) or (t.path == "p2p" and t.peer is None):

@@ -7,7 +7,7 @@
 set -u
 out=${1:?output folder}; t0=$SECONDS; py=${PYTHON:-python3}; mkdir -p "$out"
 nvidia-smi > "$out/nvidia-smi.txt" 2>&1
-$py -m mgpusim.nvidia run "$out/calibration" --configs experiments/h200/calibration.toml --devices 0,1 --budget ${CAL_BUDGET:-110} 2>&1 | tee "$out/calibration.log"
-$py -m mgpusim.nvidia run "$out/runs" --devices 0,1 --budget ${RUN_BUDGET:-200} 2>&1 | tee "$out/runs.log"
+timeout ${CAL_BUDGET:-110} $py -m mgpusim.cli study measure experiments/h200/study.toml --devices 0,1 --out "$out/calibration" 2>&1 | tee "$out/calibration.log"
+timeout ${RUN_BUDGET:-200} $py -m mgpusim.cli study measure experiments/h200/study.toml --held-out --devices 0,1 --out "$out/runs" 2>&1 | tee "$out/runs.log"
 timeout 60 $py -m mgpusim.cli measure --quiet --pass host_copy --reps 7 --warmup 3 --sweep bytes=4MiB,8MiB,16MiB,32MiB,64MiB,128MiB,192MiB --sweep threads=4,8,16 --out "$out/host_copy.csv" > "$out/host_copy.log" 2>&1; echo "host_copy rc=$?"
 echo "total $((SECONDS - t0))s"

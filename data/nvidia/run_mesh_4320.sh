@@ -9,6 +9,6 @@ $py -m mgpusim.cli devices > "$out/devices.txt" 2>&1
 timeout 120 $py -m mgpusim.cli measure --quiet --reps 5 --warmup 3 --device 0 --pass mesh --sweep width=3840,7680 --sweep height=4320 --sweep triangles=1000000,10000000,30000000 --out "$out/mesh_4320.csv" > "$out/mesh_4320.log" 2>&1; echo "mesh_4320 rc=$? $((SECONDS - t0))s"
 if [ "${RUNS:-0}" = 1 ]; then
   export MGPUSIM_SWITCH_INTERVAL_S=0.0002
-  $py -m mgpusim.nvidia run "$out/runs_1gpu" --only _1gpu --devices 0 --budget 150 2>&1 | tee "$out/runs_1gpu.log"
+  timeout 150 $py -m mgpusim.cli study measure experiments/h200/study.toml --held-out --only _1gpu --devices 0 --out "$out/runs_1gpu" 2>&1 | tee "$out/runs_1gpu.log"
 fi
 echo "total $((SECONDS - t0))s"

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# One call on the two-H200 machine (issue 5): the five-step validation runs for real on both GPUs
-# (one VkDevice each, experiments/h200/configs.toml), then the pass library on one H200 and both
+# One call on the two-H200 machine: the five-step validation runs for real on both GPUs
+# (one VkDevice each, the held-out half of experiments/h200/study.toml), then the pass library on one H200 and both
 # GPUs copying at once. From the project root on the device machine:
 #   source .gl/env.sh; export PYTHONPATH=$PWD:$PYTHONPATH; MGPUSIM_CACHE=$PWD/.spvcache bash data/nvidia/run_h200x2.sh $OUT/h200x2
 set -u

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Second call on the two-H200 machine (issue 5), after the first showed 32 Python host-copy
+# Second call on the two-H200 machine, after the first showed 32 Python host-copy
 # threads contending: the profile now splits host copies over 8 threads. Calibration runs
-# (experiments/h200/calibration.toml), the held-out validation runs (configs.toml) again, and
+# (the calibration half of experiments/h200/study.toml), the held-out validation runs (the held-out half) again, and
 # host copies around the sizes the schedules use. From the project root on the device machine:
 #   source .gl/env.sh; export PYTHONPATH=$PWD:$PYTHONPATH; MGPUSIM_CACHE=$PWD/.spvcache bash data/nvidia/run_h200x2_b.sh $OUT/h200x2_b
 set -u

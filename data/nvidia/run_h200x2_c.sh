@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Third call on the two-H200 machine (issue 5): the light calibration runs showed 0.5-1.4 ms
+# Third call on the two-H200 machine: the light calibration runs showed 0.5-1.4 ms
 # between a task's end and its dependant's start across devices/host. Measure fence wake-up
 # latency with and without busy Python threads, then every calibration and validation run again
 # with a 0.2 ms GIL switch interval (MGPUSIM_SWITCH_INTERVAL_S). From the project root:

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Fourth call on the two-H200 machine (issue 5): the 1-GPU validation configurations, every
+# Fourth call on the two-H200 machine: the 1-GPU validation configurations, every
 # validation run repeated (run-to-run spread), and the particle passes on an H200. All runs with
 # the 0.2 ms GIL switch interval, as runs_si/. From the project root on the device machine:
 #   source .gl/env.sh; export PYTHONPATH=$PWD:$PYTHONPATH; MGPUSIM_CACHE=$PWD/.spvcache bash data/nvidia/run_h200x2_d.sh $OUT/h200x2_d

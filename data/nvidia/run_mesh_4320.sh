@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The mesh at full 4320-row frames (the 2nd-round tables stopped at 2160 rows, and the 8K 1-GPU
 # validation run showed the pixel term extrapolated), and with RUNS=1 the 1-GPU validation
-# configurations (experiments/h200/configs.toml *_1gpu) on device 0. From the project root:
+# configurations (the held-out half of experiments/h200/study.toml *_1gpu) on device 0. From the project root:
 #   source .gl/env.sh; export PYTHONPATH=$PWD:$PYTHONPATH; MGPUSIM_CACHE=$PWD/.spvcache bash data/nvidia/run_mesh_4320.sh $OUT/x
 set -u
 out=${1:?output folder}; t0=$SECONDS; py=${PYTHON:-python3}; mkdir -p "$out"

@@ -11,6 +11,7 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable
 
@@ -65,7 +66,6 @@ def _filtered(study: Study, args: argparse.Namespace) -> Study:
     if not getattr(args, "only", None):
         return study
     keep = lambda es: tuple(e for e in es if args.only in e.name)  # noqa: E731
-    from dataclasses import replace  # noqa: PLC0415
     return replace(study, calibration=keep(study.calibration), held_out=keep(study.held_out))
 
 

@@ -8,6 +8,7 @@ the steady window of the repeats (:mod:`mgpusim.steady_window`), written as a me
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -63,7 +64,6 @@ def with_run_length(exp: Experiment, seconds: float, max_frames: int) -> Experim
     frame_ms = float(simulate(exp, record_trace=False).summary["frame_time_ms"])
     sched = exp.schedule
     frames = max(sched.frames, sched.warmup_frames + math.ceil(seconds * 1e3 / max(frame_ms, 1e-3)))
-    from dataclasses import replace  # noqa: PLC0415
     return replace(exp, schedule=replace(sched, frames=min(frames, max_frames)))
 
 

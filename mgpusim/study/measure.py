@@ -7,17 +7,13 @@ the steady window of the repeats (:mod:`mgpusim.steady_window`), written as a me
 """
 from __future__ import annotations
 
-import math
-from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
 import pandas as pd
 
-from .. import steady_window as sw
-from ..experiment import Experiment
-from ..output import write_json, write_measured, write_table
-from ..simulate import simulate
+from ..output import write_json, write_measured
+from ..repeated_runs import with_run_length, write_steady_window
 from .spec import Entry, Study
 
 Progress = Callable[[str], None]
@@ -54,19 +50,6 @@ def measure_microbenchmarks(study: Study, out: Path, progress: Progress) -> list
     return paths
 
 
-def with_run_length(exp: Experiment, seconds: float, max_frames: int) -> Experiment:
-    """`exp` with enough frames that its timed part lasts about `seconds`, as the model on the
-    experiment's profile predicts it (at least the experiment's own frames, at most
-    `max_frames`). Why: a machine that delivers its cores in phases of 0.25-2 s gives runs of
-    0.1 s that differ by up to 2x; a run of a few seconds averages over the phases."""
-    if seconds <= 0:
-        return exp
-    frame_ms = float(simulate(exp, record_trace=False).summary["frame_time_ms"])
-    sched = exp.schedule
-    frames = max(sched.frames, sched.warmup_frames + math.ceil(seconds * 1e3 / max(frame_ms, 1e-3)))
-    return replace(exp, schedule=replace(sched, frames=min(frames, max_frames)))
-
-
 def measure_runs(study: Study, entries: tuple[Entry, ...], profile: Path, out: Path,
                  progress: Progress, devices: list[int] | None = None) -> dict[str, Path]:
     """Run every entry `repeats` times, interleaved; return each entry's measured folder (its
@@ -88,28 +71,6 @@ def measure_runs(study: Study, entries: tuple[Entry, ...], profile: Path, out: P
     if not rs.steady_window:
         return {e.name: out / e.name / ("run0" if rs.repeats > 1 else "") for e in entries}
     return {e.name: write_steady_window(exps[e.name], runs[e.name], out / e.name) for e in entries}
-
-
-def write_steady_window(exp: Experiment, runs: list[tuple[str, Any]], out: Path) -> Path:
-    """Pick the steady window over `runs` ((name, RunResult) of one configuration), write it as
-    a measured folder `out/steady`, and the runs' frame times and the choice to `out/runs.json`."""
-    warmup = exp.schedule.warmup_frames
-    candidates = [w for i, (_, r) in enumerate(runs) for w in sw.windows(r.frames, warmup, i)]
-    window = sw.pick(candidates)
-    name, chosen = runs[window.run]
-    steady = out / "steady"
-    steady.mkdir(parents=True, exist_ok=True)
-    write_table(sw.window_trace(chosen.trace, window, warmup), steady / "trace.csv")
-    choice = {"policy": f"window at quantile {sw.QUANTILE} of frame time, windows of at least "
-                        f"{sw.WINDOW_MS:g} ms and {sw.MIN_PERIODS} frame periods",
-              "run": name, "frames": [window.first, window.last],
-              "frames_renumbered_from": window.first - warmup,
-              "window_frame_time_ms": window.frame_time_ms, "windows": len(candidates)}
-    write_json({"config": chosen.config, "steady_window": choice}, steady / "summary.json")
-    write_json(chosen.machine, steady / "machine.json")
-    whole = [float(r.summary["frame_time_ms"]) for _, r in runs]
-    write_json({"frame_time_ms": whole, **choice}, out / "runs.json")
-    return steady
 
 
 def measured_folder(root: Path, name: str) -> Path:

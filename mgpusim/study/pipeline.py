@@ -83,21 +83,12 @@ def validate(study: Study, entries: tuple[Entry, ...], root: Path, profile: Path
         exp = e.load(profile, extra)
         report = validate_experiment(exp, out / e.name, folder)
         report["config"] = e.name
-        report["measured_spread"] = _spread(folder.parent / "runs.json")
         progress(format_report(exp, report))
         rows.append(report)
     table = error_table(rows)
     if rows:
         table["run_to_run_spread"] = [r["measured_spread"] for r in rows]
     return table
-
-
-def _spread(runs_json: Path) -> float:
-    """(slowest / fastest - 1) of the whole runs' frame times: the machine's own noise."""
-    if not runs_json.is_file():
-        return float("nan")
-    times = json.loads(runs_json.read_text())["frame_time_ms"]
-    return float(max(times) / min(times) - 1) if min(times) > 0 else float("nan")
 
 
 def run(study: Study, out: Path, progress: Progress, held_out: bool = True,

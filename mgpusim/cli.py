@@ -12,7 +12,8 @@ import sys
 from .errors import MgpusimError
 
 #: Command modules, in the order `mgpusim --help` lists them.
-COMMANDS = ("simulate", "run", "bench", "fidelity", "devices", "measure", "calibrate", "validate", "main_job")
+COMMANDS = ("simulate", "run", "bench", "fidelity", "devices", "measure", "calibrate", "validate", "study",
+            "main_job")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,8 +1,7 @@
 """What accuracy costs in time: every committed measured configuration at every fidelity level.
 
-A *machine* is a folder of measured runs (`mgpusim run` folders, one per configuration), the
-configuration list they were measured from (experiment file + `--set` items) and the calibrated
-profile. Each configuration is simulated at each level; the error is simulated / measured - 1 of
+The measured runs are those committed with the studies (`experiments/*/study.toml`: each entry
+an experiment file and `--set` items, its run folder, the calibrated profile). Each configuration is simulated at each level; the error is simulated / measured - 1 of
 the steady-state frame time and latency (both sides through the same summary code, the
 experiment's warm-up). Wall time is that of `simulate()` (model plus tables) and of the model
 alone (the event engine or the analytic recurrence).
@@ -10,7 +9,6 @@ alone (the event engine or the analytic recurrence).
 from __future__ import annotations
 
 import time
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,55 +16,65 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .experiment import Experiment, load_experiment, parse_overrides
+from .experiment import Experiment
+from .measured import read_measured
 from .simulate import simulate
+from .study.measure import measured_folder
+from .study.spec import Entry, load_study
 from .validate import rel_error, steady_summary
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 @dataclass(frozen=True)
-class Machine:
+class Source:
+    """Measured runs of a study: its committed folders, or `runs` (every entry of the study
+    that has a folder there) simulated on `profile` instead of the study's."""
+
     name: str
-    configs: Path  # TOML: [[config]] name, experiment, set
-    runs: Path  # one measured folder per configuration name
-    profile: Path
+    study: Path
+    runs: Path | None = None
+    profile: Path | None = None
 
 
-#: The committed measured runs (no lavapipe steady runs are committed: the main job makes them).
-MACHINES = (
-    Machine("2x H200", ROOT / "experiments/h200/configs.toml", ROOT / "data/nvidia/h200x2/runs_si",
-            ROOT / "hardware_profiles/h200_x2.toml"),
-    Machine("H100", ROOT / "experiments/h200/configs.toml", ROOT / "data/nvidia/h100/runs_1gpu",
-            ROOT / "hardware_profiles/h100.toml"),
+#: The committed measured runs. The lavapipe study commits none (its job measures them on the
+#: machine it runs on); it is listed so that committed runs would be picked up.
+SOURCES = (
+    Source("2x H200", ROOT / "experiments/h200/study.toml"),
+    Source("H100", ROOT / "experiments/h200/study.toml", ROOT / "data/nvidia/h100/runs_1gpu",
+           ROOT / "hardware_profiles/h100.toml"),
+    Source("lavapipe", ROOT / "experiments/lavapipe/study.toml"),
 )
 
 
 @dataclass(frozen=True)
 class Configuration:
-    machine: str
+    source: str
     name: str
     experiment: Experiment
-    measured: Path
+    measured: pd.DataFrame  # the measured trace
 
 
-def configurations(machines: tuple[Machine, ...] = MACHINES) -> list[Configuration]:
-    """Every configuration of every machine that has a measured folder."""
+def configurations(sources: tuple[Source, ...] = SOURCES) -> list[Configuration]:
+    """Every entry of every source that has a measured run folder."""
     out = []
-    for m in machines:
-        for entry in tomllib.loads(m.configs.read_text())["config"]:
-            folder = m.runs / entry["name"]
-            if not (folder / "trace.csv").is_file():
-                continue
-            exp = load_experiment(m.configs.parent / entry["experiment"],
-                                  parse_overrides(list(entry.get("set", ()))), profile=str(m.profile))
-            out.append(Configuration(m.name, entry["name"], exp, folder))
+    for src in sources:
+        study = load_study(src.study)
+        halves: list[tuple[tuple[Entry, ...], Path | None]] = (
+            [(study.entries(), src.runs)] if src.runs is not None else
+            [(study.calibration, study.calibration_runs), (study.held_out, study.held_out_runs)])
+        for entries, root in halves:
+            for entry in entries:
+                folder = measured_folder(root, entry.name) if root is not None else None
+                if folder is None or not folder.is_dir():
+                    continue
+                exp = entry.load(src.profile or study.profile)
+                out.append(Configuration(src.name, entry.name, exp, read_measured(folder, exp)))
     return out
 
 
 def measured_summary(config: Configuration) -> dict[str, Any]:
-    trace = pd.read_csv(config.measured / "trace.csv")
-    return steady_summary(trace, config.experiment.schedule.warmup_frames)
+    return steady_summary(config.measured, config.experiment.schedule.warmup_frames)
 
 
 #: What is compared: the three levels, and full without the fast-forward (what it saves).
@@ -93,7 +101,7 @@ def run_levels(configs: list[Configuration], variants: dict[str, dict[str, Any]]
                 wall = min(wall, time.perf_counter() - t0)
                 model = min(model, result.model_wall_s)
             s = result.summary
-            rows.append({"machine": c.machine, "config": c.name, "schedule": c.experiment.schedule.name,
+            rows.append({"machine": c.source, "config": c.name, "schedule": c.experiment.schedule.name,
                          "gpus": c.experiment.schedule.gpus, "level": level,
                          "measured_frame_ms": measured["frame_time_ms"], "frame_ms": s["frame_time_ms"],
                          "frame_time_error": rel_error(s["frame_time_ms"], measured["frame_time_ms"]),

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import InputError
-from .repeated import RepeatedIntervals, RepeatedRows, Shift, repeated_list
+from .periodic import RepeatedIntervals, RepeatedRows, Shift, repeated_list
 from .trace import FRAME_COLUMNS, make_trace
 
 Table = pd.DataFrame | Callable[[], pd.DataFrame]
@@ -21,7 +21,7 @@ class Result:
     """One run: `.trace` (per task), `.frames` (per frame), `.summary` (dict), `.links`.
 
     `.trace` and `.links` may be built on first use: a fast-forwarded long run keeps them in
-    compact form (:mod:`mgpusim.repeated`) and :meth:`trace_chunks` streams them."""
+    compact form (:mod:`mgpusim.periodic`) and :meth:`trace_chunks` streams them."""
 
     def __init__(self, summary: dict[str, Any], trace: Table, frames: pd.DataFrame,
                  links: Table | None = None, config: dict[str, Any] | None = None,
@@ -178,7 +178,7 @@ def build_result(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
 
 
 def _build_repeated(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
-    """The result of a fast-forwarded run: tables from its compact logs (mgpusim.repeated)."""
+    """The result of a fast-forwarded run: tables from its compact logs (mgpusim.periodic)."""
     r = raw.repeat
     shift = Shift(r.frames, r.ns, r.copies)
     rows = RepeatedRows(raw.rows, r.rows, shift)

@@ -12,7 +12,7 @@ from hypothesis import given, settings, strategies as st
 from mgpusim.costs import CostModel
 from mgpusim.errors import InputError
 from mgpusim.experiment import load_experiment
-from mgpusim.repeated import shifted_overlap
+from mgpusim.periodic import shifted_overlap
 from mgpusim.sim.effects import EFFECTS, choose_effects, parse_effects
 from mgpusim.sim.engine import Engine
 from mgpusim.sim.executors import make_executors

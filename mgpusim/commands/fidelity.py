@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from ..fidelity import MACHINES, configurations, markdown, run_levels, summarize_levels
+from ..fidelity import configurations, markdown, run_levels, summarize_levels
 from ..output import write_table
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
@@ -33,8 +33,8 @@ def run(args: argparse.Namespace) -> int:
     text = markdown(levels)
     (args.out / "fidelity.md").write_text(text)
     pareto_png(levels, args.out / "fidelity_pareto.png")
-    machines = ", ".join(f"{m.name} ({m.runs.relative_to(m.runs.parents[2])})" for m in MACHINES)
-    print(f"{len(configs)} measured configurations ({machines})")
+    counts = table.drop_duplicates(["machine", "config"])["machine"].value_counts()
+    print(f"{len(configs)} measured configurations (" + ", ".join(f"{n} on {m}" for m, n in counts.items()) + ")")
     print(text, end="")
     if args.docs:
         _write_docs(text, levels, len(configs))

@@ -118,7 +118,8 @@ class FastForward:
 
     def _cheap_key(self, frame: int) -> tuple:
         """A part of the state that is quick to write down: when pending events fire, and how
-        many instances wait on what. Equal full states have equal cheap keys."""
+        many instances wait on what. Equal full states have equal cheap keys (when the same
+        number of probes is pending, as in a periodic run)."""
         e, now = self.engine, self.engine.env.now
         times = tuple(sorted(t - now for t, _p, _i, ev in e.env._queue))
         return (frame % e.period, times, len(e._pending), len(e._ready), len(e._cross_done), len(e._skip))

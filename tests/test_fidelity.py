@@ -262,3 +262,43 @@ def test_fidelity_command_writes_the_table(tmp_path: Path):
     assert (full == noff).all()
     assert (tmp_path / "fidelity_pareto.png").stat().st_size > 10_000
     assert "| analytic | all |" in (tmp_path / "fidelity.md").read_text()
+
+
+@st.composite
+def _scenes(draw):
+    """Small random machines and five-step scenes: shared or not, host effects, gaps."""
+    prof = profile_dict(gpus=draw(st.integers(1, 4)), mem_gbps=draw(st.sampled_from([0.5, 1.0, 4.0])),
+                        threads=draw(st.integers(1, 3)), thread_gbps=draw(st.sampled_from([0.5, 1.0])),
+                        transfer=draw(st.integers(0, 2)), h2d=draw(st.sampled_from([0.25, 1.0])),
+                        d2h=draw(st.sampled_from([0.5, 1.0])), latency=draw(st.sampled_from([0, 7])))
+    prof["host"]["dispatch_ns"] = draw(st.sampled_from([0, 0, 13]))
+    prof["host"]["submit_ns"] = draw(st.sampled_from([0, 0, 5]))
+    prof["gpus"][0]["task_gap_ns"] = draw(st.sampled_from([0, 3]))
+    if draw(st.booleans()):
+        prof["host"].update(gpus_share_cpu=True, cpu_cores=draw(st.integers(1, 4)))
+    gpus = draw(st.integers(1, prof["gpus"][0]["count"]))
+    kw = dict(schedule=draw(st.sampled_from(["sort_first", "sort_last"])), gpus=gpus,
+              frames=draw(st.integers(30, 120)), width=draw(st.sampled_from([64, 256, 1024])),
+              height=draw(st.sampled_from([4, 64, 512])), iterations=draw(st.integers(1, 200)),
+              host_copy=draw(st.booleans()))
+    return prof, kw
+
+
+@settings(max_examples=40, deadline=None)
+@given(_scenes())
+def test_fast_forward_exact_on_random_scenes(scene):
+    prof, kw = scene
+    exp = make_experiment(prof, **kw)
+    _same(simulate(exp, fast_forward=False), simulate(exp))
+
+
+@settings(max_examples=40, deadline=None)
+@given(_scenes())
+def test_analytic_exact_on_random_unshared_scenes(scene):
+    prof, kw = scene
+    exp = make_experiment(prof, **kw)
+    if SHARING & choose_effects(build_program(exp), exp.profile):
+        queues, analytic = simulate(exp, fidelity="queues"), simulate(exp, fidelity="analytic")
+        pd.testing.assert_frame_equal(queues.frames, analytic.frames)
+        return
+    pd.testing.assert_frame_equal(simulate(exp).frames, simulate(exp, fidelity="analytic").frames)

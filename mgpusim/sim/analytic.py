@@ -33,6 +33,7 @@ from ..errors import ScheduleError
 from ..schedules.base import FrameProgram
 from ..tasks import CopyTask, HostCopyTask, PassTask, Task
 from .effects import EFFECTS
+from .engine import Engine, RawResult
 from .fastforward import Repeat
 
 NEG = -(1 << 62)  # "no constraint" (before time 0)
@@ -67,7 +68,6 @@ class Analytic:
     """The recurrence for one program and cost model (see the module doc)."""
 
     def __init__(self, program: FrameProgram, costs: CostModel, effects: frozenset[str]):
-        from .engine import Engine  # noqa: PLC0415 (reuse its duration rules, no simulation)
         self.program, self.costs, self.effects = program, costs, effects
         host = costs.profile.host
         submission = "host_submission" in effects
@@ -89,7 +89,7 @@ class Analytic:
 
     def _node(self, op: Any) -> _Node:
         task = op.task
-        deps = tuple((d.task, d.offset, self._crosses(task, d.task, d.offset)) for d in task.deps)
+        deps = tuple((d.task, d.offset, self._crosses(task, d.task)) for d in task.deps)
         if isinstance(task, HostCopyTask):
             n = task.parts(self.threads)
             base = task.bytes // n
@@ -103,7 +103,7 @@ class Analytic:
         return _Node(task.name, task, str(task.queue), deps, op.duration, op.nbytes, rate, op.gap, (),
                      op.device, op.engine, op.waits_for)
 
-    def _crosses(self, task: Task, dep: str, offset: int) -> bool:
+    def _crosses(self, task: Task, dep: str) -> bool:
         """Whether a host thread must wake to act on this input (as the engine decides)."""
         if isinstance(task, HostCopyTask):
             return True
@@ -263,7 +263,6 @@ def _thread(free: list[int], t: int) -> int:
 
 def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str], record_trace: bool = True):
     """A RawResult from the recurrence, for :func:`mgpusim.results.build_result`."""
-    from .engine import RawResult  # noqa: PLC0415
     model = Analytic(program, costs, effects)
     rows, start, present, repeat = model.run(record=record_trace)
     raw = RawResult(rows, start, present, {}, {}, {}, {}, effects, program.present_task)

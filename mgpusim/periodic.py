@@ -176,9 +176,19 @@ class RepeatedRows:
         return _sort({c: np.concatenate([p[c] for p in parts]) for c in TRACE_COLUMNS})
 
     def _frame(self, cols: dict[str, np.ndarray]) -> pd.DataFrame:
-        data = {c: (self.dictionary[c][cols[c]] if c in _STR else cols[c]) for c in TRACE_COLUMNS}
-        df = pd.DataFrame(data, columns=list(TRACE_COLUMNS))
-        return df.astype(TRACE_DTYPES).reset_index(drop=True)
+        """A DataFrame with make_trace's dtypes; strings are built in Arrow from the codes
+        (no Python string per row)."""
+        import pyarrow as pa  # noqa: PLC0415
+        data: dict[str, Any] = {}
+        for c in TRACE_COLUMNS:
+            if c in _STR:
+                codes = pa.array(cols[c].astype(np.int32), type=pa.int32())
+                strings = pa.DictionaryArray.from_arrays(codes, pa.array(self.dictionary[c].tolist(),
+                                                                         type=pa.string()))
+                data[c] = pd.array(strings.cast(pa.large_string()), dtype=TRACE_DTYPES[c])
+            else:
+                data[c] = cols[c].astype(TRACE_DTYPES[c])
+        return pd.DataFrame(data, columns=list(TRACE_COLUMNS))
 
 
 def _code(dictionary: np.ndarray, value: str) -> int:

@@ -158,10 +158,15 @@ def link_track(channel: str) -> tuple[str, str]:
     return device, f"link {path}"
 
 
+LINK_DTYPES = {"channel": "string", "start_ns": "int64", "end_ns": "int64"}
+_NO_LINKS = pd.DataFrame([], columns=list(LINK_DTYPES)).astype(LINK_DTYPES)
+
+
 def links_table(channels: dict) -> pd.DataFrame:
     rows = [(name, s, e) for name, ch in channels.items() for s, e in ch.busy]
-    return pd.DataFrame(rows, columns=["channel", "start_ns", "end_ns"]).astype(
-        {"channel": "string", "start_ns": "int64", "end_ns": "int64"})
+    if not rows:  # common (one GPU, the analytic level): no table to build
+        return _NO_LINKS.copy()
+    return pd.DataFrame(rows, columns=list(LINK_DTYPES)).astype(LINK_DTYPES)
 
 
 def build_result(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
@@ -196,8 +201,8 @@ def _build_repeated(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
     def links_frame() -> pd.DataFrame:
         parts = [pd.DataFrame({"channel": name, "start_ns": log.array()[:, 0], "end_ns": log.array()[:, 1]})
                  for name, log in links.items()]
-        df = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=["channel", "start_ns", "end_ns"])
-        return df.astype({"channel": "string", "start_ns": "int64", "end_ns": "int64"})
+        df = pd.concat(parts, ignore_index=True) if parts else _NO_LINKS.copy()
+        return df.astype(LINK_DTYPES)
 
     summary = summarize(frames, None, warmup_frames, busy=busy if len(rows) and raw.recorded else None)
     summary["effects"] = raw.effects

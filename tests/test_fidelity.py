@@ -302,3 +302,17 @@ def test_analytic_exact_on_random_unshared_scenes(scene):
         pd.testing.assert_frame_equal(queues.frames, analytic.frames)
         return
     pd.testing.assert_frame_equal(simulate(exp).frames, simulate(exp, fidelity="analytic").frames)
+
+
+def test_fast_forward_refuses_executors_it_cannot_describe():
+    from mgpusim.sim import fastforward
+    from mgpusim.sim.executors import Dedicated
+
+    class Custom(Dedicated):
+        """A device with state of its own (here none, but the fast-forward cannot know)."""
+
+    exp = make_experiment(gpus=2, frames=200)
+    program, costs = build_program(exp), CostModel(exp.profile)
+    engine = Engine(program, costs, executors=lambda env: {n: Custom(env) for n in make_executors(env, costs, False)})
+    raw = fastforward.run(engine)
+    assert raw.fast_forward["used"] is False and "Custom" in raw.fast_forward["why"]

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 import simpy
 
 from .channel import Channel, FixedRateChannel
+from .executors import Dedicated, SharedCores
 
 if TYPE_CHECKING:
     from .engine import Engine
@@ -75,6 +76,11 @@ class FastForward:
         self.active = True
         self._opid = {id(op): (i, j) for i, ops in enumerate(engine.all_ops()) for j, op in enumerate(ops)}
         self._proc_index = {id(p): i for i, p in enumerate(engine.processes)}
+        unknown = sorted({type(ex).__name__ for ex in engine.executors.values()
+                          if not isinstance(ex, (Dedicated, SharedCores))})
+        if unknown:  # its state is not written down: a repeat could not be trusted
+            self.active = False
+            self.reason = f"executor {', '.join(unknown)} has state this fast-forward does not describe"
 
     # ----- driven by the engine -----------------------------------------------------------
     def on_present(self, frame: int) -> None:

@@ -77,7 +77,7 @@ class FastForward:
         self._opid = {id(op): (i, j) for i, ops in enumerate(engine.all_ops()) for j, op in enumerate(ops)}
         self._proc_index = {id(p): i for i, p in enumerate(engine.processes)}
         unknown = sorted({type(ex).__name__ for ex in engine.executors.values()
-                          if not isinstance(ex, (Dedicated, SharedCores))})
+                          if type(ex) not in (Dedicated, SharedCores)})
         if unknown:  # its state is not written down: a repeat could not be trusted
             self.active = False
             self.reason = f"executor {', '.join(unknown)} has state this fast-forward does not describe"

@@ -26,7 +26,8 @@ DEFAULT_EXPERIMENT = Path(__file__).resolve().parents[1] / "experiments" / "sort
 #: A fresh interpreter that simulates a long run and prints wall time and peak memory (a child
 #: process, so that the peak is the run's own and not the benchmark's).
 _LONG_RUN = """
-import json, resource, sys, time
+import json, resource, sys, tempfile, time
+from pathlib import Path
 t0 = time.perf_counter()
 from mgpusim.experiment import load_experiment
 from mgpusim.simulate import simulate
@@ -34,9 +35,18 @@ t1 = time.perf_counter()
 exp = load_experiment(sys.argv[1], {"schedule.frames": int(sys.argv[2])})
 result = simulate(exp, fidelity=sys.argv[3])
 t2 = time.perf_counter()
-print(json.dumps({"simulate_s": t2 - t1, "process_s": t2 - t0, "frames": len(result.frames),
-                  "frame_time_ms": result.summary["frame_time_ms"], "fast_forward": result.summary["fast_forward"],
-                  "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+out = {"simulate_s": t2 - t1, "process_s": t2 - t0, "frames": len(result.frames),
+       "frame_time_ms": result.summary["frame_time_ms"], "fast_forward": result.summary["fast_forward"],
+       "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+from mgpusim.output import write_table, write_trace  # after the peak above: it loads matplotlib
+with tempfile.TemporaryDirectory() as tmp:
+    write_trace(result, Path(tmp) / "trace.parquet")
+    write_table(result.frames, Path(tmp) / "frames.parquet")
+    write_table(result.links, Path(tmp) / "links.parquet")
+    out["trace_mb"] = (Path(tmp) / "trace.parquet").stat().st_size / 2**20
+out.update(write_s=time.perf_counter() - t2, rows=len(result.repeated) if result.compact else len(result.trace),
+           peak_rss_with_tables_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+print(json.dumps(out))
 """
 
 
@@ -99,7 +109,8 @@ def run_bench(experiment: Path = DEFAULT_EXPERIMENT, frames: int = 5000, repeats
 
 
 def long_run(experiment: Path = DEFAULT_EXPERIMENT, frames: int = 1_000_000, fidelity: str = "full") -> dict[str, Any]:
-    """Wall time and peak memory of one long run in a fresh process (fast-forward on)."""
+    """Wall time and peak memory of one long run in a fresh process (fast-forward on), then of
+    streaming its whole trace, frames and links tables to Parquet."""
     out = subprocess.run([sys.executable, "-c", _LONG_RUN, str(experiment), str(frames), fidelity],
                          capture_output=True, text=True, check=True)
     return json.loads(out.stdout)

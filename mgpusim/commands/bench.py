@@ -47,6 +47,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"long run: {fig['frames']:,} frames at full fidelity in {fig['simulate_s']:.2f} s "
               f"({fig['process_s']:.2f} s with imports), peak memory {fig['peak_rss_mb']:.0f} MB; "
               f"fast-forward: {fig['fast_forward']['why']}")
+        print(f"  then its whole trace ({fig['rows']:,} rows, {fig['trace_mb']:.0f} MB of Parquet), frames and links "
+              f"written in {fig['write_s']:.1f} s, peak memory {fig['peak_rss_with_tables_mb']:.0f} MB")
     if "analytic" in out:
         fig = out["analytic"]
         print(f"analytic: {fig['sweep_configurations_per_s']:,.0f} configurations/s in a "

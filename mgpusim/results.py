@@ -14,7 +14,8 @@ from .errors import InputError
 from .periodic import RepeatedIntervals, RepeatedRows, Shift, repeated_list
 from .trace import FRAME_COLUMNS, make_trace
 
-Table = pd.DataFrame | Callable[[], pd.DataFrame]
+#: a table, or a function that builds it on first use
+LazyTable = pd.DataFrame | Callable[[], pd.DataFrame]
 
 
 class Result:
@@ -23,8 +24,8 @@ class Result:
     `.trace` and `.links` may be built on first use: a fast-forwarded long run keeps them in
     compact form (:mod:`mgpusim.periodic`) and :meth:`trace_chunks` streams them."""
 
-    def __init__(self, summary: dict[str, Any], trace: Table, frames: pd.DataFrame,
-                 links: Table | None = None, config: dict[str, Any] | None = None,
+    def __init__(self, summary: dict[str, Any], trace: LazyTable, frames: pd.DataFrame,
+                 links: LazyTable | None = None, config: dict[str, Any] | None = None,
                  repeated: RepeatedRows | None = None):
         self.summary, self.frames, self.config = summary, frames, config if config is not None else {}
         self._trace, self._links = trace, links if links is not None else pd.DataFrame()
@@ -98,7 +99,8 @@ def summarize(frames: pd.DataFrame, trace: pd.DataFrame | None, warmup_frames: i
               busy: Callable[[int, int], dict[str, int]] | None = None) -> dict[str, Any]:
     """Steady-state figures after `warmup_frames`: frame time = mean period between presents.
     With a single steady frame its period is measured from the last warm-up frame's present
-    (or, with no warm-up, from its own start)."""
+    (or, with no warm-up, from its own start). Utilization comes from `busy(lo, hi)` (busy ns
+    per resource in the window) when given, else from the trace and links tables."""
     steady = frames[frames["frame"] >= warmup_frames]
     if steady.empty:
         raise InputError(f"no frame presents after the {warmup_frames} warm-up frames "
@@ -199,8 +201,8 @@ def _build_repeated(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
         return out
 
     def links_frame() -> pd.DataFrame:
-        parts = [pd.DataFrame({"channel": name, "start_ns": log.array()[:, 0], "end_ns": log.array()[:, 1]})
-                 for name, log in links.items()]
+        arrays = {name: log.array() for name, log in links.items()}
+        parts = [pd.DataFrame({"channel": name, "start_ns": a[:, 0], "end_ns": a[:, 1]}) for name, a in arrays.items()]
         df = pd.concat(parts, ignore_index=True) if parts else _NO_LINKS.copy()
         return df.astype(LINK_DTYPES)
 

@@ -7,6 +7,8 @@ trace alone.
 """
 from __future__ import annotations
 
+import functools
+
 import pandas as pd
 
 TRACE_COLUMNS: tuple[str, ...] = (
@@ -20,16 +22,15 @@ TRACE_DTYPES: dict[str, str] = {
 FRAME_COLUMNS: tuple[str, ...] = ("frame", "start_ns", "present_ns", "latency_ns")
 
 
-_EMPTY: pd.DataFrame | None = None
+@functools.cache
+def _empty_trace() -> pd.DataFrame:
+    return pd.DataFrame.from_records([], columns=list(TRACE_COLUMNS)).astype(TRACE_DTYPES)
 
 
 def make_trace(rows: list[tuple]) -> pd.DataFrame:
     """Build a trace DataFrame from row tuples in TRACE_COLUMNS order, sorted by time."""
-    global _EMPTY
-    if not rows:  # common (runs without a trace): build the empty table once
-        if _EMPTY is None:
-            _EMPTY = pd.DataFrame.from_records([], columns=list(TRACE_COLUMNS)).astype(TRACE_DTYPES)
-        return _EMPTY.copy()
+    if not rows:  # common (runs without a trace): the empty table is built once
+        return _empty_trace().copy()
     df = pd.DataFrame.from_records(rows, columns=list(TRACE_COLUMNS))
     df = df.astype(TRACE_DTYPES)
     return df.sort_values(["start_ns", "end_ns", "device", "engine"], kind="stable").reset_index(drop=True)

@@ -11,7 +11,7 @@ pool that several devices or queues draw on (e.g. the queues of one GPU sharing 
 from __future__ import annotations
 
 from fractions import Fraction
-from typing import Callable
+from typing import Callable, Protocol
 
 import simpy
 
@@ -94,7 +94,21 @@ class SharedCores:
         return min(Fraction(repr(cost.cores)).limit_denominator(1000), threads)
 
 
-Executor = Dedicated | SharedCores
+class Executor(Protocol):
+    """What the engine asks of an executor (Dedicated and SharedCores are the two kinds)."""
+
+    #: whether other devices draw on the same cores (its `channel` is then one of the run's)
+    shared: bool
+    #: whether a copy is work on the cores (a memcpy) rather than a crossing of a link channel
+    copies_on_cores: bool
+
+    def runner(self, ns: int, cores: Fraction | int = 1) -> tuple[Runner | None, int]: ...
+
+    def work(self, ns: int) -> simpy.Event: ...
+
+    def background(self) -> Callable[[int], object] | None: ...
+
+    def cores(self, task: Task) -> Fraction: ...
 
 
 def make_executors(env: simpy.Environment, costs: CostModel, shared: bool) -> dict[str, Executor]:

@@ -316,3 +316,20 @@ def test_fast_forward_refuses_executors_it_cannot_describe():
     engine = Engine(program, costs, executors=lambda env: {n: Custom(env) for n in make_executors(env, costs, False)})
     raw = fastforward.run(engine)
     assert raw.fast_forward["used"] is False and "Custom" in raw.fast_forward["why"]
+
+
+def test_cli_fidelity_and_effects(tmp_path: Path, capsys):
+    from mgpusim.cli import main
+    exp = str(ROOT / "experiments" / "sort_first_tc1.toml")
+    assert main(["simulate", exp, "--fidelity", "analytic", "--out", str(tmp_path / "a")]) == 0
+    summary = json.loads((tmp_path / "a" / "summary.json").read_text())
+    assert summary["fidelity"] == "analytic" and (tmp_path / "a" / "trace.parquet").is_file()
+    assert main(["simulate", exp, "--effects", "+link_sharing", "--no-fast-forward",
+                 "--out", str(tmp_path / "b")]) == 0
+    summary = json.loads((tmp_path / "b" / "summary.json").read_text())
+    assert "link_sharing" in summary["modelled_effects"] and summary["fast_forward"]["why"] == "off"
+    capsys.readouterr()
+    assert main(["simulate", exp, "--effects", "+link_sharin", "--out", str(tmp_path / "c")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "did you mean +link_sharing" in err[0]
+    assert not (tmp_path / "c").exists()

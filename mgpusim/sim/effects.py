@@ -16,6 +16,7 @@ Fidelity levels trade accuracy for time:
 """
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass
 from typing import Callable, Iterable, Mapping
 
@@ -131,8 +132,10 @@ def parse_effects(text: str | None, option: str = "--effects") -> dict[str, bool
             continue
         sign, name = item[0], item[1:]
         if sign not in "+-" or name not in EFFECTS:
+            close = difflib.get_close_matches(item.lstrip("+-"), EFFECTS, n=1)
+            hint = f" (did you mean {sign if sign in '+-' else '+'}{close[0]}?)" if close else ""
             raise InputError(f"{item!r} is not +name or -name with a name among "
-                             f"{', '.join(EFFECTS)}", field=option)
+                             f"{', '.join(EFFECTS)}{hint}", field=option)
         out[name] = sign == "+"
     return out
 

@@ -333,3 +333,14 @@ def test_cli_fidelity_and_effects(tmp_path: Path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "did you mean +link_sharing" in err[0]
     assert not (tmp_path / "c").exists()
+
+
+@settings(max_examples=40, deadline=None)
+@given(_scenes())
+def test_unshared_levels_bound_the_full_model(scene):
+    """Sharing never speeds a task up and the timing is monotone: without sharing every frame
+    presents no later (docs/fidelity.md)."""
+    prof, kw = scene
+    exp = make_experiment(prof, **kw)
+    full, queues = simulate(exp), simulate(exp, fidelity="queues")
+    assert (queues.frames["present_ns"] <= full.frames["present_ns"]).all()

@@ -344,3 +344,11 @@ def test_unshared_levels_bound_the_full_model(scene):
     exp = make_experiment(prof, **kw)
     full, queues = simulate(exp), simulate(exp, fidelity="queues")
     assert (queues.frames["present_ns"] <= full.frames["present_ns"]).all()
+
+
+@pytest.mark.parametrize("name", ["sort_last_tc1.toml", "sort_first_tc1.toml"])
+def test_without_a_trace_the_summary_does_not_depend_on_the_fast_forward(name: str):
+    exp = load_experiment(ROOT / "experiments" / name, {"schedule.frames": 150})
+    off, on = simulate(exp, record_trace=False, fast_forward=False), simulate(exp, record_trace=False)
+    assert _summary(off) == _summary(on) and len(on.trace) == 0
+    pd.testing.assert_frame_equal(off.frames, on.frames)

@@ -64,8 +64,11 @@ class Repeat:
 class FastForward:
     """Watches an engine's presents, finds a repeat, shortens the run (see the module doc)."""
 
-    def __init__(self, engine: Engine, probe_frames: int = PROBE_FRAMES):
+    def __init__(self, engine: Engine, probe_frames: int = PROBE_FRAMES, keep_rows: bool = True):
+        """`keep_rows`: the caller wants the trace; if not, the rows the engine records for the
+        fast-forward are dropped, and no longer recorded, once it gives up."""
         self.engine = engine
+        self.keep_rows = keep_rows
         self.probe_frames = probe_frames
         self.seen: dict[tuple, tuple[int, int, tuple]] = {}
         #: cheap keys met so far: the full description is only written for a moment whose
@@ -88,8 +91,7 @@ class FastForward:
         if not self.active:
             return
         if frame >= self.probe_frames:
-            self.active = False
-            self.reason = f"no repeat within the first {self.probe_frames} frames"
+            self._give_up(f"no repeat within the first {self.probe_frames} frames")
             return
         self.engine.env.timeout(0).callbacks.append(lambda _e: self._probe(frame))
 
@@ -104,8 +106,7 @@ class FastForward:
             describer = _Describer(self.engine, frame, self._opid, self._proc_index)
             sig = describer.signature()
         except Unsupported as exc:
-            self.active = False
-            self.reason = f"state not described exactly ({exc})"
+            self._give_up(f"state not described exactly ({exc})")
             return
         now = self.engine.env.now
         marks = self._marks()
@@ -121,6 +122,14 @@ class FastForward:
         self.seen.clear()
         self.cheap.clear()
         self._shorten(earlier, (frame, now, marks), describer.max_frame, held)
+
+    def _give_up(self, reason: str) -> None:
+        self.active, self.reason = False, reason
+        self.seen.clear()
+        self.cheap.clear()
+        if not self.keep_rows:  # memory stays flat for the rest of a long run
+            self.engine.record = False
+            self.engine.rows.clear()
 
     def _cheap_key(self, frame: int) -> tuple:
         """A part of the state that is quick to write down: when pending events fire, and how
@@ -160,11 +169,13 @@ class FastForward:
 def run(engine: Engine, enabled: bool = True, record_trace: bool = True) -> Any:
     """Run `engine` (built with record_trace=True when `enabled`), fast-forwarding if its state
     repeats; the RawResult carries the repeat and what the fast-forward did."""
-    ff = FastForward(engine) if enabled else None
+    ff = FastForward(engine, keep_rows=record_trace) if enabled else None
     if ff is not None:
         engine.on_present = ff.on_present
     raw = engine.run()
     raw.recorded = record_trace
+    if not record_trace and (ff is None or ff.repeat is None):
+        raw.rows = []  # recorded only for a fast-forward that did not happen
     if ff is not None:
         raw.repeat = ff.repeat
         raw.fast_forward = ff.summary()

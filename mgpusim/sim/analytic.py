@@ -9,10 +9,11 @@ split into parts over the memcpy threads exactly as the event model does (each p
 free thread, in dispatch order).
 
 Exact where nothing is shared: it equals the event model whenever the scene needs none of link
-sharing, host memory sharing and the shared executor, and has no skippable tasks (tests check
-it on every shipped experiment that qualifies). Otherwise it is an optimistic bound: shared
-links, host memory and cores are taken as if each transfer or pass had them alone (sharing only
-slows the model down), and every skippable task runs; the summary lists these approximations.
+sharing, host memory sharing and the shared executor (tests check it on every shipped
+experiment that qualifies). Otherwise shared links and host memory are taken as if each
+transfer had them alone (an optimistic bound: sharing only slows the model down), and
+CPU-emulated GPUs as independent devices; skippable tasks follow the event model's rule,
+decided from times. The summary lists the approximations made.
 
 The recurrence's state at a frame boundary (recent task ends, queue clocks, thread free times),
 relative to the frame's present, repeats once it is periodic; from then on frames are
@@ -85,7 +86,10 @@ class Analytic:
         self.part_rate = thread_cap if thread_cap < mem else mem
         self.phases = [self._order([self._node(op) for op in ops]) for ops in probe.all_ops()]
         self.lag = max([1] + [-d[1] for ph in self.phases for n in ph for d in n.deps])
+        #: per phase, skippable task -> (its chain's leader, its same-frame skippable inputs)
+        self.chains = [_skip_chains(ph) for ph in self.phases]
         self.approximations = self._approximations()
+        self.ties = 0
 
     def _node(self, op: Any) -> _Node:
         task = op.task
@@ -132,9 +136,9 @@ class Analytic:
     def _approximations(self) -> list[str]:
         needed = {n for n, e in EFFECTS.items() if e.needed(self.program, self.costs.profile)}
         out = [f"{name}: taken as unshared (an optimistic bound)"
-               for name in ("link_sharing", "host_memory_sharing", "shared_executor") if name in needed]
-        if any(t.skip_if_busy for tasks in self.program.templates for t in tasks):
-            out.append("skippable tasks: every instance runs")
+               for name in ("link_sharing", "host_memory_sharing") if name in needed]
+        if "shared_executor" in needed:
+            out.append("shared_executor: the emulated GPUs taken as independent devices (not a bound)")
         return out
 
     # ----- one configuration ---------------------------------------------------------------
@@ -152,24 +156,39 @@ class Analytic:
         rows: list[tuple] = []
         start = np.full(frames, np.iinfo(np.int64).max, dtype=np.int64)
         present = np.full(frames, -1, dtype=np.int64)
-        seen: dict[tuple, tuple[int, int, int]] = {}
+        seen: dict[tuple, tuple[int, int, int, dict[str, int]]] = {}
         horizon, repeat = frames, None
+        skips = _Skips()
         f = 0
         while f < horizon:
             here: dict[str, int] = {}
             ends.append(here)
             first = None
+            skipped_here: set[str] = set()
             for node in self.phases[f % period]:
-                ready, cross = NEG, NEG
+                ready, cross, has_deps = NEG, NEG, False
                 for dep, off, crosses in node.deps:
                     g = f + off
                     if g < 0:
                         continue
+                    has_deps = True
                     e = ends[g][dep] if off else here[dep]
                     if e > ready:
                         ready = e
                     if crosses and e > cross:
                         cross = e
+                if node.task.skip_if_busy:
+                    arrive = max(host_prev, 0) if node.stream == "host" else queue_end.get(node.stream, 0)
+                    chain = self.chains[f % period][node.name]
+                    if skips.skipped(chain, skipped_here, ready if has_deps else arrive):
+                        skipped_here.add(node.name)
+                        skips.frames.setdefault(node.name, []).append(f)
+                        here[node.name] = t = max(ready, arrive)  # the stream reaches it, moves on
+                        if node.stream == "host":
+                            host_prev = t
+                        else:
+                            queue_end[node.stream] = t
+                        continue
                 if node.stream == "host":
                     t = max(ready, host_prev, 0)
                     if self.timeline and cross > NEG:
@@ -187,6 +206,8 @@ class Analytic:
                             rows.append((f, "host", f"thread{tid}", node.task.step, node.name, s, e, size,
                                          node.waits_for))
                     here[node.name] = end
+                    if node.task.skip_if_busy:
+                        skips.ran(self.chains[f % period][node.name][0], end)
                     continue
                 s = max(ready, queue_end.get(node.stream, 0))
                 if self.timeline:
@@ -200,6 +221,8 @@ class Analytic:
                 e = s + node.fixed + (_round_div(node.nbytes, node.rate) if node.rate is not None and node.nbytes else 0)
                 queue_end[node.stream] = e
                 here[node.name] = e
+                if node.task.skip_if_busy:
+                    skips.ran(self.chains[f % period][node.name][0], e)
                 first = s if first is None else min(first, s)
                 if record:
                     rows.append((f, node.device, node.engine, node.task.step, node.name, s, e, node.nbytes,
@@ -207,26 +230,33 @@ class Analytic:
             start[f] = first if first is not None else start[f]
             present[f] = here[self.program.present_task]
             if repeat is None and f >= self.lag:
-                key = self._state(f, ends, queue_end, sub, threads, host_prev, int(present[f]))
+                ref = int(present[f])
+                key = self._state(f, ends, queue_end, sub, threads, host_prev, ref) + skips.state(ref)
                 earlier = seen.get(key)
+                marks = {n: len(v) for n, v in skips.frames.items()}
                 if earlier is None:
-                    seen[key] = (f, int(present[f]), len(rows))
+                    seen[key] = (f, ref, len(rows), marks)
                 else:
-                    f1, t1, r1 = earlier
-                    p, shift = f - f1, int(present[f]) - t1
+                    f1, t1, r1, m1 = earlier
+                    p, shift = f - f1, ref - t1
                     self.found = {"period_frames": p, "period_ns": shift, "from_frame": f1 + 1}
                     copies = max(0, (frames - (f + 2)) // p)
                     if copies:
-                        repeat = Repeat(p, shift, copies, f1 + 1, (r1, len(rows)))
+                        repeat = Repeat(p, shift, copies, f1 + 1, (r1, len(rows)),
+                                        skipped={n: (m1.get(n, 0), k) for n, k in marks.items()})
                         horizon = frames - copies * p
                     seen.clear()
             if len(ends) > self.lag + 1:
                 ends[f - self.lag - 1] = {}  # older frames are never read again
             f += 1
+        self.skipped_frames = skips.frames
         if repeat is not None and not record:  # no rows to compose: extend the arrays instead
             _extend(start, horizon, repeat)
             _extend(present, horizon, repeat)
+            self.skipped_frames = {n: _extend_frames(v, horizon, frames, repeat.frames)
+                                   for n, v in skips.frames.items()}
             repeat = None
+        self.ties = skips.ties
         return rows, start, present, repeat
 
     def _state(self, f: int, ends: list[dict[str, int]], queue_end: dict[str, int], sub: dict[str, int],
@@ -242,6 +272,63 @@ class Analytic:
                               for q, c in sub.items()))
         return (f % len(self.phases), recent, tuple(sorted((q, rel(v)) for q, v in queue_end.items())),
                 clocks, tuple(rel(t) if t > max(host_prev, 0) else None for t in threads), rel(host_prev))
+
+
+class _Skips:
+    """The skip rule of the event model (mgpusim.sim.skipping), decided from times: a chain's
+    leader is skipped when a task of an earlier instance of its chain that ran ends after the
+    leader's inputs are ready; a follower when one of its skippable inputs of the frame was."""
+
+    def __init__(self) -> None:
+        self.busy_until: dict[str, int] = {}  # chain -> latest end of its tasks that ran
+        self.last_ready: dict[str, int] = {}  # chain -> latest decision time of a leader that ran
+        self.frames: dict[str, list[int]] = {}  # task -> frames it was skipped in
+        #: decisions the times alone cannot settle (an end at the very decision time, or a
+        #: decision earlier than one before it): the event order decides them in the model
+        self.ties = 0
+
+    def skipped(self, chain: tuple[str, tuple[str, ...] | None], skipped_here: set[str], at: int) -> bool:
+        leader, inputs = chain
+        if inputs is not None:
+            return any(n in skipped_here for n in inputs)
+        busy = self.busy_until.get(leader, NEG)
+        if busy == at or self.last_ready.get(leader, NEG) > at:
+            self.ties += 1
+        if busy > at:
+            return True
+        self.last_ready[leader] = max(self.last_ready.get(leader, NEG), at)
+        return False
+
+    def ran(self, leader: str, end: int) -> None:
+        self.busy_until[leader] = max(self.busy_until.get(leader, NEG), end)
+
+    def state(self, ref: int) -> tuple:
+        def rel(x: int) -> int:
+            return x - ref if x > NEG else NEG
+        return (tuple(sorted((k, rel(v)) for k, v in self.busy_until.items())),
+                tuple(sorted((k, rel(v)) for k, v in self.last_ready.items())))
+
+
+def _skip_chains(nodes: list[_Node]) -> dict[str, tuple[str, tuple[str, ...] | None]]:
+    """Skippable task -> (its chain's leader, its same-frame skippable inputs or None for a
+    leader), as mgpusim.sim.skipping groups them."""
+    out: dict[str, tuple[str, tuple[str, ...] | None]] = {}
+    for n in nodes:
+        if not n.task.skip_if_busy:
+            continue
+        ins = tuple(d for d, off, _ in n.deps if off == 0 and d in out)
+        out[n.name] = (out[ins[0]][0], ins) if ins else (n.name, None)
+    return out
+
+
+def _extend_frames(frames: list[int], computed: int, total: int, period: int) -> list[int]:
+    """A task's skipped frames, continued periodically from frame `computed` to `total`."""
+    flags = np.zeros(total, dtype=bool)
+    flags[frames] = True
+    for f in range(computed, total, period):
+        n = min(period, total - f)
+        flags[f:f + n] = flags[f - period:f - period + n]
+    return np.flatnonzero(flags).tolist()
 
 
 def _extend(values: np.ndarray, computed: int, repeat: Repeat) -> None:
@@ -265,7 +352,8 @@ def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str
     """A RawResult from the recurrence, for :func:`mgpusim.results.build_result`."""
     model = Analytic(program, costs, effects)
     rows, start, present, repeat = model.run(record=record_trace)
-    raw = RawResult(rows, start, present, {}, {}, {}, {}, effects, program.present_task)
+    skipped = {n: len(v) for n, v in model.skipped_frames.items()}
+    raw = RawResult(rows, start, present, {}, skipped, {}, dict(model.skipped_frames), effects, program.present_task)
     raw.recorded = record_trace
     raw.repeat = repeat
     found = model.found
@@ -275,9 +363,13 @@ def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str
     else:
         raw.fast_forward.update(why=f"state repeats every {found['period_frames']} frame(s), "
                                     f"{found['period_ns']} ns, from frame {found['from_frame']}", **found)
-    raw.effects = {"analytic_exact": not model.approximations}
-    if model.approximations:
-        raw.effects["analytic_approximations"] = model.approximations
+    approximations = list(model.approximations)
+    if model.ties:
+        approximations.append(f"skippable tasks: {model.ties} skip decision(s) tied with a chain's end "
+                              "(taken as finished)")
+    raw.effects = {"analytic_exact": not approximations}
+    if approximations:
+        raw.effects["analytic_approximations"] = approximations
     return raw
 
 

@@ -370,3 +370,11 @@ def test_without_a_trace_the_summary_does_not_depend_on_the_fast_forward(name: s
     off, on = simulate(exp, record_trace=False, fast_forward=False), simulate(exp, record_trace=False)
     assert _summary(off) == _summary(on) and len(on.trace) == 0
     pd.testing.assert_frame_equal(off.frames, on.frames)
+
+
+def test_sweep_refuses_skippable_schedules():
+    import numpy as np
+    from mgpusim.sim.analytic import sweep
+    exp = load_experiment(ROOT / "experiments" / "particles_machine.toml")
+    with pytest.raises(InputError, match="skippable"):
+        sweep(build_program(exp), CostModel(exp.profile), np.ones(2), np.ones(2))

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from ..costs import CostModel
-from ..errors import ScheduleError
+from ..errors import InputError, ScheduleError
 from ..schedules.base import FrameProgram
 from ..tasks import CopyTask, HostCopyTask, PassTask, Task
 from .effects import EFFECTS
@@ -391,8 +391,12 @@ def sweep(program: FrameProgram, costs: CostModel, pass_scale: np.ndarray, link_
     """Frame time and latency (ms, after warm-up) of one program on many hardware variants at
     once: variant i has every pass `pass_scale[i]` times as long and every link and host-memory
     transfer `link_scale[i]` times as long (rounded once, half up, like the model's costs).
-    With both scales 1 it is :class:`Analytic` exactly; one numpy lane per variant."""
+    With both scales 1 it is :class:`Analytic` exactly; one numpy lane per variant. Programs
+    with skippable tasks are refused (their skips are decided per variant, not as arrays)."""
     from .effects import choose_effects  # noqa: PLC0415
+    if any(t.skip_if_busy for tasks in program.templates for t in tasks):
+        raise InputError(f"schedule {program.schedule!r} has skippable tasks: sweep them one "
+                         "configuration at a time (simulate(..., fidelity='analytic'))")
     pass_scale = np.asarray(pass_scale, dtype=np.float64)
     link_scale = np.asarray(link_scale, dtype=np.float64)
     model = Analytic(program, costs, effects if effects is not None else

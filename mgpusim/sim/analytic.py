@@ -33,7 +33,7 @@ from ..costs import CostModel
 from ..errors import InputError, ScheduleError
 from ..schedules.base import FrameProgram
 from ..tasks import CopyTask, HostCopyTask, PassTask, Task
-from .effects import EFFECTS
+from .effects import EFFECTS, choose_effects
 from .engine import Engine, RawResult
 from .fastforward import Repeat
 
@@ -393,7 +393,6 @@ def sweep(program: FrameProgram, costs: CostModel, pass_scale: np.ndarray, link_
     transfer `link_scale[i]` times as long (rounded once, half up, like the model's costs).
     With both scales 1 it is :class:`Analytic` exactly; one numpy lane per variant. Programs
     with skippable tasks are refused (their skips are decided per variant, not as arrays)."""
-    from .effects import choose_effects  # noqa: PLC0415
     if any(t.skip_if_busy for tasks in program.templates for t in tasks):
         raise InputError(f"schedule {program.schedule!r} has skippable tasks: sweep them one "
                          "configuration at a time (simulate(..., fidelity='analytic'))")

@@ -144,134 +144,182 @@ class Analytic:
     # ----- one configuration ---------------------------------------------------------------
     def run(self, record: bool = True) -> tuple[list[tuple], np.ndarray, np.ndarray, Repeat | None]:
         """Rows, frame starts, presents, and the repeat (None: every frame computed, or the
-        arrays already extended when no rows were asked for)."""
-        self.found: dict[str, int] | None = None
+        arrays already extended when no rows were asked for). Sets `found` (the repeat's
+        period and first frame, or None), `skipped_frames` and `ties`."""
+        rec = _Recurrence(self, record)
         frames = self.program.frames
-        period = len(self.phases)
-        ends: list[dict[str, int]] = []
-        queue_end: dict[str, int] = {}
-        sub: dict[str, int] = {}
-        threads = [0] * self.threads
-        host_prev = NEG
-        rows: list[tuple] = []
-        start = np.full(frames, np.iinfo(np.int64).max, dtype=np.int64)
-        present = np.full(frames, -1, dtype=np.int64)
-        seen: dict[tuple, tuple[int, int, int, dict[str, int]]] = {}
-        horizon, repeat = frames, None
-        skips = _Skips()
-        f = 0
+        horizon, repeat, f = frames, None, 0
         while f < horizon:
-            here: dict[str, int] = {}
-            ends.append(here)
-            first = None
-            skipped_here: set[str] = set()
-            for node in self.phases[f % period]:
-                ready, cross, has_deps = NEG, NEG, False
-                for dep, off, crosses in node.deps:
-                    g = f + off
-                    if g < 0:
-                        continue
-                    has_deps = True
-                    e = ends[g][dep] if off else here[dep]
-                    if e > ready:
-                        ready = e
-                    if crosses and e > cross:
-                        cross = e
-                if node.task.skip_if_busy:
-                    arrive = max(host_prev, 0) if node.stream == "host" else queue_end.get(node.stream, 0)
-                    chain = self.chains[f % period][node.name]
-                    if skips.skipped(chain, skipped_here, ready if has_deps else arrive):
-                        skipped_here.add(node.name)
-                        skips.frames.setdefault(node.name, []).append(f)
-                        here[node.name] = t = max(ready, arrive)  # the stream reaches it, moves on
-                        if node.stream == "host":
-                            host_prev = t
-                        else:
-                            queue_end[node.stream] = t
-                        continue
-                if node.stream == "host":
-                    t = max(ready, host_prev, 0)
-                    if self.timeline and cross > NEG:
-                        t = max(t, cross + self.dispatch)
-                    host_prev = t
-                    end = NEG
-                    for size in node.parts:
-                        tid = _thread(threads, t)
-                        s = max(t, threads[tid])
-                        e = s + node.fixed + _round_div(size, self.part_rate)
-                        threads[tid] = e
-                        end = max(end, e)
-                        first = s if first is None else min(first, s)
-                        if record:
-                            rows.append((f, "host", f"thread{tid}", node.task.step, node.name, s, e, size,
-                                         node.waits_for))
-                    here[node.name] = end
-                    if node.task.skip_if_busy:
-                        skips.ran(self.chains[f % period][node.name][0], end)
-                    continue
-                s = max(ready, queue_end.get(node.stream, 0))
-                if self.timeline:
-                    clock = sub.get(node.stream, 0)
-                    if cross > NEG:
-                        clock = max(clock, cross + self.dispatch)
-                    clock += self.submit
-                    sub[node.stream] = clock
-                    s = max(s, clock)
-                s += node.gap
-                e = s + node.fixed + (_round_div(node.nbytes, node.rate) if node.rate is not None and node.nbytes else 0)
-                queue_end[node.stream] = e
-                here[node.name] = e
-                if node.task.skip_if_busy:
-                    skips.ran(self.chains[f % period][node.name][0], e)
-                first = s if first is None else min(first, s)
-                if record:
-                    rows.append((f, node.device, node.engine, node.task.step, node.name, s, e, node.nbytes,
-                                 node.waits_for))
-            start[f] = first if first is not None else start[f]
-            present[f] = here[self.program.present_task]
+            rec.frame(f)
             if repeat is None and f >= self.lag:
-                ref = int(present[f])
-                key = self._state(f, ends, queue_end, sub, threads, host_prev, ref) + skips.state(ref)
-                earlier = seen.get(key)
-                marks = {n: len(v) for n, v in skips.frames.items()}
-                if earlier is None:
-                    seen[key] = (f, ref, len(rows), marks)
-                else:
-                    f1, t1, r1, m1 = earlier
-                    p, shift = f - f1, ref - t1
-                    self.found = {"period_frames": p, "period_ns": shift, "from_frame": f1 + 1}
-                    copies = max(0, (frames - (f + 2)) // p)
-                    if copies:
-                        repeat = Repeat(p, shift, copies, f1 + 1, (r1, len(rows)),
-                                        skipped={n: (m1.get(n, 0), k) for n, k in marks.items()})
-                        horizon = frames - copies * p
-                    seen.clear()
-            if len(ends) > self.lag + 1:
-                ends[f - self.lag - 1] = {}  # older frames are never read again
+                repeat = rec.look_for_repeat(f)
+                if repeat is not None:
+                    horizon = frames - repeat.copies * repeat.frames
+            rec.forget_before(f - self.lag)
             f += 1
-        self.skipped_frames = skips.frames
+        self.found, self.ties, self.skipped_frames = rec.found, rec.skips.ties, rec.skips.frames
         if repeat is not None and not record:  # no rows to compose: extend the arrays instead
-            _extend(start, horizon, repeat)
-            _extend(present, horizon, repeat)
+            _extend(rec.start, horizon, repeat)
+            _extend(rec.present, horizon, repeat)
             self.skipped_frames = {n: _extend_frames(v, horizon, frames, repeat.frames)
-                                   for n, v in skips.frames.items()}
+                                   for n, v in rec.skips.frames.items()}
             repeat = None
-        self.ties = skips.ties
-        return rows, start, present, repeat
+        return rec.rows, rec.start, rec.present, repeat
 
-    def _state(self, f: int, ends: list[dict[str, int]], queue_end: dict[str, int], sub: dict[str, int],
-               threads: list[int], host_prev: int, ref: int) -> tuple:
+
+class _Recurrence:
+    """The recurrence's state while it runs: recent task ends, each stream's clock (when its
+    queue is free, its submit clock), the memcpy threads, and the skip chains."""
+
+    def __init__(self, model: Analytic, record: bool):
+        self.m, self.record = model, record
+        frames = model.program.frames
+        self.ends: list[dict[str, int]] = []
+        self.queue_end: dict[str, int] = {}
+        self.sub: dict[str, int] = {}
+        self.threads = [0] * model.threads
+        self.host_prev = NEG
+        self.rows: list[tuple] = []
+        self.start = np.full(frames, np.iinfo(np.int64).max, dtype=np.int64)
+        self.present = np.full(frames, -1, dtype=np.int64)
+        self.skips = _Skips()
+        self.seen: dict[tuple, tuple[int, int, int, dict[str, int]]] = {}
+        self.found: dict[str, int] | None = None
+
+    # ----- one frame ---------------------------------------------------------------------
+    def frame(self, f: int) -> None:
+        phase = f % len(self.m.phases)
+        here: dict[str, int] = {}
+        self.ends.append(here)
+        self.first: int | None = None
+        skipped_here: set[str] = set()
+        for node in self.m.phases[phase]:
+            ready, cross, has_deps = self._inputs(node, f, here)
+            chain = self.m.chains[phase].get(node.name)
+            if chain is not None and self._skip(node, f, chain, skipped_here, here, ready, has_deps):
+                continue
+            if node.stream == "host":
+                end = self._host_copy(node, f, ready, cross)
+            else:
+                end = self._queue_task(node, f, ready, cross)
+            here[node.name] = end
+            if chain is not None:
+                self.skips.ran(chain[0], end)
+        if self.first is not None:
+            self.start[f] = self.first
+        self.present[f] = here[self.m.program.present_task]
+
+    def _inputs(self, node: _Node, f: int, here: dict[str, int]) -> tuple[int, int, bool]:
+        """When the last input ended, the last from another device, and whether any exists."""
+        ready, cross, has_deps = NEG, NEG, False
+        for dep, off, crosses in node.deps:
+            if f + off < 0:
+                continue
+            has_deps = True
+            e = self.ends[f + off][dep] if off else here[dep]
+            if e > ready:
+                ready = e
+            if crosses and e > cross:
+                cross = e
+        return ready, cross, has_deps
+
+    def _skip(self, node: _Node, f: int, chain: tuple[str, tuple[str, ...] | None], skipped_here: set[str],
+              here: dict[str, int], ready: int, has_deps: bool) -> bool:
+        """Apply the skip rule; a skipped task ends when its stream reaches it, and the stream
+        moves on from there."""
+        arrive = max(self.host_prev, 0) if node.stream == "host" else self.queue_end.get(node.stream, 0)
+        if not self.skips.skipped(chain, skipped_here, ready if has_deps else arrive):
+            return False
+        skipped_here.add(node.name)
+        self.skips.frames.setdefault(node.name, []).append(f)
+        here[node.name] = t = max(ready, arrive)
+        if node.stream == "host":
+            self.host_prev = t
+        else:
+            self.queue_end[node.stream] = t
+        return True
+
+    def _host_copy(self, node: _Node, f: int, ready: int, cross: int) -> int:
+        """Dispatched in order (after the host wakes), split over the memcpy threads."""
+        t = max(ready, self.host_prev, 0)
+        if self.m.timeline and cross > NEG:
+            t = max(t, cross + self.m.dispatch)
+        self.host_prev = t
+        end = NEG
+        for size in node.parts:
+            tid = _thread(self.threads, t)
+            s = max(t, self.threads[tid])
+            e = s + node.fixed + _round_div(size, self.m.part_rate)
+            self.threads[tid] = e
+            end = max(end, e)
+            self._started(s)
+            if self.record:
+                self.rows.append((f, "host", f"thread{tid}", node.task.step, node.name, s, e, size,
+                                  node.waits_for))
+        return end
+
+    def _queue_task(self, node: _Node, f: int, ready: int, cross: int) -> int:
+        """After its inputs, the task before it on its queue and its submit clock; then its gap,
+        its pass or copy time, and its bytes at the link's fixed rate."""
+        s = max(ready, self.queue_end.get(node.stream, 0))
+        if self.m.timeline:
+            clock = self.sub.get(node.stream, 0)
+            if cross > NEG:
+                clock = max(clock, cross + self.m.dispatch)
+            clock += self.m.submit
+            self.sub[node.stream] = clock
+            s = max(s, clock)
+        s += node.gap
+        moved = _round_div(node.nbytes, node.rate) if node.rate is not None and node.nbytes else 0
+        e = s + node.fixed + moved
+        self.queue_end[node.stream] = e
+        self._started(s)
+        if self.record:
+            self.rows.append((f, node.device, node.engine, node.task.step, node.name, s, e, node.nbytes,
+                              node.waits_for))
+        return e
+
+    def _started(self, s: int) -> None:
+        self.first = s if self.first is None else min(self.first, s)
+
+    def forget_before(self, f: int) -> None:
+        if f > 0:
+            self.ends[f - 1] = {}  # never read again
+
+    # ----- the repeat --------------------------------------------------------------------
+    def look_for_repeat(self, f: int) -> Repeat | None:
+        """Note frame f's state; at its second sight, the repeat (None if nothing to skip)."""
+        ref = int(self.present[f])
+        key = self._state(f, ref) + self.skips.state(ref)
+        marks = {n: len(v) for n, v in self.skips.frames.items()}
+        earlier = self.seen.get(key)
+        if earlier is None:
+            self.seen[key] = (f, ref, len(self.rows), marks)
+            return None
+        self.seen.clear()
+        f1, t1, r1, m1 = earlier
+        p, shift = f - f1, ref - t1
+        self.found = {"period_frames": p, "period_ns": shift, "from_frame": f1 + 1}
+        copies = max(0, (self.m.program.frames - (f + 2)) // p)
+        if not copies:
+            return None
+        return Repeat(p, shift, copies, f1 + 1, (r1, len(self.rows)),
+                      skipped={n: (m1.get(n, 0), k) for n, k in marks.items()})
+
+    def _state(self, f: int, ref: int) -> tuple:
         """What the frames after `f` read, relative to frame f's present. A thread idle since
         before the last dispatch and a submit clock (without submit cost) behind its queue are
         the same state whatever their exact value, so they are written as those bounds."""
         def rel(x: int) -> int:
             return x - ref if x > NEG else NEG
-        recent = tuple(tuple(sorted((k, rel(v)) for k, v in ends[g].items()))
-                       for g in range(max(0, f - self.lag + 1), f + 1))
-        clocks = tuple(sorted((q, rel(max(c, queue_end.get(q, 0)) if not self.submit else c))
-                              for q, c in sub.items()))
-        return (f % len(self.phases), recent, tuple(sorted((q, rel(v)) for q, v in queue_end.items())),
-                clocks, tuple(rel(t) if t > max(host_prev, 0) else None for t in threads), rel(host_prev))
+        m = self.m
+        recent = tuple(tuple(sorted((k, rel(v)) for k, v in self.ends[g].items()))
+                       for g in range(max(0, f - m.lag + 1), f + 1))
+        clocks = tuple(sorted((q, rel(max(c, self.queue_end.get(q, 0)) if not m.submit else c))
+                              for q, c in self.sub.items()))
+        idle = max(self.host_prev, 0)
+        return (f % len(m.phases), recent, tuple(sorted((q, rel(v)) for q, v in self.queue_end.items())),
+                clocks, tuple(rel(t) if t > idle else None for t in self.threads), rel(self.host_prev))
 
 
 class _Skips:

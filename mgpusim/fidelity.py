@@ -140,3 +140,53 @@ def markdown(summary: pd.DataFrame) -> str:
                      f"{100 * r.median_abs_latency_error:.1f} % / {100 * r.worst_abs_latency_error:.1f} % | "
                      f"{r.median_wall_ms:.2f} | {r.median_model_ms:.2f} |")
     return "\n".join(lines) + "\n"
+
+
+def shipped_experiments() -> list[Path]:
+    """experiments/*.toml and experiments/*/*.toml that are experiments (not studies)."""
+    paths = sorted(ROOT.glob("experiments/*.toml")) + sorted(ROOT.glob("experiments/*/*.toml"))
+    return [p for p in paths if "[schedule]" in p.read_text()]
+
+
+def deviations(paths: list[Path], variants: dict[str, dict[str, Any]] | None = None,
+               repeats: int = 3) -> pd.DataFrame:
+    """Where there is no measurement: each level's frame time against `full` on the shipped
+    experiments, and the model's time (best of `repeats`)."""
+    from .experiment import load_experiment  # noqa: PLC0415 (Entry.load covers the studies)
+    rows = []
+    for path in paths:
+        exp = load_experiment(path)
+        reference = None
+        for level, kwargs in (variants or VARIANTS).items():
+            model, result = float("inf"), None
+            for _ in range(repeats):
+                result = simulate(exp, record_trace=False, **kwargs)
+                model = min(model, result.model_wall_s)
+            ft = result.summary["frame_time_ms"]
+            reference = ft if level == "full" else reference
+            rows.append({"experiment": str(path.relative_to(ROOT / "experiments")), "level": level,
+                         "frame_ms": ft, "model_ms": model * 1e3})
+    table = pd.DataFrame(rows)
+    full = table[table.level == "full"].set_index("experiment")["frame_ms"]
+    table["deviation_from_full"] = table["frame_ms"] / table["experiment"].map(full) - 1
+    return table
+
+
+def summarize_deviations(table: pd.DataFrame) -> pd.DataFrame:
+    out = []
+    for level, g in table.groupby("level", sort=False):
+        dev = g["deviation_from_full"].abs().to_numpy()
+        out.append({"level": level, "experiments": len(g), "median_abs_deviation": float(np.median(dev)),
+                    "worst_abs_deviation": float(dev.max()),
+                    "worst_experiment": str(g.iloc[int(dev.argmax())]["experiment"]) if dev.max() > 0 else "-",
+                    "median_model_ms": float(g["model_ms"].median())})
+    return pd.DataFrame(out)
+
+
+def deviations_markdown(summary: pd.DataFrame) -> str:
+    lines = ["| level | experiments | median / worst \\|frame time - full\\| | worst on | model ms (median) |",
+             "|---|---|---|---|---|"]
+    for r in summary.itertuples(index=False):
+        lines.append(f"| {r.level} | {r.experiments} | {100 * r.median_abs_deviation:.1f} % / "
+                     f"{100 * r.worst_abs_deviation:.1f} % | {r.worst_experiment} | {r.median_model_ms:.2f} |")
+    return "\n".join(lines) + "\n"

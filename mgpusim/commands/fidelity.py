@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from ..fidelity import configurations, markdown, run_levels, summarize_levels
+from ..fidelity import (configurations, deviations, deviations_markdown, markdown, run_levels,
+                        shipped_experiments, summarize_deviations, summarize_levels)
 from ..output import write_table
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
@@ -30,57 +31,81 @@ def run(args: argparse.Namespace) -> int:
     levels = summarize_levels(table)
     write_table(table, args.out / "per_config.csv")
     write_table(levels, args.out / "levels.csv")
+    dev = summarize_deviations(deviations(shipped_experiments(), repeats=max(1, args.repeats)))
+    write_table(dev, args.out / "deviations.csv")
     text = markdown(levels)
-    (args.out / "fidelity.md").write_text(text)
-    pareto_png(levels, args.out / "fidelity_pareto.png")
+    dev_text = deviations_markdown(dev)
+    (args.out / "fidelity.md").write_text(text + "\n" + dev_text)
+    pareto_png(levels, args.out / "fidelity_pareto.png", dev)
     counts = table.drop_duplicates(["machine", "config"])["machine"].value_counts()
     print(f"{len(configs)} measured configurations (" + ", ".join(f"{n} on {m}" for m, n in counts.items()) + ")")
     print(text, end="")
+    print("\nshipped experiments, each level against full (no measurement):")
+    print(dev_text, end="")
     if args.docs:
-        _write_docs(text, levels, len(configs))
+        _write_docs({"fidelity table": text, "deviation table": dev_text}, levels, dev)
     print(f"  wrote {args.out}")
     return 0
 
 
-def pareto_png(levels: pd.DataFrame, path: Path) -> Path:
-    """Median |frame-time error| against the model's median time per configuration, log-log:
-    one colour per level, one marker per schedule (large: all schedules)."""
+def pareto_png(levels: pd.DataFrame, path: Path, deviations: pd.DataFrame | None = None) -> Path:
+    """Left: median |frame-time error| against measured runs vs the model's median time per
+    configuration (one colour per level, one marker per schedule, large: all schedules).
+    Right: each level's median |frame time - full| on the shipped experiments vs its time.
+    Both log-log."""
     import matplotlib  # noqa: PLC0415 (plotting stays at the edge)
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
-    from matplotlib.ticker import ScalarFormatter  # noqa: PLC0415
-    fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
+    from matplotlib.ticker import NullFormatter, ScalarFormatter  # noqa: PLC0415
+    panels = 2 if deviations is not None else 1
+    fig, axes = plt.subplots(1, panels, figsize=(6.0 * panels, 4.4), dpi=120, squeeze=False)
     markers = {"all": "o", "sort_first": "^", "sort_last": "v"}
-    for i, (level, g) in enumerate(levels.groupby("level", sort=False)):
-        for r in g.itertuples(index=False):
-            ax.scatter(r.median_model_ms, max(r.median_abs_frame_time_error, 1e-4) * 100, color=f"C{i}",
-                       marker=markers.get(r.schedule, "s"), s=80 if r.schedule == "all" else 30,
-                       label=level if r.schedule == "all" else None, alpha=0.9)
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    for axis in (ax.xaxis, ax.yaxis):
-        axis.set_major_formatter(ScalarFormatter())
-        axis.set_minor_formatter(ScalarFormatter())
-    ax.tick_params(which="minor", labelsize=7)
-    ax.set_xlabel("model time per configuration, ms (median; log)")
+    colour = {level: f"C{i}" for i, level in enumerate(dict.fromkeys(levels["level"]))}
+    ax = axes[0][0]
+    for r in levels.itertuples(index=False):
+        ax.scatter(r.median_model_ms, max(r.median_abs_frame_time_error, 1e-4) * 100, color=colour[r.level],
+                   marker=markers.get(r.schedule, "s"), s=80 if r.schedule == "all" else 30,
+                   label=r.level if r.schedule == "all" else None, alpha=0.9)
+    ax.set_title("vs measured NVIDIA runs\n(o all, ^ sort-first, v sort-last)", fontsize=10)
     ax.set_ylabel("median |frame-time error|, % (log)")
-    ax.set_title("Accuracy vs time per fidelity level\n(measured NVIDIA runs; o all, ^ sort-first, v sort-last)",
-                 fontsize=10)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8, loc="center")
+    if deviations is not None:
+        ax2 = axes[0][1]
+        for r in deviations.itertuples(index=False):
+            ax2.scatter(r.median_model_ms, max(r.worst_abs_deviation, 1e-4) * 100, color=colour.get(r.level, "k"),
+                        marker="D", s=60, label=r.level)
+        ax2.set_title("vs full, shipped experiments (no measurement)", fontsize=10)
+        ax2.set_ylabel("worst |frame time - full|, % (log; 0 drawn at 0.01)")
+    for a in axes[0]:
+        a.set_xscale("log")
+        a.set_yscale("log")
+        for axis in (a.xaxis, a.yaxis):
+            axis.set_major_formatter(ScalarFormatter())
+        a.xaxis.set_minor_formatter(ScalarFormatter())
+        if a.get_ylim()[1] / a.get_ylim()[0] < 10:  # less than a decade: label the minor ticks too
+            a.yaxis.set_minor_formatter(ScalarFormatter())
+        else:
+            a.yaxis.set_minor_formatter(NullFormatter())
+        a.tick_params(which="minor", labelsize=7)
+        a.set_xlabel("model time per configuration, ms (median; log)")
+        a.grid(True, which="both", alpha=0.3)
+        a.legend(fontsize=8, loc="center")
+    fig.suptitle("What accuracy costs in time, per fidelity level", fontsize=11)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
     return path
 
 
-def _write_docs(table: str, levels: pd.DataFrame, n: int) -> None:
+def _write_docs(tables: dict[str, str], levels: pd.DataFrame, deviations: pd.DataFrame) -> None:
+    """Replace each `<!-- NAME -->`...`<!-- end NAME -->` block of docs/fidelity.md; the plot."""
     doc = DOCS / "fidelity.md"
     text = doc.read_text()
-    start, end = "<!-- fidelity table -->", "<!-- end fidelity table -->"
-    if start in text and end in text:
-        head, _, rest = text.partition(start)
-        _, _, tail = rest.partition(end)
-        doc.write_text(f"{head}{start}\n{table}{end}{tail}")
+    for name, table in tables.items():
+        start, end = f"<!-- {name} -->", f"<!-- end {name} -->"
+        if start in text and end in text:
+            head, _, rest = text.partition(start)
+            _, _, tail = rest.partition(end)
+            text = f"{head}{start}\n{table}{end}{tail}"
+    doc.write_text(text)
     (DOCS / "img").mkdir(exist_ok=True)
-    pareto_png(levels, DOCS / "img" / "fidelity_pareto.png")
+    pareto_png(levels, DOCS / "img" / "fidelity_pareto.png", deviations)

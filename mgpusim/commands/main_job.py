@@ -19,7 +19,7 @@ from ..mainjob import (CALIBRATION, HELD_OUT, MAIN_CONFIGS, load_runs, measure_a
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("main", help="the main job: measure, calibrate, validate on lavapipe, write a report")
-    p.add_argument("--out", type=Path, default=Path("out/main"))
+    p.add_argument("--out", type=Path, default=Path("out/main"), help="output folder (default: out/main)")
     p.add_argument("--held-out", action="store_true",
                    help="also validate 10 held-out configurations (GPU counts, sizes, loads, variants)")
     p.add_argument("--repeats", type=int, default=3, help="measured runs per configuration (their steady window is compared)")

@@ -12,6 +12,8 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib import patheffects  # noqa: E402
+import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from .results import link_track  # noqa: E402
@@ -102,3 +104,58 @@ def comparison_png(measured: pd.DataFrame, simulated: pd.DataFrame, path: str | 
 
 def _span(df: pd.DataFrame) -> float:
     return (int(df["end_ns"].max()) - int(df["start_ns"].min())) / 1e6 if len(df) else 0.0
+
+
+def sweep_png(table: pd.DataFrame, keys: Sequence[str], path: str | Path, metric: str = "frame_time_ms") -> Path:
+    """A sweep's `metric` against its keys: a line for one key, a heatmap for two, and for
+    more a line over the first key for each combination of the others. Failed points are
+    left out (their rows carry the error)."""
+    ok = table[table["error"].isna()] if "error" in table else table
+    fig, ax = plt.subplots(figsize=(8, 4.8))
+    if metric not in ok or ok[metric].isna().all():
+        ax.text(0.5, 0.5, f"no point has a {metric}", ha="center", va="center", transform=ax.transAxes)
+        ax.set_axis_off()
+    elif len(keys) == 2:
+        _heatmap(fig, ax, table, keys, metric)
+    else:
+        _lines(ax, ok, keys, metric)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, format="png")
+    plt.close(fig)
+    return Path(path)
+
+
+def _heatmap(fig, ax, df: pd.DataFrame, keys: Sequence[str], metric: str) -> None:
+    grid = df.pivot_table(index=keys[0], columns=keys[1], values=metric, aggfunc="mean", sort=True,
+                          dropna=False)
+    image = ax.imshow(grid.to_numpy(dtype=float), aspect="auto", cmap="viridis_r", origin="lower")
+    ax.set_xticks(range(grid.shape[1]), [str(c) for c in grid.columns])
+    ax.set_yticks(range(grid.shape[0]), [str(i) for i in grid.index])
+    ax.set_xlabel(keys[1])
+    ax.set_ylabel(keys[0])
+    outline = [patheffects.withStroke(linewidth=2, foreground="white")]
+    for (i, j), value in np.ndenumerate(grid.to_numpy(dtype=float)):
+        ax.text(j, i, f"{value:.3g}" if value == value else "failed", ha="center", va="center",
+                fontsize=8, color="black", path_effects=outline)
+    fig.colorbar(image, ax=ax, label=metric)
+    ax.set_title(f"{metric} by {keys[0]} and {keys[1]}", fontsize=10)
+
+
+def _lines(ax, df: pd.DataFrame, keys: Sequence[str], metric: str) -> None:
+    x_key, others = keys[0], list(keys[1:])
+    numeric = pd.api.types.is_numeric_dtype(df[x_key])
+    order = sorted(df[x_key].unique(), key=lambda v: (str(type(v)), v))
+    groups = df.groupby(others, sort=True) if others else [((), df)]
+    for label, group in groups:
+        group = group.sort_values(x_key, key=lambda s: s.map(order.index)) if not numeric else group.sort_values(x_key)
+        x = group[x_key] if numeric else group[x_key].map(order.index)
+        name = ", ".join(f"{k}={v}" for k, v in zip(others, label if isinstance(label, tuple) else (label,)))
+        ax.plot(x, group[metric], marker="o", label=name or None)
+    if not numeric:
+        ax.set_xticks(range(len(order)), [str(v) for v in order])
+    ax.set_xlabel(x_key)
+    ax.set_ylabel(metric)
+    ax.grid(alpha=0.3)
+    if others:
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1), borderaxespad=0)
+    ax.set_title(f"{metric} by {', '.join(keys)}", fontsize=10)

@@ -31,6 +31,9 @@ from .errors import InputError, MgpusimError
 from .experiment import load_experiment, parse_value
 from .simulate import simulate
 
+#: How long to try reaching a Dask scheduler before giving up.
+DASK_CONNECT_TIMEOUT = "10s"
+
 #: What a point's record holds besides its summary.
 META_COLUMNS = ("point", "error", "wall_s")
 
@@ -206,7 +209,7 @@ def _run_dask(todo: list[Point], args: list[tuple], dask: Any) -> Iterator[tuple
     try:
         if client is None:
             try:
-                client = Client(dask, timeout="10s")
+                client = Client(dask, timeout=DASK_CONNECT_TIMEOUT)
             except OSError as exc:
                 raise InputError(f"cannot reach the Dask scheduler {dask!r} ({exc})", field="--dask") from None
         futures = {client.submit(run_point, *a, pure=False): p for p, a in zip(todo, args)}

@@ -124,13 +124,15 @@ def test_killed_while_finishing_never_leaves_a_corrupt_table(tmp_path):
     out = tmp_path / "sw"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     assert subprocess.run(_sweep_cmd(out), env=env, capture_output=True, timeout=120).returncode == 0
-    for delay in (0.3, 0.8, 1.3, 1.8, 2.5):  # all points saved: every run goes straight to finishing
+    for delay in (1.1, 1.5, 1.9):  # all points saved: after ~1 s of imports, each run is finishing
         proc = subprocess.Popen(_sweep_cmd(out), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         time.sleep(delay)
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait()
         assert len(pd.read_parquet(out / "sweep.parquet")) == 12
         assert json.loads((out / "sweep.json").read_text())["points"] == 12
+    assert subprocess.run(_sweep_cmd(out), env=env, capture_output=True, timeout=120).returncode == 0
+    assert not list(out.rglob(".*.tmp"))  # a killed run's temporary files are cleaned up
 
 
 def test_dask_local_cluster_runs_the_points(tmp_path):
@@ -147,8 +149,9 @@ def test_dask_local_cluster_runs_the_points(tmp_path):
     assert df["error"].notna().tolist() == [False, False, True]
 
 
-def test_unreachable_dask_scheduler_is_one_error(tmp_path, capsys):
+def test_unreachable_dask_scheduler_is_one_error(tmp_path, capsys, monkeypatch):
     pytest.importorskip("distributed")
+    monkeypatch.setattr(sweeps, "DASK_CONNECT_TIMEOUT", "1s")
     rc = main(["sweep", str(EXPERIMENT), "--grid", "schedule.gpus=1", "--dask", "tcp://127.0.0.1:9",
                "--no-progress", "--out", str(tmp_path / "d")])
     assert rc == 2 and "--dask" in capsys.readouterr().err

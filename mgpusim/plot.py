@@ -22,6 +22,20 @@ STEP_COLOURS = {
     "render": "#4c72b0", "d2h": "#dd8452", "host_copy": "#937860", "h2d": "#55a868",
     "composite": "#c44e52", "present": "#8172b3", "link": "#bbbbbb",
 }
+#: Colours for steps not in STEP_COLOURS, handed out in the order of the steps' names.
+_MORE_COLOURS = ("#da8bc3", "#ccb974", "#64b5cd", "#8c8c8c", "#17becf", "#bcbd22", "#ff7f0e",
+                 "#9467bd", "#2ca02c", "#d62728", "#1f77b4", "#e377c2")
+#: Frame numbers are written on slices at least this fraction of the window wide.
+_LABEL_MIN_WIDTH = 0.025
+
+
+def step_colours(steps: Sequence[str]) -> dict[str, str]:
+    """A distinct colour per step: the usual steps keep theirs, others get the next free one."""
+    out = {s: STEP_COLOURS[s] for s in steps if s in STEP_COLOURS}
+    spare = [c for c in _MORE_COLOURS if c not in out.values()]
+    for i, step in enumerate(sorted(s for s in set(steps) if s not in STEP_COLOURS)):
+        out[step] = spare[i % len(spare)]
+    return out
 
 
 def _rows(trace: pd.DataFrame) -> list[str]:
@@ -34,14 +48,26 @@ def _rows(trace: pd.DataFrame) -> list[str]:
     return sorted(labels, key=key)
 
 
+def parse_frames(text: str, option: str = "--frames") -> range:
+    """``A:B`` -> frames A..B-1 (Python slice style; ``A:`` to the end is not allowed)."""
+    from .errors import InputError  # noqa: PLC0415
+
+    lo, sep, hi = text.partition(":")
+    if not sep or not lo.strip().isdigit() or not hi.strip().isdigit() or int(hi) <= int(lo):
+        raise InputError(f"expected A:B with whole numbers A < B (frames A to B-1), got {text!r}", field=option)
+    return range(int(lo), int(hi))
+
+
 def draw_timeline(ax, trace: pd.DataFrame, links: pd.DataFrame | None = None,
                   title: str = "", frames: Sequence[int] | None = None) -> None:
-    """Draw one timeline on `ax` (time in ms on x)."""
+    """Draw one timeline on `ax`: time in ms on x from the window's first start, a row per
+    queue, engine, host thread and link direction, slices coloured by step and numbered by
+    frame where they are wide enough, frame ends marked on the top axis, the legend outside."""
     df = trace
     if frames is not None:
         df = df[df["frame"].isin(list(frames))]
     if len(df) == 0:
-        ax.set_title(title + " (empty)")
+        ax.set_title(title + " (no frames in the window)")
         return
     lo, hi = int(df["start_ns"].min()), int(df["end_ns"].max())
     parts = [df.assign(label=df["device"].astype(str) + "." + df["engine"].astype(str))]
@@ -53,17 +79,37 @@ def draw_timeline(ax, trace: pd.DataFrame, links: pd.DataFrame | None = None,
     both = pd.concat(parts, ignore_index=True)
     rows = _rows(both.assign(device=both["label"].str.partition(".")[0], engine=both["label"].str.partition(".")[2]))
     y = {label: i for i, label in enumerate(reversed(rows))}
-    for step, group in both.groupby("step"):
+    colours = step_colours(both["step"].astype(str).unique().tolist())
+    for step, group in both.groupby("step", sort=False):
         for label, g2 in group.groupby("label"):
-            sp = [((s - lo) / 1e6, max((e - s) / 1e6, 1e-6)) for s, e in zip(g2["start_ns"], g2["end_ns"])]
-            ax.broken_barh(sp, (y[label] - 0.4, 0.8), facecolors=STEP_COLOURS.get(str(step), "#999999"),
+            sp = list(zip((g2["start_ns"] - lo) / 1e6, ((g2["end_ns"] - g2["start_ns"]) / 1e6).clip(lower=1e-6)))
+            ax.broken_barh(sp, (y[label] - 0.4, 0.8), facecolors=colours[str(step)],
                            edgecolor="black", linewidth=0.2, label=str(step))
+    _frame_labels(ax, both, y, lo, hi)
     ax.set_yticks(range(len(rows)), list(reversed(rows)), fontsize=7)
     ax.set_xlabel("time (ms)")
+    ax.set_xlim(0, (hi - lo) / 1e6 * 1.01)
     ax.set_title(title, fontsize=9)
     handles, labels = ax.get_legend_handles_labels()
     uniq = dict(zip(labels, handles))
-    ax.legend(uniq.values(), uniq.keys(), fontsize=6, loc="upper right", ncols=min(len(uniq), 7))
+    ax.legend(uniq.values(), uniq.keys(), fontsize=7, title="step", title_fontsize=7,
+              loc="upper left", bbox_to_anchor=(1.005, 1.0), borderaxespad=0.0)
+
+
+def _frame_labels(ax, both: pd.DataFrame, y: dict[str, int], lo: int, hi: int) -> None:
+    """Frame numbers on the slices wide enough to hold one, and each frame's end (its last
+    task) as a tick on the top axis."""
+    tasks = both[both["frame"] >= 0]
+    wide = tasks[(tasks["end_ns"] - tasks["start_ns"]) >= _LABEL_MIN_WIDTH * max(hi - lo, 1)]
+    for label, frame, s, e in zip(wide["label"], wide["frame"], wide["start_ns"], wide["end_ns"]):
+        ax.text(((s + e) / 2 - lo) / 1e6, y[label], str(int(frame)), ha="center", va="center", fontsize=6,
+                color="white", fontweight="bold", clip_on=True)
+    ends = tasks.groupby("frame")["end_ns"].max()
+    top = ax.secondary_xaxis("top")
+    top.set_xticks(((ends - lo) / 1e6).tolist(), [str(int(f)) for f in ends.index], fontsize=6)
+    top.set_xlabel("frame ends (frame number)", fontsize=7)
+    for x in (ends - lo) / 1e6:
+        ax.axvline(x, color="#444444", linewidth=0.4, linestyle=":", zorder=0)
 
 
 def last_frames(trace: pd.DataFrame, count: int = 4) -> list[int]:
@@ -76,10 +122,9 @@ def timeline_png(trace: pd.DataFrame, path: str | Path, links: pd.DataFrame | No
     """Write a timeline PNG of `frames` (default: the last four frames)."""
     frames = last_frames(trace) if frames is None else frames
     n_rows = max(3, len(_rows(trace)) + (0 if links is None else links["channel"].nunique()))
-    fig, ax = plt.subplots(figsize=(12, 1.2 + 0.3 * n_rows))
+    fig, ax = plt.subplots(figsize=(13, 1.6 + 0.3 * n_rows))
     draw_timeline(ax, trace, links, title, frames)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
     return Path(path)
 
@@ -96,8 +141,7 @@ def comparison_png(measured: pd.DataFrame, simulated: pd.DataFrame, path: str | 
     draw_timeline(bottom, lo_s, sim_links, f"simulated: {title}", frames)
     span = max(_span(lo_m), _span(lo_s))
     bottom.set_xlim(0, span * 1.02 if span else 1)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
     return Path(path)
 

@@ -4,7 +4,7 @@ mgpusim/hardware_profiles/), so a wheel install has them and an experiment's rel
 profile path (`../hardware_profiles/tc1.toml`) resolves there as in the checkout."""
 from pathlib import Path
 
-from setuptools import find_packages, setup
+from setuptools import find_namespace_packages, setup
 
 SHIPPED = {"mgpusim.experiments": "experiments", "mgpusim.hardware_profiles": "hardware_profiles"}
 
@@ -19,4 +19,6 @@ def shipped_packages() -> list[str]:
     return out
 
 
-setup(packages=find_packages(include=["mgpusim*"]) + shipped_packages(), package_dir=SHIPPED)
+# Namespace packages too: mgpusim/vulkan/shaders/ has no __init__.py but ships its sources.
+PACKAGES = find_namespace_packages(include=["mgpusim*"], exclude=["*__pycache__*"])
+setup(packages=PACKAGES + shipped_packages(), package_dir=SHIPPED)

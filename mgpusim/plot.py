@@ -1,22 +1,20 @@
 """Timeline pictures: one row per GPU queue, copy engine, host thread and link direction.
 
 Works on any trace in the common schema; `frames` limits the picture to a window of frames
-so that long runs stay readable. Matplotlib only, no display needed (Agg backend).
+so that long runs stay readable. Files are drawn on matplotlib Figures without pyplot: no
+display needed and no global backend switched (a notebook's inline plots keep working).
 """
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Sequence
 
-import matplotlib
+import numpy as np
+import pandas as pd
+from matplotlib import patheffects
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-from matplotlib import patheffects  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from .results import link_track  # noqa: E402
+from .results import link_track
 
 STEP_COLOURS = {
     "render": "#4c72b0", "d2h": "#dd8452", "host_copy": "#937860", "h2d": "#55a868",
@@ -122,10 +120,10 @@ def timeline_png(trace: pd.DataFrame, path: str | Path, links: pd.DataFrame | No
     """Write a timeline PNG of `frames` (default: the last four frames)."""
     frames = last_frames(trace) if frames is None else frames
     n_rows = max(3, len(_rows(trace)) + (0 if links is None else links["channel"].nunique()))
-    fig, ax = plt.subplots(figsize=(13, 1.6 + 0.3 * n_rows))
+    fig = Figure(figsize=(13, 1.6 + 0.3 * n_rows))
+    ax = fig.subplots()
     draw_timeline(ax, trace, links, title, frames)
     fig.savefig(path, dpi=110, bbox_inches="tight")
-    plt.close(fig)
     return Path(path)
 
 
@@ -134,7 +132,8 @@ def comparison_png(measured: pd.DataFrame, simulated: pd.DataFrame, path: str | 
     """Measured and simulated timelines one above the other, same frames, same time axis."""
     frames = last_frames(measured) if frames is None else frames
     rows = max(len(_rows(measured)), len(_rows(simulated)), 3)
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(12, 2.5 + 0.6 * rows), sharex=True)
+    fig = Figure(figsize=(12, 2.5 + 0.6 * rows))
+    top, bottom = fig.subplots(2, 1, sharex=True)
     lo_m = measured[measured["frame"].isin(list(frames))]
     lo_s = simulated[simulated["frame"].isin(list(frames))]
     draw_timeline(top, lo_m, None, f"measured: {title}", frames)
@@ -142,7 +141,6 @@ def comparison_png(measured: pd.DataFrame, simulated: pd.DataFrame, path: str | 
     span = max(_span(lo_m), _span(lo_s))
     bottom.set_xlim(0, span * 1.02 if span else 1)
     fig.savefig(path, dpi=110, bbox_inches="tight")
-    plt.close(fig)
     return Path(path)
 
 
@@ -155,7 +153,8 @@ def sweep_png(table: pd.DataFrame, keys: Sequence[str], path: str | Path, metric
     more a line over the first key for each combination of the others. Failed points are
     left out (their rows carry the error)."""
     ok = table[table["error"].isna()] if "error" in table else table
-    fig, ax = plt.subplots(figsize=(8, 4.8))
+    fig = Figure(figsize=(8, 4.8))
+    ax = fig.subplots()
     if metric not in ok or ok[metric].isna().all():
         ax.text(0.5, 0.5, f"no point has a {metric}", ha="center", va="center", transform=ax.transAxes)
         ax.set_axis_off()
@@ -165,7 +164,6 @@ def sweep_png(table: pd.DataFrame, keys: Sequence[str], path: str | Path, metric
         _lines(ax, ok, keys, metric)
     fig.tight_layout()
     fig.savefig(path, dpi=110, format="png")
-    plt.close(fig)
     return Path(path)
 
 

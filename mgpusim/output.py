@@ -8,7 +8,7 @@ from typing import Any
 
 import pandas as pd
 
-from .perfetto import chrome_trace
+from .perfetto import chrome_trace_json
 from .plot import timeline_png
 from .results import Result
 
@@ -80,11 +80,10 @@ def frame_window(trace: pd.DataFrame, links: pd.DataFrame | None, frames: range 
     return rows, links[(links["end_ns"] > lo) & (links["start_ns"] < hi)]
 
 
-def write_perfetto(doc: dict[str, Any], path: Path) -> Path:
-    """The Chrome-trace document as compact JSON, written whole or not at all (its numbers are
-    finite by construction, so no per-event clean-up pass)."""
+def write_text(text: str, path: Path) -> Path:
+    """A text file written whole or not at all."""
     tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(doc, separators=(",", ":"), allow_nan=False))
+    tmp.write_text(text)
     tmp.replace(path)
     return path
 
@@ -104,5 +103,5 @@ def write_result(result: Result, out: Path, trace_format: str = "parquet", title
         files["timeline"] = timeline_png(result.trace, out / "timeline.png", result.links, title,
                                          list(frames) if frames is not None else None)
         trace, links = frame_window(result.trace, result.links, last=trace_frames)
-        files["perfetto"] = write_perfetto(chrome_trace(trace, links, title), out / "trace.perfetto.json")
+        files["perfetto"] = write_text(chrome_trace_json(trace, links, title), out / "trace.perfetto.json")
     return files

@@ -19,6 +19,7 @@ of a few hundred frames exports in well under a second.
 """
 from __future__ import annotations
 
+import json
 from typing import Any
 
 import numpy as np
@@ -33,6 +34,11 @@ _PATH_STEPS = ("d2h", "h2d", "d2d")
 def chrome_trace(trace: pd.DataFrame, links: pd.DataFrame | None = None,
                  title: str = "mgpusim") -> dict[str, Any]:
     """The trace (and the links' busy intervals) as a Chrome trace-event document."""
+    return json.loads(chrome_trace_json(trace, links, title))
+
+
+def chrome_trace_json(trace: pd.DataFrame, links: pd.DataFrame | None = None, title: str = "mgpusim") -> str:
+    """:func:`chrome_trace` as JSON text, encoded by pandas' C encoder a table at a time."""
     links = links if links is not None and len(links) else None
     slices = _slices(trace, links)
     pids = _pids(slices)
@@ -42,9 +48,21 @@ def chrome_trace(trace: pd.DataFrame, links: pd.DataFrame | None = None,
                                              slices["track"] + " (" + (slices["lane"] + 1).astype(str) + ")")
     tids = _tids(slices)
     slices["tid"] = pd.MultiIndex.from_frame(slices[["device", "thread"]]).map(tids).astype("int64")
-    events = [*_metadata(pids, tids), *_slice_events(slices), *_flows(slices),
-              *_counters(trace, links, pids, slices)]
-    return {"traceEvents": events, "displayTimeUnit": "ns", "otherData": {"title": title}}
+    lines = [_metadata(pids, tids), *_slice_events(slices), *_flows(slices), *_counters(trace, links, pids, slices)]
+    events = ",\n".join(",\n".join(part) for part in lines if len(part))
+    other = json.dumps({"title": title})
+    return f'{{"traceEvents":[\n{events}\n],"displayTimeUnit":"ns","otherData":{other}}}\n'
+
+
+def _json_lines(events: pd.DataFrame, args: pd.DataFrame | None = None) -> list[str]:
+    """Each row as one JSON object, with the matching row of `args` nested as its "args"."""
+    if events.empty:
+        return []
+    text = pd.Series(events.to_json(orient="records", lines=True, double_precision=4).splitlines(), dtype=object)
+    if args is not None:
+        inner = pd.Series(args.to_json(orient="records", lines=True, double_precision=4).splitlines(), dtype=object)
+        text = text.str[:-1] + ',"args":' + inner + "}"
+    return text.tolist()
 
 
 # ----- tracks --------------------------------------------------------------------------------
@@ -98,7 +116,7 @@ def _assign_lanes(slices: pd.DataFrame) -> np.ndarray:
     return lanes
 
 
-def _metadata(pids: dict[str, int], tids: dict[tuple[str, str], int]) -> list[dict[str, Any]]:
+def _metadata(pids: dict[str, int], tids: dict[tuple[str, str], int]) -> list[str]:
     out: list[dict[str, Any]] = []
     for dev, pid in pids.items():
         out.append({"ph": "M", "name": "process_name", "pid": pid, "tid": 0, "args": {"name": dev}})
@@ -107,21 +125,23 @@ def _metadata(pids: dict[str, int], tids: dict[tuple[str, str], int]) -> list[di
         out.append({"ph": "M", "name": "thread_name", "pid": pids[dev], "tid": tid, "args": {"name": name}})
         out.append({"ph": "M", "name": "thread_sort_index", "pid": pids[dev], "tid": tid,
                     "args": {"sort_index": tid}})
+    return [json.dumps(e) for e in out]  # one per track, not per row
+
+
+def _slice_events(slices: pd.DataFrame) -> list[list[str]]:
+    """Task slices with {frame, step, bytes}; link busy intervals with {channel}."""
+    out = []
+    for is_task, part in slices.groupby(slices["frame"] >= 0, sort=False):
+        events = pd.DataFrame({"ph": "X", "name": part["task"] if is_task else "busy", "cat": part["step"],
+                               "pid": part["pid"], "tid": part["tid"], "ts": part["start_ns"] / 1000.0,
+                               "dur": (part["end_ns"] - part["start_ns"]) / 1000.0})
+        args = part[["frame", "step", "bytes"]] if is_task else pd.DataFrame({"channel": part["task"]})
+        out.append(_json_lines(events, args))
     return out
 
 
-def _slice_events(slices: pd.DataFrame) -> list[dict[str, Any]]:
-    task = slices["frame"] >= 0
-    args = np.where(task, slices[["frame", "step", "bytes"]].to_dict("records"),
-                    pd.DataFrame({"channel": slices["task"]}).to_dict("records"))
-    events = pd.DataFrame({"ph": "X", "name": slices["task"].where(task, "busy"), "cat": slices["step"],
-                           "pid": slices["pid"], "tid": slices["tid"], "ts": slices["start_ns"] / 1000.0,
-                           "dur": (slices["end_ns"] - slices["start_ns"]) / 1000.0, "args": args})
-    return events.to_dict("records")
-
-
 # ----- flow arrows ---------------------------------------------------------------------------
-def _flows(slices: pd.DataFrame) -> list[dict[str, Any]]:
+def _flows(slices: pd.DataFrame) -> list[list[str]]:
     """One arrow per (source task, waiting task) pair, from the source's last-ending slice to
     the waiter's first-starting one; endpoints at the slices' middle nanosecond."""
     tasks = slices[(slices["frame"] >= 0) & (slices["end_ns"] - slices["start_ns"] >= 2)]
@@ -146,7 +166,7 @@ def _flows(slices: pd.DataFrame) -> list[dict[str, Any]]:
                            "ts": _middle(pairs["src_start_ns"], pairs["src_end_ns"])})
     ends = pd.DataFrame({"ph": "f", "bp": "e", **common, "pid": pairs["dst_pid"], "tid": pairs["dst_tid"],
                          "ts": _middle(pairs["dst_start_ns"], pairs["dst_end_ns"])})
-    return [*starts.to_dict("records"), *ends.to_dict("records")]
+    return [_json_lines(starts), _json_lines(ends)]
 
 
 def _middle(start: pd.Series, end: pd.Series) -> np.ndarray:
@@ -232,18 +252,16 @@ def _merge(s: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _counters(trace: pd.DataFrame, links: pd.DataFrame | None, pids: dict[str, int],
-              slices: pd.DataFrame) -> list[dict[str, Any]]:
+              slices: pd.DataFrame) -> list[list[str]]:
     """Counter events: bytes/s per channel at each change, busy fraction per track and bin."""
-    out: list[dict[str, Any]] = []
+    out: list[list[str]] = []
     rates = link_rates(trace, links)
     if len(rates):
-        names = rates["channel"].unique()
-        device = {c: link_track(c)[0] for c in names}
-        out += pd.DataFrame({"ph": "C", "name": rates["channel"] + " bytes/s",
-                             "pid": rates["channel"].map(lambda c: pids.get(device[c], 1)).to_numpy(),
-                             "ts": rates["ts_ns"].to_numpy(np.int64) / 1000.0,
-                             "args": pd.DataFrame({"bytes/s": rates["bytes_per_s"]}).to_dict("records")}
-                            ).to_dict("records")
+        device = {c: link_track(c)[0] for c in rates["channel"].unique()}
+        events = pd.DataFrame({"ph": "C", "name": rates["channel"] + " bytes/s",
+                               "pid": rates["channel"].map(lambda c: pids.get(device[c], 1)).astype("int64"),
+                               "ts": rates["ts_ns"].to_numpy(np.int64) / 1000.0})
+        out.append(_json_lines(events, pd.DataFrame({"bytes/s": rates["bytes_per_s"]})))
     if slices.empty:
         return out
     lo, hi = int(slices["start_ns"].min()), int(slices["end_ns"].max())
@@ -252,7 +270,8 @@ def _counters(trace: pd.DataFrame, links: pd.DataFrame | None, pids: dict[str, i
     if len(edges) < 2:
         return out
     busy = busy_fraction(slices, edges)
-    out += pd.DataFrame({"ph": "C", "name": busy["track"] + " utilization",
-                         "pid": busy["device"].map(pids).to_numpy(), "ts": busy["ts_ns"].to_numpy(np.int64) / 1000.0,
-                         "args": pd.DataFrame({"busy": busy["busy"]}).to_dict("records")}).to_dict("records")
+    events = pd.DataFrame({"ph": "C", "name": busy["track"] + " utilization",
+                           "pid": busy["device"].map(pids).astype("int64"),
+                           "ts": busy["ts_ns"].to_numpy(np.int64) / 1000.0})
+    out.append(_json_lines(events, pd.DataFrame({"busy": busy["busy"]})))
     return out

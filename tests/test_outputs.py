@@ -139,8 +139,7 @@ def test_perfetto_counters_and_named_tracks():
              "host.memory": trace[trace.device == "host"]["bytes"].sum()}
     for channel, total in moved.items():
         series = sorted((e["ts"], e["args"]["bytes/s"]) for e in counters if e["name"] == f"{channel} bytes/s")
-        integral = sum(v * (b[0] - a[0]) * 1e-6 for (a, b), v in zip(zip(series, series[1:]),
-                                                                      (v for _, v in series)))
+        integral = sum(v * (t1 - t0) * 1e-6 for (t0, v), (t1, _) in zip(series, series[1:]))
         assert integral == pytest.approx(total, rel=1e-6)
         assert series[-1][1] == 0
     busy = [e["args"]["busy"] for e in counters if e["name"].endswith("utilization")]
@@ -201,3 +200,33 @@ def test_timeline_numbers_frames_and_keeps_the_legend_outside(tmp_path):
     plt.close(fig)
     many = step_colours([f"s{i}" for i in range(10)] + ["render", "d2h"])
     assert len(set(many.values())) == 12
+
+
+def test_link_rates_attribute_peer_copies_to_their_link():
+    from mgpusim.perfetto import link_rates
+    from mgpusim.trace import make_trace
+
+    # gpu0 has two peer links: each copy goes to the one busy when it ended
+    trace = make_trace([(0, "gpu0", "transfer", "p2p", "a", 0, 100, 1000, ""),
+                        (0, "gpu0", "transfer", "p2p", "b", 200, 400, 4000, ""),
+                        (0, "gpu1", "transfer", "d2h", "c", 0, 50, 500, ""),
+                        (0, "host", "thread0", "host_copy", "h", 50, 60, 500, "")])
+    links = pd.DataFrame({"channel": ["peer0-1", "peer0-2", "gpu1.d2h", "host.memory"],
+                          "start_ns": [10, 250, 0, 50], "end_ns": [100, 400, 50, 60]})
+    rates = link_rates(trace, links)
+    first = rates.groupby("channel")["bytes_per_s"].first().to_dict()
+    assert first == {"peer0-1": 1e10, "peer0-2": 2e10, "gpu1.d2h": 1e10, "host.memory": 5e10}
+    assert (rates.groupby("channel")["bytes_per_s"].last() == 0).all()
+
+
+def test_peer_link_counter_from_a_simulated_run():
+    exp = mgpusim.load_experiment(ROOT / "experiments" / "afr_tc1.toml",
+                                  {"schedule.frames": 12, "schedule.warmup_frames": 2, "schedule.path": "peer"},
+                                  profile=ROOT / "hardware_profiles" / "h200_x2.toml")
+    result = mgpusim.simulate(exp)
+    assert set(result.links["channel"]) == {"peer1-0"}
+    doc = chrome_trace(result.trace, result.links)
+    series = sorted((e["ts"], e["args"]["bytes/s"]) for e in doc["traceEvents"]
+                    if e["ph"] == "C" and e["name"] == "peer1-0 bytes/s")
+    moved = sum(v * (t1 - t0) * 1e-6 for (t0, v), (t1, _) in zip(series, series[1:]))
+    assert moved == pytest.approx(result.trace.loc[result.trace["step"] == "p2p", "bytes"].sum(), rel=1e-6)

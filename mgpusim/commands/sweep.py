@@ -23,15 +23,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "the product of all grids)")
     p.add_argument("--set", dest="overrides", action="append", metavar="KEY=VALUE",
                    help="an override applied to every point, as for `simulate` (repeatable)")
-    p.add_argument("--fidelity", default="full",
+    p.add_argument("--fidelity", default="full", metavar="NAME",
                    help="model fidelity passed to the simulator (default: full)")
-    p.add_argument("--workers", type=int, default=None,
+    p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="local processes running points (default: one per CPU; 1 runs in this process)")
     p.add_argument("--dask", metavar="ADDRESS", default=None,
                    help="run the points on this Dask scheduler (e.g. tcp://host:8786) instead of locally")
-    p.add_argument("--metric", default="frame_time_ms",
+    p.add_argument("--metric", default="frame_time_ms", metavar="FIELD",
                    help="the summary field the plot shows (default: frame_time_ms)")
-    p.add_argument("--out", type=Path, default=None,
+    p.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="output folder, also the resume state (default: out/<experiment>-sweep)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)

@@ -19,6 +19,7 @@ import inspect
 import itertools
 import json
 import os
+import threading
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
@@ -189,7 +190,7 @@ def _run(path: Path, base: Mapping[str, Any], options: Mapping[str, Any], todo: 
         for point, a in zip(todo, args):
             yield point, run_point(*a)
         return
-    with ProcessPoolExecutor(max_workers=workers) as pool:
+    with ProcessPoolExecutor(max_workers=workers, initializer=_exit_with_parent, initargs=(os.getpid(),)) as pool:
         futures = {pool.submit(run_point, *a): p for p, a in zip(todo, args)}
         try:
             for fut in as_completed(futures):
@@ -197,6 +198,16 @@ def _run(path: Path, base: Mapping[str, Any], options: Mapping[str, Any], todo: 
         except BaseException:
             pool.shutdown(wait=False, cancel_futures=True)
             raise
+
+
+def _exit_with_parent(parent: int) -> None:
+    """In a pool worker: exit when the sweep's process is gone (killed with SIGKILL, its
+    workers would otherwise wait on their queue forever)."""
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(0.5)
+        os._exit(1)
+    threading.Thread(target=watch, daemon=True, name="exit-with-parent").start()
 
 
 def _run_dask(todo: list[Point], args: list[tuple], dask: Any) -> Iterator[tuple[Point, dict[str, Any]]]:

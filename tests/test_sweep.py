@@ -82,9 +82,22 @@ def test_local_processes_give_the_same_table_as_one_process(tmp_path):
     pd.testing.assert_frame_equal(one.drop(columns="wall_s"), two.drop(columns="wall_s"))
 
 
-def _sweep_cmd(out: Path) -> list[str]:
+def _sweep_cmd(out: Path, workers: int = 1) -> list[str]:
     return [sys.executable, "-m", "mgpusim", "sweep", str(EXPERIMENT), "--grid", "schedule.gpus=1,2,3",
-            "--grid", "schedule.frames=300,301,302,303", "--workers", "1", "--no-progress", "--out", str(out)]
+            "--grid", "schedule.frames=300,301,302,303", "--workers", str(workers), "--no-progress",
+            "--out", str(out)]
+
+
+def _running(out: Path) -> list[int]:
+    """Processes whose command line names the sweep's folder."""
+    pids = []
+    for proc in Path("/proc").iterdir():
+        try:
+            if proc.name.isdigit() and str(out).encode() in (proc / "cmdline").read_bytes():
+                pids.append(int(proc.name))
+        except OSError:
+            continue
+    return pids
 
 
 def _saved(out: Path) -> dict[str, tuple[int, bytes]]:
@@ -93,10 +106,11 @@ def _saved(out: Path) -> dict[str, tuple[int, bytes]]:
     return {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in (out / "points").glob("*.json")}
 
 
-def test_resume_after_sigkill_loses_and_recomputes_nothing(tmp_path):
+@pytest.mark.parametrize("workers", [1, 2])
+def test_resume_after_sigkill_loses_and_recomputes_nothing(tmp_path, workers):
     out = tmp_path / "sw"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen(_sweep_cmd(out), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(_sweep_cmd(out, workers), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 60
     while len(_saved(out)) < 2:
         assert proc.poll() is None, "the sweep finished before it could be killed: make it longer"
@@ -105,10 +119,14 @@ def test_resume_after_sigkill_loses_and_recomputes_nothing(tmp_path):
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
     before = _saved(out)
+    deadline = time.monotonic() + 10
+    while _running(out):  # the killed sweep's pool workers leave with it
+        assert time.monotonic() < deadline, "orphaned sweep workers"
+        time.sleep(0.1)
     assert 2 <= len(before) < 12 and not (out / "sweep.parquet").exists()
     assert all(json.loads(data)["summary"]["frame_time_ms"] > 0 for _, data in before.values())
 
-    done = subprocess.run(_sweep_cmd(out), env=env, capture_output=True, text=True, timeout=120)
+    done = subprocess.run(_sweep_cmd(out, workers), env=env, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     after = _saved(out)
     assert len(after) == 12

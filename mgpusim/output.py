@@ -16,6 +16,7 @@ from .results import Result
 #: small enough that the UI opens it at once whatever the run's length.
 TRACE_FRAMES = 300
 
+
 def write_table(df: pd.DataFrame, path: Path) -> Path:
     """CSV or Parquet by the file's extension."""
     if path.suffix == ".parquet":
@@ -64,16 +65,13 @@ def write_measured(result: Any, out: Path, trace_format: str = "csv") -> Path:
     return out
 
 
-def frame_window(trace: pd.DataFrame, links: pd.DataFrame | None, frames: range | None = None,
+def frame_window(trace: pd.DataFrame, links: pd.DataFrame | None,
                  last: int = TRACE_FRAMES) -> tuple[pd.DataFrame, pd.DataFrame | None]:
-    """The trace rows of `frames` (default: the `last` frames; 0 = all) and the link busy
-    intervals that overlap their time span."""
-    if frames is None:
-        if last <= 0 or not len(trace):
-            return trace, links
-        top = int(trace["frame"].max())
-        frames = range(max(0, top - last + 1), top + 1)
-    rows = trace[(trace["frame"] >= frames.start) & (trace["frame"] < frames.stop)]
+    """The trace rows of the `last` frames (0 = all) and the link busy intervals that overlap
+    their time span."""
+    if last <= 0 or not len(trace):
+        return trace, links
+    rows = trace[trace["frame"] > int(trace["frame"].max()) - last]
     if links is None or not len(links) or not len(rows):
         return rows, links
     lo, hi = int(rows["start_ns"].min()), int(rows["end_ns"].max())

@@ -30,6 +30,7 @@ import pandas as pd
 
 from .errors import InputError, MgpusimError
 from .experiment import load_experiment, parse_value
+from .shipped import resolve_experiment
 from .simulate import simulate
 
 #: How long to try reaching a Dask scheduler before giving up.
@@ -124,9 +125,9 @@ def sweep(experiment: str | Path, grid: Mapping[str, Sequence[Any]], out: str | 
     resumable. `workers`: local processes (1 runs in this process). `dask`: a Dask
     scheduler address or a `distributed.Client` to run the points on instead.
     """
-    from .shipped import resolve_experiment  # noqa: PLC0415 - keeps the import graph flat
-
     path = resolve_experiment(experiment)
+    if workers is not None and workers < 1:
+        raise InputError(f"must be >= 1, got {workers}", field="--workers")
     grid = {k: list(v) for k, v in grid.items()}
     if not grid or any(not v for v in grid.values()):
         raise InputError("the grid needs at least one key with at least one value", field="--grid")
@@ -179,13 +180,12 @@ def _run(path: Path, base: Mapping[str, Any], options: Mapping[str, Any], todo: 
     """(point, record) as each point finishes, on Dask, a process pool, or here."""
     if not todo:
         return
-    args = [(str(path), {**base, **p.keys}, dict(options)) for p in todo]
+    where = str(path.resolve()) if dask is not None else str(path)  # Dask workers have their own cwd
+    args = [(where, {**base, **p.keys}, dict(options)) for p in todo]
     if dask is not None:
         yield from _run_dask(todo, args, dask)
         return
     workers = min(workers or os.cpu_count() or 1, len(todo))
-    if workers < 1:
-        raise InputError(f"must be >= 1, got {workers}", field="--workers")
     if workers == 1:
         for point, a in zip(todo, args):
             yield point, run_point(*a)

@@ -167,6 +167,11 @@ def test_dask_local_cluster_runs_the_points(tmp_path):
     assert df["error"].notna().tolist() == [False, False, True]
 
 
+def test_bad_workers_is_one_error_before_any_file(tmp_path, capsys):
+    rc = main(["sweep", str(EXPERIMENT), "--grid", "schedule.gpus=1", "--workers", "0", "--out", str(tmp_path / "w")])
+    assert rc == 2 and "--workers" in capsys.readouterr().err and not (tmp_path / "w").exists()
+
+
 def test_unreachable_dask_scheduler_is_one_error(tmp_path, capsys, monkeypatch):
     pytest.importorskip("distributed")
     monkeypatch.setattr(sweeps, "DASK_CONNECT_TIMEOUT", "1s")

@@ -149,22 +149,27 @@ def _span(df: pd.DataFrame) -> float:
 
 
 def sweep_png(table: pd.DataFrame, keys: Sequence[str], path: str | Path, metric: str = "frame_time_ms") -> Path:
-    """A sweep's `metric` against its keys: a line for one key, a heatmap for two, and for
-    more a line over the first key for each combination of the others. Failed points are
-    left out (their rows carry the error)."""
-    ok = table[table["error"].isna()] if "error" in table else table
+    """:func:`draw_sweep` into a PNG file."""
     fig = Figure(figsize=(8, 4.8))
-    ax = fig.subplots()
-    if metric not in ok or ok[metric].isna().all():
-        ax.text(0.5, 0.5, f"no point has a {metric}", ha="center", va="center", transform=ax.transAxes)
-        ax.set_axis_off()
-    elif len(keys) == 2:
-        _heatmap(fig, ax, table, keys, metric)
-    else:
-        _lines(ax, ok, keys, metric)
+    draw_sweep(fig.subplots(), table, keys, metric)
     fig.tight_layout()
     fig.savefig(path, dpi=110, format="png")
     return Path(path)
+
+
+def draw_sweep(ax, table: pd.DataFrame, keys: Sequence[str], metric: str = "frame_time_ms") -> None:
+    """A sweep's `metric` against its keys on `ax`: a line for one key, a heatmap for two
+    (failed cells say so), and for more a line over the first key for each combination of
+    the others. Failed points are left out of lines (their rows carry the error)."""
+    ok = table[table["error"].isna()] if "error" in table else table
+    if metric not in ok or ok[metric].isna().all():
+        ax.text(0.5, 0.5, f"no point has a {metric}", ha="center", va="center", transform=ax.transAxes)
+        ax.set_axis_off()
+    elif len(keys) == 2:  # every cell of the grid shown, the failed ones blank
+        failed = table["error"].notna() if "error" in table else False
+        _heatmap(ax.figure, ax, table.assign(**{metric: table[metric].mask(failed)}), keys, metric)
+    else:
+        _lines(ax, ok, keys, metric)
 
 
 def _heatmap(fig, ax, df: pd.DataFrame, keys: Sequence[str], metric: str) -> None:

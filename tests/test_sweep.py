@@ -199,3 +199,23 @@ def test_fidelity_passed_only_to_a_simulator_that_takes_it(tmp_path, monkeypatch
     assert main([*args, "--fidelity", "fast", "--out", str(tmp_path / "c")]) == 0
     assert seen == ["fast", "fast"]
     assert pd.read_parquet(tmp_path / "c" / "sweep.parquet")["frame_time_ms"].tolist() == [2.0, 2.0]
+
+
+def test_sweep_plot_lines_or_heatmap_by_number_of_keys():
+    from matplotlib.figure import Figure
+
+    from mgpusim.plot import draw_sweep
+
+    rows = [{"point": i, "a": a, "b": b, "c": c, "error": None if a < 3 else "bad", "frame_time_ms": a * 10.0 + b + (c == "y")}
+            for i, (a, b, c) in enumerate((a, b, c) for a in (1, 2, 3) for b in (5, 6) for c in ("x", "y"))]
+    table = pd.DataFrame(rows)
+    one = Figure().subplots()
+    draw_sweep(one, table[(table.b == 5) & (table.c == "x")], ["a"])
+    (line,) = one.get_lines()
+    assert list(line.get_ydata()) == [15.0, 25.0]  # the failed point is left out
+    two = Figure().subplots()
+    draw_sweep(two, table[table.c == "x"], ["a", "b"])
+    assert len(two.get_images()) == 1 and {"failed"} <= {t.get_text() for t in two.texts}
+    three = Figure().subplots()
+    draw_sweep(three, table, ["a", "b", "c"])
+    assert len(three.get_lines()) == 4 and len(three.get_legend().get_texts()) == 4

@@ -17,7 +17,7 @@ VULKAN_PACKAGES = ("vulkan", "cffi")
 
 #: Command modules, in the order `mgpusim --help` lists them.
 COMMANDS = ("simulate", "sweep", "examples", "run", "bench", "devices", "measure", "calibrate", "validate",
-            "main_job")
+            "study", "main_job")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -67,20 +67,26 @@ def test_examples_list_and_names_resolve(capsys):
         shipped.resolve_experiment("no_such_experiment")
 
 
-def test_every_option_of_every_command_has_help():
-    parser = build_parser()
+def _options_without_help(parser: argparse.ArgumentParser, path: str) -> set[tuple[str, str]]:
+    """(command path, option) for every option of `parser` and its sub-commands lacking help."""
     missing = set()
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
+            helps = {a.dest: a.help for a in action._choices_actions}
             for name, sub in action.choices.items():
-                for opt in sub._actions:
-                    if not opt.help or opt.help == argparse.SUPPRESS:
-                        missing.add((name, opt.option_strings[0] if opt.option_strings else opt.dest))
-        elif not isinstance(action, argparse._HelpAction):
-            assert action.help, action.dest
-    helps = {a.dest: a.help for a in parser._subparsers._group_actions[0]._choices_actions}
-    assert all(helps.values()) and {"simulate", "sweep", "examples"} <= set(helps)
+                if not helps.get(name):
+                    missing.add((path, name))
+                missing |= _options_without_help(sub, f"{path} {name}".strip())
+        elif not isinstance(action, argparse._HelpAction) and (not action.help or action.help == argparse.SUPPRESS):
+            missing.add((path, action.option_strings[0] if action.option_strings else action.dest))
+    return missing
+
+
+def test_every_option_of_every_command_has_help():
+    missing = _options_without_help(build_parser(), "")
     assert missing <= HELP_GAPS, f"options without help: {sorted(missing - HELP_GAPS)}"
+    commands = {a.dest for a in build_parser()._subparsers._group_actions[0]._choices_actions}
+    assert {"simulate", "sweep", "examples", "study"} <= commands
 
 
 def test_version_and_python_dash_m():

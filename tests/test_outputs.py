@@ -230,3 +230,26 @@ def test_peer_link_counter_from_a_simulated_run():
                     if e["ph"] == "C" and e["name"] == "peer1-0 bytes/s")
     moved = sum(v * (t1 - t0) * 1e-6 for (t0, v), (t1, _) in zip(series, series[1:]))
     assert moved == pytest.approx(result.trace.loc[result.trace["step"] == "p2p", "bytes"].sum(), rel=1e-6)
+
+
+def test_perfetto_events_follow_the_trace_event_format(tmp_path):
+    """What the Chrome/Perfetto JSON importer needs of each event kind, checked on the file."""
+    assert main(["simulate", "particles_machine", "--set", "schedule.frames=20", "--out", str(tmp_path)]) == 0
+    doc = json.loads((tmp_path / "trace.perfetto.json").read_text())
+    assert doc["displayTimeUnit"] == "ns" and isinstance(doc["traceEvents"], list)
+    kinds = set()
+    for e in doc["traceEvents"]:
+        kinds.add(e["ph"])
+        assert isinstance(e["pid"], int) and isinstance(e["name"], str) and e["name"]
+        if e["ph"] == "M":
+            assert e["name"] in {"process_name", "process_sort_index", "thread_name", "thread_sort_index"}
+            assert isinstance(e["tid"], int) and isinstance(e["args"], dict)
+            continue
+        assert isinstance(e["ts"], (int, float)) and e["ts"] >= 0
+        if e["ph"] == "X":
+            assert isinstance(e["tid"], int) and e["dur"] >= 0 and isinstance(e["args"], dict)
+        elif e["ph"] == "C":
+            assert e["args"] and all(isinstance(v, (int, float)) for v in e["args"].values())
+        else:
+            assert e["ph"] in ("s", "f") and isinstance(e["id"], int) and e["cat"] == "dep"
+    assert kinds == {"M", "X", "C", "s", "f"}

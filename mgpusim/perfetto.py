@@ -200,25 +200,26 @@ def link_rates(trace: pd.DataFrame, links: pd.DataFrame | None) -> pd.DataFrame:
     return steps.drop(columns="delta")
 
 
-def _peer_channels(rows: pd.DataFrame, links: pd.DataFrame | None) -> np.ndarray:
-    """The peer link each p2p copy crossed: its GPU's only peer link, else the one busy when
-    the copy ended."""
-    out = np.full(len(rows), None, dtype=object)
+def _peer_channels(rows: pd.DataFrame, links: pd.DataFrame | None) -> pd.Series:
+    """The peer link each p2p copy crossed: its GPU's only peer link, else the one that was
+    busy when the copy ended."""
+    out = pd.Series(None, index=rows.index, dtype=object)
     names = sorted(set(links["channel"].astype(str))) if links is not None else []
-    device = rows["device"].astype(str).to_numpy()
+    device = rows["device"].astype(str)
     end = rows["end_ns"].to_numpy(np.int64)
-    for dev in np.unique(device):
-        mine = [c for c in names if c.startswith(f"peer{dev[3:]}-")]
-        sel = device == dev
+    for dev in device.unique():
+        mine = [c for c in names if c.startswith(f"peer{dev.removeprefix('gpu')}-")]
+        sel = (device == dev).to_numpy()
         if len(mine) == 1:
             out[sel] = mine[0]
             continue
         for name in mine:
             busy = links[links["channel"].astype(str) == name]
             s, e = busy["start_ns"].to_numpy(np.int64), busy["end_ns"].to_numpy(np.int64)
-            k = np.searchsorted(s, end, side="left") - 1
-            hit = sel & (k >= 0) & (end <= e[np.clip(k, 0, None)])
-            out[hit & (out == None)] = name  # noqa: E711 - elementwise on an object array
+            if not len(s):
+                continue
+            k = np.clip(np.searchsorted(s, end, side="left") - 1, 0, None)  # last interval starting before
+            out[sel & (s[k] < end) & (end <= e[k]) & out.isna().to_numpy()] = name
     return out
 
 

@@ -67,6 +67,9 @@ def _json_lines(events: pd.DataFrame, args: pd.DataFrame | None = None) -> list[
 
 # ----- tracks --------------------------------------------------------------------------------
 def _slices(trace: pd.DataFrame, links: pd.DataFrame | None) -> pd.DataFrame:
+    """Trace rows and link busy intervals in one table, numbered 0..n-1 (a window of a trace
+    keeps its row labels; lanes are set by position)."""
+    trace = trace.reset_index(drop=True)
     df = pd.DataFrame({"frame": trace["frame"].to_numpy(np.int64), "device": trace["device"].astype(str),
                        "track": trace["engine"].astype(str), "step": trace["step"].astype(str),
                        "task": trace["task"].astype(str), "start_ns": trace["start_ns"].to_numpy(np.int64),
@@ -230,15 +233,17 @@ def busy_fraction(slices: pd.DataFrame, edges: np.ndarray) -> pd.DataFrame:
     width = np.diff(edges).astype(float)
     for (dev, track), g in slices.groupby(["device", "track"], sort=True):
         s, e = _merge(g["start_ns"].to_numpy(np.int64), g["end_ns"].to_numpy(np.int64))
-        done = np.concatenate([[0], np.cumsum(e - s)])  # busy time before each interval
-
-        def busy_until(t: np.ndarray) -> np.ndarray:
-            k = np.searchsorted(s, t, side="right") - 1
-            inside = np.clip(t - s[np.clip(k, 0, None)], 0, (e - s)[np.clip(k, 0, None)])
-            return np.where(k >= 0, done[np.clip(k, 0, None)] + inside, 0)
-        frac = np.diff(busy_until(edges)) / width
+        frac = np.diff(_busy_until(s, e, edges)) / width
         rows.append(pd.DataFrame({"device": dev, "track": track, "ts_ns": edges[:-1], "busy": frac.round(4)}))
     return pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=["device", "track", "ts_ns", "busy"])
+
+
+def _busy_until(s: np.ndarray, e: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Busy time before each of `t` on the disjoint sorted intervals [s, e)."""
+    done = np.concatenate([[0], np.cumsum(e - s)])  # busy time before each interval
+    k = np.searchsorted(s, t, side="right") - 1
+    j = np.clip(k, 0, None)
+    return np.where(k >= 0, done[j] + np.clip(t - s[j], 0, (e - s)[j]), 0)
 
 
 def _merge(s: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -253,3 +253,18 @@ def test_perfetto_events_follow_the_trace_event_format(tmp_path):
         else:
             assert e["ph"] in ("s", "f") and isinstance(e["id"], int) and e["cat"] == "dep"
     assert kinds == {"M", "X", "C", "s", "f"}
+
+
+def test_perfetto_of_a_window_of_a_one_gpu_run():
+    # one GPU: no links; a window keeps the trace's row labels, and two slices overlap on a track
+    result = mgpusim.simulate(mgpusim.load_experiment(ROOT / "experiments" / "sort_first_tc1.toml",
+                                                      {"schedule.gpus": 1, "schedule.frames": 20}))
+    trace = result.trace[result.trace["frame"] >= 15].copy()
+    first = trace.index[0]
+    trace.loc[first, "end_ns"] = trace.loc[trace.index[1], "end_ns"] + 5  # overlap its successor
+    trace.loc[trace.index[1], "engine"] = trace.loc[first, "engine"]
+    doc = chrome_trace(trace, None)
+    slices = [e for e in doc["traceEvents"] if e["ph"] == "X"]
+    assert len(slices) == len(trace) and {e["args"]["frame"] for e in slices} == set(range(15, 20))
+    names = {e["args"]["name"] for e in doc["traceEvents"] if e.get("name") == "thread_name"}
+    assert f"{trace.loc[first, 'engine']} (2)" in names

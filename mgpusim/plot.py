@@ -46,16 +46,6 @@ def _rows(trace: pd.DataFrame) -> list[str]:
     return sorted(labels, key=key)
 
 
-def parse_frames(text: str, option: str = "--frames") -> range:
-    """``A:B`` -> frames A..B-1 (Python slice style; ``A:`` to the end is not allowed)."""
-    from .errors import InputError  # noqa: PLC0415
-
-    lo, sep, hi = text.partition(":")
-    if not sep or not lo.strip().isdigit() or not hi.strip().isdigit() or int(hi) <= int(lo):
-        raise InputError(f"expected A:B with whole numbers A < B (frames A to B-1), got {text!r}", field=option)
-    return range(int(lo), int(hi))
-
-
 def draw_timeline(ax, trace: pd.DataFrame, links: pd.DataFrame | None = None,
                   title: str = "", frames: Sequence[int] | None = None) -> None:
     """Draw one timeline on `ax`: time in ms on x from the window's first start, a row per

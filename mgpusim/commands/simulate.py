@@ -7,7 +7,6 @@ from pathlib import Path
 from ..errors import InputError
 from ..experiment import load_experiment, parse_overrides
 from ..output import TRACE_FRAMES, write_result
-from ..plot import parse_frames
 from ..shipped import resolve_experiment
 from ..simulate import simulate
 
@@ -24,6 +23,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--trace-frames", type=int, default=TRACE_FRAMES, metavar="N",
                    help=f"the last N frames go into trace.perfetto.json (default: {TRACE_FRAMES}; 0: all)")
     p.set_defaults(func=run)
+
+
+def parse_frames(text: str) -> range:
+    """``A:B`` -> frames A..B-1 (as a Python slice; both ends needed)."""
+    lo, sep, hi = text.partition(":")
+    if not sep or not lo.strip().isdigit() or not hi.strip().isdigit() or int(hi) <= int(lo):
+        raise InputError(f"expected A:B with whole numbers A < B (frames A to B-1), got {text!r}", field="--frames")
+    return range(int(lo), int(hi))
 
 
 def run(args: argparse.Namespace) -> int:

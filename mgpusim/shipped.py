@@ -64,5 +64,5 @@ def resolve_experiment(ref: str | Path) -> Path:
     for candidate in (root / rel, root / f"{rel}.toml"):
         if candidate.is_file():
             return candidate
-    raise InputError(f"no such experiment file, nor a shipped experiment of that name "
-                     f"(`mgpusim examples` lists them)", file=str(ref))
+    raise InputError("no such experiment file, nor a shipped experiment of that name "
+                     "(`mgpusim examples` lists them)", file=str(ref))

@@ -206,8 +206,9 @@ def test_sweep_plot_lines_or_heatmap_by_number_of_keys():
 
     from mgpusim.plot import draw_sweep
 
-    rows = [{"point": i, "a": a, "b": b, "c": c, "error": None if a < 3 else "bad", "frame_time_ms": a * 10.0 + b + (c == "y")}
-            for i, (a, b, c) in enumerate((a, b, c) for a in (1, 2, 3) for b in (5, 6) for c in ("x", "y"))]
+    combos = [(a, b, c) for a in (1, 2, 3) for b in (5, 6) for c in ("x", "y")]
+    rows = [{"point": i, "a": a, "b": b, "c": c, "error": None if a < 3 else "bad",
+             "frame_time_ms": a * 10.0 + b + (c == "y")} for i, (a, b, c) in enumerate(combos)]
     table = pd.DataFrame(rows)
     one = Figure().subplots()
     draw_sweep(one, table[(table.b == 5) & (table.c == "x")], ["a"])

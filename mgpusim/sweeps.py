@@ -166,7 +166,7 @@ def table(points: Sequence[Point], records: Mapping[str, Mapping[str, Any]]) -> 
     summary = [c for c in df.columns if c not in META_COLUMNS and c not in points[0].keys]
     scalars = [c for c in summary if "." not in c]  # in the summary's own order
     df = df[["point", *points[0].keys, "error", *scalars, *sorted(set(summary) - set(scalars)), "wall_s"]]
-    for col in df.select_dtypes(include="object").columns:  # one nullable type per column, as Parquet keeps
+    for col in [c for c in df.columns if pd.api.types.is_object_dtype(df[c])]:  # one type each, for Parquet
         kinds = {type(v) for v in df[col] if v is not None and v == v}
         if kinds == {bool}:
             df[col] = df[col].astype("boolean")

@@ -19,10 +19,11 @@ from typing import Any
 import simpy
 
 from .experiment import load_experiment
+from .shipped import shipped_dir
 from .simulate import build_program, simulate
 from .tasks import CopyTask, HostCopyTask
 
-DEFAULT_EXPERIMENT = Path(__file__).resolve().parents[1] / "experiments" / "sort_first_tc1.toml"
+DEFAULT_EXPERIMENT = shipped_dir("experiments") / "sort_first_tc1.toml"
 #: A fresh interpreter that simulates a long run and prints wall time and peak memory (a child
 #: process, so that the peak is the run's own and not the benchmark's).
 _LONG_RUN = """

@@ -382,3 +382,19 @@ def test_sweep_refuses_skippable_schedules():
     exp = load_experiment(ROOT / "experiments" / "particles_machine.toml")
     with pytest.raises(InputError, match="skippable"):
         sweep(build_program(exp), CostModel(exp.profile), np.ones(2), np.ones(2))
+
+
+def test_written_outputs_do_not_depend_on_the_fast_forward(tmp_path: Path):
+    """The windows of a compact trace (timeline, Perfetto) and the tables are the files the
+    whole trace gives."""
+    from mgpusim.output import write_result
+    exp = load_experiment(ROOT / "experiments" / "sort_first_tc1.toml", {"schedule.frames": 600})
+    on, off = simulate(exp), simulate(exp, fast_forward=False)
+    assert on.compact
+    a = write_result(on, tmp_path / "on", trace_frames=50)
+    b = write_result(off, tmp_path / "off", trace_frames=50)
+    assert on.compact  # nothing built the whole trace
+    assert (tmp_path / "on" / "trace.perfetto.json").read_text() == (tmp_path / "off" / "trace.perfetto.json").read_text()
+    for name in ("trace", "frames", "links"):
+        pd.testing.assert_frame_equal(pd.read_parquet(a[name]), pd.read_parquet(b[name]))
+    assert a["timeline"].stat().st_size > 10_000

@@ -7,13 +7,15 @@ from pathlib import Path
 
 from ..bench import DEFAULT_EXPERIMENT, analytic_speed, effect_costs, effects_saving, long_run, run_bench
 from ..errors import InputError
+from ..shipped import resolve_experiment
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="simulated frames per second, and cost per resource use vs raw SimPy")
     p.add_argument("--experiment", type=Path, default=DEFAULT_EXPERIMENT,
-                   help="a sort-first experiment (its profile's last GPU is repeated if it has fewer than 4)")
-    p.add_argument("--frames", type=int, default=5000)
+                   help="a sort-first experiment file or shipped name (its profile's last GPU is repeated "
+                        "if it has fewer than 4)")
+    p.add_argument("--frames", type=int, default=5000, help="simulated frames per timed run (default: 5000)")
     p.add_argument("--repeats", type=int, default=3, help="best of this many interleaved runs")
     p.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     p.add_argument("--what", choices=("all", "simpy", "long", "analytic", "effects"), default="all",
@@ -27,15 +29,16 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.frames < 2 or args.repeats < 1:
         raise InputError(f"need --frames >= 2 and --repeats >= 1, got {args.frames} and {args.repeats}")
+    experiment = resolve_experiment(args.experiment)
     out: dict = {}
     if args.what in ("all", "simpy"):
-        out["simpy"] = run_bench(args.experiment, args.frames, args.repeats)
+        out["simpy"] = run_bench(experiment, args.frames, args.repeats)
     if args.what in ("all", "long"):
-        out["long"] = long_run(args.experiment, args.long_frames)
+        out["long"] = long_run(experiment, args.long_frames)
     if args.what in ("all", "analytic"):
-        out["analytic"] = analytic_speed(args.experiment)
+        out["analytic"] = analytic_speed(experiment)
     if args.what in ("all", "effects"):
-        out["effects"] = effects_saving(args.experiment, repeats=args.repeats)
+        out["effects"] = effects_saving(experiment, repeats=args.repeats)
         out["effect_costs"] = effect_costs(repeats=args.repeats)
     if args.json:
         print(json.dumps(out, sort_keys=True))

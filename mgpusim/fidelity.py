@@ -16,14 +16,16 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .experiment import Experiment
+from .experiment import Experiment, load_experiment
 from .measured import read_measured
+from .shipped import examples, shipped_dir
 from .simulate import simulate
 from .study.measure import measured_folder
 from .study.spec import Entry, load_study
 from .validate import rel_error, steady_summary
 
-ROOT = Path(__file__).resolve().parents[1]
+EXPERIMENTS = shipped_dir("experiments")
+PROFILES = shipped_dir("hardware_profiles")
 
 
 @dataclass(frozen=True)
@@ -40,10 +42,10 @@ class Source:
 #: The committed measured runs. The lavapipe study commits none (its job measures them on the
 #: machine it runs on); it is listed so that committed runs would be picked up.
 SOURCES = (
-    Source("2x H200", ROOT / "experiments/h200/study.toml"),
-    Source("H100", ROOT / "experiments/h200/study.toml", ROOT / "data/nvidia/h100/runs_1gpu",
-           ROOT / "hardware_profiles/h100.toml"),
-    Source("lavapipe", ROOT / "experiments/lavapipe/study.toml"),
+    Source("2x H200", EXPERIMENTS / "h200/study.toml"),
+    Source("H100", EXPERIMENTS / "h200/study.toml", EXPERIMENTS.parent / "data/nvidia/h100/runs_1gpu",
+           PROFILES / "h100.toml"),
+    Source("lavapipe", EXPERIMENTS / "lavapipe/study.toml"),
 )
 
 
@@ -142,20 +144,12 @@ def markdown(summary: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
-def shipped_experiments() -> list[Path]:
-    """experiments/*.toml and experiments/*/*.toml that are experiments (not studies)."""
-    paths = sorted(ROOT.glob("experiments/*.toml")) + sorted(ROOT.glob("experiments/*/*.toml"))
-    return [p for p in paths if "[schedule]" in p.read_text()]
-
-
-def deviations(paths: list[Path], variants: dict[str, dict[str, Any]] | None = None,
-               repeats: int = 3) -> pd.DataFrame:
+def deviations(variants: dict[str, dict[str, Any]] | None = None, repeats: int = 3) -> pd.DataFrame:
     """Where there is no measurement: each level's frame time against `full` on the shipped
     experiments, and the model's time (best of `repeats`)."""
-    from .experiment import load_experiment  # noqa: PLC0415 (Entry.load covers the studies)
     rows = []
-    for path in paths:
-        exp = load_experiment(path)
+    for example in examples():
+        exp = load_experiment(example.path)
         reference = None
         for level, kwargs in (variants or VARIANTS).items():
             model, result = float("inf"), None
@@ -164,7 +158,7 @@ def deviations(paths: list[Path], variants: dict[str, dict[str, Any]] | None = N
                 model = min(model, result.model_wall_s)
             ft = result.summary["frame_time_ms"]
             reference = ft if level == "full" else reference
-            rows.append({"experiment": str(path.relative_to(ROOT / "experiments")), "level": level,
+            rows.append({"experiment": example.name, "level": level,
                          "frame_ms": ft, "model_ms": model * 1e3})
     table = pd.DataFrame(rows)
     full = table[table.level == "full"].set_index("experiment")["frame_ms"]

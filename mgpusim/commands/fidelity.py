@@ -8,7 +8,8 @@ from pathlib import Path
 import pandas as pd
 
 from ..fidelity import (configurations, deviations, deviations_markdown, markdown, run_levels,
-                        shipped_experiments, summarize_deviations, summarize_levels)
+                        summarize_deviations, summarize_levels)
+from ..errors import InputError
 from ..output import write_table
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
@@ -25,13 +26,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.docs and not (DOCS / "fidelity.md").is_file():
+        raise InputError(f"needs a checkout with {DOCS / 'fidelity.md'}", field="--docs")
     args.out.mkdir(parents=True, exist_ok=True)
     configs = configurations()
     table = run_levels(configs, repeats=max(1, args.repeats))
     levels = summarize_levels(table)
     write_table(table, args.out / "per_config.csv")
     write_table(levels, args.out / "levels.csv")
-    dev = summarize_deviations(deviations(shipped_experiments(), repeats=max(1, args.repeats)))
+    dev = summarize_deviations(deviations(repeats=max(1, args.repeats)))
     write_table(dev, args.out / "deviations.csv")
     text = markdown(levels)
     dev_text = deviations_markdown(dev)

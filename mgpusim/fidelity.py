@@ -1,8 +1,9 @@
 """What accuracy costs in time: every committed measured configuration at every fidelity level.
 
 The measured runs are those committed with the studies (`experiments/*/study.toml`: each entry
-an experiment file and `--set` items, its run folder, the calibrated profile). Each configuration is simulated at each level; the error is simulated / measured - 1 of
-the steady-state frame time and latency (both sides through the same summary code, the
+an experiment file and `--set` items, its run folder, the calibrated profile). Each
+configuration is simulated at each level; the error is simulated / measured - 1 of the
+steady-state frame time and latency (both sides through the same summary code, the
 experiment's warm-up). Wall time is that of `simulate()` (model plus tables) and of the model
 alone (the event engine or the analytic recurrence).
 """

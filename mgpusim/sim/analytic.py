@@ -79,21 +79,24 @@ class Analytic:
         probe = Engine(program, costs, record_trace=False,
                        effects=effects - {"shared_executor", "link_sharing", "host_memory_sharing"})
         self.threads = host.memcpy_threads
-        self.device_of = {t.name: ("host" if isinstance(t, HostCopyTask) else t.queue.device_name)
-                          for tasks in program.templates for t in tasks}
+        #: per frame phase, task name -> its device (a name may sit on other devices in other phases)
+        self.device_of = [{t.name: ("host" if isinstance(t, HostCopyTask) else t.queue.device_name)
+                           for t in tasks} for tasks in program.templates]
         thread_cap = costs.memcpy_thread_cap()
         mem = costs.host_memory_bandwidth()
         self.part_rate = thread_cap if thread_cap < mem else mem
-        self.phases = [self._order([self._node(op) for op in ops]) for ops in probe.all_ops()]
+        self.phases = [self._order([self._node(op, phase) for op in ops])
+                       for phase, ops in enumerate(probe.all_ops())]
         self.lag = max([1] + [-d[1] for ph in self.phases for n in ph for d in n.deps])
         #: per phase, skippable task -> (its chain's leader, its same-frame skippable inputs)
         self.chains = [_skip_chains(ph) for ph in self.phases]
         self.approximations = self._approximations()
         self.ties = 0
 
-    def _node(self, op: Any) -> _Node:
+    def _node(self, op: Any, phase: int) -> _Node:
         task = op.task
-        deps = tuple((d.task, d.offset, self._crosses(task, d.task)) for d in task.deps)
+        deps = tuple((d.task, d.offset, self._crosses(task, d.task, (phase + d.offset) % len(self.device_of)))
+                     for d in task.deps)
         if isinstance(task, HostCopyTask):
             n = task.parts(self.threads)
             base = task.bytes // n
@@ -107,11 +110,12 @@ class Analytic:
         return _Node(task.name, task, str(task.queue), deps, op.duration, op.nbytes, rate, op.gap, (),
                      op.device, op.engine, op.waits_for)
 
-    def _crosses(self, task: Task, dep: str) -> bool:
-        """Whether a host thread must wake to act on this input (as the engine decides)."""
+    def _crosses(self, task: Task, dep: str, dep_phase: int) -> bool:
+        """Whether a host thread must wake to act on this input (as the engine decides): the
+        input's producer, in its own frame phase, is on another device or the host."""
         if isinstance(task, HostCopyTask):
             return True
-        return self.device_of[dep] != task.queue.device_name
+        return self.device_of[dep_phase][dep] != task.queue.device_name
 
     @staticmethod
     def _order(nodes: list[_Node]) -> list[_Node]:

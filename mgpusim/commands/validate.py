@@ -17,9 +17,10 @@ from ..experiment import load_experiment, parse_overrides
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("validate", help="run a schedule for real and in the model, report the errors")
-    p.add_argument("experiment", type=Path)
+    p.add_argument("experiment", type=Path, help="experiment TOML file")
     p.add_argument("--profile", type=Path, help="calibrated profile to simulate with (default: the experiment's)")
-    p.add_argument("--set", dest="overrides", action="append", metavar="KEY=VALUE")
+    p.add_argument("--set", dest="overrides", action="append", metavar="KEY=VALUE",
+                   help="override a field of the experiment, as simulate takes it (repeatable)")
     p.add_argument("--measured", type=Path, help="a saved measured run (from `mgpusim run` or an "
                    "earlier validate's measured/ folder): no device needed")
     p.add_argument("--out", type=Path, help="output folder (default out/<name>-validate)")

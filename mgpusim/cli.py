@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from typing import NoReturn
 
 from .errors import MgpusimError
 
@@ -15,8 +16,20 @@ from .errors import MgpusimError
 COMMANDS = ("simulate", "run", "bench", "devices", "measure", "calibrate", "validate", "main_job")
 
 
+class _Parser(argparse.ArgumentParser):
+    """Argument errors as one line, like every other error (the usage is one --help away)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {one_line(message)} (see {self.prog} --help)\n")
+
+
+def one_line(text: str) -> str:
+    """A message on one line: newlines from a file's key or value are shown escaped."""
+    return text.replace("\r", "\\r").replace("\n", "\\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="mgpusim", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="mgpusim", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
         try:
@@ -47,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except MgpusimError as exc:
-        print(f"mgpusim {args.command}: error: {exc}", file=sys.stderr)
+        print(f"mgpusim {args.command}: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

@@ -128,7 +128,12 @@ def check_memory(program: FrameProgram, exp: Experiment) -> None:
                 f"({_gib(over)}): data set share {_gib(round(fp.share * data))} + render targets "
                 f"{_gib(fp.targets)} + receive buffers {_gib(fp.staging)} = {_gib(used)} under "
                 f"schedule {program.schedule!r} with {program.gpus} GPU(s)",
-                file=exp.file, field="scene.dataset_bytes")
+                file=exp.file, field=_blame(fp, gpu.memory_bytes))
+
+
+def _blame(fp: Footprint, capacity: int) -> str:
+    """The data set, unless the image-sized buffers alone do not fit (then the resolution)."""
+    return "scene.width x scene.height" if fp.targets + fp.staging > capacity else "scene.dataset_bytes"
 
 
 def max_dataset_bytes(exp: Experiment) -> int:

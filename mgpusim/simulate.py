@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 from .costs import CostModel
+from .errors import InputError
 from .experiment import Experiment
+from .measured_check import recorded_inputs
 from .memory import check_memory, memory_report
 from .results import Result, build_result
 from .schedules import SCHEDULES, ensure_loaded
@@ -12,7 +14,12 @@ from .sim.engine import Engine
 
 def build_program(exp: Experiment) -> FrameProgram:
     ensure_loaded()
-    program = SCHEDULES[exp.schedule.name].build(exp.schedule, exp.scene, exp.profile)
+    try:
+        program = SCHEDULES[exp.schedule.name].build(exp.schedule, exp.scene, exp.profile)
+    except InputError as exc:  # a builder knows the field (schedule.split_at), not the file
+        if exc.file is not None:
+            raise
+        raise InputError(exc.detail, file=exp.file, field=exc.field) from None
     check_program(program, exp.profile)
     return program
 
@@ -23,7 +30,8 @@ def run_config(exp: Experiment, program: FrameProgram) -> dict:
     return {"experiment": exp.name, "file": exp.file, "profile": exp.profile.name,
             "schedule": exp.schedule.name, "gpus": exp.schedule.gpus,
             "width": exp.scene.width, "height": exp.scene.height,
-            **{k: v for k, v in program.notes.items() if k != "resources"}}
+            **{k: v for k, v in program.notes.items() if k != "resources"},
+            "inputs": recorded_inputs(exp)}
 
 
 def simulate(exp: Experiment, record_trace: bool = True) -> Result:

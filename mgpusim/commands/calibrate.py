@@ -11,6 +11,9 @@ import tomli_w
 from ..calibrate import apply, calibrate, lavapipe_base, read_measurements, report
 from ..calibrate.profile_out import fit_details
 from ..config import read_toml
+from ..errors import InputError
+from ..limits import MAX_GPUS
+from ..outpath import check_out_file
 from ..output import write_json
 
 
@@ -25,6 +28,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_out_file(args.out)
+    if not 1 <= args.gpus <= MAX_GPUS:
+        raise InputError(f"must be in 1..{MAX_GPUS}, got {args.gpus}", field="--gpus")
     df, machine = read_measurements(args.measurements)
     cal = calibrate(df, machine)
     base = read_toml(args.base) if args.base else lavapipe_base(machine, args.gpus)

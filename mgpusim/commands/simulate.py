@@ -5,6 +5,7 @@ import argparse
 from pathlib import Path
 
 from ..experiment import load_experiment, parse_overrides
+from ..outpath import check_out_dir
 from ..output import write_result
 from ..simulate import simulate
 
@@ -21,8 +22,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     exp = load_experiment(args.experiment, parse_overrides(args.overrides))
-    result = simulate(exp)
     out = args.out or Path("out") / exp.name
+    check_out_dir(out)
+    result = simulate(exp)
     files = write_result(result, out, args.format, title=f"{exp.name}: {exp.schedule.name}, "
                          f"{exp.schedule.gpus} GPU(s), {exp.scene.width}x{exp.scene.height}")
     s = result.summary

@@ -6,7 +6,6 @@ and reports measured against simulated frame time, latency and every step's mean
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +13,8 @@ import pandas as pd
 
 from ..errors import InputError
 from ..experiment import Experiment, load_experiment, parse_overrides
+from ..measured_check import check_recorded_config, check_trace, read_json_object, read_table
+from ..outpath import check_out_dir
 from ..output import write_json, write_measured, write_table
 from ..perfetto import chrome_trace
 from ..plot import comparison_png
@@ -35,6 +36,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     exp = load_experiment(args.experiment, parse_overrides(args.overrides), profile=args.profile)
     out = args.out or Path("out") / f"{exp.name}-validate"
+    check_out_dir(out)
     report = validate_experiment(exp, out, args.measured)
     print(format_report(exp, report))
     print(f"  wrote {out}")
@@ -70,23 +72,24 @@ def _measure(exp: Experiment, out: Path) -> pd.DataFrame:
 
 
 def read_measured(folder: Path, exp: Experiment) -> pd.DataFrame:
-    """A saved measured trace; its recorded configuration must match the experiment's."""
+    """A saved measured trace, checked (columns, integer times, end >= start); its recorded
+    configuration must match the experiment's."""
+    if not folder.is_dir():
+        raise InputError("not a folder (expected a measured run from `mgpusim run`)", file=str(folder))
     for name in ("trace.parquet", "trace.csv"):
         path = folder / name
         if path.is_file():
-            trace = pd.read_parquet(path) if path.suffix == ".parquet" else pd.read_csv(path, keep_default_na=False)
+            trace = check_trace(read_table(path), str(path))
             break
     else:
         raise InputError("no trace.parquet or trace.csv in the measured folder", file=str(folder))
     summary = folder / "summary.json"
     if summary.is_file():
-        config = json.loads(summary.read_text()).get("config", {})
-        for key, want in (("schedule", exp.schedule.name), ("gpus", exp.schedule.gpus),
-                          ("width", exp.scene.width), ("height", exp.scene.height)):
-            if key in config and config[key] != want:
-                raise InputError(f"measured run has {key}={config[key]!r} but the experiment has {want!r}",
-                                 file=str(summary), field=f"config.{key}")
-    return trace.astype({"start_ns": "int64", "end_ns": "int64", "frame": "int64"})
+        config = read_json_object(summary).get("config", {})
+        if not isinstance(config, dict):
+            raise InputError("expected an object", file=str(summary), field="config")
+        check_recorded_config(config, exp, str(summary))
+    return trace
 
 
 def format_report(exp: Experiment, r: dict[str, Any]) -> str:

@@ -10,7 +10,7 @@ from fractions import Fraction
 from typing import TYPE_CHECKING, Callable, Mapping
 
 from . import limits as L
-from .errors import InputError
+from .errors import InputError, TimeBoundError
 from .scene import PassSpec
 
 if TYPE_CHECKING:  # profile.py reads WORK_TERMS to check cost keys
@@ -104,7 +104,7 @@ class CostModel:
         """`total` ns rounded, refused beyond MAX_TASK_NS (simulated time must fit int64)."""
         if not total <= L.MAX_TASK_NS:  # also catches NaN
             terms = ", ".join(f"{t}={a:.3g}" for t, a in work.items())
-            raise InputError(f"a {kind} pass would take {total:.3g} ns ({terms}), more than the "
+            raise TimeBoundError(f"a {kind} pass would take {total:.3g} ns ({terms}), more than the "
                              f"{L.MAX_TASK_NS:.0e} ns one task may last ({L.WHY_TIME}): lower the "
                              "pass's parameters or the coefficients", file=self.profile.source,
                              field=where)
@@ -115,7 +115,7 @@ class CostModel:
         MAX_TASK_NS, so that simulated time fits int64; `field` is the rate's profile field."""
         total = setup_ns + nbytes / rate
         if total > L.MAX_TASK_NS:
-            raise InputError(f"copy {name!r} of {nbytes} bytes at {float(rate):.3g} GB/s would take "
+            raise TimeBoundError(f"copy {name!r} of {nbytes} bytes at {float(rate):.3g} GB/s would take "
                              f"{float(total):.3g} ns, more than the {L.MAX_TASK_NS:.0e} ns one task "
                              f"may last ({L.WHY_TIME})", file=self.profile.source, field=field)
 

@@ -18,6 +18,8 @@ import pandas as pd
 from .errors import InputError
 from .trace import TRACE_COLUMNS
 
+#: How a key missing on one side shows in a mismatch message.
+_ABSENT = "no value"
 #: Integer columns of a measured trace.
 TRACE_INT_COLUMNS = ("frame", "start_ns", "end_ns", "bytes")
 #: Recorded-configuration keys every run has had: compared even on runs recorded before the
@@ -73,9 +75,9 @@ def check_trace(df: pd.DataFrame, file: str) -> pd.DataFrame:
     bad = np.flatnonzero(out["end_ns"].to_numpy() < out["start_ns"].to_numpy())
     if len(bad):
         i = int(bad[0])
+        more = f" and {len(bad) - 1} other row(s)" if len(bad) > 1 else ""
         raise InputError(f"end_ns < start_ns in row {i} ({out['end_ns'].iat[i]} < "
-                         f"{out['start_ns'].iat[i]}) and {len(bad) - 1} other row(s)", file=file,
-                         field="end_ns")
+                         f"{out['start_ns'].iat[i]}){more}", file=file, field="end_ns")
     for col in ("device", "engine", "step", "task", "waits_for"):
         out[col] = out[col].fillna("").astype(str)
     return out
@@ -146,13 +148,13 @@ def first_difference(got: Any, want: Any, path: str) -> tuple[str, Any, Any] | N
     """(dotted path, got, want) of the first place two JSON-shaped values differ, or None."""
     if isinstance(got, dict) and isinstance(want, dict):
         for key in sorted(set(got) | set(want)):
-            diff = first_difference(got.get(key, "<absent>"), want.get(key, "<absent>"), f"{path}.{key}")
+            diff = first_difference(got.get(key, _ABSENT), want.get(key, _ABSENT), f"{path}.{key}")
             if diff:
                 return diff
         return None
     if isinstance(got, list) and isinstance(want, list):
         if len(got) != len(want):
-            return (f"{path}", f"{len(got)} entries", f"{len(want)}")
+            return (path, f"{len(got)} entries", f"{len(want)}")
         for i, (g, w) in enumerate(zip(got, want)):
             diff = first_difference(g, w, f"{path}[{i}]")
             if diff:

@@ -62,6 +62,11 @@ def main(argv: list[str] | None = None) -> int:
     except MgpusimError as exc:
         print(f"mgpusim {args.command}: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
+    except OSError as exc:  # the file system refused (disk full, permissions, a name too long)
+        where = f"{str(exc.filename)[:80]}: " if exc.filename else ""
+        print(f"mgpusim {args.command}: error: {where}{one_line(exc.strerror or str(exc))}",
+              file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130

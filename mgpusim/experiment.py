@@ -68,9 +68,13 @@ def parse_experiment(data: dict, file: str, base: Path = Path("."),
 
 def _resolve(ref: Path, base: Path, file: str) -> Path:
     for candidate in (ref, base / ref):
-        if candidate.is_file():
-            return candidate
-    raise InputError(f"profile file {str(ref)!r} not found (looked next to the experiment and in the "
+        try:
+            if candidate.is_file():
+                return candidate
+        except OSError:  # a name too long for the file system, or not a name at all
+            continue
+    shown = str(ref) if len(str(ref)) <= 80 else str(ref)[:80] + "..."
+    raise InputError(f"profile file {shown!r} not found (looked next to the experiment and in the "
                      "current directory)", file=file, field="profile")
 
 

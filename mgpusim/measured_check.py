@@ -31,9 +31,9 @@ def read_table(path: Path) -> pd.DataFrame:
     """A CSV or Parquet table (by extension); unreadable, empty or corrupt files are one
     InputError naming the file."""
     file = str(path)
-    if not path.is_file():
-        raise InputError("not found (or not a file)", file=file)
     try:
+        if not path.is_file():
+            raise InputError("not found (or not a file)", file=file)
         if path.suffix in (".parquet", ".pq"):
             return pd.read_parquet(path)
         return pd.read_csv(path, keep_default_na=False, na_values=[""], encoding="utf-8")

@@ -99,7 +99,8 @@ def integer_column(col: pd.Series, file: str, name: str, minimum: int | None = N
 
 
 def number_column(col: pd.Series, file: str, name: str, *, minimum: float | None = None,
-                  above: float | None = None, rows: pd.Series | None = None) -> pd.Series:
+                  above: float | None = None, maximum: float | None = None,
+                  rows: pd.Series | None = None) -> pd.Series:
     """`col` as float: finite numbers (in the range) on `rows` (all rows by default)."""
     values = pd.to_numeric(col, errors="coerce").astype(float)
     ok = np.isfinite(values)
@@ -107,11 +108,14 @@ def number_column(col: pd.Series, file: str, name: str, *, minimum: float | None
         ok &= values >= minimum
     if above is not None:
         ok &= values > above
+    if maximum is not None:
+        ok &= values <= maximum
     if rows is not None:
         ok |= ~rows
     if not ok.all():
         i = int(np.flatnonzero(~ok.to_numpy())[0])
         bound = f" > {above:g}" if above is not None else f" >= {minimum:g}" if minimum is not None else ""
+        bound += f" and <= {maximum:g}" if maximum is not None else ""
         raise InputError(f"expected finite numbers{bound}, got {_short(col.iat[i])} in row {i}",
                          file=file, field=name)
     return values

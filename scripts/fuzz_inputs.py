@@ -8,7 +8,9 @@ Each case takes one shipped file, applies 1-3 mutations (a value replaced by an 
 NaN, infinities, huge or negative numbers, wrong types, long strings; a key deleted; a key
 added or misspelt; the TOML text itself flipped or cut), then loads it, builds the schedule,
 checks memory and runs the engine (frames capped at FRAMES_CAP so that a valid but long
-mutation stays fast; the frame count does not change the code paths taken). It prints the
+mutation stays fast; the frame count does not change the code paths taken). One case in five
+mutates a shipped measure table instead (data/lavapipe/*.csv: cells, columns, rows) and
+calibrates from it, least-squares fits included. It prints the
 counts of outcomes (ok, error, crash), the slowest case, and each crash with its mutation.
 Exit status 1 if any case crashed. tests/test_fuzz_loaders.py runs the same cases under
 Hypothesis.
@@ -43,6 +45,9 @@ FRAMES_CAP = 12
 EXPERIMENTS = sorted(p for p in (ROOT / "experiments").rglob("*.toml")
                      if "schedule" in tomllib.loads(p.read_text()))
 PROFILES = sorted((ROOT / "hardware_profiles").glob("*.toml"))
+TABLES = sorted((ROOT / "data" / "lavapipe").glob("*.csv"))
+ODD_CELLS: tuple[Any, ...] = ("", "nan", "inf", "-inf", -1, 0, 1, 1e300, -1e300, "x", "mesh_v2",
+                              2**64, 0.5, "copy_h2d", "host_copy", "graphics", "transfer")
 
 ODD_VALUES: tuple[Any, ...] = (
     0, -1, 1, 2, 3, 7, 64, 65, 1024, 10**6, 2**31, 2**53 + 1, 2**63, 2**64, 10**30, -10**30,
@@ -54,15 +59,19 @@ ODD_VALUES: tuple[Any, ...] = (
 
 @dataclasses.dataclass
 class Case:
-    kind: str  # "experiment" or "profile"
+    kind: str  # "experiment", "profile" or "table"
     source: Path
     mutations: list[str]
     data: dict[str, Any] | None  # None when the TOML text itself was mutated
     text: str | None = None
+    table: Any = None  # a mutated measure table (pandas DataFrame)
 
 
 def make_case(rng: random.Random) -> Case:
-    """One mutated shipped file (a dict, or broken TOML text one time in eight)."""
+    """One mutated shipped file (a dict, or broken TOML text one time in eight, or a measure
+    table one time in five)."""
+    if rng.random() < 0.2:
+        return make_table_case(rng)
     kind = rng.choice(("experiment", "profile"))
     source = rng.choice(EXPERIMENTS if kind == "experiment" else PROFILES)
     if rng.random() < 0.125:
@@ -73,6 +82,29 @@ def make_case(rng: random.Random) -> Case:
         data["profile"] = str((source.parent / data["profile"]).resolve())
     mutations = [mutate(data, rng) for _ in range(rng.randint(1, 3))]
     return Case(kind, source, mutations, data)
+
+
+def make_table_case(rng: random.Random) -> Case:
+    import pandas as pd  # noqa: PLC0415
+
+    source = rng.choice(TABLES)
+    df = pd.read_csv(source, dtype=object)
+    mutations = []
+    for _ in range(rng.randint(1, 3)):
+        op = rng.random()
+        if op < 0.7 and len(df):
+            row, col = rng.randrange(len(df)), rng.choice(list(df.columns))
+            value = rng.choice(ODD_CELLS)
+            df.loc[df.index[row], col] = str(value)
+            mutations.append(f"row {row} {col} = {short(value)}")
+        elif op < 0.85:
+            col = rng.choice(list(df.columns))
+            df = df.drop(columns=[col])
+            mutations.append(f"drop column {col}")
+        else:
+            df = df.iloc[: rng.randrange(max(1, len(df) // 4))]
+            mutations.append(f"keep {len(df)} rows")
+    return Case("table", source, mutations, None, table=df)
 
 
 def mutate(data: dict[str, Any], rng: random.Random) -> str:
@@ -141,6 +173,8 @@ def mutate_text(text: str, rng: random.Random) -> tuple[str, str]:
 def run_case(case: Case, tmp: Path) -> str:
     """'ok' or 'error'; anything but MgpusimError propagates (a crash)."""
     try:
+        if case.kind == "table":
+            return run_table_case(case, tmp)
         if case.text is not None:
             path = tmp / case.source.name
             path.write_text(case.text, encoding="utf-8", errors="surrogatepass")
@@ -157,6 +191,17 @@ def run_case(case: Case, tmp: Path) -> str:
         return "ok"
     except MgpusimError:
         return "error"
+
+
+def run_table_case(case: Case, tmp: Path) -> str:
+    """Calibrate from the mutated table and write the profile in memory (checked on load)."""
+    from mgpusim.calibrate import apply, calibrate, lavapipe_base, read_measurements  # noqa: PLC0415
+
+    path = tmp / case.source.name
+    case.table.to_csv(path, index=False)
+    df, machine = read_measurements([path])
+    apply(calibrate(df, machine), lavapipe_base(machine), "fuzz")
+    return "ok"
 
 
 def capped(exp: Any) -> Any:
@@ -180,6 +225,7 @@ def main(argv: list[str] | None = None) -> int:
 
     rng = random.Random(args.seed)
     counts: Counter[str] = Counter()
+    kinds: Counter[tuple[str, str]] = Counter()
     slowest = (0.0, "")
     t0 = time.monotonic()
     with tempfile.TemporaryDirectory() as tmp:
@@ -197,8 +243,10 @@ def main(argv: list[str] | None = None) -> int:
             if took > slowest[0]:
                 slowest = (took, f"case {n}: {case.source.name} {case.mutations}")
             counts[outcome] += 1
+            kinds[(case.kind, outcome)] += 1
     print(f"cases {args.cases} (seed {args.seed}) in {time.monotonic() - t0:.0f} s: "
           f"ok {counts['ok']}, error (MgpusimError) {counts['error']}, crash {counts['crash']}")
+    print("by kind: " + ", ".join(f"{k} {o} {n}" for (k, o), n in sorted(kinds.items())))
     print(f"slowest {slowest[0]:.2f} s: {slowest[1]}")
     return 1 if counts["crash"] else 0
 

@@ -655,7 +655,21 @@ def _bad_machine(tmp: Path) -> list[str]:
     return ["calibrate", str(tmp / "t.csv"), "--out", str(tmp / "out" / "p.toml")]
 
 
-CALIBRATE_CASES.append(("machine-json-corrupt", _bad_machine, ("machine.json", "not valid JSON")))
+def _bad_base(content: bytes) -> Callable[[Path], list[str]]:
+    def make(tmp: Path) -> list[str]:
+        (tmp / "base.toml").write_bytes(content)
+        return ["calibrate", str(ROOT / "data/lavapipe/mesh.csv"), "--base", str(tmp / "base.toml"),
+                "--out", str(tmp / "out" / "p.toml")]
+    return make
+
+
+CALIBRATE_CASES += [
+    ("machine-json-corrupt", _bad_machine, ("machine.json", "not valid JSON")),
+    ("base-binary", _bad_base(b"\x00\x01"), ("base.toml", "binary")),
+    ("base-bad-field", _bad_base((ROOT / "hardware_profiles" / "tc1.toml").read_bytes()
+                                 .replace(b"memcpy_threads = 12", b"memcpy_threads = -2")),
+     ("base.toml", "host.memcpy_threads")),
+]
 for _id, _make, _words in CALIBRATE_CASES:
     CASES.append(Case(f"calibrate-{_id}", _make, _words))
 

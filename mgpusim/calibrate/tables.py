@@ -7,6 +7,7 @@ import pandas as pd
 
 from ..config import did_you_mean
 from ..errors import InputError
+from ..limits import MAX_TASK_NS, MAX_WORK
 from ..measured_check import number_column, unknown_names
 
 #: The measure library's passes and the columns each row of one needs (its parameters).
@@ -22,7 +23,8 @@ MEASURED_PASSES: dict[str, tuple[str, ...]] = {
     "copy_d2d": ("bytes", "queue"),
     "host_copy": ("bytes", "threads"),
 }
-#: Numeric columns: finite and >= 0 wherever a row has them.
+#: Numeric columns: finite, in [0, MAX_WORK] wherever a row has them (durations in
+#: (0, MAX_TASK_NS]: the bounds of the model's own inputs).
 NUMERIC_COLUMNS = ("width", "height", "iterations", "triangles", "inputs", "particles", "bytes",
                    "threads", "gpus", "lp_threads", "cpu_ns")
 
@@ -42,10 +44,12 @@ def check_measure_table(df: pd.DataFrame, file: str) -> pd.DataFrame:
                          f"(the measure library has {', '.join(MEASURED_PASSES)})", file=file,
                          field="pass")
     out = df.copy()
-    out["duration_ns"] = number_column(df["duration_ns"], file, "duration_ns", above=0)
+    out["duration_ns"] = number_column(df["duration_ns"], file, "duration_ns", above=0,
+                                       maximum=MAX_TASK_NS)
     for col in NUMERIC_COLUMNS:
         if col in out.columns:
-            out[col] = number_column(df[col], file, col, minimum=0, rows=df[col].notna())
+            out[col] = number_column(df[col], file, col, minimum=0, maximum=MAX_WORK,
+                                     rows=df[col].notna())
     for kind, needs in MEASURED_PASSES.items():
         rows = out["pass"] == kind
         for col in needs:

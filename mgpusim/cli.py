@@ -13,7 +13,7 @@ from typing import NoReturn
 from .errors import MgpusimError
 
 #: Command modules, in the order `mgpusim --help` lists them.
-COMMANDS = ("simulate", "run", "bench", "devices", "measure", "calibrate", "validate", "main_job")
+COMMANDS = ("simulate", "run", "bench", "devices", "measure", "calibrate", "validate", "study", "main_job")
 
 
 class _Parser(argparse.ArgumentParser):

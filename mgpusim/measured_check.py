@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import InputError
+from .program import recorded_inputs
 from .trace import TRACE_COLUMNS
 
 #: How a key missing on one side shows in a mismatch message.
@@ -119,15 +120,6 @@ def number_column(col: pd.Series, file: str, name: str, *, minimum: float | None
         raise InputError(f"expected finite numbers{bound}, got {_short(col.iat[i])} in row {i}",
                          file=file, field=name)
     return values
-
-
-def recorded_inputs(exp: Any) -> dict[str, Any]:
-    """What a run records of its inputs beyond the basics, so that a measured run can be
-    matched to an experiment: the passes with their parameters, the schedule's options and
-    frames in flight. JSON-shaped (lists, not tuples), as summary.json stores it."""
-    passes = [{"name": p.name, "kind": p.kind, **dict(p.params)} for p in exp.scene.passes]
-    schedule = {"frames_in_flight": exp.schedule.frames_in_flight, **dict(exp.schedule.options)}
-    return json.loads(json.dumps({"passes": passes, "schedule": schedule}, default=list))
 
 
 def check_recorded_config(config: dict[str, Any], exp: Any, file: str) -> None:

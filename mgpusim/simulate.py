@@ -2,36 +2,15 @@
 from __future__ import annotations
 
 from .costs import CostModel
-from .errors import InputError, TimeBoundError
+from .errors import TimeBoundError
 from .experiment import Experiment
-from .measured_check import recorded_inputs
 from .memory import check_memory, memory_report
+from .program import build_program, run_config
 from .results import Result, build_result
-from .schedules import SCHEDULES, ensure_loaded
-from .schedules.base import FrameProgram, check_program
+from .schedules.base import FrameProgram
 from .sim.engine import Engine
 
-
-def build_program(exp: Experiment) -> FrameProgram:
-    ensure_loaded()
-    try:
-        program = SCHEDULES[exp.schedule.name].build(exp.schedule, exp.scene, exp.profile)
-    except InputError as exc:  # a builder knows the field (schedule.split_at), not the file
-        if exc.file is not None:
-            raise
-        raise InputError(exc.detail, file=exp.file, field=exc.field) from None
-    check_program(program, exp.profile)
-    return program
-
-
-def run_config(exp: Experiment, program: FrameProgram) -> dict:
-    """What a result records of its configuration (simulated and measured runs alike); the
-    runner's buffer bindings (notes["resources"]) are left out."""
-    return {"experiment": exp.name, "file": exp.file, "profile": exp.profile.name,
-            "schedule": exp.schedule.name, "gpus": exp.schedule.gpus,
-            "width": exp.scene.width, "height": exp.scene.height,
-            **{k: v for k, v in program.notes.items() if k != "resources"},
-            "inputs": recorded_inputs(exp)}
+__all__ = ["build_program", "run_config", "simulate"]
 
 
 def simulate(exp: Experiment, record_trace: bool = True) -> Result:
@@ -53,7 +32,7 @@ def simulate(exp: Experiment, record_trace: bool = True) -> Result:
 def _task_rates(program: FrameProgram, raw, result: Result) -> None:
     """Steady-state completion rate of skippable tasks (e.g. particle updates under "new
     wait"), beside the frame rate: runs in frames after warm-up over the present window."""
-    names = program.notes.get("rate_tasks", ())
+    names = program.rate_tasks
     if not names:
         return
     lo, hi = result.summary["window_ns"]

@@ -117,7 +117,7 @@ Task = PassTask | CopyTask | HostCopyTask
 @dataclass(frozen=True, slots=True)
 class Resource:
     """A buffer or image that tasks name in reads/writes/src/dst, declared by the schedule in
-    `FrameProgram.notes["resources"]` so that a real executor can allocate it.
+    `FrameProgram.resources` so that a real executor can allocate it.
 
     `device` None is host memory imported by every device in `shared_by`
     (VK_EXT_external_memory_host). An image is RGBA8 colour, plus a D16 depth image when `depth`;

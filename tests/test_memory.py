@@ -5,7 +5,7 @@ import pytest
 
 from mgpusim import InputError, simulate
 from mgpusim.memory import footprints, max_dataset_bytes
-from mgpusim.simulate import build_program
+from mgpusim.program import build_program
 from tests.schedule_helpers import experiment, gpu, profile, timed
 
 MESH = [{"name": "m", "kind": "mesh", "triangles": 10}]

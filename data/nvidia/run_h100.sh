@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# One H100 call (issue 5): smoke-test the Vulkan runner on NVIDIA, then measure the pass library
+# One H100 call: smoke-test the Vulkan runner on NVIDIA, then measure the pass library
 # at GPU-dominant sizes. Run from the project root on the device machine:
 #   source .gl/env.sh; export PYTHONPATH=$PWD:$PYTHONPATH; MGPUSIM_CACHE=$PWD/.spvcache bash data/nvidia/run_h100.sh $OUT/h100
 # Stops itself before BUDGET seconds (default 500), keeping what it has.

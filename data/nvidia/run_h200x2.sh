@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# One call on the two-H200 machine (issue 5): the five-step validation runs for real on both GPUs
-# (one VkDevice each, experiments/h200/configs.toml), then the pass library on one H200 and both
+# One call on the two-H200 machine: the five-step validation runs for real on both GPUs
+# (one VkDevice each, the held-out half of experiments/h200/study.toml), then the pass library on one H200 and both
 # GPUs copying at once. From the project root on the device machine:
 #   source .gl/env.sh; export PYTHONPATH=$PWD:$PYTHONPATH; MGPUSIM_CACHE=$PWD/.spvcache bash data/nvidia/run_h200x2.sh $OUT/h200x2
 set -u
@@ -18,7 +18,7 @@ m() { local name=$1 to=$2; shift 2; go "$name" "$to" $py -m mgpusim.cli measure 
 $py -m mgpusim.cli devices > "$out/devices.txt" 2>&1; head -30 "$out/devices.txt"
 nvidia-smi > "$out/nvidia-smi.txt" 2>&1; nvidia-smi topo -m >> "$out/nvidia-smi.txt" 2>&1
 # 1. the validation runs on GPUs 0 and 1
-$py -m mgpusim.nvidia run "$out/runs" --devices 0,1 --budget ${RUN_BUDGET:-240} 2>&1 | tee "$out/runs.log"
+timeout ${RUN_BUDGET:-240} $py -m mgpusim.cli study measure experiments/h200/study.toml --held-out --devices 0,1 --out "$out/runs" 2>&1 | tee "$out/runs.log"
 # 2. one H200 (device 0), then both at once
 R="--reps 5 --warmup 3 --device 0"
 m copy_d2h 30 --pass copy_d2h $R --sweep bytes=1MiB,16MiB,128MiB,512MiB --sweep queue=graphics,transfer

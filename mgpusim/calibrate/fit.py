@@ -49,7 +49,7 @@ def fit_nonnegative(X: np.ndarray, y: np.ndarray, names: list[str], what: str) -
     Xw = X * w[:, None]
     scale = np.linalg.norm(Xw, axis=0)
     used = scale > 0
-    for name in np.array(names)[~used]:
+    for name in map(str, np.array(names)[~used]):
         warnings.append(f"{what}: no measurement varies {name!r}; it is fixed at 0")
     Xs = Xw[:, used] / scale[used]
     condition = float(np.linalg.cond(Xs)) if Xs.size else float("inf")

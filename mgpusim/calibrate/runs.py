@@ -23,7 +23,8 @@ import pandas as pd
 
 from ..experiment import Experiment
 from ..profile import HardwareProfile, parse_profile
-from ..simulate import build_program, simulate
+from ..program import build_program
+from ..simulate import simulate
 from ..tasks import PassTask
 from ..validate import rel_error, steady_summary
 from .fit import Fit, fit_nonnegative
@@ -31,25 +32,33 @@ from .fit import Fit, fit_nonnegative
 Run = tuple[Experiment, pd.DataFrame]  # an experiment and its measured trace
 
 
-def fit_passes_from_runs(runs: Sequence[Run]) -> dict[str, Fit]:
-    """Per pass kind, fixed_ns + ns_per_<term> fitted on the steady-state rows of 1-GPU runs."""
+def fit_passes_from_runs(runs: Sequence[Run], kinds: Sequence[str] = (), gpus: int | None = None,
+                         terms: Sequence[str] | None = None) -> dict[str, Fit]:
+    """Per pass kind, fixed_ns + ns_per_<term> fitted on the steady-state rows of measured runs,
+    row by row with the work terms the schedule itself assigns to each task.
+
+    `kinds`: only these pass kinds (all when empty). `gpus`: only runs with that many GPUs (on a
+    CPU-emulated machine 1-GPU runs are the ones where no other simulated GPU competes for the
+    cores). `terms`: only these work terms (when every run has the same value of the others, a
+    fit could not tell them apart)."""
     rows: dict[str, list[tuple[dict[str, float], float]]] = defaultdict(list)
     for exp, trace in runs:
-        if exp.schedule.gpus != 1:
+        if gpus is not None and exp.schedule.gpus != gpus:
             continue
         program = build_program(exp)
         steady = trace[trace["frame"] >= exp.schedule.warmup_frames]
+        duration = steady["end_ns"] - steady["start_ns"]
         for task in program.templates[0]:
-            if not isinstance(task, PassTask):
+            if not isinstance(task, PassTask) or (kinds and task.kind not in kinds):
                 continue
-            durations = steady.loc[steady["task"] == task.name, "end_ns"] - steady.loc[steady["task"] == task.name, "start_ns"]
-            rows[task.kind].extend((dict(task.work), float(d)) for d in durations)
+            work = {t: (v if terms is None or t in terms else 0.0) for t, v in task.work.items()}
+            rows[task.kind].extend((work, float(d)) for d in duration[steady["task"] == task.name])
     fits = {}
     for kind, samples in rows.items():
-        terms = sorted({t for w, _ in samples for t in w})
-        X = np.array([[1.0] + [w.get(t, 0.0) for t in terms] for w, _ in samples])
+        names = sorted({t for w, _ in samples for t in w} | set(terms or ()))
+        X = np.array([[1.0] + [w.get(t, 0.0) for t in names] for w, _ in samples])
         y = np.array([d for _, d in samples])
-        fits[kind] = fit_nonnegative(X, y, ["fixed_ns"] + [f"ns_per_{t}" for t in terms], f"{kind} (runs)")
+        fits[kind] = fit_nonnegative(X, y, ["fixed_ns"] + [f"ns_per_{t}" for t in names], f"{kind} (runs)")
     return fits
 
 

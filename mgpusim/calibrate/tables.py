@@ -16,6 +16,7 @@ MEASURED_PASSES: dict[str, tuple[str, ...]] = {
     "mesh": ("width", "height", "triangles"),
     "composite_sort_first": ("width", "height", "inputs"),
     "composite_sort_last": ("width", "height", "inputs"),
+    "present": ("width", "height"),
     "particle_update": ("particles",),
     "particle_render": ("width", "height", "particles"),
     "copy_d2h": ("bytes", "queue"),

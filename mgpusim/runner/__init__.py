@@ -1,4 +1,4 @@
-"""The Vulkan runner (issue 4): executes the simulator's FrameProgram on real devices and
+"""The Vulkan runner: executes the simulator's FrameProgram on real devices and
 returns a trace in the simulator's schema; see docs/runner.md.
 
     run_experiment(exp, devices=None, lp_threads=None, host_threads=None) -> RunResult

@@ -20,8 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from ..errors import ScheduleError
-from ..schedules.base import FrameProgram
-from ..tasks import HostCopyTask, Task
+from ..schedules.base import FrameProgram, waits_for_labels
 from .work import GpuWork, HostWork, Work
 
 EdgeKind = Literal["order", "semaphore", "host"]
@@ -57,22 +56,6 @@ def stream_of(work: Work) -> str:
     if isinstance(work, HostWork):
         return HOST_STREAM
     return f"gpu{work.device}/{work.queue.family.index}"
-
-
-def waits_for_labels(program: FrameProgram) -> list[dict[str, str]]:
-    """As the simulator writes them: dependencies on other frames or devices, 'offset:task'."""
-    period = len(program.templates)
-    index = [{t.name: t for t in tasks} for tasks in program.templates]
-
-    def device(t: Task) -> str:
-        return "host" if isinstance(t, HostCopyTask) else t.queue.device_name
-
-    out = []
-    for phase, tasks in enumerate(program.templates):
-        out.append({t.name: ";".join(f"{d.offset}:{d.task}" for d in t.deps
-                                     if d.offset or device(index[(phase + d.offset) % period][d.task]) != device(t))
-                    for t in tasks})
-    return out
 
 
 def build_nodes(program: FrameProgram, works: list[dict[str, Work]], frames: int) -> list[Node]:

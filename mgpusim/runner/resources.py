@@ -1,7 +1,7 @@
 """Allocating the schedule's logical resources on the simulated GPUs.
 
 Why a table of names: the schedule declares every buffer and image its tasks touch
-(`FrameProgram.notes["resources"]`, :class:`mgpusim.tasks.Resource`); this module turns each into
+(`FrameProgram.resources`, :class:`mgpusim.tasks.Resource`); this module turns each into
 `buffers` Vulkan objects on its device, so the task executors only ask "resource X, frame f".
 Host memory shared by two devices (VK_EXT_external_memory_host) is one allocation imported into
 each of them.
@@ -78,7 +78,7 @@ class Resources:
     def resource(self, name: str) -> Resource:
         if name not in self.declared:
             raise ScheduleError(f"a task names resource {name!r}, which the schedule does not "
-                                f"declare (notes['resources'])")
+                                f"declare (FrameProgram.resources)")
         return self.declared[name]
 
     def images(self, name: str) -> list[tuple[Image, Image | None]]:

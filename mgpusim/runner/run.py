@@ -1,6 +1,6 @@
 """`run_program` / `run_experiment`: execute the simulator's FrameProgram on Vulkan devices.
 
-Why the same program: `mgpusim.simulate.build_program(exp)` is what the simulator runs; the
+Why the same program: `mgpusim.program.build_program(exp)` is what the simulator runs; the
 runner executes those very tasks (queues, dependencies, submission order, buffering), so a
 measured trace and a simulated one differ only in where the durations come from.
 
@@ -18,6 +18,7 @@ import pandas as pd
 
 from ..errors import InputError, MgpusimError, ScheduleError
 from ..experiment import Experiment
+from ..program import build_program, run_config
 from ..results import frames_from_trace, summarize
 from ..schedules.base import FrameProgram
 from ..trace import make_trace
@@ -49,10 +50,10 @@ def run_program(program: FrameProgram, gpus: Sequence[Gpu], *, host_threads: int
     """Execute `program` on `gpus` (simulated GPU i = gpus[i]); the GPUs stay open."""
     if host_threads < 1:
         raise InputError(f"must be >= 1, got {host_threads}", field="host_threads")
-    declared = program.notes.get("resources")
+    declared = program.resources
     if declared is None:
-        raise ScheduleError(f"schedule {program.schedule!r} declares no resources "
-                            f"(notes['resources']): the Vulkan runner cannot execute it yet")
+        raise ScheduleError(f"schedule {program.schedule!r} declares no resources (what its "
+                            f"tasks read and write): the Vulkan runner cannot execute it yet")
     if len(gpus) < program.gpus:
         raise InputError(f"the program needs {program.gpus} GPU(s), got {len(gpus)}", field="gpus")
     gpus = list(gpus)
@@ -63,7 +64,7 @@ def run_program(program: FrameProgram, gpus: Sequence[Gpu], *, host_threads: int
             {t.name: build_work(t, gpus, res, host_threads, owned) for t in tasks}
             for tasks in program.templates]
         warm = prewarm_frames if prewarm_frames is not None else max(
-            2, int(program.notes.get("buffers", 1)), len(program.templates))
+            2, program.buffers, len(program.templates))
         if warm:
             Executor(build_nodes(program, works, warm), host_threads, stall_timeout_s).execute()
         rows = Executor(build_nodes(program, works, program.frames), host_threads,
@@ -123,7 +124,6 @@ def run_experiment(exp: Experiment, *, devices: Sequence[int] | None = None,
     `devices[i]`: physical device of simulated GPU i (NVIDIA; default i mod count; lavapipe
     always gives each simulated GPU its own instance). `host_threads`: memcpy threads
     (default: the profile's `host.memcpy_threads`, the simulator's split)."""
-    from ..simulate import build_program, run_config  # noqa: PLC0415 - keeps import order simple
     from ..vulkan.machine import close_gpus, machine_record  # noqa: PLC0415
     from .machine import open_gpus  # noqa: PLC0415
 

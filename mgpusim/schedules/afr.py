@@ -1,4 +1,4 @@
-"""Alternate-frame rendering (AFR, DOMAIN.md 3.2) for N GPUs.
+"""Alternate-frame rendering (AFR) for N GPUs.
 
 Frame f runs whole on GPU f % N (one template per GPU). A secondary's finished image crosses
 to GPU 0, which presents every frame on its present queue (a second graphics queue when it
@@ -10,15 +10,16 @@ frame_time_jitter_ms / min / max come from the individual periods.
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from types import MappingProxyType
 
 from .. import limits as L
-from ..costs import pass_work
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import Scene
 from ..tasks import Dep, PassTask, QueueRef, Task
-from .base import FrameProgram, Option, ScheduleConfig, present_task, register
+from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, present_task,
+                   register)
 from .crossing import COPY_OPTIONS, Route, cross
 
 OPTIONS = {
@@ -49,10 +50,20 @@ def build_afr(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> Fr
     history = cfg.opt("history_bytes") or scene.color_bytes
     templates = tuple(tuple(_phase(p, cfg, scene, profile, route, temporal, history))
                       for p in range(n))
-    notes = {"temporal_pass": temporal or "", "history_bytes": history if temporal and n > 1 else 0,
-             "image_bytes": scene.color_bytes, "present_queue": str(present_queue(profile, cfg.opt("present_queue")))}
+    held = history if temporal and n > 1 else 0
+    record = {"temporal_pass": temporal or "", "history_bytes": held,
+              "image_bytes": scene.color_bytes,
+              "present_queue": str(present_queue(profile, cfg.opt("present_queue")))}
     return FrameProgram(cfg.name, n, cfg.frames, cfg.warmup_frames, templates,
-                        notes=MappingProxyType(notes))
+                        record=MappingProxyType(record), footprints=_footprints(scene, n, held))
+
+
+def _footprints(scene: Scene, n: int, history: int) -> tuple[Footprint, ...]:
+    """Every GPU holds the whole data set, a full target and the history it reads; GPU 0 also
+    receives the secondaries' finished images."""
+    full = scene.color_bytes + scene.depth_bytes
+    return tuple(Footprint(i, 1.0, full + history, (n - 1) * scene.color_bytes if i == 0 else 0)
+                 for i in range(n))
 
 
 def _temporal_name(cfg: ScheduleConfig, scene: Scene) -> str | None:
@@ -98,13 +109,9 @@ def _phase(p: int, cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, 
 def _renders(gpu: int, scene: Scene, first_deps: tuple[Dep, ...], temporal: str | None,
              history_in: str | None) -> list[PassTask]:
     """The whole frame's passes on one GPU; the temporal pass also waits for the history."""
-    queue = QueueRef(gpu, "graphics")
-    out: list[PassTask] = []
-    for k, spec in enumerate(scene.passes):
-        name = f"render.{spec.name}"
-        deps = first_deps if k == 0 else (Dep(out[-1].name),)
-        if name == temporal and history_in is not None:
-            deps = deps + (Dep(history_in, -1),)
-        out.append(PassTask(name, "render", queue, spec.kind,
-                            MappingProxyType(pass_work(spec, scene.pixels)), deps))
-    return out
+    out = chain_passes(scene.passes, QueueRef(gpu, "graphics"), first_deps, scene.pixels,
+                       lambda spec: f"render.{spec.name}")
+    if history_in is None:
+        return out
+    return [replace(t, deps=t.deps + (Dep(history_in, -1),)) if t.name == temporal else t
+            for t in out]

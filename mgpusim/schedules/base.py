@@ -1,13 +1,17 @@
 """Schedules as data: a registry of builders that turn (config, scene, profile) into a
 :class:`FrameProgram`, the per-frame task lists both executors run.
 
-Adding a schedule is adding one module that calls :func:`register`.
+Adding a schedule is adding one module that calls :func:`register`. Everything else the tool
+needs to know about the schedule travels in the program's typed fields, filled by the builder:
+what each task reads and writes (`resources`, for the Vulkan runner), what every GPU holds
+(`footprints`, for the memory check) and which skippable tasks have a rate of their own
+(`rate_tasks`). No other module keeps per-schedule rules.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, Sequence
 
 from .. import limits as L
 from ..config import Table
@@ -15,13 +19,36 @@ from ..errors import ScheduleError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
 from ..costs import pass_work
-from ..tasks import CopyTask, Dep, HostCopyTask, PassTask, QueueRef, Task
+from ..tasks import CopyTask, Dep, HostCopyTask, PassTask, QueueRef, Resource, Task
+
+
+@dataclass(frozen=True)
+class Footprint:
+    """One GPU's resident data: `share` of the scene's data set plus fixed buffers (bytes):
+    its render `targets` and the `staging` buffers that receive data from other GPUs."""
+
+    gpu: int
+    share: float
+    targets: int
+    staging: int
+
+    def used(self, dataset_bytes: int) -> int:
+        return int(round(self.share * dataset_bytes)) + self.targets + self.staging
 
 
 @dataclass(frozen=True)
 class FrameProgram:
     """The work of every frame. Frame f runs `templates[f % len(templates)]`, in that
-    submission order; `present_task` names the task whose end is the frame's present."""
+    submission order; `present_task` names the task whose end is the frame's present.
+
+    - `record`: facts about the program that results carry in their configuration (tile rows,
+      buffers, bytes moved per frame, ...); written out, never read back by other modules.
+    - `footprints`: every GPU's resident data (empty: each GPU holds one full set).
+    - `resources`: the buffers and images the tasks' reads/writes/src/dst name, so that a real
+      executor can allocate them; None when the schedule does not bind its tasks (the Vulkan
+      runner refuses it).
+    - `rate_tasks`: skippable tasks whose completion rate the summary reports.
+    """
 
     schedule: str
     gpus: int
@@ -29,10 +56,18 @@ class FrameProgram:
     warmup_frames: int
     templates: tuple[tuple[Task, ...], ...]
     present_task: str = "present"
-    notes: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
+    record: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
+    footprints: tuple[Footprint, ...] = ()
+    resources: tuple[Resource, ...] | None = None
+    rate_tasks: tuple[str, ...] = ()
 
     def tasks(self, frame: int) -> tuple[Task, ...]:
         return self.templates[frame % len(self.templates)]
+
+    @property
+    def buffers(self) -> int:
+        """The deepest multi-buffering of the declared resources (1 without resources)."""
+        return max((r.buffers for r in self.resources or ()), default=1)
 
 
 @dataclass(frozen=True)
@@ -104,6 +139,45 @@ def parse_schedule_config(t: Table) -> ScheduleConfig:
     if cfg.warmup_frames >= cfg.frames:
         raise t.error("warmup_frames", f"must be < frames ({cfg.frames}), got {cfg.warmup_frames}")
     return cfg
+
+
+def even_split(total: int, parts: int) -> list[int]:
+    """`total` in `parts` equal integer shares, the last taking the remainder: the rule for
+    sort-first tiles, XR half-eye views, chunked copies and host-copy parts alike."""
+    base = total // parts
+    return [base] * (parts - 1) + [total - base * (parts - 1)]
+
+
+def chain_passes(specs: Sequence[PassSpec], queue: QueueRef, first_deps: tuple[Dep, ...],
+                 pixels: float, name: Callable[[PassSpec], str], share: float = 1.0,
+                 step: Callable[[PassSpec], str] = lambda spec: "render") -> list[PassTask]:
+    """Passes in order on one queue: the first waits for `first_deps`, each later one for the
+    pass before it (a queue's submission order with a semaphore per hand-off)."""
+    out: list[PassTask] = []
+    for spec in specs:
+        deps = (Dep(out[-1].name),) if out else first_deps
+        out.append(PassTask(name(spec), step(spec), queue, spec.kind,
+                            MappingProxyType(pass_work(spec, pixels, share)), deps))
+    return out
+
+
+def task_device(task: Task) -> str:
+    """Where a task runs: `gpu{i}` for queue work, `host` for host copies."""
+    return "host" if isinstance(task, HostCopyTask) else task.queue.device_name
+
+
+def waits_for_labels(program: FrameProgram) -> list[dict[str, str]]:
+    """Per phase and task, its dependencies on other frames or devices as 'offset:task' labels
+    (the trace's `waits_for` column, written alike by the simulator and the runner)."""
+    period = len(program.templates)
+    index = [{t.name: t for t in tasks} for tasks in program.templates]
+    labels: list[dict[str, str]] = []
+    for phase, tasks in enumerate(program.templates):
+        labels.append({t.name: ";".join(
+            f"{d.offset}:{d.task}" for d in t.deps
+            if d.offset or task_device(index[(phase + d.offset) % period][d.task]) != task_device(t))
+            for t in tasks})
+    return labels
 
 
 def present_work(pixels: float) -> Mapping[str, float]:

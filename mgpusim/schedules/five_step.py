@@ -1,4 +1,4 @@
-"""The five-step sort-first / sort-last pipeline of the 2018 Vulkan thesis (DOMAIN.md 3.1).
+"""The five-step sort-first / sort-last pipeline of explicit multi-GPU rendering on Vulkan.
 
 Per frame: (1) every GPU renders its contribution; (2) each secondary copies it to a host
 staging buffer; (3) a host-to-host copy moves it to the primary's staging buffer (skipped when
@@ -17,8 +17,8 @@ from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
 from ..tasks import CopyTask, Dep, HostCopyTask, PassTask, QueueRef, Task
-from .base import (FrameProgram, Option, ScheduleConfig, present_task, present_work,
-                   queue_or_graphics, register)
+from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, even_split,
+                   present_task, present_work, queue_or_graphics, register)
 from .five_step_io import bind_io
 
 OPTIONS = {
@@ -39,8 +39,7 @@ SORT_FIRST_OPTIONS = {
 
 def tile_rows(height: int, gpus: int) -> list[int]:
     """Sort-first tile heights: equal, the last GPU takes the remainder."""
-    base = height // gpus
-    return [base] * (gpus - 1) + [height - base * (gpus - 1)]
+    return even_split(height, gpus)
 
 
 @register("sort_first", "Five-step sort-first (split-frame) pipeline: horizontal tiles, colour only",
@@ -126,7 +125,7 @@ def _composite(kind: str, inputs: int, pixels: int) -> PassSpec:
 
 def _build(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, pixels: list[int],
            shares: list[float], contribution: list[int], composite: PassSpec,
-           notes: dict) -> FrameProgram:
+           record: dict) -> FrameProgram:
     n, buffers, fif = cfg.gpus, cfg.opt("buffers"), cfg.frames_in_flight
     host_copy = cfg.opt("host_copy")
     tasks: list[Task] = []
@@ -155,27 +154,32 @@ def _build(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, pixels: 
                               tuple(Dep(t) for t in [last_render[0], *uploads])))
     before_present = "composite" if n > 1 else last_render[0]
     tasks.append(present_task(primary, scene.pixels, before_present))
-    notes.update(buffers=buffers, host_copy=host_copy,
-                 contribution_bytes_per_frame=sum(contribution[1:]))
-    tasks, resources = bind_io(tasks, scene, n, composite.kind, notes, buffers, host_copy)
-    notes["resources"] = resources  # what each task reads and writes: for the Vulkan runner
+    record.update(buffers=buffers, host_copy=host_copy,
+                  contribution_bytes_per_frame=sum(contribution[1:]))
+    tasks, resources = bind_io(tasks, scene, n, composite.kind, record.get("tile_rows"),
+                               buffers, host_copy)
     return FrameProgram(cfg.name, n, cfg.frames, cfg.warmup_frames, (tuple(tasks),),
-                        notes=MappingProxyType(notes))
+                        record=MappingProxyType(record), resources=resources,
+                        footprints=_footprints(scene, pixels, shares, contribution, buffers))
+
+
+def _footprints(scene: Scene, pixels: list[int], shares: list[float], contribution: list[int],
+                buffers: int) -> tuple[Footprint, ...]:
+    """The primary holds its target, the frame's colour and `buffers` receive buffers per
+    secondary; each secondary `buffers` targets (colour + depth) of its contribution."""
+    bpp = scene.color_bytes_per_pixel + scene.depth_bytes_per_pixel
+    targets = [p * bpp for p in pixels]
+    primary = Footprint(0, shares[0], targets[0] + scene.color_bytes, buffers * sum(contribution[1:]))
+    return (primary,) + tuple(Footprint(i, shares[i], buffers * targets[i], 0)
+                              for i in range(1, len(pixels)))
 
 
 def _renders(gpu: int, scene: Scene, pixels: int, share: float, fif: int,
              buffers: int) -> list[PassTask]:
     """The scene's passes on one GPU's graphics queue; the first waits for frame f-fif's
     present (frames in flight) and, on a secondary, for its contribution buffer to be free."""
-    queue = QueueRef(gpu, "graphics")
-    out: list[PassTask] = []
-    for k, spec in enumerate(scene.passes):
-        name = f"render{gpu}" if len(scene.passes) == 1 else f"render{gpu}.{spec.name}"
-        deps: tuple[Dep, ...]
-        if k == 0:
-            deps = (Dep("present", -fif),) + ((Dep(f"d2h{gpu}", -buffers),) if gpu > 0 else ())
-        else:
-            deps = (Dep(out[-1].name),)
-        out.append(PassTask(name, "render", queue, spec.kind,
-                            MappingProxyType(pass_work(spec, pixels, share)), deps))
-    return out
+    first = (Dep("present", -fif),) + ((Dep(f"d2h{gpu}", -buffers),) if gpu > 0 else ())
+    single = len(scene.passes) == 1
+    return chain_passes(scene.passes, QueueRef(gpu, "graphics"), first, pixels,
+                        lambda spec: f"render{gpu}" if single else f"render{gpu}.{spec.name}",
+                        share)

@@ -25,14 +25,16 @@ Rect = tuple[int, int, int, int]  # x, y, width, height in frame pixels
 
 
 def bind_io(tasks: list[Task], scene: Scene, gpus: int, composite_kind: str,
-            notes: dict[str, Any], buffers: int, host_copy: bool) -> tuple[list[Task], tuple[Resource, ...]]:
+            tile_rows: tuple[int, ...] | None, buffers: int,
+            host_copy: bool) -> tuple[list[Task], tuple[Resource, ...]]:
     """The tasks with reads/writes/src/dst/params filled in, and the resources they name."""
     w, h = scene.width, scene.height
     depth = composite_kind == "composite_sort_last"
+    by_name = {t.name: t for t in tasks}
     if depth:
         rects: list[Rect] = [(0, 0, w, h)] * gpus
     else:
-        rows = list(notes.get("tile_rows", (h,)))
+        rows = list(tile_rows or (h,))
         tops = [sum(rows[:i]) for i in range(gpus)]
         rects = [(0, tops[i], w, rows[i]) for i in range(gpus)]
     bpp = scene.color_bytes_per_pixel + (scene.depth_bytes_per_pixel if depth else 0)
@@ -72,16 +74,24 @@ def bind_io(tasks: list[Task], scene: Scene, gpus: int, composite_kind: str,
                          i if host_copy else None, rects[i])
             out.append(dataclasses.replace(task, src=f"gpu{i}.target", dst=dst))
         elif isinstance(task, HostCopyTask):
-            i = int(task.name.removeprefix("host_copy"))
+            i = _source_gpu(task, by_name)
             out.append(dataclasses.replace(task, src=f"gpu{i}.staging",
                                            dst=buffer(f"gpu0.staging{i}", 0, rects[i])))
         elif isinstance(task, CopyTask) and task.path == "h2d":
-            i = int(task.name.removeprefix("h2d"))
+            i = _source_gpu(task, by_name)
             src = f"gpu0.staging{i}" if host_copy else f"host.staging{i}"
             out.append(dataclasses.replace(task, src=src, dst=f"gpu0.input{i}"))
         else:
             out.append(task)
     return out, tuple(res.values())
+
+
+def _source_gpu(task: Task, by_name: dict[str, Task]) -> int:
+    """The secondary whose contribution a host copy or upload carries: follow the task's first
+    dependency (the step before it in the same frame) back to that secondary's download."""
+    while not (isinstance(task, CopyTask) and task.path == "d2h"):
+        task = by_name[task.deps[0].task]
+    return task.queue.device
 
 
 def _render_params(task: PassTask, scene: Scene, rect: Rect, origin: tuple[int, int], gpus: int,

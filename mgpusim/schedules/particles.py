@@ -1,4 +1,4 @@
-"""Particle simulation offloaded to a secondary GPU (the DX12 thesis, DOMAIN.md 3.3).
+"""Particle simulation offloaded to a secondary GPU.
 
 The scene's passes (shadow, geometry, SSAO, deferred lighting, ...) run in order on the
 primary's graphics queue; the particles are drawn by a `particle_render` pass right after the
@@ -17,6 +17,7 @@ Vertex buffers are double-buffered on both GPUs.
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from types import MappingProxyType
 
 from .. import limits as L
@@ -25,7 +26,8 @@ from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
 from ..tasks import Dep, PassTask, QueueRef, Task
-from .base import FrameProgram, Option, ScheduleConfig, present_task, queue_or_graphics, register
+from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, present_task,
+                   queue_or_graphics, register)
 from .crossing import Route, cross
 
 OPTIONS = {
@@ -61,10 +63,25 @@ def build_particles(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile)
                        dst_deps=(Dep("particle_render", -2),), skip=new_wait)
     draw_deps = () if new_wait else (Dep(chain[-1].name),)
     tasks = chain + _engine(cfg, scene, n, draw_deps)
-    notes = {"particles": n, "particle_gpu": pg, "policy": cfg.opt("policy"),
-             "vertex_bytes_per_frame": nbytes if pg != 0 else 0, "rate_tasks": ("particle_update",)}
+    record = {"particles": n, "particle_gpu": pg, "policy": cfg.opt("policy"),
+              "vertex_bytes_per_frame": nbytes if pg != 0 else 0}
     return FrameProgram(cfg.name, cfg.gpus, cfg.frames, cfg.warmup_frames, (tuple(tasks),),
-                        notes=MappingProxyType(notes))
+                        record=MappingProxyType(record), rate_tasks=("particle_update",),
+                        footprints=_footprints(scene, cfg.gpus, n, pg))
+
+
+#: Bytes per particle of the vertex buffer (6 vertices x 2 float4) and of the update's calc
+#: buffer (2 float4), as the particle pass lays them out.
+VERTEX_BYTES, CALC_BYTES = 192, 32
+
+
+def _footprints(scene: Scene, gpus: int, particles: int, pg: int) -> tuple[Footprint, ...]:
+    """Vertex buffers double-buffered on both GPUs; the calc buffer where updated."""
+    vertex, calc = 2 * particles * VERTEX_BYTES, particles * CALC_BYTES
+    full = scene.color_bytes + scene.depth_bytes
+    primary = Footprint(0, 1.0, full + vertex + (calc if pg == 0 else 0), 0)
+    return (primary,) + tuple(Footprint(i, 0.0, vertex + calc if i == pg else 0, 0)
+                              for i in range(1, gpus))
 
 
 def _check(cfg: ScheduleConfig, scene: Scene, pg: int) -> None:
@@ -79,15 +96,13 @@ def _check(cfg: ScheduleConfig, scene: Scene, pg: int) -> None:
 def _engine(cfg: ScheduleConfig, scene: Scene, n: int, draw_deps: tuple[Dep, ...]) -> list[Task]:
     """The primary's passes in order, the particle draw after `draw_after`, then present."""
     queue = QueueRef(0, "graphics")
+    draw = PassSpec("particles", "particle_render", MappingProxyType({"particles": n}))
+    at = [p.name for p in scene.passes].index(cfg.opt("draw_after")) + 1
+    specs = scene.passes[:at] + (draw,) + scene.passes[at:]
     out: list[Task] = []
-    for spec in scene.passes:
-        deps = (Dep(out[-1].name),) if out else (Dep("present", -cfg.frames_in_flight),)
-        out.append(PassTask(f"render.{spec.name}", "render", queue, spec.kind,
-                            MappingProxyType(pass_work(spec, scene.pixels)), deps))
-        if spec.name == cfg.opt("draw_after"):
-            draw = PassSpec("particles", "particle_render", MappingProxyType({"particles": n}))
-            out.append(PassTask("particle_render", "particle_render", queue, "particle_render",
-                                MappingProxyType(pass_work(draw, scene.pixels)),
-                                (Dep(out[-1].name),) + draw_deps))
+    for task in chain_passes(specs, queue, (Dep("present", -cfg.frames_in_flight),), scene.pixels,
+                             lambda spec: "particle_render" if spec is draw else f"render.{spec.name}",
+                             step=lambda spec: "particle_render" if spec is draw else "render"):
+        out.append(replace(task, deps=task.deps + draw_deps) if task.name == "particle_render" else task)
     out.append(present_task(queue, scene.pixels, out[-1].name))
     return out

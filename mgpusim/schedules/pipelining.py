@@ -1,4 +1,4 @@
-"""Frame pipelining (DOMAIN.md 3.2): a frame's first passes on GPU 1, the rest on GPU 0.
+"""Frame pipelining: a frame's first passes on GPU 1, the rest on GPU 0.
 
 The scene's passes [0, split_at) run on GPU 1; their outputs (each pass's `output_bytes`)
 cross to GPU 0 (through host memory, or over a peer link), where the remaining passes run and
@@ -14,12 +14,12 @@ from dataclasses import replace
 from types import MappingProxyType
 
 from .. import limits as L
-from ..costs import pass_work
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
 from ..tasks import Dep, PassTask, QueueRef, Task
-from .base import FrameProgram, Option, ScheduleConfig, present_task, register
+from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, even_split,
+                   present_task, register)
 from .crossing import COPY_OPTIONS, Route, cross
 
 OPTIONS = {
@@ -58,11 +58,19 @@ def build_pipelining(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile
     last = tasks[-1].name if rest else arrivals[-1]
     tasks.append(present_task(QueueRef(0, "graphics"), scene.pixels, last))
     moved = sum(_output_bytes(p) for p in first)
-    notes = {"split_at": split, "gpu1_passes": tuple(p.name for p in first),
-             "bytes_per_frame": moved, "chunks": cfg.opt("chunks"), "buffers": buffers,
-             "copy_granularity": cfg.opt("copy_granularity")}
+    record = {"split_at": split, "gpu1_passes": tuple(p.name for p in first),
+              "bytes_per_frame": moved, "chunks": cfg.opt("chunks"), "buffers": buffers,
+              "copy_granularity": cfg.opt("copy_granularity")}
     return FrameProgram(cfg.name, cfg.gpus, cfg.frames, cfg.warmup_frames, (tuple(tasks),),
-                        notes=MappingProxyType(notes))
+                        record=MappingProxyType(record),
+                        footprints=_footprints(scene, cfg.gpus, buffers * moved))
+
+
+def _footprints(scene: Scene, n: int, intermediate: int) -> tuple[Footprint, ...]:
+    """GPU 0 holds the data set, a full target and the arriving intermediate buffers; GPU 1
+    the intermediate results it renders."""
+    primary = Footprint(0, 1.0, scene.color_bytes + scene.depth_bytes, intermediate)
+    return (primary,) + ((Footprint(1, 1.0, intermediate, 0),) if n > 1 else ())
 
 
 def _split(cfg: ScheduleConfig, scene: Scene) -> int:
@@ -80,13 +88,8 @@ def _output_bytes(spec: PassSpec) -> int:
 
 
 def _passes(gpu: int, specs: tuple[PassSpec, ...], scene: Scene, first_deps: tuple[Dep, ...]) -> list[PassTask]:
-    queue = QueueRef(gpu, "graphics")
-    out: list[PassTask] = []
-    for k, spec in enumerate(specs):
-        deps = first_deps if k == 0 else (Dep(out[-1].name),)
-        out.append(PassTask(f"render.{spec.name}", "render", queue, spec.kind,
-                            MappingProxyType(pass_work(spec, scene.pixels)), deps))
-    return out
+    return chain_passes(specs, QueueRef(gpu, "graphics"), first_deps, scene.pixels,
+                        lambda spec: f"render.{spec.name}")
 
 
 def _copies(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, route: Route,
@@ -100,7 +103,7 @@ def _copies(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, route: 
     arrivals: list[str] = []
     chunks, buffers = cfg.opt("chunks"), cfg.opt("buffers")
     for prefix, nbytes, after in groups:
-        for c, size in enumerate(_split_bytes(nbytes, chunks)):
+        for c, size in enumerate(even_split(nbytes, chunks)):
             name = prefix if chunks == 1 else f"{prefix}#{c}"
             piece = cross(name, profile, 1, 0, size, (Dep(after),), route,
                           dst_deps=(Dep(f"render.{_gpu0_first(cfg, scene)}", -buffers),)
@@ -114,11 +117,6 @@ def _gpu0_first(cfg: ScheduleConfig, scene: Scene) -> str | None:
     """The first pass on GPU 0 (it consumes the intermediate results), if any."""
     split = cfg.opt("split_at")
     return scene.passes[split].name if split < len(scene.passes) else None
-
-
-def _split_bytes(nbytes: int, chunks: int) -> list[int]:
-    base = nbytes // chunks
-    return [base] * (chunks - 1) + [nbytes - base * (chunks - 1)]
 
 
 def _with_deps(task: PassTask, extra: tuple[Dep, ...]) -> PassTask:

@@ -1,4 +1,4 @@
-"""XR multi-GPU stereo (NVIDIA's xr_multi_gpu Vulkan sample, DOMAIN.md 3.4).
+"""XR multi-GPU stereo, after NVIDIA's `xr_multi_gpu` Vulkan sample.
 
 The scene's width x height is ONE eye. With 2 views each GPU renders one eye; with 4 views
 each renders half an eye (the eye's columns split in two). A frame, in four steps:
@@ -27,7 +27,8 @@ from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
 from ..tasks import Dep, PassTask, QueueRef, Task
 from .afr import present_queue
-from .base import FrameProgram, Option, ScheduleConfig, present_task, queue_or_graphics, register
+from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, even_split,
+                   present_task, queue_or_graphics, register)
 from .crossing import Route, cross
 
 MAX_FRAMES_IN_FLIGHT = 3
@@ -54,7 +55,7 @@ OPTIONS = {
           OPTIONS)
 def build_xr(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> FrameProgram:
     views, simulated = _views(cfg)
-    widths = _split(scene.width, views // 2)
+    widths = even_split(scene.width, views // 2)
     pixels = [widths[v % len(widths)] * scene.height for v in range(views)]
     bpp = scene.color_bytes_per_pixel + scene.depth_bytes_per_pixel
     route = Route("transfer", cfg.opt("path"), cfg.opt("host_copy"))
@@ -71,11 +72,28 @@ def build_xr(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> Fra
     pq = present_queue(profile, "separate")
     tasks.append(_handoff("acquire", pq, cfg, tuple(Dep(a) for a in arrivals)))
     tasks.append(present_task(pq, 2 * scene.pixels, "acquire"))
-    notes = {"views": views, "mode": cfg.opt("mode"), "scaling": cfg.opt("scaling"),
-             "view_pixels": tuple(pixels), "buffers": cfg.opt("buffers"), "bytes_per_frame": sum(pixels) * bpp,
-             "transfer_queue": str(queue_or_graphics(profile, 0, "transfer")), "present_queue": str(pq)}
+    record = {"views": views, "mode": cfg.opt("mode"), "scaling": cfg.opt("scaling"),
+              "view_pixels": tuple(pixels), "buffers": cfg.opt("buffers"),
+              "bytes_per_frame": sum(pixels) * bpp,
+              "transfer_queue": str(queue_or_graphics(profile, 0, "transfer")),
+              "present_queue": str(pq)}
     return FrameProgram(cfg.name, cfg.gpus, cfg.frames, cfg.warmup_frames, (tuple(tasks),),
-                        notes=MappingProxyType(notes))
+                        record=MappingProxyType(record),
+                        footprints=_footprints(cfg, scene, pixels, simulated))
+
+
+def _footprints(cfg: ScheduleConfig, scene: Scene, views: list[int],
+                simulated: bool) -> tuple[Footprint, ...]:
+    """Each GPU its view targets (multi-buffered under strong scaling); GPU 0 also the final
+    two-eye image and the views that arrive from the others."""
+    bpp = scene.color_bytes_per_pixel + scene.depth_bytes_per_pixel
+    buffers = cfg.opt("buffers") if cfg.opt("scaling") == "strong" else 1
+    final = 2 * scene.pixels * scene.color_bytes_per_pixel
+    if simulated or cfg.gpus == 1:
+        return (Footprint(0, 1.0, buffers * sum(views) * bpp + final, 0),)
+    primary = Footprint(0, 1.0, buffers * views[0] * bpp + final, sum(views[1:]) * bpp)
+    return (primary,) + tuple(Footprint(i, 1.0, buffers * views[i] * bpp, 0)
+                              for i in range(1, len(views)))
 
 
 def _views(cfg: ScheduleConfig) -> tuple[int, bool]:
@@ -94,20 +112,12 @@ def _views(cfg: ScheduleConfig) -> tuple[int, bool]:
     return views, simulated
 
 
-def _split(width: int, parts: int) -> list[int]:
-    base = width // parts
-    return [base] * (parts - 1) + [width - base * (parts - 1)]
-
-
 def _render_view(v: int, gpu_of: list[int], scene: Scene, pixels: int,
                  cfg: ScheduleConfig) -> list[PassTask]:
     """View v's passes on its GPU's graphics queue, then the release to the transfer queue."""
     queue = QueueRef(gpu_of[v], "graphics")
-    out: list[PassTask] = []
-    for k, spec in enumerate(scene.passes):
-        deps = _frame_gate(v, len(gpu_of), scene, cfg) if k == 0 else (Dep(out[-1].name),)
-        out.append(PassTask(f"render{v}.{spec.name}", "render", queue, spec.kind,
-                            MappingProxyType(pass_work(spec, pixels)), deps))
+    out = chain_passes(scene.passes, queue, _frame_gate(v, len(gpu_of), scene, cfg), pixels,
+                       lambda spec: f"render{v}.{spec.name}")
     out.append(_handoff(f"release{v}", queue, cfg, (Dep(out[-1].name),)))
     return out
 

@@ -20,7 +20,7 @@ import simpy
 from ..costs import CostModel
 from ..errors import InputError, ScheduleError
 from ..limits import INT64_MAX
-from ..schedules.base import FrameProgram
+from ..schedules.base import FrameProgram, task_device, waits_for_labels
 from ..tasks import CopyTask, HostCopyTask, PassTask, QueueRef, Task
 from .channel import Channel
 from .skipping import SkipChains
@@ -79,7 +79,7 @@ class Engine:
         self._dispatch_ns = costs.profile.host.dispatch_ns
         self._host_timeline = bool(self._dispatch_ns or costs.profile.host.submit_ns)
         self._cross_done: dict[Key, int] = {}  # instance -> when its last cross-device input ended
-        self._waits_for = self._waits_for_labels()
+        self._waits_for = waits_for_labels(program)
         self.channels: dict[str, Channel] = {}
         self._unfinished = sum(len(program.tasks(f)) for f in range(program.frames))
         self._setup_resources()
@@ -96,26 +96,10 @@ class Engine:
                 for dep in task.deps:
                     k = -dep.offset
                     producer = self._index[(q - k) % self.period][dep.task]
-                    cross = _device(producer) != _device(task) or _device(task) == "host"
+                    cross = task_device(producer) != task_device(task) or task_device(task) == "host"
                     out[(q - k) % self.period][dep.task].append(
                         (task.name, k, task, len(task.deps), lag, cross))
         return out
-
-    def _waits_for_labels(self) -> list[dict[str, str]]:
-        """Per task, the dependencies on other devices or frames, as 'offset:task' labels."""
-        labels: list[dict[str, str]] = []
-        for phase, tasks in enumerate(self.program.templates):
-            here: dict[str, str] = {}
-            for task in tasks:
-                dev = _device(task)
-                parts = []
-                for d in task.deps:
-                    other = self._index[(phase + d.offset) % self.period][d.task]
-                    if d.offset or _device(other) != dev:
-                        parts.append(f"{d.offset}:{d.task}")
-                here[task.name] = ";".join(parts)
-            labels.append(here)
-        return labels
 
     def _setup_resources(self) -> None:
         host = self.costs.profile.host
@@ -424,6 +408,3 @@ class Engine:
         return (f"schedule {self.program.schedule!r} cannot finish: {self._unfinished} task(s) never "
                 f"ran; blocked waiting on dependencies: {names or 'none (a queue is stuck)'}")
 
-
-def _device(task: Task) -> str:
-    return "host" if isinstance(task, HostCopyTask) else task.queue.device_name

@@ -5,6 +5,8 @@ The runner's entry points (importing this package does not load the Vulkan bindi
     Gpu.queue(kind) / Gpu.has_dedicated(kind) / Gpu.semaphore()   (device.py)
     Gpu.submit(queue, record, wait=[...], signal=[...]) -> Submission
     Submission.wait() / .done() / .timestamps_ns() / .duration_ns
-    passes.FragmentLoop / Mesh / CompositeSortFirst / CompositeSortLast / ParticleRender,
+    framepasses.* (the passes the runner executes), passes.* (the same passes on images of
+    their own, for measuring: FragmentLoop / Mesh / CompositeSortFirst / CompositeSortLast /
+    Present / ParticleRender),
     particles.ParticleUpdate, copies.copy_* recorders, hostcopy.HostCopier
 """

@@ -1,7 +1,7 @@
 """Vulkan errors as mgpusim errors, and the one place that imports the `vulkan` binding.
 
 Why: the binding raises bare exception classes (`VkErrorUnknown`) or even `KeyError` for
-extension codes it does not know (VULKAN_NOTES.md); a user needs the failing call's name, and a
+extension codes it does not know (docs/vulkan.md: binding traps); a user needs the failing call's name, and a
 missing loader or driver must read as one line with the command that installs it.
 """
 from __future__ import annotations

@@ -1,9 +1,9 @@
-"""Passes that render into images the caller owns: the runner's multi-buffered targets.
+"""The passes themselves: what the runner executes and the microbenchmarks time.
 
-Why not passes.py: those passes own their render target, one per instance. The runner needs one
-pipeline recorded into any of B buffered targets (`record(cmd, slot)`), a primary that renders
-its tile straight into the frame it composites into, and compositing that loads the frame
-instead of clearing it. Render passes that differ only in load/store ops are compatible, so one
+Each renders into targets it is given (`record(cmd, slot)` picks one of B buffered targets):
+a primary renders its tile straight into the frame it composites into, and compositing loads
+the frame instead of clearing it. :mod:`.passes` wraps each with images of its own for
+`mgpusim measure`. Render passes that differ only in load/store ops are compatible, so one
 pipeline serves the clearing and the loading target alike.
 
 Sort-first tiles are exact: a tile is rendered with the *full-frame* viewport shifted by the
@@ -18,7 +18,7 @@ from ..errors import InputError
 from .copies import upload
 from .errors import vk
 from .memory import Image
-from .passes import _quad_pc, _stages, _view_matrix, draw_vertices, torus_mesh
+from .draw import draw_vertices, quad_pc, stages, torus_mesh, view_matrix
 from .pipelines import Pipeline, RenderTarget, graphics_pipeline
 
 if TYPE_CHECKING:
@@ -82,7 +82,7 @@ class FragmentLoopTile(_FramePass):
         self._owned.append(self.pipeline)
         self.area, self.empty = _local(rect, origin), rect[2] * rect[3] == 0
         self.viewport = (-origin[0], -origin[1], frame[0], frame[1])
-        self._pc = _quad_pc((-1, -1, 1, 1), (0, 0, 1, 1), (iterations, 0, 0, 0))
+        self._pc = quad_pc((-1, -1, 1, 1), (0, 0, 1, 1), (iterations, 0, 0, 0))
 
     def record(self, cmd: Any, slot: int = 0) -> None:
         if self.empty:
@@ -90,7 +90,7 @@ class FragmentLoopTile(_FramePass):
         v = vk()
         begin(self.targets[slot], cmd, self.area, self.viewport)
         self.pipeline.bind(cmd)
-        self.pipeline.push(cmd, _stages(), self._pc)
+        self.pipeline.push(cmd, stages(), self._pc)
         v.vkCmdDraw(cmd, 6, 1, 0, 0)
         v.vkCmdEndRenderPass(cmd)
 
@@ -116,7 +116,7 @@ class MeshShare(_FramePass):
             vertex_attributes=[(0, "R32G32B32_SFLOAT", 0), (1, "R32G32B32_SFLOAT", 12)],
             depth_test=True)
         self._owned.append(self.pipeline)
-        self._mvp = _view_matrix()
+        self._mvp = view_matrix()
 
     def record(self, cmd: Any, slot: int = 0) -> None:
         v = vk()
@@ -146,7 +146,7 @@ class CompositeInto(_FramePass):
         self.sets = [[self.pipeline.descriptor_set([c, d] if depth else [c]) for c, d in per_slot]
                      for per_slot in inputs]
         w, h = frame
-        self._pcs = [_quad_pc((-1 + 2 * x / w, -1 + 2 * y / h, -1 + 2 * (x + rw) / w,
+        self._pcs = [quad_pc((-1 + 2 * x / w, -1 + 2 * y / h, -1 + 2 * (x + rw) / w,
                                -1 + 2 * (y + rh) / h), (0, 0, 1, 1))
                      for x, y, rw, rh in rects]
         self._nonempty = [r[2] * r[3] > 0 for r in rects]
@@ -158,9 +158,19 @@ class CompositeInto(_FramePass):
         for dset, pc, live in zip(self.sets[slot], self._pcs, self._nonempty):
             if live:
                 self.pipeline.bind(cmd, dset)
-                self.pipeline.push(cmd, _stages(), pc)
+                self.pipeline.push(cmd, stages(), pc)
                 v.vkCmdDraw(cmd, 6, 1, 0, 0)
         v.vkCmdEndRenderPass(cmd)
+
+
+def clear_images(gpu: "Gpu", color: Image, depth: Image | None) -> None:
+    """Clear a colour (+ depth) image pair once, as a render pass that clears would."""
+    target = target_over(gpu, color, depth, clear=True)
+    full = (0, 0, color.width, color.height)
+    try:
+        gpu.run("graphics", lambda cmd: (begin(target, cmd, full, full), vk().vkCmdEndRenderPass(cmd)))
+    finally:
+        target.destroy()
 
 
 def copy_image(cmd: Any, src: Image, dst: Image) -> None:

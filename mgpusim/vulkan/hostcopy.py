@@ -1,4 +1,4 @@
-"""Host-to-host copies on K threads, in chunks of at least 512 KiB (DOMAIN.md 3.1 step 3).
+"""Host-to-host copies on K threads, in chunks of at least 512 KiB (docs/sources.md: the five-step pipeline, step 3).
 
 Why threads work here: numpy's copy of a large slice releases the GIL, so K Python threads copy
 in parallel, as the thesis's reference code does with native threads; one thread alone cannot

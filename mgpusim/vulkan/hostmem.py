@@ -3,7 +3,7 @@
 Why: the five-step pipeline's step 3 (a host-to-host memcpy between two staging buffers) exists
 only because a Vulkan memory object belongs to one device. Importing one page-aligned host
 allocation into both devices removes it: the secondary's device->host copy writes the memory
-the primary's host->device copy reads (the thesis's proposed further work, DOMAIN.md 3.1).
+the primary's host->device copy reads (the thesis's proposed further work, docs/sources.md: the five-step pipeline).
 
 Lifetime: the mmap outlives every imported VkDeviceMemory; `destroy()` frees the buffers on all
 devices first, then unmaps.

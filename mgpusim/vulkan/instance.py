@@ -1,7 +1,7 @@
 """VkInstance creation, physical-device discovery and the validation-layer messenger.
 
 Why an `Instance` class: on lavapipe every simulated GPU needs its *own* VkInstance (its own
-rasterizer thread pool, VULKAN_NOTES.md), with LP_NUM_THREADS set while its physical device is
+rasterizer thread pool, docs/vulkan.md: binding traps), with LP_NUM_THREADS set while its physical device is
 created. The validation layer is switched on by `validation=True` or MGPUSIM_VK_VALIDATION=1 (the
 tests set it); every error it reports is collected in :data:`VALIDATION_MESSAGES`.
 """

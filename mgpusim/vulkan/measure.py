@@ -21,7 +21,7 @@ from .copies import CopyD2D, CopyD2H, CopyH2D
 from .device import Gpu
 from .hostcopy import HostCopy
 from .particles import ParticleUpdate
-from .passes import CompositeSortFirst, CompositeSortLast, FragmentLoop, Mesh, ParticleRender
+from .passes import CompositeSortFirst, CompositeSortLast, FragmentLoop, Mesh, ParticleRender, Present
 
 
 @dataclass(frozen=True)
@@ -48,6 +48,9 @@ PASSES: dict[str, PassSpec] = {s.name: s for s in (
     PassSpec("composite_sort_last", {"width": 1024, "height": 768, "inputs": 2},
              lambda g, p: CompositeSortLast(g, p["width"], p["height"], p["inputs"]),
              "full-screen quad per contribution, colour + depth, depth-tested"),
+    PassSpec("present", {"width": 1024, "height": 768},
+             lambda g, p: Present(g, p["width"], p["height"]),
+             "the frame copied into the displayed image (the runner's present)"),
     PassSpec("particle_update", {"particles": 65_536},
              lambda g, p: ParticleUpdate(g, p["particles"]),
              "compute: update P particles and build 6-vertex billboards"),

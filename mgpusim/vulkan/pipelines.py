@@ -3,7 +3,7 @@
 Why these shapes: every pass in the library draws into a colour (+ optional depth) target in
 GENERAL layout, uses push constants for its knobs, and viewport/scissor are dynamic so one
 pipeline serves any tile. Every nested struct, list and string handed to a create call is bound
-to a local variable first (the binding does not keep them alive, VULKAN_NOTES.md).
+to a local variable first (the binding does not keep them alive, docs/vulkan.md: binding traps).
 """
 from __future__ import annotations
 

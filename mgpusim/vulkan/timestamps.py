@@ -1,6 +1,6 @@
 """Device timestamp ticks -> host-clock nanoseconds (CLOCK_MONOTONIC, i.e. time.monotonic_ns()).
 
-Why: timestamps of different physical devices run on different clocks (VULKAN_NOTES.md), and the
+Why: timestamps of different physical devices run on different clocks (docs/vulkan.md: binding traps), and the
 runner puts every queue of every simulated GPU on one timeline. With VK_KHR/EXT_calibrated_
 timestamps we sample (device, CLOCK_MONOTONIC) pairs and keep the offset; lavapipe's ticks are
 already CLOCK_MONOTONIC, so its offset comes out ~0. Without the extension the offset is

@@ -2,15 +2,18 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pandas as pd
 import pytest
 
 pytestmark = pytest.mark.vulkan
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(__file__)))
+EXPERIMENT = Path(ROOT) / "experiments" / "lavapipe" / "sort_first.toml"
 
 
 def test_run_command_writes_the_measured_run(tmp_path):
@@ -36,3 +39,18 @@ def test_bad_device_is_one_line(tmp_path):
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and "no physical device 7" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def test_validate_measures_repeated_runs_and_compares_their_steady_window(tmp_path):
+    """By default `validate` takes several runs, compares their steady window, reports spread."""
+    out = tmp_path / "v"
+    from mgpusim.cli import main
+    assert main(["validate", str(EXPERIMENT), "--set", "scene.width=64", "--set", "scene.height=48",
+                 "--repeats", "2", "--run-seconds", "0.2", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["measured_runs"] == 2 and math.isfinite(summary["measured_spread"])
+    assert summary["measured_from"].endswith("steady")
+    assert (out / "measured" / "run0" / "trace.csv").is_file()
+    assert (out / "measured" / "run1" / "trace.csv").is_file()
+    runs = json.loads((out / "measured" / "runs.json").read_text())
+    assert len(runs["frame_time_ms"]) == 2

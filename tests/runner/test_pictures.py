@@ -1,4 +1,4 @@
-"""The composited picture of a multi-GPU run equals the single-GPU picture (issue 4, item 2)."""
+"""The composited picture of a multi-GPU run equals the single-GPU picture."""
 from __future__ import annotations
 
 import numpy as np

@@ -6,7 +6,8 @@ import pytest
 
 from mgpusim.errors import ScheduleError
 from mgpusim.runner import run_experiment
-from mgpusim.simulate import build_program, simulate
+from mgpusim.program import build_program
+from mgpusim.simulate import simulate
 from mgpusim.trace import TRACE_COLUMNS
 
 from .conftest import experiment, lavapipe_profile

@@ -133,3 +133,26 @@ def test_failed_pipeline_creation_leaves_nothing_behind(gpu):
             graphics_pipeline(gpu, target, "quad.vert", "no_such_shader.frag")
     finally:
         target.destroy()
+
+
+def test_present_copies_the_frame_into_the_displayed_image(gpu):
+    from mgpusim.vulkan.passes import Present
+    p = Present(gpu, 24, 16)
+    pixels = np.random.default_rng(2).integers(0, 256, (16, 24, 4), dtype=np.uint8)
+    upload(gpu, p.frame, pixels)
+    gpu.run(p.queue, p.record)
+    assert np.array_equal(_rgba(gpu, p.display), pixels)
+    p.destroy()
+
+
+def test_microbenchmarks_record_the_runners_passes(gpu):
+    """One pass library: what `mgpusim measure` times is the runner's own pass object."""
+    from mgpusim.vulkan import framepasses as fp
+    built = [(FragmentLoop(gpu, 16, 16, 5), fp.FragmentLoopTile), (Mesh(gpu, 16, 16, 50), fp.MeshShare),
+             (CompositeSortFirst(gpu, 16, 16, 2), fp.CompositeInto),
+             (CompositeSortLast(gpu, 16, 16, 2), fp.CompositeInto)]
+    for p, kind in built:
+        assert type(p.work) is kind
+        # the composite loads the frame the primary rendered; the renders clear their targets
+        assert p.work.targets[0].clear is (kind is not fp.CompositeInto)
+        p.destroy()

@@ -1,0 +1,97 @@
+"""A study's calibration, step by step: microbenchmark tables, then measured runs.
+
+The one place that says how a profile is fitted for a machine. The steps a study's recipe
+(:class:`mgpusim.study.spec.Recipe`) switches on, in order:
+1. the pass, copy and host-copy tables (`mgpusim measure` output) fitted onto a base profile:
+   a lavapipe skeleton made from the tables' machine record, or the study profile's own
+   structure (queues, links, memory) for real GPUs;
+2. host copy on the host's memcpy threads as fixed + bytes / bandwidth, from a table measured
+   with that many threads;
+3. cost kinds and host keys copied from another profile (a machine with no multi-GPU runs of
+   its own borrowing the runner-form fits of one of the same chip);
+4. pass costs refitted on the calibration runs' own rows (what the runner records);
+5. the queues' idle gap between tasks (1-GPU runs);
+6. a grid search of the host effects on the runs' frame-time error.
+"""
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import pandas as pd
+
+from ..config import read_toml
+from .fit import fit_nonnegative
+from .model import calibrate, read_measurements
+from .profile_out import apply, lavapipe_base, report
+from .runs import Run, fit_host_effects, fit_passes_from_runs, fit_task_gap, with_pass_fits
+
+
+def profile_from_tables(recipe: Any, tables: Sequence[Path], profile: Path,
+                        command: str) -> tuple[dict[str, Any], list[str]]:
+    """Steps 1-3: the profile data fitted on the microbenchmark tables, and the report lines."""
+    df, machine = read_measurements(list(tables))
+    cal = calibrate(df, machine)
+    base = lavapipe_base(machine) if recipe.base == "machine" else read_toml(profile)
+    data = apply(cal, base, command)
+    lines = [command, report(cal)]
+    if recipe.host_copy_table:
+        lines.append(_host_copy(data, tables[0].parent / recipe.host_copy_table))
+    if recipe.copy_from is not None:
+        lines.append(_copy_from(data, recipe))
+    return data, lines
+
+
+def refine_on_runs(recipe: Any, data: dict[str, Any], runs: Sequence[Run]) -> tuple[dict[str, Any], list[str]]:
+    """Steps 4-6: pass costs, queue gap and host effects fitted on the calibration runs."""
+    lines: list[str] = []
+    if not runs:
+        return data, lines
+    fits = fit_passes_from_runs(runs, recipe.run_fitted, recipe.run_fit_gpus, recipe.run_fit_terms)
+    data = with_pass_fits(data, fits)
+    lines.append(f"refitted on {len(runs)} calibration runs:")
+    for kind, f in fits.items():
+        terms = ", ".join(f"{n}={v:.4g}+-{e:.2g}" for n, v, e in zip(f.names, f.coef, f.stderr))
+        warn = f" ({'; '.join(f.warnings)})" if f.warnings else ""
+        lines.append(f"  {kind}: {terms}; rms {f.rel_rms:.1%} ({len(f.rel_residuals)} rows){warn}")
+    if recipe.task_gap:
+        gap = fit_task_gap(runs)
+        if gap is not None:
+            for gpu in data["gpus"]:
+                gpu["task_gap_ns"] = gap
+            lines.append(f"queue task_gap_ns = {gap} (median idle between tasks of a queue, 1-GPU runs)")
+    if recipe.host_grid:
+        found, score = fit_host_effects(data, runs, dict(recipe.host_grid))
+        data["host"].update(found)
+        lines.append(f"host {found} (grid search; mean |frame-time error| {score:.1%} on the "
+                     f"calibration runs)")
+    return data, lines
+
+
+def _host_copy(data: dict[str, Any], table: Path) -> str:
+    """Host copy on the profile's memcpy threads as fixed + bytes / B (the model's parts run in
+    parallel, each paying host_copy_fixed_ns)."""
+    host = data["host"]
+    threads = int(host["memcpy_threads"])
+    d = pd.read_csv(table)
+    d = d[d["threads"] == threads]
+    fit = fit_nonnegative(np.c_[np.ones(len(d)), d["bytes"].to_numpy(float)],
+                          d["duration_ns"].to_numpy(float), ["fixed_ns", "ns_per_byte"], "host copy")
+    fixed, gbps = float(fit.coef[0]), 1.0 / float(fit.coef[1])
+    host.update(host_copy_fixed_ns=int(round(fixed)), memory_bandwidth_gbps=round(gbps, 3),
+                memcpy_thread_gbps=round(gbps / threads, 4))
+    return (f"host copy on {threads} threads ({table.name}, {len(d)} rows): {fixed / 1e3:.0f} us + "
+            f"bytes / {gbps:.1f} GB/s")
+
+
+def _copy_from(data: dict[str, Any], recipe: Any) -> str:
+    other = read_toml(recipe.copy_from)
+    for gpu in data["gpus"]:
+        for kind in recipe.copy_costs:
+            gpu["costs"][kind] = copy.deepcopy(other["gpus"][0]["costs"][kind])
+    for key in recipe.copy_host:
+        data["host"][key] = other["host"][key]
+    return (f"{', '.join(recipe.copy_costs + recipe.copy_host)}: copied from "
+            f"{recipe.copy_from.name}")

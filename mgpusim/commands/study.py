@@ -1,0 +1,123 @@
+"""`mgpusim study measure|calibrate|validate|run STUDY.toml`: a study's steps from the command line.
+
+- measure: the microbenchmark sweeps and every configuration's runs, on Vulkan, into OUT;
+- calibrate: fit a profile from the tables and the calibration runs (no device needed);
+- validate: compare each configuration's measured run with the model (no device needed);
+- run: all of it, and report.md (`mgpusim main` runs the lavapipe study this way).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Callable
+
+import pandas as pd
+
+from ..config import int_list
+from ..output import write_json
+from ..study import pipeline
+from ..study.measure import measure_microbenchmarks, measure_runs
+from ..study.spec import Study, load_study
+from ..validate import error_stats
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("study", help="measure, calibrate and validate a study (a set of configurations)")
+    steps = p.add_subparsers(dest="step", required=True, metavar="STEP")
+    for name, doc in (("measure", "measure the study's microbenchmarks and runs on Vulkan"),
+                      ("calibrate", "fit a profile from the tables and calibration runs"),
+                      ("validate", "compare measured runs with the model (no device needed)"),
+                      ("run", "measure, calibrate, validate and report")):
+        s = steps.add_parser(name, help=doc, description=doc)
+        s.add_argument("study", type=Path, help="study TOML file")
+        s.add_argument("--out", type=Path, default=None, help="output folder (default out/<study name>)")
+        if name in ("measure", "run"):
+            s.add_argument("--devices", help="physical device of each simulated GPU, e.g. 0,1 (NVIDIA)")
+            s.add_argument("--only", help="only the configurations whose name contains this")
+        if name in ("measure", "run", "validate"):
+            s.add_argument("--held-out", action="store_true", help="include the held-out configurations")
+        if name in ("calibrate", "validate"):
+            s.add_argument("--runs", type=Path, help="measured runs folder (default: the study's "
+                           "committed runs, else OUT/runs)")
+        if name == "validate":
+            s.add_argument("--profile", type=Path, help="profile to simulate with (default: the study's)")
+            s.add_argument("--set", dest="extra", action="append", default=[], metavar="KEY=VALUE",
+                           help="an override added to every configuration (repeatable)")
+        s.set_defaults(func=_STEPS[name])
+
+
+def _progress() -> Callable[[str], None]:
+    t0 = time.monotonic()
+
+    def progress(msg: str) -> None:
+        print(f"[{time.monotonic() - t0:6.1f}s] {msg}", file=sys.stderr, flush=True)
+    return progress
+
+
+def _out(args: argparse.Namespace, study: Study) -> Path:
+    return args.out or Path("out") / study.name
+
+
+def _filtered(study: Study, args: argparse.Namespace) -> Study:
+    if not getattr(args, "only", None):
+        return study
+    keep = lambda es: tuple(e for e in es if args.only in e.name)  # noqa: E731
+    return replace(study, calibration=keep(study.calibration), held_out=keep(study.held_out))
+
+
+def measure(args: argparse.Namespace) -> int:
+    study = _filtered(load_study(args.study), args)
+    out, progress = _out(args, study), _progress()
+    if study.microbenchmarks.sweeps and study.microbenchmarks.folder is None:
+        measure_microbenchmarks(study, out / "measurements", progress)
+    measure_runs(study, study.entries(args.held_out), study.profile, out / "runs", progress,
+                 int_list(args.devices, "--devices"))
+    print(f"wrote {out}")
+    return 0
+
+
+def calibrate(args: argparse.Namespace) -> int:
+    study = load_study(args.study)
+    out = _out(args, study)
+    profile, text = pipeline.calibrate(study, out, _progress(), runs_dir=args.runs)
+    print(text)
+    print(f"wrote {profile}")
+    return 0
+
+
+def validate(args: argparse.Namespace) -> int:
+    study = load_study(args.study)
+    out, progress = _out(args, study), _progress()
+    profile = args.profile or study.profile
+    tables = {}
+    for title, entries, held in ((pipeline.CALIBRATION_TITLE, study.calibration, False),
+                                 (pipeline.HELD_OUT_TITLE, study.held_out, True)):
+        if held and not args.held_out:
+            continue
+        root = args.runs or pipeline.runs_root(study, held, out)
+        tables[title] = pipeline.validate(study, entries, root, profile, out / "validation",
+                                          progress, tuple(args.extra))
+    path = pipeline.write_report(out, study, tables, f"profile: {profile}")
+    stats = {t: error_stats(tab) for t, tab in tables.items() if not tab.empty}
+    with pd.option_context("display.width", 200, "display.max_columns", 20):
+        for title, table in tables.items():
+            print(f"{title}\n{table.to_string(index=False)}")
+    print(json.dumps(stats, indent=2))
+    write_json(stats, out / "errors.json")
+    print(f"wrote {path}")
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    study = _filtered(load_study(args.study), args)
+    path = pipeline.run(study, _out(args, study), _progress(), args.held_out,
+                        int_list(args.devices, "--devices"))
+    print(path.read_text())
+    return 0
+
+
+_STEPS = {"measure": measure, "calibrate": calibrate, "validate": validate, "run": run}

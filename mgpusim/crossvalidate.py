@@ -1,0 +1,60 @@
+"""One experiment measured (or a saved run) and simulated, compared, and written to a folder.
+
+Used by `mgpusim validate` and by studies. The comparison itself is :mod:`mgpusim.validate`
+(pure); this module adds the measuring, the simulation and the files: summary.json, the
+simulated trace, measured-above-simulated timelines and both Perfetto traces.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from .experiment import Experiment
+from .measured import read_measured
+from .output import write_json, write_table
+from .perfetto import chrome_trace
+from .plot import comparison_png
+from .program import build_program, run_config
+from .repeated_runs import measure_repeated, run_spread
+from .simulate import simulate
+from .validate import compare
+
+
+def validate_experiment(exp: Experiment, out: Path, measured_dir: Path | None = None,
+                        repeats: int = 3, run_seconds: float = 1.0) -> dict[str, Any]:
+    """Measure (or load) and simulate `exp`; write the comparison to `out`; return its summary.
+
+    Measuring runs the experiment `repeats` times, each about `run_seconds` long, under
+    `out/measured/` and compares their steady window (:mod:`mgpusim.repeated_runs`); the
+    report's `measured_spread` is how far the whole runs differed."""
+    if measured_dir is None:
+        measured_dir = measure_repeated(exp, out / "measured", repeats, run_seconds)
+    measured = read_measured(measured_dir, exp)
+    sim = simulate(exp)
+    report = compare(measured, sim.trace, exp.schedule.warmup_frames)
+    report["config"] = {**run_config(exp, build_program(exp)), "overrides_from": exp.file}
+    report["measured_spread"], report["measured_runs"] = run_spread(measured_dir)
+    report["measured_from"] = str(measured_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(report, out / "summary.json")
+    write_table(sim.trace, out / "simulated_trace.parquet")
+    title = f"{exp.schedule.name}, {exp.schedule.gpus} GPU(s), {exp.scene.width}x{exp.scene.height}"
+    comparison_png(measured, sim.trace, out / "timelines.png", title, sim_links=sim.links)
+    write_json(chrome_trace(measured, None, f"measured {title}"), out / "measured.perfetto.json")
+    write_json(chrome_trace(sim.trace, sim.links, f"simulated {title}"), out / "simulated.perfetto.json")
+    return report
+
+
+def format_report(exp: Experiment, r: dict[str, Any]) -> str:
+    """The comparison as a small text table: frame time, latency, every step."""
+    m, s = r["measured"], r["simulated"]
+    lines = [f"{exp.name}: {exp.schedule.name}, {exp.schedule.gpus} GPU(s), {exp.scene.width}x{exp.scene.height}",
+             f"  {'':12} {'measured':>10} {'simulated':>10} {'error':>8}",
+             f"  {'frame (ms)':12} {m['frame_time_ms']:10.3f} {s['frame_time_ms']:10.3f} {r['frame_time_error']:+8.1%}",
+             f"  {'latency (ms)':12} {m['latency_ms']:10.3f} {s['latency_ms']:10.3f} {r['latency_error']:+8.1%}"]
+    for step, v in r["steps"].items():
+        lines.append(f"  {step:12} {v['measured_ms']:10.3f} {v['simulated_ms']:10.3f} {v['error']:+8.1%}")
+    if r.get("measured_runs", 1) > 1:
+        lines.append(f"  measured: steady window of {r['measured_runs']} runs; the whole runs' frame "
+                     f"times spread {r['measured_spread']:.1%} (the machine's own noise)")
+    return "\n".join(lines)

@@ -1,0 +1,38 @@
+"""Reading a saved measured run (from `mgpusim run`, a study, or a committed data folder).
+
+A measured folder holds `trace.parquet` or `trace.csv` in the trace schema and, usually,
+`summary.json` with the configuration it was measured with; that configuration must match the
+experiment it is compared with, or the comparison would report the difference as model error.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+
+from .errors import InputError
+from .experiment import Experiment
+from .measured_check import check_recorded_config, check_trace, read_json_object, read_table
+
+TRACE_FILES = ("trace.parquet", "trace.csv")
+
+
+def read_measured(folder: Path, exp: Experiment) -> pd.DataFrame:
+    """A saved measured trace, checked (columns, whole times, end >= start); its recorded
+    configuration must match the experiment's (:mod:`mgpusim.measured_check`)."""
+    if not folder.is_dir():
+        raise InputError("not a folder (expected a measured run from `mgpusim run`)", file=str(folder))
+    for name in TRACE_FILES:
+        path = folder / name
+        if path.is_file():
+            trace = check_trace(read_table(path), str(path))
+            break
+    else:
+        raise InputError("no trace.parquet or trace.csv in the measured folder", file=str(folder))
+    summary = folder / "summary.json"
+    if summary.is_file():
+        config = read_json_object(summary).get("config", {})
+        if not isinstance(config, dict):
+            raise InputError("expected an object", file=str(summary), field="config")
+        check_recorded_config(config, exp, str(summary))
+    return trace

@@ -1,0 +1,79 @@
+"""Measuring a study on Vulkan: the microbenchmark sweeps, then every configuration's runs.
+
+Runs of the configurations are interleaved over the repeats, so that a slow phase of a noisy
+machine hits different configurations each round; with `steady_window` the compared run is
+the steady window of the repeats (:mod:`mgpusim.steady_window`), written as a measured folder
+`runs/<config>/steady`. Every run is kept under `runs/<config>/run<k>`.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Callable
+
+import pandas as pd
+
+from ..output import write_json, write_measured
+from ..repeated_runs import with_run_length, write_steady_window
+from .spec import Entry, Study
+
+Progress = Callable[[str], None]
+
+
+def measure_microbenchmarks(study: Study, out: Path, progress: Progress) -> list[Path]:
+    """Run every sweep on one simulated GPU in `rounds` rounds; one table (+ machine record) per
+    pass. Each row has the pass's time and the process's CPU time while it ran."""
+    from ..vulkan import measure as m  # noqa: PLC0415 - Vulkan is needed only to measure
+    from ..vulkan.machine import close_gpus, machine_record, make_gpus  # noqa: PLC0415
+
+    mb = study.microbenchmarks
+    out.mkdir(parents=True, exist_ok=True)
+    gpus = make_gpus(1)
+    tables: dict[str, list[pd.DataFrame]] = {name: [] for name, _ in mb.sweeps}
+    paths = []
+    try:
+        for r in range(mb.rounds):
+            for name, sweeps in mb.sweeps:
+                progress(f"measure {name} (round {r + 1}/{mb.rounds})")
+                df = m.measure(name, gpus, {k: list(v) for k, v in sweeps.items()},
+                               reps=mb.reps, warmup=mb.warmup)
+                tables[name].append(df.assign(repetition=df["repetition"] + r * mb.reps))
+        for name, sweeps in mb.sweeps:
+            path = out / f"{name}.csv"
+            m.write_table(pd.concat(tables[name], ignore_index=True), str(path))
+            record = machine_record(gpus, {
+                "pass": name, "sweeps": {k: list(v) for k, v in sweeps.items()}, "rounds": mb.rounds,
+                "reps": mb.reps, "warmup": mb.warmup, "command": f"mgpusim study measure {study.file}"})
+            write_json(record, path.with_name(path.name + ".machine.json"))
+            paths.append(path)
+    finally:
+        close_gpus(gpus)
+    return paths
+
+
+def measure_runs(study: Study, entries: tuple[Entry, ...], profile: Path, out: Path,
+                 progress: Progress, devices: list[int] | None = None) -> dict[str, Path]:
+    """Run every entry `repeats` times, interleaved; return each entry's measured folder (its
+    steady window, or its single run)."""
+    from ..runner.run import run_experiment  # noqa: PLC0415 - Vulkan is needed only to measure
+
+    rs = study.runs
+    exps = {e.name: with_run_length(e.load(profile), rs.run_seconds, rs.max_frames) for e in entries}
+    runs: dict[str, list[tuple[str, Any]]] = {e.name: [] for e in entries}
+    for rep in range(rs.repeats):
+        for e in entries:
+            progress(f"run {e.name} ({rep + 1}/{rs.repeats})")
+            gpus = exps[e.name].schedule.gpus
+            result = run_experiment(exps[e.name], devices=devices[:gpus] if devices else None,
+                                    prewarm_frames=rs.prewarm_frames)
+            folder = out / e.name / f"run{rep}" if rs.repeats > 1 or rs.steady_window else out / e.name
+            write_measured(result, folder)
+            runs[e.name].append((f"run{rep}", result))
+    if not rs.steady_window:
+        return {e.name: out / e.name / ("run0" if rs.repeats > 1 else "") for e in entries}
+    return {e.name: write_steady_window(exps[e.name], runs[e.name], out / e.name) for e in entries}
+
+
+def measured_folder(root: Path, name: str) -> Path:
+    """Where entry `name`'s compared run lies under `root`: its steady window if it has one."""
+    steady = root / name / "steady"
+    return steady if steady.is_dir() else root / name

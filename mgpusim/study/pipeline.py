@@ -1,0 +1,153 @@
+"""A study's steps: measure -> calibrate -> validate -> report, each usable on its own.
+
+`run` does all four into one output folder (what `mgpusim main` does for the lavapipe study);
+`calibrate` and `validate` also work on committed runs with no device (the NVIDIA studies).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import tomli_w
+
+from ..calibrate.recipe import profile_from_tables, refine_on_runs
+from ..crossvalidate import format_report, validate_experiment
+from ..measured import read_measured
+from ..output import write_json
+from ..profile import parse_profile
+from ..validate import error_stats, error_table
+from .measure import Progress, measure_microbenchmarks, measure_runs, measured_folder
+from .spec import Entry, Study
+
+CALIBRATION_TITLE = "Calibration runs (seen by the fit)"
+HELD_OUT_TITLE = "Held-out runs (never seen by the fit)"
+
+
+def runs_root(study: Study, held_out: bool, out: Path) -> Path:
+    """Where a half's measured runs lie: the study's committed folder, or `out/runs`."""
+    committed = study.held_out_runs if held_out else study.calibration_runs
+    return committed if committed is not None else out / "runs"
+
+
+def load_runs(study: Study, entries: tuple[Entry, ...], root: Path,
+              profile: Path | None = None) -> list[tuple[Any, pd.DataFrame]]:
+    """(experiment, measured trace) of every entry whose run lies under `root`."""
+    runs = []
+    for e in entries:
+        folder = measured_folder(root, e.name)
+        if folder.is_dir():
+            exp = e.load(profile or study.profile)
+            runs.append((exp, read_measured(folder, exp)))
+    return runs
+
+
+def calibrate(study: Study, out: Path, progress: Progress, tables: list[Path] | None = None,
+              runs_dir: Path | None = None) -> tuple[Path, str]:
+    """Fit the study's profile: tables first (written as profile_microbenchmarks.toml when runs
+    follow), then the calibration runs; write `out/profile.toml`; return it and the fit text."""
+    tables = tables or study.microbenchmarks.tables(out / "measurements")
+    command = f"mgpusim study calibrate {study.file}"
+    data, lines = profile_from_tables(study.recipe, tables, study.profile, command)
+    root = runs_dir or runs_root(study, False, out)
+    runs = load_runs(study, study.calibration, root)
+    progress(f"calibrate from {len(tables)} tables and {len(runs)} runs")
+    probe = parse_profile(json.loads(json.dumps(data)), "<calibration>")
+    runs = [(replace(exp, profile=probe), trace) for exp, trace in runs]
+    data, more = refine_on_runs(study.recipe, data, runs)
+    return write_profile(data, out / "profile.toml", lines + more), "\n".join(lines + more)
+
+
+def write_profile(data: dict[str, Any], path: Path, lines: list[str]) -> Path:
+    """The profile TOML with the fit report as its header comment, written whole or not at all."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    header = "# Calibrated by mgpusim study. Fit report:\n" + "".join(
+        f"#   {line}\n" for text in lines for line in text.splitlines())
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(header + "\n" + tomli_w.dumps(data))
+    tmp.replace(path)
+    return path
+
+
+def validate(study: Study, entries: tuple[Entry, ...], root: Path, profile: Path, out: Path,
+             progress: Progress, extra: tuple[str, ...] = ()) -> pd.DataFrame:
+    """Compare each entry's measured run under `root` with the model on `profile` (no device
+    needed); one row per entry with a run; `run_to_run_spread` where repeats were kept."""
+    rows = []
+    for e in entries:
+        folder = measured_folder(root, e.name)
+        if not folder.is_dir():
+            continue
+        exp = e.load(profile, extra)
+        report = validate_experiment(exp, out / e.name, folder)
+        report["config"] = e.name
+        progress(format_report(exp, report))
+        rows.append(report)
+    table = error_table(rows)
+    if rows:
+        table["run_to_run_spread"] = [r["measured_spread"] for r in rows]
+    return table
+
+
+def run(study: Study, out: Path, progress: Progress, held_out: bool = True,
+        devices: list[int] | None = None) -> Path:
+    """Measure, calibrate, validate and report the whole study into `out`."""
+    out.mkdir(parents=True, exist_ok=True)
+    tables = None
+    if study.microbenchmarks.sweeps and study.microbenchmarks.folder is None:
+        tables = measure_microbenchmarks(study, out / "measurements", progress)
+    command = f"mgpusim study run {study.file}"
+    data, lines = profile_from_tables(study.recipe, tables or study.microbenchmarks.tables(out / "measurements"),
+                                      study.profile, command)
+    base = write_profile(data, out / "profile_microbenchmarks.toml", lines)
+    measure_runs(study, study.entries(held_out), base, out / "runs", progress, devices)
+    progress("calibrate from runs")
+    runs = load_runs(study, study.calibration, out / "runs", base)
+    data, more = refine_on_runs(study.recipe, data, runs)
+    profile = write_profile(data, out / "profile.toml", lines + more)
+    tables_out = {CALIBRATION_TITLE: validate(study, study.calibration, out / "runs", profile,
+                                              out / "validation", progress)}
+    if held_out and study.held_out:
+        tables_out[HELD_OUT_TITLE] = validate(study, study.held_out, out / "runs", profile,
+                                              out / "validation", progress)
+    return write_report(out, study, tables_out, "\n".join(lines + more))
+
+
+def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_text: str) -> Path:
+    """report.md: per half the error table and its statistics; errors.json; errors_*.csv."""
+    lines = [f"# mgpusim study {study.name}: measured vs simulated", "",
+             "Errors are simulated / measured - 1. With repeated runs the measured side is the "
+             "steady window of the interleaved repeats (the window of >= 200 ms at the 10th "
+             "percentile of frame time over all runs; outside interference only adds time), and "
+             "`spread` is (slowest / fastest - 1) of the whole runs' frame times, the machine's own "
+             "noise. Each configuration's folder under validation/ holds `timelines.png` (measured "
+             "above simulated) and both Perfetto traces.", ""]
+    stats = {}
+    for title, table in tables.items():
+        if table.empty:
+            continue
+        st = stats[title] = error_stats(table)
+        lines += [f"## {title}", "", markdown_table(table), "",
+                  f"Median |frame-time error| {st['median_abs_frame_time_error']:.1%}, worst "
+                  f"{st['worst_abs_frame_time_error']:.1%} over {st['configurations']} configurations; "
+                  f"median |latency error| {st['median_abs_latency_error']:.1%}.", ""]
+        table.to_csv(out / f"errors_{title.split()[0].lower()}.csv", index=False)
+    lines += ["## Calibration", "", "```", fit_text, "```", ""]
+    path = out / "report.md"
+    path.write_text("\n".join(lines))
+    write_json(stats, out / "errors.json")
+    return path
+
+
+def markdown_table(table: pd.DataFrame) -> str:
+    head = ("| config | measured frame (ms) | simulated | error | spread | measured latency (ms) | "
+            "simulated | error |")
+    rows = [head, "|---|---|---|---|---|---|---|---|"]
+    for r in table.itertuples():
+        spread = getattr(r, "run_to_run_spread", float("nan"))
+        rows.append(f"| {r.config} | {r.measured_frame_ms:.2f} | {r.simulated_frame_ms:.2f} | "
+                    f"{r.frame_time_error:+.1%} | {spread:.0%} | {r.measured_latency_ms:.2f} | "
+                    f"{r.simulated_latency_ms:.2f} | {r.latency_error:+.1%} |")
+    return "\n".join(rows)

@@ -1,0 +1,46 @@
+"""Study files: the shipped ones load, and bad ones fail with one error naming file and field."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from mgpusim.errors import InputError
+from mgpusim.study import load_study
+
+ROOT = Path(__file__).resolve().parents[1]
+STUDIES = sorted((ROOT / "experiments").glob("*/study.toml"))
+
+
+@pytest.mark.parametrize("path", STUDIES, ids=lambda p: p.parent.name)
+def test_shipped_studies_load_and_their_entries_build(path: Path) -> None:
+    study = load_study(path)
+    for entry in study.entries():
+        exp = entry.load(study.profile)
+        assert exp.schedule.gpus >= 1
+
+
+def test_lavapipe_study_keeps_held_out_apart() -> None:
+    study = load_study(ROOT / "experiments" / "lavapipe" / "study.toml")
+    assert len(study.held_out) >= 8 and study.runs.steady_window
+    assert not {e.name for e in study.calibration} & {e.name for e in study.held_out}
+
+
+@pytest.mark.parametrize("edit, field", [
+    (("[runs]", "[runs]\nrepeets = 3"), "runs.repeets"),
+    (('base = "machine"', 'base = "gpu"'), "calibration.base"),
+    (('experiment = "sort_first.toml"', 'experiment = "nope.toml"'), "experiment"),
+    (('name = "sf_1gpu_128x96_it500"', 'name = "sf_1gpu_256x192_it2000"'), None),
+])
+def test_bad_study_is_one_error_naming_the_field(tmp_path: Path, edit: tuple[str, str], field: str | None) -> None:
+    src = ROOT / "experiments" / "lavapipe" / "study.toml"
+    bad = src.parent / "bad_study_tmp.toml"
+    bad.write_text(src.read_text().replace(*edit, 1))
+    try:
+        with pytest.raises(InputError) as err:
+            load_study(bad)
+    finally:
+        bad.unlink()
+    assert str(bad) in str(err.value)
+    if field:
+        assert field in str(err.value)

@@ -7,8 +7,9 @@ like values written in the file.
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any, Mapping
 
 from .config import Table, read_toml
@@ -28,6 +29,8 @@ class Experiment:
     scene: Scene
     schedule: ScheduleConfig
     raw: Mapping[str, Any]
+    #: The hardware what-ifs applied to the profile (``profile.`` overrides, full keys).
+    profile_overrides: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
 
 
 def load_experiment(path: str | Path, overrides: Mapping[str, Any] | None = None,
@@ -63,7 +66,8 @@ def parse_experiment(data: dict, file: str, base: Path = Path("."),
     sched = parse_schedule_config(top.table("schedule"))
     top.finish()
     require_gpus(prof, sched.gpus, file)
-    return Experiment(name, file, prof, scene, sched, data)
+    what_if = MappingProxyType({f"profile.{k}": v for k, v in (profile_overrides or {}).items()})
+    return Experiment(name, file, prof, scene, sched, data, what_if)
 
 
 def _resolve(ref: Path, base: Path, file: str) -> Path:

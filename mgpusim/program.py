@@ -33,7 +33,8 @@ def run_config(exp: Experiment, program: FrameProgram) -> dict[str, Any]:
     return {"experiment": exp.name, "file": exp.file, "profile": exp.profile.name,
             "schedule": exp.schedule.name, "gpus": exp.schedule.gpus,
             "width": exp.scene.width, "height": exp.scene.height, **program.record,
-            "inputs": recorded_inputs(exp)}
+            "inputs": recorded_inputs(exp),
+            **({"profile_overrides": dict(exp.profile_overrides)} if exp.profile_overrides else {})}
 
 
 def recorded_inputs(exp: Experiment) -> dict[str, Any]:

@@ -3,9 +3,9 @@ nothing written to --out.
 
 Each case builds its files in a fresh folder, runs the CLI in-process (mgpusim.cli.main) and
 checks the line names what was wrong (a file, an option or a field, and the words that say
-why). Files: experiments, hardware profiles, measured-run folders (`validate --measured`) and
-measure tables (`calibrate`); commands: simulate, validate, calibrate, run and measure (only
-their checks that come before any Vulkan device is opened).
+why). Files: experiments, hardware profiles, measured-run folders (`validate --measured`), measure
+tables (`calibrate`) and study files; commands: simulate, validate, calibrate, study, run and
+measure (only their checks that come before any Vulkan device is opened).
 """
 from __future__ import annotations
 
@@ -672,6 +672,26 @@ CALIBRATE_CASES += [
 ]
 for _id, _make, _words in CALIBRATE_CASES:
     CASES.append(Case(f"calibrate-{_id}", _make, _words))
+
+
+# ----- study files ------------------------------------------------------------------------
+def _study(edit: Callable[[str], str]) -> Callable[[Path], list[str]]:
+    def make(tmp: Path) -> list[str]:
+        text = (ROOT / "experiments" / "h100" / "study.toml").read_text()
+        text = text.replace('"../../', f'"{ROOT}/')
+        (tmp / "s.toml").write_text(edit(text))
+        return ["study", "calibrate", str(tmp / "s.toml"), "--out", str(tmp / "out")]
+    return make
+
+
+STUDY_CASES = [
+    ("unknown-key", _study(lambda t: t.replace("description =", "descripton =")), ("did you mean 'description'",)),
+    ("empty", _study(lambda t: ""), ("empty",)),
+    ("binary", _study(lambda t: "\0" + t), ("binary",)),
+    ("not-toml", _study(lambda t: t + "\n[calibration\n"), ("not valid TOML",)),
+]
+for _id, _make, _words in STUDY_CASES:
+    CASES.append(Case(f"study-{_id}", _make, ("s.toml", *_words)))
 
 
 # ----- the test --------------------------------------------------------------------------

@@ -97,6 +97,12 @@ def test_profile_overrides_need_a_profile_file():
         load_experiment(SORT_FIRST, {"profile.host.memcpy_threads": 3}, profile=prof)
 
 
+def test_a_result_records_its_what_ifs():
+    result = simulate(load_experiment(SORT_FIRST, {**SHORT, "profile.gpus.*.speed": 2.0}))
+    assert result.config["profile_overrides"] == {"profile.gpus.*.speed": 2.0}
+    assert "profile_overrides" not in simulate(load_experiment(SORT_FIRST, SHORT)).config
+
+
 def test_what_ifs_from_the_command_line(tmp_path: Path, capsys):
     out = tmp_path / "o"
     assert main(["simulate", str(SORT_FIRST), "--out", str(out), "--set", "schedule.frames=16",

@@ -104,10 +104,10 @@ class CostModel:
         """`total` ns rounded, refused beyond MAX_TASK_NS (simulated time must fit int64)."""
         if not total <= L.MAX_TASK_NS:  # also catches NaN
             terms = ", ".join(f"{t}={a:.3g}" for t, a in work.items())
-            raise TimeBoundError(f"a {kind} pass would take {total:.3g} ns ({terms}), more than the "
-                             f"{L.MAX_TASK_NS:.0e} ns one task may last ({L.WHY_TIME}): lower the "
-                             "pass's parameters or the coefficients", file=self.profile.source,
-                             field=where)
+            raise TimeBoundError(f"a {kind} pass would take {total:.3g} ns ({terms}), more than "
+                                 f"the {L.MAX_TASK_NS:.0e} ns one task may last ({L.WHY_TIME}): "
+                                 "lower the pass's parameters or the coefficients",
+                                 file=self.profile.source, field=where)
         return ns(total)
 
     def check_transfer(self, name: str, nbytes: int, rate: Fraction, setup_ns: int, field: str) -> None:
@@ -115,9 +115,10 @@ class CostModel:
         MAX_TASK_NS, so that simulated time fits int64; `field` is the rate's profile field."""
         total = setup_ns + nbytes / rate
         if total > L.MAX_TASK_NS:
-            raise TimeBoundError(f"copy {name!r} of {nbytes} bytes at {float(rate):.3g} GB/s would take "
-                             f"{float(total):.3g} ns, more than the {L.MAX_TASK_NS:.0e} ns one task "
-                             f"may last ({L.WHY_TIME})", file=self.profile.source, field=field)
+            raise TimeBoundError(f"copy {name!r} of {nbytes} bytes at {float(rate):.3g} GB/s would "
+                                 f"take {float(total):.3g} ns, more than the {L.MAX_TASK_NS:.0e} ns "
+                                 f"one task may last ({L.WHY_TIME})", file=self.profile.source,
+                                 field=field)
 
     def copy_setup_ns(self, device: int, family: str, path: str, peer: int | None = None) -> int:
         """Fixed cost of a copy command plus the latency of the path it crosses."""

@@ -6,6 +6,7 @@ Units are in field names: `_gbps` is GB/s (10^9 bytes per second, i.e. bytes per
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -23,6 +24,7 @@ PCIE_LANE_GBPS: Mapping[int, float] = MappingProxyType({
     1: 2.5 * 8 / 10 / 8, 2: 5.0 * 8 / 10 / 8, 3: 8.0 * 128 / 130 / 8,
     4: 16.0 * 128 / 130 / 8, 5: 32.0 * 128 / 130 / 8, 6: 64.0 * 242 / 256 / 8,
 })
+PCIE_LANES = (1, 2, 4, 8, 16, 32)
 QUEUE_FAMILIES = ("graphics", "compute", "transfer")
 COPY_PATHS = ("d2h", "h2d", "d2d", "p2p")
 
@@ -160,11 +162,12 @@ def apply_profile_overrides(data: dict, overrides: Mapping[str, object], file: s
     before = _nominal_rates(data)
     for key, value in overrides.items():
         set_dotted(data, key, value, file, prefix="profile.")
+    after = _nominal_rates(data)
     for i, old in before.items():
-        new = _nominal_rates(data).get(i)
-        link = data["gpus"][i].get("link") if isinstance(data.get("gpus"), list) else None
-        if new is None or new == old or not isinstance(link, dict):
+        new = after.get(i)
+        if new is None or new == old:
             continue
+        link = data["gpus"][i]["link"]  # a table: _nominal_rates found a rate in it
         for key in ("h2d_gbps", "d2h_gbps"):
             value = link.get(key)
             if _is_number(value) and not _overridden(f"gpus.{i}.link.{key}", overrides):
@@ -177,13 +180,20 @@ def _nominal_rates(data: dict) -> dict[int, float]:
     out = {}
     for i, gpu in enumerate(data.get("gpus") if isinstance(data.get("gpus"), list) else []):
         link = gpu.get("link") if isinstance(gpu, dict) else None
-        if isinstance(link, dict) and link.get("pcie_gen") in PCIE_LANE_GBPS and _is_number(link.get("lanes")):
+        gen = link.get("pcie_gen") if isinstance(link, dict) else None
+        if isinstance(gen, int) and gen in PCIE_LANE_GBPS and link.get("lanes") in PCIE_LANES:
             out[i] = PCIE_LANE_GBPS[link["pcie_gen"]] * link["lanes"]
     return out
 
 
 def _is_number(value: object) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and 0 < value < float("inf")
+    """A positive number that is finite as a float (parse_profile reports anything else)."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        return False
+    try:
+        return 0 < float(value) < math.inf
+    except OverflowError:
+        return False
 
 
 def _overridden(path: str, overrides: Mapping[str, object]) -> bool:
@@ -271,7 +281,7 @@ def _parse_gpu(t: Table) -> GpuProfile:
 def _parse_link(t: Table) -> LinkProfile:
     link = LinkProfile(
         pcie_gen=t.get("pcie_gen", int, choices=PCIE_LANE_GBPS.keys()),
-        lanes=t.get("lanes", int, choices=(1, 2, 4, 8, 16, 32)),
+        lanes=t.get("lanes", int, choices=PCIE_LANES),
         latency_ns=_ns(t, "latency_ns"),
         efficiency=t.get("efficiency", float, 1.0, above=0, maximum=1),
         h2d_gbps=_gbps(t, "h2d_gbps", None),

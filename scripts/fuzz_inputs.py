@@ -10,7 +10,9 @@ added or misspelt; the TOML text itself flipped or cut), then loads it, builds t
 checks memory and runs the engine (frames capped at FRAMES_CAP so that a valid but long
 mutation stays fast; the frame count does not change the code paths taken). One case in five
 mutates a shipped measure table instead (data/lavapipe/*.csv: cells, columns, rows) and
-calibrates from it, least-squares fits included. It prints the
+calibrates from it, least-squares fits included; one in five gives a shipped experiment
+`--set` overrides instead (a random dotted key of the experiment or, as `profile.<key>`, of its
+profile, sometimes with `*` or a bad index, and an odd value). It prints the
 counts of outcomes (ok, error, crash), the slowest case, and each crash with its mutation.
 Exit status 1 if any case crashed. tests/test_fuzz_loaders.py runs the same cases under
 Hypothesis.
@@ -35,7 +37,7 @@ sys.path.insert(0, str(ROOT))
 
 from mgpusim.config import read_toml  # noqa: E402
 from mgpusim.errors import MgpusimError  # noqa: E402
-from mgpusim.experiment import parse_experiment  # noqa: E402
+from mgpusim.experiment import load_experiment, parse_experiment  # noqa: E402
 from mgpusim.profile import parse_profile  # noqa: E402
 from mgpusim.simulate import simulate  # noqa: E402
 
@@ -59,19 +61,23 @@ ODD_VALUES: tuple[Any, ...] = (
 
 @dataclasses.dataclass
 class Case:
-    kind: str  # "experiment", "profile" or "table"
+    kind: str  # "experiment", "profile", "table" or "override"
     source: Path
     mutations: list[str]
     data: dict[str, Any] | None  # None when the TOML text itself was mutated
     text: str | None = None
     table: Any = None  # a mutated measure table (pandas DataFrame)
+    overrides: dict[str, Any] | None = None  # --set overrides of a shipped experiment
 
 
 def make_case(rng: random.Random) -> Case:
     """One mutated shipped file (a dict, or broken TOML text one time in eight, or a measure
     table one time in five)."""
-    if rng.random() < 0.2:
+    roll = rng.random()
+    if roll < 0.2:
         return make_table_case(rng)
+    if roll < 0.4:
+        return make_override_case(rng)
     kind = rng.choice(("experiment", "profile"))
     source = rng.choice(EXPERIMENTS if kind == "experiment" else PROFILES)
     if rng.random() < 0.125:
@@ -105,6 +111,40 @@ def make_table_case(rng: random.Random) -> Case:
             df = df.iloc[: rng.randrange(max(1, len(df) // 4))]
             mutations.append(f"keep {len(df)} rows")
     return Case("table", source, mutations, None, table=df)
+
+
+def make_override_case(rng: random.Random) -> Case:
+    source = rng.choice(EXPERIMENTS)
+    exp_data = read_toml(source)
+    overrides = {}
+    for _ in range(rng.randint(1, 3)):
+        if rng.random() < 0.5:
+            profile = read_toml((source.parent / exp_data["profile"]).resolve())
+            key = "profile." + dotted_key(profile, rng)
+        else:
+            key = dotted_key(exp_data, rng)
+        value = rng.choice(ODD_VALUES)
+        overrides[key] = copy.deepcopy(value)
+    return Case("override", source, [f"--set {k}={short(v)}" for k, v in overrides.items()], None,
+                overrides=overrides)
+
+
+def dotted_key(data: dict[str, Any], rng: random.Random) -> str:
+    """A random dotted path into `data` as --set takes it; list indices sometimes '*' or bad."""
+    parts: list[str] = []
+    node: Any = data
+    while isinstance(node, (dict, list)) and node and (not parts or rng.random() < 0.7):
+        if isinstance(node, dict):
+            key = rng.choice(list(node))
+            parts.append(str(key))
+            node = node[key]
+        else:
+            i = rng.randrange(len(node))
+            parts.append(rng.choice((str(i), str(i), "*", str(len(node) + 3), "x")))
+            node = node[i]
+    if rng.random() < 0.2:
+        parts.append(misspell(parts[-1], rng) if parts else "x")
+    return ".".join(parts)
 
 
 def mutate(data: dict[str, Any], rng: random.Random) -> str:
@@ -175,6 +215,9 @@ def run_case(case: Case, tmp: Path) -> str:
     try:
         if case.kind == "table":
             return run_table_case(case, tmp)
+        if case.kind == "override":
+            simulate(capped(load_experiment(case.source, case.overrides)), record_trace=False)
+            return "ok"
         if case.text is not None:
             path = tmp / case.source.name
             path.write_text(case.text, encoding="utf-8", errors="surrogatepass")

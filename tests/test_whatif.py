@@ -109,3 +109,18 @@ def test_what_ifs_from_the_command_line(tmp_path: Path, capsys):
                  "--set", "schedule.gpus=4", "--set", "profile.gpu_count=4",
                  "--set", "profile.gpus.*.speed=1.5", "--set", "profile.gpus.*.link.pcie_gen=4"]) == 0
     assert "on 4 GPU(s)" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("overrides", [
+    {"gpus.0.link.pcie_gen": 4, "gpus.0.link.lanes": 10**400},
+    {"gpus.0.link.pcie_gen": 4, "gpus.0.link.h2d_gbps": 10**400},
+    {"gpus.0.link.pcie_gen": [4]},
+    {"gpus": [1]},
+    {"gpus.0": "x"},
+    {"gpus.0.link": {"pcie_gen": 4}},
+])
+def test_odd_profile_overrides_are_input_errors(overrides):
+    """The measured-rate scaling looks at the raw values before validation: odd ones must
+    reach validation (one InputError), never break the scaling itself."""
+    with pytest.raises(InputError):
+        load_profile(ROOT / "hardware_profiles" / "h100.toml", overrides)

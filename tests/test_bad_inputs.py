@@ -19,7 +19,14 @@ import pandas as pd
 import pytest
 import tomli_w
 
+from mgpusim import InputError, load_experiment, simulate
 from mgpusim.cli import main
+from mgpusim.costs import CostModel
+from mgpusim.profile import parse_profile
+from mgpusim.schedules.base import FrameProgram
+from mgpusim.sim.engine import Engine
+from mgpusim.tasks import Dep, PassTask, QueueRef
+from tests.conftest import profile_dict
 
 ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENTS = {
@@ -480,8 +487,6 @@ for _i, (_args, _words) in enumerate(MEASURE_CASES):
 # ----- validate --measured: measured-run folders -----------------------------------------
 def measured_folder(tmp: Path, key: str = "sf", sets: dict[str, Any] | None = None) -> Path:
     """A measured-run folder as `mgpusim run` writes it, made from a simulation (no device)."""
-    from mgpusim import load_experiment, simulate  # noqa: PLC0415
-
     folder = tmp / "measured"
     folder.mkdir()
     exp = load_experiment(write_toml(tmp / "m.toml", experiment(key)),
@@ -738,3 +743,18 @@ def test_a_measured_run_recorded_before_inputs_is_compared_on_the_basics(tmp_pat
     (folder / "summary.json").write_text(json.dumps(summary))
     assert main(validate_argv(tmp_path, folder, "scene.passes.0.iterations=4000")) == 0
     assert main(validate_argv(tmp_path, folder, "schedule.host_copy=false")) == 2
+
+
+def test_simulated_time_past_int64_is_an_input_error():
+    """The last guard behind the bound on one task's time: a clock passing 2^63 ns (here with
+    a cost model that skips that bound) stops with an InputError, not an OverflowError."""
+    class Unbounded(CostModel):
+        def pass_ns(self, device, kind, work):
+            return 2 ** 62
+
+    q = QueueRef(0, "graphics")
+    tasks = (PassTask("present", "present", q, "present", {}, (Dep("present", -1),)),)
+    program = FrameProgram("long", 1, 4, 0, (tasks,))
+    engine = Engine(program, Unbounded(parse_profile(profile_dict(), "p.toml")))
+    with pytest.raises(InputError, match="int64"):
+        engine.run()

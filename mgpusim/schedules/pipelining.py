@@ -25,8 +25,7 @@ from .crossing import COPY_OPTIONS, Route, cross
 OPTIONS = {
     **COPY_OPTIONS,
     "split_at": Option(int, 1, "passes [0, split_at) run on GPU 1, the rest on GPU 0 "
-                       "(0 = everything on GPU 0)", minimum=0, maximum=10**6,
-                       why="at most the scene's passes"),
+                       "(0 = everything on GPU 0)", minimum=0),
     "copy_granularity": Option(str, "pass", "'pass': copy each pass's output when that pass "
                                "ends; 'frame': one copy after GPU 1's last pass",
                                choices=("pass", "frame")),

@@ -18,7 +18,6 @@ from ..outpath import check_out_dir
 def run(args: argparse.Namespace) -> int:
     from ..experiment import load_experiment, parse_overrides  # noqa: PLC0415
     from ..output import write_measured  # noqa: PLC0415
-    from ..runner.run import run_experiment  # noqa: PLC0415
 
     exp = load_experiment(args.experiment, parse_overrides(args.overrides))
     devices = int_list(args.devices, "--devices")
@@ -31,6 +30,7 @@ def run(args: argparse.Namespace) -> int:
     _check_counts(args, devices)
     out = args.out or Path("out") / f"{exp.name}-measured"
     check_out_dir(out)
+    from ..runner.run import run_experiment  # noqa: PLC0415 - Vulkan only after the checks
     result = run_experiment(exp, devices=devices, lp_threads=int_list(args.lp_threads, "--lp-threads"),
                             host_threads=args.host_threads, prewarm_frames=args.prewarm)
     write_measured(result, out, args.format)

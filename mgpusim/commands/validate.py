@@ -13,6 +13,7 @@ from pathlib import Path
 from ..crossvalidate import format_report, validate_experiment
 from ..errors import InputError
 from ..experiment import load_experiment, parse_overrides
+from ..outpath import check_out_dir
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -38,6 +39,7 @@ def run(args: argparse.Namespace) -> int:
     if args.repeats < 1 or not args.run_seconds >= 0:
         raise InputError(f"need --repeats >= 1 and --run-seconds >= 0, got {args.repeats} and "
                          f"{args.run_seconds}")
+    check_out_dir(out)
     report = validate_experiment(exp, out, args.measured, args.repeats, args.run_seconds)
     print(format_report(exp, report))
     print(f"  wrote {out}")

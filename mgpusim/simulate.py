@@ -4,6 +4,7 @@ from __future__ import annotations
 import time
 
 from .costs import CostModel
+from .errors import TimeBoundError
 from .experiment import Experiment
 from .memory import check_memory, memory_report
 from .program import build_program, run_config
@@ -27,13 +28,7 @@ def simulate(exp: Experiment, record_trace: bool = True, fidelity: str = "full",
     if "memory_capacity" in chosen:
         check_memory(program, exp)  # overflow is an input error, reported before time 0
     t0 = time.perf_counter()
-    if fidelity == "analytic":
-        from .sim.analytic import analytic_raw  # noqa: PLC0415 (only this level needs it)
-        raw = analytic_raw(program, CostModel(exp.profile), chosen, record_trace)
-    else:
-        engine = Engine(program, CostModel(exp.profile), record_trace=record_trace or fast_forward,
-                        effects=chosen)
-        raw = fastforward.run(engine, fast_forward, record_trace)
+    raw = _run_model(exp, program, chosen, fidelity, record_trace, fast_forward)
     model_s = time.perf_counter() - t0
     result = build_result(raw, program.warmup_frames, run_config(exp, program))
     if "memory_capacity" in chosen:
@@ -42,6 +37,21 @@ def simulate(exp: Experiment, record_trace: bool = True, fidelity: str = "full",
     _task_rates(program, raw, result)
     result.model_wall_s = model_s  # the model's own time (not in the summary: that stays reproducible)
     return result
+
+
+def _run_model(exp: Experiment, program: FrameProgram, chosen: frozenset[str], fidelity: str,
+               record_trace: bool, fast_forward: bool):
+    """The engine (with its fast-forward) or the analytic recurrence: the RawResult."""
+    try:
+        if fidelity == "analytic":
+            from .sim.analytic import analytic_raw  # noqa: PLC0415 (only this level needs it)
+            return analytic_raw(program, CostModel(exp.profile), chosen, record_trace)
+        engine = Engine(program, CostModel(exp.profile), record_trace=record_trace or fast_forward,
+                        effects=chosen)
+    except TimeBoundError as exc:  # the profile's rates times the experiment's work
+        raise TimeBoundError(f"{exc.detail} (with the work of {exp.file})", file=exc.file,
+                             field=exc.field) from None
+    return fastforward.run(engine, fast_forward, record_trace)
 
 
 def _task_rates(program: FrameProgram, raw, result: Result) -> None:

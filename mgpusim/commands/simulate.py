@@ -6,6 +6,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..experiment import load_experiment, parse_overrides
+from ..outpath import check_out_dir
 from ..output import TRACE_FRAMES, write_result
 from ..shipped import resolve_experiment
 from ..sim.effects import EFFECTS, FIDELITIES, parse_effects
@@ -49,9 +50,10 @@ def run(args: argparse.Namespace) -> int:
     if frames is not None and frames.start >= exp.schedule.frames:
         raise InputError(f"frames {frames.start}:{frames.stop} lie past the run's {exp.schedule.frames} frames",
                          field="--frames")
+    out = args.out or Path("out") / exp.name
+    check_out_dir(out)
     result = simulate(exp, fidelity=args.fidelity, effects=parse_effects(args.effects),
                       fast_forward=args.fast_forward)
-    out = args.out or Path("out") / exp.name
     files = write_result(result, out, args.format, title=f"{exp.name}: {exp.schedule.name}, "
                          f"{exp.schedule.gpus} GPU(s), {exp.scene.width}x{exp.scene.height}",
                          frames=frames, trace_frames=args.trace_frames)

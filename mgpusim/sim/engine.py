@@ -23,7 +23,8 @@ import numpy as np
 import simpy
 
 from ..costs import CostModel
-from ..errors import ScheduleError
+from ..errors import InputError, ScheduleError
+from ..limits import INT64_MAX
 from ..schedules.base import FrameProgram, task_device, waits_for_labels
 from ..tasks import CopyTask, HostCopyTask, PassTask, QueueRef, Task
 from .channel import Channel, FixedRateChannel
@@ -177,13 +178,16 @@ class Engine:
         duration = self._duration(task)
         gap, gap_run = 0, None
         if isinstance(task, HostCopyTask):
+            self.costs.check_transfer(task.name, task.bytes, self.costs.memcpy_thread_cap(), duration,
+                                      "host.memcpy_thread_gbps")
             return _Op(task, duration, None, None, 0, "host", "memcpy", self._waits_for[phase][task.name],
                        task.name == self.program.present_task)
         executor = self.executors[task.queue.device_name]
         if isinstance(task, CopyTask):
             nbytes = task.bytes
-            if "copy_engine_caps" in self.effects:
-                cap = self.costs.copy_cap(task.queue.device, task.queue.family, task.path)
+            full_cap = self.costs.copy_cap(task.queue.device, task.queue.family, task.path)
+            self._check_copy_time(task, full_cap, duration)
+            cap = full_cap if "copy_engine_caps" in self.effects else None
             if executor.copies_on_cores:  # the copy is a memcpy in the queue's thread
                 bw = self._path_bandwidth(task)
                 rate = bw if cap is None else min(cap, bw)
@@ -199,6 +203,16 @@ class Engine:
         return _Op(task, duration, channel, cap, nbytes, task.queue.device_name, task.queue.engine,
                    self._waits_for[phase][task.name], task.name == self.program.present_task,
                    run, amount, gap, gap_run)
+
+    def _check_copy_time(self, task: CopyTask, cap: Fraction | None, setup: int) -> None:
+        """A copy alone on its path must end within the bound on one task's time."""
+        bw, dev = self._path_bandwidth(task), task.queue.device
+        field = {"p2p": "peer_links", "d2d": f"gpus[{dev}].local_copy_gbps"}.get(
+            task.path, f"gpus[{dev}].link.{task.path}_gbps")
+        if cap is not None and cap < bw:
+            bw, field = cap, f"gpus[{dev}].copy.{task.queue.family}.{task.path}_gbps"
+        self.costs.check_transfer(task.name, task.bytes, bw, setup, field)
+
 
     def _dispatch_wait(self, key: Key) -> int:
         """Host dispatch still owed before `key` starts: `dispatch_ns` after the last of its
@@ -405,7 +419,12 @@ class Engine:
         self.horizon = frames
 
     def run(self) -> RawResult:
-        self.env.run()
+        try:
+            self.env.run()
+        except OverflowError:  # a time stored in int64 arrays passed 2^63 ns
+            raise InputError(f"simulated time passed {INT64_MAX} ns (about 292 years), the int64 "
+                             f"limit, within {self.program.frames} frames: fewer frames or shorter "
+                             "tasks") from None
         if self._unfinished:
             raise ScheduleError(self._blocked_message())
         ch = self.channels

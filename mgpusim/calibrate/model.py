@@ -22,7 +22,7 @@ from ..scene import PassSpec
 from .fit import Fit, fit_nonnegative
 
 PASS_KINDS = ("fragment_loop", "mesh", "composite_sort_first", "composite_sort_last", "present",
-              "particle_update", "particle_render")
+              "filter", "particle_update", "particle_render")
 COPY_PASSES = {"copy_d2h": "d2h", "copy_h2d": "h2d", "copy_d2d": "d2d"}
 
 

@@ -16,10 +16,12 @@ from types import MappingProxyType
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
-from ..tasks import Dep, PassTask, QueueRef, Task
+from ..tasks import Dep, PassTask, QueueRef, Resource, Task
 from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, even_split,
                    present_task, register)
+from .binding import Bindings, bind_crossing, row_chunks
 from .crossing import COPY_OPTIONS, Route, cross
+from .pass_io import bind_full_frame, filter_sources, pass_image
 
 OPTIONS = {
     **COPY_OPTIONS,
@@ -57,9 +59,81 @@ def build_pipelining(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile
     record = {"split_at": split, "gpu1_passes": tuple(p.name for p in first),
               "bytes_per_frame": moved, "chunks": cfg.opt("chunks"), "buffers": buffers,
               "copy_granularity": cfg.opt("copy_granularity")}
+    tasks, resources = _bind(tasks, cfg, scene, split)
     return FrameProgram(cfg.name, cfg.gpus, cfg.frames, cfg.warmup_frames, (tuple(tasks),),
-                        record=MappingProxyType(record),
+                        record=MappingProxyType(record), resources=resources,
                         footprints=_footprints(scene, cfg.gpus, buffers * moved))
+
+
+def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene,
+          split: int) -> tuple[list[Task], tuple[Resource, ...]]:
+    """What every task reads and writes on the Vulkan runner.
+
+    Pass X renders into `gpu1.pass.X` (GPU 1's passes, `buffers` copies) or `gpu0.pass.X`;
+    GPU 1's outputs arrive in `gpu0.in.X` (`buffers` copies), which GPU 0's filters sample in
+    their place. A chunk of a copy is a range of rows (the height must be a multiple of
+    `chunks`); with `copy_granularity = 'frame'` the one copy carries GPU 1's only output
+    (the runner copies one image per copy). Present copies the last pass's image to
+    `gpu0.display`."""
+    b, buffers = Bindings(), cfg.opt("buffers")
+    first = {p.name for p in scene.passes[:split]}
+    staging = max(buffers, cfg.frames_in_flight)
+    b.image("gpu0.display", 0, scene.width, scene.height)
+
+    def image_of(name: str, on_gpu0: bool) -> str:
+        return (f"gpu0.in.{name}" if name in first else f"gpu0.pass.{name}") if on_gpu0 \
+            else f"gpu1.pass.{name}"
+
+    for spec in scene.passes:
+        if spec.name in first:
+            pass_image(b, f"gpu1.pass.{spec.name}", 1, scene, spec, buffers)
+            pass_image(b, f"gpu0.in.{spec.name}", 0, scene, spec, buffers)
+        else:
+            pass_image(b, f"gpu0.pass.{spec.name}", 0, scene, spec)
+    crossed = _bind_copies(tasks, cfg, scene, split, b, staging)
+    out: list[Task] = []
+    for task in tasks:
+        if task.name in crossed:
+            out.append(crossed[task.name])
+        elif isinstance(task, PassTask) and task.step == "render":
+            index = next(i for i, s in enumerate(scene.passes) if task.name == f"render.{s.name}")
+            spec, on_gpu0 = scene.passes[index], task.queue.device == 0
+            reads: list[str] | str = ()  # type: ignore[assignment]
+            if spec.kind == "filter":
+                sources = filter_sources(scene.passes, index)
+                reads = sources if isinstance(sources, str) else [image_of(n, on_gpu0) for n in sources]
+            out.append(bind_full_frame(task, spec, scene, image_of(spec.name, on_gpu0), reads))
+        elif task.name == "present":
+            out.append(replace(task, reads=(image_of(scene.passes[-1].name, True),),
+                               writes=("gpu0.display",)))
+        else:
+            out.append(task)
+    return out, b.resources()
+
+
+def _bind_copies(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, split: int, b: Bindings,
+                 staging: int) -> dict[str, Task]:
+    """The copy tasks of every piece, bound: rows of GPU 1's output into GPU 0's input."""
+    chunks = cfg.opt("chunks")
+    if cfg.opt("copy_granularity") == "frame":
+        groups = [("out", scene.passes[split - 1].name if split == 1 else None)]
+    else:
+        groups = [(f"out.{p.name}", p.name) for p in scene.passes[:split]]
+    crossed: dict[str, Task] = {}
+    for prefix, name in groups:
+        regions = row_chunks(scene.height, chunks)
+        for c in range(chunks):
+            piece_name = prefix if chunks == 1 else f"{prefix}#{c}"
+            piece = [t for t in tasks if t.name.rpartition(".")[0] == piece_name]
+            params = dict(regions[c])
+            if name is None:
+                params = {"unsupported": "copy_granularity = 'frame' with more than one pass "
+                          "on GPU 1: the runner copies one image per copy (use 'pass')"}
+                name = scene.passes[0].name
+            crossed.update((t.name, t) for t in bind_crossing(
+                piece, b, f"gpu1.pass.{name}", f"gpu0.in.{name}", staging=piece_name,
+                buffers=staging, params=params))
+    return crossed
 
 
 def _footprints(scene: Scene, n: int, intermediate: int) -> tuple[Footprint, ...]:

@@ -53,8 +53,9 @@ def bind_crossing(piece: Sequence[Task], b: Bindings, src: str, dst: str, *, sta
                   buffers: int = 1, params: Mapping[str, Any] | None = None) -> list[Task]:
     """The tasks of one crossing (as `cross` made them) moving resource `src` to `dst`.
 
-    Through host memory the download writes `gpu{s}.{staging}` and the host copy moves it to
-    `gpu{d}.{staging}`; without a host copy one host allocation `host.{staging}`, imported by
+    Through host memory the download writes `gpu{s}.staging.{staging}` and the host copy moves
+    it to `gpu{d}.staging.{staging}`; without a host copy one host allocation
+    `host.staging.{staging}`, imported by
     both devices, is written and read. `params` (rows, dst_offset, extent) go to the copies
     that touch the images. A peer copy is left unbound (the runner refuses it)."""
     region = MappingProxyType(dict(params or {}))
@@ -64,18 +65,18 @@ def bind_crossing(piece: Sequence[Task], b: Bindings, src: str, dst: str, *, sta
         if isinstance(task, HostCopyTask):
             s, d = _ends(piece)
             out.append(dataclasses.replace(
-                task, src=_staging(b, f"gpu{s}.{staging}", s, task.bytes, buffers),
-                dst=_staging(b, f"gpu{d}.{staging}", d, task.bytes, buffers)))
+                task, src=_staging(b, f"gpu{s}.staging.{staging}", s, task.bytes, buffers),
+                dst=_staging(b, f"gpu{d}.staging.{staging}", d, task.bytes, buffers)))
         elif isinstance(task, CopyTask) and task.path == "d2d":
             out.append(dataclasses.replace(task, src=src, dst=dst, params=region))
         elif isinstance(task, CopyTask) and task.path == "d2h":
             s, d = _ends(piece)
-            name = (_staging(b, f"gpu{s}.{staging}", s, task.bytes, buffers) if host_copy
-                    else _shared(b, f"host.{staging}", (s, d), task.bytes, buffers))
+            name = (_staging(b, f"gpu{s}.staging.{staging}", s, task.bytes, buffers) if host_copy
+                    else _shared(b, f"host.staging.{staging}", (s, d), task.bytes, buffers))
             out.append(dataclasses.replace(task, src=src, dst=name, params=region))
         elif isinstance(task, CopyTask) and task.path == "h2d":
             s, d = _ends(piece)
-            name = f"gpu{d}.{staging}" if host_copy else f"host.{staging}"
+            name = f"gpu{d}.staging.{staging}" if host_copy else f"host.staging.{staging}"
             out.append(dataclasses.replace(task, src=name, dst=dst, params=region))
         else:
             out.append(task)

@@ -19,6 +19,7 @@ import numpy as np
 from ..errors import InputError
 from ..schedules.base import even_split
 from .copies import upload
+from .draw import torus_mesh  # noqa: F401  (re-exported: the tests build meshes with it)
 from .framepasses import (CompositeInto, Filter, FragmentLoopTile, MeshShare, ParticleDraw,
                           clear_images, copy_image)
 from .memory import DEPTH_FORMAT, Buffer, Image

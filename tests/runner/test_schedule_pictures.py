@@ -15,7 +15,9 @@ import pytest
 from mgpusim.errors import ScheduleError
 from mgpusim.experiment import parse_experiment
 from mgpusim.profile import parse_profile
+from mgpusim.program import build_program
 from mgpusim.runner import run_experiment
+from mgpusim.simulate import simulate
 from mgpusim.vulkan.copies import download
 from mgpusim.vulkan.machine import close_gpus, make_gpus
 from mgpusim.vulkan.particles import initial_state, reference_update
@@ -32,9 +34,10 @@ def profile(**queues: int) -> dict[str, Any]:
     prof = lavapipe_profile(transfer=queues.pop("transfer", 0))
     gpu = prof["gpus"][0]
     gpu["queues"].update(queues)
-    gpu["costs"].update({"filter": {"ns_per_pixel": 1.0},
+    gpu["costs"].update({"filter": {"ns_per_pixel": 1.0, "ns_per_pixel_iteration": 1.0,
+                                    "ns_per_pixel_input": 1.0},
                          "particle_update": {"ns_per_particle": 1.0},
-                         "particle_render": {"ns_per_particle": 1.0}})
+                         "particle_render": {"ns_per_particle": 1.0, "ns_per_pixel": 0.0}})
     return prof
 
 
@@ -239,3 +242,33 @@ def test_particles_match_numpy(gpus, options):
     assert result.summary["skipped_tasks"]["particle_update"] == len(skipped)
     rates = result.summary["task_rates_hz"]
     assert rates["particle_update"] < rates["frames"]
+
+
+# -- the trace is the schedule's ------------------------------------------------------------------
+@pytest.mark.parametrize("schedule, gpus, passes, options", [
+    ("afr", 3, afr_passes("taa"), {"temporal_pass": "taa", "host_copy": True}),
+    ("pipelining", 2, pipeline_passes(), {"split_at": 2, "chunks": 2, "host_copy": True}),
+    ("xr", 4, XR_PASSES["mesh"], {"scaling": "strong"}),
+    # no compute queue in the profile: the update runs where lavapipe runs it, on graphics
+    ("particles", 2, ENGINE, {"policy": "wait", "particles": P, "prof": profile(compute=0)}),
+])
+def test_measured_trace_has_the_simulators_rows_and_order(schedule, gpus, passes, options):
+    """The runner executed the schedule's own FrameProgram: the same (frame, device, engine,
+    step, task) rows as the simulator (from a profile with lavapipe's queues), and every
+    dependency ended before its consumer began."""
+    exp = experiment(schedule, gpus, passes, frames=4, **options)
+    measured = run_experiment(exp, prewarm_frames=0)
+
+    def keys(trace):
+        gpu = trace[trace["device"] != "host"]
+        return set(map(tuple, gpu[["frame", "device", "engine", "step", "task"]].to_numpy()))
+    assert keys(measured.trace) == keys(simulate(exp).trace)
+    program = build_program(exp)
+    spans = measured.trace.groupby(["frame", "task"]).agg(start=("start_ns", "min"),
+                                                          end=("end_ns", "max"))
+    for frame in range(program.frames):
+        for task in program.tasks(frame):
+            for dep in task.deps:
+                if frame + dep.offset >= 0:
+                    before = spans.loc[(frame + dep.offset, dep.task), "end"]
+                    assert spans.loc[(frame, task.name), "start"] >= before, (frame, task.name, dep)

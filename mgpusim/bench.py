@@ -16,10 +16,11 @@ from typing import Any
 import simpy
 
 from .experiment import load_experiment
+from .shipped import shipped_dir
 from .simulate import build_program, simulate
 from .tasks import CopyTask, HostCopyTask
 
-DEFAULT_EXPERIMENT = Path(__file__).resolve().parents[1] / "experiments" / "sort_first_tc1.toml"
+DEFAULT_EXPERIMENT = shipped_dir("experiments") / "sort_first_tc1.toml"
 
 
 def raw_simpy_uses_per_s(uses: int = 200_000) -> float:

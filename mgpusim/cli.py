@@ -9,14 +9,21 @@ import argparse
 import importlib
 import sys
 
+from . import __version__
 from .errors import MgpusimError
 
+#: Packages that only the Vulkan backend needs: the `vulkan` extra installs them.
+VULKAN_PACKAGES = ("vulkan", "cffi")
+
 #: Command modules, in the order `mgpusim --help` lists them.
-COMMANDS = ("simulate", "run", "bench", "devices", "measure", "calibrate", "validate", "study", "main_job")
+COMMANDS = ("simulate", "sweep", "examples", "run", "bench", "devices", "measure", "calibrate", "validate",
+            "study", "main_job")
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mgpusim", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"mgpusim {__version__}",
+                        help="print the version and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
         try:
@@ -33,11 +40,14 @@ def _unavailable(sub: argparse._SubParsersAction, name: str, exc: ModuleNotFound
     """A command whose module needs a package this Python lacks: listed, and one line if used."""
     command = name.replace("_job", "").replace("_", "-")
     p = sub.add_parser(command, help=f"(unavailable here: needs {exc.name})", add_help=False)
-    p.add_argument("rest", nargs=argparse.REMAINDER)
+    p.add_argument("rest", nargs=argparse.REMAINDER, help="ignored")
+
+    package = (exc.name or "?").split(".")[0]
+    install = "'mgpusim[vulkan]'" if package in VULKAN_PACKAGES else package
 
     def fail(args: argparse.Namespace) -> int:
-        print(f"mgpusim {command}: error: needs the Python package {exc.name!r} "
-              f"(pip install {exc.name.split('.')[0]})", file=sys.stderr)
+        print(f"mgpusim {command}: error: needs the Python package {package!r} "
+              f"(pip install {install})", file=sys.stderr)
         return 2
     p.set_defaults(func=fail)
 

@@ -8,9 +8,14 @@ from typing import Any
 
 import pandas as pd
 
-from .perfetto import chrome_trace
+from .perfetto import chrome_trace_json
 from .plot import timeline_png
 from .results import Result
+
+#: Frames the Perfetto trace covers by default (the last ones): enough to see steady state,
+#: small enough that the UI opens it at once whatever the run's length.
+TRACE_FRAMES = 300
+
 
 def write_table(df: pd.DataFrame, path: Path) -> Path:
     """CSV or Parquet by the file's extension."""
@@ -60,8 +65,31 @@ def write_measured(result: Any, out: Path, trace_format: str = "csv") -> Path:
     return out
 
 
-def write_result(result: Result, out: Path, trace_format: str = "parquet", title: str = "") -> dict[str, Path]:
-    """summary.json, trace + frames tables, timeline.png and trace.perfetto.json in `out`."""
+def frame_window(trace: pd.DataFrame, links: pd.DataFrame | None,
+                 last: int = TRACE_FRAMES) -> tuple[pd.DataFrame, pd.DataFrame | None]:
+    """The trace rows of the `last` frames (0 = all) and the link busy intervals that overlap
+    their time span."""
+    if last <= 0 or not len(trace):
+        return trace, links
+    rows = trace[trace["frame"] > int(trace["frame"].max()) - last]
+    if links is None or not len(links) or not len(rows):
+        return rows, links
+    lo, hi = int(rows["start_ns"].min()), int(rows["end_ns"].max())
+    return rows, links[(links["end_ns"] > lo) & (links["start_ns"] < hi)]
+
+
+def write_text(text: str, path: Path) -> Path:
+    """A text file written whole or not at all."""
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+    return path
+
+
+def write_result(result: Result, out: Path, trace_format: str = "parquet", title: str = "",
+                 frames: range | None = None, trace_frames: int = TRACE_FRAMES) -> dict[str, Path]:
+    """summary.json, trace + frames + links tables (whole run), timeline.png of `frames`
+    (default: the last four) and trace.perfetto.json of the last `trace_frames` frames (0 = all)."""
     out.mkdir(parents=True, exist_ok=True)
     files = {
         "summary": write_json({**result.summary, "config": result.config}, out / "summary.json"),
@@ -70,6 +98,8 @@ def write_result(result: Result, out: Path, trace_format: str = "parquet", title
         "links": write_table(result.links, out / f"links.{trace_format}"),
     }
     if len(result.trace):
-        files["timeline"] = timeline_png(result.trace, out / "timeline.png", result.links, title)
-        files["perfetto"] = write_json(chrome_trace(result.trace, result.links, title), out / "trace.perfetto.json")
+        files["timeline"] = timeline_png(result.trace, out / "timeline.png", result.links, title,
+                                         list(frames) if frames is not None else None)
+        trace, links = frame_window(result.trace, result.links, last=trace_frames)
+        files["perfetto"] = write_text(chrome_trace_json(trace, links, title), out / "trace.perfetto.json")
     return files

@@ -7,13 +7,15 @@ from pathlib import Path
 
 from ..bench import DEFAULT_EXPERIMENT, run_bench
 from ..errors import InputError
+from ..shipped import resolve_experiment
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="simulated frames per second, and cost per resource use vs raw SimPy")
     p.add_argument("--experiment", type=Path, default=DEFAULT_EXPERIMENT,
-                   help="a sort-first experiment (its profile's last GPU is repeated if it has fewer than 4)")
-    p.add_argument("--frames", type=int, default=5000)
+                   help="a sort-first experiment file or shipped name (its profile's last GPU is repeated "
+                        "if it has fewer than 4)")
+    p.add_argument("--frames", type=int, default=5000, help="simulated frames per timed run (default: 5000)")
     p.add_argument("--repeats", type=int, default=3, help="best of this many interleaved runs")
     p.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     p.set_defaults(func=run)
@@ -22,7 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.frames < 2 or args.repeats < 1:
         raise InputError(f"need --frames >= 2 and --repeats >= 1, got {args.frames} and {args.repeats}")
-    out = run_bench(args.experiment, args.frames, args.repeats)
+    out = run_bench(resolve_experiment(args.experiment), args.frames, args.repeats)
     if args.json:
         print(json.dumps(out, sort_keys=True))
         return 0

@@ -6,12 +6,13 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
+from ..shipped import shipped_dir
 from ..study import pipeline
 from ..study.spec import load_study
 from .study import _progress
 
 #: The lavapipe study, shipped beside the package's experiments.
-LAVAPIPE_STUDY = Path(__file__).resolve().parents[2] / "experiments" / "lavapipe" / "study.toml"
+LAVAPIPE_STUDY = shipped_dir("experiments") / "lavapipe" / "study.toml"
 
 
 def register(sub: argparse._SubParsersAction) -> None:

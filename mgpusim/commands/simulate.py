@@ -1,30 +1,51 @@
-"""`mgpusim simulate EXPERIMENT.toml [--set key=value ...] [--out DIR]`."""
+"""`mgpusim simulate EXPERIMENT [--set key=value ...] [--out DIR] [--frames A:B] [--trace-frames N]`."""
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
+from ..errors import InputError
 from ..experiment import load_experiment, parse_overrides
-from ..output import write_result
+from ..output import TRACE_FRAMES, write_result
+from ..shipped import resolve_experiment
 from ..simulate import simulate
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="run an experiment in the model and write its results")
-    p.add_argument("experiment", type=Path, help="experiment TOML file")
+    p.add_argument("experiment", help="experiment TOML file, or a shipped name (`mgpusim examples`)")
     p.add_argument("--set", dest="overrides", action="append", metavar="KEY=VALUE",
                    help="override a field, e.g. schedule.gpus=3 or scene.width=1920 (repeatable)")
     p.add_argument("--out", type=Path, default=None, help="output folder (default: out/<experiment name>)")
     p.add_argument("--format", choices=("parquet", "csv"), default="parquet", help="trace table format")
+    p.add_argument("--frames", metavar="A:B", default=None,
+                   help="frames A to B-1 drawn in timeline.png (default: the last four)")
+    p.add_argument("--trace-frames", type=int, default=TRACE_FRAMES, metavar="N",
+                   help=f"the last N frames go into trace.perfetto.json (default: {TRACE_FRAMES}; 0: all)")
     p.set_defaults(func=run)
 
 
+def parse_frames(text: str) -> range:
+    """``A:B`` -> frames A..B-1 (as a Python slice; both ends needed)."""
+    lo, sep, hi = text.partition(":")
+    if not sep or not lo.strip().isdigit() or not hi.strip().isdigit() or int(hi) <= int(lo):
+        raise InputError(f"expected A:B with whole numbers A < B (frames A to B-1), got {text!r}", field="--frames")
+    return range(int(lo), int(hi))
+
+
 def run(args: argparse.Namespace) -> int:
-    exp = load_experiment(args.experiment, parse_overrides(args.overrides))
+    frames = parse_frames(args.frames) if args.frames else None
+    if args.trace_frames < 0:
+        raise InputError(f"must be >= 0, got {args.trace_frames}", field="--trace-frames")
+    exp = load_experiment(resolve_experiment(args.experiment), parse_overrides(args.overrides))
+    if frames is not None and frames.start >= exp.schedule.frames:
+        raise InputError(f"frames {frames.start}:{frames.stop} lie past the run's {exp.schedule.frames} frames",
+                         field="--frames")
     result = simulate(exp)
     out = args.out or Path("out") / exp.name
     files = write_result(result, out, args.format, title=f"{exp.name}: {exp.schedule.name}, "
-                         f"{exp.schedule.gpus} GPU(s), {exp.scene.width}x{exp.scene.height}")
+                         f"{exp.schedule.gpus} GPU(s), {exp.scene.width}x{exp.scene.height}",
+                         frames=frames, trace_frames=args.trace_frames)
     s = result.summary
     print(f"{exp.name}: {exp.schedule.name} on {exp.schedule.gpus} GPU(s) of {exp.profile.name}, "
           f"{exp.scene.width}x{exp.scene.height}")

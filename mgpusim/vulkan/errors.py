@@ -15,7 +15,7 @@ from ..errors import DependencyError, MgpusimError
 APT_RUNTIME = "sudo apt-get install mesa-vulkan-drivers libvulkan1"
 APT_COMPILER = "sudo apt-get install glslc   (or: sudo apt-get install glslang-tools)"
 APT_LAYERS = "sudo apt-get install vulkan-validationlayers"
-PIP_VULKAN = "pip install vulkan cffi"
+PIP_VULKAN = "pip install 'mgpusim[vulkan]'"
 
 #: Result codes the binding's exception table lacks or gets wrong (from vk.lib at import).
 _EXTRA_CODES = {

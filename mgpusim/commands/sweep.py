@@ -1,0 +1,56 @@
+"""`mgpusim sweep EXPERIMENT --grid KEY=V1,V2,... [--grid ...] --out DIR`: the product of the grid.
+
+Writes DIR/sweep.parquet (one row per point: its keys, every summary field, an error column),
+DIR/sweep.png and DIR/sweep.json; finished points are kept in DIR/points/, so the same command
+run again after an interruption (even SIGKILL) only runs the points still missing.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ..experiment import parse_overrides
+from ..shipped import resolve_experiment
+from ..sweeps import parse_grid, sweep
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("sweep", help="run an experiment over a grid of overrides into one Parquet table",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("experiment", help="experiment TOML file, or a shipped name (`mgpusim examples`)")
+    p.add_argument("--grid", action="append", metavar="KEY=V1,V2,...", required=True,
+                   help="a key and its values, e.g. schedule.gpus=1,2,3 (repeatable: the points are "
+                        "the product of all grids)")
+    p.add_argument("--set", dest="overrides", action="append", metavar="KEY=VALUE",
+                   help="an override applied to every point, as for `simulate` (repeatable)")
+    p.add_argument("--fidelity", default="full", metavar="NAME",
+                   help="model fidelity passed to the simulator (default: full)")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="local processes running points (default: one per CPU; 1 runs in this process)")
+    p.add_argument("--dask", metavar="ADDRESS", default=None,
+                   help="run the points on this Dask scheduler (e.g. tcp://host:8786) instead of locally")
+    p.add_argument("--metric", default="frame_time_ms", metavar="FIELD",
+                   help="the summary field the plot shows (default: frame_time_ms)")
+    p.add_argument("--out", type=Path, default=None, metavar="DIR",
+                   help="output folder, also the resume state (default: out/<experiment>-sweep)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    path = resolve_experiment(args.experiment)
+    grid = parse_grid(args.grid)
+    out = args.out or Path("out") / f"{path.stem}-sweep"
+    df = sweep(path, grid, out, overrides=parse_overrides(args.overrides), fidelity=args.fidelity,
+               workers=args.workers, dask=args.dask, progress=not args.no_progress, metric=args.metric)
+    failed = df[df["error"].notna()]
+    print(f"{path.stem}: {len(df)} points over {', '.join(grid)}; {len(failed)} failed")
+    ok = df[df["error"].isna()]
+    if args.metric in ok and ok[args.metric].notna().any():
+        best = ok.loc[ok[args.metric].idxmin()]
+        print(f"  lowest {args.metric}: {best[args.metric]:.4g} at "
+              + ", ".join(f"{k}={best[k]}" for k in grid))
+    for _, row in failed.head(5).iterrows():
+        print("  failed " + ", ".join(f"{k}={row[k]}" for k in grid) + f": {row['error']}")
+    print(f"  wrote {out / 'sweep.parquet'}, {out / 'sweep.png'}, {out / 'sweep.json'}")
+    return 0

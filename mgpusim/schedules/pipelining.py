@@ -16,7 +16,7 @@ from types import MappingProxyType
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
-from ..tasks import Dep, PassTask, QueueRef, Resource, Task
+from ..tasks import CopyTask, Dep, PassTask, QueueRef, Resource, Task
 from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, even_split,
                    present_task, register)
 from .binding import Bindings, bind_crossing, row_chunks
@@ -120,6 +120,7 @@ def _bind_copies(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, split: in
     else:
         groups = [(f"out.{p.name}", p.name) for p in scene.passes[:split]]
     crossed: dict[str, Task] = {}
+    needed = _needed_on_gpu0(scene, split)
     for prefix, name in groups:
         regions = row_chunks(scene.height, chunks)
         for c in range(chunks):
@@ -130,6 +131,9 @@ def _bind_copies(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, split: in
                 params = {"unsupported": "copy_granularity = 'frame' with more than one pass "
                           "on GPU 1: the runner copies one image per copy (use 'pass')"}
                 name = scene.passes[0].name
+            elif name in needed and not any(isinstance(t, CopyTask) and t.bytes for t in piece):
+                params = {"unsupported": f"GPU 0 reads the output of pass {name!r}, but its "
+                          f"output_bytes is 0: set it to the image's bytes (width x height x 4)"}
             crossed.update((t.name, t) for t in bind_crossing(
                 piece, b, f"gpu1.pass.{name}", f"gpu0.in.{name}", staging=piece_name,
                 buffers=staging, params=params))
@@ -181,6 +185,17 @@ def _copies(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, route: 
             tasks.extend(piece)
             arrivals.append(piece[-1].name)
     return tasks, arrivals
+
+
+def _needed_on_gpu0(scene: Scene, split: int) -> set[str]:
+    """GPU 1's passes whose output GPU 0 uses: sampled by its filters, or presented."""
+    needed = {scene.passes[-1].name} if split == len(scene.passes) else set()
+    for index in range(split, len(scene.passes)):
+        if scene.passes[index].kind == "filter":
+            sources = filter_sources(scene.passes, index)
+            if not isinstance(sources, str):
+                needed.update(n for n in sources if n in {p.name for p in scene.passes[:split]})
+    return needed
 
 
 def _gpu0_first(cfg: ScheduleConfig, scene: Scene) -> str | None:

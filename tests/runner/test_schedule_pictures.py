@@ -272,3 +272,10 @@ def test_measured_trace_has_the_simulators_rows_and_order(schedule, gpus, passes
                 if frame + dep.offset >= 0:
                     before = spans.loc[(frame + dep.offset, dep.task), "end"]
                     assert spans.loc[(frame, task.name), "start"] >= before, (frame, task.name, dep)
+
+
+def test_pipelining_refuses_an_output_it_would_not_copy():
+    """Everything on GPU 1: the last pass's output must cross to be presented; the model's
+    output_bytes of 0 says it would not, and the runner says so instead of showing nothing."""
+    with pytest.raises(ScheduleError, match="output of pass 'd', but its output_bytes is 0"):
+        run("pipelining", 2, pipeline_passes(), split_at=4)

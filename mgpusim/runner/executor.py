@@ -113,7 +113,8 @@ class Executor:
             if node.completed.is_set():
                 return
             node.completed.set()
-            if self._chains is not None and not node.skipped and getattr(node.task, "skip_if_busy", False):
+            skippable = getattr(node.task, "skip_if_busy", False)
+            if self._chains is not None and skippable and not node.skipped:
                 self._chains.finished(node.frame, node.task)
 
     def skipped_before(self, name: str, frame: int) -> int:

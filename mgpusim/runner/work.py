@@ -141,8 +141,11 @@ def _pass(task: PassTask, gpu: Gpu, res: Resources, owned: list[Any],
     owned.append(work)
     if task.kind == "filter":
         offsets = tuple(p.get("read_offsets", (0,) * len(task.reads)))
-        return (lambda cmd, frame, _c: work.record(
-            cmd, res.slot(out, frame), [res.slot(r, frame + o) for r, o in zip(task.reads, offsets)])), None
+
+        def record(cmd: Any, frame: int, _c: Hashable) -> None:
+            work.record(cmd, res.slot(out, frame),
+                        [res.slot(r, frame + o) for r, o in zip(task.reads, offsets)])
+        return record, None
     if task.kind == "particle_render":
         return _particle_draw(task, res, work, queue, out)
     return (lambda cmd, frame, _c: work.record(cmd, res.slot(out, frame))), None

@@ -112,6 +112,7 @@ COLOUR_ONLY = MappingProxyType({"depth": False})
 
 def _bind_render(task: PassTask, p: int, n: int, scene: Scene, temporal: str | None,
                  b: Bindings) -> PassTask:
+    """A pass of GPU p's frame into `gpu{p}.pass.X`; a filter samples its inputs there."""
     index = next(i for i, s in enumerate(scene.passes) if task.name == f"render.{s.name}")
     spec = scene.passes[index]
     is_temporal = task.name == temporal

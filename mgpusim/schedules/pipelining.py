@@ -101,7 +101,8 @@ def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene,
             reads: list[str] | str = ()  # type: ignore[assignment]
             if spec.kind == "filter":
                 sources = filter_sources(scene.passes, index)
-                reads = sources if isinstance(sources, str) else [image_of(n, on_gpu0) for n in sources]
+                reads = (sources if isinstance(sources, str)
+                         else [image_of(n, on_gpu0) for n in sources])
             out.append(bind_full_frame(task, spec, scene, image_of(spec.name, on_gpu0), reads))
         elif task.name == "present":
             out.append(replace(task, reads=(image_of(scene.passes[-1].name, True),),

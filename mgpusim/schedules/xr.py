@@ -129,9 +129,9 @@ def _bind_view(task: PassTask, scene: Scene, v: int, gpu: int,
     """View v's pass: its columns of the eye, the eye's camera; the first pass clears."""
     eye, x0, width = place
     spec = next(s for s in scene.passes if task.name == f"render{v}.{s.name}")
-    params: dict[str, Any] = {"frame": (scene.width, scene.height), "rect": (x0, 0, width, scene.height),
-                              "origin": (x0, 0), "eye": eye, "clear": spec is scene.passes[0],
-                              **spec.params}
+    params: dict[str, Any] = {"frame": (scene.width, scene.height),
+                              "rect": (x0, 0, width, scene.height), "origin": (x0, 0), "eye": eye,
+                              "clear": spec is scene.passes[0], **spec.params}
     if "triangles" in spec.params:
         params.update(triangles=int(spec.params["triangles"]), first=0,
                       count=int(spec.params["triangles"]))

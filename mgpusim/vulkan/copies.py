@@ -54,7 +54,8 @@ def _layers(image: Image) -> Any:
 def _buffer_region(image: Image, offset: int, x: int, y: int, width: int, height: int) -> Any:
     v = vk()
     return v.VkBufferImageCopy(bufferOffset=offset, bufferRowLength=0, bufferImageHeight=0,
-                               imageSubresource=_layers(image), imageOffset=v.VkOffset3D(x=x, y=y, z=0),
+                               imageSubresource=_layers(image),
+                               imageOffset=v.VkOffset3D(x=x, y=y, z=0),
                                imageExtent=v.VkExtent3D(width=width, height=height, depth=1))
 
 

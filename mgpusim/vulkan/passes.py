@@ -95,8 +95,8 @@ class Mesh(_GraphicsPass):
         self.width, self.height, self.triangles = width, height, triangles
         self.first, self.count = first, (triangles - first if count is None else count)
         self.target = RenderTarget(gpu, width, height, depth=True)
-        self.work = MeshShare(gpu, [self.target], (width, height), triangles, self.first, self.count,
-                              eye=eye)
+        self.work = MeshShare(gpu, [self.target], (width, height), triangles, self.first,
+                              self.count, eye=eye)
         self._owned.append(self.work)
         self.bytes = width * height * 6
 

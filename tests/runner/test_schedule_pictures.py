@@ -137,7 +137,7 @@ def test_wrong_pipeline_input_would_be_caught(pipeline_reference):
     assert not np.array_equal(run("pipelining", 2, other, split_at=2).image, pipeline_reference)
 
 
-# -- XR ---------------------------------------------------------------------------------------------
+# -- XR ------------------------------------------------------------------------------------------
 XR_PASSES = {"mesh": [{"name": "tori", "kind": "mesh", "triangles": 3000}],
              "fragment_loop": [{"name": "loop", "kind": "fragment_loop", "iterations": 30}]}
 
@@ -162,7 +162,8 @@ def eye_renders():
 @pytest.mark.parametrize("gpus, options", [
     (2, {}), (2, {"scaling": "strong", "frames_in_flight": 3}), (4, {"host_copy": True}),
     (4, {"scaling": "strong", "buffers": 3, "frames_in_flight": 2}),
-    (1, {"mode": "simulated", "views": 4}), (1, {"mode": "simulated", "views": 2, "scaling": "strong"}),
+    (1, {"mode": "simulated", "views": 4}),
+    (1, {"mode": "simulated", "views": 2, "scaling": "strong"}),
 ])
 def test_xr_views_equal_whole_eye_renders(eye_renders, kind, gpus, options):
     """2 views (an eye per GPU) or 4 (half an eye each) assemble both eyes exactly."""

@@ -20,7 +20,6 @@ from __future__ import annotations
 from dataclasses import replace
 from types import MappingProxyType
 
-from ..costs import pass_work
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene

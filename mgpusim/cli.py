@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from typing import NoReturn
 
 from . import __version__
 from .errors import MgpusimError
@@ -20,8 +21,20 @@ COMMANDS = ("simulate", "sweep", "examples", "run", "bench", "devices", "measure
             "study", "main_job")
 
 
+class _Parser(argparse.ArgumentParser):
+    """Argument errors as one line, like every other error (the usage is one --help away)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {one_line(message)} (see {self.prog} --help)\n")
+
+
+def one_line(text: str) -> str:
+    """A message on one line: newlines from a file's key or value are shown escaped."""
+    return text.replace("\r", "\\r").replace("\n", "\\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="mgpusim", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="mgpusim", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"mgpusim {__version__}",
                         help="print the version and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -57,7 +70,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except MgpusimError as exc:
-        print(f"mgpusim {args.command}: error: {exc}", file=sys.stderr)
+        print(f"mgpusim {args.command}: error: {one_line(str(exc))}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # the file system refused (disk full, permissions, a name too long)
+        where = f"{str(exc.filename)[:80]}: " if exc.filename else ""
+        print(f"mgpusim {args.command}: error: {where}{one_line(exc.strerror or str(exc))}",
+              file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

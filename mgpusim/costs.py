@@ -7,11 +7,14 @@ from __future__ import annotations
 
 import math
 from fractions import Fraction
-from typing import Callable, Mapping
+from typing import TYPE_CHECKING, Callable, Mapping
 
-from .errors import InputError
-from .profile import HardwareProfile
+from . import limits as L
+from .errors import InputError, TimeBoundError
 from .scene import PassSpec
+
+if TYPE_CHECKING:  # profile.py reads WORK_TERMS to check cost keys
+    from .profile import HardwareProfile
 
 WorkFn = Callable[[PassSpec, float, float], dict[str, float]]
 
@@ -32,6 +35,27 @@ WORK_TERMS: dict[str, WorkFn] = {
     # study's passes); the GPU's ns_per_reference_ns scales it (1 if the profile has no entry).
     "timed": lambda s, px, g: {"reference_ns": s.param("duration_ms") * 1e6 * g},
 }
+
+
+#: The parameters each pass kind reads (scene.passes entries); any kind may also carry
+#: `output_bytes` (what a pipelined pass hands to the next GPU). Anything else is a typo.
+PASS_PARAMS: dict[str, tuple[str, ...]] = {
+    "fragment_loop": ("iterations",),
+    "mesh": ("triangles",),
+    "composite_sort_first": ("inputs", "pixels"),
+    "composite_sort_last": ("inputs", "pixels"),
+    "present": (),
+    "filter": ("iterations", "inputs"),
+    "particle_update": ("particles",),
+    "particle_render": ("particles",),
+    "timed": ("duration_ms",),
+}
+COMMON_PARAMS = ("output_bytes",)
+
+
+def work_terms(kind: str) -> tuple[str, ...]:
+    """The work terms a pass kind produces (its cost keys are ns_per_<term>)."""
+    return tuple(WORK_TERMS[kind](PassSpec(kind, kind), 1.0, 1.0))
 
 
 def ns(value: float) -> int:
@@ -64,7 +88,7 @@ class CostModel:
         where = f"gpus[{device}].costs.{kind}"
         if cost is None:
             if kind == "timed":
-                return ns(work.get("reference_ns", 0.0))
+                return self._bounded(work.get("reference_ns", 0.0) / gpu.speed, kind, work, where)
             raise InputError(f"no cost coefficients for pass kind {kind!r} on {gpu.name}",
                              file=self.profile.source, field=where)
         total = cost.fixed_ns
@@ -79,7 +103,27 @@ class CostModel:
                     raise InputError(f"missing coefficient for work term {term!r}",
                                      file=self.profile.source, field=f"{where}.ns_per_{term}")
             total += coef * amount
+        return self._bounded(total / gpu.speed, kind, work, where)
+
+    def _bounded(self, total: float, kind: str, work: Mapping[str, float], where: str) -> int:
+        """`total` ns rounded, refused beyond MAX_TASK_NS (simulated time must fit int64)."""
+        if not total <= L.MAX_TASK_NS:  # also catches NaN
+            terms = ", ".join(f"{t}={a:.3g}" for t, a in work.items())
+            raise TimeBoundError(f"a {kind} pass would take {total:.3g} ns ({terms}), more than "
+                                 f"the {L.MAX_TASK_NS:.0e} ns one task may last ({L.WHY_TIME}): "
+                                 "lower the pass's parameters or the coefficients",
+                                 file=self.profile.source, field=where)
         return ns(total)
+
+    def check_transfer(self, name: str, nbytes: int, rate: Fraction, setup_ns: int, field: str) -> None:
+        """A copy of `nbytes` at `rate` bytes/ns (alone on its channel) must end within
+        MAX_TASK_NS, so that simulated time fits int64; `field` is the rate's profile field."""
+        total = setup_ns + nbytes / rate
+        if total > L.MAX_TASK_NS:
+            raise TimeBoundError(f"copy {name!r} of {nbytes} bytes at {float(rate):.3g} GB/s would "
+                                 f"take {float(total):.3g} ns, more than the {L.MAX_TASK_NS:.0e} ns "
+                                 f"one task may last ({L.WHY_TIME})", file=self.profile.source,
+                                 field=field)
 
     def copy_setup_ns(self, device: int, family: str, path: str, peer: int | None = None) -> int:
         """Fixed cost of a copy command plus the latency of the path it crosses."""

@@ -11,8 +11,8 @@ from typing import Any
 
 from .experiment import Experiment
 from .measured import read_measured
-from .output import write_json, write_table
-from .perfetto import chrome_trace
+from .output import frame_window, write_json, write_table, write_text
+from .perfetto import chrome_trace_json
 from .plot import comparison_png
 from .program import build_program, run_config
 from .repeated_runs import measure_repeated, run_spread
@@ -40,8 +40,10 @@ def validate_experiment(exp: Experiment, out: Path, measured_dir: Path | None = 
     write_table(sim.trace, out / "simulated_trace.parquet")
     title = f"{exp.schedule.name}, {exp.schedule.gpus} GPU(s), {exp.scene.width}x{exp.scene.height}"
     comparison_png(measured, sim.trace, out / "timelines.png", title, sim_links=sim.links)
-    write_json(chrome_trace(measured, None, f"measured {title}"), out / "measured.perfetto.json")
-    write_json(chrome_trace(sim.trace, sim.links, f"simulated {title}"), out / "simulated.perfetto.json")
+    write_text(chrome_trace_json(*frame_window(measured, None), f"measured {title}"),
+               out / "measured.perfetto.json")
+    write_text(chrome_trace_json(*frame_window(sim.trace, sim.links), f"simulated {title}"),
+               out / "simulated.perfetto.json")
     return report
 
 

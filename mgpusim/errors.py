@@ -17,6 +17,11 @@ class InputError(MgpusimError):
         super().__init__(f"{where}: {message}" if where else message)
 
 
+class TimeBoundError(InputError):
+    """A task would last longer than the bound that keeps simulated time in int64: its cause
+    is split between the experiment (the work) and the profile (the rates)."""
+
+
 class ScheduleError(MgpusimError):
     """A schedule that can never finish (cycle, missing resource, blocked tasks)."""
 

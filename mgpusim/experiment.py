@@ -7,14 +7,15 @@ like values written in the file.
 from __future__ import annotations
 
 import copy
-import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any, Mapping
 
 from .config import Table, read_toml
-from .costs import WORK_TERMS
+from .costs import COMMON_PARAMS, PASS_PARAMS
 from .errors import InputError
+from .overrides import parse_overrides, parse_value, set_dotted, split_profile
 from .profile import HardwareProfile, load_profile, require_gpus
 from .scene import Scene, parse_scene
 from .schedules.base import ScheduleConfig, parse_schedule_config
@@ -28,84 +29,58 @@ class Experiment:
     scene: Scene
     schedule: ScheduleConfig
     raw: Mapping[str, Any]
+    #: The hardware what-ifs applied to the profile (``profile.`` overrides, full keys).
+    profile_overrides: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
 
 
 def load_experiment(path: str | Path, overrides: Mapping[str, Any] | None = None,
                     profile: HardwareProfile | str | Path | None = None) -> Experiment:
-    """Read an experiment file, apply `overrides` (dotted key -> value) and validate it all."""
+    """Read an experiment file, apply `overrides` (dotted key -> value) and validate it all.
+    Keys under ``profile.`` change the hardware profile it names (hardware what-ifs)."""
     path = Path(path)
     data = copy.deepcopy(read_toml(path))
-    for key, value in (overrides or {}).items():
+    experiment_overrides, profile_overrides = split_profile(overrides)
+    for key, value in experiment_overrides.items():
         set_dotted(data, key, value, str(path))
-    return parse_experiment(data, str(path), base=path.parent, profile=profile)
+    return parse_experiment(data, str(path), base=path.parent, profile=profile,
+                            profile_overrides=profile_overrides)
 
 
 def parse_experiment(data: dict, file: str, base: Path = Path("."),
-                     profile: HardwareProfile | str | Path | None = None) -> Experiment:
+                     profile: HardwareProfile | str | Path | None = None,
+                     profile_overrides: Mapping[str, Any] | None = None) -> Experiment:
     top = Table(data, file)
     name = top.get("name", str, Path(file).stem)
     top.get("description", str, "")
     # A profile given by the caller (--profile, what-ifs) replaces the file's reference.
     profile_ref = top.get("profile", str) if profile is None else top.get("profile", str, None)
     if isinstance(profile, HardwareProfile):
+        if profile_overrides:
+            raise InputError("profile.* overrides change a profile file; this experiment was given "
+                             "a profile object", field=f"profile.{next(iter(profile_overrides))}")
         prof = profile
     else:
-        prof = load_profile(_resolve(Path(profile) if profile else Path(profile_ref), base, file))
-    scene = parse_scene(top.table("scene"), frozenset(WORK_TERMS))
+        prof = load_profile(_resolve(Path(profile) if profile else Path(profile_ref), base, file),
+                            profile_overrides)
+    scene = parse_scene(top.table("scene"), PASS_PARAMS, COMMON_PARAMS)
     sched = parse_schedule_config(top.table("schedule"))
     top.finish()
     require_gpus(prof, sched.gpus, file)
-    return Experiment(name, file, prof, scene, sched, data)
+    what_if = MappingProxyType({f"profile.{k}": v for k, v in (profile_overrides or {}).items()})
+    return Experiment(name, file, prof, scene, sched, data, what_if)
 
 
 def _resolve(ref: Path, base: Path, file: str) -> Path:
     for candidate in (ref, base / ref):
-        if candidate.is_file():
-            return candidate
-    raise InputError(f"profile file {str(ref)!r} not found (looked next to the experiment and in the "
+        try:
+            if candidate.is_file():
+                return candidate
+        except OSError:  # a name too long for the file system, or not a name at all
+            continue
+    shown = str(ref) if len(str(ref)) <= 80 else str(ref)[:80] + "..."
+    raise InputError(f"profile file {shown!r} not found (looked next to the experiment and in the "
                      "current directory)", file=file, field="profile")
 
 
-def parse_value(text: str) -> Any:
-    """A --set value as TOML (numbers, booleans, quoted strings, lists); bare words as strings."""
-    try:
-        return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
-        return text
-
-
-def set_dotted(data: dict, key: str, value: Any, file: str) -> None:
-    """Set `key` (dotted; a number indexes an array of tables, e.g. scene.passes.0.iterations)."""
-    parts = key.split(".")
-    node: Any = data
-    for i, part in enumerate(parts[:-1]):
-        if isinstance(node, list):
-            child = node[_index(node, part, key, file)]
-        else:
-            child = node.setdefault(part, {})
-        if not isinstance(child, (dict, list)):
-            raise InputError(f"cannot set {key!r}: {'.'.join(parts[:i + 1])} is not a table",
-                             file=file, field=key)
-        node = child
-    if isinstance(node, list):
-        node[_index(node, parts[-1], key, file)] = value
-    else:
-        node[parts[-1]] = value
-
-
-def _index(items: list, part: str, key: str, file: str) -> int:
-    if not part.isdigit() or int(part) >= len(items):
-        raise InputError(f"cannot set {key!r}: {part!r} is not an index below {len(items)}",
-                         file=file, field=key)
-    return int(part)
-
-
-def parse_overrides(items: list[str] | None) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for item in items or []:
-        if "=" not in item:
-            raise InputError(f"--set expects key=value, got {item!r}")
-        key, _, text = item.partition("=")
-        out[key.strip()] = parse_value(text.strip())
-    return out
-
+__all__ = ["Experiment", "load_experiment", "parse_experiment", "parse_overrides", "parse_value",
+           "set_dotted"]

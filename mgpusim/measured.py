@@ -6,33 +6,33 @@ experiment it is compared with, or the comparison would report the difference as
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import pandas as pd
 
 from .errors import InputError
 from .experiment import Experiment
+from .measured_check import check_recorded_config, check_trace, read_json_object, read_table
 
 TRACE_FILES = ("trace.parquet", "trace.csv")
 
 
 def read_measured(folder: Path, exp: Experiment) -> pd.DataFrame:
-    """A saved measured trace; its recorded configuration must match the experiment's."""
+    """A saved measured trace, checked (columns, whole times, end >= start); its recorded
+    configuration must match the experiment's (:mod:`mgpusim.measured_check`)."""
+    if not folder.is_dir():
+        raise InputError("not a folder (expected a measured run from `mgpusim run`)", file=str(folder))
     for name in TRACE_FILES:
         path = folder / name
         if path.is_file():
-            trace = (pd.read_parquet(path) if path.suffix == ".parquet"
-                     else pd.read_csv(path, keep_default_na=False))
+            trace = check_trace(read_table(path), str(path))
             break
     else:
         raise InputError("no trace.parquet or trace.csv in the measured folder", file=str(folder))
     summary = folder / "summary.json"
     if summary.is_file():
-        config = json.loads(summary.read_text()).get("config", {})
-        for key, want in (("schedule", exp.schedule.name), ("gpus", exp.schedule.gpus),
-                          ("width", exp.scene.width), ("height", exp.scene.height)):
-            if key in config and config[key] != want:
-                raise InputError(f"measured run has {key}={config[key]!r} but the experiment has "
-                                 f"{want!r}", file=str(summary), field=f"config.{key}")
-    return trace.astype({"start_ns": "int64", "end_ns": "int64", "frame": "int64"})
+        config = read_json_object(summary).get("config", {})
+        if not isinstance(config, dict):
+            raise InputError("expected an object", file=str(summary), field="config")
+        check_recorded_config(config, exp, str(summary))
+    return trace

@@ -51,7 +51,15 @@ def check_memory(program: FrameProgram, exp: Experiment) -> None:
                 f"({_gib(over)}): data set share {_gib(round(fp.share * data))} + render targets "
                 f"{_gib(fp.targets)} + receive buffers {_gib(fp.staging)} = {_gib(used)} under "
                 f"schedule {program.schedule!r} with {program.gpus} GPU(s)",
-                file=exp.file, field="scene.dataset_bytes")
+                file=exp.file, field=_blame(fp, data))
+
+
+def _blame(fp: Footprint, dataset_bytes: int) -> str:
+    """The input behind the largest part of the footprint: the data set, the image size (render
+    targets) or what crosses GPUs per frame times its buffering (receive buffers)."""
+    parts = {"scene.dataset_bytes": fp.share * dataset_bytes, "scene.width x scene.height": fp.targets,
+             "receive buffers (schedule.buffers x bytes crossing per frame)": fp.staging}
+    return max(parts, key=parts.__getitem__)
 
 
 def max_dataset_bytes(exp: Experiment) -> int:

@@ -5,13 +5,18 @@ Units are in field names: `_gbps` is GB/s (10^9 bytes per second, i.e. bytes per
 """
 from __future__ import annotations
 
+import copy
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
 from typing import Mapping
 
-from .config import Table, read_toml
+from . import limits as L
+from .config import Table, did_you_mean, read_toml
+from .costs import WORK_TERMS, work_terms
 from .errors import InputError
+from .overrides import set_dotted
 
 #: Per-lane data rate in GB/s after line encoding (8b/10b for gen 1-2, 128b/130b for 3-5,
 #: FLIT 242/256 for 6). PCIe 3.0: 8 GT/s * 128/130 / 8 = 0.985 GB/s per lane.
@@ -19,6 +24,7 @@ PCIE_LANE_GBPS: Mapping[int, float] = MappingProxyType({
     1: 2.5 * 8 / 10 / 8, 2: 5.0 * 8 / 10 / 8, 3: 8.0 * 128 / 130 / 8,
     4: 16.0 * 128 / 130 / 8, 5: 32.0 * 128 / 130 / 8, 6: 64.0 * 242 / 256 / 8,
 })
+PCIE_LANES = (1, 2, 4, 8, 16, 32)
 QUEUE_FAMILIES = ("graphics", "compute", "transfer")
 COPY_PATHS = ("d2h", "h2d", "d2d", "p2p")
 
@@ -101,6 +107,9 @@ class GpuProfile:
     #: Idle time a queue spends between two of its tasks (switching command buffers, writing
     #: timestamps, signalling fences): not inside any task's own timestamps.
     task_gap_ns: int = 0
+    #: What-if speed factor: every pass's time is divided by it (1.5 = a GPU 1.5x faster);
+    #: copies and links keep their own rates.
+    speed: float = 1.0
 
     def has_queue(self, family: str, index: int = 0) -> bool:
         return self.queues.get(family, 0) > index
@@ -131,10 +140,70 @@ class HardwareProfile:
         return None
 
 
-def load_profile(path: str | Path) -> HardwareProfile:
-    """Read and validate a hardware profile TOML file."""
+def load_profile(path: str | Path, overrides: Mapping[str, object] | None = None) -> HardwareProfile:
+    """Read and validate a hardware profile TOML file; `overrides` (dotted keys relative to the
+    profile, e.g. ``gpus.0.link.pcie_gen``) change the raw file first (hardware what-ifs), so
+    they are checked exactly like values written in it."""
     path = Path(path)
-    return parse_profile(read_toml(path), str(path))
+    data = read_toml(path)
+    if overrides:
+        data = apply_profile_overrides(data, overrides, str(path))
+    return parse_profile(data, str(path))
+
+
+def apply_profile_overrides(data: dict, overrides: Mapping[str, object], file: str) -> dict:
+    """A copy of the raw profile with `overrides` set (keys relative to the profile).
+
+    Where a GPU table's link gives measured bandwidths (h2d_gbps / d2h_gbps) and an override
+    changes its pcie_gen or lanes, the measured bandwidths scale with the nominal rate (PCIe 5
+    x16 over PCIe 4 x16 = 2x), so the what-if keeps the measured efficiency instead of being
+    silently ignored; an override of the bandwidth itself wins."""
+    data = copy.deepcopy(data)
+    before = _nominal_rates(data)
+    for key, value in overrides.items():
+        set_dotted(data, key, value, file, prefix="profile.")
+    after = _nominal_rates(data)
+    for i, old in before.items():
+        new = after.get(i)
+        if new is None or new == old:
+            continue
+        link = data["gpus"][i]["link"]  # a table: _nominal_rates found a rate in it
+        for key in ("h2d_gbps", "d2h_gbps"):
+            value = link.get(key)
+            if _is_number(value) and not _overridden(f"gpus.{i}.link.{key}", overrides):
+                link[key] = value * new / old
+    return data
+
+
+def _nominal_rates(data: dict) -> dict[int, float]:
+    """GB/s of lanes x per-lane rate of each [[gpus]] table's link (where gen and lanes are valid)."""
+    out = {}
+    for i, gpu in enumerate(data.get("gpus") if isinstance(data.get("gpus"), list) else []):
+        link = gpu.get("link") if isinstance(gpu, dict) else None
+        gen = link.get("pcie_gen") if isinstance(link, dict) else None
+        if isinstance(gen, int) and gen in PCIE_LANE_GBPS and link.get("lanes") in PCIE_LANES:
+            out[i] = PCIE_LANE_GBPS[link["pcie_gen"]] * link["lanes"]
+    return out
+
+
+def _is_number(value: object) -> bool:
+    """A positive number that is finite as a float (parse_profile reports anything else)."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        return False
+    try:
+        return 0 < float(value) < math.inf
+    except OverflowError:
+        return False
+
+
+def _overridden(path: str, overrides: Mapping[str, object]) -> bool:
+    """Whether an override sets `path` or a table above it (``gpus.*`` counts for every entry)."""
+    parts = path.split(".")
+    for key in overrides:
+        kparts = key.split(".")
+        if len(kparts) <= len(parts) and all(k in (p, "*") for k, p in zip(kparts, parts)):
+            return True
+    return False
 
 
 def parse_profile(data: dict, file: str) -> HardwareProfile:
@@ -145,23 +214,35 @@ def parse_profile(data: dict, file: str) -> HardwareProfile:
     host = _parse_host(top.table("host"))
     gpus: list[GpuProfile] = []
     for t in top.tables("gpus"):
-        count = t.get("count", int, 1, minimum=1)
+        count = t.get("count", int, 1, minimum=1, maximum=L.MAX_GPUS, why=L.WHY_ALLOC)
+        if len(gpus) + count > L.MAX_GPUS:
+            raise t.error("count", f"the profile would have {len(gpus) + count} GPUs, more than "
+                                   f"{L.MAX_GPUS} ({L.WHY_ALLOC})")
         gpus.extend([_parse_gpu(t)] * count)
+    gpus = _resize(gpus, top.get("gpu_count", int, len(gpus), minimum=1, maximum=L.MAX_GPUS,
+                                 why=L.WHY_ALLOC))
     peers = tuple(_parse_peer(t, len(gpus)) for t in (top.tables("peer_links") if top.has("peer_links") else []))
+    if top.has("peer_mesh"):
+        peers = _peer_mesh(top.table("peer_mesh"), len(gpus), peers)
     top.finish()
     return HardwareProfile(name=name, host=host, gpus=tuple(gpus), peer_links=peers, source=file)
 
 
+def _resize(gpus: list[GpuProfile], count: int) -> list[GpuProfile]:
+    """`gpu_count` (a what-if): the first `count` GPUs, the last one repeated to reach it."""
+    return (gpus + [gpus[-1]] * count)[:count]
+
+
 def _parse_host(t: Table) -> HostProfile:
     host = HostProfile(
-        memory_bandwidth_gbps=t.get("memory_bandwidth_gbps", float, above=0),
-        memcpy_threads=t.get("memcpy_threads", int, minimum=1),
-        memcpy_thread_gbps=t.get("memcpy_thread_gbps", float, above=0),
-        cpu_cores=t.get("cpu_cores", int, minimum=1),
-        host_copy_fixed_ns=t.get("host_copy_fixed_ns", int, 0, minimum=0),
+        memory_bandwidth_gbps=_gbps(t, "memory_bandwidth_gbps"),
+        memcpy_threads=t.get("memcpy_threads", int, minimum=1, maximum=L.MAX_THREADS, why=L.WHY_ALLOC),
+        memcpy_thread_gbps=_gbps(t, "memcpy_thread_gbps"),
+        cpu_cores=t.get("cpu_cores", int, minimum=1, maximum=L.MAX_THREADS, why=L.WHY_ALLOC),
+        host_copy_fixed_ns=_ns(t, "host_copy_fixed_ns", 0),
         gpus_share_cpu=t.get("gpus_share_cpu", bool, False),
-        dispatch_ns=t.get("dispatch_ns", int, 0, minimum=0),
-        submit_ns=t.get("submit_ns", int, 0, minimum=0),
+        dispatch_ns=_ns(t, "dispatch_ns", 0),
+        submit_ns=_ns(t, "submit_ns", 0),
         oversubscribed_efficiency=t.get("oversubscribed_efficiency", float, 1.0, above=0),
     )
     _check_host(t, host)
@@ -176,20 +257,22 @@ def _check_host(t: Table, host: HostProfile) -> None:
 
 def _parse_gpu(t: Table) -> GpuProfile:
     queues_t = t.table("queues")
-    queues = {fam: queues_t.get(fam, int, 0, minimum=0) for fam in QUEUE_FAMILIES}
+    queues = {fam: queues_t.get(fam, int, 0, minimum=0, maximum=L.MAX_QUEUES, why=L.WHY_ALLOC)
+              for fam in QUEUE_FAMILIES}
     queues_t.finish()
     if queues["graphics"] < 1:
         raise queues_t.error("graphics", "a GPU needs at least one graphics queue")
     gpu = GpuProfile(
         name=t.get("name", str),
-        memory_bytes=t.get("memory_bytes", int, minimum=1),
+        memory_bytes=t.get("memory_bytes", int, minimum=1, maximum=L.MAX_BYTES, why=L.WHY_BYTES),
         queues=MappingProxyType(queues),
         link=_parse_link(t.table("link")),
         costs=_parse_costs(t.table("costs")),
         copy=_parse_copy(t.table("copy", None)),
-        local_copy_gbps=t.get("local_copy_gbps", float, 300.0, above=0),
-        cpu_threads=t.get("cpu_threads", int, None, minimum=1),
-        task_gap_ns=t.get("task_gap_ns", int, 0, minimum=0),
+        local_copy_gbps=_gbps(t, "local_copy_gbps", 300.0),
+        cpu_threads=t.get("cpu_threads", int, None, minimum=1, maximum=L.MAX_THREADS, why=L.WHY_ALLOC),
+        task_gap_ns=_ns(t, "task_gap_ns", 0),
+        speed=t.get("speed", float, 1.0, above=0, maximum=L.MAX_SPEED),
     )
     t.finish()
     return gpu
@@ -198,30 +281,34 @@ def _parse_gpu(t: Table) -> GpuProfile:
 def _parse_link(t: Table) -> LinkProfile:
     link = LinkProfile(
         pcie_gen=t.get("pcie_gen", int, choices=PCIE_LANE_GBPS.keys()),
-        lanes=t.get("lanes", int, choices=(1, 2, 4, 8, 16, 32)),
-        latency_ns=t.get("latency_ns", int, minimum=0),
-        efficiency=t.get("efficiency", float, 1.0, above=0),
-        h2d_gbps=t.get("h2d_gbps", float, None, above=0),
-        d2h_gbps=t.get("d2h_gbps", float, None, above=0),
+        lanes=t.get("lanes", int, choices=PCIE_LANES),
+        latency_ns=_ns(t, "latency_ns"),
+        efficiency=t.get("efficiency", float, 1.0, above=0, maximum=1),
+        h2d_gbps=_gbps(t, "h2d_gbps", None),
+        d2h_gbps=_gbps(t, "d2h_gbps", None),
     )
-    if link.efficiency > 1:
-        raise t.error("efficiency", f"must be <= 1, got {link.efficiency}")
     t.finish()
     return link
 
 
 def _parse_costs(t: Table) -> Mapping[str, PassCost]:
+    """One table per pass kind; a misspelt kind or work term is refused, not ignored."""
     costs: dict[str, PassCost] = {}
     for kind in list(t.data):
+        if kind not in WORK_TERMS:
+            raise t.error(kind, f"unknown pass kind{did_you_mean(kind, WORK_TERMS)} (kinds: "
+                                f"{', '.join(WORK_TERMS)})")
         kt = t.table(kind)
-        fixed = kt.get("fixed_ns", float, 0.0, minimum=0)
-        cores = kt.get("cores", float, None, minimum=0.01)
+        fixed = kt.get("fixed_ns", float, 0.0, minimum=0, maximum=L.MAX_TASK_NS, why=L.WHY_TIME)
+        cores = kt.get("cores", float, None, minimum=0.01, maximum=L.MAX_THREADS, why=L.WHY_ALLOC)
+        known = [f"ns_per_{term}" for term in work_terms(kind)]
         ns_per: dict[str, float] = {}
         for key in list(kt.rest()):
-            if not key.startswith("ns_per_"):
-                raise kt.error(key, "cost coefficients are named fixed_ns, ns_per_<work term> "
-                                    "or cores")
-            ns_per[key.removeprefix("ns_per_")] = kt.get(key, float, minimum=0)
+            if key not in known:
+                raise kt.error(key, f"unknown cost key{did_you_mean(key, [*known, 'fixed_ns', 'cores'])}"
+                                    f" ({kind} takes fixed_ns, cores, {', '.join(known)})")
+            ns_per[key.removeprefix("ns_per_")] = kt.get(key, float, minimum=0,
+                                                         maximum=L.MAX_COEFFICIENT)
         kt.finish()
         costs[kind] = PassCost(fixed, MappingProxyType(ns_per), cores)
     return MappingProxyType(costs)
@@ -231,10 +318,11 @@ def _parse_copy(t: Table) -> Mapping[str, CopyCosts]:
     out: dict[str, CopyCosts] = {}
     for fam in list(t.data):
         if fam not in QUEUE_FAMILIES:
-            raise t.error(fam, f"unknown queue family (expected one of {list(QUEUE_FAMILIES)})")
+            raise t.error(fam, f"unknown queue family{did_you_mean(fam, QUEUE_FAMILIES)} "
+                               f"(expected one of {list(QUEUE_FAMILIES)})")
         ft = t.table(fam)
-        fixed = ft.get("fixed_ns", int, 0, minimum=0)
-        caps = {p: ft.get(f"{p}_gbps", float, above=0) for p in COPY_PATHS if ft.has(f"{p}_gbps")}
+        fixed = _ns(ft, "fixed_ns", 0)
+        caps = {p: _gbps(ft, f"{p}_gbps") for p in COPY_PATHS if ft.has(f"{p}_gbps")}
         ft.finish()
         out[fam] = CopyCosts(fixed, MappingProxyType(caps))
     return MappingProxyType(out)
@@ -242,14 +330,45 @@ def _parse_copy(t: Table) -> Mapping[str, CopyCosts]:
 
 def _parse_peer(t: Table, n_gpus: int) -> PeerLink:
     ends = t.get("gpus", list)
-    if len(ends) != 2 or not all(isinstance(g, int) and 0 <= g < n_gpus for g in ends) or ends[0] == ends[1]:
+    if len(ends) != 2 or not all(_is_index(g, n_gpus) for g in ends) or ends[0] == ends[1]:
         raise t.error("gpus", f"expected two different GPU indices in 0..{n_gpus - 1}, got {ends!r}")
-    link = PeerLink(ends[0], ends[1], t.get("bandwidth_gbps", float, above=0), t.get("latency_ns", int, minimum=0))
+    link = PeerLink(ends[0], ends[1], _gbps(t, "bandwidth_gbps"), _ns(t, "latency_ns"))
     t.finish()
     return link
 
 
+def _is_index(value: object, n: int) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and 0 <= value < n
+
+
+def _peer_mesh(t: Table, n_gpus: int, explicit: tuple[PeerLink, ...]) -> tuple[PeerLink, ...]:
+    """`[peer_mesh]` (a what-if): a direct link between every pair of GPUs (an NVLink
+    switch), besides the pairs `[[peer_links]]` already lists, which keep their own."""
+    bandwidth, latency = _gbps(t, "bandwidth_gbps"), _ns(t, "latency_ns")
+    t.finish()
+    linked = {frozenset((p.a, p.b)) for p in explicit}
+    mesh = tuple(PeerLink(a, b, bandwidth, latency) for a in range(n_gpus) for b in range(a + 1, n_gpus)
+                 if frozenset((a, b)) not in linked)
+    return explicit + mesh
+
+
+_MISSING = object()
+
+
+def _ns(t: Table, key: str, default: object = _MISSING) -> int:
+    """A fixed time in ns: an integer in [0, MAX_TASK_NS]."""
+    args = () if default is _MISSING else (default,)
+    return t.get(key, int, *args, minimum=0, maximum=L.MAX_TASK_NS, why=L.WHY_TIME)
+
+
+def _gbps(t: Table, key: str, default: object = _MISSING) -> float:
+    """A bandwidth in GB/s: a finite number in (0, MAX_GBPS]."""
+    args = () if default is _MISSING else (default,)
+    return t.get(key, float, *args, above=0, maximum=L.MAX_GBPS, why=L.WHY_GBPS)
+
+
 def require_gpus(profile: HardwareProfile, n: int, file: str | None = None) -> None:
     if n > len(profile.gpus):
-        raise InputError(f"asks for {n} GPUs but profile {profile.name!r} has {len(profile.gpus)}",
-                         file=file, field="schedule.gpus")
+        raise InputError(f"asks for {n} GPUs but profile {profile.name!r} has {len(profile.gpus)} "
+                         f"(--set profile.gpu_count={n} repeats its last GPU)", file=file,
+                         field="schedule.gpus")

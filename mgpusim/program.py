@@ -5,8 +5,10 @@ need "the program of this experiment", and none of them should import another to
 """
 from __future__ import annotations
 
+import json
 from typing import Any
 
+from .errors import InputError
 from .experiment import Experiment
 from .schedules import SCHEDULES, ensure_loaded
 from .schedules.base import FrameProgram, check_program
@@ -15,7 +17,12 @@ from .schedules.base import FrameProgram, check_program
 def build_program(exp: Experiment) -> FrameProgram:
     """The experiment's schedule built on its scene and profile, checked before any run."""
     ensure_loaded()
-    program = SCHEDULES[exp.schedule.name].build(exp.schedule, exp.scene, exp.profile)
+    try:
+        program = SCHEDULES[exp.schedule.name].build(exp.schedule, exp.scene, exp.profile)
+    except InputError as exc:  # a builder knows the field (schedule.split_at), not the file
+        if exc.file is not None:
+            raise
+        raise InputError(exc.detail, file=exp.file, field=exc.field) from None
     check_program(program, exp.profile)
     return program
 
@@ -25,4 +32,15 @@ def run_config(exp: Experiment, program: FrameProgram) -> dict[str, Any]:
     experiment, its scene's passes and schedule options, and the program's own record."""
     return {"experiment": exp.name, "file": exp.file, "profile": exp.profile.name,
             "schedule": exp.schedule.name, "gpus": exp.schedule.gpus,
-            "width": exp.scene.width, "height": exp.scene.height, **program.record}
+            "width": exp.scene.width, "height": exp.scene.height, **program.record,
+            "inputs": recorded_inputs(exp),
+            **({"profile_overrides": dict(exp.profile_overrides)} if exp.profile_overrides else {})}
+
+
+def recorded_inputs(exp: Experiment) -> dict[str, Any]:
+    """What a run records of its inputs beyond the basics, so that a measured run can be
+    matched to an experiment: the passes with their parameters, the schedule's options and
+    frames in flight. JSON-shaped (lists, not tuples), as summary.json stores it."""
+    passes = [{"name": p.name, "kind": p.kind, **dict(p.params)} for p in exp.scene.passes]
+    schedule = {"frames_in_flight": exp.schedule.frames_in_flight, **dict(exp.schedule.options)}
+    return json.loads(json.dumps({"passes": passes, "schedule": schedule}, default=list))

@@ -10,7 +10,8 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Mapping
 
-from .config import Table
+from . import limits as L
+from .config import Table, did_you_mean
 
 
 @dataclass(frozen=True)
@@ -46,7 +47,10 @@ class Scene:
         return self.pixels * self.depth_bytes_per_pixel
 
 
-def parse_scene(t: Table, known_kinds: frozenset[str]) -> Scene:
+def parse_scene(t: Table, pass_params: Mapping[str, tuple[str, ...]],
+                common_params: tuple[str, ...] = ()) -> Scene:
+    """The [scene] table; `pass_params` maps each pass kind to the parameters it reads (a
+    parameter it does not read is a typo: refused with the closest name)."""
     passes = []
     names: set[str] = set()
     for pt in t.tables("passes"):
@@ -54,19 +58,25 @@ def parse_scene(t: Table, known_kinds: frozenset[str]) -> Scene:
         if name in names:
             raise pt.error("name", f"duplicate pass name {name!r}")
         names.add(name)
-        kind = pt.get("kind", str, choices=known_kinds)
+        kind = pt.get("kind", str, choices=pass_params.keys())
+        known = (*pass_params[kind], *common_params)
         params = {}
-        for key, value in pt.rest().items():
-            params[key] = pt.get(key, float, minimum=0)
+        for key in pt.rest():
+            if key not in known:
+                raise pt.error(key, f"unknown parameter of a {kind} pass{did_you_mean(key, known)} "
+                                    f"(it takes {', '.join(known)})")
+            params[key] = pt.get(key, float, minimum=0, maximum=L.MAX_WORK, why=L.WHY_WORK)
         pt.finish()
         passes.append(PassSpec(name, kind, MappingProxyType(params)))
+    side = {"minimum": 1, "maximum": L.MAX_SIDE, "why": L.WHY_IMAGE}
+    per_pixel = {"maximum": L.MAX_BYTES_PER_PIXEL, "why": L.WHY_IMAGE}
     scene = Scene(
-        width=t.get("width", int, minimum=1),
-        height=t.get("height", int, minimum=1),
+        width=t.get("width", int, **side),
+        height=t.get("height", int, **side),
         passes=tuple(passes),
-        color_bytes_per_pixel=t.get("color_bytes_per_pixel", int, 4, minimum=1),
-        depth_bytes_per_pixel=t.get("depth_bytes_per_pixel", int, 2, minimum=0),
-        dataset_bytes=t.get("dataset_bytes", int, 0, minimum=0),
+        color_bytes_per_pixel=t.get("color_bytes_per_pixel", int, 4, minimum=1, **per_pixel),
+        depth_bytes_per_pixel=t.get("depth_bytes_per_pixel", int, 2, minimum=0, **per_pixel),
+        dataset_bytes=t.get("dataset_bytes", int, 0, minimum=0, maximum=L.MAX_BYTES, why=L.WHY_BYTES),
     )
     t.finish()
     return scene

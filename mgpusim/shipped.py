@@ -54,9 +54,10 @@ def examples() -> list[Example]:
 
 
 def resolve_experiment(ref: str | Path) -> Path:
-    """A file path as given if it exists; else the shipped experiment it names."""
+    """A path as given if something is there (the loader says what is wrong with a folder or
+    an unreadable file); else the shipped experiment it names."""
     path = Path(ref)
-    if path.is_file():
+    if path.exists():
         return path
     root = shipped_dir("experiments")
     text = path.as_posix()
@@ -64,5 +65,5 @@ def resolve_experiment(ref: str | Path) -> Path:
     for candidate in (root / rel, root / f"{rel}.toml"):
         if candidate.is_file():
             return candidate
-    raise InputError("no such experiment file, nor a shipped experiment of that name "
+    raise InputError("file not found, nor a shipped experiment of that name "
                      "(`mgpusim examples` lists them)", file=str(ref))

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from .costs import CostModel
+from .errors import TimeBoundError
 from .experiment import Experiment
 from .memory import check_memory, memory_report
 from .program import build_program, run_config
@@ -16,7 +17,12 @@ def simulate(exp: Experiment, record_trace: bool = True) -> Result:
     """Run `exp` in the model. Same experiment, same result, bit for bit."""
     program = build_program(exp)
     check_memory(program, exp)  # overflow is an input error, reported before time 0
-    raw = Engine(program, CostModel(exp.profile), record_trace=record_trace).run()
+    try:
+        engine = Engine(program, CostModel(exp.profile), record_trace=record_trace)
+    except TimeBoundError as exc:  # the profile's rates times the experiment's work
+        raise TimeBoundError(f"{exc.detail} (with the work of {exp.file})", file=exc.file,
+                             field=exc.field) from None
+    raw = engine.run()
     result = build_result(raw, program.warmup_frames, run_config(exp, program))
     result.summary["memory"] = memory_report(program, exp)
     _task_rates(program, raw, result)

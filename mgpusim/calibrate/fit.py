@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import nnls
 
+from ..errors import InputError
+
 #: Above this condition number (of the column-scaled design matrix) a fit is reported as
 #: ill-conditioned: its coefficients trade off against each other and mean little alone.
 ILL_CONDITIONED = 1e4
@@ -39,7 +41,10 @@ def fit_nonnegative(X: np.ndarray, y: np.ndarray, names: list[str], what: str) -
     y = np.asarray(y, dtype=float)
     warnings: list[str] = []
     if len(y) == 0:
-        raise ValueError(f"{what}: no measurements")
+        raise InputError(f"{what}: no measurements")
+    if not (np.isfinite(X).all() and np.isfinite(y).all()) or (y <= 0).any():
+        # the solver must never see these (NaN crashes scipy's nnls natively)
+        raise InputError(f"{what}: durations and work terms must be finite and durations > 0")
     w = 1.0 / np.maximum(y, 1.0)
     Xw = X * w[:, None]
     scale = np.linalg.norm(Xw, axis=0)

@@ -8,7 +8,6 @@
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -18,8 +17,10 @@ import pandas as pd
 
 from ..costs import WORK_TERMS
 from ..errors import InputError
+from ..measured_check import read_json_object, read_table
 from ..scene import PassSpec
 from .fit import Fit, fit_nonnegative
+from .tables import check_measure_table
 
 PASS_KINDS = ("fragment_loop", "mesh", "composite_sort_first", "composite_sort_last", "present",
               "filter", "particle_update", "particle_render")
@@ -50,17 +51,12 @@ def read_measurements(paths: list[Path]) -> tuple[pd.DataFrame, dict[str, Any]]:
     """Concatenate measure tables (CSV or Parquet); return them and the first machine record."""
     frames, machine = [], {}
     for path in paths:
-        if not path.is_file():
-            raise InputError("measurement table not found", file=str(path))
-        df = pd.read_parquet(path) if path.suffix == ".parquet" else pd.read_csv(path)
-        for col in ("pass", "duration_ns"):
-            if col not in df.columns:
-                raise InputError(f"not a measure table (no {col!r} column)", file=str(path))
+        df = check_measure_table(read_table(path), str(path))
         df["source"] = path.name
         frames.append(df)
         record = path.with_name(path.name + ".machine.json")
         if record.is_file() and not machine:
-            machine = json.loads(record.read_text())
+            machine = read_json_object(record)
     return pd.concat(frames, ignore_index=True), machine
 
 
@@ -178,4 +174,7 @@ def calibrate(df: pd.DataFrame, machine: dict[str, Any]) -> Calibration:
     fit_cores(df, cal)
     fit_copies(df, cal)
     fit_host_copies(df, cal)
+    if not (cal.pass_fits or cal.copy_fits or cal.host):
+        raise InputError("nothing to fit: no single-GPU pass, copy or host-copy rows (at the "
+                         "GPU's full thread count) in " + ", ".join(sorted(set(map(str, df["source"])))))
     return cal

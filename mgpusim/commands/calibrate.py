@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import copy
 import shlex
 import sys
 from pathlib import Path
@@ -11,6 +12,10 @@ import tomli_w
 from ..calibrate import apply, calibrate, lavapipe_base, read_measurements, report
 from ..calibrate.profile_out import fit_details
 from ..config import read_toml
+from ..errors import InputError
+from ..limits import MAX_GPUS
+from ..outpath import check_out_file
+from ..profile import parse_profile
 from ..output import write_json
 
 
@@ -25,9 +30,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_out_file(args.out)
+    if not 1 <= args.gpus <= MAX_GPUS:
+        raise InputError(f"must be in 1..{MAX_GPUS}, got {args.gpus}", field="--gpus")
+    base = _read_base(args.base) if args.base else None
     df, machine = read_measurements(args.measurements)
     cal = calibrate(df, machine)
-    base = read_toml(args.base) if args.base else lavapipe_base(machine, args.gpus)
+    base = base or lavapipe_base(machine, args.gpus)
     command = "mgpusim calibrate " + " ".join(shlex.quote(str(p)) for p in args.measurements)
     profile = apply(cal, base, command)
     text = report(cal)
@@ -40,3 +49,10 @@ def run(args: argparse.Namespace) -> int:
     print(text)
     print(f"wrote {args.out} and {args.out.with_suffix('.fit.json')}", file=sys.stderr)
     return 0
+
+
+def _read_base(path: Path) -> dict:
+    """The --base profile, validated first so that a bad one names its own file."""
+    base = read_toml(path)
+    parse_profile(copy.deepcopy(base), str(path))
+    return base

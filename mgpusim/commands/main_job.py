@@ -7,6 +7,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from ..shipped import shipped_dir
+from ..outpath import check_out_dir
 from ..study import pipeline
 from ..study.spec import load_study
 from .study import _progress
@@ -29,6 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_out_dir(args.out)
     study = load_study(args.study)
     runs = study.runs
     if args.repeats is not None:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from ..config import int_list
 from ..errors import InputError
+from ..outpath import check_out_file
 from ..output import write_json
 
 
@@ -29,14 +30,20 @@ def run(args: argparse.Namespace) -> int:
         return _list()
     if not args.pass_name or not args.out:
         raise InputError("need --pass NAME and --out FILE (or --list)")
+    if not args.out.lower().endswith((".csv", ".parquet", ".pq")):
+        raise InputError(f"expected a .csv or .parquet file, got {args.out!r}", field="--out")
+    check_out_file(Path(args.out))
+    for name in ("reps", "gpus"):
+        if getattr(args, name) < 1:
+            raise InputError(f"must be >= 1, got {getattr(args, name)}", field=f"--{name}")
+    if args.warmup < 0:
+        raise InputError(f"must be >= 0, got {args.warmup}", field="--warmup")
     from tqdm import tqdm  # noqa: PLC0415
 
     from ..vulkan import measure as m  # noqa: PLC0415
     from ..vulkan.machine import close_gpus, machine_record, make_gpus  # noqa: PLC0415
 
     sweeps = m.parse_sweeps(args.pass_name, args.sweep or [])
-    if not args.out.lower().endswith((".csv", ".parquet", ".pq")):
-        raise InputError("expected a .csv or .parquet file", file=args.out, field="--out")
     combos = len(m.combinations(args.pass_name, sweeps))
     lp = int_list(args.lp_threads, "--lp-threads")
     gpus = [] if m.spec(args.pass_name).host else make_gpus(args.gpus, lp_threads=lp,

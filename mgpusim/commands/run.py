@@ -11,12 +11,13 @@ from pathlib import Path
 
 from ..config import int_list
 from ..errors import InputError
+from ..limits import MAX_FRAMES, MAX_THREADS
+from ..outpath import check_out_dir
 
 
 def run(args: argparse.Namespace) -> int:
     from ..experiment import load_experiment, parse_overrides  # noqa: PLC0415
     from ..output import write_measured  # noqa: PLC0415
-    from ..runner.run import run_experiment  # noqa: PLC0415
 
     exp = load_experiment(args.experiment, parse_overrides(args.overrides))
     devices = int_list(args.devices, "--devices")
@@ -26,9 +27,12 @@ def run(args: argparse.Namespace) -> int:
         if args.gpus_per_device < 1:
             raise InputError("must be >= 1", field="--gpus-per-device")
         devices = [i // args.gpus_per_device for i in range(exp.schedule.gpus)]
+    _check_counts(args, devices)
+    out = args.out or Path("out") / f"{exp.name}-measured"
+    check_out_dir(out)
+    from ..runner.run import run_experiment  # noqa: PLC0415 - Vulkan only after the checks
     result = run_experiment(exp, devices=devices, lp_threads=int_list(args.lp_threads, "--lp-threads"),
                             host_threads=args.host_threads, prewarm_frames=args.prewarm)
-    out = args.out or Path("out") / f"{exp.name}-measured"
     write_measured(result, out, args.format)
     _write_png(result.image, out / "image.png")
     s = result.summary
@@ -41,6 +45,19 @@ def run(args: argparse.Namespace) -> int:
         print(f"  note: {line} (no such queue family on this device)")
     print(f"  wrote {out}")
     return 0
+
+
+def _check_counts(args: argparse.Namespace, devices: list[int] | None) -> None:
+    """Thread counts, devices and pre-warm frames in range, before any device is opened."""
+    if devices is not None and min(devices) < 0:
+        raise InputError(f"device indices must be >= 0, got {args.devices}", field="--devices")
+    lp = int_list(args.lp_threads, "--lp-threads") or []
+    if lp and not all(1 <= n <= MAX_THREADS for n in lp):
+        raise InputError(f"must be in 1..{MAX_THREADS}, got {args.lp_threads}", field="--lp-threads")
+    if args.host_threads is not None and not 1 <= args.host_threads <= MAX_THREADS:
+        raise InputError(f"must be in 1..{MAX_THREADS}, got {args.host_threads}", field="--host-threads")
+    if args.prewarm is not None and not 0 <= args.prewarm <= MAX_FRAMES:
+        raise InputError(f"must be in 0..{MAX_FRAMES}, got {args.prewarm}", field="--prewarm")
 
 
 def _write_png(image, path: Path) -> None:

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..experiment import load_experiment, parse_overrides
+from ..outpath import check_out_dir
 from ..output import TRACE_FRAMES, write_result
 from ..shipped import resolve_experiment
 from ..simulate import simulate
@@ -41,8 +42,9 @@ def run(args: argparse.Namespace) -> int:
     if frames is not None and frames.start >= exp.schedule.frames:
         raise InputError(f"frames {frames.start}:{frames.stop} lie past the run's {exp.schedule.frames} frames",
                          field="--frames")
-    result = simulate(exp)
     out = args.out or Path("out") / exp.name
+    check_out_dir(out)
+    result = simulate(exp)
     files = write_result(result, out, args.format, title=f"{exp.name}: {exp.schedule.name}, "
                          f"{exp.schedule.gpus} GPU(s), {exp.scene.width}x{exp.scene.height}",
                          frames=frames, trace_frames=args.trace_frames)

@@ -18,6 +18,7 @@ from typing import Callable
 import pandas as pd
 
 from ..config import int_list
+from ..outpath import check_out_dir
 from ..output import write_json
 from ..study import pipeline
 from ..study.measure import measure_microbenchmarks, measure_runs
@@ -59,7 +60,10 @@ def _progress() -> Callable[[str], None]:
 
 
 def _out(args: argparse.Namespace, study: Study) -> Path:
-    return args.out or Path("out") / study.name
+    """The output folder, checked before any work."""
+    out = args.out or Path("out") / study.name
+    check_out_dir(out)
+    return out
 
 
 def _filtered(study: Study, args: argparse.Namespace) -> Study:

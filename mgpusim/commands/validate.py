@@ -13,13 +13,15 @@ from pathlib import Path
 from ..crossvalidate import format_report, validate_experiment
 from ..errors import InputError
 from ..experiment import load_experiment, parse_overrides
+from ..outpath import check_out_dir
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("validate", help="run a schedule for real and in the model, report the errors")
-    p.add_argument("experiment", type=Path)
+    p.add_argument("experiment", type=Path, help="experiment TOML file")
     p.add_argument("--profile", type=Path, help="calibrated profile to simulate with (default: the experiment's)")
-    p.add_argument("--set", dest="overrides", action="append", metavar="KEY=VALUE")
+    p.add_argument("--set", dest="overrides", action="append", metavar="KEY=VALUE",
+                   help="override a field of the experiment, as simulate takes it (repeatable)")
     p.add_argument("--measured", type=Path, help="a saved measured run (from `mgpusim run` or an "
                    "earlier validate's measured/ folder): no device needed")
     p.add_argument("--out", type=Path, help="output folder (default out/<name>-validate)")
@@ -37,6 +39,7 @@ def run(args: argparse.Namespace) -> int:
     if args.repeats < 1 or not args.run_seconds >= 0:
         raise InputError(f"need --repeats >= 1 and --run-seconds >= 0, got {args.repeats} and "
                          f"{args.run_seconds}")
+    check_out_dir(out)
     report = validate_experiment(exp, out, args.measured, args.repeats, args.run_seconds)
     print(format_report(exp, report))
     print(f"  wrote {out}")

@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import replace
 from types import MappingProxyType
 
+from .. import limits as L
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import Scene
@@ -28,7 +29,8 @@ OPTIONS = {
     "temporal_pass": Option(str, "", "name of the scene pass that reads the previous frame's "
                             "result ('' = ideal AFR, no inter-frame dependency)"),
     "history_bytes": Option(int, 0, "bytes of the previous frame's result the temporal pass "
-                            "reads (0 = one full-frame colour target)", minimum=0),
+                            "reads (0 = one full-frame colour target)", minimum=0,
+                            maximum=L.MAX_BYTES, why=L.WHY_BYTES),
     "present_queue": Option(str, "separate", "'separate': present on GPU 0's second graphics "
                             "queue when it has one; 'graphics': on its main graphics queue",
                             choices=("separate", "graphics")),

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Callable, Mapping, Sequence
 
+from .. import limits as L
 from ..config import Table
 from ..errors import ScheduleError
 from ..profile import HardwareProfile
@@ -78,6 +79,9 @@ class Option:
     doc: str
     choices: tuple[Any, ...] | None = None
     minimum: float | None = None
+    maximum: float | None = None
+    #: what the upper bound protects (said in the message that refuses a larger value)
+    why: str = ""
 
 
 @dataclass(frozen=True)
@@ -119,14 +123,16 @@ def parse_schedule_config(t: Table) -> ScheduleConfig:
     ensure_loaded()
     name = t.get("name", str, choices=SCHEDULES.keys())
     sdef = SCHEDULES[name]
-    options = {key: t.get(key, o.kind, o.default, choices=o.choices, minimum=o.minimum)
+    options = {key: t.get(key, o.kind, o.default, choices=o.choices, minimum=o.minimum,
+                          maximum=o.maximum, why=o.why)
                for key, o in sdef.options.items()}
     cfg = ScheduleConfig(
         name=name,
-        gpus=t.get("gpus", int, 1, minimum=1),
-        frames=t.get("frames", int, 60, minimum=1),
+        gpus=t.get("gpus", int, 1, minimum=1, maximum=L.MAX_GPUS, why=L.WHY_ALLOC),
+        frames=t.get("frames", int, 60, minimum=1, maximum=L.MAX_FRAMES, why=L.WHY_FRAMES),
         warmup_frames=t.get("warmup_frames", int, 5, minimum=0),
-        frames_in_flight=t.get("frames_in_flight", int, 2, minimum=1),
+        frames_in_flight=t.get("frames_in_flight", int, 2, minimum=1, maximum=L.MAX_BUFFERS,
+                               why=L.WHY_ALLOC),
         options=MappingProxyType(options),
     )
     t.finish()
@@ -193,17 +199,18 @@ def queue_or_graphics(profile: HardwareProfile, device: int, family: str) -> Que
 
 def check_program(program: FrameProgram, profile: HardwareProfile) -> None:
     """Build-time checks: every queue exists, dependencies name real tasks, names are unique."""
+    names = [{t.name for t in tasks} for tasks in program.templates]
     for phase, tasks in enumerate(program.templates):
-        names = [t.name for t in tasks]
-        if len(set(names)) != len(names):
+        if len(names[phase]) != len(tasks):
             raise ScheduleError(f"{program.schedule}: duplicate task names in frame phase {phase}")
-        if program.present_task not in names:
+        if program.present_task not in names[phase]:
             raise ScheduleError(f"{program.schedule}: phase {phase} has no {program.present_task!r} task")
         for task in tasks:
-            _check_task(program, profile, phase, task)
+            _check_task(program, profile, phase, task, names)
 
 
-def _check_task(program: FrameProgram, profile: HardwareProfile, phase: int, task: Task) -> None:
+def _check_task(program: FrameProgram, profile: HardwareProfile, phase: int, task: Task,
+                names: list[set[str]]) -> None:
     period = len(program.templates)
     if isinstance(task, (PassTask, CopyTask)):
         q = task.queue
@@ -212,8 +219,7 @@ def _check_task(program: FrameProgram, profile: HardwareProfile, phase: int, tas
     for dep in task.deps:
         if dep.offset > 0:
             raise ScheduleError(f"task {task.name!r} depends on a later frame ({dep})")
-        other = program.templates[(phase + dep.offset) % period]
-        if dep.task not in {t.name for t in other}:
+        if dep.task not in names[(phase + dep.offset) % period]:
             raise ScheduleError(f"task {task.name!r} depends on {dep.task!r} (frame offset "
                                 f"{dep.offset}), which that frame does not have")
     if isinstance(task, HostCopyTask) and task.chunk_min_bytes < 1:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from types import MappingProxyType
 
+from .. import limits as L
 from ..costs import CostModel, pass_work
 from ..errors import InputError
 from ..profile import HardwareProfile
@@ -23,7 +24,8 @@ from .five_step_io import bind_io
 OPTIONS = {
     "host_copy": Option(bool, True, "step 3: copy between the two staging buffers on host "
                                     "threads (false: one shared host allocation)"),
-    "buffers": Option(int, 2, "contribution and staging buffers per secondary", minimum=1),
+    "buffers": Option(int, 2, "contribution and staging buffers per secondary", minimum=1,
+                      maximum=L.MAX_BUFFERS, why=L.WHY_ALLOC),
 }
 SORT_FIRST_OPTIONS = {
     **OPTIONS,

@@ -20,6 +20,7 @@ from __future__ import annotations
 from dataclasses import replace
 from types import MappingProxyType
 
+from .. import limits as L
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
@@ -31,16 +32,18 @@ from .crossing import Route, cross
 from .pass_io import bind_full_frame, filter_sources, pass_image
 
 OPTIONS = {
-    "particles": Option(int, 4096, "number of particles", minimum=0),
+    "particles": Option(int, 4096, "number of particles", minimum=0, maximum=10**12,
+                        why=L.WHY_WORK),
     "particle_gpu": Option(int, 1, "GPU that updates the particles (0 = the primary's compute "
-                           "queue)", minimum=0),
+                           "queue)", minimum=0, maximum=L.MAX_GPUS - 1, why=L.WHY_ALLOC),
     "policy": Option(str, "new_wait", "'wait': the draw waits for this frame's particles; "
                      "'new_wait': skip the update when the previous one is unfinished",
                      choices=("wait", "new_wait")),
     "draw_after": Option(str, "geometry", "scene pass after which the particles are drawn "
                          "(the geometry pass draws them into the G-buffer)"),
     "vertex_bytes_per_particle": Option(int, 192, "billboard vertex data per particle "
-                                        "(6 vertices x 2 float4)", minimum=0),
+                                        "(6 vertices x 2 float4)", minimum=0, maximum=65536,
+                                        why="bytes per particle"),
     "host_copy": Option(bool, True, "the CPU copies the readback buffer into the upload buffer"),
     "update_queue": Option(str, "compute", "queue of the particle GPU that runs the update: "
                            "'compute' (its graphics queue where it has none) or 'graphics'",

@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import replace
 from types import MappingProxyType
 
+from .. import limits as L
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
@@ -30,8 +31,10 @@ OPTIONS = {
     "copy_granularity": Option(str, "pass", "'pass': copy each pass's output when that pass "
                                "ends; 'frame': one copy after GPU 1's last pass",
                                choices=("pass", "frame")),
-    "chunks": Option(int, 1, "split every copy into this many equal pieces", minimum=1),
-    "buffers": Option(int, 2, "copies of the intermediate buffers on each GPU", minimum=1),
+    "chunks": Option(int, 1, "split every copy into this many equal pieces", minimum=1,
+                     maximum=L.MAX_CHUNKS, why=L.WHY_ALLOC),
+    "buffers": Option(int, 2, "copies of the intermediate buffers on each GPU", minimum=1,
+                      maximum=L.MAX_BUFFERS, why=L.WHY_ALLOC),
 }
 
 
@@ -212,9 +215,16 @@ def _with_deps(task: PassTask, extra: tuple[Dep, ...]) -> PassTask:
 def _interleave(renders: list[PassTask], copies: list[Task]) -> list[Task]:
     """Submission order: each pass followed by the copies that read its output, so copies
     recorded on the graphics queue run between passes rather than after all of them."""
+    after: dict[str, list[Task]] = {}
+    rest: list[Task] = []
+    names = {r.name for r in renders}
+    for c in copies:  # one pass over the copies: linear in chunks, not quadratic
+        if c.deps and c.deps[0].task in names:
+            after.setdefault(c.deps[0].task, []).append(c)
+        else:
+            rest.append(c)
     out: list[Task] = []
     for r in renders:
         out.append(r)
-        out.extend(c for c in copies if c.deps and c.deps[0].task == r.name)
-    out.extend(c for c in copies if c not in out)
-    return out
+        out.extend(after.get(r.name, ()))
+    return out + rest

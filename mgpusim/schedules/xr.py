@@ -22,6 +22,7 @@ from dataclasses import replace
 from types import MappingProxyType
 from typing import Any
 
+from .. import limits as L
 from ..costs import pass_work
 from ..errors import InputError
 from ..profile import HardwareProfile
@@ -46,8 +47,10 @@ OPTIONS = {
                    "profile has a link)", choices=("auto", "host", "peer")),
     "host_copy": Option(bool, False, "host-to-host memcpy between staging buffers on the host path"),
     "handoff_us": Option(float, 0.0, "cost of one queue-family ownership hand-off (a barrier), "
-                         "in reference microseconds (a 'timed' pass)", minimum=0.0),
-    "buffers": Option(int, 2, "view render targets per GPU under strong scaling", minimum=1),
+                         "in reference microseconds (a 'timed' pass)", minimum=0.0,
+                         maximum=L.MAX_TASK_NS / 1000, why=L.WHY_TIME),
+    "buffers": Option(int, 2, "view render targets per GPU under strong scaling", minimum=1,
+                      maximum=L.MAX_BUFFERS, why=L.WHY_ALLOC),
 }
 
 

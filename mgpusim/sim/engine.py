@@ -18,7 +18,8 @@ import numpy as np
 import simpy
 
 from ..costs import CostModel
-from ..errors import ScheduleError
+from ..errors import InputError, ScheduleError
+from ..limits import INT64_MAX
 from ..schedules.base import FrameProgram, task_device, waits_for_labels
 from ..tasks import CopyTask, HostCopyTask, PassTask, QueueRef, Task
 from .channel import Channel
@@ -137,6 +138,7 @@ class Engine:
         if isinstance(task, CopyTask):
             nbytes = task.bytes
             cap = self.costs.copy_cap(task.queue.device, task.queue.family, task.path)
+            self._check_copy_time(task, cap, duration)
             if cpu:  # lavapipe: a copy is a memcpy in the queue thread, one core's work
                 bw = self._path_bandwidth(task)
                 rate = bw if cap is None else min(cap, bw)
@@ -146,6 +148,8 @@ class Engine:
                 channel = self._channel_for(task)
         gap = 0
         if isinstance(task, HostCopyTask):
+            self.costs.check_transfer(task.name, task.bytes, self.costs.memcpy_thread_cap(), duration,
+                                      "host.memcpy_thread_gbps")
             device, engine = "host", "memcpy"
         else:
             device, engine = task.queue.device_name, task.queue.engine
@@ -153,6 +157,15 @@ class Engine:
         return _Op(task, duration, channel, cap, nbytes, device, engine,
                    self._waits_for[phase][task.name], task.name == self.program.present_task,
                    cpu, -(-duration * cpu.numerator // cpu.denominator) if cpu else 0, gap)
+
+    def _check_copy_time(self, task: CopyTask, cap: Fraction | None, setup: int) -> None:
+        """A copy alone on its path must end within the bound on one task's time."""
+        bw, dev = self._path_bandwidth(task), task.queue.device
+        field = {"p2p": "peer_links", "d2d": f"gpus[{dev}].local_copy_gbps"}.get(
+            task.path, f"gpus[{dev}].link.{task.path}_gbps")
+        if cap is not None and cap < bw:
+            bw, field = cap, f"gpus[{dev}].copy.{task.queue.family}.{task.path}_gbps"
+        self.costs.check_transfer(task.name, task.bytes, bw, setup, field)
 
     def _cpu_threads(self, task: Task) -> Fraction:
         """Cores a task of a CPU-emulated GPU keeps busy (0 when the GPUs are real): a copy the
@@ -368,7 +381,12 @@ class Engine:
 
     # ----- run ---------------------------------------------------------------------------
     def run(self) -> RawResult:
-        self.env.run()
+        try:
+            self.env.run()
+        except OverflowError:  # a time stored in int64 arrays passed 2^63 ns
+            raise InputError(f"simulated time passed {INT64_MAX} ns (about 292 years), the int64 "
+                             f"limit, within {self.program.frames} frames: fewer frames or shorter "
+                             "tasks") from None
         if self._unfinished:
             raise ScheduleError(self._blocked_message())
         ch = self.channels

@@ -1,0 +1,56 @@
+"""Upper bounds on inputs, so that simulated time fits in int64 nanoseconds and a run's
+allocations stay in memory.
+
+Each bound is far above any machine or frame the tool is meant for, and each is named in the
+message that refuses a value above it (with the reason, `WHY_*`). docs/formats.md lists them.
+"""
+from __future__ import annotations
+
+#: Simulated time is int64 ns: 2^63 - 1 ns is about 292 years.
+INT64_MAX = 2 ** 63 - 1
+
+#: One task (a pass, a copy, a host copy part) and every fixed time in a profile (latency,
+#: fixed cost, dispatch, submit, gap) may last at most this: 10^12 ns = 1000 s. With at most
+#: MAX_FRAMES frames a run stays far from int64 unless thousands of such tasks follow each other.
+MAX_TASK_NS = 10 ** 12
+WHY_TIME = "keeps simulated time within int64 ns"
+
+#: Frames of one run: each frame's tasks are simulated one by one (10^6 frames take minutes).
+MAX_FRAMES = 10_000_000
+WHY_FRAMES = "a run simulates every frame; 10^6 frames take minutes"
+
+#: GPUs of a profile or a schedule, queues of one family, memcpy threads, CPU cores: the
+#: engine builds one process per queue and thread, schedules build tasks per GPU pair.
+MAX_GPUS = 64
+MAX_QUEUES = 64
+MAX_THREADS = 1024
+WHY_ALLOC = "bounds the tasks, queues and threads the model allocates"
+
+#: Buffers and frames in flight (multi-buffering depth), and copy chunks per buffer: each adds
+#: tasks or dependencies to every frame.
+MAX_BUFFERS = 64
+MAX_CHUNKS = 1024
+
+#: Image side in pixels (Vulkan's largest maxImageDimension2D is 32768 on current GPUs; twice
+#: that leaves room for what-ifs) and bytes per pixel (RGBA32F x 4 samples = 64).
+MAX_SIDE = 65536
+MAX_BYTES_PER_PIXEL = 64
+WHY_IMAGE = "larger than any GPU's image; keeps byte counts exact"
+
+#: Byte counts (memory sizes, data sets, copies): 2^50 = 1 PiB.
+MAX_BYTES = 2 ** 50
+WHY_BYTES = "1 PiB, more than any machine's memory"
+
+#: Work amounts of a pass (iterations, triangles, particles, inputs, output bytes...): 10^15.
+#: Durations themselves are bounded by MAX_TASK_NS when the cost model computes them.
+MAX_WORK = 1e15
+WHY_WORK = "10^15; the pass's time is checked against 10^12 ns too"
+
+#: Bandwidths in GB/s (bytes per ns): 10^12 GB/s, high enough to stand for a free copy in a
+#: what-if, low enough that byte counts over it stay exact fractions of reasonable size.
+MAX_GBPS = 1e12
+WHY_GBPS = "10^12 GB/s, as good as free"
+
+#: Cost coefficients (ns per unit of work) and speed factors.
+MAX_COEFFICIENT = 1e12
+MAX_SPEED = 1e6

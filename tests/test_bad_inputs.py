@@ -1,0 +1,760 @@
+"""Bad input through every command ends in one line on stderr, exit code 2, no traceback, and
+nothing written to --out.
+
+Each case builds its files in a fresh folder, runs the CLI in-process (mgpusim.cli.main) and
+checks the line names what was wrong (a file, an option or a field, and the words that say
+why). Files: experiments, hardware profiles, measured-run folders (`validate --measured`), measure
+tables (`calibrate`) and study files; commands: simulate, validate, calibrate, study, run and
+measure (only their checks that come before any Vulkan device is opened).
+"""
+from __future__ import annotations
+
+import json
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import pandas as pd
+import pytest
+import tomli_w
+
+from mgpusim import InputError, load_experiment, simulate
+from mgpusim.cli import main
+from mgpusim.costs import CostModel
+from mgpusim.profile import parse_profile
+from mgpusim.schedules.base import FrameProgram
+from mgpusim.sim.engine import Engine
+from mgpusim.tasks import Dep, PassTask, QueueRef
+from tests.conftest import profile_dict
+
+ROOT = Path(__file__).resolve().parents[1]
+EXPERIMENTS = {
+    "sf": "sort_first_tc1.toml", "sl": "sort_last_tc1.toml", "afr": "afr_temporal_tc1.toml",
+    "pipe": "pipelining_miniengine_pcie3x8.toml", "xr": "xr_quest3_pcie4.toml",
+    "part": "particles_machine.toml",
+}
+
+
+def experiment(key: str = "sf") -> dict[str, Any]:
+    """A shipped experiment as a dict, its profile path made absolute."""
+    path = ROOT / "experiments" / EXPERIMENTS[key]
+    data = tomllib.loads(path.read_text())
+    data["profile"] = str((path.parent / data["profile"]).resolve())
+    return data
+
+
+def tc1() -> dict[str, Any]:
+    return tomllib.loads((ROOT / "hardware_profiles" / "tc1.toml").read_text())
+
+
+def write_toml(path: Path, data: dict[str, Any]) -> Path:
+    path.write_text(tomli_w.dumps(data))
+    return path
+
+
+@dataclass
+class Case:
+    id: str
+    #: (tmp folder) -> argv; --out (if any) must be tmp / "out"
+    make: Callable[[Path], list[str]]
+    #: words the one line must contain
+    expect: tuple[str, ...]
+
+
+CASES: list[Case] = []
+
+
+def case(id: str, *expect: str) -> Callable[[Callable[[Path], list[str]]], Callable]:
+    def wrap(make: Callable[[Path], list[str]]) -> Callable:
+        CASES.append(Case(id, make, expect))
+        return make
+    return wrap
+
+
+def simulate_argv(exp: Path, tmp: Path, *sets: str) -> list[str]:
+    return ["simulate", str(exp), "--out", str(tmp / "out"), *[a for s in sets for a in ("--set", s)]]
+
+
+# ----- --set overrides on simulate --------------------------------------------------------
+SET_CASES = [
+    ("sf", "=3", "no key"),
+    ("sf", "schedule.gpus", "key=value"),
+    ("sf", ".gpus=3", "empty part"),
+    ("sf", "schedule..gpus=3", "empty part"),
+    ("sf", "scene.passes.5.iterations=1", "not an index below 1"),
+    ("sf", "scene.passes.x.iterations=1", "not an index"),
+    ("sf", "scene.passes.-1.iterations=1", "not an index"),
+    ("sf", "scene.width.x=3", "scene.width is not a table"),
+    ("sf", "schedule.gpus=nan", "schedule.gpus"),
+    ("sf", "schedule.gpus=inf", "schedule.gpus"),
+    ("sf", "schedule.gpus=4", "profile.gpu_count=4"),
+    ("sf", "schedule.gpus=1000", "<= 64"),
+    ("sf", "schedule.frames=100000000", "<= 1e+07"),
+    ("sf", "schedule.frames=0", ">= 1"),
+    ("sf", "scene.width=nan", "scene.width"),
+    ("sf", "scene.width=1e400", "scene.width"),
+    ("sf", "scene.passes.0.iterations=nan", "finite"),
+    ("sf", "scene.passes.0.iterations=inf", "finite"),
+    ("sf", "scene.passes.0.iterations=-inf", "finite"),
+    ("sf", "scene.passes.0.iteratons=1", "did you mean 'iterations'"),
+    ("sf", "schedule.hostcopy=false", "did you mean 'host_copy'"),
+    ("sf", "profile=5", "expected a string"),
+    ("sf", "profile.gpus.0.link.pcie_gen=9", "gpus[0].link.pcie_gen"),
+    ("sf", "profile.gpus.0.link.lanes=3", "gpus[0].link.lanes"),
+    ("sf", "profile.gpus.9.speed=2", "not an index below 2"),
+    ("sf", "profile.gpus.*.speed=-1", "gpus[0].speed"),
+    ("sf", "profile.gpus.0.speed=nan", "finite"),
+    ("sf", "profile.host.memcpy_threads=100000", "<= 1024"),
+    ("sf", "profile.host.memcpy_thread=2", "did you mean 'memcpy_threads'"),
+    ("sf", "profile.gpu_count=0", "gpu_count"),
+    ("sf", "profile.gpu_count=65", "<= 64"),
+    ("sf", "profile.peer_mesh.bandwidth_gbps=0", "peer_mesh"),
+    ("sf", "profile.peer_mesh.bandwidth_gbps=300", "peer_mesh.latency_ns"),
+    ("sf", "profile.nope=1", "unknown key"),
+    ("sf", "profile.name=3", "expected a string"),
+    ("sf", "profile.gpus.0.costs.fragment_loop.ns_per_pixle=1", "did you mean 'ns_per_pixel'"),
+    ("sf", "a.b.c.d.e.f.g.h.i.j.k.l.m.n.o.p.q.r=1", "dotted parts"),
+    ("sf", "profile.gpus.0.link.h2d_gbps=1e-9", "gpus[0].link.h2d_gbps"),
+    ("pipe", "schedule.chunks=1000000", "<= 1024"),
+    ("pipe", "schedule.split_at=100", "schedule.split_at"),
+    ("pipe", "schedule.copy_granularity=frme", "did you mean 'frame'"),
+    ("pipe", "schedule.path=peer", "peer link"),
+]
+for _i, (_key, _set, _words) in enumerate(SET_CASES):
+    def _make(tmp: Path, key=_key, s=_set) -> list[str]:
+        return simulate_argv(write_toml(tmp / "e.toml", experiment(key)), tmp, s)
+    CASES.append(Case(f"set-{_i}-{_set}", _make, ("error", _words)))
+
+
+# ----- experiment files ------------------------------------------------------------------
+def _put(path: str, value: Any) -> Callable[[dict], None]:
+    """A mutation setting a dotted path (numbers index lists) to `value`."""
+    def mutate(data: dict) -> None:
+        *parents, last = path.split(".")
+        node: Any = data
+        for p in parents:
+            node = node[int(p)] if isinstance(node, list) else node[p]
+        node[int(last) if isinstance(node, list) else last] = value
+    return mutate
+
+
+def _drop(path: str) -> Callable[[dict], None]:
+    def mutate(data: dict) -> None:
+        *parents, last = path.split(".")
+        node: Any = data
+        for p in parents:
+            node = node[int(p)] if isinstance(node, list) else node[p]
+        del node[last]
+    return mutate
+
+
+EXPERIMENT_CASES: list[tuple[str, Callable[[dict], None], tuple[str, ...]]] = [
+    ("sf", _put("name", 5), ("name", "string")),
+    ("sf", _put("description", []), ("description",)),
+    ("sf", _drop("profile"), ("profile", "missing")),
+    ("sf", _put("profile", "nonexistent.toml"), ("profile", "not found")),
+    ("sf", _put("profile", "/"), ("profile", "not found")),
+    ("sf", _drop("scene"), ("scene", "missing")),
+    ("sf", _put("scene", 3), ("scene", "table")),
+    ("sf", _put("scene.width", 0), ("scene.width", ">= 1")),
+    ("sf", _put("scene.width", -1), ("scene.width",)),
+    ("sf", _put("scene.width", 1000.0), ("scene.width", "integer")),
+    ("sf", _put("scene.width", 10**6), ("scene.width", "<= 65536")),
+    ("sf", _put("scene.width", 10**30), ("scene.width", "<= 65536")),
+    ("sf", _put("scene.width", "wide"), ("scene.width", "integer")),
+    ("sf", _put("scene.width", True), ("scene.width", "integer")),
+    ("sf", _put("scene.height", 70000), ("scene.height", "<= 65536")),
+    ("sf", _put("scene.color_bytes_per_pixel", 0), ("color_bytes_per_pixel",)),
+    ("sf", _put("scene.color_bytes_per_pixel", 1000), ("color_bytes_per_pixel", "<= 64")),
+    ("sf", _put("scene.depth_bytes_per_pixel", -1), ("depth_bytes_per_pixel",)),
+    ("sf", _put("scene.dataset_bytes", 2**60), ("dataset_bytes", "1 PiB")),
+    ("sf", _put("scene.dataset_bytes", 1e20), ("dataset_bytes", "integer")),
+    ("sf", _put("scene.dataset_bytes", 2**40), ("scene.dataset_bytes", "overflows")),
+    ("sf", lambda d: d["scene"].update(width=65536, height=65536), ("scene.width x scene.height", "overflows")),
+    ("sf", _put("scene.widht", 5), ("did you mean 'width'",)),
+    ("sf", _put("scene.passes", []), ("scene.passes", "empty")),
+    ("sf", _drop("scene.passes"), ("scene.passes", "missing")),
+    ("sf", _put("scene.passes", "x"), ("scene.passes",)),
+    ("sf", _put("scene.passes.0", 5), ("scene.passes[0]", "table")),
+    ("sf", _put("scene.passes.0.kind", "fragment_lop"), ("did you mean 'fragment_loop'",)),
+    ("sf", _drop("scene.passes.0.kind"), ("scene.passes[0].kind", "missing")),
+    ("sf", _drop("scene.passes.0.name"), ("scene.passes[0].name", "missing")),
+    ("sf", lambda d: d["scene"]["passes"].append(dict(d["scene"]["passes"][0])), ("duplicate pass name",)),
+    ("sf", _put("scene.passes.0.iterations", float("nan")), ("iterations", "finite")),
+    ("sf", _put("scene.passes.0.iterations", float("inf")), ("iterations", "finite")),
+    ("sf", _put("scene.passes.0.iterations", -1), ("iterations", ">= 0")),
+    ("sf", _put("scene.passes.0.iterations", "many"), ("iterations", "number")),
+    ("sf", _put("scene.passes.0.iterations", 1e16), ("iterations", "<= 1e+15")),
+    ("sf", _put("scene.passes.0.iterations", True), ("iterations", "number")),
+    ("sf", _put("scene.passes.0.iterations", 10**400), ("iterations", "finite")),
+    ("sf", _put("scene.passes.0.iteratons", 5), ("did you mean 'iterations'",)),
+    ("sf", _put("scene.passes.0.iterations", 1e14), ("fragment_loop pass would take", "1e+12 ns")),
+    ("sl", _put("scene.passes.0.triangels", 5), ("did you mean 'triangles'",)),
+    ("sl", _put("scene.passes.0.triangles", float("nan")), ("triangles", "finite")),
+    ("sf", _drop("schedule"), ("schedule", "missing")),
+    ("sf", _drop("schedule.name"), ("schedule.name", "missing")),
+    ("sf", _put("schedule.name", "sort_frist"), ("did you mean 'sort_first'",)),
+    ("sf", _put("schedule.name", 5), ("schedule.name", "string")),
+    ("sf", _put("schedule.gpus", 0), ("schedule.gpus", ">= 1")),
+    ("sf", _put("schedule.gpus", "two"), ("schedule.gpus", "integer")),
+    ("sf", _put("schedule.frames", 2.5), ("schedule.frames", "integer")),
+    ("sf", _put("schedule.frames", 10**8), ("schedule.frames", "<= 1e+07")),
+    ("sf", _put("schedule.warmup_frames", 60), ("warmup_frames", "< frames")),
+    ("sf", _put("schedule.warmup_frames", -1), ("warmup_frames", ">= 0")),
+    ("sf", _put("schedule.frames_in_flight", 0), ("frames_in_flight", ">= 1")),
+    ("sf", _put("schedule.frames_in_flight", 100), ("frames_in_flight", "<= 64")),
+    ("sf", _put("schedule.buffers", 0), ("schedule.buffers", ">= 1")),
+    ("sf", _put("schedule.buffers", 1000), ("schedule.buffers", "<= 64")),
+    ("sf", _put("schedule.host_copy", "yes"), ("schedule.host_copy", "true or false")),
+    ("sf", _put("schedule.tile_rows", [1, 2]), ("schedule.tile_rows", "summing")),
+    ("sf", _put("schedule.tile_rows", ["a", "b"]), ("schedule.tile_rows",)),
+    ("sf", _put("schedule.tile_rows", [384, 385]), ("schedule.tile_rows", "768")),
+    ("sf", _put("schedule.gpu", 2), ("schedule.gpu", "did you mean 'gpus'")),
+    ("sf", _put("schedul", {}), ("did you mean 'schedule'",)),
+    ("afr", _put("schedule.temporal_pass", "tta"), ("schedule.temporal_pass", "no scene pass")),
+    ("afr", _put("schedule.history_bytes", -1), ("history_bytes", ">= 0")),
+    ("afr", _put("schedule.present_queue", "x"), ("present_queue", "one of")),
+    ("afr", _put("schedule.path", "perr"), ("schedule.path", "did you mean 'peer'")),
+    ("afr", _put("schedule.path", "peer"), ("no peer link",)),
+    ("pipe", _put("schedule.split_at", 100), ("schedule.split_at", "passes")),
+    ("pipe", _put("schedule.chunks", 0), ("schedule.chunks", ">= 1")),
+    ("pipe", _put("scene.passes.0.output_bytes", -5), ("output_bytes", ">= 0")),
+    ("pipe", _put("scene.passes.0.duration_ms", 1e9), ("timed pass would take",)),
+    ("pipe", _put("scene.passes.0.output_bytes", 1e15), ("receive buffers", "overflows")),
+    ("part", _put("schedule.particle_gpu", 5), ("schedule.particle_gpu", "GPU")),
+    ("part", _put("schedule.particle_gpu", 100), ("schedule.particle_gpu", "<= 63")),
+    ("part", _put("schedule.draw_after", "geometri"), ("schedule.draw_after",)),
+    ("part", _put("schedule.particles", -1), ("schedule.particles", ">= 0")),
+    ("part", _put("schedule.particles", 10**13), ("schedule.particles", "<= 1e+12")),
+    ("part", _put("schedule.policy", "waitt"), ("schedule.policy", "did you mean 'wait'")),
+    ("part", _put("schedule.vertex_bytes_per_particle", 10**6), ("vertex_bytes_per_particle",)),
+    ("xr", _put("schedule.views", 3), ("schedule.views", "one of")),
+    ("xr", _put("schedule.mode", "x"), ("schedule.mode",)),
+    ("xr", _put("schedule.handoff_us", float("nan")), ("handoff_us", "finite")),
+    ("xr", _put("schedule.handoff_us", 1e10), ("handoff_us", "<= 1e+09")),
+    ("xr", _put("schedule.scaling", "medium"), ("schedule.scaling",)),
+    ("xr", _put("schedule.buffers", 0), ("schedule.buffers",)),
+    ("xr", _put("schedule.frames_in_flight", 9), ("frames in flight",)),
+]
+for _i, (_key, _mutate, _words) in enumerate(EXPERIMENT_CASES):
+    def _make(tmp: Path, key=_key, mutate=_mutate) -> list[str]:
+        data = experiment(key)
+        mutate(data)
+        return simulate_argv(write_toml(tmp / "e.toml", data), tmp)
+    CASES.append(Case(f"experiment-{_key}-{_i}", _make, ("e.toml", *_words)))
+
+
+# ----- hardware profiles -----------------------------------------------------------------
+PROFILE_CASES: list[tuple[Callable[[dict], None], tuple[str, ...]]] = [
+    (_put("host.memory_bandwidth_gbps", float("nan")), ("host.memory_bandwidth_gbps", "finite")),
+    (_put("host.memory_bandwidth_gbps", float("inf")), ("host.memory_bandwidth_gbps", "finite")),
+    (_put("host.memory_bandwidth_gbps", -1.0), ("host.memory_bandwidth_gbps", "> 0")),
+    (_put("host.memory_bandwidth_gbps", 0), ("host.memory_bandwidth_gbps", "> 0")),
+    (_put("host.memory_bandwidth_gbps", "fast"), ("host.memory_bandwidth_gbps", "number")),
+    (_put("host.memory_bandwidth_gbps", 1e13), ("host.memory_bandwidth_gbps", "<= 1e+12")),
+    (_put("host.memcpy_threads", 0), ("host.memcpy_threads", ">= 1")),
+    (_put("host.memcpy_threads", 10**9), ("host.memcpy_threads", "<= 1024")),
+    (_put("host.memcpy_threads", 2.5), ("host.memcpy_threads", "integer")),
+    (_put("host.memcpy_threads", True), ("host.memcpy_threads", "integer")),
+    (_put("host.cpu_cores", 10**6), ("host.cpu_cores", "<= 1024")),
+    (_put("host.host_copy_fixed_ns", 10**13), ("host.host_copy_fixed_ns", "int64")),
+    (_put("host.host_copy_fixed_ns", -1), ("host.host_copy_fixed_ns", ">= 0")),
+    (_put("host.dispatch_ns", 1e30), ("host.dispatch_ns", "integer")),
+    (_put("host.submit_ns", 10**20), ("host.submit_ns", "<= 1e+12")),
+    (_put("host.oversubscribed_efficiency", 1.5), ("oversubscribed_efficiency", "<= 1")),
+    (_put("host.oversubscribed_efficiency", float("nan")), ("oversubscribed_efficiency", "finite")),
+    (_put("host.memory_bandwith_gbps", 3.0), ("did you mean 'memory_bandwidth_gbps'",)),
+    (_put("host.memcpy_thread", 1), ("did you mean 'memcpy_threads'",)),
+    (_drop("host"), ("host", "missing")),
+    (_put("hosts", {}), ("did you mean 'host'",)),
+    (_drop("name"), ("name", "missing")),
+    (_put("name", 5), ("name", "string")),
+    (_put("gpus", []), ("gpus", "empty")),
+    (_drop("gpus"), ("gpus", "missing")),
+    (_put("gpus", "x"), ("gpus",)),
+    (_put("gpus.0.count", 0), ("gpus[0].count", ">= 1")),
+    (_put("gpus.0.count", 10**6), ("gpus[0].count", "<= 64")),
+    (_put("gpus.0.count", 64), ("gpus[1].count", "65 GPUs")),
+    (_put("gpus.0.memory_bytes", 0), ("gpus[0].memory_bytes", ">= 1")),
+    (_put("gpus.0.memory_bytes", 2**60), ("gpus[0].memory_bytes", "1 PiB")),
+    (_put("gpus.0.queues.graphics", 0), ("gpus[0].queues.graphics", "at least one")),
+    (_put("gpus.0.queues.graphics", 10**6), ("gpus[0].queues.graphics", "<= 64")),
+    (_put("gpus.0.queues.copy", 1), ("gpus[0].queues.copy", "unknown key")),
+    (_put("gpus.0.link.pcie_gen", 7), ("gpus[0].link.pcie_gen", "one of")),
+    (_put("gpus.0.link.lanes", 3), ("gpus[0].link.lanes", "one of")),
+    (_put("gpus.0.link.efficiency", 1.5), ("gpus[0].link.efficiency", "<= 1")),
+    (_put("gpus.0.link.efficiency", float("nan")), ("gpus[0].link.efficiency", "finite")),
+    (_put("gpus.0.link.latency_ns", -5), ("gpus[0].link.latency_ns", ">= 0")),
+    (_put("gpus.0.link.latency_ns", 10**13), ("gpus[0].link.latency_ns", "<= 1e+12")),
+    (_put("gpus.0.link.h2d_gbps", 0), ("gpus[0].link.h2d_gbps", "> 0")),
+    (_put("gpus.0.link.h2d_gbps", float("inf")), ("gpus[0].link.h2d_gbps", "finite")),
+    (_put("gpus.0.link.h2d_gbps", 1e-9), ("copy", "gpus[0].link.h2d_gbps", "1e+12 ns")),
+    (_put("gpus.0.link.d2h_gbps", 1e-9), ("copy", "gpus[1].link.d2h_gbps", "1e+12 ns")),
+    (_put("gpus.0.link.pcie_gn", 3), ("did you mean 'pcie_gen'",)),
+    (_put("gpus.0.costs.fragment_loop.ns_per_pixle", 0.1), ("did you mean 'ns_per_pixel'",)),
+    (_put("gpus.0.costs.fragmnt_loop", {}), ("did you mean 'fragment_loop'",)),
+    (_put("gpus.0.costs.mesh.ns_per_triangle", float("nan")), ("ns_per_triangle", "finite")),
+    (_put("gpus.0.costs.mesh.ns_per_triangle", -1.0), ("ns_per_triangle", ">= 0")),
+    (_put("gpus.0.costs.mesh.ns_per_triangle", 1e13), ("ns_per_triangle", "<= 1e+12")),
+    (_put("gpus.0.costs.mesh.fixed_ns", 1e13), ("costs.mesh.fixed_ns", "<= 1e+12")),
+    (_put("gpus.0.costs.mesh.ms_per_triangle", 1), ("costs.mesh.ms_per_triangle", "unknown cost key")),
+    (_put("gpus.0.costs.present.cores", 0), ("costs.present.cores", ">= 0.01")),
+    (_put("gpus.0.costs.present.cores", 1e5), ("costs.present.cores", "<= 1024")),
+    (_put("gpus.0.costs.fragment_loop.ns_per_pixel_iteration", 1e12), ("fragment_loop pass would take",)),
+    (_drop("gpus.0.costs.fragment_loop.ns_per_pixel_iteration"), ("ns_per_pixel_iteration", "missing coefficient")),
+    (_put("gpus.0.copy.transfr", {}), ("did you mean 'transfer'",)),
+    (_put("gpus.0.copy.transfer.h2d_gbps", -1.0), ("copy.transfer.h2d_gbps", "> 0")),
+    (_put("gpus.0.copy.transfer.fixed_ns", 1.5), ("copy.transfer.fixed_ns", "integer")),
+    (_put("gpus.0.speed", 0), ("gpus[0].speed", "> 0")),
+    (_put("gpus.0.speed", float("nan")), ("gpus[0].speed", "finite")),
+    (_put("gpus.0.speed", 1e7), ("gpus[0].speed", "<= 1e+06")),
+    (_put("gpus.0.task_gap_ns", 10**13), ("gpus[0].task_gap_ns", "<= 1e+12")),
+    (_put("gpus.0.cpu_threads", 0), ("gpus[0].cpu_threads", ">= 1")),
+    (_put("gpus.0.cpu_threads", 5000), ("gpus[0].cpu_threads", "<= 1024")),
+    (_put("gpus.0.local_copy_gbps", float("inf")), ("local_copy_gbps", "finite")),
+    (_put("gpu_count", 0), ("gpu_count", ">= 1")),
+    (_put("gpu_count", 65), ("gpu_count", "<= 64")),
+    (_put("gpu_count", "four"), ("gpu_count", "integer")),
+    (_put("peer_links", [{"gpus": [0, 0], "bandwidth_gbps": 1.0, "latency_ns": 1}]), ("peer_links[0].gpus",)),
+    (_put("peer_links", [{"gpus": [0, 9], "bandwidth_gbps": 1.0, "latency_ns": 1}]), ("peer_links[0].gpus",)),
+    (_put("peer_links", [{"gpus": [True, 1], "bandwidth_gbps": 1.0, "latency_ns": 1}]), ("peer_links[0].gpus",)),
+    (_put("peer_links", [{"gpus": [0, 1], "bandwidth_gbps": float("nan"), "latency_ns": 1}]), ("bandwidth_gbps", "finite")),
+    (_put("peer_links", [{"gpus": [0, 1], "bandwidth_gbps": 1.0}]), ("peer_links[0].latency_ns", "missing")),
+    (_put("peer_links", [{"gpus": [0, 1], "bandwidth_gbps": 1.0, "latency_ns": 1, "lanes": 4}]), ("peer_links[0].lanes",)),
+    (_put("peer_mesh", {"bandwidth_gbps": 0, "latency_ns": 1}), ("peer_mesh.bandwidth_gbps", "> 0")),
+    (_put("peer_mesh", {"bandwidth_gbps": 1.0}), ("peer_mesh.latency_ns", "missing")),
+    (_put("peer_mesh", {"bandwidth_gbps": 1.0, "latency_ns": 1, "gpus": [0, 1]}), ("peer_mesh.gpus", "unknown key")),
+]
+for _i, (_mutate, _words) in enumerate(PROFILE_CASES):
+    def _make(tmp: Path, mutate=_mutate) -> list[str]:
+        prof = tc1()
+        mutate(prof)
+        data = experiment("sf")
+        data["profile"] = str(write_toml(tmp / "p.toml", prof))
+        return simulate_argv(write_toml(tmp / "e.toml", data), tmp)
+    CASES.append(Case(f"profile-{_i}", _make, ("p.toml", *_words)))
+
+
+# ----- files that are not TOML text ------------------------------------------------------
+FILE_CASES: list[tuple[str, bytes | None, tuple[str, ...]]] = [
+    ("empty", b"", ("empty",)),
+    ("blank", b"  \n\n", ("empty",)),
+    ("binary", b"\x00\x01\x02name = 1", ("binary",)),
+    ("latin-1", 'name = "caf\xe9"\n'.encode("latin-1"), ("not UTF-8",)),
+    ("not-toml", b"name = \n", ("not valid TOML",)),
+    ("json", b'{"name": 1}', ("not valid TOML",)),
+    ("folder", None, ("is a folder",)),
+]
+for _id, _content, _words in FILE_CASES:
+    def _make_exp(tmp: Path, content=_content) -> list[str]:
+        path = tmp / "e.toml"
+        if content is None:
+            path.mkdir()
+        else:
+            path.write_bytes(content)
+        return simulate_argv(path, tmp)
+
+    def _make_prof(tmp: Path, content=_content) -> list[str]:
+        path = tmp / "p.toml"
+        if content is None:
+            path.mkdir()
+        else:
+            path.write_bytes(content)
+        data = experiment("sf")
+        data["profile"] = str(path)
+        return simulate_argv(write_toml(tmp / "e.toml", data), tmp)
+    CASES.append(Case(f"experiment-file-{_id}", _make_exp, ("e.toml", *_words)))
+    if _content is not None:  # a folder as profile is "not found" (below)
+        CASES.append(Case(f"profile-file-{_id}", _make_prof, ("p.toml", *_words)))
+
+
+@case("experiment-missing", "nope.toml", "not found")
+def _(tmp: Path) -> list[str]:
+    return simulate_argv(tmp / "nope.toml", tmp)
+
+
+@case("profile-is-a-folder", "profile", "not found")
+def _(tmp: Path) -> list[str]:
+    (tmp / "p.toml").mkdir()
+    data = experiment("sf")
+    data["profile"] = str(tmp / "p.toml")
+    return simulate_argv(write_toml(tmp / "e.toml", data), tmp)
+
+
+# ----- output paths, checked before any work ---------------------------------------------
+def _file_in_the_way(tmp: Path) -> Path:
+    (tmp / "f").write_text("x")
+    return tmp / "f"
+
+
+@case("simulate-out-under-a-file", "--out", "is a file")
+def _(tmp: Path) -> list[str]:
+    argv = simulate_argv(write_toml(tmp / "e.toml", experiment()), tmp)
+    return argv[:3] + [str(_file_in_the_way(tmp) / "sub")]
+
+
+@case("simulate-out-at-a-file", "--out", "not a folder")
+def _(tmp: Path) -> list[str]:
+    argv = simulate_argv(write_toml(tmp / "e.toml", experiment()), tmp)
+    return argv[:3] + [str(_file_in_the_way(tmp))]
+
+
+@case("validate-out-at-a-file", "--out", "not a folder")
+def _(tmp: Path) -> list[str]:
+    return ["validate", str(write_toml(tmp / "e.toml", experiment())), "--measured", str(tmp),
+            "--out", str(_file_in_the_way(tmp))]
+
+
+@case("calibrate-out-is-a-folder", "--out", "is a folder")
+def _(tmp: Path) -> list[str]:
+    return ["calibrate", str(ROOT / "data/lavapipe/mesh.csv"), "--out", str(tmp)]
+
+
+@case("calibrate-out-under-a-file", "--out", "is a file")
+def _(tmp: Path) -> list[str]:
+    return ["calibrate", str(ROOT / "data/lavapipe/mesh.csv"), "--out", str(_file_in_the_way(tmp) / "p.toml")]
+
+
+@case("run-out-under-a-file", "--out", "is a file")
+def _(tmp: Path) -> list[str]:
+    return ["run", str(write_toml(tmp / "e.toml", experiment())), "--out", str(_file_in_the_way(tmp) / "m")]
+
+
+@case("measure-out-under-a-file", "--out", "is a file")
+def _(tmp: Path) -> list[str]:
+    return ["measure", "--pass", "mesh", "--out", str(_file_in_the_way(tmp) / "m.csv")]
+
+
+@case("simulate-out-unwritable", "--out", "not writable")
+def _(tmp: Path) -> list[str]:
+    argv = simulate_argv(write_toml(tmp / "e.toml", experiment()), tmp)
+    return argv[:3] + [str(_unwritable(tmp) / "out")]
+
+
+def _unwritable(tmp: Path) -> Path:
+    """A folder this process cannot create files in (a read-only mode; as root, /sys)."""
+    folder = tmp / "ro"
+    folder.mkdir()
+    folder.chmod(0o500)
+    try:
+        (folder / "probe").touch()
+    except OSError:
+        return folder
+    (folder / "probe").unlink()
+    return Path("/sys")
+
+
+# ----- run and measure: argument checks before any device --------------------------------
+RUN_CASES = [
+    (["--gpus-per-device", "0"], ("--gpus-per-device", ">= 1")),
+    (["--gpus-per-device", "1", "--devices", "0,1"], ("not both",)),
+    (["--devices", "a,b"], ("--devices", "integers")),
+    (["--devices=-1,0"], ("--devices", ">= 0")),
+    (["--lp-threads", "0"], ("--lp-threads",)),
+    (["--lp-threads", "1,,2"], ("--lp-threads", "integers")),
+    (["--host-threads", "0"], ("--host-threads",)),
+    (["--host-threads", "100000"], ("--host-threads",)),
+    (["--prewarm", "-1"], ("--prewarm",)),
+    (["--set", "schedule.gpus=9"], ("schedule.gpus",)),
+    (["--format", "xlsx"], ("--format", "invalid choice")),
+    (["--prewarm", "many"], ("--prewarm", "invalid int")),
+]
+for _i, (_args, _words) in enumerate(RUN_CASES):
+    def _make(tmp: Path, args=_args) -> list[str]:
+        return ["run", str(write_toml(tmp / "e.toml", experiment())), "--out", str(tmp / "out"), *args]
+    CASES.append(Case(f"run-args-{_i}", _make, _words))
+
+MEASURE_CASES = [
+    ([], ("--pass",)),
+    (["--pass", "mesh"], ("--out",)),
+    (["--pass", "mesh", "--out", "OUT.txt"], ("--out", ".csv or .parquet")),
+    (["--pass", "mesh", "--out", "OUT.csv", "--reps", "0"], ("--reps", ">= 1")),
+    (["--pass", "mesh", "--out", "OUT.csv", "--gpus", "0"], ("--gpus", ">= 1")),
+    (["--pass", "mesh", "--out", "OUT.csv", "--warmup", "-1"], ("--warmup", ">= 0")),
+    (["--pass", "meshh", "--out", "OUT.csv"], ("--pass", "unknown pass")),
+    (["--pass", "mesh", "--out", "OUT.csv", "--sweep", "triangels=1,2"], ("--sweep", "no parameter")),
+    (["--pass", "mesh", "--out", "OUT.csv", "--sweep", "triangles"], ("--sweep", "PARAM=")),
+    (["--pass", "mesh", "--out", "OUT.csv", "--sweep", "triangles=1,x"], ("triangles", "integer")),
+    (["--pass", "mesh", "--out", "OUT.csv", "--reps", "x"], ("--reps", "invalid int")),
+]
+for _i, (_args, _words) in enumerate(MEASURE_CASES):
+    def _make(tmp: Path, args=_args) -> list[str]:
+        return ["measure", *[a.replace("OUT", str(tmp / "out")) for a in args]]
+    CASES.append(Case(f"measure-args-{_i}", _make, _words))
+
+
+# ----- validate --measured: measured-run folders -----------------------------------------
+def measured_folder(tmp: Path, key: str = "sf", sets: dict[str, Any] | None = None) -> Path:
+    """A measured-run folder as `mgpusim run` writes it, made from a simulation (no device)."""
+    folder = tmp / "measured"
+    folder.mkdir()
+    exp = load_experiment(write_toml(tmp / "m.toml", experiment(key)),
+                          {"schedule.frames": 14, **(sets or {})})
+    result = simulate(exp, record_trace=True)
+    result.trace.to_csv(folder / "trace.csv", index=False)
+    (folder / "summary.json").write_text(json.dumps({"config": {**result.config, "measured": True}},
+                                                    default=list))
+    return folder
+
+
+def validate_argv(tmp: Path, folder: Path, *sets: str) -> list[str]:
+    exp = write_toml(tmp / "e.toml", experiment("sf"))
+    return ["validate", str(exp), "--measured", str(folder), "--out", str(tmp / "out"),
+            "--set", "schedule.frames=14", *[a for s in sets for a in ("--set", s)]]
+
+
+def _edit_trace(edit: Callable[[pd.DataFrame], pd.DataFrame | None]) -> Callable[[Path], list[str]]:
+    def make(tmp: Path) -> list[str]:
+        folder = measured_folder(tmp)
+        df = pd.read_csv(folder / "trace.csv", keep_default_na=False)
+        df = edit(df)
+        df.to_csv(folder / "trace.csv", index=False)
+        return validate_argv(tmp, folder)
+    return make
+
+
+def _write(name: str, content: bytes) -> Callable[[Path], list[str]]:
+    def make(tmp: Path) -> list[str]:
+        folder = measured_folder(tmp)
+        (folder / name).write_bytes(content)
+        return validate_argv(tmp, folder)
+    return make
+
+
+def _set_col(col: str, row: int, value: Any) -> Callable[[pd.DataFrame], pd.DataFrame]:
+    def edit(df: pd.DataFrame) -> pd.DataFrame:
+        df[col] = df[col].astype(object)
+        df.loc[row, col] = value
+        return df
+    return edit
+
+
+MEASURED_CASES: list[tuple[str, Callable[[Path], list[str]], tuple[str, ...]]] = [
+    ("trace-binary", _write("trace.csv", b"\x00\xff\xfe" * 50), ("trace.csv",)),
+    ("trace-empty", _write("trace.csv", b""), ("trace.csv", "empty")),
+    ("trace-header-only", _write("trace.csv", b"frame,device,engine,step,task,start_ns,end_ns,bytes,waits_for\n"), ("no rows",)),
+    ("trace-latin-1", _write("trace.csv", "frame,step\n1,caf\xe9\n".encode("latin-1")), ("trace.csv", "UTF-8")),
+    ("trace-wrong-columns", _write("trace.csv", b"a,b,c\n1,2,3\n"), ("trace.csv", "missing column")),
+    ("trace-truncated", _edit_trace(lambda df: df.iloc[:, :5]), ("missing column",)),
+    ("trace-end-before-start", _edit_trace(_set_col("end_ns", 3, -0)), ("end_ns",)),
+    ("trace-nan-time", _edit_trace(_set_col("start_ns", 2, "nan")), ("start_ns", "whole numbers")),
+    ("trace-text-time", _edit_trace(_set_col("end_ns", 2, "soon")), ("end_ns", "whole numbers")),
+    ("trace-fraction-time", _edit_trace(_set_col("end_ns", 2, 1.5)), ("end_ns", "whole numbers")),
+    ("trace-negative-frame", _edit_trace(_set_col("frame", 1, -3)), ("frame", ">= 0")),
+    ("trace-huge-time", _edit_trace(_set_col("end_ns", 1, "99999999999999999999999")), ("end_ns",)),
+    ("summary-not-json", _write("summary.json", b"{not json"), ("summary.json", "not valid JSON")),
+    ("summary-binary", _write("summary.json", b"\xff\x00\x01"), ("summary.json", "not valid JSON")),
+    ("summary-list", _write("summary.json", b"[1, 2]"), ("summary.json", "JSON object")),
+    ("summary-config-list", _write("summary.json", b'{"config": [1]}'), ("summary.json", "config")),
+]
+
+
+def _parquet_case(tmp: Path) -> list[str]:
+    folder = measured_folder(tmp)
+    (folder / "trace.csv").unlink()
+    (folder / "trace.parquet").write_bytes(b"PAR1 this is not parquet PAR1")
+    return validate_argv(tmp, folder)
+
+
+MEASURED_CASES.append(("trace-corrupt-parquet", _parquet_case, ("trace.parquet", "Parquet")))
+
+
+def _mismatch(sets: dict[str, Any], *argv_sets: str) -> Callable[[Path], list[str]]:
+    def make(tmp: Path) -> list[str]:
+        return validate_argv(tmp, measured_folder(tmp, sets=sets), *argv_sets)
+    return make
+
+
+MEASURED_CASES += [
+    ("mismatch-iterations", _mismatch({"scene.passes.0.iterations": 4000}), ("config.inputs.passes[0].iterations", "4000")),
+    ("mismatch-host-copy", _mismatch({"schedule.host_copy": False}), ("config.host_copy",)),
+    ("mismatch-gpus", _mismatch({"schedule.gpus": 3}), ("config.gpus",)),
+    ("mismatch-width", _mismatch({"scene.width": 512}), ("config.width",)),
+    ("mismatch-buffers", _mismatch({"schedule.buffers": 3}), ("buffers",)),
+    ("mismatch-frames-in-flight", _mismatch({"schedule.frames_in_flight": 1}), ("frames_in_flight",)),
+    ("mismatch-passes", _mismatch({}, 'scene.passes=[{name="a",kind="fragment_loop",iterations=1},'
+                                      '{name="b",kind="present"}]'), ("config.inputs.passes", "entries")),
+    ("mismatch-output-bytes", _mismatch({}, "scene.passes.0.output_bytes=5"), ("output_bytes",)),
+]
+
+
+@case("measured-folder-missing", "measured", "not a folder")
+def _(tmp: Path) -> list[str]:
+    return validate_argv(tmp, tmp / "nothing")
+
+
+@case("measured-folder-without-trace", "no trace")
+def _(tmp: Path) -> list[str]:
+    (tmp / "m").mkdir()
+    return validate_argv(tmp, tmp / "m")
+
+
+for _id, _make, _words in MEASURED_CASES:
+    CASES.append(Case(f"measured-{_id}", _make, _words))
+
+
+# ----- calibrate: measure tables ---------------------------------------------------------
+def _table(edit: Callable[[pd.DataFrame], pd.DataFrame], source: str = "mesh.csv",
+           name: str = "t.csv") -> Callable[[Path], list[str]]:
+    def make(tmp: Path) -> list[str]:
+        df = pd.read_csv(ROOT / "data" / "lavapipe" / source)
+        path = tmp / name
+        edited = edit(df)
+        if name.endswith(".parquet"):
+            edited.to_parquet(path, index=False)
+        else:
+            edited.to_csv(path, index=False)
+        return ["calibrate", str(path), "--out", str(tmp / "out" / "p.toml")]
+    return make
+
+
+def _raw_table(content: bytes, name: str = "t.csv") -> Callable[[Path], list[str]]:
+    def make(tmp: Path) -> list[str]:
+        (tmp / name).write_bytes(content)
+        return ["calibrate", str(tmp / name), "--out", str(tmp / "out" / "p.toml")]
+    return make
+
+
+def _with(col: str, row: int, value: Any) -> Callable[[pd.DataFrame], pd.DataFrame]:
+    def edit(df: pd.DataFrame) -> pd.DataFrame:
+        df[col] = df[col].astype(object)
+        df.loc[row, col] = value
+        return df
+    return edit
+
+
+CALIBRATE_CASES: list[tuple[str, Callable[[Path], list[str]], tuple[str, ...]]] = [
+    ("nan-duration", _table(_with("duration_ns", 3, float("nan"))), ("duration_ns", "finite")),
+    ("nan-duration-all", _table(lambda df: df.assign(duration_ns=float("nan"))), ("duration_ns", "finite")),
+    ("inf-duration", _table(_with("duration_ns", 0, "inf")), ("duration_ns", "finite")),
+    ("negative-duration", _table(_with("duration_ns", 5, -100)), ("duration_ns", "> 0")),
+    ("zero-duration", _table(_with("duration_ns", 5, 0)), ("duration_ns", "> 0")),
+    ("text-duration", _table(_with("duration_ns", 1, "slow")), ("duration_ns",)),
+    ("header-only", _table(lambda df: df.iloc[:0]), ("no rows",)),
+    ("unknown-pass", _table(_with("pass", 0, "mesh_v2")), ("unknown pass 'mesh_v2'", "did you mean 'mesh'")),
+    ("no-pass-column", _table(lambda df: df.drop(columns=["pass"])), ("no 'pass' column",)),
+    ("no-duration-column", _table(lambda df: df.drop(columns=["duration_ns"])), ("no 'duration_ns' column",)),
+    ("missing-param-column", _table(lambda df: df.drop(columns=["triangles"])), ("triangles",)),
+    ("missing-param-value", _table(_with("triangles", 2, float("nan"))), ("triangles",)),
+    ("negative-param", _table(_with("width", 2, -5)), ("width", ">= 0")),
+    ("nan-param-text", _table(_with("width", 2, "wide")), ("width",)),
+    ("host-copy-no-threads", _table(lambda df: df.drop(columns=["threads"]), "host_copy.csv"), ("threads",)),
+    ("copy-no-bytes", _table(lambda df: df.drop(columns=["bytes"]), "copy_h2d.csv"), ("bytes",)),
+    ("parquet-nan", _table(_with("duration_ns", 3, float("nan")), name="t.parquet"), ("duration_ns", "finite")),
+    ("empty-file", _raw_table(b""), ("empty",)),
+    ("binary-file", _raw_table(b"\x00\x01\xff\xfe" * 40), ("t.csv",)),
+    ("corrupt-parquet", _raw_table(b"PAR1 nope PAR1", "t.parquet"), ("Parquet",)),
+    ("missing-file", lambda tmp: ["calibrate", str(tmp / "nope.csv"), "--out", str(tmp / "out" / "p.toml")], ("not found",)),
+    ("folder", lambda tmp: ["calibrate", str(tmp), "--out", str(tmp / "out" / "p.toml")], ("not found",)),
+    ("nothing-to-fit", _table(lambda df: df.assign(gpus=2)), ("nothing to fit",)),
+    ("gpus-zero", lambda tmp: ["calibrate", str(ROOT / "data/lavapipe/mesh.csv"), "--gpus", "0",
+                               "--out", str(tmp / "out" / "p.toml")], ("--gpus",)),
+]
+
+
+def _bad_machine(tmp: Path) -> list[str]:
+    df = pd.read_csv(ROOT / "data" / "lavapipe" / "mesh.csv")
+    df.to_csv(tmp / "t.csv", index=False)
+    (tmp / "t.csv.machine.json").write_text("{oops")
+    return ["calibrate", str(tmp / "t.csv"), "--out", str(tmp / "out" / "p.toml")]
+
+
+def _bad_base(content: bytes) -> Callable[[Path], list[str]]:
+    def make(tmp: Path) -> list[str]:
+        (tmp / "base.toml").write_bytes(content)
+        return ["calibrate", str(ROOT / "data/lavapipe/mesh.csv"), "--base", str(tmp / "base.toml"),
+                "--out", str(tmp / "out" / "p.toml")]
+    return make
+
+
+CALIBRATE_CASES += [
+    ("machine-json-corrupt", _bad_machine, ("machine.json", "not valid JSON")),
+    ("base-binary", _bad_base(b"\x00\x01"), ("base.toml", "binary")),
+    ("base-bad-field", _bad_base((ROOT / "hardware_profiles" / "tc1.toml").read_bytes()
+                                 .replace(b"memcpy_threads = 12", b"memcpy_threads = -2")),
+     ("base.toml", "host.memcpy_threads")),
+]
+for _id, _make, _words in CALIBRATE_CASES:
+    CASES.append(Case(f"calibrate-{_id}", _make, _words))
+
+
+# ----- study files ------------------------------------------------------------------------
+def _study(edit: Callable[[str], str]) -> Callable[[Path], list[str]]:
+    def make(tmp: Path) -> list[str]:
+        text = (ROOT / "experiments" / "h100" / "study.toml").read_text()
+        text = text.replace('"../../', f'"{ROOT}/')
+        (tmp / "s.toml").write_text(edit(text))
+        return ["study", "calibrate", str(tmp / "s.toml"), "--out", str(tmp / "out")]
+    return make
+
+
+STUDY_CASES = [
+    ("unknown-key", _study(lambda t: t.replace("description =", "descripton =")), ("did you mean 'description'",)),
+    ("empty", _study(lambda t: ""), ("empty",)),
+    ("binary", _study(lambda t: "\0" + t), ("binary",)),
+    ("not-toml", _study(lambda t: t + "\n[calibration\n"), ("not valid TOML",)),
+]
+for _id, _make, _words in STUDY_CASES:
+    CASES.append(Case(f"study-{_id}", _make, ("s.toml", *_words)))
+
+
+# ----- the test --------------------------------------------------------------------------
+def test_there_are_enough_cases():
+    assert len(CASES) >= 150
+    assert len({c.id for c in CASES}) == len(CASES)
+
+
+@pytest.mark.parametrize("bad", CASES, ids=lambda c: c.id)
+def test_bad_input_is_one_line_exit_2(bad: Case, tmp_path: Path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # a default out/ folder would land here
+    argv = bad.make(tmp_path)
+    capsys.readouterr()
+    try:
+        code = main(argv)
+    except SystemExit as exc:  # argparse errors exit from the parser
+        code = exc.code
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert code == 2, err
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    for words in bad.expect:
+        assert words in lines[0], (words, lines[0])
+    assert not (tmp_path / "out").exists()  # nothing half-written
+    assert not [p for p in tmp_path.rglob("*.tmp")]
+
+
+def test_a_matching_measured_run_validates(tmp_path: Path, capsys, monkeypatch):
+    """The positive control of the measured-folder cases: the same folder, unedited, passes."""
+    monkeypatch.chdir(tmp_path)
+    folder = measured_folder(tmp_path)
+    assert main(validate_argv(tmp_path, folder)) == 0
+    assert (tmp_path / "out" / "summary.json").is_file()
+
+
+def test_a_measured_run_recorded_before_inputs_is_compared_on_the_basics(tmp_path: Path, monkeypatch):
+    """Runs saved before the full inputs were recorded still validate (their recorded keys
+    match); a basic key that differs is still refused."""
+    monkeypatch.chdir(tmp_path)
+    folder = measured_folder(tmp_path)
+    summary = json.loads((folder / "summary.json").read_text())
+    del summary["config"]["inputs"]
+    (folder / "summary.json").write_text(json.dumps(summary))
+    assert main(validate_argv(tmp_path, folder, "scene.passes.0.iterations=4000")) == 0
+    assert main(validate_argv(tmp_path, folder, "schedule.host_copy=false")) == 2
+
+
+def test_simulated_time_past_int64_is_an_input_error():
+    """The last guard behind the bound on one task's time: a clock passing 2^63 ns (here with
+    a cost model that skips that bound) stops with an InputError, not an OverflowError."""
+    class Unbounded(CostModel):
+        def pass_ns(self, device, kind, work):
+            return 2 ** 62
+
+    q = QueueRef(0, "graphics")
+    tasks = (PassTask("present", "present", q, "present", {}, (Dep("present", -1),)),)
+    program = FrameProgram("long", 1, 4, 0, (tasks,))
+    engine = Engine(program, Unbounded(parse_profile(profile_dict(), "p.toml")))
+    with pytest.raises(InputError, match="int64"):
+        engine.run()

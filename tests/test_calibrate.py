@@ -119,6 +119,8 @@ def test_filter_pass_is_fitted_with_its_inputs():
                              "duration_ns": 2000 + 0.3 * px + 0.01 * px * it + 0.2 * px * inputs})
     df = pd.DataFrame(rows)
     df["source"] = "synthetic"
+    from mgpusim.calibrate.tables import check_measure_table
+    check_measure_table(df, "filter.csv")  # a known pass of the measure library
     fit = calibrate(df, {}).pass_fits["filter"]
     got = dict(zip(fit.names, fit.coef))
     assert got["ns_per_pixel_input"] == pytest.approx(0.2, rel=1e-6)

@@ -237,7 +237,8 @@ def _particle_draw(task: PassTask, res: Resources, work: Any, queue: Queue,
 
 def _copy(task: CopyTask, res: Resources) -> Recorder:
     """image -> buffer (download), buffer -> image (upload), image -> image, buffer -> buffer;
-    `params` give the rows of a chunk and where the picture lands in a larger image."""
+    `params` give the rows of a chunk, where the picture lands in a larger image, and
+    (`images`) several images moved through one buffer, one after the other."""
     if task.path == "p2p":
         raise ScheduleError(f"copy {task.name!r}: peer copies are not supported by the runner "
                             f"(set schedule.path = 'host')")
@@ -248,39 +249,63 @@ def _copy(task: CopyTask, res: Resources) -> Recorder:
     src, dst = res.resource(task.src), res.resource(task.dst)
     if src.kind == "buffer" and dst.kind == "buffer":
         return _buffer_copy(task, res)
-    picture = src if src.kind == "image" else dst
-    width, height = task.params.get("extent", (picture.width, picture.height))
-    y0, rows = task.params.get("rows", (0, height))
-    dx, dy = task.params.get("dst_offset", (0, 0))
-    depth = src.depth if src.kind == "image" else dst.depth
     if src.kind == "image" and dst.kind == "image":
-        depth = src.depth and dst.depth
-    depth = bool(task.params.get("depth", depth))
-    colour_bytes = width * rows * COLOR_BPP
-    size = colour_bytes + (width * rows * DEPTH_BPP if depth else 0)
-    if size != task.bytes:
-        raise ScheduleError(f"copy {task.name!r} moves {task.bytes} bytes but its {width}x{rows} "
-                            f"pixels hold {size} (the runner's images have 4-byte colour and "
-                            f"2-byte depth pixels)")
+        return _image_copy(task, res)
+    down = src.kind == "image"
+    images = [res.resource(n) for n in task.params.get("images", (task.src if down else task.dst,))]
+    buffer = dst if down else src
+    parts, offset = [], 0
+    for image in images:  # (image, its rectangle, buffer offset of its colour, of its depth)
+        rect, colour, depth = _region(task, image, image.depth)
+        parts.append((image.name, rect, offset, offset + colour if depth else None))
+        offset += colour + depth
+    _check_bytes(task, offset)
     dev = task.queue.device
-    src_rect, dst_rect = (0, y0, width, rows), (dx, dy + y0, width, rows)
 
     def record(cmd: Any, frame: int, _c: Hashable) -> None:
-        if src.kind == "image":
-            s_pair = res.images(src.name)[res.slot(src.name, frame)]
-        else:
-            s_buf = res.buffer(src.name, dev, res.slot(src.name, frame))
-        if dst.kind == "image":
-            d_pair = res.images(dst.name)[res.slot(dst.name, frame)]
-        else:
-            d_buf = res.buffer(dst.name, dev, res.slot(dst.name, frame))
-        for k, offset in ((0, 0), (1, colour_bytes))[:2 if depth else 1]:
-            if src.kind == "image" and dst.kind == "image":
-                copy_rect(cmd, s_pair[k], d_pair[k], src_rect[:2], dst_rect[:2], (width, rows))
-            elif src.kind == "image":
-                copy_rect_to_buffer(cmd, s_pair[k], d_buf, offset, src_rect)
-            else:
-                copy_buffer_to_rect(cmd, s_buf, offset, d_pair[k], dst_rect)
+        buf = res.buffer(buffer.name, dev, res.slot(buffer.name, frame))
+        for name, rect, at_colour, at_depth in parts:
+            pair = res.images(name)[res.slot(name, frame)]
+            for image, at in ((pair[0], at_colour), (pair[1], at_depth)):
+                if at is None:
+                    continue
+                if down:
+                    copy_rect_to_buffer(cmd, image, buf, at, rect)
+                else:
+                    copy_buffer_to_rect(cmd, buf, at, image, rect)
+    return record
+
+
+def _region(task: CopyTask, image: Any, has_depth: bool) -> tuple[tuple[int, int, int, int], int, int]:
+    """The rectangle of `image` a copy touches (the chunk's rows of the moved picture, placed at
+    `dst_offset` when the image is the destination), and its colour and depth bytes."""
+    width, height = task.params.get("extent", (image.width, image.height))
+    y0, rows = task.params.get("rows", (0, height))
+    dx, dy = task.params.get("dst_offset", (0, 0)) if image.name == task.dst else (0, 0)
+    depth = bool(task.params.get("depth", has_depth))
+    return (dx, dy + y0, width, rows), width * rows * COLOR_BPP, (width * rows * DEPTH_BPP
+                                                                 if depth else 0)
+
+
+def _check_bytes(task: CopyTask, size: int) -> None:
+    if size != task.bytes:
+        raise ScheduleError(f"copy {task.name!r} moves {task.bytes} bytes but its pixels hold "
+                            f"{size} (the runner's images have 4-byte colour and 2-byte depth "
+                            f"pixels)")
+
+
+def _image_copy(task: CopyTask, res: Resources) -> Recorder:
+    """Image -> image on one device (XR's own view into the two-eye image)."""
+    src, dst = res.resource(task.src or ""), res.resource(task.dst or "")
+    (_x, y, width, rows), colour, depth = _region(task, src, src.depth and dst.depth)
+    (dx, dy, _w, _r), _c, _d = _region(task, dst, src.depth and dst.depth)
+    _check_bytes(task, colour + depth)
+
+    def record(cmd: Any, frame: int, _c: Hashable) -> None:
+        s = res.images(src.name)[res.slot(src.name, frame)]
+        d = res.images(dst.name)[res.slot(dst.name, frame)]
+        for k in range(2 if depth else 1):
+            copy_rect(cmd, s[k], d[k], (0, y), (dx, dy), (width, rows))
     return record
 
 

@@ -50,15 +50,20 @@ class Bindings:
 
 
 def bind_crossing(piece: Sequence[Task], b: Bindings, src: str, dst: str, *, staging: str,
-                  buffers: int = 1, params: Mapping[str, Any] | None = None) -> list[Task]:
+                  buffers: int = 1, params: Mapping[str, Any] | None = None,
+                  down: Mapping[str, Any] | None = None,
+                  up: Mapping[str, Any] | None = None) -> list[Task]:
     """The tasks of one crossing (as `cross` made them) moving resource `src` to `dst`.
 
     Through host memory the download writes `gpu{s}.staging.{staging}` and the host copy moves
     it to `gpu{d}.staging.{staging}`; without a host copy one host allocation
     `host.staging.{staging}`, imported by
     both devices, is written and read. `params` (rows, dst_offset, extent) go to the copies
-    that touch the images. A peer copy is left unbound (the runner refuses it)."""
+    that touch the images, `down` / `up` only to the download / upload (`images`: several
+    images through one buffer). A peer copy is left unbound (the runner refuses it)."""
     region = MappingProxyType(dict(params or {}))
+    down_region = MappingProxyType({**region, **(down or {})})
+    up_region = MappingProxyType({**region, **(up or {})})
     host_copy = any(isinstance(t, HostCopyTask) for t in piece)
     out: list[Task] = []
     for task in piece:
@@ -73,11 +78,11 @@ def bind_crossing(piece: Sequence[Task], b: Bindings, src: str, dst: str, *, sta
             s, d = _ends(piece)
             name = (_staging(b, f"gpu{s}.staging.{staging}", s, task.bytes, buffers) if host_copy
                     else _shared(b, f"host.staging.{staging}", (s, d), task.bytes, buffers))
-            out.append(dataclasses.replace(task, src=src, dst=name, params=region))
+            out.append(dataclasses.replace(task, src=src, dst=name, params=down_region))
         elif isinstance(task, CopyTask) and task.path == "h2d":
             s, d = _ends(piece)
             name = f"gpu{d}.staging.{staging}" if host_copy else f"host.staging.{staging}"
-            out.append(dataclasses.replace(task, src=name, dst=dst, params=region))
+            out.append(dataclasses.replace(task, src=name, dst=dst, params=up_region))
         else:
             out.append(task)
     return out

@@ -17,7 +17,7 @@ from .. import limits as L
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
-from ..tasks import CopyTask, Dep, PassTask, QueueRef, Resource, Task
+from ..tasks import Dep, PassTask, QueueRef, Resource, Task
 from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, even_split,
                    present_task, register)
 from .binding import Bindings, bind_crossing, row_chunks
@@ -74,10 +74,8 @@ def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene,
 
     Pass X renders into `gpu1.pass.X` (GPU 1's passes, `buffers` copies) or `gpu0.pass.X`;
     GPU 1's outputs arrive in `gpu0.in.X` (`buffers` copies), which GPU 0's filters sample in
-    their place. A chunk of a copy is a range of rows (the height must be a multiple of
-    `chunks`); with `copy_granularity = 'frame'` the one copy carries GPU 1's only output
-    (the runner copies one image per copy). Present copies the last pass's image to
-    `gpu0.display`."""
+    their place. A chunk of a copy is a range of rows of each image it carries (the height must
+    be a multiple of `chunks`). Present copies the last pass's image to `gpu0.display`."""
     b, buffers = Bindings(), cfg.opt("buffers")
     first = {p.name for p in scene.passes[:split]}
     staging = max(buffers, cfg.frames_in_flight)
@@ -117,30 +115,32 @@ def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene,
 
 def _bind_copies(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, split: int, b: Bindings,
                  staging: int) -> dict[str, Task]:
-    """The copy tasks of every piece, bound: rows of GPU 1's output into GPU 0's input."""
+    """The copy tasks of every piece, bound: rows of GPU 1's outputs into GPU 0's inputs (one
+    output per copy, or with `copy_granularity = 'frame'` all that have output_bytes, one
+    after the other through one buffer)."""
     chunks = cfg.opt("chunks")
+    copied = [p.name for p in scene.passes[:split] if _output_bytes(p)]
     if cfg.opt("copy_granularity") == "frame":
-        groups = [("out", scene.passes[split - 1].name if split == 1 else None)]
+        groups = [("out", tuple(copied))]
     else:
-        groups = [(f"out.{p.name}", p.name) for p in scene.passes[:split]]
+        groups = [(f"out.{p.name}", (p.name,)) for p in scene.passes[:split]]
     crossed: dict[str, Task] = {}
-    needed = _needed_on_gpu0(scene, split)
-    for prefix, name in groups:
-        regions = row_chunks(scene.height, chunks)
+    missing = sorted(_needed_on_gpu0(scene, split) - set(copied))
+    regions = row_chunks(scene.height, chunks)
+    for prefix, names in groups:
         for c in range(chunks):
             piece_name = prefix if chunks == 1 else f"{prefix}#{c}"
             piece = [t for t in tasks if t.name.rpartition(".")[0] == piece_name]
             params = dict(regions[c])
-            if name is None:
-                params = {"unsupported": "copy_granularity = 'frame' with more than one pass "
-                          "on GPU 1: the runner copies one image per copy (use 'pass')"}
-                name = scene.passes[0].name
-            elif name in needed and not any(isinstance(t, CopyTask) and t.bytes for t in piece):
-                params = {"unsupported": f"GPU 0 reads the output of pass {name!r}, but its "
-                          f"output_bytes is 0: set it to the image's bytes (width x height x 4)"}
+            if missing:
+                params = {"unsupported": f"GPU 0 reads the output of pass {missing[0]!r}, but "
+                          f"its output_bytes is 0: set it to the image's bytes (width x height x 4)"}
+            first = names[0] if names else scene.passes[0].name
             crossed.update((t.name, t) for t in bind_crossing(
-                piece, b, f"gpu1.pass.{name}", f"gpu0.in.{name}", staging=piece_name,
-                buffers=staging, params=params))
+                piece, b, f"gpu1.pass.{first}", f"gpu0.in.{first}", staging=piece_name,
+                buffers=staging, params=params,
+                down={"images": tuple(f"gpu1.pass.{n}" for n in names)},
+                up={"images": tuple(f"gpu0.in.{n}" for n in names)}))
     return crossed
 
 

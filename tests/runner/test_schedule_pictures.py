@@ -107,6 +107,7 @@ def pipeline_reference():
 @pytest.mark.parametrize("options", [
     {}, {"host_copy": True}, {"chunks": 4}, {"chunks": 8, "host_copy": True},
     {"chunks": 2, "copy_queue": "graphics"}, {"buffers": 1, "frames_in_flight": 1},
+    {"copy_granularity": "frame"}, {"copy_granularity": "frame", "chunks": 4, "host_copy": True},
 ])
 def test_pipelined_frame_equals_one_gpu_frame(pipeline_reference, options):
     result = run("pipelining", 2, pipeline_passes(), split_at=2, **options)

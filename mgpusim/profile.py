@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import MappingProxyType
 from typing import Mapping
@@ -91,6 +91,15 @@ class PassCost:
     #: lavapipe shades and bins vertices on one thread, so a mesh pass barely gains from more
     #: threads (and two GPUs drawing meshes hardly slow each other down), unlike a fragment pass.
     cores: float | None = None
+    #: The calibration's standard errors of `fixed_ns` ("fixed_ns") and of each `ns_per` term
+    #: (by term): simulate carries them into results as a band (empty: no band).
+    stderr: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
+
+    def shifted(self, sigmas: float) -> "PassCost":
+        """The cost with every coefficient moved by `sigmas` standard errors (kept >= 0)."""
+        move = lambda key, v: max(0.0, v + sigmas * self.stderr.get(key, 0.0))  # noqa: E731
+        return replace(self, fixed_ns=move("fixed_ns", self.fixed_ns),
+                       ns_per=MappingProxyType({t: move(t, v) for t, v in self.ns_per.items()}))
 
 
 @dataclass(frozen=True)
@@ -302,16 +311,41 @@ def _parse_costs(t: Table) -> Mapping[str, PassCost]:
         fixed = kt.get("fixed_ns", float, 0.0, minimum=0, maximum=L.MAX_TASK_NS, why=L.WHY_TIME)
         cores = kt.get("cores", float, None, minimum=0.01, maximum=L.MAX_THREADS, why=L.WHY_ALLOC)
         known = [f"ns_per_{term}" for term in work_terms(kind)]
+        stderr = _parse_stderr(kt.table("stderr", {}), known) if kt.has("stderr") else {}
         ns_per: dict[str, float] = {}
         for key in list(kt.rest()):
+            if key == "stderr":
+                continue
             if key not in known:
-                raise kt.error(key, f"unknown cost key{did_you_mean(key, [*known, 'fixed_ns', 'cores'])}"
-                                    f" ({kind} takes fixed_ns, cores, {', '.join(known)})")
+                raise kt.error(key, f"unknown cost key{did_you_mean(key, [*known, 'fixed_ns', 'cores', 'stderr'])}"
+                                    f" ({kind} takes fixed_ns, cores, stderr, {', '.join(known)})")
             ns_per[key.removeprefix("ns_per_")] = kt.get(key, float, minimum=0,
                                                          maximum=L.MAX_COEFFICIENT)
         kt.finish()
-        costs[kind] = PassCost(fixed, MappingProxyType(ns_per), cores)
+        costs[kind] = PassCost(fixed, MappingProxyType(ns_per), cores, MappingProxyType(stderr))
     return MappingProxyType(costs)
+
+
+def _parse_stderr(t: Table, known: list[str]) -> dict[str, float]:
+    """A cost's standard errors, keyed like its coefficients (fixed_ns, ns_per_<term>)."""
+    out = {}
+    for key in list(t.data):
+        if key != "fixed_ns" and key not in known:
+            raise t.error(key, f"unknown coefficient{did_you_mean(key, ['fixed_ns', *known])}")
+        out[key.removeprefix("ns_per_")] = t.get(key, float, minimum=0, maximum=L.MAX_COEFFICIENT)
+    t.finish()
+    return out
+
+
+def with_cost_band(profile: "HardwareProfile", sigmas: float) -> "HardwareProfile":
+    """`profile` with every pass cost moved by `sigmas` standard errors (see PassCost.shifted)."""
+    gpus = tuple(replace(g, costs=MappingProxyType({k: c.shifted(sigmas) for k, c in g.costs.items()}))
+                 for g in profile.gpus)
+    return replace(profile, gpus=gpus)
+
+
+def has_cost_stderr(profile: "HardwareProfile") -> bool:
+    return any(c.stderr for g in profile.gpus for c in g.costs.values())
 
 
 def _parse_copy(t: Table) -> Mapping[str, CopyCosts]:

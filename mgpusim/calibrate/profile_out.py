@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from ..profile import parse_profile
+from .fit import Fit
 from .model import Calibration
 
 DEFAULT_SIMULATED_GPUS = 4
@@ -46,7 +47,7 @@ def apply(cal: Calibration, base: dict[str, Any], command: str) -> dict[str, Any
     for gpu in out["gpus"]:
         costs = gpu.setdefault("costs", {})
         for kind, fit in cal.pass_fits.items():
-            costs[kind] = {name: _num(v) for name, v in zip(fit.names, fit.coef)}
+            costs[kind] = cost_table(fit)
             if kind in cal.cores:
                 costs[kind]["cores"] = round(cal.cores[kind][0], 3)
         if cal.copy_fits:
@@ -65,6 +66,16 @@ def apply(cal: Calibration, base: dict[str, Any], command: str) -> dict[str, Any
                               f"(machine: {cal.machine.get('cpu', '?')}, driver: {_driver(cal.machine)})")
     parse_profile(copy.deepcopy(out), "<calibrated profile>")  # what we write must load
     return out
+
+
+def cost_table(fit: Fit) -> dict[str, Any]:
+    """A pass kind's coefficients and, where finite, their standard errors (`stderr`), which
+    simulate carries into results as a band."""
+    table: dict[str, Any] = {name: _num(v) for name, v in zip(fit.names, fit.coef)}
+    errors = {name: _num(e) for name, e in zip(fit.names, fit.stderr) if np.isfinite(e) and e > 0}
+    if errors:
+        table["stderr"] = errors
+    return table
 
 
 def _apply_copies(cal: Calibration, gpu: dict[str, Any]) -> None:

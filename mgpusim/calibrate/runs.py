@@ -28,6 +28,7 @@ from ..simulate import simulate
 from ..tasks import PassTask
 from ..validate import rel_error, steady_summary
 from .fit import Fit, fit_nonnegative
+from .profile_out import cost_table
 
 Run = tuple[Experiment, pd.DataFrame]  # an experiment and its measured trace
 
@@ -88,8 +89,7 @@ def with_pass_fits(profile_data: dict[str, Any], fits: dict[str, Fit]) -> dict[s
             if any("cannot tell" in w for w in fit.warnings):
                 continue
             kept = {k: v for k, v in gpu["costs"].get(kind, {}).items() if k == "cores"}
-            gpu["costs"][kind] = {**{n: float(f"{v:.6g}") for n, v in zip(fit.names, fit.coef)},
-                                  **kept}
+            gpu["costs"][kind] = {**cost_table(fit), **kept}
     return out
 
 

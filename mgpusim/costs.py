@@ -25,6 +25,10 @@ WORK_TERMS: dict[str, WorkFn] = {
     "composite_sort_first": lambda s, px, g: {"input": s.param("inputs"), "pixel": px},
     "composite_sort_last": lambda s, px, g: {"input": s.param("inputs"), "pixel": px},
     "present": lambda s, px, g: {"pixel": px},
+    # a fragment loop that also samples `inputs` images at every pixel (the temporal pass, the
+    # pipelining chain's passes that read other passes' outputs)
+    "filter": lambda s, px, g: {"pixel": px, "pixel_iteration": px * s.param("iterations"),
+                                "pixel_input": px * s.param("inputs", 1)},
     "particle_update": lambda s, px, g: {"particle": s.param("particles") * g},
     "particle_render": lambda s, px, g: {"particle": s.param("particles") * g, "pixel": px},
     # A pass known only by a measured or estimated time on a reference GPU (e.g. the DX12 case
@@ -41,6 +45,7 @@ PASS_PARAMS: dict[str, tuple[str, ...]] = {
     "composite_sort_first": ("inputs", "pixels"),
     "composite_sort_last": ("inputs", "pixels"),
     "present": (),
+    "filter": ("iterations", "inputs"),
     "particle_update": ("particles",),
     "particle_render": ("particles",),
     "timed": ("duration_ms",),

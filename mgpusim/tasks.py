@@ -88,6 +88,10 @@ class CopyTask:
     #: Logical resources copied from and to (the Vulkan runner's binding; the simulator ignores it).
     src: str | None = None
     dst: str | None = None
+    #: Where in them (the runner's binding): `rows` = (first row, rows) of a chunk of an image,
+    #: `dst_offset` = (x, y) of the destination image the copy writes at, `dst_bytes_offset` /
+    #: `src_bytes_offset` = byte offsets in buffers.
+    params: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
 
 
 @dataclass(frozen=True, slots=True)
@@ -101,9 +105,11 @@ class HostCopyTask:
     chunk_min_bytes: int = 512 * 1024
     skip_if_busy: bool = False
 
-    #: Host-visible buffers copied from and to (the Vulkan runner's binding).
+    #: Host-visible buffers copied from and to (the Vulkan runner's binding); `params`:
+    #: `offset` = the byte offset of the copied range in both (a chunk of a staging buffer).
     src: str | None = None
     dst: str | None = None
+    params: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
 
     def parts(self, threads: int) -> int:
         """How many parts the copy is split into: one per thread, each >= chunk_min_bytes

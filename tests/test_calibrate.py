@@ -104,3 +104,25 @@ def test_cores_per_pass_from_cpu_time_against_pass_time():
     predicted = fit.coef @ np.array([1.0, 128 * 64, 128 * 64 * 100])
     assert predicted == pytest.approx(1e6, rel=0.05)
     assert not calibrate(df.drop(columns="cpu_ns"), {}).cores
+
+
+def test_filter_pass_is_fitted_with_its_inputs():
+    """The filter (temporal pass, pipelining chain) gets ns per pixel, per pixel iteration and
+    per pixel and input, as the schedules' work terms count them."""
+    rows = []
+    for width, height in [(64, 48), (128, 96), (256, 192)]:
+        for it in (10, 1000):
+            for inputs in (1, 2, 4):
+                px = width * height
+                rows.append({"pass": "filter", "width": width, "height": height, "iterations": it,
+                             "inputs": inputs, "repetition": 0,
+                             "duration_ns": 2000 + 0.3 * px + 0.01 * px * it + 0.2 * px * inputs})
+    df = pd.DataFrame(rows)
+    df["source"] = "synthetic"
+    from mgpusim.calibrate.tables import check_measure_table
+    check_measure_table(df, "filter.csv")  # a known pass of the measure library
+    fit = calibrate(df, {}).pass_fits["filter"]
+    got = dict(zip(fit.names, fit.coef))
+    assert got["ns_per_pixel_input"] == pytest.approx(0.2, rel=1e-6)
+    assert got["ns_per_pixel_iteration"] == pytest.approx(0.01, rel=1e-6)
+    assert got["ns_per_pixel"] == pytest.approx(0.3, rel=1e-6)

@@ -23,7 +23,7 @@ from .fit import Fit, fit_nonnegative
 from .tables import check_measure_table
 
 PASS_KINDS = ("fragment_loop", "mesh", "composite_sort_first", "composite_sort_last", "present",
-              "particle_update", "particle_render")
+              "filter", "particle_update", "particle_render")
 COPY_PASSES = {"copy_d2h": "d2h", "copy_h2d": "h2d", "copy_d2d": "d2d"}
 
 

@@ -17,6 +17,7 @@ MEASURED_PASSES: dict[str, tuple[str, ...]] = {
     "composite_sort_first": ("width", "height", "inputs"),
     "composite_sort_last": ("width", "height", "inputs"),
     "present": ("width", "height"),
+    "filter": ("width", "height", "iterations", "inputs"),
     "particle_update": ("particles",),
     "particle_render": ("width", "height", "particles"),
     "copy_d2h": ("bytes", "queue"),

@@ -82,7 +82,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--lp-threads", metavar="N[,N...]",
                    help="lavapipe LP_NUM_THREADS per simulated GPU (one value: all)")
     p.add_argument("--host-threads", type=int, help="memcpy threads (default: the profile's)")
-    p.add_argument("--prewarm", type=int, help="untimed frames before the run (default: max(2, buffers, frame phases))")
+    p.add_argument("--prewarm", type=int, help="untimed frames before the run (default: max(2, "
+                   "buffers, frame phases), rounded up to whole frame phases)")
     p.add_argument("--out", type=Path, help="output folder (default: out/<experiment>-measured)")
     p.add_argument("--format", choices=("csv", "parquet"), default="csv", help="table format")
     p.set_defaults(func=run)

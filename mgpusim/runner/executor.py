@@ -22,6 +22,8 @@ from typing import Any, Callable
 import numpy as np
 
 from ..errors import InputError, ScheduleError
+from ..schedules.base import FrameProgram
+from ..sim.skipping import SkipChains
 from ..vulkan.device import Gpu
 from .plan import HOST_STREAM, Node
 from .work import GpuWork, HostWork
@@ -57,9 +59,17 @@ class _Abort(Exception):
 
 
 class Executor:
-    """Runs `nodes` once; `rows` are trace tuples (TRACE_COLUMNS order, absolute host ns)."""
+    """Runs `nodes` once; `rows` are trace tuples (TRACE_COLUMNS order, absolute host ns).
 
-    def __init__(self, nodes: list[Node], host_threads: int, stall_timeout_s: float = 120.0):
+    Skippable tasks (`skip_if_busy`, the particle demo's "new wait") follow the simulator's
+    rule (:class:`mgpusim.sim.skipping.SkipChains`), decided when the task's stream reaches it
+    with its dependencies met (the CPU's submit time): a skipped instance records nothing, has
+    no trace row, counts as finished at once for its consumers, and is listed in
+    `skipped_frames`, as the simulator lists it. `newest` and `skipped_before` answer the
+    per-submission questions of works that depend on the run's course (GpuWork.choose)."""
+
+    def __init__(self, nodes: list[Node], host_threads: int, stall_timeout_s: float = 120.0,
+                 program: FrameProgram | None = None):
         self.nodes, self.host_threads, self.stall_s = nodes, host_threads, stall_timeout_s
         self.abort = threading.Event()
         self.errors: list[BaseException] = []
@@ -68,6 +78,69 @@ class Executor:
         self._sem_pool: dict[int, list[Any]] = defaultdict(list)
         self._sem_lock = threading.Lock()
         self._parts: queue_mod.Queue = queue_mod.Queue()
+        self._by_key = {(n.frame, n.task.name): n for n in nodes}
+        self._skip_lock = threading.Lock()
+        self._chains = None
+        if program is not None and any(getattr(t, "skip_if_busy", False)
+                                       for tasks in program.templates for t in tasks):
+            self._chains = SkipChains(program, [{t.name: t for t in tasks}
+                                                for tasks in program.templates])
+        #: per reading task, the frame whose output each frame's instance read (`newest`)
+        self.read_frames: dict[str, dict[int, int | None]] = defaultdict(dict)
+
+    @property
+    def skipped_frames(self) -> dict[str, list[int]]:
+        return dict(self._chains.skipped_frames) if self._chains is not None else {}
+
+    # -- skipping and run-time choices ---------------------------------------------------------
+    def _skipped(self, node: Node) -> bool:
+        """Decide now whether `node` (dependencies met) is skipped; a skipped node is done."""
+        if self._chains is None or not getattr(node.task, "skip_if_busy", False):
+            return False
+        key = (node.frame, node.task.name)
+        with self._skip_lock:
+            self._chains.ready(key, node.task)
+            skipped = key in self._chains.skip
+            self._chains.skip.discard(key)
+        if skipped:
+            node.skipped = True
+            self._done(node)
+        return skipped
+
+    def _done(self, node: Node) -> None:
+        """`node` finished (or was skipped): wake its waiters, tell the skip chains once."""
+        with self._skip_lock:
+            if node.completed.is_set():
+                return
+            node.completed.set()
+            skippable = getattr(node.task, "skip_if_busy", False)
+            if self._chains is not None and skippable and not node.skipped:
+                self._chains.finished(node.frame, node.task)
+
+    def skipped_before(self, name: str, frame: int) -> int:
+        """How many instances of task `name` right before `frame` were skipped."""
+        count = 0
+        node = self._by_key.get((frame - 1, name))
+        while node is not None and node.skipped:
+            count += 1
+            node = self._by_key.get((node.frame - 1, name))
+        return count
+
+    def newest(self, writer: str, frame: int, queue: Any, reader: str) -> int | None:
+        """The newest frame <= `frame` whose instance of `writer` ran and has finished, or was
+        submitted to `queue` (which then runs it before the reader): what a reader that does not
+        wait for `writer` may safely read. Recorded in `read_frames[reader]`."""
+        found = None
+        for g in range(frame, -1, -1):
+            node = self._by_key.get((g, writer))
+            if node is None or node.skipped:
+                continue
+            same_queue = isinstance(node.work, GpuWork) and node.work.queue is queue
+            if node.completed.is_set() or (same_queue and node.submitted.is_set()):
+                found = g
+                break
+        self.read_frames[reader][frame] = found
+        return found
 
     # -- waiting ---------------------------------------------------------------------------
     def _wait(self, event: threading.Event, who: Node, what: str) -> None:
@@ -89,7 +162,7 @@ class Executor:
         deadline = time.monotonic() + self.stall_s
         while not node.completed.is_set():
             if node.submission.finished(int(POLL_S * 1e9)):
-                node.completed.set()
+                self._done(node)
             elif self.abort.is_set():
                 raise _Abort()
             elif time.monotonic() > deadline:
@@ -127,19 +200,33 @@ class Executor:
                     self._finish(prod, node)
                 elif kind == "semaphore":
                     self._wait(prod.submitted, node, f"{prod.label} to be submitted")
-                    node.waits.append(prod.signals.pop(id(node)))
+                    if not prod.skipped:
+                        node.waits.append(prod.signals.pop(id(node)))
             if self.abort.is_set():
                 raise _Abort()
+            if self._skipped(node):
+                if node.waits:  # consume the semaphores it was signalled, so they can be reused
+                    node.submission = work.gpu.submit(work.queue, lambda cmd: None, wait=node.waits,
+                                                      label=f"{node.label} (skipped)",
+                                                      key=("skipped", id(work)))
+                node.submitted.set()
+                continue
             for cons in node.sem_consumers:
                 node.signals[id(cons)] = self._semaphore(work.gpu)
             frame = node.frame
+            choice = work.choose(frame, self) if work.choose is not None else None
             node.submission = work.gpu.submit(
-                work.queue, lambda cmd, r=work.record, f=frame: r(cmd, f), wait=node.waits,
-                signal=list(node.signals.values()), label=node.label, key=work.key(frame))
+                work.queue, lambda cmd, r=work.record, f=frame, c=choice: r(cmd, f, c),
+                wait=node.waits, signal=list(node.signals.values()), label=node.label,
+                key=work.key(frame, choice))
             node.submitted.set()
 
     def _reap_stream(self, nodes: list[Node]) -> None:
         for node in nodes:
+            self._wait(node.submitted, node, f"{node.label} to be submitted")
+            if node.skipped:  # decided before `submitted` was set
+                self._reap_skipped(node)
+                continue
             self._finish(node, node)
             span = node.submission.timestamps_ns()  # also recycles the command buffer
             self._release(node)
@@ -150,10 +237,24 @@ class Executor:
             with self._rows_lock:
                 self.rows.append(row)
 
+    def _reap_skipped(self, node: Node) -> None:
+        """A skipped node leaves no row; its semaphore-draining submission is recycled."""
+        sub = node.submission
+        if sub is None:
+            return
+        while not sub.finished(int(POLL_S * 1e9)):
+            if self.abort.is_set():
+                raise _Abort()
+        sub.timestamps_ns()
+        self._release(node)
+
     def _host_dispatch(self, nodes: list[Node]) -> None:
         for node in nodes:
             for prod, _kind in node.deps:
                 self._finish(prod, node)
+            if self._skipped(node):
+                node.submitted.set()
+                continue
             assert isinstance(node.work, HostWork)
             parts = node.work.parts(node.frame)
             node.parts_left = len(parts)
@@ -183,7 +284,7 @@ class Executor:
                 node.parts_left -= 1
                 last = node.parts_left == 0
             if last:
-                node.completed.set()
+                self._done(node)
 
     def execute(self) -> list[tuple]:
         """Run every node; raise the first error any thread hit."""

@@ -46,6 +46,7 @@ class Node:
     completed: threading.Event = field(default_factory=threading.Event)
     submission: Any = None
     parts_left: int = 0
+    skipped: bool = False  # a skip_if_busy task that was skipped (see Executor)
 
     @property
     def label(self) -> str:

@@ -13,6 +13,7 @@ from typing import Any, Sequence
 
 from ..errors import InputError, ScheduleError
 from ..tasks import Resource
+from ..vulkan.copies import clear_image
 from ..vulkan.device import Gpu
 from ..vulkan.hostmem import SharedHostMemory
 from ..vulkan.memory import DEPTH_FORMAT, Image
@@ -52,6 +53,10 @@ class Resources:
                 pairs.append((colour, None))
                 if res.depth:
                     pairs[-1] = (colour, gpu.image(w, h, DEPTH_FORMAT))
+            # defined contents before the first frame: a temporal pass's first history, a
+            # frame no copy has reached yet
+            made = [img for pair in pairs for img in pair if img is not None]
+            gpu.run("graphics", lambda cmd: [clear_image(cmd, img) for img in made])
         elif res.device is None:
             owners = [self._gpu(res, d) for d in res.shared_by]
             for d in res.shared_by:

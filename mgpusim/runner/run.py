@@ -11,6 +11,7 @@ steady state from `program.warmup_frames` on, exactly as the simulator's does.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 from typing import Any, Sequence
 
 import numpy as np
@@ -21,6 +22,7 @@ from ..experiment import Experiment
 from ..program import build_program, run_config
 from ..results import frames_from_trace, summarize
 from ..schedules.base import FrameProgram
+from ..simulate import _task_rates
 from ..trace import make_trace
 from ..vulkan.copies import download
 from ..vulkan.device import Gpu
@@ -42,12 +44,18 @@ class RunResult:
     depth: np.ndarray | None = None
     config: dict[str, Any] = field(default_factory=dict)
     machine: dict[str, Any] = field(default_factory=dict)
+    #: resources named in `read=`, every buffered copy, as bytes (uint8) after the run
+    readback: dict[str, list[np.ndarray]] = field(default_factory=dict)
 
 
 def run_program(program: FrameProgram, gpus: Sequence[Gpu], *, host_threads: int = 1,
                 prewarm_frames: int | None = None, rebase: bool = True,
-                stall_timeout_s: float = 120.0) -> RunResult:
-    """Execute `program` on `gpus` (simulated GPU i = gpus[i]); the GPUs stay open."""
+                stall_timeout_s: float = 120.0, read: Sequence[str] = ()) -> RunResult:
+    """Execute `program` on `gpus` (simulated GPU i = gpus[i]); the GPUs stay open.
+
+    The default prewarm is a whole number of template periods (AFR's frame f runs on GPU
+    f mod N), so the timed run's frame 0 continues where the prewarm left off. `read` names
+    resources to read back after the run (RunResult.readback)."""
     if host_threads < 1:
         raise InputError(f"must be >= 1, got {host_threads}", field="host_threads")
     declared = program.resources
@@ -63,15 +71,19 @@ def run_program(program: FrameProgram, gpus: Sequence[Gpu], *, host_threads: int
         works: list[dict[str, Work]] = [
             {t.name: build_work(t, gpus, res, host_threads, owned) for t in tasks}
             for tasks in program.templates]
-        warm = prewarm_frames if prewarm_frames is not None else max(
-            2, program.buffers, len(program.templates))
+        period = len(program.templates)
+        warm = prewarm_frames if prewarm_frames is not None else -(-max(
+            2, program.buffers, period) // period) * period
         if warm:
-            Executor(build_nodes(program, works, warm), host_threads, stall_timeout_s).execute()
-        rows = Executor(build_nodes(program, works, program.frames), host_threads,
-                        stall_timeout_s).execute()
+            Executor(build_nodes(program, works, warm), host_threads, stall_timeout_s,
+                     program).execute()
+        timed = Executor(build_nodes(program, works, program.frames), host_threads,
+                         stall_timeout_s, program)
+        rows = timed.execute()
         for g in gpus:
             g.wait_idle()
         image, depth = _final_image(gpus[0], res)
+        readback = {name: _read(gpus, res, name) for name in read}
     finally:
         for g in gpus:
             try:
@@ -95,7 +107,32 @@ def run_program(program: FrameProgram, gpus: Sequence[Gpu], *, host_threads: int
                         if isinstance(w, GpuWork) and w.fallback})
     if fallbacks:
         summary["queue_fallbacks"] = fallbacks
-    return RunResult(summary, trace, frames, image, depth)
+    _skips(program, timed, summary)
+    return RunResult(summary, trace, frames, image, depth, readback=readback)
+
+
+def _skips(program: FrameProgram, timed: Executor, summary: dict[str, Any]) -> None:
+    """Skipped instances as the simulator reports them (`skipped_tasks`, `task_rates_hz`),
+    plus what the run chose at submit time (`skipped_frames`, `read_frames`)."""
+    skipped = timed.skipped_frames
+    if skipped:
+        summary["skipped_tasks"] = {k: len(v) for k, v in skipped.items()}
+        summary["skipped_frames"] = {k: list(v) for k, v in skipped.items()}
+    if timed.read_frames:
+        summary["read_frames"] = {k: [v.get(f) for f in range(program.frames)]
+                                  for k, v in timed.read_frames.items()}
+    if program.rate_tasks:
+        holder = SimpleNamespace(summary=summary)
+        _task_rates(program, SimpleNamespace(skipped_frames=skipped), holder)
+
+
+def _read(gpus: Sequence[Gpu], res: Resources, name: str) -> list[np.ndarray]:
+    """Every buffered copy of resource `name` (colour bytes of an image), read back."""
+    r = res.resource(name)
+    device = r.device if r.device is not None else r.shared_by[0]
+    if r.kind == "image":
+        return [download(gpus[device], colour) for colour, _d in res.images(name)]
+    return [download(gpus[device], res.buffer(name, device, s)) for s in range(r.buffers)]
 
 
 def _present_step(program: FrameProgram) -> str:
@@ -118,7 +155,8 @@ def _final_image(gpu: Gpu, res: Resources) -> tuple[np.ndarray, np.ndarray | Non
 
 def run_experiment(exp: Experiment, *, devices: Sequence[int] | None = None,
                    lp_threads: Sequence[int | None] | None = None, host_threads: int | None = None,
-                   prewarm_frames: int | None = None, validation: bool | None = None) -> RunResult:
+                   prewarm_frames: int | None = None, validation: bool | None = None,
+                   read: Sequence[str] = ()) -> RunResult:
     """Build `exp`'s program as the simulator does, open its GPUs, run it, close them.
 
     `devices[i]`: physical device of simulated GPU i (NVIDIA; default i mod count; lavapipe
@@ -131,7 +169,8 @@ def run_experiment(exp: Experiment, *, devices: Sequence[int] | None = None,
     threads = exp.profile.host.memcpy_threads if host_threads is None else host_threads
     gpus = open_gpus(program.gpus, devices=devices, lp_threads=lp_threads, validation=validation)
     try:
-        result = run_program(program, gpus, host_threads=threads, prewarm_frames=prewarm_frames)
+        result = run_program(program, gpus, host_threads=threads, prewarm_frames=prewarm_frames,
+                             read=read)
         result.machine = machine_record(gpus, {"host_threads": threads})
     finally:
         close_gpus(gpus)

@@ -17,10 +17,12 @@ from .. import limits as L
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import Scene
-from ..tasks import Dep, PassTask, QueueRef, Task
+from ..tasks import Dep, PassTask, QueueRef, Resource, Task
 from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, present_task,
                    register)
+from .binding import Bindings, bind_crossing
 from .crossing import COPY_OPTIONS, Route, cross
+from .pass_io import bind_full_frame, filter_sources, pass_image
 
 OPTIONS = {
     **COPY_OPTIONS,
@@ -50,12 +52,93 @@ def build_afr(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> Fr
     history = cfg.opt("history_bytes") or scene.color_bytes
     templates = tuple(tuple(_phase(p, cfg, scene, profile, route, temporal, history))
                       for p in range(n))
+    templates, resources = _bind(templates, cfg, scene, temporal)
     held = history if temporal and n > 1 else 0
     record = {"temporal_pass": temporal or "", "history_bytes": held,
               "image_bytes": scene.color_bytes,
               "present_queue": str(present_queue(profile, cfg.opt("present_queue")))}
     return FrameProgram(cfg.name, n, cfg.frames, cfg.warmup_frames, templates,
-                        record=MappingProxyType(record), footprints=_footprints(scene, n, held))
+                        record=MappingProxyType(record), footprints=_footprints(scene, n, held),
+                        resources=resources)
+
+
+def _bind(templates: tuple[tuple[Task, ...], ...], cfg: ScheduleConfig, scene: Scene,
+          temporal: str | None) -> tuple[tuple[tuple[Task, ...], ...], tuple[Resource, ...]]:
+    """What every task reads and writes on the Vulkan runner.
+
+    GPU p renders pass X into `gpu{p}.pass.X`; its finished frame crosses to `gpu0.from{p}`,
+    which present copies to `gpu0.display` (GPU 0's own frames: its last pass's image). The
+    temporal pass samples the passes before it and, as its last input, the history
+    `gpu{p}.history`, which the previous frame's GPU sent (one GPU: its own result of the
+    previous frame, double-buffered). Staging buffers of a crossing from GPU p are used every
+    N frames; N * ceil((F + 1) / N) copies (F frames in flight) keep a download from
+    overwriting one that the history's or frame's reader has not read yet."""
+    n, b = cfg.gpus, Bindings()
+    w, h = scene.width, scene.height
+    last = f"pass.{scene.passes[-1].name}"
+    staging = n * -(-(cfg.frames_in_flight + 1) // n)
+    b.image("gpu0.display", 0, w, h)
+    out = []
+    for p, tasks in enumerate(templates):
+        crossed: dict[str, Task] = {}
+        hist = [t for t in tasks if t.name.startswith("hist.")]
+        if hist and temporal:
+            dst = b.image(f"gpu{(p + 1) % n}.history", (p + 1) % n, w, h)
+            src = f"gpu{p}.pass.{temporal.removeprefix('render.')}"
+            crossed.update((t.name, t) for t in bind_crossing(
+                hist, b, src, dst, staging=f"hist{p}", buffers=staging, params=COLOUR_ONLY))
+        sent = [t for t in tasks if t.name.startswith("out.")]
+        if sent:
+            dst = b.image(f"gpu0.from{p}", 0, w, h)
+            crossed.update((t.name, t) for t in bind_crossing(
+                sent, b, f"gpu{p}.{last}", dst, staging=f"out{p}", buffers=staging,
+                params=COLOUR_ONLY))
+        bound: list[Task] = []
+        for task in tasks:
+            if task.name in crossed:
+                bound.append(crossed[task.name])
+            elif isinstance(task, PassTask) and task.step == "render":
+                bound.append(_bind_render(task, p, n, scene, temporal, b))
+            elif task.name == "present":
+                src = f"gpu0.{last}" if p == 0 else f"gpu0.from{p}"
+                bound.append(replace(task, reads=(src,), writes=("gpu0.display",)))
+            else:
+                bound.append(task)
+        out.append(tuple(bound))
+    return tuple(out), b.resources()
+
+
+#: The frame and the history cross GPUs as colour only (what the schedule counts).
+COLOUR_ONLY = MappingProxyType({"depth": False})
+
+
+def _bind_render(task: PassTask, p: int, n: int, scene: Scene, temporal: str | None,
+                 b: Bindings) -> PassTask:
+    """A pass of GPU p's frame into `gpu{p}.pass.X`; a filter samples its inputs there."""
+    index = next(i for i, s in enumerate(scene.passes) if task.name == f"render.{s.name}")
+    spec = scene.passes[index]
+    is_temporal = task.name == temporal
+    one_gpu_history = is_temporal and n == 1 and spec.kind == "filter"
+    target = pass_image(b, f"gpu{p}.pass.{spec.name}", p, scene, spec,
+                        buffers=2 if one_gpu_history else 1)
+    if spec.kind != "filter":
+        return bind_full_frame(task, spec, scene, target)
+    if not is_temporal:
+        sources = filter_sources(scene.passes, index)
+        reads = sources if isinstance(sources, str) else [f"gpu{p}.pass.{s}" for s in sources]
+        return bind_full_frame(task, spec, scene, target, reads)
+    # the temporal pass: the passes before it, then the history as its last input
+    k = int(spec.param("inputs", 2))
+    if not 2 <= k <= index + 1:
+        why = (f"temporal filter pass {spec.name!r} samples {k - 1} passes before it and the "
+               f"history; set inputs to 2..{index + 1}")
+        return bind_full_frame(task, spec, scene, target, why)
+    before = [f"gpu{p}.pass.{s.name}" for s in scene.passes[index - (k - 1):index]]
+    if n == 1:
+        return bind_full_frame(task, spec, scene, target, before + [target],
+                               [0] * len(before) + [-1])
+    history = b.image(f"gpu{p}.history", p, scene.width, scene.height)
+    return bind_full_frame(task, spec, scene, target, before + [history])
 
 
 def _footprints(scene: Scene, n: int, history: int) -> tuple[Footprint, ...]:

@@ -21,14 +21,15 @@ from dataclasses import replace
 from types import MappingProxyType
 
 from .. import limits as L
-from ..costs import pass_work
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
-from ..tasks import Dep, PassTask, QueueRef, Task
+from ..tasks import Dep, PassTask, QueueRef, Resource, Task
 from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, present_task,
                    queue_or_graphics, register)
+from .binding import Bindings, bind_crossing
 from .crossing import Route, cross
+from .pass_io import bind_full_frame, filter_sources, pass_image
 
 OPTIONS = {
     "particles": Option(int, 4096, "number of particles", minimum=0, maximum=10**12,
@@ -44,6 +45,9 @@ OPTIONS = {
                                         "(6 vertices x 2 float4)", minimum=0, maximum=65536,
                                         why="bytes per particle"),
     "host_copy": Option(bool, True, "the CPU copies the readback buffer into the upload buffer"),
+    "update_queue": Option(str, "compute", "queue of the particle GPU that runs the update: "
+                           "'compute' (its graphics queue where it has none) or 'graphics'",
+                           choices=("compute", "graphics")),
 }
 
 
@@ -53,7 +57,9 @@ def build_particles(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile)
     pg, new_wait, n = cfg.opt("particle_gpu"), cfg.opt("policy") == "new_wait", cfg.opt("particles")
     _check(cfg, scene, pg)
     nbytes = n * cfg.opt("vertex_bytes_per_particle")
-    update = PassTask("particle_update", "particle_update", queue_or_graphics(profile, pg, "compute"),
+    queue = (queue_or_graphics(profile, pg, "compute") if cfg.opt("update_queue") == "compute"
+             else QueueRef(pg, "graphics"))
+    update = PassTask("particle_update", "particle_update", queue,
                       "particle_update", MappingProxyType({"particle": float(n)}),
                       (Dep("present", -cfg.frames_in_flight),), skip_if_busy=new_wait)
     chain: list[Task] = [update]
@@ -65,14 +71,75 @@ def build_particles(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile)
     tasks = chain + _engine(cfg, scene, n, draw_deps)
     record = {"particles": n, "particle_gpu": pg, "policy": cfg.opt("policy"),
               "vertex_bytes_per_frame": nbytes if pg != 0 else 0}
+    tasks, resources = _bind(tasks, cfg, scene, n, pg, new_wait)
     return FrameProgram(cfg.name, cfg.gpus, cfg.frames, cfg.warmup_frames, (tuple(tasks),),
                         record=MappingProxyType(record), rate_tasks=("particle_update",),
-                        footprints=_footprints(scene, cfg.gpus, n, pg))
+                        footprints=_footprints(scene, cfg.gpus, n, pg), resources=resources)
 
 
-#: Bytes per particle of the vertex buffer (6 vertices x 2 float4) and of the update's calc
-#: buffer (2 float4), as the particle pass lays them out.
-VERTEX_BYTES, CALC_BYTES = 192, 32
+#: The runner's time step of one particle update (a skipped update's step goes to the next).
+UPDATE_DT = 1 / 60
+
+
+def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, n: int, pg: int,
+          new_wait: bool) -> tuple[list[Task], tuple[Resource, ...]]:
+    """What every task reads and writes on the Vulkan runner.
+
+    The update keeps the particles in `gpu{pg}.particles.state` and writes copy f % 2 of
+    `gpu{pg}.particles.vertices`; from a secondary the vertex buffer crosses to
+    `gpu0.particles.vertices` (double-buffered too). The draw adds the billboards to the image
+    of the pass it follows. Under 'wait' it reads frame f's vertex buffer; under 'new_wait'
+    (`newest_of`) the newest one whose upload (or update, on the primary) finished or was
+    queued before the draw on its queue: it lags the newest update by the updates skipped or
+    still on their way, never more. Engine passes render full-frame into images of their own
+    (`gpu0.pass.X`); present copies the last one to `gpu0.display`."""
+    b = Bindings()
+    w, h = scene.width, scene.height
+    b.image("gpu0.display", 0, w, h)
+    state = b.buffer(f"gpu{pg}.particles.state", pg, max(n, 1) * STATE_BYTES)
+    vertices = b.buffer(f"gpu{pg}.particles.vertices", pg, max(n, 1) * VERTEX_BYTES, buffers=2)
+    shown = b.buffer("gpu0.particles.vertices", 0, max(n, 1) * VERTEX_BYTES, buffers=2)
+    why = None
+    if cfg.opt("vertex_bytes_per_particle") != VERTEX_BYTES:
+        why = (f"the runner's particle vertex buffer holds {VERTEX_BYTES} B per particle, not "
+               f"schedule.vertex_bytes_per_particle = {cfg.opt('vertex_bytes_per_particle')}")
+    crossing = [t for t in tasks if t.name.startswith("particles.")]
+    crossed = {t.name: t for t in bind_crossing(crossing, b, vertices, shown,
+                                                staging="particles", buffers=2,
+                                                params={"unsupported": why} if why else None)}
+    writer = crossing[-1].name if crossing else "particle_update"
+    draw_into = f"gpu0.pass.{cfg.opt('draw_after')}"
+    out: list[Task] = []
+    for i, task in enumerate(tasks):
+        if task.name in crossed:
+            out.append(crossed[task.name])
+        elif task.name == "particle_update":
+            out.append(replace(task, writes=(vertices, state), params=MappingProxyType(
+                {"particles": n, "dt": UPDATE_DT, "seed": 0})))
+        elif task.name == "particle_render":
+            params = {"particles": n, "clear": False, **({"newest_of": writer} if new_wait else {})}
+            out.append(replace(task, reads=(shown,), writes=(draw_into,),
+                               params=MappingProxyType(params)))
+        elif isinstance(task, PassTask) and task.step == "render":
+            index = next(k for k, s in enumerate(scene.passes) if task.name == f"render.{s.name}")
+            spec = scene.passes[index]
+            target = pass_image(b, f"gpu0.pass.{spec.name}", 0, scene, spec)
+            reads: list[str] | str = ()  # type: ignore[assignment]
+            if spec.kind == "filter":
+                sources = filter_sources(scene.passes, index)
+                reads = sources if isinstance(sources, str) else [f"gpu0.pass.{s}" for s in sources]
+            out.append(bind_full_frame(task, spec, scene, target, reads))
+        elif task.name == "present":
+            out.append(replace(task, reads=(f"gpu0.pass.{scene.passes[-1].name}",),
+                               writes=("gpu0.display",)))
+        else:
+            out.append(task)
+    return out, b.resources()
+
+
+#: Bytes per particle of the vertex buffer (6 vertices x 2 float4), of the update's calc
+#: buffer (2 float4) and of its state (4 float4), as the particle pass lays them out.
+VERTEX_BYTES, CALC_BYTES, STATE_BYTES = 192, 32, 64
 
 
 def _footprints(scene: Scene, gpus: int, particles: int, pg: int) -> tuple[Footprint, ...]:

@@ -17,10 +17,12 @@ from .. import limits as L
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
-from ..tasks import Dep, PassTask, QueueRef, Task
+from ..tasks import Dep, PassTask, QueueRef, Resource, Task
 from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, even_split,
                    present_task, register)
+from .binding import Bindings, bind_crossing, row_chunks
 from .crossing import COPY_OPTIONS, Route, cross
+from .pass_io import bind_full_frame, filter_sources, pass_image
 
 OPTIONS = {
     **COPY_OPTIONS,
@@ -60,9 +62,86 @@ def build_pipelining(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile
     record = {"split_at": split, "gpu1_passes": tuple(p.name for p in first),
               "bytes_per_frame": moved, "chunks": cfg.opt("chunks"), "buffers": buffers,
               "copy_granularity": cfg.opt("copy_granularity")}
+    tasks, resources = _bind(tasks, cfg, scene, split)
     return FrameProgram(cfg.name, cfg.gpus, cfg.frames, cfg.warmup_frames, (tuple(tasks),),
-                        record=MappingProxyType(record),
+                        record=MappingProxyType(record), resources=resources,
                         footprints=_footprints(scene, cfg.gpus, buffers * moved))
+
+
+def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene,
+          split: int) -> tuple[list[Task], tuple[Resource, ...]]:
+    """What every task reads and writes on the Vulkan runner.
+
+    Pass X renders into `gpu1.pass.X` (GPU 1's passes, `buffers` copies) or `gpu0.pass.X`;
+    GPU 1's outputs arrive in `gpu0.in.X` (`buffers` copies), which GPU 0's filters sample in
+    their place. A chunk of a copy is a range of rows of each image it carries (the height must
+    be a multiple of `chunks`). Present copies the last pass's image to `gpu0.display`."""
+    b, buffers = Bindings(), cfg.opt("buffers")
+    first = {p.name for p in scene.passes[:split]}
+    staging = max(buffers, cfg.frames_in_flight)
+    b.image("gpu0.display", 0, scene.width, scene.height)
+
+    def image_of(name: str, on_gpu0: bool) -> str:
+        return (f"gpu0.in.{name}" if name in first else f"gpu0.pass.{name}") if on_gpu0 \
+            else f"gpu1.pass.{name}"
+
+    for spec in scene.passes:
+        if spec.name in first:
+            pass_image(b, f"gpu1.pass.{spec.name}", 1, scene, spec, buffers)
+            pass_image(b, f"gpu0.in.{spec.name}", 0, scene, spec, buffers)
+        else:
+            pass_image(b, f"gpu0.pass.{spec.name}", 0, scene, spec)
+    crossed = _bind_copies(tasks, cfg, scene, split, b, staging)
+    out: list[Task] = []
+    for task in tasks:
+        if task.name in crossed:
+            out.append(crossed[task.name])
+        elif isinstance(task, PassTask) and task.step == "render":
+            index = next(i for i, s in enumerate(scene.passes) if task.name == f"render.{s.name}")
+            spec, on_gpu0 = scene.passes[index], task.queue.device == 0
+            reads: list[str] | str = ()  # type: ignore[assignment]
+            if spec.kind == "filter":
+                sources = filter_sources(scene.passes, index)
+                reads = (sources if isinstance(sources, str)
+                         else [image_of(n, on_gpu0) for n in sources])
+            out.append(bind_full_frame(task, spec, scene, image_of(spec.name, on_gpu0), reads))
+        elif task.name == "present":
+            out.append(replace(task, reads=(image_of(scene.passes[-1].name, True),),
+                               writes=("gpu0.display",)))
+        else:
+            out.append(task)
+    return out, b.resources()
+
+
+def _bind_copies(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, split: int, b: Bindings,
+                 staging: int) -> dict[str, Task]:
+    """The copy tasks of every piece, bound: rows of GPU 1's outputs into GPU 0's inputs (one
+    output per copy, or with `copy_granularity = 'frame'` all that have output_bytes, one
+    after the other through one buffer)."""
+    chunks = cfg.opt("chunks")
+    copied = [p.name for p in scene.passes[:split] if _output_bytes(p)]
+    if cfg.opt("copy_granularity") == "frame":
+        groups = [("out", tuple(copied))]
+    else:
+        groups = [(f"out.{p.name}", (p.name,)) for p in scene.passes[:split]]
+    crossed: dict[str, Task] = {}
+    missing = sorted(_needed_on_gpu0(scene, split) - set(copied))
+    regions = row_chunks(scene.height, chunks)
+    for prefix, names in groups:
+        for c in range(chunks):
+            piece_name = prefix if chunks == 1 else f"{prefix}#{c}"
+            piece = [t for t in tasks if t.name.rpartition(".")[0] == piece_name]
+            params = dict(regions[c])
+            if missing:
+                params = {"unsupported": f"GPU 0 reads the output of pass {missing[0]!r}, but "
+                          f"its output_bytes is 0: set it to the image's bytes (width x height x 4)"}
+            first = names[0] if names else scene.passes[0].name
+            crossed.update((t.name, t) for t in bind_crossing(
+                piece, b, f"gpu1.pass.{first}", f"gpu0.in.{first}", staging=piece_name,
+                buffers=staging, params=params,
+                down={"images": tuple(f"gpu1.pass.{n}" for n in names)},
+                up={"images": tuple(f"gpu0.in.{n}" for n in names)}))
+    return crossed
 
 
 def _footprints(scene: Scene, n: int, intermediate: int) -> tuple[Footprint, ...]:
@@ -110,6 +189,17 @@ def _copies(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, route: 
             tasks.extend(piece)
             arrivals.append(piece[-1].name)
     return tasks, arrivals
+
+
+def _needed_on_gpu0(scene: Scene, split: int) -> set[str]:
+    """GPU 1's passes whose output GPU 0 uses: sampled by its filters, or presented."""
+    needed = {scene.passes[-1].name} if split == len(scene.passes) else set()
+    for index in range(split, len(scene.passes)):
+        if scene.passes[index].kind == "filter":
+            sources = filter_sources(scene.passes, index)
+            if not isinstance(sources, str):
+                needed.update(n for n in sources if n in {p.name for p in scene.passes[:split]})
+    return needed
 
 
 def _gpu0_first(cfg: ScheduleConfig, scene: Scene) -> str | None:

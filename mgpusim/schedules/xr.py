@@ -18,15 +18,18 @@ Latency (start of rendering to present) and frame time are reported separately a
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from types import MappingProxyType
+from typing import Any
 
 from .. import limits as L
 from ..costs import pass_work
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
-from ..tasks import Dep, PassTask, QueueRef, Task
+from ..tasks import Dep, PassTask, QueueRef, Resource, Task
 from .afr import present_queue
+from .binding import Bindings, bind_crossing
 from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, even_split,
                    present_task, queue_or_graphics, register)
 from .crossing import Route, cross
@@ -77,9 +80,70 @@ def build_xr(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> Fra
               "bytes_per_frame": sum(pixels) * bpp,
               "transfer_queue": str(queue_or_graphics(profile, 0, "transfer")),
               "present_queue": str(pq)}
+    tasks, resources = _bind(tasks, cfg, scene, gpu_of, widths)
     return FrameProgram(cfg.name, cfg.gpus, cfg.frames, cfg.warmup_frames, (tuple(tasks),),
-                        record=MappingProxyType(record),
+                        record=MappingProxyType(record), resources=resources,
                         footprints=_footprints(cfg, scene, pixels, simulated))
+
+
+def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, gpu_of: list[int],
+          widths: list[int]) -> tuple[list[Task], tuple[Resource, ...]]:
+    """What every task reads and writes on the Vulkan runner.
+
+    View v is eye v // (V/2), columns [x0, x0 + width) of it: its passes render that part of
+    the eye's frame (the whole eye's viewport shifted, as sort-first tiles, so the pixels equal
+    a whole-eye render) with the eye's stereo camera into `gpu{g}.view{v}` (colour + depth;
+    `buffers` copies under strong scaling). The transfer queue copies every view into its place
+    in `gpu0.final` (both eyes side by side), which present copies to `gpu0.display`."""
+    b, views = Bindings(), len(gpu_of)
+    w, h, per_eye = scene.width, scene.height, views // 2
+    depth = scene.depth_bytes_per_pixel > 0
+    buffers = cfg.opt("buffers") if cfg.opt("scaling") == "strong" else 1
+    b.image("gpu0.final", 0, 2 * w, h, depth=depth)
+    b.image("gpu0.display", 0, 2 * w, h)
+    place = []
+    crossed: dict[str, Task] = {}
+    for v in range(views):
+        eye, part = divmod(v, per_eye)
+        x0 = sum(widths[:part])
+        place.append((eye, x0, widths[part]))
+        target = b.image(f"gpu{gpu_of[v]}.view{v}", gpu_of[v], widths[part], h, depth=depth,
+                         buffers=buffers)
+        piece = [t for t in tasks if t.name.startswith(f"view{v}.")]
+        crossed.update((t.name, t) for t in bind_crossing(
+            piece, b, target, "gpu0.final", staging=f"view{v}", buffers=buffers,
+            params={"dst_offset": (eye * w + x0, 0), "extent": (widths[part], h)}))
+    out: list[Task] = []
+    for task in tasks:
+        if task.name in crossed:
+            out.append(crossed[task.name])
+        elif isinstance(task, PassTask) and task.step == "render":
+            v = int(task.name.removeprefix("render").partition(".")[0])
+            out.append(_bind_view(task, scene, v, gpu_of[v], place[v]))
+        elif task.name == "present":
+            out.append(replace(task, reads=("gpu0.final",), writes=("gpu0.display",)))
+        else:
+            out.append(task)
+    return out, b.resources()
+
+
+def _bind_view(task: PassTask, scene: Scene, v: int, gpu: int,
+               place: tuple[int, int, int]) -> PassTask:
+    """View v's pass: its columns of the eye, the eye's camera; the first pass clears."""
+    eye, x0, width = place
+    spec = next(s for s in scene.passes if task.name == f"render{v}.{s.name}")
+    params: dict[str, Any] = {"frame": (scene.width, scene.height),
+                              "rect": (x0, 0, width, scene.height), "origin": (x0, 0), "eye": eye,
+                              "clear": spec is scene.passes[0], **spec.params}
+    if "triangles" in spec.params:
+        params.update(triangles=int(spec.params["triangles"]), first=0,
+                      count=int(spec.params["triangles"]))
+    if "iterations" in spec.params:
+        params["iterations"] = int(spec.params["iterations"])
+    if spec.kind not in ("fragment_loop", "mesh"):
+        params["unsupported"] = (f"XR views run fragment_loop and mesh passes on the Vulkan "
+                                 f"runner, not {spec.kind!r} ({spec.name!r})")
+    return replace(task, writes=(f"gpu{gpu}.view{v}",), params=MappingProxyType(params))
 
 
 def _footprints(cfg: ScheduleConfig, scene: Scene, views: list[int],

@@ -45,6 +45,65 @@ def copy_buffer(cmd: Any, src: Buffer, dst: Buffer, size: int | None = None,
     v.vkCmdCopyBuffer(cmd, src.handle, dst.handle, 1, regions)
 
 
+def _layers(image: Image) -> Any:
+    v = vk()
+    return v.VkImageSubresourceLayers(aspectMask=image.aspect, mipLevel=0, baseArrayLayer=0,
+                                      layerCount=1)
+
+
+def _buffer_region(image: Image, offset: int, x: int, y: int, width: int, height: int) -> Any:
+    v = vk()
+    return v.VkBufferImageCopy(bufferOffset=offset, bufferRowLength=0, bufferImageHeight=0,
+                               imageSubresource=_layers(image),
+                               imageOffset=v.VkOffset3D(x=x, y=y, z=0),
+                               imageExtent=v.VkExtent3D(width=width, height=height, depth=1))
+
+
+def copy_rect_to_buffer(cmd: Any, image: Image, buffer: Buffer, offset: int,
+                        rect: tuple[int, int, int, int]) -> None:
+    """Record the (x, y, width, height) rectangle of `image` -> buffer (tightly packed)."""
+    v = vk()
+    regions = [_buffer_region(image, offset, *rect)]
+    v.vkCmdCopyImageToBuffer(cmd, image.handle, v.VK_IMAGE_LAYOUT_GENERAL, buffer.handle, 1,
+                             regions)
+
+
+def copy_buffer_to_rect(cmd: Any, buffer: Buffer, offset: int, image: Image,
+                        rect: tuple[int, int, int, int]) -> None:
+    """Record buffer (tightly packed at `offset`) -> the (x, y, width, height) rectangle."""
+    v = vk()
+    regions = [_buffer_region(image, offset, *rect)]
+    v.vkCmdCopyBufferToImage(cmd, buffer.handle, image.handle, v.VK_IMAGE_LAYOUT_GENERAL, 1,
+                             regions)
+
+
+def copy_rect(cmd: Any, src: Image, dst: Image, src_xy: tuple[int, int],
+              dst_xy: tuple[int, int], size: tuple[int, int]) -> None:
+    """Record an image -> image copy of a `size` rectangle (same format)."""
+    v = vk()
+    region = v.VkImageCopy(srcSubresource=_layers(src),
+                           srcOffset=v.VkOffset3D(x=src_xy[0], y=src_xy[1], z=0),
+                           dstSubresource=_layers(dst),
+                           dstOffset=v.VkOffset3D(x=dst_xy[0], y=dst_xy[1], z=0),
+                           extent=v.VkExtent3D(width=size[0], height=size[1], depth=1))
+    regions = [region]
+    general = v.VK_IMAGE_LAYOUT_GENERAL
+    v.vkCmdCopyImage(cmd, src.handle, general, dst.handle, general, 1, regions)
+
+
+def clear_image(cmd: Any, image: Image) -> None:
+    """Record clearing a colour image to transparent black, or a depth image to 1."""
+    v = vk()
+    ranges = [image.range]
+    general = v.VK_IMAGE_LAYOUT_GENERAL
+    if image.aspect == v.VK_IMAGE_ASPECT_DEPTH_BIT:
+        value = v.VkClearDepthStencilValue(depth=1.0, stencil=0)
+        v.vkCmdClearDepthStencilImage(cmd, image.handle, general, value, 1, ranges)
+    else:
+        colour = v.VkClearColorValue(float32=[0.0, 0.0, 0.0, 0.0])
+        v.vkCmdClearColorImage(cmd, image.handle, general, colour, 1, ranges)
+
+
 def upload(gpu: "Gpu", target: Buffer | Image, data: np.ndarray) -> None:
     """Copy host `data` into a (device-local) buffer or image through a staging buffer."""
     raw = np.ascontiguousarray(data).view(np.uint8).reshape(-1)

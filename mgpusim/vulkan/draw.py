@@ -50,13 +50,20 @@ def torus_mesh(triangles: int, radius: float = 0.6, tube: float = 0.25) -> np.nd
     return tris.reshape(-1, 3, 6)[:triangles].reshape(-1, 6)
 
 
-def view_matrix() -> bytes:
-    """A fixed perspective camera looking at the origin (column-major mat4 for GLSL)."""
+#: Half the distance between the eyes of the stereo camera (scene units; the torus is ~1.7 wide).
+EYE_HALF_SEPARATION = 0.08
+
+
+def view_matrix(eye: int | None = None) -> bytes:
+    """A fixed perspective camera looking at the origin (column-major mat4 for GLSL); `eye`
+    0 / 1 moves it half the eye separation to the left / right (a stereo pair), None = mono."""
     f, near, far = 1.0 / math.tan(math.radians(30)), 0.5, 10.0
     proj = np.array([[f, 0, 0, 0], [0, f, 0, 0], [0, 0, far / (near - far), near * far / (near - far)],
                      [0, 0, -1, 0]], dtype=np.float32)
     view = np.eye(4, dtype=np.float32)
     view[2, 3] = -2.5
+    if eye is not None:
+        view[0, 3] = EYE_HALF_SEPARATION if eye == 0 else -EYE_HALF_SEPARATION
     tilt = np.eye(4, dtype=np.float32)
     ang = math.radians(35)
     tilt[1:3, 1:3] = [[math.cos(ang), -math.sin(ang)], [math.sin(ang), math.cos(ang)]]

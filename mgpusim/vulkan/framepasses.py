@@ -12,6 +12,7 @@ in a single-GPU render of the whole frame.
 """
 from __future__ import annotations
 
+import itertools
 from typing import TYPE_CHECKING, Any, Sequence
 
 from ..errors import InputError
@@ -71,18 +72,24 @@ class _FramePass:
         self._owned.clear()
 
 
+#: A stereo pair's texture-coordinate shift of the right eye in the fragment loop (the left
+#: eye and a mono frame are unshifted), so that the two eyes' pictures differ.
+EYE_UV_SHIFT = 0.25
+
+
 class FragmentLoopTile(_FramePass):
     """The fragment-loop benchmark on the frame rectangle `rect`, into targets whose pixel (0, 0)
-    is frame pixel `origin`."""
+    is frame pixel `origin`; `eye` 1 shifts the texture coordinates (a stereo view)."""
 
     def __init__(self, gpu: "Gpu", targets: Sequence[RenderTarget], frame: tuple[int, int],
-                 rect: Rect, origin: tuple[int, int], iterations: int):
+                 rect: Rect, origin: tuple[int, int], iterations: int, eye: int | None = None):
         super().__init__(gpu, targets)
         self.pipeline: Pipeline = graphics_pipeline(gpu, self.targets[0], "quad.vert", "loop.frag")
         self._owned.append(self.pipeline)
         self.area, self.empty = _local(rect, origin), rect[2] * rect[3] == 0
         self.viewport = (-origin[0], -origin[1], frame[0], frame[1])
-        self._pc = quad_pc((-1, -1, 1, 1), (0, 0, 1, 1), (iterations, 0, 0, 0))
+        shift = EYE_UV_SHIFT if eye == 1 else 0.0
+        self._pc = quad_pc((-1, -1, 1, 1), (shift, 0, 1 + shift, 1), (iterations, 0, 0, 0))
 
     def record(self, cmd: Any, slot: int = 0) -> None:
         if self.empty:
@@ -97,14 +104,20 @@ class FragmentLoopTile(_FramePass):
 
 class MeshShare(_FramePass):
     """Triangles [first, first + count) of the generated torus of `triangles` triangles, drawn
-    full-frame with depth: sort-last's geometry share (only the share is uploaded)."""
+    with depth: sort-last's geometry share (only the share is uploaded). `rect` (default: the
+    whole frame) is the part of the frame rendered, into targets whose pixel (0, 0) is frame
+    pixel `origin` (exact, as the fragment loop's tiles); `eye` 0 / 1 picks a stereo camera."""
 
     def __init__(self, gpu: "Gpu", targets: Sequence[RenderTarget], frame: tuple[int, int],
-                 triangles: int, first: int, count: int):
+                 triangles: int, first: int, count: int, *, rect: Rect | None = None,
+                 origin: tuple[int, int] = (0, 0), eye: int | None = None):
         super().__init__(gpu, targets)
         if self.targets[0].depth is None:
             raise InputError("a mesh pass needs a target with depth", field="depth")
         self.count, self.frame = count, frame
+        rect = rect or (0, 0, frame[0], frame[1])
+        self.area = _local(rect, origin)
+        self.viewport = (-origin[0], -origin[1], frame[0], frame[1])
         self.vertices = None
         if count > 0:
             verts = torus_mesh(triangles)[3 * first:3 * (first + count)]
@@ -116,12 +129,11 @@ class MeshShare(_FramePass):
             vertex_attributes=[(0, "R32G32B32_SFLOAT", 0), (1, "R32G32B32_SFLOAT", 12)],
             depth_test=True)
         self._owned.append(self.pipeline)
-        self._mvp = view_matrix()
+        self._mvp = view_matrix(eye)
 
     def record(self, cmd: Any, slot: int = 0) -> None:
         v = vk()
-        full = (0, 0, self.frame[0], self.frame[1])
-        begin(self.targets[slot], cmd, full, full)  # clears even an empty share
+        begin(self.targets[slot], cmd, self.area, self.viewport)  # clears even an empty share
         if self.vertices is not None:
             draw_vertices(cmd, self.pipeline, self._mvp, self.vertices, 3 * self.count)
         v.vkCmdEndRenderPass(cmd)
@@ -161,6 +173,70 @@ class CompositeInto(_FramePass):
                 self.pipeline.push(cmd, stages(), pc)
                 v.vkCmdDraw(cmd, 6, 1, 0, 0)
         v.vkCmdEndRenderPass(cmd)
+
+
+class Filter(_FramePass):
+    """A fragment loop that samples `len(inputs)` (1..4) full-frame images at its own pixel and
+    combines them (shaders/filter.frag): the pipelining chain's passes that read other passes'
+    outputs, and the temporal pass, whose last input is the previous frame's result.
+    `inputs[k][b]` is buffered copy b of input k; `record(cmd, slot, input_slots)` samples copy
+    `input_slots[k]` of each."""
+
+    MAX_INPUTS = 4
+
+    def __init__(self, gpu: "Gpu", targets: Sequence[RenderTarget], frame: tuple[int, int],
+                 iterations: int, inputs: Sequence[Sequence[Image]]):
+        super().__init__(gpu, targets)
+        if not 1 <= len(inputs) <= self.MAX_INPUTS:
+            raise InputError(f"a filter samples 1 to {self.MAX_INPUTS} inputs, got {len(inputs)}",
+                             field="inputs")
+        for k, copies in enumerate(inputs):
+            if any((img.width, img.height) != tuple(frame) for img in copies):
+                raise InputError(f"filter input {k} is not a {frame[0]}x{frame[1]} image",
+                                 field="inputs")
+        combos = list(itertools.product(*(range(len(c)) for c in inputs)))
+        self.pipeline = graphics_pipeline(gpu, self.targets[0], "quad.vert", "filter.frag",
+                                          samplers=self.MAX_INPUTS, max_sets=len(combos))
+        self._owned.append(self.pipeline)
+        pad = self.MAX_INPUTS - len(inputs)
+        self.sets = {combo: self.pipeline.descriptor_set(
+            [inputs[k][b] for k, b in enumerate(combo)] + [inputs[0][combo[0]]] * pad)
+            for combo in combos}
+        self.full = (0, 0, frame[0], frame[1])
+        self._pc = quad_pc((-1, -1, 1, 1), (0, 0, 1, 1), (iterations, len(inputs), 0, 0))
+
+    def record(self, cmd: Any, slot: int = 0, input_slots: Sequence[int] | None = None) -> None:
+        v = vk()
+        combo = tuple(input_slots) if input_slots is not None else (0,) * len(next(iter(self.sets)))
+        begin(self.targets[slot], cmd, self.full, self.full)
+        self.pipeline.bind(cmd, self.sets[combo])
+        self.pipeline.push(cmd, stages(), self._pc)
+        v.vkCmdDraw(cmd, 6, 1, 0, 0)
+        v.vkCmdEndRenderPass(cmd)
+
+
+class ParticleDraw(_FramePass):
+    """P additive billboards (6 vertices each, built by the particle update) drawn into a
+    loading target: `record(cmd, slot, vertices)` draws the given vertex buffer."""
+
+    def __init__(self, gpu: "Gpu", targets: Sequence[RenderTarget], particles: int):
+        super().__init__(gpu, targets)
+        self.particles = particles
+        self.pipeline = graphics_pipeline(
+            gpu, self.targets[0], "particle.vert", "particle.frag", push_size=64, stride=32,
+            vertex_attributes=[(0, "R32G32B32A32_SFLOAT", 0), (1, "R32G32B32A32_SFLOAT", 16)],
+            blend_add=True)
+        self._owned.append(self.pipeline)
+        self._mvp = view_matrix()
+
+    def record(self, cmd: Any, slot: int, vertices: Any) -> None:
+        """Draw `vertices` (None: no particles yet, the pass only loads or clears)."""
+        target = self.targets[slot]
+        full = (0, 0, target.width, target.height)
+        begin(target, cmd, full, full)
+        if vertices is not None:
+            draw_vertices(cmd, self.pipeline, self._mvp, vertices, 6 * self.particles)
+        vk().vkCmdEndRenderPass(cmd)
 
 
 def clear_images(gpu: "Gpu", color: Image, depth: Image | None) -> None:

@@ -21,7 +21,8 @@ from .copies import CopyD2D, CopyD2H, CopyH2D
 from .device import Gpu
 from .hostcopy import HostCopy
 from .particles import ParticleUpdate
-from .passes import CompositeSortFirst, CompositeSortLast, FragmentLoop, Mesh, ParticleRender, Present
+from .passes import (CompositeSortFirst, CompositeSortLast, FilterPass, FragmentLoop, Mesh,
+                     ParticleRender, Present)
 
 
 @dataclass(frozen=True)
@@ -51,6 +52,10 @@ PASSES: dict[str, PassSpec] = {s.name: s for s in (
     PassSpec("present", {"width": 1024, "height": 768},
              lambda g, p: Present(g, p["width"], p["height"]),
              "the frame copied into the displayed image (the runner's present)"),
+    PassSpec("filter", {"width": 1024, "height": 768, "iterations": 1000, "inputs": 2},
+             lambda g, p: FilterPass(g, p["width"], p["height"], p["iterations"], p["inputs"]),
+             "fragment loop sampling 1-4 inputs at its pixel (the pipelining chain's "
+             "consumers; the temporal pass with 2)"),
     PassSpec("particle_update", {"particles": 65_536},
              lambda g, p: ParticleUpdate(g, p["particles"]),
              "compute: update P particles and build 6-vertex billboards"),

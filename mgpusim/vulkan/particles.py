@@ -8,7 +8,7 @@ spawn (w = billboard half-size), life (x = alive, y = maxLife) = 64 B of state; 
 from __future__ import annotations
 
 import struct
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
@@ -66,31 +66,51 @@ def reference_update(state: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarr
 
 
 class ParticleUpdate:
-    """The compute pass: update P particles by `dt` and build their billboards."""
+    """The compute pass: update P particles by `dt` and build their billboards.
+
+    The runner gives it the vertex buffers it writes (`vertices`, one per buffered copy: the
+    offloaded vertex buffer crosses GPUs from there) and the state buffer it keeps; the
+    microbenchmark lets it make its own. `record(cmd, slot, dt)` writes copy `slot`, with a
+    time step other than `dt` where the caller asks (skipped updates' time accumulates)."""
 
     queue = "compute"
 
     def __init__(self, gpu: "Gpu", particles: int, *, dt: float = 1 / 60, seed: int = 0,
-                 state: np.ndarray | None = None):
+                 state: np.ndarray | None = None, vertices: Sequence[Any] | None = None,
+                 state_buffer: Any = None):
         if particles <= 0:
             raise InputError(f"must be positive, got {particles}", field="particles")
         self.gpu, self.particles, self.dt = gpu, particles, dt
-        self.state = gpu.buffer(particles * STATE_BYTES, host_visible=False)
-        self.calc = gpu.buffer(particles * CALC_BYTES, host_visible=False)
-        self.vertices = gpu.buffer(particles * VERTEX_BYTES, host_visible=False)
+        self._mine: list[Any] = []
+        self.state = state_buffer or self._make(particles * STATE_BYTES)
+        self.calc = self._make(particles * CALC_BYTES)
+        self.outputs = list(vertices) if vertices else [self._make(particles * VERTEX_BYTES)]
+        self.vertices = self.outputs[0]
         upload(gpu, self.state, initial_state(particles, seed) if state is None else state)
-        self.pipeline = compute_pipeline(gpu, "particles.comp", buffers=3, push_size=40)
-        self.set = self.pipeline.descriptor_set([self.state, self.calc, self.vertices])
-        self._pc = struct.pack("8ffI", *RIGHT, *UP, dt, particles)
+        self.pipeline = compute_pipeline(gpu, "particles.comp", buffers=3, push_size=40,
+                                         max_sets=len(self.outputs))
+        self.sets = [self.pipeline.descriptor_set([self.state, self.calc, out])
+                     for out in self.outputs]
+        self.set = self.sets[0]
         self.bytes = particles * (STATE_BYTES + CALC_BYTES + VERTEX_BYTES)
 
-    def record(self, cmd: Any) -> None:
+    def _make(self, size: int) -> Any:
+        buf = self.gpu.buffer(size, host_visible=False)
+        self._mine.append(buf)
+        return buf
+
+    def push_constants(self, dt: float) -> bytes:
+        return struct.pack("8ffI", *RIGHT, *UP, dt, self.particles)
+
+    def record(self, cmd: Any, slot: int = 0, dt: float | None = None) -> None:
         v = vk()
-        self.pipeline.bind(cmd, self.set)
-        self.pipeline.push(cmd, v.VK_SHADER_STAGE_COMPUTE_BIT, self._pc)
+        self.pipeline.bind(cmd, self.sets[slot])
+        self.pipeline.push(cmd, v.VK_SHADER_STAGE_COMPUTE_BIT,
+                           self.push_constants(self.dt if dt is None else dt))
         v.vkCmdDispatch(cmd, -(-self.particles // 64), 1, 1)
 
     def destroy(self) -> None:
         self.pipeline.destroy()
-        for buf in (self.state, self.calc, self.vertices):
+        for buf in self._mine:
             buf.destroy()
+        self._mine.clear()

@@ -18,12 +18,13 @@ import numpy as np
 
 from ..errors import InputError
 from ..schedules.base import even_split
-from .draw import draw_vertices, torus_mesh, view_matrix
-from .errors import vk
-from .framepasses import CompositeInto, FragmentLoopTile, MeshShare, clear_images, copy_image
+from .copies import upload
+from .draw import torus_mesh  # noqa: F401  (re-exported: the tests build meshes with it)
+from .framepasses import (CompositeInto, Filter, FragmentLoopTile, MeshShare, ParticleDraw,
+                          clear_images, copy_image)
 from .memory import DEPTH_FORMAT, Buffer, Image
 from .particles import ParticleUpdate
-from .pipelines import RenderTarget, graphics_pipeline
+from .pipelines import RenderTarget
 
 if TYPE_CHECKING:
     from .device import Gpu
@@ -66,7 +67,8 @@ class FragmentLoop(_GraphicsPass):
     full-frame render."""
 
     def __init__(self, gpu: "Gpu", width: int, height: int, iterations: int, *,
-                 frame: tuple[int, int] | None = None, offset: tuple[int, int] = (0, 0)):
+                 frame: tuple[int, int] | None = None, offset: tuple[int, int] = (0, 0),
+                 eye: int | None = None):
         super().__init__(gpu)
         _positive(width=width, height=height)
         if iterations < 0:
@@ -74,7 +76,7 @@ class FragmentLoop(_GraphicsPass):
         self.width, self.height, self.iterations = width, height, iterations
         self.target = RenderTarget(gpu, width, height, depth=False)
         self.work = FragmentLoopTile(gpu, [self.target], frame or (width, height),
-                                     (*offset, width, height), offset, iterations)
+                                     (*offset, width, height), offset, iterations, eye)
         self._owned.append(self.work)
         self.bytes = width * height * 4
 
@@ -84,16 +86,17 @@ class FragmentLoop(_GraphicsPass):
 
 class Mesh(_GraphicsPass):
     """T triangles of a generated torus into colour RGBA8 + depth D16 (`first`..: a share), as
-    the runner's sort-last share."""
+    the runner's sort-last share; `eye` 0 / 1 renders one view of the stereo camera (XR)."""
 
     def __init__(self, gpu: "Gpu", width: int, height: int, triangles: int, *,
-                 first: int = 0, count: int | None = None):
+                 first: int = 0, count: int | None = None, eye: int | None = None):
         super().__init__(gpu)
         _positive(width=width, height=height, triangles=triangles)
         self.width, self.height, self.triangles = width, height, triangles
         self.first, self.count = first, (triangles - first if count is None else count)
         self.target = RenderTarget(gpu, width, height, depth=True)
-        self.work = MeshShare(gpu, [self.target], (width, height), triangles, self.first, self.count)
+        self.work = MeshShare(gpu, [self.target], (width, height), triangles, self.first,
+                              self.count, eye=eye)
         self._owned.append(self.work)
         self.bytes = width * height * 6
 
@@ -168,8 +171,35 @@ class Present(_GraphicsPass):
         copy_image(cmd, self.frame, self.display)
 
 
+class FilterPass(_GraphicsPass):
+    """The runner's filter (a fragment loop sampling `inputs` images at its pixel): the
+    pipelining chain's consumer passes and, with 2 inputs, the temporal pass (current frame +
+    history). The inputs are images of its own, filled with a gradient once."""
+
+    def __init__(self, gpu: "Gpu", width: int, height: int, iterations: int, inputs: int):
+        super().__init__(gpu)
+        _positive(width=width, height=height, inputs=inputs)
+        if iterations < 0:
+            raise InputError(f"must be >= 0, got {iterations}", field="iterations")
+        self.width, self.height, self.iterations = width, height, iterations
+        self.inputs = [gpu.image(width, height) for _ in range(inputs)]
+        self._owned += self.inputs
+        ramp = (np.arange(width * height * 4, dtype=np.uint32) % 251).astype(np.uint8)
+        for img in self.inputs:
+            upload(gpu, img, ramp)
+        self.target = RenderTarget(gpu, width, height, depth=False)
+        self.work = Filter(gpu, [self.target], (width, height), iterations,
+                           [[img] for img in self.inputs])
+        self._owned.append(self.work)
+        self.bytes = width * height * 4
+
+    def record(self, cmd: Any) -> None:
+        self.work.record(cmd, 0)
+
+
 class ParticleRender(_GraphicsPass):
-    """Draw P billboards (6 vertices each, built by ParticleUpdate) additively into RGBA8."""
+    """Draw P billboards (6 vertices each, built by ParticleUpdate) additively into RGBA8, as
+    the runner's particle draw."""
 
     def __init__(self, gpu: "Gpu", width: int, height: int, particles: int, *,
                  vertices: Buffer | None = None, seed: int = 0):
@@ -183,15 +213,9 @@ class ParticleRender(_GraphicsPass):
             vertices = update.vertices
         self.vertices = vertices
         self.target = RenderTarget(gpu, width, height, depth=False)
-        self.pipeline = graphics_pipeline(
-            gpu, self.target, "particle.vert", "particle.frag", push_size=64, stride=32,
-            vertex_attributes=[(0, "R32G32B32A32_SFLOAT", 0), (1, "R32G32B32A32_SFLOAT", 16)],
-            blend_add=True)
-        self._owned += [self.target, self.pipeline]
-        self._mvp = view_matrix()
+        self.work = ParticleDraw(gpu, [self.target], particles)
+        self._owned.append(self.work)
         self.bytes = width * height * 4
 
     def record(self, cmd: Any) -> None:
-        self.target.begin(cmd)
-        draw_vertices(cmd, self.pipeline, self._mvp, self.vertices, 6 * self.particles)
-        vk().vkCmdEndRenderPass(cmd)
+        self.work.record(cmd, 0, self.vertices)

@@ -54,3 +54,30 @@ def test_validate_measures_repeated_runs_and_compares_their_steady_window(tmp_pa
     assert (out / "measured" / "run1" / "trace.csv").is_file()
     runs = json.loads((out / "measured" / "runs.json").read_text())
     assert len(runs["frame_time_ms"]) == 2
+
+
+LAVAPIPE = Path(ROOT) / "experiments" / "lavapipe"
+
+
+@pytest.mark.parametrize("name, sets, width", [
+    ("afr.toml", ["scene.passes.0.iterations=50"], 64),
+    ("afr_temporal.toml", ["scene.passes.0.iterations=50", "schedule.gpus=3"], 64),
+    ("pipelining.toml", ["scene.passes.0.output_bytes=12288", "scene.passes.1.output_bytes=12288",
+                         "schedule.chunks=4"], 64),
+    ("xr.toml", ["scene.passes.0.triangles=2000", "schedule.scaling=strong"], 128),
+    ("particles.toml", ["schedule.particles=512"], 64),
+])
+def test_the_other_schedules_shipped_lavapipe_experiments_run(tmp_path, name, sets, width):
+    """Each schedule's lavapipe experiment runs as shipped (made small): XR shows both eyes."""
+    import matplotlib.image as mpimg
+
+    from mgpusim.cli import main
+
+    out = tmp_path / "m"
+    small = ["scene.width=64", "scene.height=48", "schedule.frames=4", "schedule.warmup_frames=1"]
+    argv = ["run", str(LAVAPIPE / name), "--out", str(out)]
+    for item in small + sets:
+        argv += ["--set", item]
+    assert main(argv) == 0
+    assert mpimg.imread(out / "image.png").shape[:2] == (48, width)
+    assert json.loads((out / "summary.json").read_text())["frame_time_ms"] > 0

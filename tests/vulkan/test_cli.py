@@ -24,7 +24,7 @@ def test_measure_list(capsys):
     assert main(["measure", "--list"]) == 0
     out = capsys.readouterr().out
     for name in ("fragment_loop", "mesh", "composite_sort_first", "composite_sort_last",
-                 "particle_update", "particle_render", "copy_d2h", "copy_h2d", "copy_d2d",
+                 "filter", "particle_update", "particle_render", "copy_d2h", "copy_h2d", "copy_d2d",
                  "host_copy"):
         assert name in out
 
@@ -102,3 +102,15 @@ def test_shader_cache_reuses_binaries(monkeypatch, tmp_path):
         assert code[:4] == b"\x03\x02\x23\x07"  # SPIR-V magic, little-endian
     finally:
         shader_cache.spirv.cache_clear()
+
+
+def test_measure_filter_sweeps_its_inputs(tmp_path):
+    """The temporal pass / pipelining chain's filter is measured like the other passes: its
+    inputs are a column the calibration fits (`pixel_input`)."""
+    out = tmp_path / "f.csv"
+    assert main(["measure", "--pass", "filter", "--sweep", "inputs=1,4", "--sweep", "width=64",
+                 "--sweep", "height=48", "--sweep", "iterations=100", "--reps", "2",
+                 "--warmup", "1", "--quiet", "--out", str(out)]) == 0
+    df = pd.read_csv(out)
+    assert sorted(set(df.inputs)) == [1, 4] and (df.duration_ns > 0).all()
+    assert (df.bytes == 64 * 48 * 4).all()

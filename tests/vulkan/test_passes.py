@@ -156,3 +156,38 @@ def test_microbenchmarks_record_the_runners_passes(gpu):
         # the composite loads the frame the primary rendered; the renders clear their targets
         assert p.work.targets[0].clear is (kind is not fp.CompositeInto)
         p.destroy()
+
+
+@pytest.mark.parametrize("inputs", [1, 2, 4])
+def test_filter_combines_its_inputs_as_the_shader_says(gpu, inputs):
+    """fract(last input + (other inputs + the loop's uv) / 16), per pixel: what the temporal
+    pass and the pipelining chain compute."""
+    from mgpusim.vulkan.passes import FilterPass
+
+    w, h, n = 32, 24, 20
+    p = FilterPass(gpu, w, h, n, inputs)
+    gpu.run(p.queue, p.record)
+    out = _rgba(gpu, p.target.color).astype(float) / 255
+    ramp = ((np.arange(w * h * 4) % 251) / 255).reshape(h, w, 4)[..., :3]
+    factor = (np.float32(1.00001) * np.float32(0.999998)) ** n
+    xs, ys = (np.arange(w) + 0.5) / w, (np.arange(h) + 0.5) / h
+    loop = np.stack([np.broadcast_to(xs[None, :] * factor, (h, w)),
+                     np.broadcast_to(ys[:, None] * factor, (h, w)), np.full((h, w), 0.5)], -1)
+    expected = np.mod(ramp + ((inputs - 1) * ramp + loop) / 16, 1.0)
+    wrapped = np.abs(out[..., :3] - expected)
+    assert np.minimum(wrapped, 1 - wrapped).max() <= 2 / 255
+    assert np.all(out[..., 3] == 1.0)
+    p.destroy()
+
+
+def test_stereo_eyes_see_the_scene_from_two_places(gpu):
+    """XR's eye cameras: the two eyes differ, by a small horizontal shift of the torus."""
+    eyes = []
+    for eye in (0, 1):
+        p = Mesh(gpu, 64, 48, 3000, eye=eye)
+        gpu.run(p.queue, p.record)
+        eyes.append(_rgba(gpu, p.target.color)[..., 3] == 255)
+        p.destroy()
+    assert not np.array_equal(*eyes)
+    cols = [np.nonzero(e.any(axis=0))[0] for e in eyes]
+    assert cols[0][0] > cols[1][0]  # the left eye sees the torus further right

@@ -1,5 +1,5 @@
 #version 450
-// DOMAIN.md 3.3: particle update, then a camera-facing billboard (6 vertices x (pos, uv)).
+// The particle demo's update (particles on a secondary GPU, docs/sources.md), then a camera-facing billboard (6 vertices x (pos, uv)).
 layout(local_size_x = 64) in;
 struct Particle { vec4 pos; vec4 dir; vec4 spawn; vec4 life; };  // dir.w = vel; life = (alive, maxLife)
 layout(std430, set = 0, binding = 0) buffer Particles { Particle p[]; };

@@ -1,0 +1,64 @@
+"""What a whole-frame scene pass reads and writes on the Vulkan runner.
+
+Why shared: AFR, frame pipelining and particle offload run the scene's passes full-frame on
+one GPU each; they bind those passes alike. Every pass renders into an image of its own
+(`{prefix}{pass name}`, with depth for a mesh), so a later `filter` pass can sample it; a
+`filter` with `inputs = k` samples the outputs of the k passes before it in the scene, the
+nearest last (its accumulating input). Schedules replace inputs where the data comes from
+elsewhere: another GPU's copy (pipelining), the previous frame (AFR's temporal pass).
+"""
+from __future__ import annotations
+
+import dataclasses
+from types import MappingProxyType
+from typing import Any, Mapping, Sequence
+
+from ..scene import PassSpec, Scene
+from ..tasks import PassTask
+from .binding import Bindings
+
+
+def pass_image(b: Bindings, name: str, device: int, scene: Scene, spec: PassSpec,
+               buffers: int = 1) -> str:
+    """The image a full-frame pass renders into."""
+    return b.image(name, device, scene.width, scene.height, depth=spec.kind == "mesh",
+                   buffers=buffers)
+
+
+def frame_params(spec: PassSpec, scene: Scene, **extra: Any) -> Mapping[str, Any]:
+    """The runner's knobs of a full-frame pass: the frame, the rectangle (all of it), the
+    pass's own parameters (iterations, triangles: the whole mesh)."""
+    w, h = scene.width, scene.height
+    params: dict[str, Any] = {"frame": (w, h), "rect": (0, 0, w, h), "origin": (0, 0),
+                              "clear": True, **spec.params}
+    if "triangles" in spec.params:
+        total = int(spec.params["triangles"])
+        params.update(triangles=total, first=0, count=total)
+    if "iterations" in spec.params:
+        params["iterations"] = int(spec.params["iterations"])
+    params.update(extra)
+    return MappingProxyType(params)
+
+
+def filter_sources(passes: Sequence[PassSpec], index: int) -> list[str] | str:
+    """Names of the passes a filter at `index` samples (the `inputs` before it, nearest last),
+    or why it cannot be run (too few passes before it)."""
+    spec = passes[index]
+    k = int(spec.param("inputs", 1))
+    if not 1 <= k <= index:
+        return (f"filter pass {spec.name!r} samples the {k} passes before it, but {index} "
+                f"come before it (1 to 4 inputs)")
+    return [p.name for p in passes[index - k:index]]
+
+
+def bind_full_frame(task: PassTask, spec: PassSpec, scene: Scene, target: str,
+                    reads: Sequence[str] | str = (), read_offsets: Sequence[int] = ()) -> PassTask:
+    """`task` rendering `spec` full-frame into `target`, sampling `reads` (a filter); a string
+    in `reads` is why the runner cannot run it."""
+    extra: dict[str, Any] = {}
+    if isinstance(reads, str):
+        extra["unsupported"], reads = reads, ()
+    if reads:
+        extra["read_offsets"] = tuple(read_offsets) or (0,) * len(reads)
+    return dataclasses.replace(task, reads=tuple(reads), writes=(target,),
+                               params=frame_params(spec, scene, **extra))

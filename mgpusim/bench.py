@@ -18,9 +18,13 @@ from typing import Any
 
 import simpy
 
+from .costs import CostModel
 from .experiment import load_experiment
+from .program import build_program
 from .shipped import shipped_dir
-from .simulate import build_program, simulate
+from .sim.analytic import sweep
+from .sim.effects import EFFECTS, choose_effects
+from .simulate import simulate
 from .tasks import CopyTask, HostCopyTask
 
 DEFAULT_EXPERIMENT = shipped_dir("experiments") / "sort_first_tc1.toml"
@@ -122,8 +126,6 @@ def analytic_speed(experiment: Path = DEFAULT_EXPERIMENT, configurations: int = 
     variants (pass and transfer times scaled 0.25x-4x) of one experiment, and one-at-a-time
     `simulate(fidelity="analytic")` for comparison."""
     import numpy as np  # noqa: PLC0415
-    from .costs import CostModel  # noqa: PLC0415
-    from .sim.analytic import sweep  # noqa: PLC0415
     exp = load_experiment(experiment)
     program, costs = build_program(exp), CostModel(exp.profile)
     rng = np.random.default_rng(0)
@@ -143,7 +145,6 @@ def analytic_speed(experiment: Path = DEFAULT_EXPERIMENT, configurations: int = 
 def effects_saving(experiment: Path = DEFAULT_EXPERIMENT, frames: int = 3000, repeats: int = 3) -> dict[str, Any]:
     """Time of a run with only the effects its scene needs, against the same run with every
     unneeded effect forced on (same trace: tests check it), fast-forward off. Best of `repeats`."""
-    from .sim.effects import EFFECTS, choose_effects  # noqa: PLC0415
     exp = load_experiment(experiment, {"schedule.frames": frames})
     needed = choose_effects(build_program(exp), exp.profile)
     forced = {n: True for n, e in EFFECTS.items() if n not in needed and e.forceable}
@@ -163,7 +164,6 @@ LAVAPIPE_EXPERIMENT = DEFAULT_EXPERIMENT.parent / "lavapipe" / "sort_first.toml"
 def effect_costs(experiment: Path = LAVAPIPE_EXPERIMENT, frames: int = 3000, repeats: int = 3) -> dict[str, Any]:
     """What each effect a scene needs costs in time: the run with all of them, and with each one
     forced off (a different, less accurate model), fast-forward off. Best of `repeats`."""
-    from .sim.effects import choose_effects  # noqa: PLC0415
     exp = load_experiment(experiment, {"schedule.frames": frames})
     needed = sorted(n for n in choose_effects(build_program(exp), exp.profile) if n != "memory_capacity")
     runs: dict[str, float] = {}

@@ -2,11 +2,13 @@
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 from .costs import CostModel
 from .errors import TimeBoundError
 from .experiment import Experiment
 from .memory import check_memory, memory_report
+from .profile import has_cost_stderr, with_cost_band
 from .program import build_program, run_config
 from .results import Result, build_result
 from .schedules.base import FrameProgram
@@ -18,11 +20,15 @@ __all__ = ["build_program", "run_config", "simulate"]
 
 
 def simulate(exp: Experiment, record_trace: bool = True, fidelity: str = "full",
-             effects: dict[str, bool] | None = None, fast_forward: bool = True) -> Result:
+             effects: dict[str, bool] | None = None, fast_forward: bool = True,
+             band: bool = True) -> Result:
     """Run `exp` in the model. Same experiment, same result, bit for bit.
 
     `fidelity`: "full", "queues" or "analytic" (mgpusim.sim.effects); `effects`: effects forced
-    on (True) or off (False); `fast_forward`: skip repeats of the model's state (exact)."""
+    on (True) or off (False); `fast_forward`: skip repeats of the model's state (exact).
+    `band`: where the profile carries its calibration's standard errors, also simulate every
+    pass cost one standard error lower and higher, and report the summary's
+    frame_time_ms_lo/hi and latency_ms_lo/hi (the calibration's uncertainty carried through)."""
     program = build_program(exp)
     chosen = choose_effects(program, exp.profile, fidelity, effects)
     if "memory_capacity" in chosen:
@@ -36,7 +42,23 @@ def simulate(exp: Experiment, record_trace: bool = True, fidelity: str = "full",
     result.summary.update(fidelity=fidelity, modelled_effects=sorted(chosen), fast_forward=raw.fast_forward)
     _task_rates(program, raw, result)
     result.model_wall_s = model_s  # the model's own time (not in the summary: that stays reproducible)
+    if band and has_cost_stderr(exp.profile):
+        result.summary.update(_band(exp, program, chosen, fidelity))
     return result
+
+
+def _band(exp: Experiment, program: FrameProgram, chosen: frozenset[str], fidelity: str) -> dict[str, float]:
+    """Frame time and latency with every pass cost moved one standard error down and up. Why
+    both ends are simulated: a schedule's frame time is a maximum over paths, so it need not
+    move by the same amount as any one pass."""
+    out: dict[str, float] = {}
+    for end, sigmas in (("lo", -1.0), ("hi", 1.0)):
+        shifted = replace(exp, profile=with_cost_band(exp.profile, sigmas))
+        raw = _run_model(shifted, program, chosen, fidelity, False, True)
+        summary = build_result(raw, program.warmup_frames, {}).summary
+        out[f"frame_time_ms_{end}"] = summary["frame_time_ms"]
+        out[f"latency_ms_{end}"] = summary["latency_ms"]
+    return out
 
 
 def _run_model(exp: Experiment, program: FrameProgram, chosen: frozenset[str], fidelity: str,

@@ -62,6 +62,9 @@ def run(args: argparse.Namespace) -> int:
           f"{exp.scene.width}x{exp.scene.height}")
     print(f"  frame time {s['frame_time_ms']:.3f} ms ({s['fps']:.1f} fps), latency {s['latency_ms']:.3f} ms, "
           f"jitter {s['frame_time_jitter_ms']:.3f} ms")
+    if "frame_time_ms_lo" in s:
+        print(f"  calibration band (pass costs +-1 standard error): frame time {s['frame_time_ms_lo']:.3f}"
+              f"-{s['frame_time_ms_hi']:.3f} ms, latency {s['latency_ms_lo']:.3f}-{s['latency_ms_hi']:.3f} ms")
     for name, hz in s.get("task_rates_hz", {}).items():
         if name != "frames":
             print(f"  {name}: {hz:.1f} Hz (frames {s['fps']:.1f} Hz)")

@@ -84,10 +84,11 @@ def validate(study: Study, entries: tuple[Entry, ...], root: Path, profile: Path
         report = validate_experiment(exp, out / e.name, folder)
         report["config"] = e.name
         progress(format_report(exp, report))
-        rows.append(report)
-    table = error_table(rows)
+        rows.append((exp.schedule.name, report))
+    table = error_table([r for _, r in rows])
     if rows:
-        table["run_to_run_spread"] = [r["measured_spread"] for r in rows]
+        table["schedule"] = [name for name, _ in rows]
+        table["run_to_run_spread"] = [r["measured_spread"] for _, r in rows]
     return table
 
 
@@ -116,7 +117,9 @@ def run(study: Study, out: Path, progress: Progress, held_out: bool = True,
 
 
 def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_text: str) -> Path:
-    """report.md: per half the error table and its statistics; errors.json; errors_*.csv."""
+    """report.md: per half, per schedule the error table, its statistics and the stacked
+    measured/simulated timelines; errors.json (per half) and errors_by_schedule.json;
+    errors_*.csv."""
     lines = [f"# mgpusim study {study.name}: measured vs simulated", "",
              "Errors are simulated / measured - 1. With repeated runs the measured side is the "
              "steady window of the interleaved repeats (the window of >= 200 ms at the 10th "
@@ -124,21 +127,32 @@ def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_t
              "`spread` is (slowest / fastest - 1) of the whole runs' frame times, the machine's own "
              "noise. Each configuration's folder under validation/ holds `timelines.png` (measured "
              "above simulated) and both Perfetto traces.", ""]
-    stats = {}
+    stats: dict[str, Any] = {}
+    by_schedule: dict[str, dict[str, Any]] = {}
     for title, table in tables.items():
         if table.empty:
             continue
-        st = stats[title] = error_stats(table)
-        lines += [f"## {title}", "", markdown_table(table), "",
-                  f"Median |frame-time error| {st['median_abs_frame_time_error']:.1%}, worst "
-                  f"{st['worst_abs_frame_time_error']:.1%} over {st['configurations']} configurations; "
-                  f"median |latency error| {st['median_abs_latency_error']:.1%}.", ""]
+        stats[title] = error_stats(table)
+        lines += [f"## {title}", "", _stats_line(stats[title]), ""]
+        groups = table.groupby("schedule", sort=False) if "schedule" in table else [("", table)]
+        for schedule, part in groups:
+            st = by_schedule.setdefault(title, {})[schedule] = error_stats(part)
+            lines += [f"### {schedule}", "", markdown_table(part), "", _stats_line(st), ""]
+            lines += [f"![{c}](validation/{c}/timelines.png)" for c in part["config"]] + [""]
         table.to_csv(out / f"errors_{title.split()[0].lower()}.csv", index=False)
     lines += ["## Calibration", "", "```", fit_text, "```", ""]
     path = out / "report.md"
     path.write_text("\n".join(lines))
     write_json(stats, out / "errors.json")
+    write_json(by_schedule, out / "errors_by_schedule.json")
     return path
+
+
+def _stats_line(st: dict[str, Any]) -> str:
+    return (f"Median |frame-time error| {st['median_abs_frame_time_error']:.1%}, worst "
+            f"{st['worst_abs_frame_time_error']:.1%} over {st['configurations']} configurations; "
+            f"median |latency error| {st['median_abs_latency_error']:.1%}, worst "
+            f"{st['worst_abs_latency_error']:.1%}.")
 
 
 def markdown_table(table: pd.DataFrame) -> str:

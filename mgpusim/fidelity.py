@@ -40,13 +40,17 @@ class Source:
     profile: Path | None = None
 
 
-#: The committed measured runs. The lavapipe study commits none (its job measures them on the
-#: machine it runs on); it is listed so that committed runs would be picked up.
+#: The committed measured runs: the NVIDIA studies' own folders, and the steady windows of two
+#: lavapipe jobs (data/lavapipe/runs_2026-11-23/, each with the profile that job fitted).
+LAVAPIPE_RUNS = EXPERIMENTS.parent / "data/lavapipe/runs_2026-11-23"
 SOURCES = (
     Source("2x H200", EXPERIMENTS / "h200/study.toml"),
     Source("H100", EXPERIMENTS / "h200/study.toml", EXPERIMENTS.parent / "data/nvidia/h100/runs_1gpu",
            PROFILES / "h100.toml"),
-    Source("lavapipe", EXPERIMENTS / "lavapipe/study.toml"),
+    Source("lavapipe five-step", EXPERIMENTS / "lavapipe/study.toml", LAVAPIPE_RUNS / "five_step/runs",
+           LAVAPIPE_RUNS / "five_step/profile.toml"),
+    Source("lavapipe schedules", EXPERIMENTS / "lavapipe/schedules.toml", LAVAPIPE_RUNS / "schedules/runs",
+           LAVAPIPE_RUNS / "schedules/profile.toml"),
 )
 
 

@@ -267,14 +267,20 @@ def test_sweep_lane_equals_analytic(name: str):
 def test_fidelity_command_writes_the_table(tmp_path: Path):
     from mgpusim.cli import main
     from mgpusim.fidelity import configurations
-    assert len(configurations()) >= 20  # the committed H200 and H100 runs
+    assert len(configurations()) >= 100  # the committed H200, H100 and lavapipe runs
     assert main(["fidelity", "--out", str(tmp_path), "--repeats", "1"]) == 0
     table = pd.read_csv(tmp_path / "per_config.csv")
     assert set(table["level"]) == {"analytic", "queues", "full", "full, no fast-forward"}
-    assert table["frame_time_error"].abs().max() < 0.2 and table["wall_ms"].gt(0).all()
-    full = table[table.level == "full"].set_index("config")["frame_ms"]
-    noff = table[table.level == "full, no fast-forward"].set_index("config")["frame_ms"]
-    assert (full == noff).all()
+    assert table["wall_ms"].gt(0).all()
+    nvidia = table[table.machine.isin(["2x H200", "H100"])]
+    assert nvidia["frame_time_error"].abs().max() < 0.1  # nothing shared there: every level agrees
+    lavapipe = table[table.machine.str.startswith("lavapipe")]
+    err = lavapipe.assign(e=lavapipe.frame_time_error.abs()).groupby("level")["e"].median()
+    assert err["full"] < err["analytic"] and err["full"] < err["queues"]  # the shared cores matter
+    key = ["machine", "config"]
+    full = table[table.level == "full"].set_index(key)["frame_ms"]
+    noff = table[table.level == "full, no fast-forward"].set_index(key)["frame_ms"]
+    assert (full == noff.loc[full.index]).all()
     assert (tmp_path / "fidelity_pareto.png").stat().st_size > 10_000
     assert "| analytic | all |" in (tmp_path / "fidelity.md").read_text()
     dev = pd.read_csv(tmp_path / "deviations.csv").set_index("level")

@@ -21,6 +21,7 @@ from typing import Any, Literal
 
 from ..errors import ScheduleError
 from ..schedules.base import FrameProgram, waits_for_labels
+from ..tasks import Task
 from .work import GpuWork, HostWork, Work
 
 EdgeKind = Literal["order", "semaphore", "host"]

@@ -32,7 +32,7 @@ import numpy as np
 from ..costs import CostModel
 from ..errors import InputError, ScheduleError
 from ..schedules.base import FrameProgram
-from ..tasks import CopyTask, HostCopyTask, PassTask, Task
+from ..tasks import HostCopyTask, PassTask, Task
 from .effects import EFFECTS, choose_effects
 from .engine import Engine, RawResult
 from .fastforward import Repeat

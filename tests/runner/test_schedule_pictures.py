@@ -24,6 +24,7 @@ from mgpusim.vulkan.particles import initial_state, reference_update
 from mgpusim.vulkan.passes import FragmentLoop, Mesh
 
 from .conftest import lavapipe_profile
+from .trace_checks import assert_dependencies_honoured
 
 pytestmark = pytest.mark.vulkan
 
@@ -265,15 +266,7 @@ def test_measured_trace_has_the_simulators_rows_and_order(schedule, gpus, passes
         gpu = trace[trace["device"] != "host"]
         return set(map(tuple, gpu[["frame", "device", "engine", "step", "task"]].to_numpy()))
     assert keys(measured.trace) == keys(simulate(exp).trace)
-    program = build_program(exp)
-    spans = measured.trace.groupby(["frame", "task"]).agg(start=("start_ns", "min"),
-                                                          end=("end_ns", "max"))
-    for frame in range(program.frames):
-        for task in program.tasks(frame):
-            for dep in task.deps:
-                if frame + dep.offset >= 0:
-                    before = spans.loc[(frame + dep.offset, dep.task), "end"]
-                    assert spans.loc[(frame, task.name), "start"] >= before, (frame, task.name, dep)
+    assert_dependencies_honoured(build_program(exp), measured.trace)
 
 
 def test_pipelining_refuses_an_output_it_would_not_copy():

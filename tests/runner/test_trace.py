@@ -11,6 +11,7 @@ from mgpusim.simulate import simulate
 from mgpusim.trace import TRACE_COLUMNS
 
 from .conftest import experiment, lavapipe_profile
+from .trace_checks import assert_dependencies_honoured
 
 pytestmark = pytest.mark.vulkan
 
@@ -45,15 +46,8 @@ def test_same_rows_and_names_as_the_simulator(sort_first_3):
 
 def test_dependencies_and_queue_order_are_honoured(sort_first_3):
     exp, measured = sort_first_3
-    program = build_program(exp)
     tr = measured.trace
-    spans = tr.groupby(["frame", "task"]).agg(start=("start_ns", "min"), end=("end_ns", "max"))
-    for frame in range(program.frames):
-        for task in program.tasks(frame):
-            for dep in task.deps:
-                if frame + dep.offset >= 0:
-                    before = spans.loc[(frame + dep.offset, dep.task), "end"]
-                    assert spans.loc[(frame, task.name), "start"] >= before, (frame, task.name, dep)
+    assert_dependencies_honoured(build_program(exp), tr)
     for (_dev, _eng), rows in tr[tr["device"] != "host"].groupby(["device", "engine"]):
         rows = rows.sort_values("start_ns")
         assert (rows["start_ns"].to_numpy()[1:] >= rows["end_ns"].to_numpy()[:-1]).all()

@@ -14,7 +14,6 @@ from .measured import read_measured
 from .output import frame_window, write_json, write_table, write_text
 from .perfetto import chrome_trace_json
 from .plot import comparison_png
-from .program import build_program, run_config
 from .repeated_runs import measure_repeated, run_spread
 from .simulate import simulate
 from .validate import compare
@@ -32,7 +31,7 @@ def validate_experiment(exp: Experiment, out: Path, measured_dir: Path | None = 
     measured = read_measured(measured_dir, exp)
     sim = simulate(exp)
     report = compare(measured, sim.trace, exp.schedule.warmup_frames)
-    report["config"] = {**run_config(exp, build_program(exp)), "overrides_from": exp.file}
+    report["config"] = {**sim.config, "overrides_from": exp.file}  # simulate's own run_config
     report["measured_spread"], report["measured_runs"] = run_spread(measured_dir)
     report["measured_from"] = str(measured_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -12,6 +12,7 @@ from typing import Any, Callable
 
 import pandas as pd
 
+from ..measured import TRACE_FILES
 from ..output import write_json, write_measured
 from ..repeated_runs import with_run_length, write_steady_window
 from .spec import Entry, Study
@@ -68,12 +69,16 @@ def measure_runs(study: Study, entries: tuple[Entry, ...], profile: Path, out: P
             folder = out / e.name / f"run{rep}" if rs.repeats > 1 or rs.steady_window else out / e.name
             write_measured(result, folder)
             runs[e.name].append((f"run{rep}", result))
-    if not rs.steady_window:
-        return {e.name: out / e.name / ("run0" if rs.repeats > 1 else "") for e in entries}
-    return {e.name: write_steady_window(exps[e.name], runs[e.name], out / e.name) for e in entries}
+    if rs.steady_window:
+        for e in entries:
+            write_steady_window(exps[e.name], runs[e.name], out / e.name)
+    return {e.name: measured_folder(out, e.name) for e in entries}
 
 
 def measured_folder(root: Path, name: str) -> Path:
-    """Where entry `name`'s compared run lies under `root`: its steady window if it has one."""
-    steady = root / name / "steady"
-    return steady if steady.is_dir() else root / name
+    """Where entry `name`'s compared run lies under `root`: its steady window if it has one,
+    else the one run in the folder itself, else the first of its repeated runs."""
+    for folder in (root / name / "steady", root / name, root / name / "run0"):
+        if any((folder / f).is_file() for f in TRACE_FILES):
+            return folder
+    return root / name

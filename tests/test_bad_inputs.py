@@ -616,32 +616,24 @@ def _raw_table(content: bytes, name: str = "t.csv") -> Callable[[Path], list[str
     return make
 
 
-def _with(col: str, row: int, value: Any) -> Callable[[pd.DataFrame], pd.DataFrame]:
-    def edit(df: pd.DataFrame) -> pd.DataFrame:
-        df[col] = df[col].astype(object)
-        df.loc[row, col] = value
-        return df
-    return edit
-
-
 CALIBRATE_CASES: list[tuple[str, Callable[[Path], list[str]], tuple[str, ...]]] = [
-    ("nan-duration", _table(_with("duration_ns", 3, float("nan"))), ("duration_ns", "finite")),
+    ("nan-duration", _table(_set_col("duration_ns", 3, float("nan"))), ("duration_ns", "finite")),
     ("nan-duration-all", _table(lambda df: df.assign(duration_ns=float("nan"))), ("duration_ns", "finite")),
-    ("inf-duration", _table(_with("duration_ns", 0, "inf")), ("duration_ns", "finite")),
-    ("negative-duration", _table(_with("duration_ns", 5, -100)), ("duration_ns", "> 0")),
-    ("zero-duration", _table(_with("duration_ns", 5, 0)), ("duration_ns", "> 0")),
-    ("text-duration", _table(_with("duration_ns", 1, "slow")), ("duration_ns",)),
+    ("inf-duration", _table(_set_col("duration_ns", 0, "inf")), ("duration_ns", "finite")),
+    ("negative-duration", _table(_set_col("duration_ns", 5, -100)), ("duration_ns", "> 0")),
+    ("zero-duration", _table(_set_col("duration_ns", 5, 0)), ("duration_ns", "> 0")),
+    ("text-duration", _table(_set_col("duration_ns", 1, "slow")), ("duration_ns",)),
     ("header-only", _table(lambda df: df.iloc[:0]), ("no rows",)),
-    ("unknown-pass", _table(_with("pass", 0, "mesh_v2")), ("unknown pass 'mesh_v2'", "did you mean 'mesh'")),
+    ("unknown-pass", _table(_set_col("pass", 0, "mesh_v2")), ("unknown pass 'mesh_v2'", "did you mean 'mesh'")),
     ("no-pass-column", _table(lambda df: df.drop(columns=["pass"])), ("no 'pass' column",)),
     ("no-duration-column", _table(lambda df: df.drop(columns=["duration_ns"])), ("no 'duration_ns' column",)),
     ("missing-param-column", _table(lambda df: df.drop(columns=["triangles"])), ("triangles",)),
-    ("missing-param-value", _table(_with("triangles", 2, float("nan"))), ("triangles",)),
-    ("negative-param", _table(_with("width", 2, -5)), ("width", ">= 0")),
-    ("nan-param-text", _table(_with("width", 2, "wide")), ("width",)),
+    ("missing-param-value", _table(_set_col("triangles", 2, float("nan"))), ("triangles",)),
+    ("negative-param", _table(_set_col("width", 2, -5)), ("width", ">= 0")),
+    ("nan-param-text", _table(_set_col("width", 2, "wide")), ("width",)),
     ("host-copy-no-threads", _table(lambda df: df.drop(columns=["threads"]), "host_copy.csv"), ("threads",)),
     ("copy-no-bytes", _table(lambda df: df.drop(columns=["bytes"]), "copy_h2d.csv"), ("bytes",)),
-    ("parquet-nan", _table(_with("duration_ns", 3, float("nan")), name="t.parquet"), ("duration_ns", "finite")),
+    ("parquet-nan", _table(_set_col("duration_ns", 3, float("nan")), name="t.parquet"), ("duration_ns", "finite")),
     ("empty-file", _raw_table(b""), ("empty",)),
     ("binary-file", _raw_table(b"\x00\x01\xff\xfe" * 40), ("t.csv",)),
     ("corrupt-parquet", _raw_table(b"PAR1 nope PAR1", "t.parquet"), ("Parquet",)),

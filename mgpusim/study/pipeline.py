@@ -5,8 +5,6 @@
 """
 from __future__ import annotations
 
-import json
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +15,6 @@ from ..calibrate.recipe import profile_from_tables, refine_on_runs
 from ..crossvalidate import format_report, validate_experiment
 from ..measured import read_measured
 from ..output import write_json
-from ..profile import parse_profile
 from ..validate import error_stats, error_table
 from .measure import Progress, measure_microbenchmarks, measure_runs, measured_folder
 from .spec import Entry, Study
@@ -46,16 +43,20 @@ def load_runs(study: Study, entries: tuple[Entry, ...], root: Path,
 
 def calibrate(study: Study, out: Path, progress: Progress, tables: list[Path] | None = None,
               runs_dir: Path | None = None) -> tuple[Path, str]:
-    """Fit the study's profile: tables first (written as profile_microbenchmarks.toml when runs
-    follow), then the calibration runs; write `out/profile.toml`; return it and the fit text."""
+    """Fit the study's profile on its tables, then on its calibration runs (committed, under
+    `runs_dir`, or under `out/runs`); write `out/profile.toml`; return it and the fit text."""
     tables = tables or study.microbenchmarks.tables(out / "measurements")
-    command = f"mgpusim study calibrate {study.file}"
-    data, lines = profile_from_tables(study.recipe, tables, study.profile, command)
-    root = runs_dir or runs_root(study, False, out)
-    runs = load_runs(study, study.calibration, root)
-    progress(f"calibrate from {len(tables)} tables and {len(runs)} runs")
-    probe = parse_profile(json.loads(json.dumps(data)), "<calibration>")
-    runs = [(replace(exp, profile=probe), trace) for exp, trace in runs]
+    data, lines = profile_from_tables(study.recipe, tables, study.profile,
+                                      f"mgpusim study calibrate {study.file}")
+    progress(f"calibrate from {len(tables)} tables")
+    return fit_on_runs(study, data, lines, runs_dir or runs_root(study, False, out), out)
+
+
+def fit_on_runs(study: Study, data: dict[str, Any], lines: list[str], root: Path, out: Path,
+                profile: Path | None = None) -> tuple[Path, str]:
+    """The recipe's run-based steps on the calibration runs under `root` (their experiments
+    built on `profile`, default the study's); write `out/profile.toml` with the fit report."""
+    runs = load_runs(study, study.calibration, root, profile)
     data, more = refine_on_runs(study.recipe, data, runs)
     return write_profile(data, out / "profile.toml", lines + more), "\n".join(lines + more)
 
@@ -105,15 +106,13 @@ def run(study: Study, out: Path, progress: Progress, held_out: bool = True,
     base = write_profile(data, out / "profile_microbenchmarks.toml", lines)
     measure_runs(study, study.entries(held_out), base, out / "runs", progress, devices)
     progress("calibrate from runs")
-    runs = load_runs(study, study.calibration, out / "runs", base)
-    data, more = refine_on_runs(study.recipe, data, runs)
-    profile = write_profile(data, out / "profile.toml", lines + more)
+    profile, fit_text = fit_on_runs(study, data, lines, out / "runs", out, base)
     tables_out = {CALIBRATION_TITLE: validate(study, study.calibration, out / "runs", profile,
                                               out / "validation", progress)}
     if held_out and study.held_out:
         tables_out[HELD_OUT_TITLE] = validate(study, study.held_out, out / "runs", profile,
                                               out / "validation", progress)
-    return write_report(out, study, tables_out, "\n".join(lines + more))
+    return write_report(out, study, tables_out, fit_text)
 
 
 def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_text: str) -> Path:

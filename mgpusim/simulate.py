@@ -21,14 +21,16 @@ __all__ = ["build_program", "run_config", "simulate"]
 
 def simulate(exp: Experiment, record_trace: bool = True, fidelity: str = "full",
              effects: dict[str, bool] | None = None, fast_forward: bool = True,
-             band: bool = True) -> Result:
+             band: bool = False) -> Result:
     """Run `exp` in the model. Same experiment, same result, bit for bit.
 
     `fidelity`: "full", "queues" or "analytic" (mgpusim.sim.effects); `effects`: effects forced
     on (True) or off (False); `fast_forward`: skip repeats of the model's state (exact).
     `band`: where the profile carries its calibration's standard errors, also simulate every
     pass cost one standard error lower and higher, and report the summary's
-    frame_time_ms_lo/hi and latency_ms_lo/hi (the calibration's uncertainty carried through)."""
+    frame_time_ms_lo/hi and latency_ms_lo/hi (the calibration's uncertainty carried through).
+    Off by default: it costs two more simulations, which internal callers (calibration
+    searches, run lengths, timings) would throw away; `mgpusim simulate` asks for it."""
     program = build_program(exp)
     chosen = choose_effects(program, exp.profile, fidelity, effects)
     if "memory_capacity" in chosen:

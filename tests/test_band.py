@@ -35,15 +35,21 @@ def test_calibrate_writes_standard_errors(calibrated: Path) -> None:
 
 def test_simulate_reports_the_band_around_the_frame_time(calibrated: Path) -> None:
     exp = load_experiment(EXPERIMENT, {"schedule.frames": 30}, profile=str(calibrated))
-    s = simulate(exp).summary
+    s = simulate(exp, band=True).summary
     assert s["frame_time_ms_lo"] < s["frame_time_ms"] < s["frame_time_ms_hi"]
     assert s["latency_ms_lo"] < s["latency_ms"] < s["latency_ms_hi"]
-    assert "frame_time_ms_lo" not in simulate(exp, band=False).summary
+    assert "frame_time_ms_lo" not in simulate(exp).summary  # off unless asked for
+
+
+def test_the_simulate_command_reports_the_band(calibrated: Path, tmp_path: Path, capsys) -> None:
+    assert main(["simulate", str(EXPERIMENT), "--set", f'profile="{calibrated}"', "--set", "schedule.frames=30",
+                 "--out", str(tmp_path / "o")]) == 0
+    assert "calibration band" in capsys.readouterr().out
 
 
 def test_a_profile_without_standard_errors_has_no_band() -> None:
     exp = load_experiment(ROOT / "experiments" / "sort_first_tc1.toml", {"schedule.frames": 20})
-    assert "frame_time_ms_lo" not in simulate(exp).summary
+    assert "frame_time_ms_lo" not in simulate(exp, band=True).summary
 
 
 def test_a_misspelt_standard_error_is_refused(calibrated: Path, tmp_path: Path) -> None:

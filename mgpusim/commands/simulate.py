@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     out = args.out or Path("out") / exp.name
     check_out_dir(out)
     result = simulate(exp, fidelity=args.fidelity, effects=parse_effects(args.effects),
-                      fast_forward=args.fast_forward)
+                      fast_forward=args.fast_forward, band=True)
     files = write_result(result, out, args.format, title=f"{exp.name}: {exp.schedule.name}, "
                          f"{exp.schedule.gpus} GPU(s), {exp.scene.width}x{exp.scene.height}",
                          frames=frames, trace_frames=args.trace_frames)

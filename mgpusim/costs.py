@@ -83,12 +83,19 @@ class CostModel:
         self.profile = profile
 
     def pass_ns(self, device: int, kind: str, work: Mapping[str, float]) -> int:
+        """A pass's duration in integer ns: its cost, rounded once and bounded."""
+        where = f"gpus[{device}].costs.{kind}"
+        return self._bounded(self.pass_cost_ns(device, kind, work), kind, work, where)
+
+    def pass_cost_ns(self, device: int, kind: str, work: Mapping[str, float]) -> float:
+        """A pass's cost before the one rounding: fixed + sum(coefficient x work), over the
+        GPU's speed factor (callers that scale costs first, like analytic sweeps, round later)."""
         gpu = self.profile.gpus[device]
         cost = gpu.costs.get(kind)
         where = f"gpus[{device}].costs.{kind}"
         if cost is None:
             if kind == "timed":
-                return self._bounded(work.get("reference_ns", 0.0) / gpu.speed, kind, work, where)
+                return work.get("reference_ns", 0.0) / gpu.speed
             raise InputError(f"no cost coefficients for pass kind {kind!r} on {gpu.name}",
                              file=self.profile.source, field=where)
         total = cost.fixed_ns
@@ -103,7 +110,7 @@ class CostModel:
                     raise InputError(f"missing coefficient for work term {term!r}",
                                      file=self.profile.source, field=f"{where}.ns_per_{term}")
             total += coef * amount
-        return self._bounded(total / gpu.speed, kind, work, where)
+        return total / gpu.speed
 
     def _bounded(self, total: float, kind: str, work: Mapping[str, float], where: str) -> int:
         """`total` ns rounded, refused beyond MAX_TASK_NS (simulated time must fit int64)."""

@@ -264,6 +264,16 @@ def test_sweep_lane_equals_analytic(name: str):
     assert out["frame_time_ms"][1] > out["frame_time_ms"][0]  # slower passes, slower frames
 
 
+def test_sweep_honours_the_gpus_speed_factor():
+    """A sweep lane of a profile whose GPUs are 2x faster equals that profile simulated."""
+    import numpy as np
+    from mgpusim.sim.analytic import sweep
+    exp = load_experiment(ROOT / "experiments" / "sort_first_tc1.toml", {"profile.gpus.*.speed": 2.0})
+    out = sweep(build_program(exp), CostModel(exp.profile), np.array([1.0]), np.array([1.0]))
+    assert out["frame_time_ms"][0] == pytest.approx(simulate(exp, fidelity="analytic").summary["frame_time_ms"],
+                                                    rel=1e-12)
+
+
 def test_fidelity_command_writes_the_table(tmp_path: Path):
     from mgpusim.cli import main
     from mgpusim.fidelity import configurations

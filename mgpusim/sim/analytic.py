@@ -426,18 +426,6 @@ def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str
 
 
 # ----- many hardware variants at once -------------------------------------------------------
-def _raw_pass_ns(costs: CostModel, task: PassTask) -> float:
-    """A pass's cost before the one rounding (CostModel.pass_ns rounds it)."""
-    cost = costs.profile.gpus[task.queue.device].costs.get(task.kind)
-    if cost is None:
-        return float(costs.pass_ns(task.queue.device, task.kind, task.work))
-    total = cost.fixed_ns
-    for term, amount in task.work.items():
-        if amount:
-            total += cost.ns_per.get(term, 1.0 if task.kind == "timed" else 0.0) * amount
-    return float(total)
-
-
 def sweep(program: FrameProgram, costs: CostModel, pass_scale: np.ndarray, link_scale: np.ndarray,
           effects: frozenset[str] | None = None) -> dict[str, np.ndarray]:
     """Frame time and latency (ms, after warm-up) of one program on many hardware variants at
@@ -461,7 +449,7 @@ def sweep(program: FrameProgram, costs: CostModel, pass_scale: np.ndarray, link_
                          for size in node.parts]
                 dur[node.name] = (node.fixed, sizes)
             elif isinstance(node.task, PassTask):
-                raw = _raw_pass_ns(costs, node.task)
+                raw = costs.pass_cost_ns(node.task.queue.device, node.task.kind, node.task.work)
                 dur[node.name] = np.floor(raw * pass_scale + 0.5).astype(np.int64)
             else:
                 move = (np.floor(node.nbytes / float(node.rate) * link_scale + 0.5).astype(np.int64)

@@ -43,24 +43,27 @@ def build_parser() -> argparse.ArgumentParser:
             module = importlib.import_module(f"mgpusim.commands.{name}")
         except ModuleNotFoundError as exc:  # a command not written yet, or a missing dependency
             if exc.name != f"mgpusim.commands.{name}":
-                _unavailable(sub, name, exc)  # e.g. no scipy on a device machine: other commands still run
+                package = (exc.name or "?").split(".")[0]
+                install = "'mgpusim[vulkan]'" if package in VULKAN_PACKAGES else package
+                # e.g. no scipy on a device machine: the other commands still run
+                _unavailable(sub, name, f"needs {exc.name}",
+                             f"needs the Python package {package!r} (pip install {install})")
+            continue
+        except MgpusimError as exc:  # e.g. an installation without its shipped experiments
+            _unavailable(sub, name, "cannot start here", one_line(str(exc)))
             continue
         module.register(sub)
     return parser
 
 
-def _unavailable(sub: argparse._SubParsersAction, name: str, exc: ModuleNotFoundError) -> None:
-    """A command whose module needs a package this Python lacks: listed, and one line if used."""
+def _unavailable(sub: argparse._SubParsersAction, name: str, why: str, message: str) -> None:
+    """A command whose module cannot load here: listed (`why`), and one line if used."""
     command = name.replace("_job", "").replace("_", "-")
-    p = sub.add_parser(command, help=f"(unavailable here: needs {exc.name})", add_help=False)
+    p = sub.add_parser(command, help=f"(unavailable here: {why})", add_help=False)
     p.add_argument("rest", nargs=argparse.REMAINDER, help="ignored")
 
-    package = (exc.name or "?").split(".")[0]
-    install = "'mgpusim[vulkan]'" if package in VULKAN_PACKAGES else package
-
     def fail(args: argparse.Namespace) -> int:
-        print(f"mgpusim {command}: error: needs the Python package {package!r} "
-              f"(pip install {install})", file=sys.stderr)
+        print(f"mgpusim {command}: error: {message}", file=sys.stderr)
         return 2
     p.set_defaults(func=fail)
 

@@ -107,6 +107,26 @@ def test_without_the_vulkan_extra_one_line_says_how_to_install(monkeypatch, caps
     assert len(err.splitlines()) == 1 and "pip install 'mgpusim[vulkan]'" in err
 
 
+
+def test_a_command_that_cannot_load_is_one_line_and_the_others_still_run(monkeypatch, capsys):
+    """A command module failing with an input error at import (an installation without its
+    shipped folders) is listed as unavailable and says why in one line; the rest still work."""
+    import importlib
+
+    from mgpusim import cli
+    from mgpusim.errors import InputError
+    real = importlib.import_module
+
+    def fake(name: str, *a):
+        if name == "mgpusim.commands.bench":
+            raise InputError("the shipped experiments/ folder is missing from this installation")
+        return real(name, *a)
+    monkeypatch.setattr(cli.importlib, "import_module", fake)
+    assert main(["bench"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.splitlines() == ["mgpusim bench: error: the shipped experiments/ folder is missing from this installation"]
+    assert main(["examples"]) == 0
+
 @pytest.mark.slow
 def test_pip_install_in_a_fresh_venv_gives_a_working_mgpusim(tmp_path):
     src = _copy_sources(tmp_path / "src")

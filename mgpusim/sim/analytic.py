@@ -31,9 +31,9 @@ import numpy as np
 
 from ..costs import CostModel
 from ..errors import InputError, ScheduleError
-from ..schedules.base import FrameProgram
+from ..schedules.base import FrameProgram, even_split, task_device
 from ..tasks import HostCopyTask, PassTask, Task
-from .effects import EFFECTS, choose_effects
+from .effects import choose_effects
 from .engine import Engine, RawResult
 from .fastforward import Repeat
 
@@ -80,8 +80,7 @@ class Analytic:
                        effects=effects - {"shared_executor", "link_sharing", "host_memory_sharing"})
         self.threads = host.memcpy_threads
         #: per frame phase, task name -> its device (a name may sit on other devices in other phases)
-        self.device_of = [{t.name: ("host" if isinstance(t, HostCopyTask) else t.queue.device_name)
-                           for t in tasks} for tasks in program.templates]
+        self.device_of = [{t.name: task_device(t) for t in tasks} for tasks in program.templates]
         thread_cap = costs.memcpy_thread_cap()
         mem = costs.host_memory_bandwidth()
         self.part_rate = thread_cap if thread_cap < mem else mem
@@ -98,9 +97,7 @@ class Analytic:
         deps = tuple((d.task, d.offset, self._crosses(task, d.task, (phase + d.offset) % len(self.device_of)))
                      for d in task.deps)
         if isinstance(task, HostCopyTask):
-            n = task.parts(self.threads)
-            base = task.bytes // n
-            parts = tuple(base if i < n - 1 else task.bytes - base * (n - 1) for i in range(n))
+            parts = tuple(even_split(task.bytes, task.parts(self.threads)))
             return _Node(task.name, task, "host", deps, op.duration, task.bytes, None, 0, parts,
                          "host", "memcpy", op.waits_for)
         rate = None
@@ -138,7 +135,7 @@ class Analytic:
         return [by_name[n.name] for n in out]
 
     def _approximations(self) -> list[str]:
-        needed = {n for n, e in EFFECTS.items() if e.needed(self.program, self.costs.profile)}
+        needed = choose_effects(self.program, self.costs.profile)
         out = [f"{name}: taken as unshared (an optimistic bound)"
                for name in ("link_sharing", "host_memory_sharing") if name in needed]
         if "shared_executor" in needed:

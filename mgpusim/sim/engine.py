@@ -25,10 +25,10 @@ import simpy
 from ..costs import CostModel
 from ..errors import InputError, ScheduleError
 from ..limits import INT64_MAX
-from ..schedules.base import FrameProgram, task_device, waits_for_labels
+from ..schedules.base import FrameProgram, even_split, task_device, waits_for_labels
 from ..tasks import CopyTask, HostCopyTask, PassTask, QueueRef, Task
 from .channel import Channel, FixedRateChannel
-from .effects import EFFECTS
+from .effects import choose_effects
 from .executors import Executor, Runner, make_executors
 from .skipping import SkipChains
 
@@ -86,7 +86,7 @@ class Engine:
         the host (default: shared host cores where the shared_executor effect is on)."""
         self.program, self.costs, self.record = program, costs, record_trace
         if effects is None:
-            effects = frozenset(n for n, e in EFFECTS.items() if e.needed(program, costs.profile))
+            effects = choose_effects(program, costs.profile)
         self.effects = effects
         self.env = simpy.Environment()
         #: frames the streams run (a fast-forward may shorten it while running)
@@ -110,7 +110,7 @@ class Engine:
         self._cross_done: dict[Key, int] = {}  # instance -> when its last cross-device input ended
         self._waits_for = waits_for_labels(program)
         self.channels: dict[str, Channel | FixedRateChannel] = {}
-        self._unfinished = sum(len(program.tasks(f)) for f in range(program.frames))
+        self._unfinished = self._tasks_in(0, program.frames)
         self._make_executors = executors or (
             lambda env: make_executors(env, costs, "shared_executor" in effects))
         self.processes: list[simpy.Process] = []
@@ -367,11 +367,9 @@ class Engine:
     def _dispatch_host_copy(self, frame: int, op: _Op) -> None:
         """Split into parts of >= chunk_min_bytes, at most one per memcpy thread."""
         task: HostCopyTask = op.task  # type: ignore[assignment]
-        parts = task.parts(len(self._threads_all))
-        base = task.bytes // parts
-        state = [parts]
-        for i in range(parts):
-            size = base if i < parts - 1 else task.bytes - base * (parts - 1)
+        sizes = even_split(task.bytes, task.parts(len(self._threads_all)))
+        state = [len(sizes)]
+        for size in sizes:
             part = (frame, op, size, state)
             if self._free_threads:
                 self._start_part(heapq.heappop(self._free_threads), part)
@@ -412,11 +410,15 @@ class Engine:
     def shorten(self, frames: int) -> None:
         """Stop the run after `frames` frames (fewer than now). Only safe while no process has
         reached frame `frames - 1` (the fast-forward checks this)."""
-        per_phase = [len(t) for t in self.program.templates]
-        cycles, rest = divmod(self.horizon - frames, self.period)
-        dropped = cycles * sum(per_phase) + sum(per_phase[f % self.period] for f in range(frames, frames + rest))
-        self._unfinished -= dropped
+        self._unfinished -= self._tasks_in(frames, self.horizon)
         self.horizon = frames
+
+    def _tasks_in(self, first: int, end: int) -> int:
+        """Task instances of frames [first, end): whole periods counted at once, so that a
+        10^6-frame run does not count frame by frame at start-up."""
+        per_phase = [len(t) for t in self.program.templates]
+        cycles, rest = divmod(end - first, len(per_phase))
+        return cycles * sum(per_phase) + sum(per_phase[f % len(per_phase)] for f in range(first, first + rest))
 
     def run(self) -> RawResult:
         try:

@@ -10,6 +10,7 @@ and the rest of the frame's work. Intermediate buffers are multi-buffered (`buff
 """
 from __future__ import annotations
 
+from collections import defaultdict
 from dataclasses import replace
 from types import MappingProxyType
 
@@ -127,10 +128,13 @@ def _bind_copies(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, split: in
     crossed: dict[str, Task] = {}
     missing = sorted(_needed_on_gpu0(scene, split) - set(copied))
     regions = row_chunks(scene.height, chunks)
+    pieces: dict[str, list[Task]] = defaultdict(list)  # one pass over the tasks, not one per piece
+    for t in tasks:
+        pieces[t.name.rpartition(".")[0]].append(t)
     for prefix, names in groups:
         for c in range(chunks):
             piece_name = prefix if chunks == 1 else f"{prefix}#{c}"
-            piece = [t for t in tasks if t.name.rpartition(".")[0] == piece_name]
+            piece = pieces[piece_name]
             params = dict(regions[c])
             if missing:
                 params = {"unsupported": f"GPU 0 reads the output of pass {missing[0]!r}, but "

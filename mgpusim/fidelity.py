@@ -155,14 +155,12 @@ def deviations(variants: dict[str, dict[str, Any]] | None = None, repeats: int =
     rows = []
     for example in examples():
         exp = load_experiment(example.path)
-        reference = None
         for level, kwargs in (variants or VARIANTS).items():
             model, result = float("inf"), None
             for _ in range(repeats):
                 result = simulate(exp, record_trace=False, **kwargs)
                 model = min(model, result.model_wall_s)
             ft = result.summary["frame_time_ms"]
-            reference = ft if level == "full" else reference
             rows.append({"experiment": example.name, "level": level,
                          "frame_ms": ft, "model_ms": model * 1e3})
     table = pd.DataFrame(rows)

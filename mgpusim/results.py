@@ -5,13 +5,14 @@ Pure functions of data, shared by simulated and measured runs (a measured trace 
 """
 from __future__ import annotations
 
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
 
 from .errors import InputError
 from .periodic import RepeatedIntervals, RepeatedRows, Shift, repeated_list
+from .schedules.base import FrameProgram
 from .trace import FRAME_COLUMNS, make_trace
 
 #: a table, or a function that builds it on first use
@@ -216,3 +217,21 @@ def _build_repeated(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
     if not raw.recorded:
         return Result(summary, make_trace([]), frames, links_frame, config)
     return Result(summary, rows.frame, frames, links_frame, config, repeated=rows)
+
+
+def task_rates(program: FrameProgram, skipped_frames: Mapping[str, Sequence[int]],
+               summary: Mapping[str, Any]) -> dict[str, float] | None:
+    """Steady-state completion rate (Hz) of each skippable task (e.g. particle updates under
+    "new wait") beside the frame rate: runs in frames after warm-up over the summary's present
+    window. The same rule for simulated and measured runs; None if the program has none."""
+    if not program.rate_tasks:
+        return None
+    lo, hi = summary["window_ns"]
+    first = program.warmup_frames + 1
+    frames = program.frames - first
+    rates = {}
+    for name in program.rate_tasks:
+        skipped = sum(1 for f in skipped_frames.get(name, ()) if f >= first)
+        rates[name] = (frames - skipped) * 1e9 / (hi - lo) if hi > lo else 0.0
+    rates["frames"] = summary["fps"]
+    return rates

@@ -10,7 +10,7 @@ from .experiment import Experiment
 from .memory import check_memory, memory_report
 from .profile import has_cost_stderr, with_cost_band
 from .program import build_program, run_config
-from .results import Result, build_result
+from .results import Result, build_result, task_rates
 from .schedules.base import FrameProgram
 from .sim import fastforward
 from .sim.effects import choose_effects
@@ -42,7 +42,9 @@ def simulate(exp: Experiment, record_trace: bool = True, fidelity: str = "full",
     if "memory_capacity" in chosen:
         result.summary["memory"] = memory_report(program, exp)
     result.summary.update(fidelity=fidelity, modelled_effects=sorted(chosen), fast_forward=raw.fast_forward)
-    _task_rates(program, raw, result)
+    rates = task_rates(program, raw.skipped_frames, result.summary)
+    if rates:
+        result.summary["task_rates_hz"] = rates
     result.model_wall_s = model_s  # the model's own time (not in the summary: that stays reproducible)
     if band and has_cost_stderr(exp.profile):
         result.summary.update(_band(exp, program, chosen, fidelity))
@@ -76,20 +78,3 @@ def _run_model(exp: Experiment, program: FrameProgram, chosen: frozenset[str], f
         raise TimeBoundError(f"{exc.detail} (with the work of {exp.file})", file=exc.file,
                              field=exc.field) from None
     return fastforward.run(engine, fast_forward, record_trace)
-
-
-def _task_rates(program: FrameProgram, raw, result: Result) -> None:
-    """Steady-state completion rate of skippable tasks (e.g. particle updates under "new
-    wait"), beside the frame rate: runs in frames after warm-up over the present window."""
-    names = program.rate_tasks
-    if not names:
-        return
-    lo, hi = result.summary["window_ns"]
-    first = program.warmup_frames + 1
-    frames = program.frames - first
-    rates = {}
-    for name in names:
-        skipped = sum(1 for f in raw.skipped_frames.get(name, ()) if f >= first)
-        rates[name] = (frames - skipped) * 1e9 / (hi - lo) if hi > lo else 0.0
-    rates["frames"] = result.summary["fps"]
-    result.summary["task_rates_hz"] = rates

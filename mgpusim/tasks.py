@@ -89,8 +89,8 @@ class CopyTask:
     src: str | None = None
     dst: str | None = None
     #: Where in them (the runner's binding): `rows` = (first row, rows) of a chunk of an image,
-    #: `dst_offset` = (x, y) of the destination image the copy writes at, `dst_bytes_offset` /
-    #: `src_bytes_offset` = byte offsets in buffers.
+    #: `dst_offset` = (x, y) of the destination image the copy writes at, `extent`, `images`
+    #: (several images through one buffer), `unsupported` (why the runner refuses the copy).
     params: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
 
 
@@ -105,11 +105,9 @@ class HostCopyTask:
     chunk_min_bytes: int = 512 * 1024
     skip_if_busy: bool = False
 
-    #: Host-visible buffers copied from and to (the Vulkan runner's binding); `params`:
-    #: `offset` = the byte offset of the copied range in both (a chunk of a staging buffer).
+    #: Host-visible buffers copied from and to (the Vulkan runner's binding).
     src: str | None = None
     dst: str | None = None
-    params: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
 
     def parts(self, threads: int) -> int:
         """How many parts the copy is split into: one per thread, each >= chunk_min_bytes

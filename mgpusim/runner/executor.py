@@ -68,8 +68,8 @@ class Executor:
     `skipped_frames`, as the simulator lists it. `newest` and `skipped_before` answer the
     per-submission questions of works that depend on the run's course (GpuWork.choose)."""
 
-    def __init__(self, nodes: list[Node], host_threads: int, stall_timeout_s: float = 120.0,
-                 program: FrameProgram | None = None):
+    def __init__(self, nodes: list[Node], host_threads: int, stall_timeout_s: float,
+                 program: FrameProgram):
         self.nodes, self.host_threads, self.stall_s = nodes, host_threads, stall_timeout_s
         self.abort = threading.Event()
         self.errors: list[BaseException] = []
@@ -81,8 +81,7 @@ class Executor:
         self._by_key = {(n.frame, n.task.name): n for n in nodes}
         self._skip_lock = threading.Lock()
         self._chains = None
-        if program is not None and any(getattr(t, "skip_if_busy", False)
-                                       for tasks in program.templates for t in tasks):
+        if any(t.skip_if_busy for tasks in program.templates for t in tasks):
             self._chains = SkipChains(program, [{t.name: t for t in tasks}
                                                 for tasks in program.templates])
         #: per reading task, the frame whose output each frame's instance read (`newest`)
@@ -95,7 +94,7 @@ class Executor:
     # -- skipping and run-time choices ---------------------------------------------------------
     def _skipped(self, node: Node) -> bool:
         """Decide now whether `node` (dependencies met) is skipped; a skipped node is done."""
-        if self._chains is None or not getattr(node.task, "skip_if_busy", False):
+        if self._chains is None or not node.task.skip_if_busy:
             return False
         key = (node.frame, node.task.name)
         with self._skip_lock:
@@ -108,13 +107,17 @@ class Executor:
         return skipped
 
     def _done(self, node: Node) -> None:
-        """`node` finished (or was skipped): wake its waiters, tell the skip chains once."""
+        """`node` finished (or was skipped): wake its waiters, tell the skip chains once. Only
+        a skippable task's end needs the lock (the chains are shared state); setting an event
+        twice is harmless, so every other completion stays lock-free."""
+        if self._chains is None or not node.task.skip_if_busy:
+            node.completed.set()
+            return
         with self._skip_lock:
             if node.completed.is_set():
                 return
             node.completed.set()
-            skippable = getattr(node.task, "skip_if_busy", False)
-            if self._chains is not None and skippable and not node.skipped:
+            if not node.skipped:
                 self._chains.finished(node.frame, node.task)
 
     def skipped_before(self, name: str, frame: int) -> int:

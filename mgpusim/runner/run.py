@@ -11,7 +11,6 @@ steady state from `program.warmup_frames` on, exactly as the simulator's does.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from types import SimpleNamespace
 from typing import Any, Sequence
 
 import numpy as np
@@ -20,9 +19,8 @@ import pandas as pd
 from ..errors import InputError, MgpusimError, ScheduleError
 from ..experiment import Experiment
 from ..program import build_program, run_config
-from ..results import frames_from_trace, summarize
+from ..results import frames_from_trace, summarize, task_rates
 from ..schedules.base import FrameProgram
-from ..simulate import _task_rates
 from ..trace import make_trace
 from ..vulkan.copies import download
 from ..vulkan.device import Gpu
@@ -121,9 +119,9 @@ def _skips(program: FrameProgram, timed: Executor, summary: dict[str, Any]) -> N
     if timed.read_frames:
         summary["read_frames"] = {k: [v.get(f) for f in range(program.frames)]
                                   for k, v in timed.read_frames.items()}
-    if program.rate_tasks:
-        holder = SimpleNamespace(summary=summary)
-        _task_rates(program, SimpleNamespace(skipped_frames=skipped), holder)
+    rates = task_rates(program, skipped, summary)
+    if rates:
+        summary["task_rates_hz"] = rates
 
 
 def _read(gpus: Sequence[Gpu], res: Resources, name: str) -> list[np.ndarray]:

@@ -16,12 +16,15 @@ The mapping, kind by kind:
 """
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from typing import Any, Callable, Hashable
 
 import numpy as np
 
 from ..errors import ScheduleError
+from ..particle_layout import UPDATE_DT
+from ..schedules.base import even_split
 from ..tasks import CopyTask, HostCopyTask, PassTask, Task
 from ..vulkan.copies import copy_buffer, copy_buffer_to_rect, copy_rect, copy_rect_to_buffer
 from ..vulkan.device import Gpu, Queue
@@ -71,10 +74,8 @@ class HostWork:
         if src.size < t.bytes or dst.size < t.bytes:
             raise ScheduleError(f"host copy {t.name!r} of {t.bytes} bytes between buffers of "
                                 f"{src.size} and {dst.size} bytes")
-        # the simulator's split (HostCopyTask.parts): equal parts, the last takes the remainder
-        n = t.parts(self.threads)
-        base = t.bytes // n
-        bounds = [i * base for i in range(n)] + [t.bytes]
+        # the simulator's split: HostCopyTask.parts equal parts, the last takes the remainder
+        bounds = [0, *itertools.accumulate(even_split(t.bytes, t.parts(self.threads)))]
         return [(dst[a:b], src[a:b]) for a, b in zip(bounds, bounds[1:])]
 
 
@@ -197,7 +198,7 @@ def _particle_update(task: PassTask, gpu: Gpu, res: Resources, owned: list[Any],
     vertices, state = task.writes
     device = task.queue.device
     bufs = [res.buffer(vertices, device, s) for s in range(res.resource(vertices).buffers)]
-    work = ParticleUpdate(gpu, int(p["particles"]), dt=float(p.get("dt", 1 / 60)),
+    work = ParticleUpdate(gpu, int(p["particles"]), dt=float(p.get("dt", UPDATE_DT)),
                           seed=int(p.get("seed", 0)), vertices=bufs,
                           state_buffer=res.buffer(state, device, 0))
     owned.append(work)
@@ -218,8 +219,6 @@ def _particle_draw(task: PassTask, res: Resources, work: Any, queue: Queue,
     device = task.queue.device
     writer = task.params.get("newest_of")
 
-    buffers = res.resource(vertices).buffers
-
     def record(cmd: Any, frame: int, slot: Hashable) -> None:
         if writer is not None and slot is None:  # nothing uploaded yet: no particles
             work.record(cmd, res.slot(out, frame), None)
@@ -231,7 +230,7 @@ def _particle_draw(task: PassTask, res: Resources, work: Any, queue: Queue,
 
     def choose(frame: int, progress: Any) -> Hashable:
         source = progress.newest(writer, frame, queue, task.name)
-        return None if source is None else source % buffers
+        return None if source is None else res.slot(vertices, source)
     return record, choose
 
 

@@ -25,6 +25,7 @@ from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
 from ..tasks import Dep, PassTask, QueueRef, Resource, Task
+from ..particle_layout import CALC_BYTES, STATE_BYTES, UPDATE_DT, VERTEX_BYTES
 from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, present_task,
                    queue_or_graphics, register)
 from .binding import Bindings, bind_crossing
@@ -78,7 +79,6 @@ def build_particles(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile)
 
 
 #: The runner's time step of one particle update (a skipped update's step goes to the next).
-UPDATE_DT = 1 / 60
 
 
 def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, n: int, pg: int,
@@ -110,7 +110,7 @@ def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, n: int, pg: int,
     writer = crossing[-1].name if crossing else "particle_update"
     draw_into = f"gpu0.pass.{cfg.opt('draw_after')}"
     out: list[Task] = []
-    for i, task in enumerate(tasks):
+    for task in tasks:
         if task.name in crossed:
             out.append(crossed[task.name])
         elif task.name == "particle_update":
@@ -135,11 +135,6 @@ def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, n: int, pg: int,
         else:
             out.append(task)
     return out, b.resources()
-
-
-#: Bytes per particle of the vertex buffer (6 vertices x 2 float4), of the update's calc
-#: buffer (2 float4) and of its state (4 float4), as the particle pass lays them out.
-VERTEX_BYTES, CALC_BYTES, STATE_BYTES = 192, 32, 64
 
 
 def _footprints(scene: Scene, gpus: int, particles: int, pg: int) -> tuple[Footprint, ...]:

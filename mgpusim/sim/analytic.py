@@ -402,7 +402,8 @@ def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str
     model = Analytic(program, costs, effects)
     rows, start, present, repeat = model.run(record=record_trace)
     skipped = {n: len(v) for n, v in model.skipped_frames.items()}
-    raw = RawResult(rows, start, present, {}, skipped, {}, dict(model.skipped_frames), effects, program.present_task)
+    raw = RawResult(rows, start, present, {}, skipped, {}, dict(model.skipped_frames),
+                    present_task=program.present_task)
     raw.recorded = record_trace
     raw.repeat = repeat
     found = model.found

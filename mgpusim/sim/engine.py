@@ -67,8 +67,6 @@ class RawResult:
     effects: dict[str, bool] = field(default_factory=dict)
     #: frames in which each skippable task was skipped (for update rates in steady state)
     skipped_frames: dict[str, list[int]] = field(default_factory=dict)
-    #: the effects instantiated for this run (names of :data:`.effects.EFFECTS`)
-    modelled: frozenset[str] = frozenset()
     present_task: str = "present"
     #: whether `rows` holds the trace the caller asked for (else it is empty or internal)
     recorded: bool = True
@@ -162,7 +160,7 @@ class Engine:
             self._threads_all = [f"thread{i}" for i in range(host.memcpy_threads)]
             self._free_threads = list(range(host.memcpy_threads))
             self._part_queue: deque = deque()
-            self._thread_cap = cap = self.costs.memcpy_thread_cap()
+            cap = self.costs.memcpy_thread_cap()
             kind = Channel if "host_memory_sharing" in self.effects else FixedRateChannel
             memory = self.channels["host.memory"] = kind(self.env, "host.memory",
                                                          self.costs.host_memory_bandwidth())
@@ -440,7 +438,7 @@ class Engine:
             effects["cpu_contention"] = ch["host.cpu"].max_concurrent > 1
         return RawResult(self.rows, self.frame_start, self.present_end, self.channels,
                          {n: len(f) for n, f in self._chains.skipped_frames.items()}, effects,
-                         dict(self._chains.skipped_frames), self.effects, self.program.present_task)
+                         dict(self._chains.skipped_frames), present_task=self.program.present_task)
 
     def _blocked_message(self) -> str:
         blocked = sorted(self._waiters)[:8]

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 import numpy as np
 
 from ..errors import InputError
+from ..particle_layout import CALC_BYTES, STATE_BYTES, UPDATE_DT, VERTEX_BYTES
 from .copies import upload
 from .errors import vk
 from .pipelines import compute_pipeline
@@ -20,7 +21,6 @@ from .pipelines import compute_pipeline
 if TYPE_CHECKING:
     from .device import Gpu
 
-STATE_BYTES, CALC_BYTES, VERTEX_BYTES = 64, 32, 192
 RIGHT = (1.0, 0.0, 0.0, 0.0)
 UP = (0.0, 1.0, 0.0, 0.0)
 _CORNERS = np.array([(-1, -1), (1, -1), (-1, 1), (1, -1), (1, 1), (-1, 1)], dtype=np.float32)
@@ -75,7 +75,7 @@ class ParticleUpdate:
 
     queue = "compute"
 
-    def __init__(self, gpu: "Gpu", particles: int, *, dt: float = 1 / 60, seed: int = 0,
+    def __init__(self, gpu: "Gpu", particles: int, *, dt: float = UPDATE_DT, seed: int = 0,
                  state: np.ndarray | None = None, vertices: Sequence[Any] | None = None,
                  state_buffer: Any = None):
         if particles <= 0:
@@ -91,7 +91,6 @@ class ParticleUpdate:
                                          max_sets=len(self.outputs))
         self.sets = [self.pipeline.descriptor_set([self.state, self.calc, out])
                      for out in self.outputs]
-        self.set = self.sets[0]
         self.bytes = particles * (STATE_BYTES + CALC_BYTES + VERTEX_BYTES)
 
     def _make(self, size: int) -> Any:

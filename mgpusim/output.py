@@ -36,25 +36,19 @@ def write_trace(result: Result, path: Path, rows_per_group: int = 250_000) -> Pa
     import pyarrow.parquet as pq  # noqa: PLC0415
     tmp = path.with_name(path.name + ".tmp")
     schema = pa.Schema.from_pandas(make_trace([]), preserve_index=False)
-    if path.suffix == ".parquet":
-        with pq.ParquetWriter(tmp, schema) as writer:
-            for table in result.repeated.arrow_chunks(schema, rows_per_group):
-                writer.write_table(table)
-    else:
-        import pyarrow.csv as pcsv  # noqa: PLC0415
-        with pcsv.CSVWriter(tmp, schema) as writer:
-            for table in result.repeated.arrow_chunks(schema, rows_per_group):
-                writer.write_table(table)
+    import pyarrow.csv as pcsv  # noqa: PLC0415
+    writer_class = pq.ParquetWriter if path.suffix == ".parquet" else pcsv.CSVWriter
+    with writer_class(tmp, schema) as writer:
+        for table in result.repeated.arrow_chunks(schema, rows_per_group):
+            writer.write_table(table)
     tmp.replace(path)
     return path
 
 
 def write_json(obj: Any, path: Path) -> Path:
     """Strict JSON (NaN and infinities become null), written whole or not at all."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(_finite(obj), indent=2, sort_keys=True, default=_jsonable, allow_nan=False) + "\n")
-    tmp.replace(path)
-    return path
+    return write_text(json.dumps(_finite(obj), indent=2, sort_keys=True, default=_jsonable,
+                                 allow_nan=False) + "\n", path)
 
 
 def _finite(value: Any) -> Any:

@@ -15,7 +15,6 @@ is not noticed (use a fresh folder).
 from __future__ import annotations
 
 import hashlib
-import inspect
 import itertools
 import json
 import os
@@ -32,6 +31,7 @@ from .errors import InputError, MgpusimError
 from .experiment import load_experiment, parse_value
 from .shipped import resolve_experiment
 from .simulate import simulate
+from .sim.effects import FIDELITIES
 
 #: How long to try reaching a Dask scheduler before giving up.
 DASK_CONNECT_TIMEOUT = "10s"
@@ -94,14 +94,11 @@ def flatten(value: Any, prefix: str = "") -> dict[str, Any]:
 
 
 def simulate_options(fidelity: str) -> dict[str, Any]:
-    """Keyword arguments for :func:`simulate` at `fidelity`: passed through where `simulate`
-    takes a fidelity, else only the full model exists."""
-    if "fidelity" in inspect.signature(simulate).parameters:
-        return {"fidelity": fidelity}
-    if fidelity != "full":
-        raise InputError(f"this version of mgpusim simulates at full fidelity only, got {fidelity!r}",
-                         field="--fidelity")
-    return {}
+    """Keyword arguments for :func:`simulate` at `fidelity`, checked once before any point
+    runs (a misspelt level is one error, not a failed row per point)."""
+    if fidelity not in FIDELITIES:
+        raise InputError(f"must be one of {', '.join(FIDELITIES)}, got {fidelity!r}", field="--fidelity")
+    return {"fidelity": fidelity}
 
 
 def run_point(experiment: str, overrides: Mapping[str, Any], options: Mapping[str, Any]) -> dict[str, Any]:

@@ -1,5 +1,5 @@
 """`mgpusim sweep`: the grid's product as one table, bad points as rows, resume after SIGKILL,
-the Dask path, and --fidelity passed through only where the simulator takes it."""
+the Dask path, and --fidelity checked once and passed to every point."""
 from __future__ import annotations
 
 import json
@@ -180,24 +180,21 @@ def test_unreachable_dask_scheduler_is_one_error(tmp_path, capsys, monkeypatch):
     assert rc == 2 and "--dask" in capsys.readouterr().err
 
 
-def test_fidelity_passed_only_to_a_simulator_that_takes_it(tmp_path, monkeypatch, capsys):
+def test_fidelity_is_checked_once_then_passed_to_every_point(tmp_path, monkeypatch, capsys):
     seen = []
-
-    def full_only(exp, record_trace=True):
-        return mgpusim.Result({"frame_time_ms": 1.0}, pd.DataFrame(), pd.DataFrame())
 
     def with_fidelity(exp, record_trace=True, fidelity="full"):
         seen.append(fidelity)
         return mgpusim.Result({"frame_time_ms": 2.0}, pd.DataFrame(), pd.DataFrame())
 
-    monkeypatch.setattr(sweeps, "simulate", full_only)
+    monkeypatch.setattr(sweeps, "simulate", with_fidelity)
     args = ["sweep", str(EXPERIMENT), "--grid", "schedule.gpus=1,2", "--workers", "1", "--no-progress"]
     assert main([*args, "--fidelity", "fast", "--out", str(tmp_path / "a")]) == 2
-    assert "--fidelity" in capsys.readouterr().err and not (tmp_path / "a" / "sweep.parquet").exists()
-    assert main([*args, "--out", str(tmp_path / "b")]) == 0
-    monkeypatch.setattr(sweeps, "simulate", with_fidelity)
-    assert main([*args, "--fidelity", "fast", "--out", str(tmp_path / "c")]) == 0
-    assert seen == ["fast", "fast"]
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--fidelity" in err[0] and "analytic" in err[0]
+    assert not (tmp_path / "a" / "sweep.parquet").exists() and seen == []
+    assert main([*args, "--fidelity", "analytic", "--out", str(tmp_path / "c")]) == 0
+    assert seen == ["analytic", "analytic"]
     assert pd.read_parquet(tmp_path / "c" / "sweep.parquet")["frame_time_ms"].tolist() == [2.0, 2.0]
 
 

@@ -22,8 +22,9 @@ from ..scene import PassSpec
 from .fit import Fit, fit_nonnegative
 from .tables import check_measure_table
 
-PASS_KINDS = ("fragment_loop", "mesh", "composite_sort_first", "composite_sort_last", "present",
-              "filter", "particle_update", "particle_render")
+#: Every pass kind of the cost model that is measured and fitted: all but "timed" (a pass known
+#: only by a reference time).
+PASS_KINDS = tuple(kind for kind in WORK_TERMS if kind != "timed")
 COPY_PASSES = {"copy_d2h": "d2h", "copy_h2d": "h2d", "copy_d2d": "d2d"}
 
 

@@ -38,7 +38,10 @@ def profile_from_tables(recipe: Any, tables: Sequence[Path], profile: Path,
     data = apply(cal, base, command)
     lines = [command, report(cal)]
     if recipe.host_copy_table:
-        lines.append(_host_copy(data, tables[0].parent / recipe.host_copy_table))
+        name = recipe.host_copy_table
+        rows = (df[df["source"] == name] if name in {t.name for t in tables}  # loaded above
+                else read_measurements([tables[0].parent / name])[0])  # read with the same checks
+        lines.append(_host_copy(data, rows, name))
     if recipe.copy_from is not None:
         lines.append(_copy_from(data, recipe))
     return data, lines
@@ -70,19 +73,18 @@ def refine_on_runs(recipe: Any, data: dict[str, Any], runs: Sequence[Run]) -> tu
     return data, lines
 
 
-def _host_copy(data: dict[str, Any], table: Path) -> str:
+def _host_copy(data: dict[str, Any], table: pd.DataFrame, name: str) -> str:
     """Host copy on the profile's memcpy threads as fixed + bytes / B (the model's parts run in
-    parallel, each paying host_copy_fixed_ns)."""
+    parallel, each paying host_copy_fixed_ns), from the rows of measure table `name`."""
     host = data["host"]
     threads = int(host["memcpy_threads"])
-    d = pd.read_csv(table)
-    d = d[d["threads"] == threads]
+    d = table[table["threads"] == threads]
     fit = fit_nonnegative(np.c_[np.ones(len(d)), d["bytes"].to_numpy(float)],
                           d["duration_ns"].to_numpy(float), ["fixed_ns", "ns_per_byte"], "host copy")
     fixed, gbps = float(fit.coef[0]), 1.0 / float(fit.coef[1])
     host.update(host_copy_fixed_ns=int(round(fixed)), memory_bandwidth_gbps=round(gbps, 3),
                 memcpy_thread_gbps=round(gbps / threads, 4))
-    return (f"host copy on {threads} threads ({table.name}, {len(d)} rows): {fixed / 1e3:.0f} us + "
+    return (f"host copy on {threads} threads ({name}, {len(d)} rows): {fixed / 1e3:.0f} us + "
             f"bytes / {gbps:.1f} GB/s")
 
 

@@ -239,16 +239,6 @@ class ParticleDraw(_FramePass):
         vk().vkCmdEndRenderPass(cmd)
 
 
-def clear_images(gpu: "Gpu", color: Image, depth: Image | None) -> None:
-    """Clear a colour (+ depth) image pair once, as a render pass that clears would."""
-    target = target_over(gpu, color, depth, clear=True)
-    full = (0, 0, color.width, color.height)
-    try:
-        gpu.run("graphics", lambda cmd: (begin(target, cmd, full, full), vk().vkCmdEndRenderPass(cmd)))
-    finally:
-        target.destroy()
-
-
 def copy_image(cmd: Any, src: Image, dst: Image) -> None:
     """Record a whole-image copy (present: frame -> displayed image)."""
     v = vk()

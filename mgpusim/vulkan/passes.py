@@ -18,10 +18,10 @@ import numpy as np
 
 from ..errors import InputError
 from ..schedules.base import even_split
-from .copies import upload
+from .copies import clear_image, upload
 from .draw import torus_mesh  # noqa: F401  (re-exported: the tests build meshes with it)
 from .framepasses import (CompositeInto, Filter, FragmentLoopTile, MeshShare, ParticleDraw,
-                          clear_images, copy_image)
+                          copy_image)
 from .memory import DEPTH_FORMAT, Buffer, Image
 from .particles import ParticleUpdate
 from .pipelines import RenderTarget
@@ -59,6 +59,10 @@ class _GraphicsPass:
             obj.destroy()
         self._owned.clear()
 
+    def record(self, cmd: Any) -> None:
+        """The runner's own pass (`self.work`), on this pass's images (slot 0)."""
+        self.work.record(cmd, 0)
+
 
 class FragmentLoop(_GraphicsPass):
     """Full-screen rectangle whose fragment shader loops `iterations` times (the sort-first
@@ -80,9 +84,6 @@ class FragmentLoop(_GraphicsPass):
         self._owned.append(self.work)
         self.bytes = width * height * 4
 
-    def record(self, cmd: Any) -> None:
-        self.work.record(cmd, 0)
-
 
 class Mesh(_GraphicsPass):
     """T triangles of a generated torus into colour RGBA8 + depth D16 (`first`..: a share), as
@@ -100,9 +101,6 @@ class Mesh(_GraphicsPass):
         self._owned.append(self.work)
         self.bytes = width * height * 6
 
-    def record(self, cmd: Any) -> None:
-        self.work.record(cmd, 0)
-
 
 class _Composite(_GraphicsPass):
     """The runner's composite: each input drawn into its rectangle of a frame it *loads*. The
@@ -113,13 +111,11 @@ class _Composite(_GraphicsPass):
         super().__init__(gpu)
         self.width, self.height = width, height
         self.target = RenderTarget(gpu, width, height, depth=depth, clear=False)
-        clear_images(gpu, self.target.color, self.target.depth)
+        images = [i for i in (self.target.color, self.target.depth) if i is not None]
+        gpu.run("graphics", lambda cmd: [clear_image(cmd, i) for i in images])
         self.work = CompositeInto(gpu, self.target, (width, height), [inputs], rects, depth)
         self._owned.append(self.work)
         self.bytes = width * height * (6 if depth else 4)
-
-    def record(self, cmd: Any) -> None:
-        self.work.record(cmd, 0)
 
 
 class CompositeSortFirst(_Composite):
@@ -192,9 +188,6 @@ class FilterPass(_GraphicsPass):
                            [[img] for img in self.inputs])
         self._owned.append(self.work)
         self.bytes = width * height * 4
-
-    def record(self, cmd: Any) -> None:
-        self.work.record(cmd, 0)
 
 
 class ParticleRender(_GraphicsPass):

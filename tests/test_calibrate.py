@@ -126,3 +126,17 @@ def test_filter_pass_is_fitted_with_its_inputs():
     assert got["ns_per_pixel_input"] == pytest.approx(0.2, rel=1e-6)
     assert got["ns_per_pixel_iteration"] == pytest.approx(0.01, rel=1e-6)
     assert got["ns_per_pixel"] == pytest.approx(0.3, rel=1e-6)
+
+
+def test_a_fit_that_does_not_converge_is_an_input_error(monkeypatch):
+    """scipy's solver raises RuntimeError at its iteration limit: calibrate says so in one line
+    naming the fit instead of crashing."""
+    from mgpusim.calibrate import fit as fit_module
+    from mgpusim.errors import InputError
+
+    def no_convergence(*args, **kwargs):
+        raise RuntimeError("Maximum number of iterations reached.")
+    monkeypatch.setattr(fit_module, "nnls", no_convergence)
+    X = np.array([[1.0, 1.0], [1.0, 2.0], [1.0, 3.0]])
+    with pytest.raises(InputError, match="mesh: .*did not converge"):
+        fit_module.fit_nonnegative(X, np.array([2.0, 3.0, 4.0]), ["fixed_ns", "ns_per_pixel"], "mesh")

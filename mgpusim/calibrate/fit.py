@@ -60,7 +60,13 @@ def fit_nonnegative(X: np.ndarray, y: np.ndarray, names: list[str], what: str) -
     elif condition > ILL_CONDITIONED:
         warnings.append(f"{what}: ill-conditioned fit (condition number {condition:.3g}); "
                         "coefficients are uncertain, see their stderr")
-    sol, _ = nnls(Xs, np.ones_like(y), maxiter=50 * max(1, Xs.shape[1]))
+    maxiter = 50 * max(1, Xs.shape[1])
+    try:
+        sol, _ = nnls(Xs, np.ones_like(y), maxiter=maxiter)
+    except RuntimeError:  # scipy: "Maximum number of iterations reached"
+        raise InputError(f"{what}: the non-negative least-squares fit did not converge in {maxiter} "
+                         "iterations; the measurements cannot be fitted (sweep more distinct sizes)"
+                         ) from None
     coef = np.zeros(len(names))
     coef[used] = sol / scale[used]
     pred = X @ coef

@@ -20,7 +20,10 @@ sys.modules["fuzz_inputs"] = fuzz  # its dataclasses look their module up there
 _spec.loader.exec_module(fuzz)
 
 
-@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+# derandomize: CI draws the same 200 examples every run, so a failure there is reproducible;
+# the open-ended search over fresh seeds is scripts/fuzz_inputs.py
+@settings(max_examples=200, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(rng=st.randoms(use_true_random=False))
 def test_mutated_shipped_files_fail_only_with_mgpusim_errors(rng: random.Random, tmp_path: Path):
     case = fuzz.make_case(rng)

@@ -8,10 +8,10 @@ that is not a file here finds the shipped file instead.
 """
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
+from .config import read_toml
 from .errors import InputError
 
 _PACKAGE = Path(__file__).resolve().parent
@@ -42,8 +42,7 @@ def examples() -> list[Example]:
     root = shipped_dir("experiments")
     out = []
     for path in sorted(root.rglob("*.toml")):
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
+        data = read_toml(path)  # a broken shipped file is an input error naming it
         schedule = data.get("schedule")
         if not isinstance(schedule, dict):  # e.g. a list of configurations, not an experiment
             continue

@@ -11,6 +11,7 @@ from ..errors import InputError
 from ..fidelity import (configurations, deviations, deviations_markdown, markdown, run_levels,
                         summarize_deviations, summarize_levels)
 from ..output import write_table
+from ..outpath import check_out_dir
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 
@@ -28,10 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.docs and not (DOCS / "fidelity.md").is_file():
         raise InputError(f"needs a checkout with {DOCS / 'fidelity.md'}", field="--docs")
-    try:
-        args.out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:  # checked before any work
-        raise InputError(f"cannot create the output folder: {exc.strerror}", field="--out") from exc
+    check_out_dir(args.out)  # before any work
     configs = configurations()
     table = run_levels(configs, repeats=max(1, args.repeats))
     levels = summarize_levels(table)

@@ -10,7 +10,7 @@ from ..shipped import shipped_dir
 from ..outpath import check_out_dir
 from ..study import pipeline
 from ..study.spec import load_study
-from .study import _progress
+from .study import progress_printer
 
 #: The lavapipe study, shipped beside the package's experiments.
 LAVAPIPE_STUDY = shipped_dir("experiments") / "lavapipe" / "study.toml"
@@ -37,6 +37,6 @@ def run(args: argparse.Namespace) -> int:
         runs = replace(runs, repeats=args.repeats)
     if args.run_seconds is not None:
         runs = replace(runs, run_seconds=args.run_seconds)
-    path = pipeline.run(replace(study, runs=runs), args.out, _progress(), args.held_out)
+    path = pipeline.run(replace(study, runs=runs), args.out, progress_printer(), args.held_out)
     print(path.read_text())
     return 0

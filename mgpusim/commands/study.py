@@ -48,7 +48,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         s.set_defaults(func=_STEPS[name])
 
 
-def _progress() -> Callable[[str], None]:
+def progress_printer() -> Callable[[str], None]:
+    """Progress lines on stderr, stamped with seconds since the command started."""
     t0 = time.monotonic()
 
     def progress(msg: str) -> None:
@@ -72,7 +73,7 @@ def _filtered(study: Study, args: argparse.Namespace) -> Study:
 
 def measure(args: argparse.Namespace) -> int:
     study = _filtered(load_study(args.study), args)
-    out, progress = _out(args, study), _progress()
+    out, progress = _out(args, study), progress_printer()
     if study.microbenchmarks.sweeps and study.microbenchmarks.folder is None:
         measure_microbenchmarks(study, out / "measurements", progress)
     measure_runs(study, study.entries(args.held_out), study.profile, out / "runs", progress,
@@ -84,7 +85,7 @@ def measure(args: argparse.Namespace) -> int:
 def calibrate(args: argparse.Namespace) -> int:
     study = load_study(args.study)
     out = _out(args, study)
-    profile, text = pipeline.calibrate(study, out, _progress(), runs_dir=args.runs)
+    profile, text = pipeline.calibrate(study, out, progress_printer(), runs_dir=args.runs)
     print(text)
     print(f"wrote {profile}")
     return 0
@@ -92,7 +93,7 @@ def calibrate(args: argparse.Namespace) -> int:
 
 def validate(args: argparse.Namespace) -> int:
     study = load_study(args.study)
-    out, progress = _out(args, study), _progress()
+    out, progress = _out(args, study), progress_printer()
     profile = args.profile or study.profile
     tables = {}
     for title, entries, held in ((pipeline.CALIBRATION_TITLE, study.calibration, False),
@@ -113,7 +114,7 @@ def validate(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     study = _filtered(load_study(args.study), args)
-    path = pipeline.run(study, _out(args, study), _progress(), args.held_out,
+    path = pipeline.run(study, _out(args, study), progress_printer(), args.held_out,
                         int_list(args.devices, "--devices"))
     print(path.read_text())
     return 0

@@ -17,7 +17,7 @@ from .errors import MgpusimError
 VULKAN_PACKAGES = ("vulkan", "cffi")
 
 #: Command modules, in the order `mgpusim --help` lists them.
-COMMANDS = ("simulate", "sweep", "examples", "run", "bench", "fidelity", "devices", "measure", "calibrate",
+COMMANDS = ("simulate", "sweep", "examples", "case", "run", "bench", "fidelity", "devices", "measure", "calibrate",
             "validate", "study", "main_job")
 
 

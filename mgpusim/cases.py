@@ -1,0 +1,315 @@
+"""Case studies: a source system's own machine, workload and schedule, and what the model predicts.
+
+A case is a folder `experiments/cases/<name>/` holding its profiles, its experiments and a
+`case.toml` that lists the runs (an experiment plus `--set` overrides each, optionally one run
+per value of a key), the per-run quantities to report (`[[columns]]`) and the quantities that
+compare runs (`[[derived]]`). Everything here is a pure function of the simulated results:
+files, printing and pictures stay in `mgpusim/commands/case.py`.
+
+Column kinds (one value per run):
+- `utilization`: mean busy fraction of the resources whose `device.engine` matches `select`
+  (a glob, e.g. `gpu*.graphics`), over the steady window;
+- `span`: mean wall-clock span (ms) from the first start to the last end of the tasks whose
+  step or task name matches `select` (comma-separated globs), over the steady frames that ran
+  them;
+- `copy_limited_fps`: 1000 / the largest per-frame busy time (ms) of one queue or thread
+  among the tasks whose step matches `select`: the frame rate if only those copies limited it;
+- `rate`: a task's steady rate in Hz (`summary.task_rates_hz[select]`);
+- `sections_fit`: whole data-set sections of `section_bytes` that the run's strategy fits on its
+  GPUs (`mgpusim.memory.max_dataset_bytes`).
+
+Derived kinds (one value per entry): `ratio` (metric of `runs[0]` over `runs[1]`, e.g. the
+frame-rate gain) and `difference` (metric of `runs[0]` minus `runs[1]`, e.g. latency a chunked
+copy hides); the metric is `fps`, `frame_time_ms` or `latency_ms`, or a column's name.
+"""
+from __future__ import annotations
+
+import fnmatch
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from .config import Table, did_you_mean, read_toml
+from .errors import InputError
+from .experiment import Experiment, load_experiment, parse_overrides
+from .memory import max_dataset_bytes
+from .results import Result
+from .shipped import shipped_dir
+from .simulate import simulate
+
+COLUMN_KINDS = ("utilization", "span", "copy_limited_fps", "rate", "sections_fit")
+DERIVED_KINDS = ("ratio", "difference")
+SUMMARY_METRICS = ("fps", "frame_time_ms", "latency_ms")
+
+
+@dataclass(frozen=True)
+class Run:
+    """One simulated configuration of a case."""
+
+    name: str
+    label: str
+    experiment: Path
+    sets: tuple[str, ...] = ()
+
+    def load(self, extra: dict[str, Any] | None = None) -> Experiment:
+        return load_experiment(self.experiment, {**parse_overrides(list(self.sets)), **(extra or {})})
+
+
+@dataclass(frozen=True)
+class Column:
+    """A per-run quantity (see the module docstring for the kinds)."""
+
+    name: str
+    label: str
+    kind: str
+    select: str = ""
+    runs: tuple[str, ...] = ()  # empty: every run
+    section_bytes: int = 0
+
+    def applies(self, run: str) -> bool:
+        return not self.runs or run in self.runs
+
+
+@dataclass(frozen=True)
+class Derived:
+    """A quantity that compares two runs."""
+
+    name: str
+    label: str
+    kind: str
+    metric: str
+    runs: tuple[str, str]
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    file: Path
+    title: str
+    description: str
+    runs: tuple[Run, ...]
+    columns: tuple[Column, ...] = ()
+    derived: tuple[Derived, ...] = ()
+    timelines: tuple[str, ...] = ()
+
+    def run(self, name: str) -> Run:
+        return next(r for r in self.runs if r.name == name)
+
+
+@dataclass
+class CaseResult:
+    """Every run's result, its column values, and the derived quantities."""
+
+    case: Case
+    results: dict[str, Result]
+    experiments: dict[str, Experiment]
+    columns: dict[str, dict[str, float]] = field(default_factory=dict)  # run -> column -> value
+    derived: dict[str, float] = field(default_factory=dict)
+
+
+def cases_dir() -> Path:
+    return shipped_dir("experiments") / "cases"
+
+
+def case_names() -> list[str]:
+    """The shipped cases: every `experiments/cases/<name>/case.toml`."""
+    root = cases_dir()
+    return sorted(p.parent.name for p in root.glob("*/case.toml")) if root.is_dir() else []
+
+
+def case_file(ref: str | Path) -> Path:
+    """A case by shipped name, or a `case.toml` path (or its folder)."""
+    path = Path(ref)
+    if path.is_dir() and (path / "case.toml").is_file():
+        return path / "case.toml"
+    if path.is_file():
+        return path
+    candidate = cases_dir() / str(ref) / "case.toml"
+    if candidate.is_file():
+        return candidate
+    names = case_names()
+    raise InputError(f"no case of that name{did_you_mean(str(ref), names)}; the cases are: "
+                     f"{', '.join(names) or 'none'} (`mgpusim case --list`)", field=str(ref))
+
+
+def load_case(ref: str | Path) -> Case:
+    """Read and check a case file; every error names the file and the field."""
+    path = case_file(ref)
+    top = Table(read_toml(path), str(path))
+    runs = tuple(r for t in top.tables("runs") for r in _runs(t, path.parent))
+    names = [r.name for r in runs]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise InputError(f"run names must be unique, repeated: {', '.join(dup)}", file=str(path), field="runs")
+    columns = tuple(_column(t, set(names)) for t in (top.tables("columns") if top.has("columns") else []))
+    known_metrics = set(SUMMARY_METRICS) | {c.name for c in columns}
+    derived = tuple(_derived(t, set(names), known_metrics) for t in (top.tables("derived") if top.has("derived") else []))
+    timelines = tuple(top.get("timelines", list, []))
+    for t in timelines:
+        if t not in names:
+            raise top.error("timelines", f"{t!r} is not a run of this case")
+    case = Case(name=top.get("name", str, path.parent.name), file=path, title=top.get("title", str),
+                description=top.get("description", str, ""), runs=runs, columns=columns,
+                derived=derived, timelines=timelines)
+    top.get("source", str, "")  # free text: the public source the case restates
+    top.finish()
+    return case
+
+
+def _runs(t: Table, base: Path) -> list[Run]:
+    """One run, or one per value of `each` (a one-key table: key -> list of values)."""
+    name, label = t.get("name", str), t.get("label", str)
+    exp = base / t.get("experiment", str)
+    if not exp.is_file():
+        raise t.error("experiment", f"{str(exp)!r} does not exist")
+    sets = tuple(t.get("set", list, []))
+    each = t.table("each", {})
+    keys = list(each.data)
+    if len(keys) > 1:
+        raise t.error("each", "give one key whose values make one run each")
+    values = each.get(keys[0], list) if keys else []
+    each.finish()
+    t.finish()
+    if not keys:
+        return [Run(name, label, exp, sets)]
+    key = keys[0]
+    return [Run(f"{name}_{v}", f"{label}, {key.rsplit('.', 1)[-1]} {v}", exp, sets + (f"{key}={v}",))
+            for v in values]
+
+
+def _column(t: Table, runs: set[str]) -> Column:
+    col = Column(name=t.get("name", str), label=t.get("label", str), kind=t.get("kind", str, choices=COLUMN_KINDS),
+                 select=t.get("select", str, ""), runs=tuple(t.get("runs", list, [])),
+                 section_bytes=t.get("section_bytes", int, 0, minimum=0))
+    t.finish()
+    for r in col.runs:
+        if r not in runs:
+            raise t.error("runs", f"{r!r} is not a run of this case")
+    if col.kind == "sections_fit" and col.section_bytes <= 0:
+        raise t.error("section_bytes", "sections_fit needs section_bytes > 0")
+    if col.kind not in ("sections_fit",) and not col.select:
+        raise t.error("select", f"a {col.kind} column needs select")
+    return col
+
+
+def _derived(t: Table, runs: set[str], metrics: set[str]) -> Derived:
+    pair = t.get("runs", list)
+    d = Derived(name=t.get("name", str), label=t.get("label", str), kind=t.get("kind", str, choices=DERIVED_KINDS),
+                metric=t.get("metric", str, choices=sorted(metrics)), runs=tuple(pair))  # type: ignore[arg-type]
+    t.finish()
+    if len(pair) != 2 or any(r not in runs for r in pair):
+        raise t.error("runs", f"expected two runs of this case, got {pair!r}")
+    return d
+
+
+def run_case(case: Case, frames: int | None = None) -> CaseResult:
+    """Simulate every run (with `frames` frames each when given, a fifth of them warm-up)
+    and compute the columns and the derived quantities."""
+    extra = {} if frames is None else {"schedule.frames": frames, "schedule.warmup_frames": max(1, frames // 5)}
+    exps = {r.name: r.load(extra) for r in case.runs}
+    results = {name: simulate(exp) for name, exp in exps.items()}
+    out = CaseResult(case, results, exps)
+    for run in case.runs:
+        out.columns[run.name] = {c.name: column_value(c, results[run.name], exps[run.name])
+                                 for c in case.columns if c.applies(run.name)}
+    for d in case.derived:
+        a, b = (metric(out, r, d.metric) for r in d.runs)
+        out.derived[d.name] = a / b if d.kind == "ratio" else a - b
+    return out
+
+
+def metric(cr: CaseResult, run: str, name: str) -> float:
+    """A summary metric or a column value of one run (NaN where the column does not apply)."""
+    if name in SUMMARY_METRICS:
+        return float(cr.results[run].summary[name])
+    return float(cr.columns[run].get(name, math.nan))
+
+
+def steady(trace: pd.DataFrame, exp: Experiment) -> pd.DataFrame:
+    """The trace rows of the frames after warm-up."""
+    return trace[trace["frame"] >= exp.schedule.warmup_frames]
+
+
+def column_value(col: Column, result: Result, exp: Experiment) -> float:
+    """One column's value for one run."""
+    if col.kind == "utilization":
+        busy = [v for k, v in result.summary.get("utilization", {}).items() if fnmatch.fnmatch(k, col.select)]
+        return float(sum(busy) / len(busy)) if busy else math.nan
+    if col.kind == "rate":
+        return float(result.summary.get("task_rates_hz", {}).get(col.select, math.nan))
+    if col.kind == "sections_fit":
+        return float(max_dataset_bytes(exp) // col.section_bytes)
+    rows = steady(result.trace, exp)
+    if col.kind == "span":
+        return span_ms(rows, col.select)
+    return copy_limited_fps(rows, col.select)
+
+
+def _matching(rows: pd.DataFrame, select: str) -> pd.DataFrame:
+    """The rows whose step or task name matches one of the comma-separated globs."""
+    globs = [g.strip() for g in select.split(",") if g.strip()]
+
+    def hit(name: str) -> bool:
+        return any(fnmatch.fnmatchcase(name, g) for g in globs)
+    mask = rows["step"].astype(str).map(hit) | rows["task"].astype(str).map(hit)
+    return rows[mask]
+
+
+def span_ms(rows: pd.DataFrame, select: str) -> float:
+    """Mean per-frame span (ms) of the selected tasks, over the frames that ran them."""
+    sel = _matching(rows, select)
+    if not len(sel):
+        return 0.0
+    g = sel.groupby("frame")
+    return float((g["end_ns"].max() - g["start_ns"].min()).mean() / 1e6)
+
+
+def copy_limited_fps(rows: pd.DataFrame, select: str) -> float:
+    """1000 / the busiest queue's or thread's mean per-frame time (ms) on the selected tasks."""
+    sel = _matching(rows, select)
+    frames = rows["frame"].nunique()
+    if not len(sel) or not frames:
+        return math.inf
+    busy = (sel["end_ns"] - sel["start_ns"]).groupby([sel["device"], sel["engine"]]).sum()
+    return float(1e9 / (busy.max() / frames)) if busy.max() > 0 else math.inf
+
+
+def table(cr: CaseResult) -> pd.DataFrame:
+    """A row per run: its label, GPUs, frame time, fps, latency and its column values."""
+    rows = []
+    for run in cr.case.runs:
+        s, exp = cr.results[run.name].summary, cr.experiments[run.name]
+        row = {"run": run.name, "configuration": run.label, "GPUs": exp.schedule.gpus,
+               "frame time (ms)": s["frame_time_ms"], "fps": s["fps"], "latency (ms)": s["latency_ms"]}
+        for c in cr.case.columns:
+            row[c.label] = cr.columns[run.name].get(c.name, math.nan)
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, float):
+        if math.isnan(value):
+            return ""
+        if math.isinf(value):
+            return "unbounded"
+        return f"{value:.3g}" if abs(value) < 1 else f"{value:,.2f}" if abs(value) < 1000 else f"{value:,.0f}"
+    return str(value)
+
+
+def markdown(cr: CaseResult) -> str:
+    """The predicted table and the derived quantities, as markdown."""
+    df = table(cr).drop(columns=["run"])
+    df = df.loc[:, [c for c in df.columns if not df[c].isna().all()]]
+    lines = ["| " + " | ".join(df.columns) + " |", "|" + "---|" * len(df.columns)]
+    lines += ["| " + " | ".join(_fmt(v) for v in row) + " |" for row in df.itertuples(index=False)]
+    if cr.case.derived:
+        lines += ["", "| derived quantity | predicted |", "|---|---|"]
+        for d in cr.case.derived:
+            v = cr.derived[d.name]
+            shown = f"{v:.2f}x" if d.kind == "ratio" and d.metric in ("fps",) else _fmt(v)
+            lines.append(f"| {d.label} | {shown} |")
+    return "\n".join(lines) + "\n"

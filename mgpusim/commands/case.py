@@ -1,0 +1,53 @@
+"""`mgpusim case NAME [--out DIR] [--frames N]` and `mgpusim case --list`: a case study in one command.
+
+Simulates every run of a shipped case (`experiments/cases/<name>/case.toml`) and writes the
+predicted table (`predictions.md`, `predictions.csv`) and a timeline picture per run the case
+names (`timeline_<run>.png`) into the output folder.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ..cases import case_names, load_case, markdown, run_case, table
+from ..errors import InputError
+from ..outpath import check_out_dir
+from ..output import write_table, write_text
+from ..plot import last_frames, timeline_png
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("case", help="run a case study (a source system's own setup) and write its predictions",
+                       description=__doc__.splitlines()[0])
+    p.add_argument("name", nargs="?", help="a shipped case (`mgpusim case --list`) or a case.toml path")
+    p.add_argument("--list", action="store_true", help="list the shipped cases and exit")
+    p.add_argument("--out", type=Path, default=None, help="output folder (default: out/cases/<name>)")
+    p.add_argument("--frames", type=int, default=None, metavar="N",
+                   help="simulate N frames per run (a fifth of them warm-up) instead of each experiment's own")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.list:
+        for name in case_names():
+            case = load_case(name)
+            print(f"{name:18s} {len(case.runs):3d} runs  {case.title}")
+        return 0
+    if not args.name:
+        raise InputError("give a case name (`mgpusim case --list` lists them)", field="NAME")
+    if args.frames is not None and args.frames < 2:
+        raise InputError(f"must be >= 2, got {args.frames}", field="--frames")
+    case = load_case(args.name)
+    out = args.out or Path("out") / "cases" / case.name
+    check_out_dir(out)
+    result = run_case(case, args.frames)
+    out.mkdir(parents=True, exist_ok=True)
+    text = f"# {case.title}\n\n{case.description}\n\n{markdown(result)}"
+    files = [write_text(text, out / "predictions.md"), write_table(table(result), out / "predictions.csv")]
+    for name in case.timelines:
+        res, run_ = result.results[name], case.run(name)
+        files.append(timeline_png(res.trace, out / f"timeline_{name}.png", res.links,
+                                  f"{case.name} / {name}: {run_.label}", last_frames(res.trace, 3)))
+    print(text, end="")
+    print(f"\nwrote {', '.join(str(f) for f in files)}")
+    return 0

@@ -1,0 +1,189 @@
+"""Case studies (`mgpusim case`): every shipped case runs, its derived quantities agree with the
+simulated traces, bad cases are one clear error, and each case's lavapipe study loads."""
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import pytest
+
+from mgpusim import cli
+from mgpusim.cases import (Case, CaseResult, case_names, copy_limited_fps, load_case, markdown, metric,
+                           run_case, span_ms, steady, table)
+from mgpusim.errors import InputError
+from mgpusim.memory import max_dataset_bytes
+from mgpusim.simulate import simulate
+from mgpusim.study.spec import load_study
+
+ROOT = Path(__file__).resolve().parents[1]
+CASES = ("dx12_pipelining", "particle_offload", "vulkan_thesis", "xr_stereo")
+FRAMES = 16
+
+
+@pytest.fixture(scope="module")
+def results() -> dict[str, CaseResult]:
+    return {name: run_case(load_case(name), frames=FRAMES) for name in CASES}
+
+
+def test_the_four_cases_are_shipped():
+    assert case_names() == list(CASES)
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_every_run_simulates_and_is_tabled(results, name):
+    cr = results[name]
+    df = table(cr)
+    assert list(df["run"]) == [r.name for r in cr.case.runs]
+    assert (df["frame time (ms)"] > 0).all()
+    assert ((df["fps"] * df["frame time (ms)"] - 1000).abs() < 1e-6 * 1000).all()
+    text = markdown(cr)
+    assert all(r.label in text for r in cr.case.runs)
+    assert all(d.label in text for d in cr.case.derived)
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_derived_quantities_are_the_runs_own_figures(results, name):
+    cr = results[name]
+    assert cr.case.derived
+    for d in cr.case.derived:
+        a, b = (cr.results[r].summary[d.metric] if d.metric in ("fps", "frame_time_ms", "latency_ms")
+                else cr.columns[r][d.metric] for r in d.runs)
+        want = a / b if d.kind == "ratio" else a - b
+        assert cr.derived[d.name] == pytest.approx(want, rel=1e-12)
+
+
+def test_gain_is_the_fps_ratio_and_more_gpus_help(results):
+    cr = results["vulkan_thesis"]
+    fps = {r: cr.results[r].summary["fps"] for r in ("sf_1gpu", "sf_2gpu", "sf_3gpu")}
+    assert cr.derived["sf_gain_2"] == pytest.approx(fps["sf_2gpu"] / fps["sf_1gpu"])
+    assert 1.5 < cr.derived["sf_gain_2"] < cr.derived["sf_gain_3"] <= 3.0
+    # pipelining the five steps never loses frame rate against the lock-step build
+    assert cr.derived["sf_gain_3"] >= cr.derived["sf_gain_3_lockstep"]
+
+
+def test_span_column_matches_the_trace(results):
+    cr = results["xr_stereo"]
+    exp, res = cr.experiments["quest3_pcie4_weak"], cr.results["quest3_pcie4_weak"]
+    rows = steady(res.trace, exp)
+    p2p = rows[rows["step"] == "p2p"]
+    assert len(p2p) == rows["frame"].nunique()  # one view crosses per frame with 2 GPUs
+    want = ((p2p["end_ns"] - p2p["start_ns"]).mean()) / 1e6
+    assert cr.columns["quest3_pcie4_weak"]["transfer_ms"] == pytest.approx(want)
+    # 2064 x 2208 x 8 B over the sample's 25 GiB/s: about 1.36 ms
+    assert want == pytest.approx(2064 * 2208 * 8 / 26.84e9 * 1e3, rel=0.01)
+
+
+def test_copy_limited_fps_is_the_busiest_copy_queue(results):
+    cr = results["dx12_pipelining"]
+    exp, res = cr.experiments["linked"], cr.results["linked"]
+    rows = steady(res.trace, exp)
+    copies = rows[rows["step"] == "p2p"]
+    per_frame_ns = (copies["end_ns"] - copies["start_ns"]).sum() / rows["frame"].nunique()
+    assert cr.columns["linked"]["copy_fps"] == pytest.approx(1e9 / per_frame_ns)
+    # the copies move 91.6 MB per frame over 6.7 GB/s: copy-bound near 73 fps, GPU 1 bound at 69
+    assert 70 < cr.columns["linked"]["copy_fps"] < 76
+    assert copy_limited_fps(rows, "no_such_step") == math.inf
+    assert span_ms(rows, "no_such_step") == 0.0
+
+
+def test_sections_fit_is_the_memory_model(results):
+    cr = results["vulkan_thesis"]
+    col = next(c for c in cr.case.columns if c.kind == "sections_fit")
+    counts = [cr.columns[f"terrain_{n}"]["sections"] for n in (1, 2, 3)]
+    assert counts == [max_dataset_bytes(cr.experiments[f"terrain_{n}"]) // col.section_bytes for n in (1, 2, 3)]
+    assert counts[0] < counts[2]  # sort-last holds more of the terrain on more GPUs
+    assert "sections" not in cr.columns["sf_1gpu"]
+
+
+def test_particle_new_wait_ticks_slower_than_frames_when_the_copy_is_long(results):
+    cr = results["particle_offload"]
+    big = cr.columns["two_gpus_new_wait_1048576"]
+    assert big["update_hz"] < cr.results["two_gpus_new_wait_1048576"].summary["fps"] / 2
+    assert big["movement_ms"] > big["particle_ms"] > 0
+    assert cr.derived["wait_cost_1m"] > 0
+
+
+def test_run_case_is_deterministic():
+    case = load_case("xr_stereo")
+    a, b = run_case(case, frames=8), run_case(case, frames=8)
+    assert a.derived == b.derived
+    assert table(a).equals(table(b))
+
+
+def test_unknown_case_is_one_clear_error():
+    with pytest.raises(InputError, match="did you mean 'vulkan_thesis'.*the cases are: dx12_pipelining"):
+        load_case("vulkan_thesi")
+
+
+def test_cli_lists_runs_and_writes(tmp_path, capsys):
+    assert cli.main(["case", "--list"]) == 0
+    listed = capsys.readouterr().out
+    assert all(name in listed for name in CASES)
+    assert cli.main(["case", "nope"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no case of that name" in err
+    out = tmp_path / "xr"
+    assert cli.main(["case", "xr_stereo", "--out", str(out), "--frames", "8"]) == 0
+    text = (out / "predictions.md").read_text()
+    assert "weak" in text and "strong" in text
+    assert {p.name for p in out.glob("timeline_*.png")} == {f"timeline_{n}.png" for n in load_case("xr_stereo").timelines}
+    assert cli.main(["case", "xr_stereo", "--frames", "1"]) == 2
+
+
+def _case_file(tmp_path: Path, body: str, top: str = "") -> Path:
+    """A one-run case file: `top` goes before the run (top-level keys), `body` after it."""
+    exp = (ROOT / "experiments" / "cases" / "xr_stereo" / "quest3_pcie4.toml").as_posix()
+    path = tmp_path / "case.toml"
+    path.write_text(f'name = "t"\ntitle = "t"\n{top}[[runs]]\nname = "a"\nlabel = "a"\nexperiment = "{exp}"\n' + body)
+    return path
+
+
+@pytest.mark.parametrize("top, body, field", [
+    ('', '[[derived]]\nname = "g"\nlabel = "g"\nkind = "ratio"\nmetric = "fps"\nruns = ["a", "b"]\n', "derived.runs"),
+    ('', '[[derived]]\nname = "g"\nlabel = "g"\nkind = "ratio"\nmetric = "fsp"\nruns = ["a", "a"]\n', "derived.metric"),
+    ('', '[[columns]]\nname = "c"\nlabel = "c"\nkind = "utilisation"\nselect = "gpu*"\n', "columns.kind"),
+    ('', '[[columns]]\nname = "c"\nlabel = "c"\nkind = "span"\n', "columns.select"),
+    ('', '[[columns]]\nname = "c"\nlabel = "c"\nkind = "sections_fit"\n', "columns.section_bytes"),
+    ('timelines = ["b"]\n', '', "timelines"),
+    ('', '[[runs]]\nname = "a"\nlabel = "again"\nexperiment = "x.toml"\n', "runs.experiment"),
+    ('colums = 1\n', '', "colums"),
+    ('', 'each = { "schedule.gpus" = [1], "scene.width" = [64] }\n', "runs.each"),
+])
+def test_bad_case_files_name_the_field(tmp_path, top, body, field):
+    with pytest.raises(InputError) as exc:
+        load_case(_case_file(tmp_path, body, top))
+    assert re.sub(r"\[\d+\]", "", exc.value.field or "") == field
+
+
+def test_each_expands_one_run_per_value(tmp_path):
+    path = _case_file(tmp_path, "")
+    text = path.read_text().replace('label = "a"\n', 'label = "a"\neach = { "schedule.gpus" = [1, 2] }\n')
+    path.write_text(text)
+    case = load_case(path)
+    assert [r.name for r in case.runs] == ["a_1", "a_2"]
+    assert case.runs[1].sets[-1] == "schedule.gpus=2"
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_lavapipe_study_loads_and_simulates_on_the_lavapipe_profile(name):
+    """The lead measures these on lavapipe; here: they load, their sweeps are the measure
+    library's, and every configuration simulates on the committed lavapipe profile."""
+    study = load_study(ROOT / "experiments" / "cases" / name / "lavapipe.toml")
+    assert study.calibration and study.held_out
+    try:
+        from mgpusim.vulkan.measure import parse_sweeps
+    except ImportError:  # pragma: no cover - the Vulkan extra is not installed
+        parse_sweeps = None
+    if parse_sweeps is not None:
+        for kind, sweep in study.microbenchmarks.sweeps:
+            parse_sweeps(kind, [f"{k}=" + ",".join(map(str, v)) for k, v in sweep.items()])
+    for entry in study.entries():
+        exp = entry.load(study.profile, ["schedule.frames=6", "schedule.warmup_frames=2"])
+        assert exp.scene.width * exp.scene.height <= 256 * 256
+        assert simulate(exp).summary["frame_time_ms"] > 0
+
+
+def test_case_type_is_what_load_case_returns():
+    assert isinstance(load_case(ROOT / "experiments" / "cases" / "vulkan_thesis"), Case)
+    assert metric(run_case(load_case("xr_stereo"), frames=6), "quest3_pcie4_one", "gather_ms") > 0

@@ -128,3 +128,44 @@ def test_task_gap_idles_the_queue_between_tasks():
     assert trace.loc[(0, "render0"), "start_ns"] == 5
     assert trace.loc[(0, "present"), "start_ns"] == 5 + 640 + 5
     assert trace.loc[(1, "render0"), "start_ns"] == 650 + 10 + 5
+
+
+def test_pipelining_modes_exact_timeline():
+    """The hand-computed 8x4 frame above (render 320, d2h / host copy / h2d 64 each, composite
+    16, present 10). 'secondary_wait': GPU 1 renders frame f+1 only after its download of frame
+    f ended (384), so its queue carries 320 + 64 per frame: render1 384-704, d2h 704-768, host
+    copy -832, h2d -896; render0(1) 538-858 after present(0); composite 896-912, present 922;
+    then one present every 384 ns. 'lockstep': no frame starts before the last present: 538 ns.
+    'full' is the default (346 ns, above)."""
+    wait = simulate(make_experiment(gpus=2, frames=6, iterations=20, pipelining="secondary_wait"))
+    assert wait.config["pipelining"] == "secondary_wait"
+    t = wait.trace.set_index(["frame", "task"])
+    assert (t.loc[(1, "render1"), "start_ns"], t.loc[(1, "render1"), "end_ns"]) == (384, 704)
+    assert (t.loc[(1, "h2d1"), "start_ns"], t.loc[(1, "h2d1"), "end_ns"]) == (832, 896)
+    assert (t.loc[(1, "composite"), "start_ns"], t.loc[(1, "composite"), "end_ns"]) == (896, 912)
+    assert wait.frames.present_ns.tolist() == [538, 922, 1306, 1690, 2074, 2458]
+    lock = simulate(make_experiment(gpus=2, frames=4, iterations=20, pipelining="lockstep"))
+    assert lock.frames.present_ns.tolist() == [538, 1076, 1614, 2152]
+    assert lock.trace[(lock.trace.frame == 1) & (lock.trace.task == "render0")].start_ns.item() == 538
+    full = simulate(make_experiment(gpus=2, frames=20, iterations=20, pipelining="full"))
+    assert full.summary["frame_time_ms"] * 1e6 == pytest.approx(346, abs=1e-9)
+
+
+def test_pipelining_mode_rejects_unknown():
+    from mgpusim import InputError
+    with pytest.raises(InputError, match="schedule.pipelining"):
+        make_experiment(gpus=2, pipelining="partial")
+
+
+def test_measured_run_recorded_before_a_new_option_still_matches():
+    """A run recorded before `pipelining` existed lacks it: at its default that changes
+    nothing, so the run still matches; set to something else, the difference is named."""
+    from mgpusim import InputError
+    from mgpusim.measured_check import check_recorded_config
+    from mgpusim.program import recorded_inputs
+    exp = make_experiment(gpus=2)
+    config = {"schedule": "sort_first", "gpus": 2, "inputs": recorded_inputs(exp)}
+    del config["inputs"]["schedule"]["pipelining"]
+    check_recorded_config(config, exp, "old/summary.json")
+    with pytest.raises(InputError, match="config.inputs.schedule.pipelining"):
+        check_recorded_config(config, make_experiment(gpus=2, pipelining="lockstep"), "old/summary.json")

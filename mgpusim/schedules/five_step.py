@@ -21,11 +21,20 @@ from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes
                    present_task, present_work, queue_or_graphics, register)
 from .five_step_io import bind_io
 
+#: `pipelining` modes, from most to least overlap (see OPTIONS).
+PIPELINING = ("full", "secondary_wait", "lockstep")
+
 OPTIONS = {
     "host_copy": Option(bool, True, "step 3: copy between the two staging buffers on host "
                                     "threads (false: one shared host allocation)"),
     "buffers": Option(int, 2, "contribution and staging buffers per secondary", minimum=1,
                       maximum=L.MAX_BUFFERS, why=L.WHY_ALLOC),
+    "pipelining": Option(str, "full", "how much of the five steps overlaps across frames: "
+                         "'full' (every step, limited only by buffers and frames in flight), "
+                         "'secondary_wait' (a secondary renders its next frame only after its "
+                         "download ended: the reference code's waitIdle), 'lockstep' (no GPU "
+                         "starts a frame before the previous one was presented)",
+                         choices=PIPELINING),
 }
 SORT_FIRST_OPTIONS = {
     **OPTIONS,
@@ -131,7 +140,7 @@ def _build(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, pixels: 
     tasks: list[Task] = []
     last_render: list[str] = []
     for i in range(n):
-        tasks.extend(_renders(i, scene, pixels[i], shares[i], fif, buffers))
+        tasks.extend(_renders(i, scene, pixels[i], shares[i], fif, buffers, cfg.opt("pipelining")))
         last_render.append(tasks[-1].name)
     uploads = []
     h2d_queue = queue_or_graphics(profile, 0, "transfer")
@@ -154,7 +163,7 @@ def _build(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, pixels: 
                               tuple(Dep(t) for t in [last_render[0], *uploads])))
     before_present = "composite" if n > 1 else last_render[0]
     tasks.append(present_task(primary, scene.pixels, before_present))
-    record.update(buffers=buffers, host_copy=host_copy,
+    record.update(buffers=buffers, host_copy=host_copy, pipelining=cfg.opt("pipelining"),
                   contribution_bytes_per_frame=sum(contribution[1:]))
     tasks, resources = bind_io(tasks, scene, n, composite.kind, record.get("tile_rows"),
                                buffers, host_copy)
@@ -175,10 +184,17 @@ def _footprints(scene: Scene, pixels: list[int], shares: list[float], contributi
 
 
 def _renders(gpu: int, scene: Scene, pixels: int, share: float, fif: int,
-             buffers: int) -> list[PassTask]:
+             buffers: int, pipelining: str = "full") -> list[PassTask]:
     """The scene's passes on one GPU's graphics queue; the first waits for frame f-fif's
-    present (frames in flight) and, on a secondary, for its contribution buffer to be free."""
+    present (frames in flight) and, on a secondary, for its contribution buffer to be free.
+    Less `pipelining` adds waits: 'secondary_wait' a secondary's download of the previous
+    frame (its host thread idles until then before submitting more), 'lockstep' the previous
+    frame's present on every GPU."""
     first = (Dep("present", -fif),) + ((Dep(f"d2h{gpu}", -buffers),) if gpu > 0 else ())
+    if pipelining != "full" and gpu > 0 and buffers > 1:
+        first += (Dep(f"d2h{gpu}", -1),)
+    if pipelining == "lockstep" and fif > 1:
+        first += (Dep("present", -1),)
     single = len(scene.passes) == 1
     return chain_passes(scene.passes, QueueRef(gpu, "graphics"), first, pixels,
                         lambda spec: f"render{gpu}" if single else f"render{gpu}.{spec.name}",

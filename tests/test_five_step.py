@@ -169,3 +169,82 @@ def test_measured_run_recorded_before_a_new_option_still_matches():
     check_recorded_config(config, exp, "old/summary.json")
     with pytest.raises(InputError, match="config.inputs.schedule.pipelining"):
         check_recorded_config(config, make_experiment(gpus=2, pipelining="lockstep"), "old/summary.json")
+
+
+def _costs(**composite) -> dict:
+    prof = profile_dict(gpus=3)
+    prof["gpus"][0]["costs"]["composite_sort_first"].update(composite)
+    return prof
+
+
+def test_sort_first_interleaved_strips_exact_timeline():
+    """8x6 in 4 strips of [1, 1, 1, 3] rows, strip k on GPU k mod 2: GPU 0 rows 0 and 2 (16 px),
+    GPU 1 rows 1 and 3-5 (32 px). At 20 ns per pixel: render0 0-320, render1 0-640; GPU 1's
+    128 B cross at 1 B/ns: d2h 640-768, host copy -896, h2d -1024; the composite draws 32 px at
+    1 ns plus 2 strips at 5 ns each: 1024-1066; present 1076."""
+    r = simulate(make_experiment(_costs(ns_per_input=5.0), gpus=2, width=8, height=6, frames=3,
+                                 iterations=20, tiles=4))
+    assert r.config["strip_rows"] == (1, 1, 1, 3) and r.config["tile_rows"] == (2, 4)
+    f0 = r.trace[r.trace.frame == 0].set_index("task")
+    assert (f0.loc["render0", "start_ns"], f0.loc["render0", "end_ns"]) == (0, 320)
+    assert (f0.loc["render1", "start_ns"], f0.loc["render1", "end_ns"]) == (0, 640)
+    assert (f0.loc["h2d1", "start_ns"], f0.loc["h2d1", "end_ns"]) == (896, 1024)
+    assert (f0.loc["composite", "start_ns"], f0.loc["composite", "end_ns"]) == (1024, 1066)
+    assert f0.loc["present", "end_ns"] == 1076
+    assert r.config["contribution_bytes_per_frame"] == 128
+    from mgpusim.program import build_program
+    render = next(t for t in build_program(make_experiment(gpus=2, height=6, tiles=4)).templates[0]
+                  if t.name == "render1")
+    assert "one tile per GPU" in render.params["unsupported"]  # the runner refuses it
+
+
+@pytest.mark.parametrize("opts, field", [({"tiles": 1}, "schedule.tiles"),
+                                         ({"tiles": 7}, "schedule.tiles"),
+                                         ({"tiles": 4, "balance": True}, "schedule.tiles"),
+                                         ({"tiles": 4, "tile_rows": [3, 3]}, "schedule.tiles")])
+def test_sort_first_strips_bad_input(opts, field):
+    from mgpusim import InputError
+    from mgpusim.program import build_program
+    with pytest.raises(InputError, match=field):
+        build_program(make_experiment(gpus=2, height=6, **opts))
+
+
+def _objects_experiment(**sched):
+    data = {"name": "t", "scene": {"width": 8, "height": 4, "objects": 8, "dataset_bytes": 8000,
+                                   "passes": [{"name": "p", "kind": "mesh", "triangles": 800}]},
+            "schedule": {"name": "sort_last", "gpus": 3, "frames": 3, "warmup_frames": 1, **sched}}
+    from mgpusim.experiment import parse_experiment
+    from mgpusim.profile import parse_profile
+    return parse_experiment(data, "t.toml", profile=parse_profile(profile_dict(gpus=3), "p"))
+
+
+def test_sort_last_whole_objects_exact_timeline():
+    """8 statues of 100 triangles on 3 GPUs: 3/3/2 whole objects, renders of 300/300/200 ns at
+    1 ns per triangle. 32 px x 6 B = 192 B per secondary at 1 B/ns: d2h1 300-492, d2h2
+    200-392; the one memcpy thread takes host copies in submission order: 1 492-684, 2 684-876;
+    h2d1 684-876, h2d2 876-1068; composite 64 px 1068-1132; present 1142. The runner draws
+    triangles [0, 300), [300, 600), [600, 800); memory holds 3/8, 3/8, 2/8 of the data set."""
+    from mgpusim.memory import memory_report
+    from mgpusim.program import build_program
+    exp = _objects_experiment()
+    r = simulate(exp)
+    f0 = r.trace[r.trace.frame == 0].set_index("task")
+    assert [f0.loc[f"render{i}", "end_ns"] for i in range(3)] == [300, 300, 200]
+    assert (f0.loc["h2d2", "start_ns"], f0.loc["h2d2", "end_ns"]) == (876, 1068)
+    assert f0.loc["present", "end_ns"] == 1142
+    assert r.config["object_counts"] == (3, 3, 2)
+    program = build_program(exp)
+    ranges = [(t.params["first"], t.params["count"]) for t in program.templates[0] if t.step == "render"]
+    assert ranges == [(0, 300), (300, 300), (600, 200)]
+    used = memory_report(program, exp)
+    assert used["gpu2"]["used_bytes"] - used["gpu1"]["used_bytes"] == 2000 - 3000
+    given = simulate(_objects_experiment(object_counts=[2, 2, 4]))
+    assert given.trace[(given.trace.frame == 0) & (given.trace.task == "render2")].end_ns.item() == 400
+
+
+@pytest.mark.parametrize("counts", [[3, 3], [3, 3, 3], [4, 4, -0.5]])
+def test_sort_last_object_counts_bad_input(counts):
+    from mgpusim import InputError
+    from mgpusim.program import build_program
+    with pytest.raises(InputError, match="schedule.object_counts"):
+        build_program(_objects_experiment(object_counts=counts))

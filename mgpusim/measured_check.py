@@ -152,7 +152,8 @@ def _drop_newer_defaults(config: dict[str, Any], inputs: dict[str, Any], schedul
     ensure_loaded()
     options = SCHEDULES[schedule].options if schedule in SCHEDULES else {}
     for key, option in options.items():
-        if key not in recorded and inputs["schedule"].get(key) == option.default:
+        default = json.loads(json.dumps(option.default, default=list))  # as inputs record it
+        if key not in recorded and inputs["schedule"].get(key) == default:
             inputs["schedule"].pop(key, None)
 
 

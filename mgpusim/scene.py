@@ -33,6 +33,9 @@ class Scene:
     depth_bytes_per_pixel: int = 2
     #: Resident data that sort-last splits between GPUs (geometry + textures), bytes.
     dataset_bytes: int = 0
+    #: Whole objects the geometry is made of (sort-last gives each GPU whole objects);
+    #: 0 = geometry that splits into any fraction.
+    objects: int = 0
 
     @property
     def pixels(self) -> int:
@@ -77,6 +80,7 @@ def parse_scene(t: Table, pass_params: Mapping[str, tuple[str, ...]],
         color_bytes_per_pixel=t.get("color_bytes_per_pixel", int, 4, minimum=1, **per_pixel),
         depth_bytes_per_pixel=t.get("depth_bytes_per_pixel", int, 2, minimum=0, **per_pixel),
         dataset_bytes=t.get("dataset_bytes", int, 0, minimum=0, maximum=L.MAX_BYTES, why=L.WHY_BYTES),
+        objects=t.get("objects", int, 0, minimum=0, maximum=L.MAX_WORK, why=L.WHY_WORK),
     )
     t.finish()
     return scene

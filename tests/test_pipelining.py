@@ -73,3 +73,50 @@ def test_20000_frames_no_drift():
     r = simulate(experiment(profile(gbps=7 / 3), "pipelining", PASSES, frames=20_000, split_at=2,
                             fif=3, chunks=3), record_trace=False)
     assert assert_no_drift(r.frames.present_ns) == 1
+
+
+READS = [timed("a", 1000, output_bytes=200), timed("c", 300), timed("d", 200)]
+
+
+def test_consumer_waits_reads_overlaps_arrival_with_gpu0_work():
+    """a (1000 ns, 200 B out) on GPU 1; c (300) and d (200, reads a) on GPU 0.
+    'all': c waits for a's arrival (d2h 1000-1200, h2d -1400): c 1400-1700, d -1900, present 1910.
+    'reads': c runs at once (0-300) and only d waits: d 1400-1600, present 1610. In 2 chunks
+    the last piece arrives at 1300 (d2h 1000-1100-1200, h2d 1100-1200-1300): d 1300-1500,
+    present 1510; each piece's buffer is reused after frame f-2's d."""
+    base = dict(split_at=1, frames=3)
+    every = simulate(experiment(profile(), "pipelining", READS, fif=3, warmup=1, **base))
+    assert rows(every, "render.c", 0) == [(1400, 1700)] and presents(every)[0] == 1910
+    own = simulate(experiment(profile(), "pipelining", READS, fif=3, warmup=1,
+                              consumer_waits="reads", reads={"d": ["a"]}, **base))
+    assert rows(own, "render.c", 0) == [(0, 300)] and rows(own, "render.d", 0) == [(1400, 1600)]
+    assert presents(own)[0] == 1610 and own.config["consumer_waits"] == "reads"
+    chunked = simulate(experiment(profile(), "pipelining", READS, fif=3, warmup=1, chunks=2,
+                                  consumer_waits="reads", reads={"d": ["a"]}, **base))
+    assert rows(chunked, "out.a#1.h2d", 0) == [(1200, 1300)]
+    assert rows(chunked, "render.d", 0) == [(1300, 1500)] and presents(chunked)[0] == 1510
+    from mgpusim.program import build_program
+    program = build_program(experiment(profile(), "pipelining", READS, split_at=1, chunks=2,
+                                       consumer_waits="reads", reads={"d": ["a"]}))
+    up = next(t for t in program.templates[0] if t.name == "out.a#0.h2d")
+    assert ("render.d", -2) in [(d.task, d.offset) for d in up.deps]
+
+
+def test_consumer_waits_unread_piece_arrives_before_present():
+    """Nobody on GPU 0 reads a: c and d run at once (0-300-500), the present waits for a's
+    arrival at 1400 (1400-1410)."""
+    r = simulate(experiment(profile(), "pipelining", READS, split_at=1, frames=2, fif=3, warmup=1,
+                            consumer_waits="reads"))
+    assert rows(r, "render.d", 0) == [(300, 500)] and rows(r, "present", 0) == [(1400, 1410)]
+
+
+@pytest.mark.parametrize("opts, field", [
+    ({"reads": {"d": ["a"]}}, "schedule.reads"),
+    ({"consumer_waits": "reads", "reads": {"a": ["a"]}}, "schedule.reads.a"),
+    ({"consumer_waits": "reads", "reads": {"d": ["c"]}}, "schedule.reads.d"),
+    ({"consumer_waits": "reads", "reads": {"d": "a"}}, "schedule.reads.d"),
+    ({"consumer_waits": "some"}, "schedule.consumer_waits")])
+def test_consumer_waits_bad_input(opts, field):
+    from mgpusim.program import build_program
+    with pytest.raises(InputError, match=field):
+        build_program(experiment(profile(), "pipelining", READS, split_at=1, **opts))

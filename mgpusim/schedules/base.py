@@ -60,6 +60,9 @@ class FrameProgram:
     footprints: tuple[Footprint, ...] = ()
     resources: tuple[Resource, ...] | None = None
     rate_tasks: tuple[str, ...] = ()
+    #: Display refresh rate (Hz) the present waits for (vsync, FIFO: one flip per refresh);
+    #: 0 = present as soon as its work ends. Set from `schedule.refresh_hz` for every schedule.
+    refresh_hz: float = 0.0
 
     def tasks(self, frame: int) -> tuple[Task, ...]:
         return self.templates[frame % len(self.templates)]
@@ -68,6 +71,10 @@ class FrameProgram:
     def buffers(self) -> int:
         """The deepest multi-buffering of the declared resources (1 without resources)."""
         return max((r.buffers for r in self.resources or ()), default=1)
+
+
+#: Bound on `schedule.refresh_hz` (vsync).
+MAX_REFRESH_HZ = 10_000.0
 
 
 @dataclass(frozen=True)
@@ -92,6 +99,7 @@ class ScheduleConfig:
     warmup_frames: int
     frames_in_flight: int
     options: Mapping[str, Any]
+    refresh_hz: float = 0.0
 
     def opt(self, key: str) -> Any:
         return self.options[key]
@@ -134,6 +142,8 @@ def parse_schedule_config(t: Table) -> ScheduleConfig:
         frames_in_flight=t.get("frames_in_flight", int, 2, minimum=1, maximum=L.MAX_BUFFERS,
                                why=L.WHY_ALLOC),
         options=MappingProxyType(options),
+        refresh_hz=t.get("refresh_hz", float, 0.0, minimum=0.0, maximum=MAX_REFRESH_HZ,
+                         why="faster than any display"),
     )
     t.finish()
     if cfg.warmup_frames >= cfg.frames:

@@ -9,6 +9,7 @@ ahead of the last present.
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from types import MappingProxyType
 
 from .. import limits as L
@@ -21,11 +22,20 @@ from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes
                    present_task, present_work, queue_or_graphics, register)
 from .five_step_io import bind_io
 
+#: `pipelining` modes, from most to least overlap (see OPTIONS).
+PIPELINING = ("full", "secondary_wait", "lockstep")
+
 OPTIONS = {
     "host_copy": Option(bool, True, "step 3: copy between the two staging buffers on host "
                                     "threads (false: one shared host allocation)"),
     "buffers": Option(int, 2, "contribution and staging buffers per secondary", minimum=1,
                       maximum=L.MAX_BUFFERS, why=L.WHY_ALLOC),
+    "pipelining": Option(str, "full", "how much of the five steps overlaps across frames: "
+                         "'full' (every step, limited only by buffers and frames in flight), "
+                         "'secondary_wait' (a secondary renders its next frame only after its "
+                         "download ended: the reference code's waitIdle), 'lockstep' (no GPU "
+                         "starts a frame before the previous one was presented)",
+                         choices=PIPELINING),
 }
 SORT_FIRST_OPTIONS = {
     **OPTIONS,
@@ -34,6 +44,15 @@ SORT_FIRST_OPTIONS = {
     "balance": Option(bool, False, "sort-first: size the tiles from the GPUs' pass costs so "
                       "that every graphics queue carries the same load per frame (the primary's "
                       "includes compositing and present); overrides tile_rows"),
+    "tiles": Option(int, 0, "sort-first: the screen in this many horizontal strips of equal "
+                    "height (the last takes the remainder), strip k on GPU k mod N (interleaved "
+                    "small tiles); 0 = one tile per GPU", minimum=0, maximum=L.MAX_SIDE,
+                    why=L.WHY_IMAGE),
+}
+SORT_LAST_OPTIONS = {
+    **OPTIONS,
+    "object_counts": Option(list, (), "sort-last: whole objects per GPU (sum = scene.objects); "
+                            "empty = as even as whole objects allow, the first GPUs one more"),
 }
 
 
@@ -45,12 +64,47 @@ def tile_rows(height: int, gpus: int) -> list[int]:
 @register("sort_first", "Five-step sort-first (split-frame) pipeline: horizontal tiles, colour only",
           SORT_FIRST_OPTIONS)
 def build_sort_first(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> FrameProgram:
+    if cfg.opt("tiles") and cfg.opt("tiles") != cfg.gpus:
+        return _build_strips(cfg, scene, profile)
     rows = _sort_first_rows(cfg, scene, profile)
     pixels = [scene.width * r for r in rows]
     contribution = [p * scene.color_bytes_per_pixel for p in pixels]
     composite = _composite("composite_sort_first", cfg.gpus - 1, sum(pixels[1:]))
     return _build(cfg, scene, profile, pixels, [1.0] * cfg.gpus, contribution, composite,
                   {"tile_rows": tuple(rows), "balanced": bool(cfg.opt("balance"))})
+
+
+def strip_gpus(height: int, tiles: int, gpus: int) -> tuple[list[int], list[int]]:
+    """Interleaved sort-first strips: their heights (equal, the last takes the remainder) and
+    rows per GPU (strip k on GPU k mod `gpus`)."""
+    strips = even_split(height, tiles)
+    rows = [sum(strips[g::gpus]) for g in range(gpus)]
+    return strips, rows
+
+
+def _build_strips(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> FrameProgram:
+    """Sort-first over `tiles` interleaved strips: each GPU renders its strips in one pass
+    (scissored to them), a secondary's strips cross as one copy, and the composite draws one
+    rectangle per strip from a secondary (its `input` term counts the strips)."""
+    n, tiles = cfg.gpus, cfg.opt("tiles")
+    for key in ("balance", "tile_rows"):
+        if cfg.opt(key):
+            raise InputError(f"tiles = {tiles} places interleaved strips; it cannot be combined "
+                             f"with {key}", field="schedule.tiles")
+    if tiles < n or tiles > scene.height:
+        raise InputError(f"expected 0 or {n}..{scene.height} strips (at least one per GPU, at "
+                         f"most one per row), got {tiles}", field="schedule.tiles")
+    strips, rows = strip_gpus(scene.height, tiles, n)
+    pixels = [scene.width * r for r in rows]
+    contribution = [p * scene.color_bytes_per_pixel for p in pixels]
+    remote = sum(1 for k in range(tiles) if k % n)
+    composite = _composite("composite_sort_first", remote, sum(pixels[1:]))
+    record = {"tile_rows": tuple(rows), "strip_rows": tuple(strips), "tiles": tiles,
+              "balanced": False}
+    why = (f"the Vulkan runner renders one tile per GPU; schedule.tiles = {tiles} interleaved "
+           "strips are simulated only")
+    return _build(cfg, scene, profile, pixels, [1.0] * n, contribution, composite, record,
+                  unsupported=why)
 
 
 def _sort_first_rows(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> list[int]:
@@ -109,14 +163,41 @@ def balanced_rows(scene: Scene, profile: HardwareProfile, n: int) -> list[int]:
     return rows
 
 
-@register("sort_last", "Five-step sort-last pipeline: geometry split evenly, full-frame colour + depth",
-          OPTIONS)
+@register("sort_last", "Five-step sort-last pipeline: geometry split evenly (or in whole objects), "
+          "full-frame colour + depth", SORT_LAST_OPTIONS)
 def build_sort_last(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> FrameProgram:
     n = cfg.gpus
     per_gpu = scene.color_bytes + scene.depth_bytes
     composite = _composite("composite_sort_last", n - 1, (n - 1) * scene.pixels)
-    return _build(cfg, scene, profile, [scene.pixels] * n, [1.0 / n] * n, [per_gpu] * n,
-                  composite, {"geometry_share": 1.0 / n})
+    counts = object_counts(cfg, scene)
+    if counts is None:
+        shares, bounds = [1.0 / n] * n, [(i, i + 1, n) for i in range(n)]
+        record: dict = {"geometry_share": 1.0 / n}
+    else:
+        shares = [c / scene.objects for c in counts]
+        bounds = [(sum(counts[:i]), sum(counts[:i + 1]), scene.objects) for i in range(n)]
+        record = {"geometry_share": max(shares), "object_counts": tuple(counts)}
+    return _build(cfg, scene, profile, [scene.pixels] * n, shares, [per_gpu] * n,
+                  composite, record, geometry=bounds)
+
+
+def object_counts(cfg: ScheduleConfig, scene: Scene) -> list[int] | None:
+    """Whole objects per GPU (None: the geometry splits evenly into fractions): as given, or
+    as even as whole objects allow with the first GPUs taking one more (8 on 3 GPUs: 3/3/2)."""
+    given, n = list(cfg.opt("object_counts")), cfg.gpus
+    if not scene.objects:
+        if given:
+            raise InputError("object_counts needs scene.objects (the whole objects to share)",
+                             field="schedule.object_counts")
+        return None
+    if not given:
+        base, extra = divmod(scene.objects, n)
+        return [base + (1 if i < extra else 0) for i in range(n)]
+    if len(given) != n or not all(isinstance(c, int) and not isinstance(c, bool) and c >= 0
+                                  for c in given) or sum(given) != scene.objects:
+        raise InputError(f"expected {n} non-negative integers summing to scene.objects = "
+                         f"{scene.objects}, got {given!r}", field="schedule.object_counts")
+    return given
 
 
 def _composite(kind: str, inputs: int, pixels: int) -> PassSpec:
@@ -125,13 +206,17 @@ def _composite(kind: str, inputs: int, pixels: int) -> PassSpec:
 
 def _build(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, pixels: list[int],
            shares: list[float], contribution: list[int], composite: PassSpec,
-           record: dict) -> FrameProgram:
+           record: dict, *, geometry: list[tuple[int, int, int]] | None = None,
+           unsupported: str | None = None) -> FrameProgram:
+    """The five steps for every GPU: `pixels`, geometry `shares` and `contribution` bytes per
+    GPU; `geometry` = per GPU (first, end, of units) of the mesh it draws (the runner's
+    triangle range); `unsupported`: why the Vulkan runner cannot run this program."""
     n, buffers, fif = cfg.gpus, cfg.opt("buffers"), cfg.frames_in_flight
     host_copy = cfg.opt("host_copy")
     tasks: list[Task] = []
     last_render: list[str] = []
     for i in range(n):
-        tasks.extend(_renders(i, scene, pixels[i], shares[i], fif, buffers))
+        tasks.extend(_renders(i, scene, pixels[i], shares[i], fif, buffers, cfg.opt("pipelining")))
         last_render.append(tasks[-1].name)
     uploads = []
     h2d_queue = queue_or_graphics(profile, 0, "transfer")
@@ -154,10 +239,13 @@ def _build(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, pixels: 
                               tuple(Dep(t) for t in [last_render[0], *uploads])))
     before_present = "composite" if n > 1 else last_render[0]
     tasks.append(present_task(primary, scene.pixels, before_present))
-    record.update(buffers=buffers, host_copy=host_copy,
+    record.update(buffers=buffers, host_copy=host_copy, pipelining=cfg.opt("pipelining"),
                   contribution_bytes_per_frame=sum(contribution[1:]))
     tasks, resources = bind_io(tasks, scene, n, composite.kind, record.get("tile_rows"),
-                               buffers, host_copy)
+                               buffers, host_copy, geometry)
+    if unsupported:
+        tasks = [replace(t, params=MappingProxyType({**t.params, "unsupported": unsupported}))
+                 if isinstance(t, PassTask) and t.step == "render" else t for t in tasks]
     return FrameProgram(cfg.name, n, cfg.frames, cfg.warmup_frames, (tuple(tasks),),
                         record=MappingProxyType(record), resources=resources,
                         footprints=_footprints(scene, pixels, shares, contribution, buffers))
@@ -175,10 +263,17 @@ def _footprints(scene: Scene, pixels: list[int], shares: list[float], contributi
 
 
 def _renders(gpu: int, scene: Scene, pixels: int, share: float, fif: int,
-             buffers: int) -> list[PassTask]:
+             buffers: int, pipelining: str = "full") -> list[PassTask]:
     """The scene's passes on one GPU's graphics queue; the first waits for frame f-fif's
-    present (frames in flight) and, on a secondary, for its contribution buffer to be free."""
+    present (frames in flight) and, on a secondary, for its contribution buffer to be free.
+    Less `pipelining` adds waits: 'secondary_wait' a secondary's download of the previous
+    frame (its host thread idles until then before submitting more), 'lockstep' the previous
+    frame's present on every GPU."""
     first = (Dep("present", -fif),) + ((Dep(f"d2h{gpu}", -buffers),) if gpu > 0 else ())
+    if pipelining != "full" and gpu > 0 and buffers > 1:
+        first += (Dep(f"d2h{gpu}", -1),)
+    if pipelining == "lockstep" and fif > 1:
+        first += (Dep("present", -1),)
     single = len(scene.passes) == 1
     return chain_passes(scene.passes, QueueRef(gpu, "graphics"), first, pixels,
                         lambda spec: f"render{gpu}" if single else f"render{gpu}.{spec.name}",

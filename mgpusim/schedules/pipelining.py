@@ -36,6 +36,13 @@ OPTIONS = {
                      maximum=L.MAX_CHUNKS, why=L.WHY_ALLOC),
     "buffers": Option(int, 2, "copies of the intermediate buffers on each GPU", minimum=1,
                       maximum=L.MAX_BUFFERS, why=L.WHY_ALLOC),
+    "consumer_waits": Option(str, "all", "'all': GPU 0's first pass waits for every piece "
+                             "that crosses; 'reads': each GPU 0 pass waits only for the pieces "
+                             "of the GPU 1 outputs it reads (`reads`), so a piece's arrival "
+                             "overlaps GPU 0's other work of the same frame",
+                             choices=("all", "reads")),
+    "reads": Option(dict, {}, "with consumer_waits = 'reads': GPU 0 pass -> the GPU 1 passes "
+                    "whose outputs it reads (a filter reads its inputs unless listed here)"),
 }
 
 
@@ -48,21 +55,32 @@ def build_pipelining(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile
     tasks: list[Task] = []
     arrivals: list[str] = []
     buffers, fif = cfg.opt("buffers"), cfg.frames_in_flight
+    readers = _readers(cfg, scene, split)
     if first:
         renders = _passes(1, first, scene, (Dep("present", -fif),))
-        copies, arrivals = _copies(cfg, scene, profile, route, first)
+        copies, arrivals = _copies(cfg, scene, profile, route, first, readers)
         # GPU 1 may overwrite its outputs once the copies of frame f-buffers have read them
         reads = tuple(Dep(c.name, -buffers) for c in copies if c.step in ("d2h", "p2p"))
         renders[0] = _with_deps(renders[0], reads)
         tasks.extend(_interleave(renders, copies))
-    gate = (Dep("present", -fif),) + tuple(Dep(a) for a in arrivals)
-    tasks.extend(_passes(0, rest, scene, gate))
-    last = tasks[-1].name if rest else arrivals[-1]
-    tasks.append(present_task(QueueRef(0, "graphics"), scene.pixels, last))
+    if readers is None:  # 'all': GPU 0's first pass waits for everything
+        gate = (Dep("present", -fif),) + tuple(Dep(a) for _, a in arrivals)
+        tasks.extend(_passes(0, rest, scene, gate))
+        after = tuple(Dep(a) for _, a in arrivals[-1:]) if not rest else ()
+    else:
+        tasks.extend(_reading_passes(rest, scene, fif, readers, arrivals))
+        unread = {g for g, _ in arrivals} - {g for gs in readers.values() for g in gs}
+        after = tuple(Dep(a) for g, a in arrivals if g in unread)
+    last = tasks[-1].name if rest else None
+    present = present_task(QueueRef(0, "graphics"), scene.pixels, last or after[-1].task)
+    if last and after:  # pieces nobody on GPU 0 reads still arrive within the frame
+        present = _with_deps(present, after)
+    tasks.append(present)
     moved = sum(_output_bytes(p) for p in first)
     record = {"split_at": split, "gpu1_passes": tuple(p.name for p in first),
               "bytes_per_frame": moved, "chunks": cfg.opt("chunks"), "buffers": buffers,
-              "copy_granularity": cfg.opt("copy_granularity")}
+              "copy_granularity": cfg.opt("copy_granularity"),
+              "consumer_waits": cfg.opt("consumer_waits")}
     tasks, resources = _bind(tasks, cfg, scene, split)
     return FrameProgram(cfg.name, cfg.gpus, cfg.frames, cfg.warmup_frames, (tuple(tasks),),
                         record=MappingProxyType(record), resources=resources,
@@ -175,24 +193,81 @@ def _passes(gpu: int, specs: tuple[PassSpec, ...], scene: Scene, first_deps: tup
 
 
 def _copies(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, route: Route,
-            first: tuple[PassSpec, ...]) -> tuple[list[Task], list[str]]:
-    """The crossing tasks, and the names whose end means a piece has arrived on GPU 0."""
+            first: tuple[PassSpec, ...],
+            readers: dict[str, tuple[str, ...]] | None) -> tuple[list[Task], list[tuple[str, str]]]:
+    """The crossing tasks, and (copy group, name whose end means a piece of it arrived on
+    GPU 0). A group's buffer is free again for frame f once frame f-buffers' consumer ran:
+    GPU 0's first pass ('all'), else the last GPU 0 pass reading it, else the present."""
     if cfg.opt("copy_granularity") == "frame":
         groups = [("out", sum(_output_bytes(p) for p in first), f"render.{first[-1].name}")]
     else:
         groups = [(f"out.{p.name}", _output_bytes(p), f"render.{p.name}") for p in first]
     tasks: list[Task] = []
-    arrivals: list[str] = []
+    arrivals: list[tuple[str, str]] = []
     chunks, buffers = cfg.opt("chunks"), cfg.opt("buffers")
     for prefix, nbytes, after in groups:
+        consumer = _consumer(cfg, scene, prefix, readers)
         for c, size in enumerate(even_split(nbytes, chunks)):
             name = prefix if chunks == 1 else f"{prefix}#{c}"
             piece = cross(name, profile, 1, 0, size, (Dep(after),), route,
-                          dst_deps=(Dep(f"render.{_gpu0_first(cfg, scene)}", -buffers),)
-                          if _gpu0_first(cfg, scene) else (Dep("present", -buffers),))
+                          dst_deps=(Dep(consumer, -buffers),))
             tasks.extend(piece)
-            arrivals.append(piece[-1].name)
+            arrivals.append((prefix, piece[-1].name))
     return tasks, arrivals
+
+
+def _consumer(cfg: ScheduleConfig, scene: Scene, group: str,
+              readers: dict[str, tuple[str, ...]] | None) -> str:
+    """The task after which a copy group's destination buffer may be overwritten."""
+    if readers is None:
+        first = _gpu0_first(cfg, scene)
+        return f"render.{first}" if first else "present"
+    reading = [p for p, groups in readers.items() if group in groups]
+    return f"render.{reading[-1]}" if reading else "present"
+
+
+def _readers(cfg: ScheduleConfig, scene: Scene,
+             split: int) -> dict[str, tuple[str, ...]] | None:
+    """With consumer_waits = 'reads': every GPU 0 pass (in order) -> the copy groups whose
+    arrival it waits for; None with 'all'. A pass reads the GPU 1 outputs `reads` lists,
+    a filter without an entry its `inputs` passes that ran on GPU 1."""
+    given = cfg.opt("reads")
+    if cfg.opt("consumer_waits") == "all":
+        if given:
+            raise InputError("reads applies with consumer_waits = 'reads'", field="schedule.reads")
+        return None
+    first = [p.name for p in scene.passes[:split]]
+    rest = scene.passes[split:]
+    for name, sources in given.items():
+        if name not in {p.name for p in rest}:
+            raise InputError(f"{name!r} is not a pass on GPU 0 (those are "
+                             f"{[p.name for p in rest]})", field=f"schedule.reads.{name}")
+        if not isinstance(sources, list) or not all(s in first for s in sources):
+            raise InputError(f"expected a list of passes that run on GPU 1 ({first}), got "
+                             f"{sources!r}", field=f"schedule.reads.{name}")
+    frame_copy = cfg.opt("copy_granularity") == "frame"
+    out: dict[str, tuple[str, ...]] = {}
+    for index, spec in enumerate(scene.passes[split:], start=split):
+        sources = given.get(spec.name)
+        if sources is None and spec.kind == "filter":
+            found = filter_sources(scene.passes, index)
+            sources = [s for s in found if s in first] if not isinstance(found, str) else []
+        sources = [s for s in sources or () if _output_bytes(_spec(scene, s)) or frame_copy]
+        out[spec.name] = tuple(dict.fromkeys("out" if frame_copy else f"out.{s}" for s in sources))
+    return out
+
+
+def _spec(scene: Scene, name: str) -> PassSpec:
+    return next(p for p in scene.passes if p.name == name)
+
+
+def _reading_passes(rest: tuple[PassSpec, ...], scene: Scene, fif: int,
+                    readers: dict[str, tuple[str, ...]],
+                    arrivals: list[tuple[str, str]]) -> list[PassTask]:
+    """GPU 0's passes in order; each also waits for every piece of the groups it reads."""
+    out = _passes(0, rest, scene, (Dep("present", -fif),))
+    return [_with_deps(t, tuple(Dep(a) for g, a in arrivals if g in readers[spec.name]))
+            for t, spec in zip(out, rest)]
 
 
 def _needed_on_gpu0(scene: Scene, split: int) -> set[str]:

@@ -69,6 +69,9 @@ class Analytic:
     """The recurrence for one program and cost model (see the module doc)."""
 
     def __init__(self, program: FrameProgram, costs: CostModel, effects: frozenset[str]):
+        if program.refresh_hz:
+            raise InputError("the analytic fidelity level does not model vsync: use --fidelity "
+                             "queues or full", field="schedule.refresh_hz")
         self.program, self.costs, self.effects = program, costs, effects
         host = costs.profile.host
         submission = "host_submission" in effects

@@ -22,7 +22,7 @@ from typing import Callable
 import numpy as np
 import simpy
 
-from ..costs import CostModel
+from ..costs import CostModel, gbps_fraction, round_half_up
 from ..errors import InputError, ScheduleError
 from ..limits import INT64_MAX
 from ..schedules.base import FrameProgram, even_split, task_device, waits_for_labels
@@ -115,6 +115,10 @@ class Engine:
         self._ops: list[list[_Op]] = []
         #: called with the frame number when a frame presents (the fast-forward's probe)
         self.on_present: Callable[[int], None] | None = None
+        #: vsync: the display's refresh period in ns (exact), and the last flip's time
+        self.refresh_period = (Fraction(10 ** 9) / gbps_fraction(program.refresh_hz)
+                               if program.refresh_hz else None)
+        self._last_flip = -1
         self._setup_resources()
 
     # ----- build -------------------------------------------------------------------------
@@ -353,14 +357,32 @@ class Engine:
         end = self.env.now
         if start < self.frame_start[frame]:
             self.frame_start[frame] = start
-        if op.is_present:
-            self.present_end[frame] = end
-            if self.on_present is not None:
-                self.on_present(frame)
         if self.record:
             self.rows.append((frame, op.device, engine, op.task.step, op.task.name, start, end, nbytes,
                               op.waits_for))
+        if not op.is_present:
+            self._complete(frame, op.task)
+        elif self.refresh_period is None:
+            self._presented(frame, op)
+        else:  # vsync: the frame is shown (and its present complete) at the next free refresh
+            flip = self._next_vblank(end)
+            self.env.timeout(flip - end).callbacks.append(lambda _e: self._presented(frame, op))
+
+    def _presented(self, frame: int, op: _Op) -> None:
+        self.present_end[frame] = self.env.now
+        if self.on_present is not None:
+            self.on_present(frame)
         self._complete(frame, op.task)
+
+    def _next_vblank(self, t: int) -> int:
+        """The first refresh at or after `t` and after the last flip (FIFO: one image per
+        refresh). Refresh k is at k x period ns, rounded half up (exact for any rate)."""
+        period = self.refresh_period
+        k = max(0, int(t // period) - 1)
+        while (v := round_half_up(k * period)) < t or v <= self._last_flip:
+            k += 1
+        self._last_flip = v
+        return v
 
     def _dispatch_host_copy(self, frame: int, op: _Op) -> None:
         """Split into parts of >= chunk_min_bytes, at most one per memcpy thread."""

@@ -58,8 +58,8 @@ def test_gain_is_the_fps_ratio_and_more_gpus_help(results):
     fps = {r: cr.results[r].summary["fps"] for r in ("sf_1gpu", "sf_2gpu", "sf_3gpu")}
     assert cr.derived["sf_gain_2"] == pytest.approx(fps["sf_2gpu"] / fps["sf_1gpu"])
     assert 1.5 < cr.derived["sf_gain_2"] < cr.derived["sf_gain_3"] <= 3.0
-    # pipelining the five steps never loses frame rate against the lock-step build
-    assert cr.derived["sf_gain_3"] >= cr.derived["sf_gain_3_lockstep"]
+    # more overlap never loses frame rate: lock-step <= as built <= fully pipelined
+    assert cr.derived["sf_gain_3_lockstep"] <= cr.derived["sf_gain_3_as_built"] <= cr.derived["sf_gain_3"]
 
 
 def test_span_column_matches_the_trace(results):

@@ -94,6 +94,7 @@ class Case:
     columns: tuple[Column, ...] = ()
     derived: tuple[Derived, ...] = ()
     timelines: tuple[str, ...] = ()
+    timeline_frames: int = 3  # the last this many frames of each timeline run are drawn
 
     def run(self, name: str) -> Run:
         return next(r for r in self.runs if r.name == name)
@@ -153,7 +154,8 @@ def load_case(ref: str | Path) -> Case:
             raise top.error("timelines", f"{t!r} is not a run of this case")
     case = Case(name=top.get("name", str, path.parent.name), file=path, title=top.get("title", str),
                 description=top.get("description", str, ""), runs=runs, columns=columns,
-                derived=derived, timelines=timelines)
+                derived=derived, timelines=timelines,
+                timeline_frames=top.get("timeline_frames", int, 3, minimum=1, maximum=50))
     top.get("source", str, "")  # free text: the public source the case restates
     top.finish()
     return case
@@ -290,22 +292,29 @@ def table(cr: CaseResult) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _fmt(value: Any) -> str:
-    if isinstance(value, float):
-        if math.isnan(value):
-            return ""
-        if math.isinf(value):
-            return "unbounded"
-        return f"{value:.3g}" if abs(value) < 1 else f"{value:,.2f}" if abs(value) < 1000 else f"{value:,.0f}"
-    return str(value)
+def _fmt(value: Any, kind: str = "") -> str:
+    """A table cell: busy fractions in percent, section counts whole, others to 3 figures."""
+    if not isinstance(value, float):
+        return str(value)
+    if math.isnan(value):
+        return ""
+    if math.isinf(value):
+        return "unbounded"
+    if kind == "utilization":
+        return f"{value:.0%}"
+    if kind == "sections_fit":
+        return f"{value:.0f}"
+    return f"{value:.3g}" if abs(value) < 1 else f"{value:,.2f}" if abs(value) < 1000 else f"{value:,.0f}"
 
 
 def markdown(cr: CaseResult) -> str:
     """The predicted table and the derived quantities, as markdown."""
     df = table(cr).drop(columns=["run"])
     df = df.loc[:, [c for c in df.columns if not df[c].isna().all()]]
+    kinds = {c.label: c.kind for c in cr.case.columns}
     lines = ["| " + " | ".join(df.columns) + " |", "|" + "---|" * len(df.columns)]
-    lines += ["| " + " | ".join(_fmt(v) for v in row) + " |" for row in df.itertuples(index=False)]
+    lines += ["| " + " | ".join(_fmt(v, kinds.get(col, "")) for col, v in zip(df.columns, row)) + " |"
+              for row in df.itertuples(index=False)]
     if cr.case.derived:
         lines += ["", "| derived quantity | predicted |", "|---|---|"]
         for d in cr.case.derived:
@@ -313,3 +322,21 @@ def markdown(cr: CaseResult) -> str:
             shown = f"{v:.2f}x" if d.kind == "ratio" and d.metric in ("fps",) else _fmt(v)
             lines.append(f"| {d.label} | {shown} |")
     return "\n".join(lines) + "\n"
+
+
+#: The predicted table in a docs page sits between these lines (docs/cases/refresh.py fills it).
+BLOCK_START, BLOCK_END = "<!-- predictions:start -->", "<!-- predictions:end -->"
+
+
+def docs_block(page: str) -> str:
+    """The text between the prediction markers of a docs page ('' when it has none)."""
+    if BLOCK_START not in page or BLOCK_END not in page:
+        return ""
+    return page.split(BLOCK_START, 1)[1].split(BLOCK_END, 1)[0].strip("\n") + "\n"
+
+
+def with_docs_block(page: str, block: str) -> str:
+    """The page with its prediction block replaced by `block`."""
+    head, rest = page.split(BLOCK_START, 1)
+    tail = rest.split(BLOCK_END, 1)[1]
+    return f"{head}{BLOCK_START}\n{block.rstrip()}\n{BLOCK_END}{tail}"

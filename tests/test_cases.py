@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from mgpusim import cli
-from mgpusim.cases import (Case, CaseResult, case_names, copy_limited_fps, load_case, markdown, metric,
-                           run_case, span_ms, steady, table)
+from mgpusim.cases import (Case, CaseResult, case_names, copy_limited_fps, docs_block, load_case, markdown,
+                           metric, run_case, span_ms, steady, table, with_docs_block)
 from mgpusim.errors import InputError
 from mgpusim.memory import max_dataset_bytes
 from mgpusim.simulate import simulate
@@ -187,3 +187,22 @@ def test_lavapipe_study_loads_and_simulates_on_the_lavapipe_profile(name):
 def test_case_type_is_what_load_case_returns():
     assert isinstance(load_case(ROOT / "experiments" / "cases" / "vulkan_thesis"), Case)
     assert metric(run_case(load_case("xr_stereo"), frames=6), "quest3_pcie4_one", "gather_ms") > 0
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_docs_page_shows_the_current_predictions(name):
+    """The page's table is what the command prints now (refresh: docs/cases/refresh.py)."""
+    page = (ROOT / "docs" / "cases" / f"{name}.md").read_text()
+    assert docs_block(page) == markdown(run_case(load_case(name))), \
+        f"docs/cases/{name}.md is out of date: run PYTHONPATH=. python docs/cases/refresh.py"
+    for run in load_case(name).timelines:
+        assert (ROOT / "docs" / "img" / "cases" / f"{name}_{run}.png").is_file()
+        assert f"../img/cases/{name}_{run}.png" in page
+
+
+def test_docs_block_round_trip():
+    page = "intro\n<!-- predictions:start -->\nold\n<!-- predictions:end -->\nafter\n"
+    new = with_docs_block(page, "| a |\n")
+    assert docs_block(new) == "| a |\n"
+    assert new.startswith("intro\n") and new.endswith("after\n")
+    assert docs_block("no markers") == ""

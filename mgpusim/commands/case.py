@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..cases import case_names, load_case, markdown, run_case, table
+from ..cases import CaseResult, case_names, load_case, markdown, run_case, table
 from ..errors import InputError
 from ..outpath import check_out_dir
 from ..output import write_table, write_text
@@ -44,10 +44,17 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     text = f"# {case.title}\n\n{case.description}\n\n{markdown(result)}"
     files = [write_text(text, out / "predictions.md"), write_table(table(result), out / "predictions.csv")]
-    for name in case.timelines:
-        res, run_ = result.results[name], case.run(name)
-        files.append(timeline_png(res.trace, out / f"timeline_{name}.png", res.links,
-                                  f"{case.name} / {name}: {run_.label}", last_frames(res.trace, 3)))
+    files += write_timelines(result, out, "timeline_")
     print(text, end="")
     print(f"\nwrote {', '.join(str(f) for f in files)}")
     return 0
+
+
+def write_timelines(result: CaseResult, folder: Path, prefix: str) -> list[Path]:
+    """A timeline picture of the last frames of every run the case names: `<prefix><run>.png`."""
+    case, files = result.case, []
+    for name in case.timelines:
+        res, run_ = result.results[name], case.run(name)
+        files.append(timeline_png(res.trace, folder / f"{prefix}{name}.png", res.links,
+                                  f"{case.name} / {name}: {run_.label}", last_frames(res.trace, case.timeline_frames)))
+    return files

@@ -1,0 +1,31 @@
+"""Refresh the case pages: the predicted table of every docs/cases/<case>.md (between its
+prediction markers) and the timeline pictures docs/img/cases/<case>_<run>.png, from the same
+simulation `mgpusim case <case>` runs. tests/test_cases.py checks that the pages' tables are
+current.
+
+    PYTHONPATH=. python docs/cases/refresh.py
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from mgpusim.cases import case_names, load_case, markdown, run_case, with_docs_block
+from mgpusim.commands.case import write_timelines
+
+DOCS = Path(__file__).resolve().parent
+IMAGES = DOCS.parent / "img" / "cases"
+
+
+def main() -> None:
+    IMAGES.mkdir(parents=True, exist_ok=True)
+    for name in case_names():
+        result = run_case(load_case(name))
+        page = DOCS / f"{name}.md"
+        page.write_text(with_docs_block(page.read_text(), markdown(result)))
+        for path in write_timelines(result, IMAGES, f"{name}_"):
+            print(path)
+        print(page)
+
+
+if __name__ == "__main__":
+    main()

@@ -86,6 +86,8 @@ class Derived:
 
 @dataclass(frozen=True)
 class Case:
+    """One source system's runs, and what to report about them."""
+
     name: str
     file: Path
     title: str
@@ -95,6 +97,7 @@ class Case:
     derived: tuple[Derived, ...] = ()
     timelines: tuple[str, ...] = ()
     timeline_frames: int = 3  # the last this many frames of each timeline run are drawn
+    source: str = ""  # the public source the case restates, in words
 
     def run(self, name: str) -> Run:
         return next(r for r in self.runs if r.name == name)
@@ -142,12 +145,12 @@ def load_case(ref: str | Path) -> Case:
     top = Table(read_toml(path), str(path))
     runs = tuple(r for t in top.tables("runs") for r in _runs(t, path.parent))
     names = [r.name for r in runs]
-    dup = sorted({n for n in names if names.count(n) > 1})
-    if dup:
-        raise InputError(f"run names must be unique, repeated: {', '.join(dup)}", file=str(path), field="runs")
-    columns = tuple(_column(t, set(names)) for t in (top.tables("columns") if top.has("columns") else []))
-    known_metrics = set(SUMMARY_METRICS) | {c.name for c in columns}
-    derived = tuple(_derived(t, set(names), known_metrics) for t in (top.tables("derived") if top.has("derived") else []))
+    _unique(names, top, "runs")
+    columns = tuple(_column(t, set(names)) for t in _list(top, "columns"))
+    _unique([c.name for c in columns], top, "columns")
+    metrics = set(SUMMARY_METRICS) | {c.name for c in columns}
+    derived = tuple(_derived(t, set(names), metrics) for t in _list(top, "derived"))
+    _unique([d.name for d in derived], top, "derived")
     timelines = tuple(top.get("timelines", list, []))
     for t in timelines:
         if t not in names:
@@ -155,10 +158,20 @@ def load_case(ref: str | Path) -> Case:
     case = Case(name=top.get("name", str, path.parent.name), file=path, title=top.get("title", str),
                 description=top.get("description", str, ""), runs=runs, columns=columns,
                 derived=derived, timelines=timelines,
-                timeline_frames=top.get("timeline_frames", int, 3, minimum=1, maximum=50))
-    top.get("source", str, "")  # free text: the public source the case restates
+                timeline_frames=top.get("timeline_frames", int, 3, minimum=1, maximum=50),
+                source=top.get("source", str, ""))
     top.finish()
     return case
+
+
+def _list(top: Table, key: str) -> list[Table]:
+    return top.tables(key) if top.has(key) else []
+
+
+def _unique(names: list[str], top: Table, key: str) -> None:
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise top.error(key, f"names must be unique, repeated: {', '.join(dup)}")
 
 
 def _runs(t: Table, base: Path) -> list[Run]:
@@ -173,6 +186,8 @@ def _runs(t: Table, base: Path) -> list[Run]:
     if len(keys) > 1:
         raise t.error("each", "give one key whose values make one run each")
     values = each.get(keys[0], list) if keys else []
+    if keys and (not values or any(isinstance(v, (list, dict)) for v in values)):
+        raise each.error(keys[0], "expected a non-empty list of single values")
     each.finish()
     t.finish()
     if not keys:
@@ -183,9 +198,9 @@ def _runs(t: Table, base: Path) -> list[Run]:
 
 
 def _column(t: Table, runs: set[str]) -> Column:
-    col = Column(name=t.get("name", str), label=t.get("label", str), kind=t.get("kind", str, choices=COLUMN_KINDS),
-                 select=t.get("select", str, ""), runs=tuple(t.get("runs", list, [])),
-                 section_bytes=t.get("section_bytes", int, 0, minimum=0))
+    col = Column(name=t.get("name", str), label=t.get("label", str),
+                 kind=t.get("kind", str, choices=COLUMN_KINDS), select=t.get("select", str, ""),
+                 runs=tuple(t.get("runs", list, [])), section_bytes=t.get("section_bytes", int, 0, minimum=0))
     t.finish()
     for r in col.runs:
         if r not in runs:
@@ -199,7 +214,8 @@ def _column(t: Table, runs: set[str]) -> Column:
 
 def _derived(t: Table, runs: set[str], metrics: set[str]) -> Derived:
     pair = t.get("runs", list)
-    d = Derived(name=t.get("name", str), label=t.get("label", str), kind=t.get("kind", str, choices=DERIVED_KINDS),
+    d = Derived(name=t.get("name", str), label=t.get("label", str),
+                kind=t.get("kind", str, choices=DERIVED_KINDS),
                 metric=t.get("metric", str, choices=sorted(metrics)), runs=tuple(pair))  # type: ignore[arg-type]
     t.finish()
     if len(pair) != 2 or any(r not in runs for r in pair):
@@ -211,7 +227,7 @@ def run_case(case: Case, frames: int | None = None) -> CaseResult:
     """Simulate every run (with `frames` frames each when given, a fifth of them warm-up)
     and compute the columns and the derived quantities."""
     extra = {} if frames is None else {"schedule.frames": frames, "schedule.warmup_frames": max(1, frames // 5)}
-    exps = {r.name: r.load(extra) for r in case.runs}
+    exps = {r.name: _load(case, r, extra) for r in case.runs}
     results = {name: simulate(exp) for name, exp in exps.items()}
     out = CaseResult(case, results, exps)
     for run in case.runs:
@@ -221,6 +237,14 @@ def run_case(case: Case, frames: int | None = None) -> CaseResult:
         a, b = (metric(out, r, d.metric) for r in d.runs)
         out.derived[d.name] = a / b if d.kind == "ratio" else a - b
     return out
+
+
+def _load(case: Case, run: Run, extra: dict[str, Any]) -> Experiment:
+    """A run's experiment; an error in it also names the case file and the run."""
+    try:
+        return run.load(extra)
+    except InputError as exc:
+        raise InputError(f"{exc} (run {run.name!r} of {case.file})") from None
 
 
 def metric(cr: CaseResult, run: str, name: str) -> float:

@@ -127,7 +127,8 @@ def test_cli_lists_runs_and_writes(tmp_path, capsys):
     assert cli.main(["case", "xr_stereo", "--out", str(out), "--frames", "8"]) == 0
     text = (out / "predictions.md").read_text()
     assert "weak" in text and "strong" in text
-    assert {p.name for p in out.glob("timeline_*.png")} == {f"timeline_{n}.png" for n in load_case("xr_stereo").timelines}
+    drawn = {p.name for p in out.glob("timeline_*.png")}
+    assert drawn == {f"timeline_{n}.png" for n in load_case("xr_stereo").timelines}
     assert cli.main(["case", "xr_stereo", "--frames", "1"]) == 2
 
 
@@ -149,11 +150,19 @@ def _case_file(tmp_path: Path, body: str, top: str = "") -> Path:
     ('', '[[runs]]\nname = "a"\nlabel = "again"\nexperiment = "x.toml"\n', "runs.experiment"),
     ('colums = 1\n', '', "colums"),
     ('', 'each = { "schedule.gpus" = [1], "scene.width" = [64] }\n', "runs.each"),
+    ('', 'each = { "schedule.gpus" = [] }\n', "runs.each.schedule.gpus"),
+    ('', '[[columns]]\nname = "c"\nlabel = "c"\nkind = "span"\nselect = "x"\n' * 2, "columns"),
 ])
 def test_bad_case_files_name_the_field(tmp_path, top, body, field):
     with pytest.raises(InputError) as exc:
         load_case(_case_file(tmp_path, body, top))
     assert re.sub(r"\[\d+\]", "", exc.value.field or "") == field
+
+
+def test_a_bad_override_names_the_run(tmp_path):
+    path = _case_file(tmp_path, 'set = ["schedule.gpus=9"]\n')
+    with pytest.raises(InputError, match=r"schedule.gpus.*run 'a' of .*case.toml"):
+        run_case(load_case(path), frames=4)
 
 
 def test_each_expands_one_run_per_value(tmp_path):

@@ -55,6 +55,7 @@ def write_timelines(result: CaseResult, folder: Path, prefix: str) -> list[Path]
     case, files = result.case, []
     for name in case.timelines:
         res, run_ = result.results[name], case.run(name)
+        frames = last_frames(res.trace, case.timeline_frames)
         files.append(timeline_png(res.trace, folder / f"{prefix}{name}.png", res.links,
-                                  f"{case.name} / {name}: {run_.label}", last_frames(res.trace, case.timeline_frames)))
+                                  f"{case.name} / {name}: {run_.label}", frames))
     return files

@@ -115,7 +115,34 @@ class HostCopyTask:
         return max(1, min(threads, self.bytes // self.chunk_min_bytes))
 
 
-Task = PassTask | CopyTask | HostCopyTask
+@dataclass(frozen=True, slots=True)
+class CpuTask:
+    """Per-frame work of the application on one of its host threads (`thread`, e.g. "main":
+    game logic, command recording, a CPU-side copy, the wait on a fence that precedes it).
+
+    Its cost is its own linear model, `fixed_ns + ns_per_item * items` (integer ns, rounded
+    half up once): the schedule that places it says what an item is (a particle, a byte).
+    Tasks of one thread run in submission order, one at a time; a CPU task fed by a GPU or
+    the memcpy threads starts `host.dispatch_ns` after that input (the thread wakes on a fence).
+    Only the simulator runs it: the Vulkan runner refuses a program that has one."""
+
+    name: str
+    step: str
+    thread: str = "main"
+    fixed_ns: float = 0.0
+    ns_per_item: float = 0.0
+    items: float = 0.0
+    deps: tuple[Dep, ...] = ()
+    skip_if_busy: bool = False
+    params: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType(
+        {"unsupported": "CPU tasks are simulated only: the Vulkan runner runs GPU work and copies"}))
+
+    @property
+    def cost_ns(self) -> float:
+        return self.fixed_ns + self.ns_per_item * self.items
+
+
+Task = PassTask | CopyTask | HostCopyTask | CpuTask
 
 
 @dataclass(frozen=True, slots=True)

@@ -19,7 +19,7 @@ from ..errors import ScheduleError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
 from ..costs import pass_work
-from ..tasks import CopyTask, Dep, HostCopyTask, PassTask, QueueRef, Resource, Task
+from ..tasks import CopyTask, CpuTask, Dep, HostCopyTask, PassTask, QueueRef, Resource, Task
 
 
 @dataclass(frozen=True)
@@ -172,8 +172,19 @@ def chain_passes(specs: Sequence[PassSpec], queue: QueueRef, first_deps: tuple[D
 
 
 def task_device(task: Task) -> str:
-    """Where a task runs: `gpu{i}` for queue work, `host` for host copies."""
-    return "host" if isinstance(task, HostCopyTask) else task.queue.device_name
+    """Where a task runs: `gpu{i}` for queue work, `host` for host copies and CPU tasks."""
+    return "host" if isinstance(task, (HostCopyTask, CpuTask)) else task.queue.device_name
+
+
+def wakes_host(producer: Task, task: Task) -> bool:
+    """Whether a host thread must wake to act on `task`'s input from `producer`: always for a
+    host copy (the dispatching thread), for a CPU task unless the input ran on its own
+    thread, else when the input ran on another device."""
+    if isinstance(task, HostCopyTask):
+        return True
+    if isinstance(task, CpuTask):
+        return not (isinstance(producer, CpuTask) and producer.thread == task.thread)
+    return task_device(producer) != task_device(task)
 
 
 def waits_for_labels(program: FrameProgram) -> list[dict[str, str]]:
@@ -232,6 +243,9 @@ def _check_task(program: FrameProgram, profile: HardwareProfile, phase: int, tas
         if dep.task not in names[(phase + dep.offset) % period]:
             raise ScheduleError(f"task {task.name!r} depends on {dep.task!r} (frame offset "
                                 f"{dep.offset}), which that frame does not have")
+    if isinstance(task, CpuTask) and not task.cost_ns <= L.MAX_TASK_NS:
+        raise ScheduleError(f"CPU task {task.name!r} would take {task.cost_ns:.3g} ns, more than "
+                            f"the {L.MAX_TASK_NS:.0e} ns one task may last")
     if isinstance(task, HostCopyTask) and task.chunk_min_bytes < 1:
         raise ScheduleError(f"task {task.name!r}: chunk_min_bytes must be >= 1")
 

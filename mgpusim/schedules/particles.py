@@ -24,13 +24,16 @@ from .. import limits as L
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
-from ..tasks import Dep, PassTask, QueueRef, Resource, Task
+from ..tasks import CpuTask, Dep, PassTask, QueueRef, Resource, Task
 from ..particle_layout import CALC_BYTES, STATE_BYTES, UPDATE_DT, VERTEX_BYTES
 from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, present_task,
                    queue_or_graphics, register)
 from .binding import Bindings, bind_crossing
 from .crossing import Route, cross
 from .pass_io import bind_full_frame, filter_sources, pass_image
+
+#: The application's thread that records and submits frames (CPU tasks run on it).
+MAIN_THREAD = "main"
 
 OPTIONS = {
     "particles": Option(int, 4096, "number of particles", minimum=0, maximum=10**12,
@@ -49,6 +52,14 @@ OPTIONS = {
     "update_queue": Option(str, "compute", "queue of the particle GPU that runs the update: "
                            "'compute' (its graphics queue where it has none) or 'graphics'",
                            choices=("compute", "graphics")),
+    "cpu_frame_us": Option(float, 0.0, "the application's own CPU work per frame (game logic, "
+                           "command recording) on its main thread, before it submits the "
+                           "primary's passes; 0 = none", minimum=0.0,
+                           maximum=L.MAX_TASK_NS / 1000, why=L.WHY_TIME),
+    "cpu_copy": Option(bool, False, "the main thread itself waits for the vertex download and "
+                       "copies the readback buffer into the upload buffer (a CPU task at one "
+                       "memcpy thread's speed) before it submits the upload; false: the copy "
+                       "runs on the memcpy threads (host_copy) or not at all"),
 }
 
 
@@ -62,14 +73,17 @@ def build_particles(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile)
              else QueueRef(pg, "graphics"))
     update = PassTask("particle_update", "particle_update", queue,
                       "particle_update", MappingProxyType({"particle": float(n)}),
-                      (Dep("present", -cfg.frames_in_flight),), skip_if_busy=new_wait)
+                      _frame_gate(cfg), skip_if_busy=new_wait)
     chain: list[Task] = [update]
     if pg != 0:
+        cpu_copy = cfg.opt("cpu_copy")
         chain += cross("particles", profile, pg, 0, nbytes, (Dep(update.name),),
-                       Route("transfer", "host", cfg.opt("host_copy")),
+                       Route("transfer", "host", cfg.opt("host_copy") and not cpu_copy),
                        dst_deps=(Dep("particle_render", -2),), skip=new_wait)
+        if cpu_copy:
+            chain = _copy_on_main_thread(chain, profile, nbytes, new_wait)
     draw_deps = () if new_wait else (Dep(chain[-1].name),)
-    tasks = chain + _engine(cfg, scene, n, draw_deps)
+    tasks = _cpu_frame(cfg) + chain + _engine(cfg, scene, n, draw_deps)
     record = {"particles": n, "particle_gpu": pg, "policy": cfg.opt("policy"),
               "vertex_bytes_per_frame": nbytes if pg != 0 else 0}
     tasks, resources = _bind(tasks, cfg, scene, n, pg, new_wait)
@@ -78,7 +92,33 @@ def build_particles(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile)
                         footprints=_footprints(scene, cfg.gpus, n, pg), resources=resources)
 
 
-#: The runner's time step of one particle update (a skipped update's step goes to the next).
+def _frame_gate(cfg: ScheduleConfig) -> tuple[Dep, ...]:
+    """What a frame's first GPU work waits for: frame f-fif's present and, with CPU work per
+    frame, the main thread having done it (it submits the frame)."""
+    gate = (Dep("present", -cfg.frames_in_flight),)
+    return gate + ((Dep("cpu.frame"),) if cfg.opt("cpu_frame_us") else ())
+
+
+def _cpu_frame(cfg: ScheduleConfig) -> list[Task]:
+    """The main thread's own work of a frame (`cpu.frame`), once frame f-fif was presented."""
+    if not cfg.opt("cpu_frame_us"):
+        return []
+    return [CpuTask("cpu.frame", "cpu", MAIN_THREAD, fixed_ns=cfg.opt("cpu_frame_us") * 1000,
+                    deps=(Dep("present", -cfg.frames_in_flight),))]
+
+
+def _copy_on_main_thread(chain: list[Task], profile: HardwareProfile, nbytes: int,
+                         new_wait: bool) -> list[Task]:
+    """[update, download, upload] -> [update, download, `cpu.particles`, upload]: the main
+    thread waits for the download (it wakes on the fence) and copies the readback buffer
+    into the upload buffer at one memcpy thread's speed before it submits the upload."""
+    update, d2h, h2d = chain
+    host = profile.host
+    copy = CpuTask("cpu.particles", "cpu_copy", MAIN_THREAD, fixed_ns=host.host_copy_fixed_ns,
+                   ns_per_item=1 / host.memcpy_thread_gbps, items=nbytes,
+                   deps=(Dep(d2h.name),), skip_if_busy=new_wait)
+    return [update, d2h, copy, replace(h2d, deps=(Dep(copy.name),) + h2d.deps[1:])]
+
 
 
 def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, n: int, pg: int,
@@ -162,7 +202,7 @@ def _engine(cfg: ScheduleConfig, scene: Scene, n: int, draw_deps: tuple[Dep, ...
     at = [p.name for p in scene.passes].index(cfg.opt("draw_after")) + 1
     specs = scene.passes[:at] + (draw,) + scene.passes[at:]
     out: list[Task] = []
-    for task in chain_passes(specs, queue, (Dep("present", -cfg.frames_in_flight),), scene.pixels,
+    for task in chain_passes(specs, queue, _frame_gate(cfg), scene.pixels,
                              lambda spec: "particle_render" if spec is draw else f"render.{spec.name}",
                              step=lambda spec: "particle_render" if spec is draw else "render"):
         out.append(replace(task, deps=task.deps + draw_deps) if task.name == "particle_render" else task)

@@ -24,7 +24,7 @@ from ..costs import CostModel
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..schedules.base import FrameProgram
-from ..tasks import CopyTask, HostCopyTask, Task
+from ..tasks import CopyTask, CpuTask, HostCopyTask, Task
 
 FIDELITIES: tuple[str, ...] = ("analytic", "queues", "full")
 
@@ -80,7 +80,7 @@ def _copy_caps_bind(program: FrameProgram, profile: HardwareProfile) -> bool:
 
 
 def _gaps(program: FrameProgram, profile: HardwareProfile) -> bool:
-    return any(not isinstance(t, HostCopyTask) and profile.gpus[t.queue.device].task_gap_ns
+    return any(not isinstance(t, (HostCopyTask, CpuTask)) and profile.gpus[t.queue.device].task_gap_ns
                for t in _all_tasks(program))
 
 

@@ -22,11 +22,11 @@ from typing import Callable
 import numpy as np
 import simpy
 
-from ..costs import CostModel, gbps_fraction, round_half_up
+from ..costs import CostModel, gbps_fraction, ns, round_half_up
 from ..errors import InputError, ScheduleError
 from ..limits import INT64_MAX
-from ..schedules.base import FrameProgram, even_split, task_device, waits_for_labels
-from ..tasks import CopyTask, HostCopyTask, PassTask, QueueRef, Task
+from ..schedules.base import FrameProgram, even_split, task_device, waits_for_labels, wakes_host
+from ..tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
 from .channel import Channel, FixedRateChannel
 from .effects import choose_effects
 from .executors import Executor, Runner, make_executors
@@ -53,6 +53,8 @@ class _Op:
     #: The queue's idle time before the task (the GPU's task_gap_ns), on the host's executor.
     gap: int = 0
     gap_run: Runner | None = None
+    #: a CPU task: its thread wakes `dispatch_ns` after an input from elsewhere, no submit cost
+    cpu: bool = False
 
 
 @dataclass
@@ -133,7 +135,7 @@ class Engine:
                 for dep in task.deps:
                     k = -dep.offset
                     producer = self._index[(q - k) % self.period][dep.task]
-                    cross = task_device(producer) != task_device(task) or task_device(task) == "host"
+                    cross = wakes_host(producer, task)
                     out[(q - k) % self.period][dep.task].append(
                         (task.name, k, task, len(task.deps), lag, cross))
         return out
@@ -156,7 +158,8 @@ class Engine:
                 if isinstance(task, HostCopyTask):
                     host_ops[phase].append(op)
                 else:
-                    queues.setdefault(task.queue, [[] for _ in range(self.period)])[phase].append(op)
+                    stream = ("host", task.thread) if isinstance(task, CpuTask) else task.queue
+                    queues.setdefault(stream, [[] for _ in range(self.period)])[phase].append(op)
         for plan in queues.values():
             self.processes.append(self.env.process(self._stream_proc(plan)))
         if any(host_ops):
@@ -184,6 +187,11 @@ class Engine:
                                       "host.memcpy_thread_gbps")
             return _Op(task, duration, None, None, 0, "host", "memcpy", self._waits_for[phase][task.name],
                        task.name == self.program.present_task)
+        if isinstance(task, CpuTask):  # one host thread's time (a core's, on emulated GPUs)
+            run, amount = self.executors["host"].runner(duration, 1)
+            return _Op(task, duration, None, None, 0, "host", task.thread,
+                       self._waits_for[phase][task.name], task.name == self.program.present_task,
+                       run, amount, cpu=True)
         executor = self.executors[task.queue.device_name]
         if isinstance(task, CopyTask):
             nbytes = task.bytes
@@ -236,6 +244,8 @@ class Engine:
             return self.costs.pass_ns(task.queue.device, task.kind, task.work)
         if isinstance(task, CopyTask):
             return self.costs.copy_setup_ns(task.queue.device, task.queue.family, task.path, task.peer)
+        if isinstance(task, CpuTask):
+            return ns(task.cost_ns)
         return self.costs.profile.host.host_copy_fixed_ns
 
     def _channel_name(self, task: CopyTask) -> str:
@@ -333,11 +343,16 @@ class Engine:
                     self._dispatch_host_copy(frame, op)
                     continue
                 if self._host_timeline:
-                    submitted = self._submitted(key, submitted)
-                    if submitted > env.now:
-                        yield env.timeout(submitted - env.now)
-                    if self._submit_load is not None:
-                        self._submit_load(self._submit_ns)  # the submit thread's cores
+                    if op.cpu:  # the thread itself wakes on its input; nothing to submit
+                        wait = self._dispatch_wait(key)
+                        if wait:
+                            yield env.timeout(wait)
+                    else:
+                        submitted = self._submitted(key, submitted)
+                        if submitted > env.now:
+                            yield env.timeout(submitted - env.now)
+                        if self._submit_load is not None:
+                            self._submit_load(self._submit_ns)  # the submit thread's cores
                 if op.gap:
                     yield op.gap_run(op.gap)
                 start = env.now

@@ -42,7 +42,7 @@ WORK_TERMS: dict[str, WorkFn] = {
 #: `output_bytes` (what a pipelined pass hands to the next GPU). Anything else is a typo.
 PASS_PARAMS: dict[str, tuple[str, ...]] = {
     "fragment_loop": ("iterations",),
-    "mesh": ("triangles",),
+    "mesh": ("triangles", "texture_bytes"),
     "composite_sort_first": ("inputs", "pixels"),
     "composite_sort_last": ("inputs", "pixels"),
     "present": (),
@@ -62,9 +62,19 @@ PLACED_TERMS: dict[str, tuple[str, ...]] = {
 }
 
 
+#: Terms a pass kind adds only where the scene gives their parameter, so that profiles and
+#: measure tables without it keep the older model: (term, parameter), times the geometry share.
+#: A textured mesh samples `texture_bytes` of decoded texture per frame (its GPU's geometry
+#: share of them), one texture byte at `ns_per_texture_byte`.
+OPTIONAL_TERMS: dict[str, tuple[tuple[str, str], ...]] = {
+    "mesh": (("texture_byte", "texture_bytes"),),
+}
+
+
 def work_terms(kind: str) -> tuple[str, ...]:
     """The work terms a pass kind produces (its cost keys are ns_per_<term>)."""
-    return tuple(WORK_TERMS[kind](PassSpec(kind, kind), 1.0, 1.0)) + PLACED_TERMS.get(kind, ())
+    return (tuple(WORK_TERMS[kind](PassSpec(kind, kind), 1.0, 1.0)) + PLACED_TERMS.get(kind, ())
+            + tuple(term for term, _ in OPTIONAL_TERMS.get(kind, ())))
 
 
 def ns(value: float) -> int:
@@ -85,6 +95,9 @@ def pass_work(spec: PassSpec, pixels: float, geometry_share: float = 1.0,
               place: Placement | None = None) -> dict[str, float]:
     """A pass's work terms; `place` (where it draws) adds the kind's placed terms."""
     work = WORK_TERMS[spec.kind](spec, pixels, geometry_share)
+    for term, param in OPTIONAL_TERMS.get(spec.kind, ()):
+        if param in spec.params:
+            work[term] = spec.param(param) * geometry_share
     if place is not None and spec.kind == "mesh":
         seen = coverage(place.mesh_view(int(spec.param("triangles"))))
         work.update(visible_triangle=seen.triangles, triangle_edge=seen.edge,

@@ -32,9 +32,19 @@ class Footprint:
     share: float
     targets: int
     staging: int
+    #: With a sectioned data set: the whole sections this GPU holds and their bytes (which
+    #: then replace `share` x the data set).
+    sections: tuple[str, ...] = ()
+    section_bytes: int | None = None
+
+    def data(self, dataset_bytes: int) -> int:
+        """Bytes of the data set this GPU holds."""
+        if self.section_bytes is not None:
+            return self.section_bytes
+        return int(round(self.share * dataset_bytes))
 
     def used(self, dataset_bytes: int) -> int:
-        return int(round(self.share * dataset_bytes)) + self.targets + self.staging
+        return self.data(dataset_bytes) + self.targets + self.staging
 
 
 @dataclass(frozen=True)

@@ -260,18 +260,32 @@ def _build(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, pixels: 
                  if isinstance(t, PassTask) and t.step == "render" else t for t in tasks]
     return FrameProgram(cfg.name, n, cfg.frames, cfg.warmup_frames, (tuple(tasks),),
                         record=MappingProxyType(record), resources=resources,
-                        footprints=_footprints(scene, pixels, shares, contribution, buffers))
+                        footprints=_footprints(scene, pixels, shares, contribution, buffers,
+                                               geometry))
 
 
 def _footprints(scene: Scene, pixels: list[int], shares: list[float], contribution: list[int],
-                buffers: int) -> tuple[Footprint, ...]:
+                buffers: int, geometry: list[tuple[int, int, int]] | None = None
+                ) -> tuple[Footprint, ...]:
     """The primary holds its target, the frame's colour and `buffers` receive buffers per
-    secondary; each secondary `buffers` targets (colour + depth) of its contribution."""
+    secondary; each secondary `buffers` targets (colour + depth) of its contribution. With
+    sections, a GPU holds whole sections: those of its objects (sort-last), else all."""
     bpp = scene.color_bytes_per_pixel + scene.depth_bytes_per_pixel
     targets = [p * bpp for p in pixels]
-    primary = Footprint(0, shares[0], targets[0] + scene.color_bytes, buffers * sum(contribution[1:]))
-    return (primary,) + tuple(Footprint(i, shares[i], buffers * targets[i], 0)
+    primary = Footprint(0, shares[0], targets[0] + scene.color_bytes,
+                        buffers * sum(contribution[1:]), **_held(scene, 0, geometry))
+    return (primary,) + tuple(Footprint(i, shares[i], buffers * targets[i], 0,
+                                        **_held(scene, i, geometry))
                               for i in range(1, len(pixels)))
+
+
+def _held(scene: Scene, gpu: int, geometry: list[tuple[int, int, int]] | None) -> dict:
+    """The sections GPU `gpu` holds whole, and their bytes ({} without sections)."""
+    if not scene.sections:
+        return {}
+    begin, end = (geometry[gpu][0], geometry[gpu][1]) if geometry else (0, len(scene.sections))
+    held = scene.sections[begin:end]
+    return {"sections": tuple(s.name for s in held), "section_bytes": sum(s.bytes for s in held)}
 
 
 def _renders(gpu: int, scene: Scene, pixels: int, share: float,

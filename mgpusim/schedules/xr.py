@@ -34,6 +34,7 @@ from .binding import Bindings, bind_crossing
 from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, even_split,
                    present_task, queue_or_graphics, register)
 from .crossing import Route, cross
+from .pass_io import simulated_only
 
 MAX_FRAMES_IN_FLIGHT = 3
 
@@ -144,6 +145,7 @@ def _bind_view(task: PassTask, scene: Scene, v: int, gpu: int,
     if spec.kind not in ("fragment_loop", "mesh"):
         params["unsupported"] = (f"XR views run fragment_loop and mesh passes on the Vulkan "
                                  f"runner, not {spec.kind!r} ({spec.name!r})")
+    params.update(simulated_only(spec))
     return replace(task, writes=(f"gpu{gpu}.view{v}",), params=MappingProxyType(params))
 
 

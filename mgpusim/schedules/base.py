@@ -9,6 +9,7 @@ what each task reads and writes (`resources`, for the Vulkan runner), what every
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Callable, Mapping, Sequence
@@ -86,6 +87,27 @@ class FrameProgram:
 
 #: Bound on `schedule.refresh_hz` (vsync).
 MAX_REFRESH_HZ = 10_000.0
+#: The application's thread that records and submits frames (`schedule.cpu_frame_us` and the
+#: schedules' CPU tasks run on it).
+MAIN_THREAD = "main"
+
+
+def with_cpu_frame(program: FrameProgram, cpu_frame_us: float, frames_in_flight: int) -> FrameProgram:
+    """The program with the application's own CPU work per frame (`cpu.frame`, on the main
+    thread, first in submission order): it starts once frame f-fif was presented, and every
+    task of the frame with no input of its own frame waits for it (the thread submits them)."""
+    if not cpu_frame_us:
+        return program
+    cpu = CpuTask("cpu.frame", "cpu", MAIN_THREAD, fixed_ns=cpu_frame_us * 1000,
+                  deps=(Dep(program.present_task, -frames_in_flight),))
+    gate = Dep(cpu.name)
+
+    def gated(task: Task) -> Task:
+        if any(d.offset == 0 for d in task.deps):
+            return task
+        return dataclasses.replace(task, deps=task.deps + (gate,))
+    templates = tuple((cpu,) + tuple(gated(t) for t in tasks) for tasks in program.templates)
+    return dataclasses.replace(program, templates=templates)
 
 
 @dataclass(frozen=True)
@@ -111,6 +133,7 @@ class ScheduleConfig:
     frames_in_flight: int
     options: Mapping[str, Any]
     refresh_hz: float = 0.0
+    cpu_frame_us: float = 0.0
 
     def opt(self, key: str) -> Any:
         return self.options[key]
@@ -155,6 +178,8 @@ def parse_schedule_config(t: Table) -> ScheduleConfig:
         options=MappingProxyType(options),
         refresh_hz=t.get("refresh_hz", float, 0.0, minimum=0.0, maximum=MAX_REFRESH_HZ,
                          why="faster than any display"),
+        cpu_frame_us=t.get("cpu_frame_us", float, 0.0, minimum=0.0,
+                           maximum=L.MAX_TASK_NS / 1000, why=L.WHY_TIME),
     )
     t.finish()
     if cfg.warmup_frames >= cfg.frames:

@@ -26,14 +26,12 @@ from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
 from ..tasks import CpuTask, Dep, PassTask, QueueRef, Resource, Task
 from ..particle_layout import CALC_BYTES, STATE_BYTES, UPDATE_DT, VERTEX_BYTES
-from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, present_task,
+from .base import (MAIN_THREAD, Footprint, FrameProgram, Option, ScheduleConfig, chain_passes,
+                   present_task,
                    queue_or_graphics, register)
 from .binding import Bindings, bind_crossing
 from .crossing import Route, cross
 from .pass_io import bind_full_frame, filter_sources, pass_image
-
-#: The application's thread that records and submits frames (CPU tasks run on it).
-MAIN_THREAD = "main"
 
 OPTIONS = {
     "particles": Option(int, 4096, "number of particles", minimum=0, maximum=10**12,
@@ -52,10 +50,6 @@ OPTIONS = {
     "update_queue": Option(str, "compute", "queue of the particle GPU that runs the update: "
                            "'compute' (its graphics queue where it has none) or 'graphics'",
                            choices=("compute", "graphics")),
-    "cpu_frame_us": Option(float, 0.0, "the application's own CPU work per frame (game logic, "
-                           "command recording) on its main thread, before it submits the "
-                           "primary's passes; 0 = none", minimum=0.0,
-                           maximum=L.MAX_TASK_NS / 1000, why=L.WHY_TIME),
     "cpu_copy": Option(bool, False, "the main thread itself waits for the vertex download and "
                        "copies the readback buffer into the upload buffer (a CPU task at one "
                        "memcpy thread's speed) before it submits the upload; false: the copy "
@@ -83,7 +77,7 @@ def build_particles(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile)
         if cpu_copy:
             chain = _copy_on_main_thread(chain, profile, nbytes, new_wait)
     draw_deps = () if new_wait else (Dep(chain[-1].name),)
-    tasks = _cpu_frame(cfg) + chain + _engine(cfg, scene, n, draw_deps)
+    tasks = chain + _engine(cfg, scene, n, draw_deps)
     record = {"particles": n, "particle_gpu": pg, "policy": cfg.opt("policy"),
               "vertex_bytes_per_frame": nbytes if pg != 0 else 0}
     tasks, resources = _bind(tasks, cfg, scene, n, pg, new_wait)
@@ -93,18 +87,8 @@ def build_particles(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile)
 
 
 def _frame_gate(cfg: ScheduleConfig) -> tuple[Dep, ...]:
-    """What a frame's first GPU work waits for: frame f-fif's present and, with CPU work per
-    frame, the main thread having done it (it submits the frame)."""
-    gate = (Dep("present", -cfg.frames_in_flight),)
-    return gate + ((Dep("cpu.frame"),) if cfg.opt("cpu_frame_us") else ())
-
-
-def _cpu_frame(cfg: ScheduleConfig) -> list[Task]:
-    """The main thread's own work of a frame (`cpu.frame`), once frame f-fif was presented."""
-    if not cfg.opt("cpu_frame_us"):
-        return []
-    return [CpuTask("cpu.frame", "cpu", MAIN_THREAD, fixed_ns=cfg.opt("cpu_frame_us") * 1000,
-                    deps=(Dep("present", -cfg.frames_in_flight),))]
+    """What a frame's first GPU work waits for: frame f-fif's present."""
+    return (Dep("present", -cfg.frames_in_flight),)
 
 
 def _copy_on_main_thread(chain: list[Task], profile: HardwareProfile, nbytes: int,

@@ -172,11 +172,16 @@ class CostModel:
         if path == "p2p":
             link = self.profile.peer(device, peer if peer is not None else -1)
             return fixed + (link.latency_ns if link else 0)
+        if path == "group":  # through both GPUs' PCIe links
+            other = self.profile.gpus[peer if peer is not None else device]
+            return fixed + max(gpu.link.latency_ns, other.link.latency_ns)
         return fixed
 
     def copy_cap(self, device: int, family: str, path: str) -> Fraction | None:
-        """A queue family's own rate limit for a path (None = only the channel limits it)."""
+        """A queue family's own rate limit for a path (None = only the channel limits it); a
+        device-group copy has its queue family's peer-to-peer cap."""
         gpu = self.profile.gpus[device]
+        path = "p2p" if path == "group" else path
         cap = gpu.copy[family].caps_gbps.get(path) if family in gpu.copy else None
         return gbps_fraction(cap) if cap is not None else None
 
@@ -185,6 +190,11 @@ class CostModel:
         if path == "d2d":
             return gbps_fraction(gpu.local_copy_gbps)
         return gbps_fraction(gpu.link.bandwidth_gbps(path))
+
+    def group_bandwidth(self, src: int, dst: int) -> Fraction:
+        """A device-group copy from `src` to `dst` over PCIe: the slower of the source's d2h
+        and the destination's h2d rate."""
+        return min(self.link_bandwidth(src, "d2h"), self.link_bandwidth(dst, "h2d"))
 
     def peer_bandwidth(self, a: int, b: int) -> Fraction:
         link = self.profile.peer(a, b)

@@ -12,7 +12,7 @@ from types import MappingProxyType
 from typing import Any, Literal, Mapping
 
 QueueFamily = Literal["graphics", "compute", "transfer"]
-CopyPath = Literal["d2h", "h2d", "d2d", "p2p"]
+CopyPath = Literal["d2h", "h2d", "d2d", "p2p", "group"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -74,7 +74,10 @@ class CopyTask:
     """A copy recorded on a queue that moves `bytes` over a path.
 
     `d2h`/`h2d` cross the device's PCIe link (one channel per direction); `p2p` crosses a
-    peer link to device `peer`; `d2d` stays in device memory.
+    peer link to device `peer`; `group` goes GPU to GPU over PCIe inside a device group
+    (linked-node adapter): no host memory, at the slower of the source's d2h and the
+    destination's h2d rate; `d2d` stays in device memory. A `p2p` or `group` copy with `pull`
+    is recorded on the destination and reads the peer's memory (else pushed from the source).
     """
 
     name: str
@@ -85,6 +88,7 @@ class CopyTask:
     deps: tuple[Dep, ...] = ()
     peer: int | None = None
     skip_if_busy: bool = False
+    pull: bool = False
     #: Logical resources copied from and to (the Vulkan runner's binding; the simulator ignores it).
     src: str | None = None
     dst: str | None = None

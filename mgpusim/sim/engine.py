@@ -57,6 +57,12 @@ class _Op:
     cpu: bool = False
 
 
+def group_ends(task: CopyTask) -> tuple[int, int]:
+    """(source, destination) of a device-group copy: pulled by the destination, else pushed."""
+    other = task.peer if task.peer is not None else task.queue.device
+    return (other, task.queue.device) if task.pull else (task.queue.device, other)
+
+
 @dataclass
 class RawResult:
     """What the engine observed; :mod:`mgpusim.results` turns it into tables."""
@@ -217,7 +223,8 @@ class Engine:
     def _check_copy_time(self, task: CopyTask, cap: Fraction | None, setup: int) -> None:
         """A copy alone on its path must end within the bound on one task's time."""
         bw, dev = self._path_bandwidth(task), task.queue.device
-        field = {"p2p": "peer_links", "d2d": f"gpus[{dev}].local_copy_gbps"}.get(
+        field = {"p2p": "peer_links", "d2d": f"gpus[{dev}].local_copy_gbps",
+                 "group": f"gpus[{group_ends(task)[0]}].link.d2h_gbps"}.get(
             task.path, f"gpus[{dev}].link.{task.path}_gbps")
         if cap is not None and cap < bw:
             bw, field = cap, f"gpus[{dev}].copy.{task.queue.family}.{task.path}_gbps"
@@ -250,7 +257,7 @@ class Engine:
 
     def _channel_name(self, task: CopyTask) -> str:
         dev = task.queue.device
-        if task.path == "p2p":
+        if task.path in ("p2p", "group"):
             if task.peer is None:
                 raise ScheduleError(f"copy {task.name!r} on a peer path names no peer")
             return f"peer{dev}-{task.peer}"
@@ -260,6 +267,9 @@ class Engine:
         dev = task.queue.device
         if task.path == "p2p":
             return self.costs.peer_bandwidth(dev, task.peer)  # type: ignore[arg-type]
+        if task.path == "group":
+            src, dst = group_ends(task)
+            return self.costs.group_bandwidth(src, dst)
         return self.costs.link_bandwidth(dev, task.path)
 
     def _channel_for(self, task: CopyTask) -> Channel | FixedRateChannel:

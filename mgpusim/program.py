@@ -13,7 +13,7 @@ from typing import Any
 from .errors import InputError
 from .experiment import Experiment
 from .schedules import SCHEDULES, ensure_loaded
-from .schedules.base import FrameProgram, check_program
+from .schedules.base import FrameProgram, check_program, with_cpu_frame
 from .tasks import HostCopyTask
 
 
@@ -26,6 +26,7 @@ def build_program(exp: Experiment) -> FrameProgram:
         if exc.file is not None:
             raise
         raise InputError(exc.detail, file=exp.file, field=exc.field) from None
+    program = with_cpu_frame(program, exp.schedule.cpu_frame_us, exp.schedule.frames_in_flight)
     check_program(program, exp.profile)
     return with_refresh(program, exp.schedule.refresh_hz)
 
@@ -59,5 +60,6 @@ def recorded_inputs(exp: Experiment) -> dict[str, Any]:
     frames in flight. JSON-shaped (lists, not tuples), as summary.json stores it."""
     passes = [{"name": p.name, "kind": p.kind, **dict(p.params)} for p in exp.scene.passes]
     schedule = {"frames_in_flight": exp.schedule.frames_in_flight, **dict(exp.schedule.options),
-                **({"refresh_hz": exp.schedule.refresh_hz} if exp.schedule.refresh_hz else {})}
+                **{key: getattr(exp.schedule, key) for key in ("refresh_hz", "cpu_frame_us")
+                   if getattr(exp.schedule, key)}}
     return json.loads(json.dumps({"passes": passes, "schedule": schedule}, default=list))

@@ -248,3 +248,22 @@ def test_sort_last_object_counts_bad_input(counts):
     from mgpusim.program import build_program
     with pytest.raises(InputError, match="schedule.object_counts"):
         build_program(_objects_experiment(object_counts=counts))
+
+
+def test_objects_and_strips_carry_their_placed_mesh_terms():
+    """A whole-object share draws the triangle range the runner draws ([300, 600) of 800 for
+    GPU 1 of 3/3/2), and a GPU drawing several strips sums its strips' placed terms."""
+    from mgpusim.geometry import MeshView, Placement, coverage
+    from mgpusim.program import build_program
+    program = build_program(_objects_experiment())
+    work = {t.name: t.work for t in program.templates[0] if t.step == "render"}
+    assert work["render1"]["visible_triangle"] == coverage(MeshView(800, (8, 4), None, 300, 300)).triangles
+    data = {"name": "t", "scene": {"width": 16, "height": 6, "passes": [
+        {"name": "p", "kind": "mesh", "triangles": 400}]},
+        "schedule": {"name": "sort_first", "gpus": 2, "frames": 3, "warmup_frames": 1, "tiles": 3}}
+    from mgpusim.experiment import parse_experiment
+    from mgpusim.profile import parse_profile
+    exp = parse_experiment(data, "t.toml", profile=parse_profile(profile_dict(gpus=2), "p"))
+    render0 = next(t for t in build_program(exp).templates[0] if t.name == "render0")
+    expected = sum(coverage(Placement((16, 6), (0, y, 16, 2)).mesh_view(400)).triangles for y in (0, 4))
+    assert render0.work["visible_triangle"] == expected

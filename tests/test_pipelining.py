@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from mgpusim import InputError, simulate
-from tests.schedule_helpers import assert_no_drift, experiment, presents, profile, rows, timed
+from tests.schedule_helpers import assert_no_drift, experiment, gpu, presents, profile, rows, timed
 
 import pytest
 
@@ -120,3 +120,20 @@ def test_consumer_waits_bad_input(opts, field):
     from mgpusim.program import build_program
     with pytest.raises(InputError, match=field):
         build_program(experiment(profile(), "pipelining", READS, split_at=1, **opts))
+
+
+def test_device_group_copies_go_gpu_to_gpu_over_pcie():
+    """path = 'group' (a linked-node adapter / device group, no peer link in the profile):
+    one copy per piece on GPU 1's copy engine, at the slower of GPU 1's d2h (4 B/ns) and
+    GPU 0's h2d (2 B/ns): a's 200 B 1000-1100, b's 100 B 1400-1450; c 1450-1750, present 1760."""
+    prof = profile([gpu(gbps=2.0), gpu(gbps=4.0)])
+    r = run(frames=2, prof=prof, path="group")
+    assert rows(r, "out.a.group", 0) == [(1000, 1100)] and rows(r, "out.b.group", 0) == [(1400, 1450)]
+    assert set(r.trace[r.trace.task == "out.a.group"].device) == {"gpu1"}
+    assert not r.trace.step.isin(["d2h", "h2d", "host_copy"]).any()
+    assert presents(r)[0] == 1760
+    from mgpusim.program import build_program
+    copy = next(t for t in build_program(experiment(prof, "pipelining", PASSES, split_at=2,
+                                                     path="group")).templates[0]
+                if t.name == "out.a.group")
+    assert copy.path == "group" and copy.src is None  # left unbound: the runner refuses it

@@ -9,6 +9,7 @@ what each task reads and writes (`resources`, for the Vulkan runner), what every
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Callable, Mapping, Sequence
@@ -19,7 +20,8 @@ from ..errors import ScheduleError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
 from ..costs import pass_work
-from ..tasks import CopyTask, Dep, HostCopyTask, PassTask, QueueRef, Resource, Task
+from ..geometry import Placement, even_split  # noqa: F401  (even_split: the schedules' import)
+from ..tasks import CopyTask, CpuTask, Dep, HostCopyTask, PassTask, QueueRef, Resource, Task
 
 
 @dataclass(frozen=True)
@@ -31,9 +33,19 @@ class Footprint:
     share: float
     targets: int
     staging: int
+    #: With a sectioned data set: the whole sections this GPU holds and their bytes (which
+    #: then replace `share` x the data set).
+    sections: tuple[str, ...] = ()
+    section_bytes: int | None = None
+
+    def data(self, dataset_bytes: int) -> int:
+        """Bytes of the data set this GPU holds."""
+        if self.section_bytes is not None:
+            return self.section_bytes
+        return int(round(self.share * dataset_bytes))
 
     def used(self, dataset_bytes: int) -> int:
-        return int(round(self.share * dataset_bytes)) + self.targets + self.staging
+        return self.data(dataset_bytes) + self.targets + self.staging
 
 
 @dataclass(frozen=True)
@@ -75,6 +87,27 @@ class FrameProgram:
 
 #: Bound on `schedule.refresh_hz` (vsync).
 MAX_REFRESH_HZ = 10_000.0
+#: The application's thread that records and submits frames (`schedule.cpu_frame_us` and the
+#: schedules' CPU tasks run on it).
+MAIN_THREAD = "main"
+
+
+def with_cpu_frame(program: FrameProgram, cpu_frame_us: float, frames_in_flight: int) -> FrameProgram:
+    """The program with the application's own CPU work per frame (`cpu.frame`, on the main
+    thread, first in submission order): it starts once frame f-fif was presented, and every
+    task of the frame with no input of its own frame waits for it (the thread submits them)."""
+    if not cpu_frame_us:
+        return program
+    cpu = CpuTask("cpu.frame", "cpu", MAIN_THREAD, fixed_ns=cpu_frame_us * 1000,
+                  deps=(Dep(program.present_task, -frames_in_flight),))
+    gate = Dep(cpu.name)
+
+    def gated(task: Task) -> Task:
+        if any(d.offset == 0 for d in task.deps):
+            return task
+        return dataclasses.replace(task, deps=task.deps + (gate,))
+    templates = tuple((cpu,) + tuple(gated(t) for t in tasks) for tasks in program.templates)
+    return dataclasses.replace(program, templates=templates)
 
 
 @dataclass(frozen=True)
@@ -100,6 +133,7 @@ class ScheduleConfig:
     frames_in_flight: int
     options: Mapping[str, Any]
     refresh_hz: float = 0.0
+    cpu_frame_us: float = 0.0
 
     def opt(self, key: str) -> Any:
         return self.options[key]
@@ -144,6 +178,8 @@ def parse_schedule_config(t: Table) -> ScheduleConfig:
         options=MappingProxyType(options),
         refresh_hz=t.get("refresh_hz", float, 0.0, minimum=0.0, maximum=MAX_REFRESH_HZ,
                          why="faster than any display"),
+        cpu_frame_us=t.get("cpu_frame_us", float, 0.0, minimum=0.0,
+                           maximum=L.MAX_TASK_NS / 1000, why=L.WHY_TIME),
     )
     t.finish()
     if cfg.warmup_frames >= cfg.frames:
@@ -151,29 +187,36 @@ def parse_schedule_config(t: Table) -> ScheduleConfig:
     return cfg
 
 
-def even_split(total: int, parts: int) -> list[int]:
-    """`total` in `parts` equal integer shares, the last taking the remainder: the rule for
-    sort-first tiles, XR half-eye views, chunked copies and host-copy parts alike."""
-    base = total // parts
-    return [base] * (parts - 1) + [total - base * (parts - 1)]
-
-
 def chain_passes(specs: Sequence[PassSpec], queue: QueueRef, first_deps: tuple[Dep, ...],
                  pixels: float, name: Callable[[PassSpec], str], share: float = 1.0,
-                 step: Callable[[PassSpec], str] = lambda spec: "render") -> list[PassTask]:
+                 step: Callable[[PassSpec], str] = lambda spec: "render",
+                 place: Placement | None = None) -> list[PassTask]:
     """Passes in order on one queue: the first waits for `first_deps`, each later one for the
-    pass before it (a queue's submission order with a semaphore per hand-off)."""
+    pass before it (a queue's submission order with a semaphore per hand-off). `place`: where
+    they draw (the part of the frame, geometry share and camera), for the work terms that
+    depend on it (a mesh's visible triangles)."""
     out: list[PassTask] = []
     for spec in specs:
         deps = (Dep(out[-1].name),) if out else first_deps
         out.append(PassTask(name(spec), step(spec), queue, spec.kind,
-                            MappingProxyType(pass_work(spec, pixels, share)), deps))
+                            MappingProxyType(pass_work(spec, pixels, share, place)), deps))
     return out
 
 
 def task_device(task: Task) -> str:
-    """Where a task runs: `gpu{i}` for queue work, `host` for host copies."""
-    return "host" if isinstance(task, HostCopyTask) else task.queue.device_name
+    """Where a task runs: `gpu{i}` for queue work, `host` for host copies and CPU tasks."""
+    return "host" if isinstance(task, (HostCopyTask, CpuTask)) else task.queue.device_name
+
+
+def wakes_host(producer: Task, task: Task) -> bool:
+    """Whether a host thread must wake to act on `task`'s input from `producer`: always for a
+    host copy (the dispatching thread), for a CPU task unless the input ran on its own
+    thread, else when the input ran on another device."""
+    if isinstance(task, HostCopyTask):
+        return True
+    if isinstance(task, CpuTask):
+        return not (isinstance(producer, CpuTask) and producer.thread == task.thread)
+    return task_device(producer) != task_device(task)
 
 
 def waits_for_labels(program: FrameProgram) -> list[dict[str, str]]:
@@ -232,6 +275,9 @@ def _check_task(program: FrameProgram, profile: HardwareProfile, phase: int, tas
         if dep.task not in names[(phase + dep.offset) % period]:
             raise ScheduleError(f"task {task.name!r} depends on {dep.task!r} (frame offset "
                                 f"{dep.offset}), which that frame does not have")
+    if isinstance(task, CpuTask) and not task.cost_ns <= L.MAX_TASK_NS:
+        raise ScheduleError(f"CPU task {task.name!r} would take {task.cost_ns:.3g} ns, more than "
+                            f"the {L.MAX_TASK_NS:.0e} ns one task may last")
     if isinstance(task, HostCopyTask) and task.chunk_min_bytes < 1:
         raise ScheduleError(f"task {task.name!r}: chunk_min_bytes must be >= 1")
 

@@ -13,7 +13,8 @@ from dataclasses import replace
 from types import MappingProxyType
 
 from .. import limits as L
-from ..costs import CostModel, pass_work
+from ..costs import PLACED_TERMS, CostModel, pass_work
+from ..geometry import Placement
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
@@ -70,8 +71,10 @@ def build_sort_first(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile
     pixels = [scene.width * r for r in rows]
     contribution = [p * scene.color_bytes_per_pixel for p in pixels]
     composite = _composite("composite_sort_first", cfg.gpus - 1, sum(pixels[1:]))
+    frame = (scene.width, scene.height)
+    places = [Placement(frame, (0, sum(rows[:i]), scene.width, r)) for i, r in enumerate(rows)]
     return _build(cfg, scene, profile, pixels, [1.0] * cfg.gpus, contribution, composite,
-                  {"tile_rows": tuple(rows), "balanced": bool(cfg.opt("balance"))})
+                  {"tile_rows": tuple(rows), "balanced": bool(cfg.opt("balance"))}, places)
 
 
 def strip_gpus(height: int, tiles: int, gpus: int) -> tuple[list[int], list[int]]:
@@ -103,8 +106,12 @@ def _build_strips(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -
               "balanced": False}
     why = (f"the Vulkan runner renders one tile per GPU; schedule.tiles = {tiles} interleaved "
            "strips are simulated only")
+    frame = (scene.width, scene.height)
+    tops = [sum(strips[:k]) for k in range(tiles)]
+    places = [tuple(Placement(frame, (0, tops[k], scene.width, strips[k]))
+                    for k in range(g, tiles, n)) for g in range(n)]
     return _build(cfg, scene, profile, pixels, [1.0] * n, contribution, composite, record,
-                  unsupported=why)
+                  places, unsupported=why)
 
 
 def _sort_first_rows(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> list[int]:
@@ -169,6 +176,7 @@ def build_sort_last(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile)
     n = cfg.gpus
     per_gpu = scene.color_bytes + scene.depth_bytes
     composite = _composite("composite_sort_last", n - 1, (n - 1) * scene.pixels)
+    frame = (scene.width, scene.height)
     counts = object_counts(cfg, scene)
     if counts is None:
         shares, bounds = [1.0 / n] * n, [(i, i + 1, n) for i in range(n)]
@@ -177,8 +185,9 @@ def build_sort_last(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile)
         shares = [c / scene.objects for c in counts]
         bounds = [(sum(counts[:i]), sum(counts[:i + 1]), scene.objects) for i in range(n)]
         record = {"geometry_share": max(shares), "object_counts": tuple(counts)}
+    places = [Placement(frame, share=(b, units), span=e - b) for b, e, units in bounds]
     return _build(cfg, scene, profile, [scene.pixels] * n, shares, [per_gpu] * n,
-                  composite, record, geometry=bounds)
+                  composite, record, places, geometry=bounds)
 
 
 def object_counts(cfg: ScheduleConfig, scene: Scene) -> list[int] | None:
@@ -206,17 +215,20 @@ def _composite(kind: str, inputs: int, pixels: int) -> PassSpec:
 
 def _build(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, pixels: list[int],
            shares: list[float], contribution: list[int], composite: PassSpec,
-           record: dict, *, geometry: list[tuple[int, int, int]] | None = None,
+           record: dict, places: list[Placement], *,
+           geometry: list[tuple[int, int, int]] | None = None,
            unsupported: str | None = None) -> FrameProgram:
-    """The five steps for every GPU: `pixels`, geometry `shares` and `contribution` bytes per
-    GPU; `geometry` = per GPU (first, end, of units) of the mesh it draws (the runner's
-    triangle range); `unsupported`: why the Vulkan runner cannot run this program."""
+    """The five steps for every GPU: `pixels`, geometry `shares`, `places` (where it draws)
+    and `contribution` bytes per GPU; `geometry` = per GPU (first, end, of units) of the mesh
+    it draws (the runner's triangle range); `unsupported`: why the Vulkan runner cannot run
+    this program."""
     n, buffers, fif = cfg.gpus, cfg.opt("buffers"), cfg.frames_in_flight
     host_copy = cfg.opt("host_copy")
     tasks: list[Task] = []
     last_render: list[str] = []
     for i in range(n):
-        tasks.extend(_renders(i, scene, pixels[i], shares[i], fif, buffers, cfg.opt("pipelining")))
+        tasks.extend(_renders(i, scene, pixels[i], shares[i], places[i], fif, buffers,
+                              cfg.opt("pipelining")))
         last_render.append(tasks[-1].name)
     uploads = []
     h2d_queue = queue_or_graphics(profile, 0, "transfer")
@@ -248,33 +260,63 @@ def _build(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, pixels: 
                  if isinstance(t, PassTask) and t.step == "render" else t for t in tasks]
     return FrameProgram(cfg.name, n, cfg.frames, cfg.warmup_frames, (tuple(tasks),),
                         record=MappingProxyType(record), resources=resources,
-                        footprints=_footprints(scene, pixels, shares, contribution, buffers))
+                        footprints=_footprints(scene, pixels, shares, contribution, buffers,
+                                               geometry))
 
 
 def _footprints(scene: Scene, pixels: list[int], shares: list[float], contribution: list[int],
-                buffers: int) -> tuple[Footprint, ...]:
+                buffers: int, geometry: list[tuple[int, int, int]] | None = None
+                ) -> tuple[Footprint, ...]:
     """The primary holds its target, the frame's colour and `buffers` receive buffers per
-    secondary; each secondary `buffers` targets (colour + depth) of its contribution."""
+    secondary; each secondary `buffers` targets (colour + depth) of its contribution. With
+    sections, a GPU holds whole sections: those of its objects (sort-last), else all."""
     bpp = scene.color_bytes_per_pixel + scene.depth_bytes_per_pixel
     targets = [p * bpp for p in pixels]
-    primary = Footprint(0, shares[0], targets[0] + scene.color_bytes, buffers * sum(contribution[1:]))
-    return (primary,) + tuple(Footprint(i, shares[i], buffers * targets[i], 0)
+    primary = Footprint(0, shares[0], targets[0] + scene.color_bytes,
+                        buffers * sum(contribution[1:]), **_held(scene, 0, geometry))
+    return (primary,) + tuple(Footprint(i, shares[i], buffers * targets[i], 0,
+                                        **_held(scene, i, geometry))
                               for i in range(1, len(pixels)))
 
 
-def _renders(gpu: int, scene: Scene, pixels: int, share: float, fif: int,
-             buffers: int, pipelining: str = "full") -> list[PassTask]:
+def _held(scene: Scene, gpu: int, geometry: list[tuple[int, int, int]] | None) -> dict:
+    """The sections GPU `gpu` holds whole, and their bytes ({} without sections)."""
+    if not scene.sections:
+        return {}
+    begin, end = (geometry[gpu][0], geometry[gpu][1]) if geometry else (0, len(scene.sections))
+    held = scene.sections[begin:end]
+    return {"sections": tuple(s.name for s in held), "section_bytes": sum(s.bytes for s in held)}
+
+
+def _renders(gpu: int, scene: Scene, pixels: int, share: float,
+             place: Placement | tuple[Placement, ...], fif: int, buffers: int,
+             pipelining: str = "full") -> list[PassTask]:
     """The scene's passes on one GPU's graphics queue; the first waits for frame f-fif's
     present (frames in flight) and, on a secondary, for its contribution buffer to be free.
     Less `pipelining` adds waits: 'secondary_wait' a secondary's download of the previous
     frame (its host thread idles until then before submitting more), 'lockstep' the previous
-    frame's present on every GPU."""
+    frame's present on every GPU. A GPU drawing several strips (`place` a tuple) has the
+    placed work terms of each strip, summed (a mesh is set up once per strip)."""
     first = (Dep("present", -fif),) + ((Dep(f"d2h{gpu}", -buffers),) if gpu > 0 else ())
     if pipelining != "full" and gpu > 0 and buffers > 1:
         first += (Dep(f"d2h{gpu}", -1),)
     if pipelining == "lockstep" and fif > 1:
         first += (Dep("present", -1),)
     single = len(scene.passes) == 1
-    return chain_passes(scene.passes, QueueRef(gpu, "graphics"), first, pixels,
-                        lambda spec: f"render{gpu}" if single else f"render{gpu}.{spec.name}",
-                        share)
+    strips = place if isinstance(place, tuple) else None
+    tasks = chain_passes(scene.passes, QueueRef(gpu, "graphics"), first, pixels,
+                         lambda spec: f"render{gpu}" if single else f"render{gpu}.{spec.name}",
+                         share, place=None if strips is not None else place)
+    if strips is None:
+        return tasks
+    return [replace(t, work=MappingProxyType({**t.work, **_placed_sum(spec, share, strips)}))
+            for t, spec in zip(tasks, scene.passes)]
+
+
+def _placed_sum(spec: PassSpec, share: float, places: tuple[Placement, ...]) -> dict[str, float]:
+    """A pass's placed work terms (a mesh's visible triangles, ...) summed over strips."""
+    total: dict[str, float] = {}
+    for place in places:
+        for term in PLACED_TERMS.get(spec.kind, ()):
+            total[term] = total.get(term, 0.0) + pass_work(spec, 0, share, place).get(term, 0.0)
+    return total

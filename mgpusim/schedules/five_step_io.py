@@ -20,6 +20,7 @@ from typing import Any
 
 from ..scene import Scene
 from ..tasks import CopyTask, HostCopyTask, PassTask, Resource, Task
+from .pass_io import simulated_only
 
 Rect = tuple[int, int, int, int]  # x, y, width, height in frame pixels
 
@@ -115,4 +116,5 @@ def _render_params(task: PassTask, scene: Scene, rect: Rect, origin: tuple[int, 
                       count=(total * end // units if depth else total) - first)
     if "iterations" in spec.params:
         params["iterations"] = int(spec.params["iterations"])
+    params.update(simulated_only(spec))
     return params

@@ -24,6 +24,7 @@ from typing import Any
 
 from .. import limits as L
 from ..costs import pass_work
+from ..geometry import Placement
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
@@ -32,7 +33,8 @@ from .afr import present_queue
 from .binding import Bindings, bind_crossing
 from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, even_split,
                    present_task, queue_or_graphics, register)
-from .crossing import Route, cross
+from .crossing import PATHS, Route, cross
+from .pass_io import simulated_only
 
 MAX_FRAMES_IN_FLIGHT = 3
 
@@ -43,8 +45,9 @@ OPTIONS = {
                    choices=("multi", "simulated")),
     "views": Option(int, 0, "2 (one eye per view) or 4 (half an eye); 0 = one per GPU",
                     choices=(0, 2, 4)),
-    "path": Option(str, "auto", "how views reach GPU 0: 'peer', 'host' or 'auto' (peer if the "
-                   "profile has a link)", choices=("auto", "host", "peer")),
+    "path": Option(str, "auto", "how views reach GPU 0: 'peer', 'host', 'group' (device to "
+                   "device over PCIe in a device group, as the sample) or 'auto' (peer if the "
+                   "profile has a link)", choices=PATHS),
     "host_copy": Option(bool, False, "host-to-host memcpy between staging buffers on the host path"),
     "handoff_us": Option(float, 0.0, "cost of one queue-family ownership hand-off (a barrier), "
                          "in reference microseconds (a 'timed' pass)", minimum=0.0,
@@ -143,6 +146,7 @@ def _bind_view(task: PassTask, scene: Scene, v: int, gpu: int,
     if spec.kind not in ("fragment_loop", "mesh"):
         params["unsupported"] = (f"XR views run fragment_loop and mesh passes on the Vulkan "
                                  f"runner, not {spec.kind!r} ({spec.name!r})")
+    params.update(simulated_only(spec))
     return replace(task, writes=(f"gpu{gpu}.view{v}",), params=MappingProxyType(params))
 
 
@@ -181,9 +185,19 @@ def _render_view(v: int, gpu_of: list[int], scene: Scene, pixels: int,
     """View v's passes on its GPU's graphics queue, then the release to the transfer queue."""
     queue = QueueRef(gpu_of[v], "graphics")
     out = chain_passes(scene.passes, queue, _frame_gate(v, len(gpu_of), scene, cfg), pixels,
-                       lambda spec: f"render{v}.{spec.name}")
+                       lambda spec: f"render{v}.{spec.name}", place=_place(v, scene, len(gpu_of)))
     out.append(_handoff(f"release{v}", queue, cfg, (Dep(out[-1].name),)))
     return out
+
+
+def _place(v: int, scene: Scene, views: int) -> Placement:
+    """View v draws its eye's columns `part` (views of one eye split it into equal columns)
+    with that eye's camera: the runner's layout (`_bind`)."""
+    per_eye = views // 2
+    eye, part = divmod(v, per_eye)
+    widths = even_split(scene.width, per_eye)
+    return Placement((scene.width, scene.height), (sum(widths[:part]), 0, widths[part], scene.height),
+                     eye=eye)
 
 
 def _frame_gate(v: int, views: int, scene: Scene, cfg: ScheduleConfig) -> tuple[Dep, ...]:

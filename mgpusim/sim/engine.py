@@ -22,11 +22,11 @@ from typing import Callable
 import numpy as np
 import simpy
 
-from ..costs import CostModel, gbps_fraction, round_half_up
+from ..costs import CostModel, gbps_fraction, ns, round_half_up
 from ..errors import InputError, ScheduleError
 from ..limits import INT64_MAX
-from ..schedules.base import FrameProgram, even_split, task_device, waits_for_labels
-from ..tasks import CopyTask, HostCopyTask, PassTask, QueueRef, Task
+from ..schedules.base import FrameProgram, even_split, task_device, waits_for_labels, wakes_host
+from ..tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
 from .channel import Channel, FixedRateChannel
 from .effects import choose_effects
 from .executors import Executor, Runner, make_executors
@@ -53,6 +53,14 @@ class _Op:
     #: The queue's idle time before the task (the GPU's task_gap_ns), on the host's executor.
     gap: int = 0
     gap_run: Runner | None = None
+    #: a CPU task: its thread wakes `dispatch_ns` after an input from elsewhere, no submit cost
+    cpu: bool = False
+
+
+def group_ends(task: CopyTask) -> tuple[int, int]:
+    """(source, destination) of a device-group copy: pulled by the destination, else pushed."""
+    other = task.peer if task.peer is not None else task.queue.device
+    return (other, task.queue.device) if task.pull else (task.queue.device, other)
 
 
 @dataclass
@@ -133,7 +141,7 @@ class Engine:
                 for dep in task.deps:
                     k = -dep.offset
                     producer = self._index[(q - k) % self.period][dep.task]
-                    cross = task_device(producer) != task_device(task) or task_device(task) == "host"
+                    cross = wakes_host(producer, task)
                     out[(q - k) % self.period][dep.task].append(
                         (task.name, k, task, len(task.deps), lag, cross))
         return out
@@ -156,7 +164,8 @@ class Engine:
                 if isinstance(task, HostCopyTask):
                     host_ops[phase].append(op)
                 else:
-                    queues.setdefault(task.queue, [[] for _ in range(self.period)])[phase].append(op)
+                    stream = ("host", task.thread) if isinstance(task, CpuTask) else task.queue
+                    queues.setdefault(stream, [[] for _ in range(self.period)])[phase].append(op)
         for plan in queues.values():
             self.processes.append(self.env.process(self._stream_proc(plan)))
         if any(host_ops):
@@ -184,6 +193,11 @@ class Engine:
                                       "host.memcpy_thread_gbps")
             return _Op(task, duration, None, None, 0, "host", "memcpy", self._waits_for[phase][task.name],
                        task.name == self.program.present_task)
+        if isinstance(task, CpuTask):  # one host thread's time (a core's, on emulated GPUs)
+            run, amount = self.executors["host"].runner(duration, 1)
+            return _Op(task, duration, None, None, 0, "host", task.thread,
+                       self._waits_for[phase][task.name], task.name == self.program.present_task,
+                       run, amount, cpu=True)
         executor = self.executors[task.queue.device_name]
         if isinstance(task, CopyTask):
             nbytes = task.bytes
@@ -209,7 +223,8 @@ class Engine:
     def _check_copy_time(self, task: CopyTask, cap: Fraction | None, setup: int) -> None:
         """A copy alone on its path must end within the bound on one task's time."""
         bw, dev = self._path_bandwidth(task), task.queue.device
-        field = {"p2p": "peer_links", "d2d": f"gpus[{dev}].local_copy_gbps"}.get(
+        field = {"p2p": "peer_links", "d2d": f"gpus[{dev}].local_copy_gbps",
+                 "group": f"gpus[{group_ends(task)[0]}].link.d2h_gbps"}.get(
             task.path, f"gpus[{dev}].link.{task.path}_gbps")
         if cap is not None and cap < bw:
             bw, field = cap, f"gpus[{dev}].copy.{task.queue.family}.{task.path}_gbps"
@@ -236,11 +251,13 @@ class Engine:
             return self.costs.pass_ns(task.queue.device, task.kind, task.work)
         if isinstance(task, CopyTask):
             return self.costs.copy_setup_ns(task.queue.device, task.queue.family, task.path, task.peer)
+        if isinstance(task, CpuTask):
+            return ns(task.cost_ns)
         return self.costs.profile.host.host_copy_fixed_ns
 
     def _channel_name(self, task: CopyTask) -> str:
         dev = task.queue.device
-        if task.path == "p2p":
+        if task.path in ("p2p", "group"):
             if task.peer is None:
                 raise ScheduleError(f"copy {task.name!r} on a peer path names no peer")
             return f"peer{dev}-{task.peer}"
@@ -250,6 +267,9 @@ class Engine:
         dev = task.queue.device
         if task.path == "p2p":
             return self.costs.peer_bandwidth(dev, task.peer)  # type: ignore[arg-type]
+        if task.path == "group":
+            src, dst = group_ends(task)
+            return self.costs.group_bandwidth(src, dst)
         return self.costs.link_bandwidth(dev, task.path)
 
     def _channel_for(self, task: CopyTask) -> Channel | FixedRateChannel:
@@ -333,11 +353,16 @@ class Engine:
                     self._dispatch_host_copy(frame, op)
                     continue
                 if self._host_timeline:
-                    submitted = self._submitted(key, submitted)
-                    if submitted > env.now:
-                        yield env.timeout(submitted - env.now)
-                    if self._submit_load is not None:
-                        self._submit_load(self._submit_ns)  # the submit thread's cores
+                    if op.cpu:  # the thread itself wakes on its input; nothing to submit
+                        wait = self._dispatch_wait(key)
+                        if wait:
+                            yield env.timeout(wait)
+                    else:
+                        submitted = self._submitted(key, submitted)
+                        if submitted > env.now:
+                            yield env.timeout(submitted - env.now)
+                        if self._submit_load is not None:
+                            self._submit_load(self._submit_ns)  # the submit thread's cores
                 if op.gap:
                     yield op.gap_run(op.gap)
                 start = env.now

@@ -15,8 +15,10 @@ Column kinds (one value per run):
 - `copy_limited_fps`: 1000 / the largest per-frame busy time (ms) of one queue or thread
   among the tasks whose step matches `select`: the frame rate if only those copies limited it;
 - `rate`: a task's steady rate in Hz (`summary.task_rates_hz[select]`);
-- `sections_fit`: whole data-set sections of `section_bytes` that the run's strategy fits on its
-  GPUs (`mgpusim.memory.max_dataset_bytes`).
+- `sections_fit`: how many of the scene's sections (`[[scene.sections]]`) the run's strategy can
+  render: a section counts when every GPU that holds it fits it (`mgpusim.memory`: each GPU
+  loads its sections in order, whole). It reads the memory model only, so it also applies to a
+  run marked `simulate = false` (a data set that overflows cannot be simulated).
 
 Derived kinds (one value per entry): `ratio` (metric of `runs[0]` over `runs[1]`, e.g. the
 frame-rate gain) and `difference` (metric of `runs[0]` minus `runs[1]`, e.g. latency a chunked
@@ -35,7 +37,8 @@ import pandas as pd
 from .config import Table, did_you_mean, read_toml
 from .errors import InputError
 from .experiment import Experiment, load_experiment, parse_overrides
-from .memory import max_dataset_bytes
+from .memory import footprints, held_sections, sections_that_fit
+from .program import build_program
 from .results import Result
 from .shipped import shipped_dir
 from .simulate import simulate
@@ -53,6 +56,7 @@ class Run:
     label: str
     experiment: Path
     sets: tuple[str, ...] = ()
+    simulate: bool = True  # False: memory columns only (the data set may not fit)
 
     def load(self, extra: dict[str, Any] | None = None) -> Experiment:
         return load_experiment(self.experiment, {**parse_overrides(list(self.sets)), **(extra or {})})
@@ -66,11 +70,17 @@ class Column:
     label: str
     kind: str
     select: str = ""
-    runs: tuple[str, ...] = ()  # empty: every run
-    section_bytes: int = 0
+    runs: tuple[str, ...] = ()  # empty: every run (that is simulated, unless memory-only)
 
-    def applies(self, run: str) -> bool:
-        return not self.runs or run in self.runs
+    @property
+    def memory_only(self) -> bool:
+        """Computed from the memory model alone (no simulation needed)."""
+        return self.kind == "sections_fit"
+
+    def applies(self, run: Run) -> bool:
+        if self.runs:
+            return run.name in self.runs
+        return run.simulate or self.memory_only
 
 
 @dataclass(frozen=True)
@@ -146,15 +156,16 @@ def load_case(ref: str | Path) -> Case:
     runs = tuple(r for t in top.tables("runs") for r in _runs(t, path.parent))
     names = [r.name for r in runs]
     _unique(names, top, "runs")
-    columns = tuple(_column(t, set(names)) for t in _list(top, "columns"))
+    columns = tuple(_column(t, {r.name: r for r in runs}) for t in _list(top, "columns"))
     _unique([c.name for c in columns], top, "columns")
     metrics = set(SUMMARY_METRICS) | {c.name for c in columns}
-    derived = tuple(_derived(t, set(names), metrics) for t in _list(top, "derived"))
+    simulated = {r.name for r in runs if r.simulate}
+    derived = tuple(_derived(t, simulated, metrics) for t in _list(top, "derived"))
     _unique([d.name for d in derived], top, "derived")
     timelines = tuple(top.get("timelines", list, []))
     for t in timelines:
-        if t not in names:
-            raise top.error("timelines", f"{t!r} is not a run of this case")
+        if t not in simulated:
+            raise top.error("timelines", f"{t!r} is not a simulated run of this case")
     case = Case(name=top.get("name", str, path.parent.name), file=path, title=top.get("title", str),
                 description=top.get("description", str, ""), runs=runs, columns=columns,
                 derived=derived, timelines=timelines,
@@ -181,6 +192,7 @@ def _runs(t: Table, base: Path) -> list[Run]:
     if not exp.is_file():
         raise t.error("experiment", f"{str(exp)!r} does not exist")
     sets = tuple(t.get("set", list, []))
+    simulated = t.get("simulate", bool, True)
     each = t.table("each", {})
     keys = list(each.data)
     if len(keys) > 1:
@@ -191,23 +203,23 @@ def _runs(t: Table, base: Path) -> list[Run]:
     each.finish()
     t.finish()
     if not keys:
-        return [Run(name, label, exp, sets)]
+        return [Run(name, label, exp, sets, simulated)]
     key = keys[0]
-    return [Run(f"{name}_{v}", f"{label}, {key.rsplit('.', 1)[-1]} {v}", exp, sets + (f"{key}={v}",))
+    return [Run(f"{name}_{v}", f"{label}, {key.rsplit('.', 1)[-1]} {v}", exp, sets + (f"{key}={v}",), simulated)
             for v in values]
 
 
-def _column(t: Table, runs: set[str]) -> Column:
+def _column(t: Table, runs: dict[str, Run]) -> Column:
     col = Column(name=t.get("name", str), label=t.get("label", str),
                  kind=t.get("kind", str, choices=COLUMN_KINDS), select=t.get("select", str, ""),
-                 runs=tuple(t.get("runs", list, [])), section_bytes=t.get("section_bytes", int, 0, minimum=0))
+                 runs=tuple(t.get("runs", list, [])))
     t.finish()
     for r in col.runs:
         if r not in runs:
             raise t.error("runs", f"{r!r} is not a run of this case")
-    if col.kind == "sections_fit" and col.section_bytes <= 0:
-        raise t.error("section_bytes", "sections_fit needs section_bytes > 0")
-    if col.kind not in ("sections_fit",) and not col.select:
+        if not runs[r].simulate and not col.memory_only:
+            raise t.error("runs", f"{r!r} is not simulated (simulate = false): a {col.kind} column needs a result")
+    if not col.memory_only and not col.select:
         raise t.error("select", f"a {col.kind} column needs select")
     return col
 
@@ -219,7 +231,7 @@ def _derived(t: Table, runs: set[str], metrics: set[str]) -> Derived:
                 metric=t.get("metric", str, choices=sorted(metrics)), runs=tuple(pair))  # type: ignore[arg-type]
     t.finish()
     if len(pair) != 2 or any(r not in runs for r in pair):
-        raise t.error("runs", f"expected two runs of this case, got {pair!r}")
+        raise t.error("runs", f"expected two simulated runs of this case, got {pair!r}")
     return d
 
 
@@ -228,11 +240,11 @@ def run_case(case: Case, frames: int | None = None) -> CaseResult:
     and compute the columns and the derived quantities."""
     extra = {} if frames is None else {"schedule.frames": frames, "schedule.warmup_frames": max(1, frames // 5)}
     exps = {r.name: _load(case, r, extra) for r in case.runs}
-    results = {name: simulate(exp) for name, exp in exps.items()}
+    results = {r.name: simulate(exps[r.name]) for r in case.runs if r.simulate}
     out = CaseResult(case, results, exps)
     for run in case.runs:
-        out.columns[run.name] = {c.name: column_value(c, results[run.name], exps[run.name])
-                                 for c in case.columns if c.applies(run.name)}
+        out.columns[run.name] = {c.name: column_value(c, results.get(run.name), exps[run.name])
+                                 for c in case.columns if c.applies(run)}
     for d in case.derived:
         a, b = (metric(out, r, d.metric) for r in d.runs)
         out.derived[d.name] = a / b if d.kind == "ratio" else a - b
@@ -259,19 +271,35 @@ def steady(trace: pd.DataFrame, exp: Experiment) -> pd.DataFrame:
     return trace[trace["frame"] >= exp.schedule.warmup_frames]
 
 
-def column_value(col: Column, result: Result, exp: Experiment) -> float:
-    """One column's value for one run."""
+def column_value(col: Column, result: Result | None, exp: Experiment) -> float:
+    """One column's value for one run (`result` None: a memory-only column of a run that is
+    not simulated)."""
+    if col.kind == "sections_fit":
+        return float(sections_rendered(exp))
+    assert result is not None, "load_case lets only memory columns apply to runs not simulated"
     if col.kind == "utilization":
         busy = [v for k, v in result.summary.get("utilization", {}).items() if fnmatch.fnmatch(k, col.select)]
         return float(sum(busy) / len(busy)) if busy else math.nan
     if col.kind == "rate":
         return float(result.summary.get("task_rates_hz", {}).get(col.select, math.nan))
-    if col.kind == "sections_fit":
-        return float(max_dataset_bytes(exp) // col.section_bytes)
     rows = steady(result.trace, exp)
     if col.kind == "span":
         return span_ms(rows, col.select)
     return copy_limited_fps(rows, col.select)
+
+
+def sections_rendered(exp: Experiment) -> int:
+    """How many of the scene's sections the strategy can render on its GPUs: a section counts
+    when every GPU that holds it fits it (each GPU loads its sections in order, whole)."""
+    if not exp.scene.sections:
+        raise InputError("a sections_fit column needs [[scene.sections]] in the experiment", file=exp.file,
+                         field="scene.sections")
+    fit: dict[str, bool] = {}
+    for fp in footprints(build_program(exp), exp.scene):
+        fitting = set(sections_that_fit(fp, exp.scene, exp.profile.gpus[fp.gpu].memory_bytes))
+        for name in held_sections(fp, exp.scene):
+            fit[name] = fit.get(name, True) and name in fitting
+    return sum(fit.values())
 
 
 def _matching(rows: pd.DataFrame, select: str) -> pd.DataFrame:
@@ -307,9 +335,11 @@ def table(cr: CaseResult) -> pd.DataFrame:
     """A row per run: its label, GPUs, frame time, fps, latency and its column values."""
     rows = []
     for run in cr.case.runs:
-        s, exp = cr.results[run.name].summary, cr.experiments[run.name]
+        exp = cr.experiments[run.name]
+        s = cr.results[run.name].summary if run.name in cr.results else {}
         row = {"run": run.name, "configuration": run.label, "GPUs": exp.schedule.gpus,
-               "frame time (ms)": s["frame_time_ms"], "fps": s["fps"], "latency (ms)": s["latency_ms"]}
+               "frame time (ms)": s.get("frame_time_ms", math.nan), "fps": s.get("fps", math.nan),
+               "latency (ms)": s.get("latency_ms", math.nan)}
         for c in cr.case.columns:
             row[c.label] = cr.columns[run.name].get(c.name, math.nan)
         rows.append(row)

@@ -10,9 +10,9 @@ import pytest
 
 from mgpusim import cli
 from mgpusim.cases import (Case, CaseResult, case_names, copy_limited_fps, docs_block, load_case, markdown,
-                           metric, run_case, span_ms, steady, table, with_docs_block)
+                           metric, run_case, sections_rendered, span_ms, steady, table,
+                           with_docs_block)
 from mgpusim.errors import InputError
-from mgpusim.memory import max_dataset_bytes
 from mgpusim.simulate import simulate
 from mgpusim.study.spec import load_study
 
@@ -35,8 +35,10 @@ def test_every_run_simulates_and_is_tabled(results, name):
     cr = results[name]
     df = table(cr)
     assert list(df["run"]) == [r.name for r in cr.case.runs]
-    assert (df["frame time (ms)"] > 0).all()
-    assert ((df["fps"] * df["frame time (ms)"] - 1000).abs() < 1e-6 * 1000).all()
+    simulated = df[[r.simulate for r in cr.case.runs]]
+    assert len(simulated) and (simulated["frame time (ms)"] > 0).all()
+    assert ((simulated["fps"] * simulated["frame time (ms)"] - 1000).abs() < 1e-6 * 1000).all()
+    assert df[[not r.simulate for r in cr.case.runs]]["fps"].isna().all()
     text = markdown(cr)
     assert all(r.label in text for r in cr.case.runs)
     assert all(d.label in text for d in cr.case.derived)
@@ -88,12 +90,26 @@ def test_copy_limited_fps_is_the_busiest_copy_queue(results):
 
 
 def test_sections_fit_is_the_memory_model(results):
+    """Sort-last gives each GPU 12/N whole sections; a GPU loads as many as fit beside its
+    render targets (at most colour + depth + a final colour: 10 B per pixel), each whole."""
     cr = results["vulkan_thesis"]
-    col = next(c for c in cr.case.columns if c.kind == "sections_fit")
-    counts = [cr.columns[f"terrain_{n}"]["sections"] for n in (1, 2, 3)]
-    assert counts == [max_dataset_bytes(cr.experiments[f"terrain_{n}"]) // col.section_bytes for n in (1, 2, 3)]
-    assert counts[0] < counts[2]  # sort-last holds more of the terrain on more GPUs
+    counts = []
+    for n in (1, 2, 3):
+        exp = cr.experiments[f"terrain_{n}"]
+        section = exp.scene.sections[0].bytes
+        pixels = exp.scene.width * exp.scene.height
+        per_gpu = [min(12 // n, (exp.profile.gpus[gpu].memory_bytes - pixels * 10) // section) for gpu in range(n)]
+        counts.append(cr.columns[f"terrain_{n}"]["sections"])
+        assert counts[-1] <= sum(per_gpu)
+    assert counts == sorted(counts) and counts[0] < counts[2]  # sort-last holds more on more GPUs
+    assert "terrain_1" not in cr.results  # the whole terrain overflows one GPU: memory only
     assert "sections" not in cr.columns["sf_1gpu"]
+
+
+def test_sections_fit_needs_sections(results):
+    exp = results["vulkan_thesis"].experiments["sf_1gpu"]
+    with pytest.raises(InputError, match="scene.sections"):
+        sections_rendered(exp)
 
 
 def test_particle_new_wait_ticks_slower_than_frames_when_the_copy_is_long(results):
@@ -145,7 +161,11 @@ def _case_file(tmp_path: Path, body: str, top: str = "") -> Path:
     ('', '[[derived]]\nname = "g"\nlabel = "g"\nkind = "ratio"\nmetric = "fsp"\nruns = ["a", "a"]\n', "derived.metric"),
     ('', '[[columns]]\nname = "c"\nlabel = "c"\nkind = "utilisation"\nselect = "gpu*"\n', "columns.kind"),
     ('', '[[columns]]\nname = "c"\nlabel = "c"\nkind = "span"\n', "columns.select"),
-    ('', '[[columns]]\nname = "c"\nlabel = "c"\nkind = "sections_fit"\n', "columns.section_bytes"),
+    ('', 'simulate = false\n[[columns]]\nname = "c"\nlabel = "c"\nkind = "span"\nselect = "x"\nruns = ["a"]\n',
+     "columns.runs"),
+    ('', 'simulate = false\n[[derived]]\nname = "g"\nlabel = "g"\nkind = "ratio"\nmetric = "fps"\nruns = ["a", "a"]\n',
+     "derived.runs"),
+    ('timelines = ["a"]\n', 'simulate = false\n', "timelines"),
     ('timelines = ["b"]\n', '', "timelines"),
     ('', '[[runs]]\nname = "a"\nlabel = "again"\nexperiment = "x.toml"\n', "runs.experiment"),
     ('colums = 1\n', '', "colums"),

@@ -13,6 +13,7 @@ from mgpusim.cases import (Case, CaseResult, case_names, copy_limited_fps, docs_
                            metric, run_case, sections_rendered, span_ms, steady, table,
                            with_docs_block)
 from mgpusim.errors import InputError
+from mgpusim.geometry import mesh_placement
 from mgpusim.simulate import simulate
 from mgpusim.study.spec import load_study
 
@@ -207,6 +208,10 @@ def test_lavapipe_study_loads_and_simulates_on_the_lavapipe_profile(name):
     if parse_sweeps is not None:
         for kind, sweep in study.microbenchmarks.sweeps:
             parse_sweeps(kind, [f"{k}=" + ",".join(map(str, v)) for k, v in sweep.items()])
+    for kind, sweep in study.microbenchmarks.sweeps:  # where a mesh draws: a valid placement
+        for place in (sweep.get("place", ()) if kind == "mesh" else ()):
+            for w, h in zip(sweep["width"], sweep["height"]):
+                mesh_placement({"width": w, "height": h, "place": place})
     for entry in study.entries():
         exp = entry.load(study.profile, ["schedule.frames=6", "schedule.warmup_frames=2"])
         assert exp.scene.width * exp.scene.height <= 256 * 256

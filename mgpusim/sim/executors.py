@@ -157,6 +157,19 @@ def capacity(profile: HardwareProfile, tags: tuple) -> Fraction:
     return min(Fraction(n), max(min(Fraction(1), min(effs)), 1 + (n - 1) * mean_gain))
 
 
+def overlap_efficiency(alone_a: float, alone_b: float, together: float) -> float:
+    """The overlap efficiency `e` that the model's rule gives for two pieces of work of
+    `alone_a` and `alone_b` ns that take `together` ns from the first start to the last end
+    when started at once: both run at e/2 until the shorter ends, the rest alone, so
+    together = 2 min / e + |a - b| and e = 2 min(a, b) / (together - |a - b|); for equal
+    pieces (a + b) / together. Kept within (0, 2] (2: no slowdown at all)."""
+    short, gap = min(alone_a, alone_b), abs(alone_a - alone_b)
+    if short <= 0:
+        raise ValueError("overlap_efficiency: both pieces of work must take time")
+    shared = together - gap
+    return 2.0 if shared <= short else min(2.0, 2.0 * short / shared)
+
+
 def shared_gpu_groups(program, profile: HardwareProfile) -> dict[int, tuple[QueueRef, ...]]:
     """Physical GPUs whose queues must share them: the queues the program uses on each, where
     two of them overlap less than perfectly (efficiency < 2). Never on CPU-emulated GPUs: the

@@ -152,3 +152,22 @@ def test_logical_gpus_of_one_physical_gpu_describe_it_alike():
     assert "gpus[1].queue_overlap" in str(err.value)
     with pytest.raises(InputError, match="physical"):
         parse_profile(_profile(physical=-1), "p.toml")
+
+
+def test_a_run_on_one_gpu_is_compared_only_with_a_profile_that_says_so(tmp_path):
+    from mgpusim.measured_check import check_physical_gpus
+
+    one_gpu = {"gpus": [{"name": "gpu0", "physical_index": 0}, {"name": "gpu1", "physical_index": 0}]}
+    apart = make_experiment(_profile(), gpus=2)
+    with pytest.raises(InputError, match="ran on one physical GPU") as err:
+        check_physical_gpus(one_gpu, apart, "machine.json")
+    assert "gpus[1].physical" in str(err.value)
+    check_physical_gpus(one_gpu, make_experiment(_profile(physical=0), gpus=2), "machine.json")
+    two_gpus = {"gpus": [{"physical_index": 0}, {"physical_index": 1}]}
+    check_physical_gpus(two_gpus, apart, "machine.json")
+    with pytest.raises(InputError, match="different physical GPUs"):
+        check_physical_gpus(two_gpus, make_experiment(_profile(physical=0), gpus=2), "machine.json")
+    check_physical_gpus({"gpus": [{"name": "gpu0"}, {"name": "gpu1"}]}, apart, "m")  # older record
+    lava = _profile()
+    lava["host"]["gpus_share_cpu"] = True  # lavapipe: the CPU is what they share
+    check_physical_gpus(one_gpu, make_experiment(lava, gpus=2), "machine.json")

@@ -171,3 +171,24 @@ def test_a_run_on_one_gpu_is_compared_only_with_a_profile_that_says_so(tmp_path)
     lava = _profile()
     lava["host"]["gpus_share_cpu"] = True  # lavapipe: the CPU is what they share
     check_physical_gpus(one_gpu, make_experiment(lava, gpus=2), "machine.json")
+
+
+def test_h100_queues_study_configurations_model_the_sharing():
+    """The NVIDIA particle configurations: where the update runs decides whether the one GPU's
+    queues share it; the second logical GPU is on the same physical GPU."""
+    from pathlib import Path
+
+    from mgpusim.overrides import parse_overrides
+    from mgpusim.study import load_study
+
+    root = Path(__file__).resolve().parents[1]
+    study = load_study(root / "experiments" / "h100" / "queues.toml")
+    what_if = parse_overrides(["profile.gpus.0.queue_overlap.graphics_compute=1.2"])
+    seen = {}
+    for entry in study.entries():
+        exp = entry.load(study.profile, [f"{k}={v}" for k, v in what_if.items()])
+        prog = build_program(exp)
+        seen[entry.name] = ("shared_gpu" in choose_effects(prog, exp.profile), exp.profile.shares_physical())
+    assert seen["p2m_graphics"] == (False, False) and seen["p4m_graphics"] == (False, False)
+    assert seen["p2m_compute"] == (True, False) and seen["p4m_compute"] == (True, False)
+    assert all(seen[n] == (True, True) for n in ("p2m_2dev_wait", "p2m_2dev_new_wait", "p2m_2dev_nohost"))

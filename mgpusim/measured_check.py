@@ -155,6 +155,8 @@ def _drop_newer_defaults(config: dict[str, Any], inputs: dict[str, Any], schedul
         default = json.loads(json.dumps(option.default, default=list))  # as inputs record it
         if key not in recorded and inputs["schedule"].get(key) == default:
             inputs["schedule"].pop(key, None)
+
+
 def check_physical_gpus(machine: dict[str, Any], exp: Any, file: str) -> None:
     """Refuse to compare a run whose simulated GPUs shared real GPUs differently from the
     profile (`gpus.physical`): two VkDevices on one GPU slow each other down, which the model

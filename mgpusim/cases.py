@@ -191,7 +191,7 @@ def _runs(t: Table, base: Path) -> list[Run]:
     exp = base / t.get("experiment", str)
     if not exp.is_file():
         raise t.error("experiment", f"{str(exp)!r} does not exist")
-    sets = tuple(t.get("set", list, []))
+    sets = tuple(t.get("set", list, [])) + _sections_set(t.table("sections", {}))
     simulated = t.get("simulate", bool, True)
     each = t.table("each", {})
     keys = list(each.data)
@@ -207,6 +207,20 @@ def _runs(t: Table, base: Path) -> list[Run]:
     key = keys[0]
     return [Run(f"{name}_{v}", f"{label}, {key.rsplit('.', 1)[-1]} {v}", exp, sets + (f"{key}={v}",), simulated)
             for v in values]
+
+
+def _sections_set(t: Table) -> tuple[str, ...]:
+    """`sections = { count, name, geometry_bytes, texture_bytes }`: that many equal sections as
+    a `scene.sections` override (empty table: none)."""
+    if not t.data:
+        return ()
+    count = t.get("count", int, minimum=1, maximum=1024)
+    name = t.get("name", str, "section")
+    geometry, texture = t.get("geometry_bytes", int, minimum=0), t.get("texture_bytes", int, 0, minimum=0)
+    t.finish()
+    items = ", ".join(f'{{name = "{name}_{i:02d}", geometry_bytes = {geometry}, texture_bytes = {texture}}}'
+                      for i in range(count))
+    return (f"scene.sections=[{items}]",)
 
 
 def _column(t: Table, runs: dict[str, Run]) -> Column:

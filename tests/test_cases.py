@@ -186,6 +186,12 @@ def test_a_bad_override_names_the_run(tmp_path):
         run_case(load_case(path), frames=4)
 
 
+def test_sections_table_adds_equal_sections(tmp_path):
+    path = _case_file(tmp_path, 'simulate = false\nsections = { count = 3, geometry_bytes = 5, texture_bytes = 7 }\n')
+    exp = load_case(path).runs[0].load()
+    assert [(s.name, s.bytes) for s in exp.scene.sections] == [(f"section_{i:02d}", 12) for i in range(3)]
+
+
 def test_each_expands_one_run_per_value(tmp_path):
     path = _case_file(tmp_path, "")
     text = path.read_text().replace('label = "a"\n', 'label = "a"\neach = { "schedule.gpus" = [1, 2] }\n')

@@ -3,8 +3,8 @@
 A case is a folder `experiments/cases/<name>/` holding its profiles, its experiments and a
 `case.toml` that lists the runs (an experiment plus `--set` overrides each, optionally one run
 per value of a key), the per-run quantities to report (`[[columns]]`) and the quantities that
-compare runs (`[[derived]]`). Everything here is a pure function of the simulated results:
-files, printing and pictures stay in `mgpusim/commands/case.py`.
+compare runs (`[[derived]]`). Nothing here writes a file or prints: the output folder, the
+table files and the pictures are `mgpusim/commands/case.py`'s.
 
 Column kinds (one value per run):
 - `utilization`: mean busy fraction of the resources whose `device.engine` matches `select`
@@ -13,7 +13,8 @@ Column kinds (one value per run):
   step or task name matches `select` (comma-separated globs), over the steady frames that ran
   them;
 - `copy_limited_fps`: 1000 / the largest per-frame busy time (ms) of one queue or thread
-  among the tasks whose step matches `select`: the frame rate if only those copies limited it;
+  among the tasks `select` picks (as for `span`): the frame rate if only those copies limited
+  it;
 - `rate`: a task's steady rate in Hz (`summary.task_rates_hz[select]`);
 - `sections_fit`: how many of the scene's sections (`[[scene.sections]]`) the run's strategy can
   render: a section counts when every GPU that holds it fits it (`mgpusim.memory`: each GPU
@@ -27,6 +28,7 @@ copy hides); the metric is `fps`, `frame_time_ms` or `latency_ms`, or a column's
 from __future__ import annotations
 
 import fnmatch
+import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -50,7 +52,7 @@ SUMMARY_METRICS = ("fps", "frame_time_ms", "latency_ms")
 
 @dataclass(frozen=True)
 class Run:
-    """One simulated configuration of a case."""
+    """One configuration of a case: an experiment and its overrides."""
 
     name: str
     label: str
@@ -218,8 +220,8 @@ def _sections_set(t: Table) -> tuple[str, ...]:
     name = t.get("name", str, "section")
     geometry, texture = t.get("geometry_bytes", int, minimum=0), t.get("texture_bytes", int, 0, minimum=0)
     t.finish()
-    items = ", ".join(f'{{name = "{name}_{i:02d}", geometry_bytes = {geometry}, texture_bytes = {texture}}}'
-                      for i in range(count))
+    items = ", ".join(f"{{name = {json.dumps(f'{name}_{i:02d}')}, geometry_bytes = {geometry}, "
+                      f"texture_bytes = {texture}}}" for i in range(count))
     return (f"scene.sections=[{items}]",)
 
 
@@ -292,7 +294,7 @@ def column_value(col: Column, result: Result | None, exp: Experiment) -> float:
         return float(sections_rendered(exp))
     assert result is not None, "load_case lets only memory columns apply to runs not simulated"
     if col.kind == "utilization":
-        busy = [v for k, v in result.summary.get("utilization", {}).items() if fnmatch.fnmatch(k, col.select)]
+        busy = [v for k, v in result.summary.get("utilization", {}).items() if fnmatch.fnmatchcase(k, col.select)]
         return float(sum(busy) / len(busy)) if busy else math.nan
     if col.kind == "rate":
         return float(result.summary.get("task_rates_hz", {}).get(col.select, math.nan))

@@ -187,7 +187,7 @@ class Engine:
             full_cap = self.costs.copy_cap(task.queue.device, task.queue.family, task.path)
             self._check_copy_time(task, full_cap, duration)
             cap = full_cap if "copy_engine_caps" in self.effects else None
-            if executor.copies_on_cores:  # the copy is a memcpy in the queue's thread
+            if executor.copies_on_cores:  # a memcpy in the queue's thread / its GPU's work
                 bw = self._path_bandwidth(task)
                 rate = bw if cap is None else min(cap, bw)
                 duration += -(-nbytes * rate.denominator // rate.numerator)

@@ -19,6 +19,7 @@ import simpy
 
 from ..costs import CostModel
 from ..profile import QUEUE_FAMILIES, HardwareProfile
+from ..schedules.base import FrameProgram
 from ..tasks import CopyTask, HostCopyTask, PassTask, QueueRef, Task
 from .channel import Channel, GpuChannel
 
@@ -170,7 +171,7 @@ def overlap_efficiency(alone_a: float, alone_b: float, together: float) -> float
     return 2.0 if shared <= short else min(2.0, 2.0 * short / shared)
 
 
-def shared_gpu_groups(program, profile: HardwareProfile) -> dict[int, tuple[QueueRef, ...]]:
+def shared_gpu_groups(program: FrameProgram, profile: HardwareProfile) -> dict[int, tuple[QueueRef, ...]]:
     """Physical GPUs whose queues must share them: the queues the program uses on each, where
     two of them overlap less than perfectly (efficiency < 2). Never on CPU-emulated GPUs: the
     host's cores are their shared resource (SharedCores)."""
@@ -181,7 +182,7 @@ def shared_gpu_groups(program, profile: HardwareProfile) -> dict[int, tuple[Queu
         for t in tasks:
             if not isinstance(t, HostCopyTask):
                 used.setdefault(profile.physical_of(t.queue.device), set()).add(t.queue)
-    out = {}
+    out: dict[int, tuple[QueueRef, ...]] = {}
     for phys, queues in used.items():
         qs = sorted(queues, key=str)
         if any(pair_efficiency(profile, a, b) < 2 for i, a in enumerate(qs) for b in qs[i + 1:]):
@@ -190,7 +191,7 @@ def shared_gpu_groups(program, profile: HardwareProfile) -> dict[int, tuple[Queu
 
 
 class Executor(Protocol):
-    """What the engine asks of an executor (Dedicated and SharedCores are the two kinds)."""
+    """What the engine asks of an executor (Dedicated, SharedCores and SharedGpu are the kinds)."""
 
     #: whether other devices draw on the same cores (its `channel` is then one of the run's)
     shared: bool
@@ -209,7 +210,7 @@ class Executor(Protocol):
 
 
 def make_executors(env: simpy.Environment, costs: CostModel, shared: bool,
-                   program=None) -> dict[str, Executor]:
+                   program: FrameProgram | None = None) -> dict[str, Executor]:
     """One executor per device name ("gpu<i>") and "host". `shared`: every device and the host
     draw on the host's cores (the shared_executor effect). `program` (the shared_gpu effect):
     the logical GPUs of each physical GPU whose queues share it get one SharedGpu."""

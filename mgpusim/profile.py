@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import MappingProxyType
-from typing import Mapping
+from typing import Mapping, TypeVar
 
 from . import limits as L
 from .config import Table, did_you_mean, read_toml
@@ -25,6 +25,7 @@ PCIE_LANE_GBPS: Mapping[int, float] = MappingProxyType({
     4: 16.0 * 128 / 130 / 8, 5: 32.0 * 128 / 130 / 8, 6: 64.0 * 242 / 256 / 8,
 })
 PCIE_LANES = (1, 2, 4, 8, 16, 32)
+_T = TypeVar("_T")
 QUEUE_FAMILIES = ("graphics", "compute", "transfer")
 COPY_PATHS = ("d2h", "h2d", "d2d", "p2p")
 #: Pairs of work on one physical GPU whose overlap efficiency a profile can give
@@ -251,12 +252,14 @@ def parse_profile(data: dict, file: str) -> HardwareProfile:
     top.table("sources", None).rest()  # free-text provenance notes, kept in the file
     host = _parse_host(top.table("host"))
     gpus: list[GpuProfile] = []
+    tables: list[str] = []  # each GPU's [[gpus]] table, for messages
     for t in top.tables("gpus"):
         count = t.get("count", int, 1, minimum=1, maximum=L.MAX_GPUS, why=L.WHY_ALLOC)
         if len(gpus) + count > L.MAX_GPUS:
             raise t.error("count", f"the profile would have {len(gpus) + count} GPUs, more than "
                                    f"{L.MAX_GPUS} ({L.WHY_ALLOC})")
         gpus.extend([_parse_gpu(t)] * count)
+        tables.extend([t.path] * count)
     gpus = _resize(gpus, top.get("gpu_count", int, len(gpus), minimum=1, maximum=L.MAX_GPUS,
                                  why=L.WHY_ALLOC))
     peers = tuple(_parse_peer(t, len(gpus)) for t in (top.tables("peer_links") if top.has("peer_links") else []))
@@ -264,22 +267,23 @@ def parse_profile(data: dict, file: str) -> HardwareProfile:
         peers = _peer_mesh(top.table("peer_mesh"), len(gpus), peers)
     top.finish()
     profile = HardwareProfile(name=name, host=host, gpus=tuple(gpus), peer_links=peers, source=file)
-    _check_physical(profile, file)
+    _check_physical(profile, _resize(tables, len(profile.gpus)), file)
     return profile
 
 
-def _check_physical(profile: HardwareProfile, file: str) -> None:
-    """Logical GPUs on one physical GPU describe it alike: one `queue_overlap` per physical GPU."""
+def _check_physical(profile: HardwareProfile, tables: list[str], file: str) -> None:
+    """Logical GPUs on one physical GPU describe it alike: one `queue_overlap` per physical GPU
+    (`tables`: each GPU's [[gpus]] table, named in the message)."""
     first: dict[int, int] = {}
     for i, gpu in enumerate(profile.gpus):
         j = first.setdefault(profile.physical_of(i), i)
         if dict(gpu.queue_overlap) != dict(profile.gpus[j].queue_overlap):
             raise InputError(f"GPUs {j} and {i} run on physical GPU {profile.physical_of(i)} but give "
                              "different queue_overlap tables (one physical GPU has one)", file=file,
-                             field=f"gpus[{i}].queue_overlap")
+                             field=f"{tables[i]}.queue_overlap")
 
 
-def _resize(gpus: list[GpuProfile], count: int) -> list[GpuProfile]:
+def _resize(gpus: list[_T], count: int) -> list[_T]:
     """`gpu_count` (a what-if): the first `count` GPUs, the last one repeated to reach it."""
     return (gpus + [gpus[-1]] * count)[:count]
 

@@ -18,6 +18,8 @@ from .costs import WORK_TERMS, work_terms
 from .errors import InputError
 from .overrides import set_dotted
 
+_T = TypeVar("_T")
+
 #: Per-lane data rate in GB/s after line encoding (8b/10b for gen 1-2, 128b/130b for 3-5,
 #: FLIT 242/256 for 6). PCIe 3.0: 8 GT/s * 128/130 / 8 = 0.985 GB/s per lane.
 PCIE_LANE_GBPS: Mapping[int, float] = MappingProxyType({
@@ -25,7 +27,6 @@ PCIE_LANE_GBPS: Mapping[int, float] = MappingProxyType({
     4: 16.0 * 128 / 130 / 8, 5: 32.0 * 128 / 130 / 8, 6: 64.0 * 242 / 256 / 8,
 })
 PCIE_LANES = (1, 2, 4, 8, 16, 32)
-_T = TypeVar("_T")
 QUEUE_FAMILIES = ("graphics", "compute", "transfer")
 COPY_PATHS = ("d2h", "h2d", "d2d", "p2p")
 #: Pairs of work on one physical GPU whose overlap efficiency a profile can give

@@ -60,5 +60,10 @@ def apply_overlap(profile: dict[str, Any], overlap: dict[str, tuple[float, list[
                 "profile models (host.cpu_cores)")
     for gpu in profile["gpus"]:
         gpu.setdefault("queue_overlap", {}).update({p: round(v, 3) for p, (v, _) in overlap.items()})
+    return overlap_line(overlap)
+
+
+def overlap_line(overlap: dict[str, tuple[float, list[float]]]) -> str:
+    """The fitted efficiencies in one line, with each size's."""
     return "queue_overlap: " + ", ".join(
         f"{p}={v:.3f} (sizes: {', '.join(f'{e:.2f}' for e in effs)})" for p, (v, effs) in overlap.items())

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Callable, Mapping
 
 from . import limits as L
 from .errors import InputError, TimeBoundError
+from .geometry import Placement, coverage
 from .scene import PassSpec
 
 if TYPE_CHECKING:  # profile.py reads WORK_TERMS to check cost keys
@@ -52,10 +53,18 @@ PASS_PARAMS: dict[str, tuple[str, ...]] = {
 }
 COMMON_PARAMS = ("output_bytes",)
 
+#: Terms a pass kind adds where the schedule says where the pass draws (a :class:`Placement`):
+#: a mesh's triangles that reach the view (setup, binning), the sum of their linear sizes in
+#: pixels (blocks their edges cross) and the fragments they cover (:mod:`.geometry`). A profile
+#: without their coefficients keeps the older mesh model (triangles drawn and view pixels).
+PLACED_TERMS: dict[str, tuple[str, ...]] = {
+    "mesh": ("visible_triangle", "triangle_edge", "fragment"),
+}
+
 
 def work_terms(kind: str) -> tuple[str, ...]:
     """The work terms a pass kind produces (its cost keys are ns_per_<term>)."""
-    return tuple(WORK_TERMS[kind](PassSpec(kind, kind), 1.0, 1.0))
+    return tuple(WORK_TERMS[kind](PassSpec(kind, kind), 1.0, 1.0)) + PLACED_TERMS.get(kind, ())
 
 
 def ns(value: float) -> int:
@@ -72,8 +81,15 @@ def gbps_fraction(gbps: float) -> Fraction:
     return Fraction(repr(float(gbps)))
 
 
-def pass_work(spec: PassSpec, pixels: float, geometry_share: float = 1.0) -> dict[str, float]:
-    return WORK_TERMS[spec.kind](spec, pixels, geometry_share)
+def pass_work(spec: PassSpec, pixels: float, geometry_share: float = 1.0,
+              place: Placement | None = None) -> dict[str, float]:
+    """A pass's work terms; `place` (where it draws) adds the kind's placed terms."""
+    work = WORK_TERMS[spec.kind](spec, pixels, geometry_share)
+    if place is not None and spec.kind == "mesh":
+        seen = coverage(place.mesh_view(int(spec.param("triangles"))))
+        work.update(visible_triangle=seen.triangles, triangle_edge=seen.edge,
+                    fragment=seen.fragments)
+    return work
 
 
 class CostModel:
@@ -104,6 +120,8 @@ class CostModel:
                 continue
             coef = cost.ns_per.get(term)
             if coef is None:
+                if term in PLACED_TERMS.get(kind, ()):
+                    continue
                 if kind == "timed" and term == "reference_ns":
                     coef = 1.0
                 else:

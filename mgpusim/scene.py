@@ -12,6 +12,7 @@ from typing import Mapping
 
 from . import limits as L
 from .config import Table, did_you_mean
+from .geometry import Placement
 
 
 @dataclass(frozen=True)
@@ -37,6 +38,11 @@ class Scene:
     @property
     def pixels(self) -> int:
         return self.width * self.height
+
+    @property
+    def whole_frame(self) -> Placement:
+        """A pass that draws the whole frame, all of the geometry, with the mono camera."""
+        return Placement((self.width, self.height))
 
     @property
     def color_bytes(self) -> int:

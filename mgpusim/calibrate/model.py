@@ -15,8 +15,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..costs import WORK_TERMS
+from ..costs import WORK_TERMS, pass_work as pass_work_placed
 from ..errors import InputError
+from ..geometry import MESH_PLACE, mesh_placement
 from ..measured_check import read_json_object, read_table
 from ..scene import PassSpec
 from .fit import Fit, fit_nonnegative
@@ -32,7 +33,7 @@ COPY_PASSES = {"copy_d2h": "d2h", "copy_h2d": "h2d", "copy_d2d": "d2d"}
 #: Pass parameters that enter the work terms, and all columns that identify one measured
 #: configuration of a pass.
 WORK_PARAMS = ("iterations", "triangles", "inputs", "particles")
-PARAM_COLUMNS = ("width", "height") + WORK_PARAMS
+PARAM_COLUMNS = ("width", "height") + WORK_PARAMS + tuple(MESH_PLACE)
 
 
 @dataclass
@@ -65,13 +66,21 @@ def read_measurements(paths: list[Path]) -> tuple[pd.DataFrame, dict[str, Any]]:
 
 
 def pass_work(row: pd.Series) -> dict[str, float]:
-    """Work terms of one measured pass, as the schedules would give them."""
+    """Work terms of one measured pass, as the schedules would give them. A mesh row of a
+    table that says where it drew (the placement columns) has the placed terms too; an older
+    table's rows keep the triangles-and-pixels model."""
     kind = row["pass"]
     pixels = float(row.get("width", 0) or 0) * float(row.get("height", 0) or 0)
     params = {k: float(row[k]) for k in WORK_PARAMS if k in row and pd.notna(row[k])}
     if kind == "composite_sort_last":
         pixels *= params.get("inputs", 1)  # one full-screen quad per input
-    return WORK_TERMS[kind](PassSpec(kind, kind, params), pixels, 1.0)
+    spec = PassSpec(kind, kind, params)
+    if kind == "mesh" and all(k in row and pd.notna(row[k]) for k in MESH_PLACE):
+        place = mesh_placement(row.to_dict())
+        view = place.mesh_view(int(params["triangles"]))
+        rect = place.rect or (0, 0, *place.frame)
+        return pass_work_placed(spec, rect[2] * rect[3], view.count / view.triangles, place)
+    return WORK_TERMS[kind](spec, pixels, 1.0)
 
 
 def fit_passes(df: pd.DataFrame, cal: Calibration) -> None:

@@ -23,6 +23,7 @@ import numpy as np
 import pandas as pd
 
 from ..config import read_toml
+from ..costs import PLACED_TERMS
 from .fit import fit_nonnegative
 from .model import calibrate, read_measurements
 from .profile_out import apply, lavapipe_base, report
@@ -52,7 +53,8 @@ def refine_on_runs(recipe: Any, data: dict[str, Any], runs: Sequence[Run]) -> tu
     lines: list[str] = []
     if not runs:
         return data, lines
-    fits = fit_passes_from_runs(runs, recipe.run_fitted, recipe.run_fit_gpus, recipe.run_fit_terms)
+    fits = fit_passes_from_runs(runs, recipe.run_fitted, recipe.run_fit_gpus, recipe.run_fit_terms,
+                                placed_shapes(data))
     data = with_pass_fits(data, fits)
     lines.append(f"refitted on {len(runs)} calibration runs:")
     for kind, f in fits.items():
@@ -71,6 +73,17 @@ def refine_on_runs(recipe: Any, data: dict[str, Any], runs: Sequence[Run]) -> tu
         lines.append(f"host {found} (grid search; mean |frame-time error| {score:.1%} on the "
                      f"calibration runs)")
     return data, lines
+
+
+def placed_shapes(data: dict[str, Any]) -> dict[str, dict[str, float]]:
+    """Pass kinds whose microbenchmark fit has placed terms (a mesh's visible triangles, ...):
+    their per-term coefficients, which a refit on whole-frame runs keeps in proportion (the
+    runs cannot tell those terms apart; the microbenchmarks measured them over placements)."""
+    costs = data["gpus"][0].get("costs", {}) if data.get("gpus") else {}
+    return {kind: {k.removeprefix("ns_per_"): float(v) for k, v in costs[kind].items()
+                   if k.startswith("ns_per_")}
+            for kind, placed in PLACED_TERMS.items()
+            if kind in costs and any(float(costs[kind].get(f"ns_per_{t}", 0)) > 0 for t in placed)}
 
 
 def _host_copy(data: dict[str, Any], table: pd.DataFrame, name: str) -> str:

@@ -16,7 +16,7 @@ import copy
 import itertools
 from collections import defaultdict
 from dataclasses import replace
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -34,14 +34,17 @@ Run = tuple[Experiment, pd.DataFrame]  # an experiment and its measured trace
 
 
 def fit_passes_from_runs(runs: Sequence[Run], kinds: Sequence[str] = (), gpus: int | None = None,
-                         terms: Sequence[str] | None = None) -> dict[str, Fit]:
+                         terms: Sequence[str] | None = None,
+                         shapes: Mapping[str, Mapping[str, float]] | None = None) -> dict[str, Fit]:
     """Per pass kind, fixed_ns + ns_per_<term> fitted on the steady-state rows of measured runs,
     row by row with the work terms the schedule itself assigns to each task.
 
     `kinds`: only these pass kinds (all when empty). `gpus`: only runs with that many GPUs (on a
     CPU-emulated machine 1-GPU runs are the ones where no other simulated GPU competes for the
     cores). `terms`: only these work terms (when every run has the same value of the others, a
-    fit could not tell them apart)."""
+    fit could not tell them apart). `shapes`: kinds whose terms keep these relative
+    coefficients (the microbenchmarks' fit, made over placements the runs do not vary), with
+    only a fixed cost and one scale fitted on the runs."""
     rows: dict[str, list[tuple[dict[str, float], float]]] = defaultdict(list)
     for exp, trace in runs:
         if gpus is not None and exp.schedule.gpus != gpus:
@@ -56,11 +59,27 @@ def fit_passes_from_runs(runs: Sequence[Run], kinds: Sequence[str] = (), gpus: i
             rows[task.kind].extend((work, float(d)) for d in duration[steady["task"] == task.name])
     fits = {}
     for kind, samples in rows.items():
+        if shapes and kind in shapes:
+            fits[kind] = _fit_scale(samples, shapes[kind], kind)
+            continue
         names = sorted({t for w, _ in samples for t in w} | set(terms or ()))
         X = np.array([[1.0] + [w.get(t, 0.0) for t in names] for w, _ in samples])
         y = np.array([d for _, d in samples])
         fits[kind] = fit_nonnegative(X, y, ["fixed_ns"] + [f"ns_per_{t}" for t in names], f"{kind} (runs)")
     return fits
+
+
+def _fit_scale(samples: list[tuple[dict[str, float], float]], shape: Mapping[str, float],
+               kind: str) -> Fit:
+    """fixed_ns + scale x (the shape's cost of each row), as a Fit of the shape's terms."""
+    names = sorted(shape)
+    X = np.array([[1.0, sum(shape[t] * w.get(t, 0.0) for t in names)] for w, _ in samples])
+    y = np.array([d for _, d in samples])
+    f = fit_nonnegative(X, y, ["fixed_ns", "scale"], f"{kind} (runs, microbenchmark shape)")
+    coef = np.r_[f.coef[0], f.coef[1] * np.array([shape[t] for t in names])]
+    err = np.r_[f.stderr[0], f.stderr[1] * np.array([shape[t] for t in names])]
+    return Fit(["fixed_ns"] + [f"ns_per_{t}" for t in names], coef, err, f.rel_residuals,
+               f.condition, f.warnings)
 
 
 def fit_task_gap(runs: Sequence[Run]) -> int | None:

@@ -193,7 +193,7 @@ def _renders(gpu: int, scene: Scene, first_deps: tuple[Dep, ...], temporal: str 
              history_in: str | None) -> list[PassTask]:
     """The whole frame's passes on one GPU; the temporal pass also waits for the history."""
     out = chain_passes(scene.passes, QueueRef(gpu, "graphics"), first_deps, scene.pixels,
-                       lambda spec: f"render.{spec.name}")
+                       lambda spec: f"render.{spec.name}", place=scene.whole_frame)
     if history_in is None:
         return out
     return [replace(t, deps=t.deps + (Dep(history_in, -1),)) if t.name == temporal else t

@@ -19,6 +19,7 @@ from ..errors import ScheduleError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
 from ..costs import pass_work
+from ..geometry import Placement, even_split  # noqa: F401  (even_split: the schedules' import)
 from ..tasks import CopyTask, Dep, HostCopyTask, PassTask, QueueRef, Resource, Task
 
 
@@ -141,23 +142,19 @@ def parse_schedule_config(t: Table) -> ScheduleConfig:
     return cfg
 
 
-def even_split(total: int, parts: int) -> list[int]:
-    """`total` in `parts` equal integer shares, the last taking the remainder: the rule for
-    sort-first tiles, XR half-eye views, chunked copies and host-copy parts alike."""
-    base = total // parts
-    return [base] * (parts - 1) + [total - base * (parts - 1)]
-
-
 def chain_passes(specs: Sequence[PassSpec], queue: QueueRef, first_deps: tuple[Dep, ...],
                  pixels: float, name: Callable[[PassSpec], str], share: float = 1.0,
-                 step: Callable[[PassSpec], str] = lambda spec: "render") -> list[PassTask]:
+                 step: Callable[[PassSpec], str] = lambda spec: "render",
+                 place: Placement | None = None) -> list[PassTask]:
     """Passes in order on one queue: the first waits for `first_deps`, each later one for the
-    pass before it (a queue's submission order with a semaphore per hand-off)."""
+    pass before it (a queue's submission order with a semaphore per hand-off). `place`: where
+    they draw (the part of the frame, geometry share and camera), for the work terms that
+    depend on it (a mesh's visible triangles)."""
     out: list[PassTask] = []
     for spec in specs:
         deps = (Dep(out[-1].name),) if out else first_deps
         out.append(PassTask(name(spec), step(spec), queue, spec.kind,
-                            MappingProxyType(pass_work(spec, pixels, share)), deps))
+                            MappingProxyType(pass_work(spec, pixels, share, place)), deps))
     return out
 
 

@@ -13,6 +13,7 @@ from types import MappingProxyType
 
 from .. import limits as L
 from ..costs import CostModel, pass_work
+from ..geometry import Placement
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
@@ -49,8 +50,10 @@ def build_sort_first(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile
     pixels = [scene.width * r for r in rows]
     contribution = [p * scene.color_bytes_per_pixel for p in pixels]
     composite = _composite("composite_sort_first", cfg.gpus - 1, sum(pixels[1:]))
+    frame = (scene.width, scene.height)
+    places = [Placement(frame, (0, sum(rows[:i]), scene.width, r)) for i, r in enumerate(rows)]
     return _build(cfg, scene, profile, pixels, [1.0] * cfg.gpus, contribution, composite,
-                  {"tile_rows": tuple(rows), "balanced": bool(cfg.opt("balance"))})
+                  {"tile_rows": tuple(rows), "balanced": bool(cfg.opt("balance"))}, places)
 
 
 def _sort_first_rows(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> list[int]:
@@ -115,8 +118,9 @@ def build_sort_last(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile)
     n = cfg.gpus
     per_gpu = scene.color_bytes + scene.depth_bytes
     composite = _composite("composite_sort_last", n - 1, (n - 1) * scene.pixels)
+    places = [Placement((scene.width, scene.height), share=(i, n)) for i in range(n)]
     return _build(cfg, scene, profile, [scene.pixels] * n, [1.0 / n] * n, [per_gpu] * n,
-                  composite, {"geometry_share": 1.0 / n})
+                  composite, {"geometry_share": 1.0 / n}, places)
 
 
 def _composite(kind: str, inputs: int, pixels: int) -> PassSpec:
@@ -125,13 +129,13 @@ def _composite(kind: str, inputs: int, pixels: int) -> PassSpec:
 
 def _build(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, pixels: list[int],
            shares: list[float], contribution: list[int], composite: PassSpec,
-           record: dict) -> FrameProgram:
+           record: dict, places: list[Placement]) -> FrameProgram:
     n, buffers, fif = cfg.gpus, cfg.opt("buffers"), cfg.frames_in_flight
     host_copy = cfg.opt("host_copy")
     tasks: list[Task] = []
     last_render: list[str] = []
     for i in range(n):
-        tasks.extend(_renders(i, scene, pixels[i], shares[i], fif, buffers))
+        tasks.extend(_renders(i, scene, pixels[i], shares[i], places[i], fif, buffers))
         last_render.append(tasks[-1].name)
     uploads = []
     h2d_queue = queue_or_graphics(profile, 0, "transfer")
@@ -174,7 +178,7 @@ def _footprints(scene: Scene, pixels: list[int], shares: list[float], contributi
                               for i in range(1, len(pixels)))
 
 
-def _renders(gpu: int, scene: Scene, pixels: int, share: float, fif: int,
+def _renders(gpu: int, scene: Scene, pixels: int, share: float, place: Placement, fif: int,
              buffers: int) -> list[PassTask]:
     """The scene's passes on one GPU's graphics queue; the first waits for frame f-fif's
     present (frames in flight) and, on a secondary, for its contribution buffer to be free."""
@@ -182,4 +186,4 @@ def _renders(gpu: int, scene: Scene, pixels: int, share: float, fif: int,
     single = len(scene.passes) == 1
     return chain_passes(scene.passes, QueueRef(gpu, "graphics"), first, pixels,
                         lambda spec: f"render{gpu}" if single else f"render{gpu}.{spec.name}",
-                        share)
+                        share, place=place)

@@ -164,7 +164,8 @@ def _engine(cfg: ScheduleConfig, scene: Scene, n: int, draw_deps: tuple[Dep, ...
     out: list[Task] = []
     for task in chain_passes(specs, queue, (Dep("present", -cfg.frames_in_flight),), scene.pixels,
                              lambda spec: "particle_render" if spec is draw else f"render.{spec.name}",
-                             step=lambda spec: "particle_render" if spec is draw else "render"):
+                             step=lambda spec: "particle_render" if spec is draw else "render",
+                             place=scene.whole_frame):
         out.append(replace(task, deps=task.deps + draw_deps) if task.name == "particle_render" else task)
     out.append(present_task(queue, scene.pixels, out[-1].name))
     return out

@@ -171,7 +171,7 @@ def _output_bytes(spec: PassSpec) -> int:
 
 def _passes(gpu: int, specs: tuple[PassSpec, ...], scene: Scene, first_deps: tuple[Dep, ...]) -> list[PassTask]:
     return chain_passes(specs, QueueRef(gpu, "graphics"), first_deps, scene.pixels,
-                        lambda spec: f"render.{spec.name}")
+                        lambda spec: f"render.{spec.name}", place=scene.whole_frame)
 
 
 def _copies(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, route: Route,

@@ -24,6 +24,7 @@ from typing import Any
 
 from .. import limits as L
 from ..costs import pass_work
+from ..geometry import Placement
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
@@ -181,9 +182,19 @@ def _render_view(v: int, gpu_of: list[int], scene: Scene, pixels: int,
     """View v's passes on its GPU's graphics queue, then the release to the transfer queue."""
     queue = QueueRef(gpu_of[v], "graphics")
     out = chain_passes(scene.passes, queue, _frame_gate(v, len(gpu_of), scene, cfg), pixels,
-                       lambda spec: f"render{v}.{spec.name}")
+                       lambda spec: f"render{v}.{spec.name}", place=_place(v, scene, len(gpu_of)))
     out.append(_handoff(f"release{v}", queue, cfg, (Dep(out[-1].name),)))
     return out
+
+
+def _place(v: int, scene: Scene, views: int) -> Placement:
+    """View v draws its eye's columns `part` (views of one eye split it into equal columns)
+    with that eye's camera: the runner's layout (`_bind`)."""
+    per_eye = views // 2
+    eye, part = divmod(v, per_eye)
+    widths = even_split(scene.width, per_eye)
+    return Placement((scene.width, scene.height), (sum(widths[:part]), 0, widths[part], scene.height),
+                     eye=eye)
 
 
 def _frame_gate(v: int, views: int, scene: Scene, cfg: ScheduleConfig) -> tuple[Dep, ...]:

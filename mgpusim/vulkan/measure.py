@@ -18,6 +18,7 @@ from typing import Any, Callable, Iterable, Sequence
 import pandas as pd
 
 from ..errors import InputError
+from ..geometry import MESH_PLACE, mesh_placement
 from . import overlap
 from .copies import CopyD2D, CopyD2H, CopyH2D
 from .device import Gpu
@@ -25,6 +26,13 @@ from .hostcopy import HostCopy
 from .particles import ParticleUpdate
 from .passes import (CompositeSortFirst, CompositeSortLast, FilterPass, FragmentLoop, Mesh,
                      ParticleRender, Present)
+
+
+def _mesh(gpu: Gpu, p: dict[str, Any]) -> Mesh:
+    place = mesh_placement(p)
+    view = place.mesh_view(int(p["triangles"]))
+    return Mesh(gpu, int(p["width"]), int(p["height"]), view.triangles, first=view.first,
+                count=view.count, eye=view.eye, rect=place.rect)
 
 
 @dataclass(frozen=True)
@@ -42,9 +50,11 @@ PASSES: dict[str, PassSpec] = {s.name: s for s in (
     PassSpec("fragment_loop", {"width": 1024, "height": 768, "iterations": 1000},
              lambda g, p: FragmentLoop(g, p["width"], p["height"], p["iterations"]),
              "full-screen rectangle, fragment shader loops ITER times"),
-    PassSpec("mesh", {"width": 1024, "height": 768, "triangles": 100_000},
-             lambda g, p: Mesh(g, p["width"], p["height"], p["triangles"]),
-             "T triangles of a generated torus into RGBA8 + D16"),
+    PassSpec("mesh", {"width": 1024, "height": 768, "triangles": 100_000, **MESH_PLACE},
+             lambda g, p: _mesh(g, p),
+             "T triangles of a generated torus into RGBA8 + D16, drawn where PLACE says: whole, "
+             "or share=K/N;eye=left|right;column=K/N;row=K/N (sort-last share, stereo eye, XR "
+             "half-eye columns, sort-first strip)"),
     PassSpec("composite_sort_first", {"width": 1024, "height": 768, "inputs": 2},
              lambda g, p: CompositeSortFirst(g, p["width"], p["height"], p["inputs"]),
              "one rectangle per contribution sampling its tile"),

@@ -87,19 +87,23 @@ class FragmentLoop(_GraphicsPass):
 
 class Mesh(_GraphicsPass):
     """T triangles of a generated torus into colour RGBA8 + depth D16 (`first`..: a share), as
-    the runner's sort-last share; `eye` 0 / 1 renders one view of the stereo camera (XR)."""
+    the runner's sort-last share; `eye` 0 / 1 renders one view of the stereo camera (XR);
+    `rect` (x, y, w, h) renders only those pixels of the frame, into a target of their size
+    (an XR half-eye view, a sort-first strip)."""
 
     def __init__(self, gpu: "Gpu", width: int, height: int, triangles: int, *,
-                 first: int = 0, count: int | None = None, eye: int | None = None):
+                 first: int = 0, count: int | None = None, eye: int | None = None,
+                 rect: tuple[int, int, int, int] | None = None):
         super().__init__(gpu)
         _positive(width=width, height=height, triangles=triangles)
         self.width, self.height, self.triangles = width, height, triangles
         self.first, self.count = first, (triangles - first if count is None else count)
-        self.target = RenderTarget(gpu, width, height, depth=True)
+        rect = rect or (0, 0, width, height)
+        self.target = RenderTarget(gpu, rect[2], rect[3], depth=True)
         self.work = MeshShare(gpu, [self.target], (width, height), triangles, self.first,
-                              self.count, eye=eye)
+                              self.count, eye=eye, rect=rect, origin=(rect[0], rect[1]))
         self._owned.append(self.work)
-        self.bytes = width * height * 6
+        self.bytes = rect[2] * rect[3] * 6
 
 
 class _Composite(_GraphicsPass):

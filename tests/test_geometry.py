@@ -1,0 +1,119 @@
+"""The mesh's coverage (what a view of the torus rasterizes) and the placed mesh work terms."""
+import math
+from dataclasses import replace
+from types import MappingProxyType
+
+import pytest
+
+from mgpusim.costs import CostModel, pass_work
+from mgpusim.experiment import load_experiment
+from mgpusim.program import build_program
+from mgpusim.errors import InputError
+from mgpusim.geometry import MeshView, Placement, coverage, mesh_placement, torus_mesh
+from mgpusim.profile import load_profile
+from mgpusim.scene import PassSpec
+
+FRAME = (256, 192)
+
+
+def test_shares_partition_the_mesh():
+    """Sort-last shares draw disjoint triangles: their counts, areas and edges add up to the
+    whole mesh's, and the half that faces the camera covers more pixels than the other."""
+    whole = coverage(Placement(FRAME).mesh_view(20_000))
+    halves = [coverage(Placement(FRAME, share=(k, 2)).mesh_view(20_000)) for k in range(2)]
+    assert sum(h.triangles for h in halves) == whole.triangles == 20_000
+    assert sum(h.fragments for h in halves) == pytest.approx(whole.fragments)
+    assert sum(h.edge for h in halves) == pytest.approx(whole.edge)
+    assert halves[0].fragments > 1.2 * halves[1].fragments
+
+
+def test_half_eye_views_cull_what_they_do_not_see():
+    """Each column of an eye reaches only part of the triangles (more than half together:
+    triangles on the seam reach both) and their fragments partition the eye's."""
+    eye = coverage(Placement(FRAME, eye=0).mesh_view(20_000))
+    cols = [coverage(Placement(FRAME, (x, 0, 128, 192), eye=0).mesh_view(20_000)) for x in (0, 128)]
+    assert all(0.3 * eye.triangles < c.triangles < 0.7 * eye.triangles for c in cols)
+    assert eye.triangles < sum(c.triangles for c in cols) < 1.1 * eye.triangles
+    assert sum(c.fragments for c in cols) == pytest.approx(eye.fragments)
+
+
+def test_coverage_scales_with_resolution_and_tessellation():
+    """Fragments go as the frame's pixels; a triangle's linear size as sqrt(pixels / T)."""
+    small = coverage(MeshView(20_000, (128, 96)))
+    big = coverage(MeshView(20_000, (512, 384)))
+    assert big.fragments == pytest.approx(16 * small.fragments, rel=1e-9)
+    assert big.edge == pytest.approx(4 * small.edge, rel=1e-9)
+    fine = coverage(MeshView(80_000, (128, 96)))
+    assert fine.fragments == pytest.approx(small.fragments, rel=0.02)
+    assert fine.edge == pytest.approx(2 * small.edge, rel=0.05)
+
+
+def test_large_meshes_are_sampled_not_generated():
+    """Above the sample size the coverage comes from a smaller torus, scaled: the same areas,
+    edges as sqrt(T), and no multi-GB vertex array."""
+    sampled = coverage(MeshView(4_000_000, FRAME))
+    ref = coverage(MeshView(200_000, FRAME))
+    assert sampled.triangles == 4_000_000
+    assert sampled.fragments == pytest.approx(ref.fragments)
+    assert sampled.edge == pytest.approx(ref.edge * math.sqrt(20))
+
+
+def test_torus_has_exactly_the_triangles_asked():
+    for t in (1, 7, 2000, 20_001):
+        assert torus_mesh(t).shape == (3 * t, 6)
+    with pytest.raises(InputError, match="triangles"):
+        torus_mesh(0)
+
+
+def test_placed_mesh_terms_and_older_profiles():
+    """A placement adds the placed terms; a profile without their coefficients costs the pass
+    as before (triangles and pixels), one with them charges them."""
+    spec = PassSpec("m", "mesh", {"triangles": 20_000})
+    plain = pass_work(spec, 49_152)
+    placed = pass_work(spec, 24_576, 1.0, Placement(FRAME, (0, 0, 128, 192), eye=1))
+    assert set(placed) - set(plain) == {"visible_triangle", "triangle_edge", "fragment"}
+    assert placed["visible_triangle"] < 20_000
+    profile = load_profile("hardware_profiles/lavapipe_2core.toml")
+    costs = CostModel(profile)
+    older = costs.pass_cost_ns(0, "mesh", placed)
+    assert older == costs.pass_cost_ns(0, "mesh", {k: placed[k] for k in plain})
+    gpu = profile.gpus[0]
+    mesh = replace(gpu.costs["mesh"], ns_per=MappingProxyType({**gpu.costs["mesh"].ns_per,
+                                                               "visible_triangle": 10.0}))
+    gpu = replace(gpu, costs=MappingProxyType({**gpu.costs, "mesh": mesh}))
+    richer = CostModel(replace(profile, gpus=(gpu,) + profile.gpus[1:]))
+    assert richer.pass_cost_ns(0, "mesh", placed) == pytest.approx(
+        older + 10.0 * placed["visible_triangle"] / gpu.speed)
+
+
+@pytest.mark.parametrize("text", ["share=2/2", "eye=up", "column=0/0", "row=1", "foo", "column=0/999"])
+def test_bad_placements_name_the_field(text):
+    with pytest.raises(InputError, match="place"):
+        mesh_placement({"width": 256, "height": 192, "place": text})
+
+
+def test_measured_placement_follows_the_schedules_rules():
+    p = mesh_placement({"width": 257, "height": 192, "place": "eye=right;column=1/2;share=1/3"})
+    assert p.rect == (128, 0, 129, 192) and p.eye == 1 and p.share == (1, 3)
+    view = p.mesh_view(1000)
+    assert (view.first, view.count) == (333, 333)  # the runner's T*k//n rule
+
+
+def _renders(path, **overrides):
+    exp = load_experiment(path, {f"schedule.{k}": v for k, v in overrides.items()})
+    program = build_program(exp)
+    return exp, [t for t in program.templates[0] if getattr(t, "kind", None) == "mesh"]
+
+
+def test_schedules_place_their_meshes_where_the_runner_draws_them():
+    """Sort-last GPU i's work counts the triangles the runner uploads for it; an XR half-eye
+    view's the triangles of its columns of its eye (fewer than the mesh)."""
+    exp, tasks = _renders("experiments/lavapipe/sort_last.toml", gpus=3)
+    total = int(exp.scene.passes[0].param("triangles"))
+    for i, task in enumerate(sorted(tasks, key=lambda t: t.queue.device)):
+        assert task.work["visible_triangle"] == total * (i + 1) // 3 - total * i // 3
+    _, views = _renders("experiments/lavapipe/xr.toml", gpus=4)
+    assert len(views) == 4
+    assert all(v.work["visible_triangle"] < v.work["triangle"] for v in views)
+    by_view = {v.name: v.work for v in views}
+    assert by_view["render0.tori"] != by_view["render2.tori"]  # left and right eyes differ

@@ -25,7 +25,7 @@ def fastest_of(df: pd.DataFrame) -> pd.DataFrame:
     rows = df[df["pass"] == "overlap"].copy()
     if rows.empty:
         return pd.DataFrame(columns=[*_CONFIG, "alone_a_ns", "alone_b_ns", "duration_ns", "efficiency"])
-    rows["missing"] = rows["missing"].fillna("") if "missing" in rows else ""
+    rows["missing"] = rows["missing"].astype(object).fillna("") if "missing" in rows else ""
     keys = [c for c in _CONFIG if c in rows.columns]
     best = rows.groupby(keys, sort=False, dropna=False)[["alone_a_ns", "alone_b_ns", "duration_ns"]].min()
     best = best.reset_index()

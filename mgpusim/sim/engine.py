@@ -213,19 +213,22 @@ class Engine:
         self.costs.check_transfer(task.name, task.bytes, bw, setup, field)
 
 
-    def _dispatch_wait(self, key: Key) -> int:
+    def _dispatch_wait(self, key: Key, keep: bool = False) -> int:
         """Host dispatch still owed before `key` starts: `dispatch_ns` after the last of its
-        inputs from another device or the host finished (0 if that is long past)."""
-        done = self._cross_done.pop(key, None)
+        inputs from another device or the host finished (0 if that is long past). `keep`: leave
+        the input's end for :meth:`_submitted`."""
+        done = self._cross_done.get(key) if keep else self._cross_done.pop(key, None)
         if done is None:
             return 0
         return max(0, done + self._dispatch_ns - self.env.now)
 
-    def _submitted(self, key: Key, previous: int) -> int:
-        """When the queue's submit thread has recorded and submitted `key`: after the task
-        before it, and after waking on its last input from another device or the host."""
+    def _submitted(self, key: Key, previous: int, woke: int = 0) -> int:
+        """When the queue's submit thread has submitted `key`: `submit_ns` after the task
+        before it, and after waking on its last input from another device or the host
+        (`dispatch_ns` after that input ended, or at `woke` where waking was work on a shared
+        executor that ended later)."""
         done = self._cross_done.pop(key, None)
-        ready = previous if done is None else max(previous, done + self._dispatch_ns)
+        ready = previous if done is None else max(previous, done + self._dispatch_ns, woke)
         return ready + self._submit_ns
 
     def _duration(self, task: Task) -> int:
@@ -330,7 +333,14 @@ class Engine:
                     self._dispatch_host_copy(frame, op)
                     continue
                 if self._host_timeline:
-                    submitted = self._submitted(key, submitted)
+                    # the queue's submit thread: it submits ahead of the queue, one task after
+                    # another; a task fed by another device or the host waits for the thread to
+                    # wake on that input, which is the thread's own work on the host's executor
+                    # (on CPU-emulated GPUs it competes for the cores with the GPUs' passes)
+                    wait = self._dispatch_wait(key, keep=True) if self._cross_done else 0
+                    if wait:
+                        yield self._host_work(wait)
+                    submitted = self._submitted(key, submitted, env.now if wait else 0)
                     if submitted > env.now:
                         yield env.timeout(submitted - env.now)
                     if self._submit_load is not None:

@@ -12,7 +12,8 @@ import pandas as pd
 
 from .errors import InputError
 from .experiment import Experiment
-from .measured_check import check_recorded_config, check_trace, read_json_object, read_table
+from .measured_check import (check_physical_gpus, check_recorded_config, check_trace,
+                             read_json_object, read_table)
 
 TRACE_FILES = ("trace.parquet", "trace.csv")
 
@@ -35,4 +36,7 @@ def read_measured(folder: Path, exp: Experiment) -> pd.DataFrame:
         if not isinstance(config, dict):
             raise InputError("expected an object", file=str(summary), field="config")
         check_recorded_config(config, exp, str(summary))
+    machine = folder / "machine.json"
+    if machine.is_file():
+        check_physical_gpus(read_json_object(machine), exp, str(machine))
     return trace

@@ -157,6 +157,31 @@ def _drop_newer_defaults(config: dict[str, Any], inputs: dict[str, Any], schedul
             inputs["schedule"].pop(key, None)
 
 
+def check_physical_gpus(machine: dict[str, Any], exp: Any, file: str) -> None:
+    """Refuse to compare a run whose simulated GPUs shared real GPUs differently from the
+    profile (`gpus.physical`): two VkDevices on one GPU slow each other down, which the model
+    shows only when the profile says they share it. Lavapipe GPUs share the CPU instead
+    (host.gpus_share_cpu); runs recorded before `physical_index` was are not checked."""
+    profile = exp.profile
+    gpus = machine.get("gpus")
+    if profile.host.gpus_share_cpu or not isinstance(gpus, list):
+        return
+    ran = [g.get("physical_index") if isinstance(g, dict) else None for g in gpus]
+    n = min(len(ran), len(profile.gpus))
+    if any(not isinstance(p, int) for p in ran[:n]):
+        return
+    for j in range(n):
+        for i in range(j):
+            together, modelled = ran[i] == ran[j], profile.physical_of(i) == profile.physical_of(j)
+            if together != modelled:
+                said = "gives them GPUs of their own" if together else "puts them on one"
+                raise InputError(f"simulated GPUs {i} and {j} ran on "
+                                 f"{'one physical GPU' if together else 'different physical GPUs'}, "
+                                 f"but the profile {said}: give the profile's GPUs `physical` as "
+                                 "they ran (e.g. --set profile.gpus.0.physical=0 with "
+                                 "profile.gpu_count)", file=file, field=f"gpus[{j}].physical")
+
+
 def first_difference(got: Any, want: Any, path: str) -> tuple[str, Any, Any] | None:
     """(dotted path, got, want) of the first place two JSON-shaped values differ, or None."""
     if isinstance(got, dict) and isinstance(want, dict):

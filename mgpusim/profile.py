@@ -27,6 +27,15 @@ PCIE_LANE_GBPS: Mapping[int, float] = MappingProxyType({
 PCIE_LANES = (1, 2, 4, 8, 16, 32)
 QUEUE_FAMILIES = ("graphics", "compute", "transfer")
 COPY_PATHS = ("d2h", "h2d", "d2d", "p2p")
+#: Pairs of work on one physical GPU whose overlap efficiency a profile can give
+#: (`[gpus.queue_overlap]`): the queue families of one VkDevice, two queues of one family, and
+#: two passes of different logical GPUs (VkDevices) on one physical GPU.
+OVERLAP_PAIRS = ("graphics_compute", "graphics_transfer", "compute_transfer", "same_family", "devices")
+#: Unset pairs: queues of one device overlap perfectly (each runs at full speed, as when every
+#: queue was an independent server); two VkDevices on one GPU take turns (time slicing).
+OVERLAP_DEFAULTS: Mapping[str, float] = MappingProxyType(
+    {"graphics_compute": 2.0, "graphics_transfer": 2.0, "compute_transfer": 2.0, "same_family": 2.0,
+     "devices": 1.0})
 
 
 @dataclass(frozen=True)
@@ -119,6 +128,17 @@ class GpuProfile:
     #: What-if speed factor: every pass's time is divided by it (1.5 = a GPU 1.5x faster);
     #: copies and links keep their own rates.
     speed: float = 1.0
+    #: The physical GPU this (logical) GPU runs on; GPUs with the same value share it (several
+    #: VkDevices on one GPU). None = a physical GPU of its own (its index).
+    physical: int | None = None
+    #: Overlap efficiency of two pieces of work at once on this physical GPU, per pair
+    #: (OVERLAP_PAIRS): their throughput together over one alone, from 1 (no gain: back to back)
+    #: to 2 (each at full speed). Empty: none given (every pair at its default).
+    queue_overlap: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
+
+    def overlap(self, pair: str) -> float:
+        """The overlap efficiency of `pair` (its default where the profile gives none)."""
+        return self.queue_overlap.get(pair, OVERLAP_DEFAULTS[pair])
 
     def has_queue(self, family: str, index: int = 0) -> bool:
         return self.queues.get(family, 0) > index
@@ -141,6 +161,15 @@ class HardwareProfile:
     gpus: tuple[GpuProfile, ...]
     peer_links: tuple[PeerLink, ...] = ()
     source: str = ""
+
+    def physical_of(self, gpu: int) -> int:
+        """The physical GPU logical GPU `gpu` runs on (`physical`, default its own index)."""
+        phys = self.gpus[gpu].physical
+        return gpu if phys is None else phys
+
+    def shares_physical(self) -> bool:
+        """Whether two logical GPUs run on one physical GPU."""
+        return len({self.physical_of(i) for i in range(len(self.gpus))}) < len(self.gpus)
 
     def peer(self, a: int, b: int) -> PeerLink | None:
         for link in self.peer_links:
@@ -234,7 +263,20 @@ def parse_profile(data: dict, file: str) -> HardwareProfile:
     if top.has("peer_mesh"):
         peers = _peer_mesh(top.table("peer_mesh"), len(gpus), peers)
     top.finish()
-    return HardwareProfile(name=name, host=host, gpus=tuple(gpus), peer_links=peers, source=file)
+    profile = HardwareProfile(name=name, host=host, gpus=tuple(gpus), peer_links=peers, source=file)
+    _check_physical(profile, file)
+    return profile
+
+
+def _check_physical(profile: HardwareProfile, file: str) -> None:
+    """Logical GPUs on one physical GPU describe it alike: one `queue_overlap` per physical GPU."""
+    first: dict[int, int] = {}
+    for i, gpu in enumerate(profile.gpus):
+        j = first.setdefault(profile.physical_of(i), i)
+        if dict(gpu.queue_overlap) != dict(profile.gpus[j].queue_overlap):
+            raise InputError(f"GPUs {j} and {i} run on physical GPU {profile.physical_of(i)} but give "
+                             "different queue_overlap tables (one physical GPU has one)", file=file,
+                             field=f"gpus[{i}].queue_overlap")
 
 
 def _resize(gpus: list[GpuProfile], count: int) -> list[GpuProfile]:
@@ -282,9 +324,19 @@ def _parse_gpu(t: Table) -> GpuProfile:
         cpu_threads=t.get("cpu_threads", int, None, minimum=1, maximum=L.MAX_THREADS, why=L.WHY_ALLOC),
         task_gap_ns=_ns(t, "task_gap_ns", 0),
         speed=t.get("speed", float, 1.0, above=0, maximum=L.MAX_SPEED),
+        physical=t.get("physical", int, None, minimum=0, maximum=L.MAX_GPUS - 1, why=L.WHY_ALLOC),
+        queue_overlap=_parse_overlap(t.table("queue_overlap", None)),
     )
     t.finish()
     return gpu
+
+
+def _parse_overlap(t: Table) -> Mapping[str, float]:
+    """`[gpus.queue_overlap]`: an efficiency in (0, 2] per pair of OVERLAP_PAIRS."""
+    given = {pair: t.get(pair, float, None, above=0, maximum=2.0, why="2 = each at full speed")
+             for pair in OVERLAP_PAIRS}
+    t.finish()
+    return MappingProxyType({pair: v for pair, v in given.items() if v is not None})
 
 
 def _parse_link(t: Table) -> LinkProfile:

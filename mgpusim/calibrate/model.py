@@ -21,6 +21,7 @@ from ..geometry import MESH_PLACE, mesh_placement
 from ..measured_check import read_json_object, read_table
 from ..scene import PassSpec
 from .fit import Fit, fit_nonnegative
+from .overlap import fit_overlap
 from .tables import check_measure_table
 
 #: Every pass kind of the cost model that is measured and fitted: all but "timed" (a pass known
@@ -45,6 +46,8 @@ class Calibration:
     submission_cpu_ns: dict[str, float] = field(default_factory=dict)
     copy_fits: dict[tuple[str, str], Fit] = field(default_factory=dict)
     host: dict[str, float] = field(default_factory=dict)
+    #: overlap efficiency per queue pair: (median over sizes, each size's) (calibrate/overlap.py)
+    overlap: dict[str, tuple[float, list[float]]] = field(default_factory=dict)
     machine: dict[str, Any] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
 
@@ -184,7 +187,9 @@ def calibrate(df: pd.DataFrame, machine: dict[str, Any]) -> Calibration:
     fit_cores(df, cal)
     fit_copies(df, cal)
     fit_host_copies(df, cal)
-    if not (cal.pass_fits or cal.copy_fits or cal.host):
+    cal.overlap, warnings = fit_overlap(df)
+    cal.warnings.extend(warnings)
+    if not (cal.pass_fits or cal.copy_fits or cal.host or cal.overlap):
         raise InputError("nothing to fit: no single-GPU pass, copy or host-copy rows (at the "
                          "GPU's full thread count) in " + ", ".join(sorted(set(map(str, df["source"])))))
     return cal

@@ -13,6 +13,7 @@ import numpy as np
 
 from ..profile import parse_profile
 from .fit import Fit
+from .overlap import apply_overlap
 from .model import Calibration
 
 DEFAULT_SIMULATED_GPUS = 4
@@ -61,6 +62,12 @@ def apply(cal: Calibration, base: dict[str, Any], command: str) -> dict[str, Any
     if "host_copy_fixed_ns" in cal.host:
         host["host_copy_fixed_ns"] = int(round(cal.host["host_copy_fixed_ns"]))
     sources = out.setdefault("sources", {})
+    overlap = apply_overlap(out, cal.overlap)
+    if overlap and "queue_overlap" in out["gpus"][0]:
+        sources["queue_overlap"] = (f"{overlap}; `mgpusim measure --pass overlap` fastest of the "
+                                    "repetitions, median over sizes")
+    elif overlap and overlap not in cal.warnings:
+        cal.warnings.append(overlap)
     sources["calibration"] = (f"cost coefficients, copy rates and host copy rates fitted by `{command}` "
                               f"on {cal.machine.get('recorded_at', 'unknown date')} "
                               f"(machine: {cal.machine.get('cpu', '?')}, driver: {_driver(cal.machine)})")
@@ -136,6 +143,8 @@ def report(cal: Calibration) -> str:
     if cal.host:
         th = ", ".join(f"{k} thr: {v:.3g} GB/s" for k, v in cal.host.get("throughput_by_threads_gbps", {}).items())
         lines.append(f"  host copies: {th}")
+    if cal.overlap:
+        lines.append("  " + (apply_overlap({"gpus": []}, cal.overlap) or ""))
     lines += [f"warning: {w}" for w in cal.warnings]
     return "\n".join(lines)
 
@@ -147,6 +156,7 @@ def fit_details(cal: Calibration) -> dict[str, Any]:
         "copies": {f"{p}/{q}": {**f.as_dict(), "rel_rms": f.rel_rms} for (p, q), f in cal.copy_fits.items()},
         "host": {k: v for k, v in cal.host.items()},
         "cores": {k: {"value": v, "ratios": r} for k, (v, r) in cal.cores.items()},
+        "overlap": {k: {"value": v, "per_size": e} for k, (v, e) in cal.overlap.items()},
         "warnings": cal.warnings,
     }
 

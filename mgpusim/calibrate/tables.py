@@ -24,11 +24,12 @@ MEASURED_PASSES: dict[str, tuple[str, ...]] = {
     "copy_h2d": ("bytes", "queue"),
     "copy_d2d": ("bytes", "queue"),
     "host_copy": ("bytes", "threads"),
+    "overlap": ("pair", "alone_a_ns", "alone_b_ns"),
 }
 #: Numeric columns: finite, in [0, MAX_WORK] wherever a row has them (durations in
 #: (0, MAX_TASK_NS]: the bounds of the model's own inputs).
 NUMERIC_COLUMNS = ("width", "height", "iterations", "triangles", "inputs", "particles", "bytes",
-                   "threads", "gpus", "lp_threads", "cpu_ns")
+                   "threads", "gpus", "lp_threads", "cpu_ns", "alone_a_ns", "alone_b_ns")
 
 
 def check_measure_table(df: pd.DataFrame, file: str) -> pd.DataFrame:
@@ -52,6 +53,10 @@ def check_measure_table(df: pd.DataFrame, file: str) -> pd.DataFrame:
         if col in out.columns:
             out[col] = number_column(df[col], file, col, minimum=0, maximum=MAX_WORK,
                                      rows=df[col].notna())
+    overlap = out["pass"] == "overlap"
+    for col in ("alone_a_ns", "alone_b_ns"):
+        if overlap.any() and col in out.columns:
+            number_column(df.loc[overlap, col], file, col, above=0, maximum=MAX_TASK_NS)
     for kind, needs in MEASURED_PASSES.items():
         rows = out["pass"] == kind
         for col in needs:

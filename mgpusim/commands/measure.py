@@ -25,6 +25,19 @@ def _list() -> int:
     return 0
 
 
+def _overlap_table(df) -> str:
+    """Each pair's efficiency from the fastest of its repetitions, per measured size."""
+    from ..calibrate.overlap import fastest_of  # noqa: PLC0415
+
+    lines = ["pair                queues                          alone A / B (ms)   together (ms)"
+             "  efficiency  note"]
+    for r in fastest_of(df).itertuples(index=False):
+        lines.append(f"{r.pair:19s} {r.queue_a + ' + ' + r.queue_b:31s} {r.alone_a_ns / 1e6:7.3f} / "
+                     f"{r.alone_b_ns / 1e6:7.3f} {r.duration_ns / 1e6:13.3f}  {r.efficiency:10.3f}  "
+                     f"{r.missing or ''}")
+    return "\n".join(lines)
+
+
 def run(args: argparse.Namespace) -> int:
     if args.list:
         return _list()
@@ -46,8 +59,11 @@ def run(args: argparse.Namespace) -> int:
     sweeps = m.parse_sweeps(args.pass_name, args.sweep or [])
     combos = len(m.combinations(args.pass_name, sweeps))
     lp = int_list(args.lp_threads, "--lp-threads")
-    gpus = [] if m.spec(args.pass_name).host else make_gpus(args.gpus, lp_threads=lp,
-                                                             physical=args.device)
+    count, device = args.gpus, args.device
+    if args.pass_name == "overlap":  # its pairs' VkDevices, all on one physical GPU
+        from ..vulkan.overlap import gpus_needed  # noqa: PLC0415
+        count, device = gpus_needed(sweeps.get("pair", [m.PASSES["overlap"].params["pair"]])), device or 0
+    gpus = [] if m.spec(args.pass_name).host else make_gpus(count, lp_threads=lp, physical=device)
     try:
         with tqdm(total=combos, desc=args.pass_name, unit="point", file=sys.stderr,
                   disable=args.quiet) as bar:
@@ -61,6 +77,8 @@ def run(args: argparse.Namespace) -> int:
         close_gpus(gpus)
     write_json(record, Path(args.out + ".machine.json"))
     if not args.quiet:
+        if args.pass_name == "overlap":
+            print(_overlap_table(df))
         print(f"wrote {len(df)} rows to {args.out} (+ .machine.json)")
     return 0
 

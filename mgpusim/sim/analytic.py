@@ -11,8 +11,9 @@ free thread, in dispatch order).
 Exact where nothing is shared: it equals the event model whenever the scene needs none of link
 sharing, host memory sharing and the shared executor (tests check it on every shipped
 experiment that qualifies). Otherwise shared links and host memory are taken as if each
-transfer had them alone (an optimistic bound: sharing only slows the model down), and
-CPU-emulated GPUs as independent devices; skippable tasks follow the event model's rule,
+transfer had them alone (an optimistic bound: sharing only slows the model down), so are the
+queues of one GPU that share it (shared_gpu: no piece of work runs faster shared than alone),
+and CPU-emulated GPUs are taken as independent devices; skippable tasks follow the event model's rule,
 decided from times. The summary lists the approximations made.
 
 The recurrence's state at a frame boundary (recent task ends, queue clocks, thread free times),
@@ -82,7 +83,8 @@ class Analytic:
         self.timeline = bool(self.dispatch or self.submit)
         # the engine's own rules for durations, channels and labels, without running it
         probe = Engine(program, costs, record_trace=False,
-                       effects=effects - {"shared_executor", "link_sharing", "host_memory_sharing"})
+                       effects=effects - {"shared_executor", "shared_gpu", "link_sharing",
+                                          "host_memory_sharing"})
         self.threads = host.memcpy_threads
         #: per frame phase, task name -> its device (a name may sit on other devices in other phases)
         self.device_of = [{t.name: task_device(t) for t in tasks} for tasks in program.templates]
@@ -145,6 +147,8 @@ class Analytic:
         needed = choose_effects(self.program, self.costs.profile)
         out = [f"{name}: taken as unshared (an optimistic bound)"
                for name in ("link_sharing", "host_memory_sharing") if name in needed]
+        if "shared_gpu" in needed:
+            out.append("shared_gpu: the queues of each GPU taken as independent (an optimistic bound)")
         if "shared_executor" in needed:
             out.append("shared_executor: the emulated GPUs taken as independent devices (not a bound)")
         return out

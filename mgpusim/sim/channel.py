@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from fractions import Fraction
+from typing import Callable
 
 import simpy
 
@@ -28,10 +29,11 @@ _ZERO = Fraction(0)
 
 
 class _Flow:
-    __slots__ = ("remaining", "cap", "cap_s", "rate", "done", "start", "nbytes", "solo_rate")
+    __slots__ = ("remaining", "cap", "cap_s", "rate", "done", "start", "nbytes", "solo_rate", "tag")
 
-    def __init__(self, nbytes: int, cap: Fraction | None, done: simpy.Event, start: int):
-        self.nbytes, self.cap, self.done, self.start = nbytes, cap, done, start
+    def __init__(self, nbytes: int, cap: Fraction | None, done: simpy.Event, start: int,
+                 tag: object = None):
+        self.nbytes, self.cap, self.done, self.start, self.tag = nbytes, cap, done, start, tag
         self.remaining = 0  # in 1/S bytes, set when the solver takes over
         self.rate = 0  # in 1/S bytes per ns
         self.cap_s: int | None = None
@@ -65,13 +67,14 @@ class Channel:
             self._denoms = math.lcm(self._denoms, self.oversubscribed.denominator)
         self._scale = self._denoms * math.lcm(*range(1, self._crowd + 1))
 
-    def transfer(self, nbytes: int, cap: Fraction | None = None) -> simpy.Event:
-        """An event that fires when `nbytes` have crossed the channel."""
+    def transfer(self, nbytes: int, cap: Fraction | None = None, tag: object = None) -> simpy.Event:
+        """An event that fires when `nbytes` have crossed the channel. `tag`: what the flow is
+        (a channel whose capacity depends on who shares it reads it; see GpuChannel)."""
         done = self.env.event()
         if nbytes <= 0:
             return done.succeed()
         now = self.env.now
-        flow = _Flow(nbytes, cap, done, now)
+        flow = _Flow(nbytes, cap, done, now, tag)
         if not self.flows:
             self._start_solo(flow, now)
             return done
@@ -120,7 +123,11 @@ class Channel:
     # ----- several transfers: the fluid solver --------------------------------------------
     def _fit_scale(self, flow: _Flow) -> None:
         """Grow S so that this flow's cap and the current crowd divide it."""
-        need_denoms = self._denoms if flow.cap is None else math.lcm(self._denoms, flow.cap.denominator)
+        self._grow_scale(1 if flow.cap is None else flow.cap.denominator)
+
+    def _grow_scale(self, denominator: int) -> None:
+        """Grow S so that `denominator` (of a cap or a capacity) and the current crowd divide it."""
+        need_denoms = math.lcm(self._denoms, denominator)
         crowd = self._crowd
         while crowd < len(self.flows):
             crowd *= 2
@@ -145,10 +152,8 @@ class Channel:
 
     def _reshare(self) -> None:
         """Max-min fair shares with per-flow caps (water-filling), all in integers."""
+        capacity = self._capacity_now()  # (may grow the scale: read it after)
         scale = self._scale
-        capacity = self.bandwidth
-        if self.oversubscribed is not None:
-            capacity = self._capacity(self._demand())
         # floored to 1/S byte per ns where an oversubscribed capacity has other denominators
         left = capacity.numerator * scale // capacity.denominator
         for f in self.flows:
@@ -160,6 +165,12 @@ class Channel:
             fair = left // (n - k)  # exact: see the module docstring
             flow.rate = fair if flow.cap_s is None or flow.cap_s >= fair else flow.cap_s
             left -= flow.rate
+
+    def _capacity_now(self) -> Fraction:
+        """What the channel delivers to the flows it has now."""
+        if self.oversubscribed is None:
+            return self.bandwidth
+        return self._capacity(self._demand())
 
     def _capacity(self, demand: Fraction) -> Fraction:
         """What the cores deliver under `demand`: all of `bandwidth` up to it, then less as
@@ -198,6 +209,29 @@ class Channel:
         wake = max(wake, self.env.now)
         gen = self._gen
         self.env.timeout(wake - self.env.now).callbacks.append(lambda _e: gen == self._gen and self._settle())
+
+
+class GpuChannel(Channel):
+    """The execution throughput of one physical GPU, shared by the work of its queues.
+
+    Amounts are ns of work at full speed and the bandwidth is 1 (one ns of work per ns): a
+    piece of work alone runs at full speed. With several at once the channel delivers
+    `capacity_of(tags)` in all (the tags of the flows running: their queues), shared equally;
+    `capacity_of` must stay within [0, n] for n flows, so that none runs faster than alone."""
+
+    def __init__(self, env: simpy.Environment, name: str,
+                 capacity_of: Callable[[tuple], Fraction]):
+        super().__init__(env, name, Fraction(1))
+        self._capacity_of = capacity_of
+        self._capacities: dict[tuple, Fraction] = {}
+
+    def _capacity_now(self) -> Fraction:
+        tags = tuple(sorted((f.tag for f in self.flows), key=str))
+        found = self._capacities.get(tags)
+        if found is None:
+            found = self._capacities[tags] = self._capacity_of(tags)
+        self._grow_scale(found.denominator)  # shares of it stay exact integers
+        return found
 
 
 def _cap_key(flow: _Flow) -> tuple[int, int]:

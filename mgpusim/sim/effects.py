@@ -11,7 +11,8 @@ Fidelity levels trade accuracy for time:
 
 - ``full``: every needed effect.
 - ``queues``: the event model with fixed-rate links (no link or host-memory sharing) and no
-  shared executor (CPU-emulated GPUs run as if each had its own cores).
+  shared executor (CPU-emulated GPUs run as if each had its own cores, the queues of one GPU
+  as if each were a GPU of its own).
 - ``analytic``: no event simulation at all (:mod:`mgpusim.sim.analytic`).
 """
 from __future__ import annotations
@@ -25,6 +26,7 @@ from ..errors import InputError
 from ..profile import HardwareProfile
 from ..schedules.base import FrameProgram
 from ..tasks import CopyTask, CpuTask, HostCopyTask, Task
+from .executors import shared_gpu_groups
 
 FIDELITIES: tuple[str, ...] = ("analytic", "queues", "full")
 
@@ -112,6 +114,14 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            "host cores (CPU-emulated GPUs); off: every device runs its own work",
            "the profile's GPUs share the host CPU (host.gpus_share_cpu)",
            lambda p, prof: prof.host.gpus_share_cpu, forceable=False),
+    Effect("shared_gpu",
+           "the passes and copies on the queues of one physical GPU (of one or several logical "
+           "GPUs) share its execution throughput, by each pair's overlap efficiency "
+           "(gpus.queue_overlap); off: every queue is a server of its own",
+           "a physical GPU runs work on two queues whose pair overlaps less than perfectly "
+           "(queue_overlap < 2, or two logical GPUs on it: gpus.physical), on GPUs that do not "
+           "share the host CPU",
+           lambda p, prof: bool(shared_gpu_groups(p, prof))),
     Effect("host_submission",
            "per-queue submit threads (host.submit_ns) and host wake-up before work fed by another "
            "device (host.dispatch_ns); off: work starts when its inputs are ready",
@@ -128,7 +138,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
 )}
 
 #: Effects the `queues` level leaves out.
-QUEUES_OMITS = frozenset({"link_sharing", "host_memory_sharing", "shared_executor"})
+QUEUES_OMITS = frozenset({"link_sharing", "host_memory_sharing", "shared_executor", "shared_gpu"})
 
 
 def parse_effects(text: str | None, option: str = "--effects") -> dict[str, bool]:

@@ -118,7 +118,8 @@ class Engine:
         self.channels: dict[str, Channel | FixedRateChannel] = {}
         self._unfinished = self._tasks_in(0, program.frames)
         self._make_executors = executors or (
-            lambda env: make_executors(env, costs, "shared_executor" in effects))
+            lambda env: make_executors(env, costs, "shared_executor" in effects,
+                                       program if "shared_gpu" in effects else None))
         self.processes: list[simpy.Process] = []
         self._ops: list[list[_Op]] = []
         #: called with the frame number when a frame presents (the fast-forward's probe)
@@ -215,7 +216,7 @@ class Engine:
             gap = self.costs.profile.gpus[task.queue.device].task_gap_ns
             if gap:
                 gap_run = executor.work
-        run, amount = executor.runner(duration, executor.cores(task))
+        run, amount = executor.task_runner(task, duration)
         return _Op(task, duration, channel, cap, nbytes, task.queue.device_name, task.queue.engine,
                    self._waits_for[phase][task.name], task.name == self.program.present_task,
                    run, amount, gap, gap_run)
@@ -475,14 +476,18 @@ class Engine:
         if self._unfinished:
             raise ScheduleError(self._blocked_message())
         ch = self.channels
+        links = {n: c for n, c in ch.items() if not n.startswith("host.") and not n.endswith(".exec")}
         effects = {
-            "link_model": any(not n.startswith("host.") for n in ch),
-            "link_contention": any(c.max_concurrent > 1 for n, c in ch.items() if not n.startswith("host.")),
+            "link_model": bool(links),
+            "link_contention": any(c.max_concurrent > 1 for c in links.values()),
             "host_copies": "host.memory" in ch,
             "host_memory_contention": "host.memory" in ch and ch["host.memory"].max_concurrent > 1,
         }
         if "host.cpu" in ch:  # only reported for CPU-emulated GPUs (lavapipe profiles)
             effects["cpu_contention"] = ch["host.cpu"].max_concurrent > 1
+        gpus = [c for n, c in ch.items() if n.endswith(".exec")]
+        if gpus:  # only reported where queues of one physical GPU share it (shared_gpu)
+            effects["gpu_contention"] = any(c.max_concurrent > 1 for c in gpus)
         return RawResult(self.rows, self.frame_start, self.present_end, self.channels,
                          {n: len(f) for n, f in self._chains.skipped_frames.items()}, effects,
                          dict(self._chains.skipped_frames), present_task=self.program.present_task)

@@ -4,9 +4,11 @@ A real GPU runs its own work: a pass of `ns` is a delay of `ns` (:class:`Dedicat
 emulated on the host CPU (lavapipe) share its cores with each other, the memcpy threads and the
 submit threads (:class:`SharedCores`): a pass of `ns` that keeps `cores` busy is `ns x cores`
 core-ns of work on one fluid channel of the host's cores, so passes that overlap slow each other.
-The engine never asks which kind it has: it asks the executor for a *runner* once per task when
-it builds, and yields what the runner returns in its hot loop. The same mechanism can carry any
-pool that several devices or queues draw on (e.g. the queues of one GPU sharing its cores).
+The queues of one real GPU share it too (:class:`SharedGpu`, the shared_gpu effect): a pass
+on the compute queue slows a render on the graphics queue, by how much the profile's overlap
+efficiency of that pair of queues says; so do several logical GPUs (VkDevices) on one physical
+GPU. The engine never asks which kind it has: it asks the executor for a *runner* once per task
+when it builds, and yields what the runner returns in its hot loop.
 """
 from __future__ import annotations
 
@@ -16,8 +18,9 @@ from typing import Callable, Protocol
 import simpy
 
 from ..costs import CostModel
-from ..tasks import CopyTask, HostCopyTask, PassTask, Task
-from .channel import Channel
+from ..profile import QUEUE_FAMILIES, HardwareProfile
+from ..tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
+from .channel import Channel, GpuChannel
 
 #: A runner: called with an amount, returns the event that fires when that work is done.
 Runner = Callable[[int], simpy.Event]
@@ -36,6 +39,10 @@ class Dedicated:
     def runner(self, ns: int, cores: Fraction | int = 1) -> tuple[Runner | None, int]:
         """(runner, amount) for work of `ns`; no runner for no work (nothing to wait for)."""
         return (self.env.timeout, ns) if ns else (None, 0)
+
+    def task_runner(self, task: Task, ns: int) -> tuple[Runner | None, int]:
+        """(runner, amount) for `task`'s work of `ns`."""
+        return self.runner(ns, self.cores(task))
 
     def work(self, ns: int) -> simpy.Event:
         """One thread's `ns` of time (a host thread waking, a queue's idle gap)."""
@@ -72,6 +79,9 @@ class SharedCores:
             return transfer(amount, cores)
         return run, -(-ns * cores.numerator // cores.denominator)
 
+    def task_runner(self, task: Task, ns: int) -> tuple[Runner | None, int]:
+        return self.runner(ns, self.cores(task))
+
     def work(self, ns: int) -> simpy.Event:
         """One thread's `ns` of time: one core's work on the pool."""
         return self.channel.transfer(ns, 1)
@@ -94,6 +104,91 @@ class SharedCores:
         return min(Fraction(repr(cost.cores)).limit_denominator(1000), threads)
 
 
+class SharedGpu(Dedicated):
+    """One physical GPU whose queues (of one or several logical GPUs) share its execution
+    throughput: every pass and copy of its queues is work on one :class:`GpuChannel`. Alone a
+    piece of work runs at full speed; two at once run at together `e` times the speed of one
+    (`e`: the pair's overlap efficiency, :func:`pair_efficiency`), each at half of that.
+
+    A copy is work of its queue at its rate alone (link or copy-engine rate): a copy on a copy
+    engine (transfer queue) is another unit, and shares only what `graphics_transfer` /
+    `compute_transfer` say (memory bandwidth); a copy on the graphics queue is graphics work.
+    Its link is not a channel of its own then: the pair efficiencies replace link sharing
+    between this GPU's queues."""
+
+    shared = True
+    copies_on_cores = True
+
+    def __init__(self, env: simpy.Environment, profile: HardwareProfile, physical: int):
+        super().__init__(env)
+        self.profile = profile
+        self.channel = GpuChannel(env, f"gpu{physical}.exec", lambda tags: capacity(profile, tags))
+
+    def task_runner(self, task: Task, ns: int) -> tuple[Runner | None, int]:
+        if not ns:
+            return None, 0
+        transfer, tag = self.channel.transfer, task.queue  # type: ignore[union-attr]
+        return (lambda amount: transfer(amount, None, tag)), ns
+
+
+def pair_efficiency(profile: HardwareProfile, a: QueueRef, b: QueueRef) -> float:
+    """Overlap efficiency of work on queues `a` and `b` of one physical GPU: passes of two
+    logical GPUs take `devices` (a copy engine is shared across them by its family pair), two
+    queues of one family `same_family`, else the families' pair (graphics_compute, ...)."""
+    gpu = profile.gpus[a.device]
+    if a.device != b.device and "transfer" not in (a.family, b.family):
+        return gpu.overlap("devices")
+    if a.family == b.family:
+        return gpu.overlap("same_family")
+    first, second = sorted((a.family, b.family), key=QUEUE_FAMILIES.index)
+    return gpu.overlap(f"{first}_{second}")
+
+
+def capacity(profile: HardwareProfile, tags: tuple) -> Fraction:
+    """What n pieces of work on these queues deliver together, in units of one alone: 1 for
+    one; for two their pair's efficiency; for more, each extra one adds the pairs' mean gain,
+    1 + (n - 1) x mean(e - 1), kept within [min(1, the worst pair), n]."""
+    n = len(tags)
+    if n < 2:
+        return Fraction(1)
+    effs = [Fraction(repr(pair_efficiency(profile, a, b))).limit_denominator(1000)
+            for i, a in enumerate(tags) for b in tags[i + 1:]]
+    mean_gain = sum(e - 1 for e in effs) / len(effs)
+    return min(Fraction(n), max(min(Fraction(1), min(effs)), 1 + (n - 1) * mean_gain))
+
+
+def overlap_efficiency(alone_a: float, alone_b: float, together: float) -> float:
+    """The overlap efficiency `e` that the model's rule gives for two pieces of work of
+    `alone_a` and `alone_b` ns that take `together` ns from the first start to the last end
+    when started at once: both run at e/2 until the shorter ends, the rest alone, so
+    together = 2 min / e + |a - b| and e = 2 min(a, b) / (together - |a - b|); for equal
+    pieces (a + b) / together. Kept within (0, 2] (2: no slowdown at all)."""
+    short, gap = min(alone_a, alone_b), abs(alone_a - alone_b)
+    if short <= 0:
+        raise ValueError("overlap_efficiency: both pieces of work must take time")
+    shared = together - gap
+    return 2.0 if shared <= short else min(2.0, 2.0 * short / shared)
+
+
+def shared_gpu_groups(program, profile: HardwareProfile) -> dict[int, tuple[QueueRef, ...]]:
+    """Physical GPUs whose queues must share them: the queues the program uses on each, where
+    two of them overlap less than perfectly (efficiency < 2). Never on CPU-emulated GPUs: the
+    host's cores are their shared resource (SharedCores)."""
+    if profile.host.gpus_share_cpu:
+        return {}
+    used: dict[int, set[QueueRef]] = {}
+    for tasks in program.templates:
+        for t in tasks:
+            if not isinstance(t, (HostCopyTask, CpuTask)):  # the host's work, not a GPU's
+                used.setdefault(profile.physical_of(t.queue.device), set()).add(t.queue)
+    out = {}
+    for phys, queues in used.items():
+        qs = sorted(queues, key=str)
+        if any(pair_efficiency(profile, a, b) < 2 for i, a in enumerate(qs) for b in qs[i + 1:]):
+            out[phys] = tuple(qs)
+    return out
+
+
 class Executor(Protocol):
     """What the engine asks of an executor (Dedicated and SharedCores are the two kinds)."""
 
@@ -104,6 +199,8 @@ class Executor(Protocol):
 
     def runner(self, ns: int, cores: Fraction | int = 1) -> tuple[Runner | None, int]: ...
 
+    def task_runner(self, task: Task, ns: int) -> tuple[Runner | None, int]: ...
+
     def work(self, ns: int) -> simpy.Event: ...
 
     def background(self) -> Callable[[int], object] | None: ...
@@ -111,9 +208,19 @@ class Executor(Protocol):
     def cores(self, task: Task) -> Fraction: ...
 
 
-def make_executors(env: simpy.Environment, costs: CostModel, shared: bool) -> dict[str, Executor]:
+def make_executors(env: simpy.Environment, costs: CostModel, shared: bool,
+                   program=None) -> dict[str, Executor]:
     """One executor per device name ("gpu<i>") and "host". `shared`: every device and the host
-    draw on the host's cores (the shared_executor effect)."""
+    draw on the host's cores (the shared_executor effect). `program` (the shared_gpu effect):
+    the logical GPUs of each physical GPU whose queues share it get one SharedGpu."""
+    profile = costs.profile
     one: Executor = SharedCores(env, costs) if shared else Dedicated(env)
-    names = [f"gpu{i}" for i in range(len(costs.profile.gpus))] + ["host"]
-    return {name: one for name in names}
+    out: dict[str, Executor] = {f"gpu{i}": one for i in range(len(profile.gpus))}
+    out["host"] = one
+    if program is not None and not shared:
+        for phys in shared_gpu_groups(program, profile):
+            gpu_ex = SharedGpu(env, profile, phys)
+            for i in range(len(profile.gpus)):
+                if profile.physical_of(i) == phys:
+                    out[f"gpu{i}"] = gpu_ex
+    return out

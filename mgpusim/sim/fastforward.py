@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 import simpy
 
 from .channel import Channel, FixedRateChannel
-from .executors import Dedicated, SharedCores
+from .executors import Dedicated, SharedCores, SharedGpu
 
 if TYPE_CHECKING:
     from .engine import Engine
@@ -80,7 +80,7 @@ class FastForward:
         self._opid = {id(op): (i, j) for i, ops in enumerate(engine.all_ops()) for j, op in enumerate(ops)}
         self._proc_index = {id(p): i for i, p in enumerate(engine.processes)}
         unknown = sorted({type(ex).__name__ for ex in engine.executors.values()
-                          if type(ex) not in (Dedicated, SharedCores)})
+                          if type(ex) not in (Dedicated, SharedCores, SharedGpu)})
         if unknown:  # its state is not written down: a repeat could not be trusted
             self.active = False
             self.reason = f"executor {', '.join(unknown)} has state this fast-forward does not describe"
@@ -385,7 +385,7 @@ class _Describer:
             raise Unsupported(f"channel {name!r} of type {type(ch).__name__}")
         fluid = any(not f.solo_rate for f in ch.flows)
         flows = tuple((f.remaining, f.cap, f.cap_s, f.rate, self.t(f.start), f.nbytes, f.solo_rate,
-                       self._event(f.done)) for f in ch.flows)
+                       self._event(f.done), f.tag) for f in ch.flows)
         return (name, flows, self.t(ch._t) if fluid else None, ch._settle_pending,
                 ch._crowd, ch._denoms, ch._scale)
 

@@ -150,6 +150,8 @@ class Gpu:
                              f"{len(instance.devices)}")
         self.instance, self.name, self.owns_instance = instance, name, owns_instance
         self.physical = instance.physical_handles[physical_index]
+        #: which physical device of the instance (several simulated GPUs may share one)
+        self.physical_index = physical_index
         self.info: PhysicalDeviceInfo = instance.devices[physical_index]
         fams = self.info.queue_families
         chosen: dict[str, QueueFamilyInfo] = {}

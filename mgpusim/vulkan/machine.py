@@ -103,6 +103,7 @@ def machine_record(gpus: Sequence[Gpu], extra: dict[str, Any] | None = None) -> 
         "host_heap": keep_heap(),
         "gpus": [{
             "name": g.name, "device": g.info.name, "device_type": g.info.device_type,
+            "physical_index": g.physical_index,
             "driver": g.info.driver_name, "driver_info": g.info.driver_info,
             "driver_version": g.info.driver_version, "api_version": g.info.api_version,
             "lp_num_threads": g.instance.lp_num_threads,

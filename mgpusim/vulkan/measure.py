@@ -4,7 +4,8 @@ Why this shape: one tidy row per (simulated GPU, parameter combination, repetiti
 parameter of the pass as a column (defaults filled in), so the calibration can group by any
 knob. Warm-up runs (first-use page faults, shader JIT) are run and discarded; every measured
 repetition is kept. With several GPUs every repetition is submitted to all of them at once, so
-the table shows their contention (on lavapipe they share the CPU).
+the table shows their contention (on lavapipe they share the CPU). `overlap` is the one pass
+that is two: pieces of work on two queues of one GPU, alone and at once (:mod:`.overlap`).
 """
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ import pandas as pd
 
 from ..errors import InputError
 from ..geometry import MESH_PLACE, mesh_placement
+from . import overlap
 from .copies import CopyD2D, CopyD2H, CopyH2D
 from .device import Gpu
 from .hostcopy import HostCopy
@@ -81,6 +83,9 @@ PASSES: dict[str, PassSpec] = {s.name: s for s in (
     PassSpec("host_copy", {"bytes": 1 << 22, "threads": 1},
              lambda g, p: HostCopy(p["bytes"], p["threads"]),
              "host -> host on K threads, chunks >= 512 KiB", host=True),
+    PassSpec("overlap", dict(overlap.PARAMS), lambda g, p: None,
+             "two queues of one GPU alone and at once (pair: " + ", ".join(overlap.PAIRS)
+             + "): fragment loop / particle update / copy on the copy engine"),
 )}
 
 _SUFFIX = {"": 1, "k": 1000, "m": 10**6, "g": 10**9, "kib": 1 << 10, "mib": 1 << 20,
@@ -138,7 +143,9 @@ def measure(pass_name: str, gpus: Sequence[Gpu], sweeps: dict[str, list[int | st
     ps = spec(pass_name)
     rows: list[dict[str, Any]] = []
     for params in combinations(pass_name, sweeps):
-        if ps.host:
+        if pass_name == "overlap":
+            rows += overlap.measure_pair(gpus, params, reps, warmup, lambda: ("measure", next(_KEYS)))
+        elif ps.host:
             work = ps.build(None, params)
             try:
                 for rep in range(-warmup, reps):

@@ -1,0 +1,194 @@
+"""Queues of one physical GPU sharing it (the shared_gpu effect): passes on two queues of one
+GPU, or of two logical GPUs on one physical GPU, slow each other by the pair's overlap
+efficiency; hand-computed timelines, the profile fields, and where the effect is on."""
+from __future__ import annotations
+
+import copy
+from fractions import Fraction
+
+import pytest
+
+from mgpusim import simulate
+from mgpusim.errors import InputError
+from mgpusim.profile import parse_profile
+from mgpusim.sim.effects import choose_effects
+from mgpusim.sim.executors import capacity
+from mgpusim.simulate import build_program
+from mgpusim.tasks import QueueRef
+from tests.conftest import experiment_dict, make_experiment, profile_dict
+
+from mgpusim.experiment import parse_experiment
+
+
+def _profile(overlap: dict | None = None, physical: int | None = None, gpus: int = 2) -> dict:
+    prof = profile_dict(gpus=gpus)
+    gpu = prof["gpus"][0]
+    gpu["costs"]["particle_update"] = {"ns_per_particle": 1.0}
+    gpu["costs"]["particle_render"] = {"fixed_ns": 100, "ns_per_particle": 0.0, "ns_per_pixel": 0.0}
+    if overlap is not None:
+        gpu["queue_overlap"] = overlap
+    if physical is not None:
+        gpu["physical"] = physical
+    return prof
+
+
+def _spans(result, frame: int = 0) -> dict[str, tuple[int, int]]:
+    t = result.trace[result.trace.frame == frame].set_index("task")
+    return {name: (int(r.start_ns), int(r.end_ns)) for name, r in t.iterrows()}
+
+
+def _particles(prof: dict, **sched) -> object:
+    """The primary renders a 32x10 fragment loop of 1 iteration (320 ns, `geometry`) while its
+    compute queue updates 1000 particles (1000 ns); the draw waits for the update."""
+    data = experiment_dict("particles", gpus=1, width=32, height=10, particles=1000,
+                           particle_gpu=0, policy="wait", **sched)
+    data["scene"]["passes"] = [{"name": "geometry", "kind": "fragment_loop", "iterations": 1}]
+    return parse_experiment(data, "t", profile=parse_profile(copy.deepcopy(prof), "p"))
+
+
+def test_two_queues_of_one_gpu_share_it_by_their_efficiency():
+    # independent queues (no queue_overlap): both start at 0 and run at full speed
+    free = _spans(simulate(_particles(_profile())))
+    assert free["render.geometry"] == (0, 320) and free["particle_update"] == (0, 1000)
+    # efficiency 1: no gain from overlap, each at half speed while both run: the render's
+    # 320 ns take 640; the update did 320 by then and runs its last 680 alone (ends 1320)
+    one = simulate(_particles(_profile({"graphics_compute": 1.0})))
+    s = _spans(one)
+    assert s["render.geometry"] == (0, 640) and s["particle_update"] == (0, 1320)
+    assert "shared_gpu" in one.summary["modelled_effects"]
+    assert one.summary["effects"]["gpu_contention"] is True
+    # efficiency 1.5: each at 3/4 speed together: 320 / 0.75 = 426.67 -> 427; update 320 done,
+    # 680 alone: ends at 1106.67 -> 1107
+    s = _spans(simulate(_particles(_profile({"graphics_compute": 1.5}))))
+    assert s["render.geometry"] == (0, 427) and s["particle_update"] == (0, 1107)
+
+
+def test_update_on_the_graphics_queue_is_back_to_back_whatever_the_efficiency():
+    prof = _profile({"graphics_compute": 1.0})
+    s = _spans(simulate(_particles(prof, update_queue="graphics")))
+    assert s["particle_update"] == (0, 1000) and s["render.geometry"] == (1000, 1320)
+    assert "shared_gpu" not in simulate(_particles(prof, update_queue="graphics")).summary["modelled_effects"]
+
+
+def test_two_logical_gpus_on_one_physical_gpu_take_turns():
+    # sort-first: 8x4, 2 tiles of 16 px x 100 iterations = 1600 ns each, at once on two GPUs
+    apart = _spans(simulate(make_experiment(_profile(), gpus=2, iterations=100)))
+    assert apart["render0"] == (0, 1600) and apart["render1"] == (0, 1600)
+    shared = simulate(make_experiment(_profile(physical=0), gpus=2, iterations=100))
+    s = _spans(shared)
+    assert s["render0"] == (0, 3200) and s["render1"] == (0, 3200)  # devices = 1 by default
+    assert "gpu0.exec" in shared.summary["utilization"] or shared.links["channel"].eq("gpu0.exec").any()
+    s = _spans(simulate(make_experiment(_profile({"devices": 1.6}, physical=0), gpus=2, iterations=100)))
+    assert s["render0"] == (0, 2000) and s["render1"] == (0, 2000)
+
+
+def test_effect_is_on_only_where_a_gpu_runs_two_queues_that_interfere():
+    plain = make_experiment(_profile(), gpus=2)
+    assert "shared_gpu" not in choose_effects(build_program(plain), plain.profile)
+    perfect = make_experiment(_profile({"graphics_compute": 2.0, "graphics_transfer": 2.0}), gpus=2)
+    assert "shared_gpu" not in choose_effects(build_program(perfect), perfect.profile)
+    one_queue = make_experiment(_profile({"graphics_transfer": 1.0}), gpus=1)
+    assert "shared_gpu" not in choose_effects(build_program(one_queue), one_queue.profile)
+    copies = make_experiment(_profile({"graphics_transfer": 1.0}), gpus=2)  # gpu0 uploads on transfer
+    assert "shared_gpu" in choose_effects(build_program(copies), copies.profile)
+    assert "shared_gpu" not in choose_effects(build_program(copies), copies.profile, "queues")
+    lava = _profile(physical=0)
+    lava["host"]["gpus_share_cpu"] = True  # the host's cores are the shared resource there
+    lp = make_experiment(lava, gpus=2)
+    chosen = choose_effects(build_program(lp), lp.profile)
+    assert "shared_executor" in chosen and "shared_gpu" not in chosen
+
+
+def test_copy_on_the_copy_engine_shares_by_graphics_transfer():
+    # sort-first on 2 GPUs: the primary's transfer queue uploads while its graphics queue renders
+    free = simulate(make_experiment(_profile(), gpus=2, iterations=100, frames=6))
+    slow = simulate(make_experiment(_profile({"graphics_transfer": 1.0}), gpus=2, iterations=100, frames=6))
+    assert slow.summary["frame_time_ms"] > free.summary["frame_time_ms"]
+    same = simulate(make_experiment(_profile({"graphics_transfer": 2.0}), gpus=2, iterations=100, frames=6))
+    assert same.trace.equals(free.trace)
+
+
+def test_capacity_of_several_queues():
+    prof = parse_profile(_profile({"graphics_compute": 1.5, "graphics_transfer": 1.8,
+                                   "compute_transfer": 1.2}, gpus=1), "p")
+    g, c, x = QueueRef(0, "graphics"), QueueRef(0, "compute"), QueueRef(0, "transfer")
+    assert capacity(prof, (g,)) == 1
+    assert capacity(prof, (g, c)) == Fraction(3, 2)
+    # three at once: 1 + 2 x mean gain (0.5, 0.8, 0.2) = 2
+    assert capacity(prof, (g, c, x)) == 2
+    worst = parse_profile(_profile({"graphics_compute": 0.5, "graphics_transfer": 0.5,
+                                    "compute_transfer": 0.5}, gpus=1), "p")
+    assert capacity(worst, (g, c, x)) == Fraction(1, 2)  # never below the worst pair
+
+
+def test_fast_forward_and_levels_with_a_shared_gpu():
+    exp = _particles(_profile({"graphics_compute": 1.3}), frames=300)
+    on, off = simulate(exp), simulate(exp, fast_forward=False)
+    assert on.summary["fast_forward"]["used"] is True
+    assert on.trace.equals(off.trace) and on.frames.equals(off.frames)
+    analytic = simulate(exp, fidelity="analytic").summary
+    assert any(a.startswith("shared_gpu") for a in analytic["effects"]["analytic_approximations"])
+    assert analytic["frame_time_ms"] <= on.summary["frame_time_ms"]  # an optimistic bound
+
+
+@pytest.mark.parametrize("overlap, field, message", [
+    ({"graphics_compute": 2.5}, "graphics_compute", "<= 2"),
+    ({"graphics_compute": 0}, "graphics_compute", "> 0"),
+    ({"graphics_compte": 1.2}, "graphics_compte", "did you mean 'graphics_compute'"),
+])
+def test_bad_queue_overlap_names_the_field(overlap, field, message):
+    with pytest.raises(InputError, match=message) as err:
+        parse_profile(_profile(overlap), "p.toml")
+    assert f"queue_overlap.{field}" in str(err.value)
+
+
+def test_logical_gpus_of_one_physical_gpu_describe_it_alike():
+    prof = profile_dict(gpus=1)
+    first = dict(prof["gpus"][0], queue_overlap={"graphics_compute": 1.2})
+    second = dict(prof["gpus"][0], physical=0, queue_overlap={"graphics_compute": 1.4})
+    prof["gpus"] = [first, second]
+    with pytest.raises(InputError, match="physical GPU 0") as err:
+        parse_profile(prof, "p.toml")
+    assert "gpus[1].queue_overlap" in str(err.value)
+    with pytest.raises(InputError, match="physical"):
+        parse_profile(_profile(physical=-1), "p.toml")
+
+
+def test_a_run_on_one_gpu_is_compared_only_with_a_profile_that_says_so(tmp_path):
+    from mgpusim.measured_check import check_physical_gpus
+
+    one_gpu = {"gpus": [{"name": "gpu0", "physical_index": 0}, {"name": "gpu1", "physical_index": 0}]}
+    apart = make_experiment(_profile(), gpus=2)
+    with pytest.raises(InputError, match="ran on one physical GPU") as err:
+        check_physical_gpus(one_gpu, apart, "machine.json")
+    assert "gpus[1].physical" in str(err.value)
+    check_physical_gpus(one_gpu, make_experiment(_profile(physical=0), gpus=2), "machine.json")
+    two_gpus = {"gpus": [{"physical_index": 0}, {"physical_index": 1}]}
+    check_physical_gpus(two_gpus, apart, "machine.json")
+    with pytest.raises(InputError, match="different physical GPUs"):
+        check_physical_gpus(two_gpus, make_experiment(_profile(physical=0), gpus=2), "machine.json")
+    check_physical_gpus({"gpus": [{"name": "gpu0"}, {"name": "gpu1"}]}, apart, "m")  # older record
+    lava = _profile()
+    lava["host"]["gpus_share_cpu"] = True  # lavapipe: the CPU is what they share
+    check_physical_gpus(one_gpu, make_experiment(lava, gpus=2), "machine.json")
+
+
+def test_h100_queues_study_configurations_model_the_sharing():
+    """The NVIDIA particle configurations: where the update runs decides whether the one GPU's
+    queues share it; the second logical GPU is on the same physical GPU."""
+    from pathlib import Path
+
+    from mgpusim.overrides import parse_overrides
+    from mgpusim.study import load_study
+
+    root = Path(__file__).resolve().parents[1]
+    study = load_study(root / "experiments" / "h100" / "queues.toml")
+    what_if = parse_overrides(["profile.gpus.0.queue_overlap.graphics_compute=1.2"])
+    seen = {}
+    for entry in study.entries():
+        exp = entry.load(study.profile, [f"{k}={v}" for k, v in what_if.items()])
+        prog = build_program(exp)
+        seen[entry.name] = ("shared_gpu" in choose_effects(prog, exp.profile), exp.profile.shares_physical())
+    assert seen["p2m_graphics"] == (False, False) and seen["p4m_graphics"] == (False, False)
+    assert seen["p2m_compute"] == (True, False) and seen["p4m_compute"] == (True, False)
+    assert all(seen[n] == (True, True) for n in ("p2m_2dev_wait", "p2m_2dev_new_wait", "p2m_2dev_nohost"))

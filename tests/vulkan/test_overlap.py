@@ -1,0 +1,36 @@
+"""The overlap microbenchmark on lavapipe (tiny sizes): pairs of queues alone and at once."""
+from __future__ import annotations
+
+import pandas as pd
+import pytest
+
+from mgpusim.calibrate.overlap import fastest_of, fit_overlap
+from mgpusim.cli import main
+
+pytestmark = pytest.mark.vulkan
+
+SMALL = ["--sweep", "width=32", "--sweep", "height=32", "--sweep", "iterations=100",
+         "--sweep", "particles=1024", "--sweep", "bytes=64KiB", "--reps", "2", "--warmup", "1"]
+
+
+def test_overlap_table_says_which_families_are_missing(tmp_path, capsys):
+    out = tmp_path / "overlap.csv"
+    rc = main(["measure", "--pass", "overlap", "--sweep", "pair=graphics_compute,devices", *SMALL,
+               "--out", str(out)])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "no compute family: ran on graphics" in printed and "efficiency" in printed
+    df = pd.read_csv(out)
+    assert len(df) == 2 * 2 and set(df["pass"]) == {"overlap"}
+    assert (df.alone_a_ns > 0).all() and (df.alone_b_ns > 0).all()
+    assert ((df.efficiency > 0) & (df.efficiency <= 2)).all()
+    one = df[df.pair == "graphics_compute"]
+    # lavapipe has one queue family: both pieces ran on its one queue, one after the other
+    assert (one.queue_a == one.queue_b).all() and (one.duration_ns >= one[["alone_a_ns", "alone_b_ns"]].max(axis=1)).all()
+    two = df[df.pair == "devices"]
+    assert (two.queue_a == "gpu0.graphics").all() and (two.queue_b == "gpu1.graphics").all()
+    assert (two.gpus == 2).all()
+    fitted, warnings = fit_overlap(df)
+    assert set(fitted) == {"devices"}  # the one-queue pair says nothing and is left out
+    assert any("graphics_compute" in w and "not fitted" in w for w in warnings)
+    assert len(fastest_of(df)) == 2

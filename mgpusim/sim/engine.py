@@ -25,7 +25,7 @@ import simpy
 from ..costs import CostModel, gbps_fraction, ns, round_half_up
 from ..errors import InputError, ScheduleError
 from ..limits import INT64_MAX
-from ..schedules.base import FrameProgram, even_split, task_device, waits_for_labels, wakes_host
+from ..schedules.base import FrameProgram, even_split, waits_for_labels, wakes_host
 from ..tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
 from .channel import Channel, FixedRateChannel
 from .effects import choose_effects
@@ -55,12 +55,6 @@ class _Op:
     gap_run: Runner | None = None
     #: a CPU task: its thread wakes `dispatch_ns` after an input from elsewhere, no submit cost
     cpu: bool = False
-
-
-def group_ends(task: CopyTask) -> tuple[int, int]:
-    """(source, destination) of a device-group copy: pulled by the destination, else pushed."""
-    other = task.peer if task.peer is not None else task.queue.device
-    return (other, task.queue.device) if task.pull else (task.queue.device, other)
 
 
 @dataclass
@@ -225,7 +219,7 @@ class Engine:
         """A copy alone on its path must end within the bound on one task's time."""
         bw, dev = self._path_bandwidth(task), task.queue.device
         field = {"p2p": "peer_links", "d2d": f"gpus[{dev}].local_copy_gbps",
-                 "group": f"gpus[{group_ends(task)[0]}].link.d2h_gbps"}.get(
+                 "group": f"gpus[{task.ends()[0]}].link.d2h_gbps"}.get(
             task.path, f"gpus[{dev}].link.{task.path}_gbps")
         if cap is not None and cap < bw:
             bw, field = cap, f"gpus[{dev}].copy.{task.queue.family}.{task.path}_gbps"
@@ -269,8 +263,7 @@ class Engine:
         if task.path == "p2p":
             return self.costs.peer_bandwidth(dev, task.peer)  # type: ignore[arg-type]
         if task.path == "group":
-            src, dst = group_ends(task)
-            return self.costs.group_bandwidth(src, dst)
+            return self.costs.group_bandwidth(*task.ends())
         return self.costs.link_bandwidth(dev, task.path)
 
     def _channel_for(self, task: CopyTask) -> Channel | FixedRateChannel:

@@ -9,11 +9,12 @@ import pytest
 PASSES = [timed("a", 1000, output_bytes=200), timed("b", 400, output_bytes=100), timed("c", 300)]
 
 
-def run(**kw):
+def run(fidelity="full", **kw):
     kw.setdefault("split_at", 2)
     kw.setdefault("fif", 3)
     kw.setdefault("warmup", 1)
-    return simulate(experiment(kw.pop("prof", profile()), "pipelining", PASSES, **kw))
+    return simulate(experiment(kw.pop("prof", profile()), "pipelining", PASSES, **kw),
+                    fidelity=fidelity)
 
 
 def test_exact_timeline_per_pass_copies():
@@ -132,6 +133,8 @@ def test_device_group_copies_go_gpu_to_gpu_over_pcie():
     assert set(r.trace[r.trace.task == "out.a.group"].device) == {"gpu1"}
     assert not r.trace.step.isin(["d2h", "h2d", "host_copy"]).any()
     assert presents(r)[0] == 1760
+    assert presents(run(frames=6, prof=prof, path="group", fidelity="analytic")) == \
+        presents(run(frames=6, prof=prof, path="group"))
     from mgpusim.program import build_program
     copy = next(t for t in build_program(experiment(prof, "pipelining", PASSES, split_at=2,
                                                      path="group")).templates[0]

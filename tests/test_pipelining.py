@@ -140,3 +140,12 @@ def test_device_group_copies_go_gpu_to_gpu_over_pcie():
                                                      path="group")).templates[0]
                 if t.name == "out.a.group")
     assert copy.path == "group" and copy.src is None  # left unbound: the runner refuses it
+
+
+def test_reads_on_one_gpu_is_the_baseline():
+    """The same file with gpus = 1: nothing crosses, `reads` is only checked for names."""
+    kw = dict(split_at=1, frames=2, fif=3, warmup=1, gpus=1, consumer_waits="reads")
+    r = simulate(experiment(profile(), "pipelining", READS, reads={"d": ["a"]}, **kw))
+    assert presents(r)[0] == 1000 + 300 + 200 + 10
+    with pytest.raises(InputError, match="schedule.reads.d"):
+        simulate(experiment(profile(), "pipelining", READS, reads={"d": ["x"]}, **kw))

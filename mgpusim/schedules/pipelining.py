@@ -229,12 +229,15 @@ def _consumer(cfg: ScheduleConfig, scene: Scene, group: str,
 def _readers(cfg: ScheduleConfig, scene: Scene,
              split: int) -> dict[str, tuple[str, ...]] | None:
     """With consumer_waits = 'reads': every GPU 0 pass (in order) -> the copy groups whose
-    arrival it waits for; None with 'all'. A pass reads the GPU 1 outputs `reads` lists,
+    arrival it waits for; None with 'all' or one GPU. A pass reads the GPU 1 outputs `reads` lists,
     a filter without an entry its `inputs` passes that ran on GPU 1."""
     given = cfg.opt("reads")
     if cfg.opt("consumer_waits") == "all":
         if given:
             raise InputError("reads applies with consumer_waits = 'reads'", field="schedule.reads")
+        return None
+    if cfg.gpus == 1:  # nothing crosses; the same file runs as the one-GPU baseline
+        _check_names(given, [p.name for p in scene.passes])
         return None
     first = [p.name for p in scene.passes[:split]]
     rest = scene.passes[split:]
@@ -255,6 +258,14 @@ def _readers(cfg: ScheduleConfig, scene: Scene,
         sources = [s for s in sources or () if _output_bytes(_spec(scene, s)) or frame_copy]
         out[spec.name] = tuple(dict.fromkeys("out" if frame_copy else f"out.{s}" for s in sources))
     return out
+
+
+def _check_names(given: dict, names: list[str]) -> None:
+    """`reads` names scene passes only (checked on one GPU, where no pass runs on GPU 1)."""
+    for name, sources in given.items():
+        if name not in names or not isinstance(sources, list) or not all(s in names for s in sources):
+            raise InputError(f"expected scene passes ({names}) read by a scene pass, got "
+                             f"{name!r} = {sources!r}", field=f"schedule.reads.{name}")
 
 
 def _spec(scene: Scene, name: str) -> PassSpec:

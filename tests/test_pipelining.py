@@ -149,3 +149,23 @@ def test_reads_on_one_gpu_is_the_baseline():
     assert presents(r)[0] == 1000 + 300 + 200 + 10
     with pytest.raises(InputError, match="schedule.reads.d"):
         simulate(experiment(profile(), "pipelining", READS, reads={"d": ["x"]}, **kw))
+
+
+def test_producer_chunks_copy_each_piece_as_it_is_rendered():
+    """Two chunks, each of GPU 1's passes in two halves: a#0 0-500, a#1 500-1000, b#0
+    1000-1200, b#1 1200-1400. a's first 100 B leave at 500 (d2h 500-600, h2d 600-700), its
+    second at 1000 (1000-1100-1200); b's 50 B pieces 1200-1250-1300 and 1400-1450-1500.
+    c 1500-1800, present 1810: 50 ns less than chunks that leave after the whole pass."""
+    r = run(frames=2, chunks=2, producer_chunks=True)
+    assert rows(r, "render.a#0", 0) == [(0, 500)] and rows(r, "render.b#1", 0) == [(1200, 1400)]
+    assert rows(r, "out.a#0.d2h", 0) == [(500, 600)] and rows(r, "out.a#0.h2d", 0) == [(600, 700)]
+    assert rows(r, "out.b#0.h2d", 0) == [(1250, 1300)] and rows(r, "out.b#1.h2d", 0) == [(1450, 1500)]
+    assert presents(r)[0] == 1810
+    assert rows(r, "render.a#0", 1) == [(1400, 1900)]  # GPU 1 goes on with the next frame
+    from mgpusim.program import build_program
+    piece = next(t for t in build_program(experiment(profile(), "pipelining", PASSES, chunks=2,
+                                                      producer_chunks=True)).templates[0]
+                 if t.name == "render.a#1")
+    assert "simulated only" in piece.params["unsupported"]
+    with pytest.raises(InputError, match="schedule.producer_chunks"):
+        run(frames=2, chunks=2, producer_chunks=True, copy_granularity="frame")

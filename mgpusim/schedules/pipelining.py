@@ -43,6 +43,10 @@ OPTIONS = {
                              choices=("all", "reads")),
     "reads": Option(dict, {}, "with consumer_waits = 'reads': GPU 0 pass -> the GPU 1 passes "
                     "whose outputs it reads (a filter reads its inputs unless listed here)"),
+    "producer_chunks": Option(bool, False, "GPU 1's passes render their output in `chunks` "
+                              "pieces (a sub-pass each, with its own fixed cost), and a piece's "
+                              "copy leaves as soon as its sub-pass ended; false: a copy leaves "
+                              "after its whole pass"),
 }
 
 
@@ -58,6 +62,8 @@ def build_pipelining(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile
     readers = _readers(cfg, scene, split)
     if first:
         renders = _passes(1, first, scene, (Dep("present", -fif),))
+        if _producer_split(cfg):
+            renders = _split_renders(renders, first, cfg.opt("chunks"))
         copies, arrivals = _copies(cfg, scene, profile, route, first, readers)
         # GPU 1 may overwrite its outputs once the copies of frame f-buffers have read them
         reads = tuple(Dep(c.name, -buffers) for c in copies if c.step in ("d2h", "p2p"))
@@ -115,6 +121,8 @@ def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene,
     for task in tasks:
         if task.name in crossed:
             out.append(crossed[task.name])
+        elif isinstance(task, PassTask) and "unsupported" in task.params:
+            out.append(task)  # a sub-pass of a pass rendered in pieces: simulated only
         elif isinstance(task, PassTask) and task.step == "render":
             index = next(i for i, s in enumerate(scene.passes) if task.name == f"render.{s.name}")
             spec, on_gpu0 = scene.passes[index], task.queue.device == 0
@@ -209,11 +217,39 @@ def _copies(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, route: 
         consumer = _consumer(cfg, scene, prefix, readers)
         for c, size in enumerate(even_split(nbytes, chunks)):
             name = prefix if chunks == 1 else f"{prefix}#{c}"
-            piece = cross(name, profile, 1, 0, size, (Dep(after),), route,
+            ready = f"{after}#{c}" if _producer_split(cfg) else after
+            piece = cross(name, profile, 1, 0, size, (Dep(ready),), route,
                           dst_deps=(Dep(consumer, -buffers),))
             tasks.extend(piece)
             arrivals.append((prefix, piece[-1].name))
     return tasks, arrivals
+
+
+def _producer_split(cfg: ScheduleConfig) -> bool:
+    """Whether GPU 1's passes render their output in `chunks` pieces."""
+    if not cfg.opt("producer_chunks"):
+        return False
+    if cfg.opt("copy_granularity") == "frame":
+        raise InputError("a pass's output leaves in pieces only with copy_granularity = 'pass'",
+                         field="schedule.producer_chunks")
+    return cfg.opt("chunks") > 1
+
+
+def _split_renders(renders: list[PassTask], specs: tuple[PassSpec, ...],
+                   chunks: int) -> list[PassTask]:
+    """Each of GPU 1's passes as `chunks` sub-passes in order (`render.X#c`, each 1/chunks of
+    the work plus the pass's fixed cost); the Vulkan runner does not split passes."""
+    why = MappingProxyType({"unsupported": "schedule.producer_chunks: passes rendered in "
+                            "pieces are simulated only"})
+    out: list[PassTask] = []
+    for task, spec in zip(renders, specs):
+        work = MappingProxyType({k: v / chunks for k, v in task.work.items()})
+        for c in range(chunks):
+            deps = task.deps if c == 0 else (Dep(out[-1].name),)
+            if c == 0 and out:
+                deps = (Dep(out[-1].name),) + task.deps[1:]
+            out.append(replace(task, name=f"{task.name}#{c}", work=work, deps=deps, params=why))
+    return out
 
 
 def _consumer(cfg: ScheduleConfig, scene: Scene, group: str,

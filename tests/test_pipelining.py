@@ -169,3 +169,26 @@ def test_producer_chunks_copy_each_piece_as_it_is_rendered():
     assert "simulated only" in piece.params["unsupported"]
     with pytest.raises(InputError, match="schedule.producer_chunks"):
         run(frames=2, chunks=2, producer_chunks=True, copy_granularity="frame")
+
+
+def test_consumer_chunks_each_piece_after_its_chunk():
+    """d (200 ns, reads a) in two halves, each after its chunk of a: chunk 0 arrives at 1200
+    (d2h 1000-1100, h2d 1100-1200), chunk 1 at 1300: d#0 1200-1300, d#1 1300-1400, present 1410
+    (1510 when d waits for both). With producer_chunks too, a's halves leave at 500 and 1000:
+    chunk 0 arrives at 700, chunk 1 at 1200: d#0 700-800, d#1 1200-1300, present 1310."""
+    kw = dict(split_at=1, frames=2, fif=3, warmup=1, chunks=2, consumer_waits="reads",
+              reads={"d": ["a"]}, consumer_chunks=True)
+    r = simulate(experiment(profile(), "pipelining", READS, **kw))
+    assert rows(r, "render.c", 0) == [(0, 300)]
+    assert rows(r, "render.d#0", 0) == [(1200, 1300)] and rows(r, "render.d#1", 0) == [(1300, 1400)]
+    assert presents(r)[0] == 1410
+    both = simulate(experiment(profile(), "pipelining", READS, producer_chunks=True, **kw))
+    assert rows(both, "render.d#0", 0) == [(700, 800)] and rows(both, "render.d#1", 0) == [(1200, 1300)]
+    assert presents(both)[0] == 1310
+    from mgpusim.program import build_program
+    up = next(t for t in build_program(experiment(profile(), "pipelining", READS, **kw)).templates[0]
+              if t.name == "out.a#1.h2d")
+    assert ("render.d#1", -2) in [(d.task, d.offset) for d in up.deps]  # its reader frees it
+    with pytest.raises(InputError, match="schedule.consumer_chunks"):
+        build_program(experiment(profile(), "pipelining", READS, split_at=1, chunks=2,
+                                 consumer_chunks=True))

@@ -47,6 +47,9 @@ OPTIONS = {
                               "pieces (a sub-pass each, with its own fixed cost), and a piece's "
                               "copy leaves as soon as its sub-pass ended; false: a copy leaves "
                               "after its whole pass"),
+    "consumer_chunks": Option(bool, False, "with consumer_waits = 'reads': a GPU 0 pass that "
+                              "reads GPU 1 outputs runs in `chunks` pieces (a sub-pass each), "
+                              "piece c waiting only for chunk c of what it reads"),
 }
 
 
@@ -74,7 +77,8 @@ def build_pipelining(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile
         tasks.extend(_passes(0, rest, scene, gate))
         after = tuple(Dep(a) for _, a in arrivals[-1:]) if not rest else ()
     else:
-        tasks.extend(_reading_passes(rest, scene, fif, readers, arrivals))
+        pieces = cfg.opt("chunks") if _consumer_split(cfg) else 1
+        tasks.extend(_reading_passes(rest, scene, fif, readers, arrivals, pieces))
         unread = {g for g, _ in arrivals} - {g for gs in readers.values() for g in gs}
         after = tuple(Dep(a) for g, a in arrivals if g in unread)
     last = tasks[-1].name if rest else None
@@ -218,8 +222,9 @@ def _copies(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, route: 
         for c, size in enumerate(even_split(nbytes, chunks)):
             name = prefix if chunks == 1 else f"{prefix}#{c}"
             ready = f"{after}#{c}" if _producer_split(cfg) else after
+            reader = f"{consumer}#{c}" if _consumer_split(cfg) and consumer != "present" else consumer
             piece = cross(name, profile, 1, 0, size, (Dep(ready),), route,
-                          dst_deps=(Dep(consumer, -buffers),))
+                          dst_deps=(Dep(reader, -buffers),))
             tasks.extend(piece)
             arrivals.append((prefix, piece[-1].name))
     return tasks, arrivals
@@ -233,6 +238,17 @@ def _producer_split(cfg: ScheduleConfig) -> bool:
         raise InputError("a pass's output leaves in pieces only with copy_granularity = 'pass'",
                          field="schedule.producer_chunks")
     return cfg.opt("chunks") > 1
+
+
+def _consumer_split(cfg: ScheduleConfig) -> bool:
+    """Whether GPU 0's reading passes run in `chunks` pieces, each after its chunk."""
+    if not cfg.opt("consumer_chunks"):
+        return False
+    if cfg.opt("consumer_waits") != "reads" or cfg.opt("copy_granularity") == "frame":
+        raise InputError("pieces of a reading pass wait for chunks of what it reads: needs "
+                         "consumer_waits = 'reads' and copy_granularity = 'pass'",
+                         field="schedule.consumer_chunks")
+    return cfg.opt("chunks") > 1 and cfg.gpus > 1
 
 
 def _split_renders(renders: list[PassTask], specs: tuple[PassSpec, ...],
@@ -309,12 +325,26 @@ def _spec(scene: Scene, name: str) -> PassSpec:
 
 
 def _reading_passes(rest: tuple[PassSpec, ...], scene: Scene, fif: int,
-                    readers: dict[str, tuple[str, ...]],
-                    arrivals: list[tuple[str, str]]) -> list[PassTask]:
-    """GPU 0's passes in order; each also waits for every piece of the groups it reads."""
-    out = _passes(0, rest, scene, (Dep("present", -fif),))
-    return [_with_deps(t, tuple(Dep(a) for g, a in arrivals if g in readers[spec.name]))
-            for t, spec in zip(out, rest)]
+                    readers: dict[str, tuple[str, ...]], arrivals: list[tuple[str, str]],
+                    pieces: int = 1) -> list[PassTask]:
+    """GPU 0's passes in order; each also waits for every piece of the groups it reads. With
+    `pieces` > 1 a reading pass runs as that many sub-passes, piece c after chunk c of each
+    group it reads (arrivals come in chunk order per group)."""
+    out: list[PassTask] = []
+    for task, spec in zip(_passes(0, rest, scene, (Dep("present", -fif),)), rest):
+        groups = readers[spec.name]
+        if out:
+            task = replace(task, deps=(Dep(out[-1].name),) + task.deps[1:])
+        if pieces == 1 or not groups:
+            out.append(_with_deps(task, tuple(Dep(a) for g, a in arrivals if g in groups)))
+            continue
+        chunk = {g: [a for gg, a in arrivals if gg == g] for g in groups}
+        split = _split_renders([task], (spec,), pieces)
+        for c, sub in enumerate(split):
+            if c:
+                sub = replace(sub, deps=(Dep(out[-1].name),))
+            out.append(_with_deps(sub, tuple(Dep(chunk[g][c]) for g in groups)))
+    return out
 
 
 def _needed_on_gpu0(scene: Scene, split: int) -> set[str]:

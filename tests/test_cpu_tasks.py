@@ -52,3 +52,15 @@ def test_cpu_frame_beside_queues_that_share_a_gpu():
     assert f0.loc["cpu.frame", "end_ns"] == 100
     assert f0.loc["particle_update", "start_ns"] == 100 and f0.loc["render.geometry", "start_ns"] == 100
     assert "shared_gpu" in r.summary["modelled_effects"]
+
+
+def test_fast_forward_with_cpu_tasks_is_exact():
+    """A CPU thread's state is part of what the fast-forward compares: 3000 frames skipped
+    ahead equal 3000 frames simulated one by one."""
+    prof = profile_dict()
+    prof["host"]["dispatch_ns"] = 30
+    exp = make_experiment(prof, gpus=2, frames=3000, iterations=20, cpu_frame_us=0.25)
+    fast = simulate(exp, record_trace=False)
+    slow = simulate(exp, record_trace=False, fast_forward=False)
+    assert fast.summary["fast_forward"]["used"] is True
+    assert fast.frames.present_ns.tolist() == slow.frames.present_ns.tolist()

@@ -19,7 +19,7 @@ import simpy
 
 from ..costs import CostModel
 from ..profile import QUEUE_FAMILIES, HardwareProfile
-from ..tasks import CopyTask, HostCopyTask, PassTask, QueueRef, Task
+from ..tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
 from .channel import Channel, GpuChannel
 
 #: A runner: called with an amount, returns the event that fires when that work is done.
@@ -179,7 +179,7 @@ def shared_gpu_groups(program, profile: HardwareProfile) -> dict[int, tuple[Queu
     used: dict[int, set[QueueRef]] = {}
     for tasks in program.templates:
         for t in tasks:
-            if not isinstance(t, HostCopyTask):
+            if not isinstance(t, (HostCopyTask, CpuTask)):  # the host's work, not a GPU's
                 used.setdefault(profile.physical_of(t.queue.device), set()).add(t.queue)
     out = {}
     for phys, queues in used.items():

@@ -42,7 +42,7 @@ WORK_TERMS: dict[str, WorkFn] = {
 #: `output_bytes` (what a pipelined pass hands to the next GPU). Anything else is a typo.
 PASS_PARAMS: dict[str, tuple[str, ...]] = {
     "fragment_loop": ("iterations",),
-    "mesh": ("triangles",),
+    "mesh": ("triangles", "texture_bytes"),
     "composite_sort_first": ("inputs", "pixels"),
     "composite_sort_last": ("inputs", "pixels"),
     "present": (),
@@ -62,9 +62,19 @@ PLACED_TERMS: dict[str, tuple[str, ...]] = {
 }
 
 
+#: Terms a pass kind adds only where the scene gives their parameter, so that profiles and
+#: measure tables without it keep the older model: (term, parameter), times the geometry share.
+#: A textured mesh samples `texture_bytes` of decoded texture per frame (its GPU's geometry
+#: share of them), one texture byte at `ns_per_texture_byte`.
+OPTIONAL_TERMS: dict[str, tuple[tuple[str, str], ...]] = {
+    "mesh": (("texture_byte", "texture_bytes"),),
+}
+
+
 def work_terms(kind: str) -> tuple[str, ...]:
     """The work terms a pass kind produces (its cost keys are ns_per_<term>)."""
-    return tuple(WORK_TERMS[kind](PassSpec(kind, kind), 1.0, 1.0)) + PLACED_TERMS.get(kind, ())
+    return (tuple(WORK_TERMS[kind](PassSpec(kind, kind), 1.0, 1.0)) + PLACED_TERMS.get(kind, ())
+            + tuple(term for term, _ in OPTIONAL_TERMS.get(kind, ())))
 
 
 def ns(value: float) -> int:
@@ -85,6 +95,9 @@ def pass_work(spec: PassSpec, pixels: float, geometry_share: float = 1.0,
               place: Placement | None = None) -> dict[str, float]:
     """A pass's work terms; `place` (where it draws) adds the kind's placed terms."""
     work = WORK_TERMS[spec.kind](spec, pixels, geometry_share)
+    for term, param in OPTIONAL_TERMS.get(spec.kind, ()):
+        if param in spec.params:
+            work[term] = spec.param(param) * geometry_share
     if place is not None and spec.kind == "mesh":
         seen = coverage(place.mesh_view(int(spec.param("triangles"))))
         work.update(visible_triangle=seen.triangles, triangle_edge=seen.edge,
@@ -159,11 +172,16 @@ class CostModel:
         if path == "p2p":
             link = self.profile.peer(device, peer if peer is not None else -1)
             return fixed + (link.latency_ns if link else 0)
+        if path == "group":  # through both GPUs' PCIe links
+            other = self.profile.gpus[peer if peer is not None else device]
+            return fixed + max(gpu.link.latency_ns, other.link.latency_ns)
         return fixed
 
     def copy_cap(self, device: int, family: str, path: str) -> Fraction | None:
-        """A queue family's own rate limit for a path (None = only the channel limits it)."""
+        """A queue family's own rate limit for a path (None = only the channel limits it); a
+        device-group copy has its queue family's peer-to-peer cap."""
         gpu = self.profile.gpus[device]
+        path = "p2p" if path == "group" else path
         cap = gpu.copy[family].caps_gbps.get(path) if family in gpu.copy else None
         return gbps_fraction(cap) if cap is not None else None
 
@@ -172,6 +190,11 @@ class CostModel:
         if path == "d2d":
             return gbps_fraction(gpu.local_copy_gbps)
         return gbps_fraction(gpu.link.bandwidth_gbps(path))
+
+    def group_bandwidth(self, src: int, dst: int) -> Fraction:
+        """A device-group copy from `src` to `dst` over PCIe: the slower of the source's d2h
+        and the destination's h2d rate."""
+        return min(self.link_bandwidth(src, "d2h"), self.link_bandwidth(dst, "h2d"))
 
     def peer_bandwidth(self, a: int, b: int) -> Fraction:
         link = self.profile.peer(a, b)

@@ -90,18 +90,20 @@ class MeshView:
 class Placement:
     """Where a pass of a schedule draws: pixels `rect` (x, y, w, h; None = all) of a `frame`
     (w, h), geometry share `share` = (k, n) (sort-last GPU k of n draws triangles
-    [T k // n, T (k + 1) // n), the runner's rule), camera `eye` (None = mono)."""
+    [T k // n, T (k + span) // n), the runner's rule; `span` > 1: several whole objects of n),
+    camera `eye` (None = mono)."""
 
     frame: tuple[int, int]
     rect: tuple[int, int, int, int] | None = None
     share: tuple[int, int] = (0, 1)
     eye: int | None = None
+    span: int = 1
 
     def mesh_view(self, triangles: int) -> MeshView:
         k, n = self.share
         first = triangles * k // n
-        return MeshView(triangles, self.frame, self.rect, first, triangles * (k + 1) // n - first,
-                        self.eye)
+        return MeshView(triangles, self.frame, self.rect, first,
+                        triangles * (k + self.span) // n - first, self.eye)
 
 
 #: Where a measured mesh draws: `whole`, or `;`-separated items `share=K/N` (sort-last share

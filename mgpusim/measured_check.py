@@ -130,6 +130,7 @@ def check_recorded_config(config: dict[str, Any], exp: Any, file: str) -> None:
             "height": exp.scene.height, "inputs": recorded_inputs(exp)}
     if "host_copy" in exp.schedule.options:
         want["host_copy"] = exp.schedule.options["host_copy"]
+    _drop_newer_defaults(config, want["inputs"], exp.schedule.name)
     for key in (*BASIC_CONFIG_KEYS, "inputs"):
         if key in config and key in want:
             where = first_difference(config[key], want[key], f"config.{key}")
@@ -138,6 +139,22 @@ def check_recorded_config(config: dict[str, Any], exp: Any, file: str) -> None:
                 raise InputError(f"the measured run has {_short(got)} but the experiment has "
                                  f"{_short(expected)}: measure it again or --set the experiment "
                                  "to match", file=file, field=path)
+
+
+def _drop_newer_defaults(config: dict[str, Any], inputs: dict[str, Any], schedule: str) -> None:
+    """Leave out of the comparison the schedule options that a measured run does not record
+    and that the experiment leaves at their default: options added after the run was recorded,
+    which change nothing at their default."""
+    recorded = config.get("inputs", {}).get("schedule") if isinstance(config.get("inputs"), dict) else None
+    if not isinstance(recorded, dict):
+        return
+    from .schedules import SCHEDULES, ensure_loaded
+    ensure_loaded()
+    options = SCHEDULES[schedule].options if schedule in SCHEDULES else {}
+    for key, option in options.items():
+        default = json.loads(json.dumps(option.default, default=list))  # as inputs record it
+        if key not in recorded and inputs["schedule"].get(key) == default:
+            inputs["schedule"].pop(key, None)
 
 
 def check_physical_gpus(machine: dict[str, Any], exp: Any, file: str) -> None:

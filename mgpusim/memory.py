@@ -11,6 +11,8 @@ largest data set this strategy can hold on these GPUs".
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 from .errors import InputError
 from .experiment import Experiment
 from .program import build_program
@@ -35,7 +37,31 @@ def memory_report(program: FrameProgram, exp: Experiment) -> dict[str, dict[str,
         used = fp.used(exp.scene.dataset_bytes)
         out[f"gpu{fp.gpu}"] = {"used_bytes": used, "capacity_bytes": cap,
                                "fraction": round(used / cap, 6)}
+        if exp.scene.sections:
+            out[f"gpu{fp.gpu}"]["sections"] = list(held_sections(fp, exp.scene))
     return out
+
+
+def held_sections(fp: Footprint, scene: Scene) -> tuple[str, ...]:
+    """The sections a GPU holds: those its schedule gave it, else all of them where it holds
+    the whole data set, else none."""
+    if fp.sections or not scene.sections:
+        return fp.sections
+    return tuple(s.name for s in scene.sections) if fp.share >= 1 else ()
+
+
+def sections_that_fit(fp: Footprint, scene: Scene, capacity: int) -> tuple[str, ...]:
+    """Of the sections a GPU is given, the longest leading run that fits beside its render
+    targets and receive buffers (sections load in order, each whole)."""
+    free = capacity - fp.targets - fp.staging
+    fit: list[str] = []
+    by_name = {s.name: s for s in scene.sections}
+    for name in held_sections(fp, scene):
+        free -= by_name[name].bytes
+        if free < 0:
+            break
+        fit.append(name)
+    return tuple(fit)
 
 
 def check_memory(program: FrameProgram, exp: Experiment) -> None:
@@ -48,16 +74,28 @@ def check_memory(program: FrameProgram, exp: Experiment) -> None:
             over = used - gpu.memory_bytes
             raise InputError(
                 f"gpu{fp.gpu} ({gpu.name}, {_gib(gpu.memory_bytes)}) overflows by {over} bytes "
-                f"({_gib(over)}): data set share {_gib(round(fp.share * data))} + render targets "
+                f"({_gib(over)}): data set share {_gib(fp.data(data))} + render targets "
                 f"{_gib(fp.targets)} + receive buffers {_gib(fp.staging)} = {_gib(used)} under "
-                f"schedule {program.schedule!r} with {program.gpus} GPU(s)",
-                file=exp.file, field=_blame(fp, data))
+                f"schedule {program.schedule!r} with {program.gpus} GPU(s)"
+                + _sections_note(fp, exp.scene, gpu.memory_bytes),
+                file=exp.file, field=_blame(fp, data, bool(exp.scene.sections)))
 
 
-def _blame(fp: Footprint, dataset_bytes: int) -> str:
+def _sections_note(fp: Footprint, scene: Scene, capacity: int) -> str:
+    """Which of the GPU's sections fit (empty without sections)."""
+    held = held_sections(fp, scene)
+    if not held:
+        return ""
+    fit = sections_that_fit(fp, scene, capacity)
+    return (f"; it holds sections {', '.join(held)}, of which only the first {len(fit)} fit"
+            + (f" ({', '.join(fit)})" if fit else ""))
+
+
+def _blame(fp: Footprint, dataset_bytes: int, sectioned: bool = False) -> str:
     """The input behind the largest part of the footprint: the data set, the image size (render
     targets) or what crosses GPUs per frame times its buffering (receive buffers)."""
-    parts = {"scene.dataset_bytes": fp.share * dataset_bytes, "scene.width x scene.height": fp.targets,
+    data = "scene.sections" if sectioned else "scene.dataset_bytes"
+    parts = {data: fp.data(dataset_bytes), "scene.width x scene.height": fp.targets,
              "receive buffers (schedule.buffers x bytes crossing per frame)": fp.staging}
     return max(parts, key=parts.__getitem__)
 
@@ -67,6 +105,7 @@ def max_dataset_bytes(exp: Experiment) -> int:
     program = build_program(exp)
     best: int | None = None
     for fp in footprints(program, exp.scene):
+        fp = replace(fp, section_bytes=None)  # the data set scaled as a whole
         free = exp.profile.gpus[fp.gpu].memory_bytes - fp.targets - fp.staging
         if free < 0:
             return 0

@@ -6,12 +6,15 @@ need "the program of this experiment", and none of them should import another to
 from __future__ import annotations
 
 import json
+from dataclasses import replace
+from types import MappingProxyType
 from typing import Any
 
 from .errors import InputError
 from .experiment import Experiment
 from .schedules import SCHEDULES, ensure_loaded
-from .schedules.base import FrameProgram, check_program
+from .schedules.base import FrameProgram, check_program, with_cpu_frame
+from .tasks import HostCopyTask
 
 
 def build_program(exp: Experiment) -> FrameProgram:
@@ -23,8 +26,22 @@ def build_program(exp: Experiment) -> FrameProgram:
         if exc.file is not None:
             raise
         raise InputError(exc.detail, file=exp.file, field=exc.field) from None
+    program = with_cpu_frame(program, exp.schedule.cpu_frame_us, exp.schedule.frames_in_flight)
     check_program(program, exp.profile)
-    return program
+    return with_refresh(program, exp.schedule.refresh_hz)
+
+
+def with_refresh(program: FrameProgram, refresh_hz: float) -> FrameProgram:
+    """The program presenting at a display's refresh (vsync), for any schedule; the Vulkan
+    runner has no display to wait for, so its present is marked unsupported there."""
+    if not refresh_hz:
+        return program
+    why = (f"schedule.refresh_hz = {refresh_hz:g}: vsync is simulated only (the runner "
+           "presents into an offscreen image)")
+    templates = tuple(tuple(replace(t, params=MappingProxyType({**t.params, "unsupported": why}))
+                            if t.name == program.present_task and not isinstance(t, HostCopyTask)
+                            else t for t in tasks) for tasks in program.templates)
+    return replace(program, templates=templates, refresh_hz=refresh_hz)
 
 
 def run_config(exp: Experiment, program: FrameProgram) -> dict[str, Any]:
@@ -42,5 +59,7 @@ def recorded_inputs(exp: Experiment) -> dict[str, Any]:
     matched to an experiment: the passes with their parameters, the schedule's options and
     frames in flight. JSON-shaped (lists, not tuples), as summary.json stores it."""
     passes = [{"name": p.name, "kind": p.kind, **dict(p.params)} for p in exp.scene.passes]
-    schedule = {"frames_in_flight": exp.schedule.frames_in_flight, **dict(exp.schedule.options)}
+    schedule = {"frames_in_flight": exp.schedule.frames_in_flight, **dict(exp.schedule.options),
+                **{key: getattr(exp.schedule, key) for key in ("refresh_hz", "cpu_frame_us")
+                   if getattr(exp.schedule, key)}}
     return json.loads(json.dumps({"passes": passes, "schedule": schedule}, default=list))

@@ -12,7 +12,7 @@ from types import MappingProxyType
 from typing import Any, Literal, Mapping
 
 QueueFamily = Literal["graphics", "compute", "transfer"]
-CopyPath = Literal["d2h", "h2d", "d2d", "p2p"]
+CopyPath = Literal["d2h", "h2d", "d2d", "p2p", "group"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -74,7 +74,10 @@ class CopyTask:
     """A copy recorded on a queue that moves `bytes` over a path.
 
     `d2h`/`h2d` cross the device's PCIe link (one channel per direction); `p2p` crosses a
-    peer link to device `peer`; `d2d` stays in device memory.
+    peer link to device `peer`; `group` goes GPU to GPU over PCIe inside a device group
+    (linked-node adapter): no host memory, at the slower of the source's d2h and the
+    destination's h2d rate; `d2d` stays in device memory. A `p2p` or `group` copy with `pull`
+    is recorded on the destination and reads the peer's memory (else pushed from the source).
     """
 
     name: str
@@ -85,6 +88,7 @@ class CopyTask:
     deps: tuple[Dep, ...] = ()
     peer: int | None = None
     skip_if_busy: bool = False
+    pull: bool = False
     #: Logical resources copied from and to (the Vulkan runner's binding; the simulator ignores it).
     src: str | None = None
     dst: str | None = None
@@ -92,6 +96,12 @@ class CopyTask:
     #: `dst_offset` = (x, y) of the destination image the copy writes at, `extent`, `images`
     #: (several images through one buffer), `unsupported` (why the runner refuses the copy).
     params: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
+
+    def ends(self) -> tuple[int, int]:
+        """(source, destination) device of a `p2p` or `group` copy: pulled by the destination
+        (`pull`), else pushed by the source."""
+        other = self.peer if self.peer is not None else self.queue.device
+        return (other, self.queue.device) if self.pull else (self.queue.device, other)
 
 
 @dataclass(frozen=True, slots=True)
@@ -115,7 +125,34 @@ class HostCopyTask:
         return max(1, min(threads, self.bytes // self.chunk_min_bytes))
 
 
-Task = PassTask | CopyTask | HostCopyTask
+@dataclass(frozen=True, slots=True)
+class CpuTask:
+    """Per-frame work of the application on one of its host threads (`thread`, e.g. "main":
+    game logic, command recording, a CPU-side copy, the wait on a fence that precedes it).
+
+    Its cost is its own linear model, `fixed_ns + ns_per_item * items` (integer ns, rounded
+    half up once): the schedule that places it says what an item is (a particle, a byte).
+    Tasks of one thread run in submission order, one at a time; a CPU task fed by a GPU or
+    the memcpy threads starts `host.dispatch_ns` after that input (the thread wakes on a fence).
+    Only the simulator runs it: the Vulkan runner refuses a program that has one."""
+
+    name: str
+    step: str
+    thread: str = "main"
+    fixed_ns: float = 0.0
+    ns_per_item: float = 0.0
+    items: float = 0.0
+    deps: tuple[Dep, ...] = ()
+    skip_if_busy: bool = False
+    params: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType(
+        {"unsupported": "CPU tasks are simulated only: the Vulkan runner runs GPU work and copies"}))
+
+    @property
+    def cost_ns(self) -> float:
+        return self.fixed_ns + self.ns_per_item * self.items
+
+
+Task = PassTask | CopyTask | HostCopyTask | CpuTask
 
 
 @dataclass(frozen=True, slots=True)

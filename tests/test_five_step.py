@@ -1,6 +1,8 @@
 """The five-step sort-first / sort-last schedule in the model."""
 from __future__ import annotations
 
+import copy
+
 import pandas as pd
 import pytest
 
@@ -128,3 +130,170 @@ def test_task_gap_idles_the_queue_between_tasks():
     assert trace.loc[(0, "render0"), "start_ns"] == 5
     assert trace.loc[(0, "present"), "start_ns"] == 5 + 640 + 5
     assert trace.loc[(1, "render0"), "start_ns"] == 650 + 10 + 5
+
+
+def test_pipelining_modes_exact_timeline():
+    """The hand-computed 8x4 frame above (render 320, d2h / host copy / h2d 64 each, composite
+    16, present 10). 'secondary_wait': GPU 1 renders frame f+1 only after its download of frame
+    f ended (384), so its queue carries 320 + 64 per frame: render1 384-704, d2h 704-768, host
+    copy -832, h2d -896; render0(1) 538-858 after present(0); composite 896-912, present 922;
+    then one present every 384 ns. 'lockstep': no frame starts before the last present: 538 ns.
+    'full' is the default (346 ns, above)."""
+    wait = simulate(make_experiment(gpus=2, frames=6, iterations=20, pipelining="secondary_wait"))
+    assert wait.config["pipelining"] == "secondary_wait"
+    t = wait.trace.set_index(["frame", "task"])
+    assert (t.loc[(1, "render1"), "start_ns"], t.loc[(1, "render1"), "end_ns"]) == (384, 704)
+    assert (t.loc[(1, "h2d1"), "start_ns"], t.loc[(1, "h2d1"), "end_ns"]) == (832, 896)
+    assert (t.loc[(1, "composite"), "start_ns"], t.loc[(1, "composite"), "end_ns"]) == (896, 912)
+    assert wait.frames.present_ns.tolist() == [538, 922, 1306, 1690, 2074, 2458]
+    lock = simulate(make_experiment(gpus=2, frames=4, iterations=20, pipelining="lockstep"))
+    assert lock.frames.present_ns.tolist() == [538, 1076, 1614, 2152]
+    assert lock.trace[(lock.trace.frame == 1) & (lock.trace.task == "render0")].start_ns.item() == 538
+    full = simulate(make_experiment(gpus=2, frames=20, iterations=20, pipelining="full"))
+    assert full.summary["frame_time_ms"] * 1e6 == pytest.approx(346, abs=1e-9)
+
+
+def test_pipelining_mode_rejects_unknown():
+    from mgpusim import InputError
+    with pytest.raises(InputError, match="schedule.pipelining"):
+        make_experiment(gpus=2, pipelining="partial")
+
+
+def test_measured_run_recorded_before_a_new_option_still_matches():
+    """A run recorded before `pipelining` existed lacks it: at its default that changes
+    nothing, so the run still matches; set to something else, the difference is named."""
+    from mgpusim import InputError
+    from mgpusim.measured_check import check_recorded_config
+    from mgpusim.program import recorded_inputs
+    exp = make_experiment(gpus=2)
+    config = {"schedule": "sort_first", "gpus": 2, "inputs": recorded_inputs(exp)}
+    del config["inputs"]["schedule"]["pipelining"]
+    check_recorded_config(config, exp, "old/summary.json")
+    with pytest.raises(InputError, match="config.inputs.schedule.pipelining"):
+        check_recorded_config(config, make_experiment(gpus=2, pipelining="lockstep"), "old/summary.json")
+
+
+def _costs(**composite) -> dict:
+    prof = profile_dict(gpus=3)
+    prof["gpus"][0]["costs"]["composite_sort_first"].update(composite)
+    return prof
+
+
+def test_sort_first_interleaved_strips_exact_timeline():
+    """8x6 in 4 strips of [1, 1, 1, 3] rows, strip k on GPU k mod 2: GPU 0 rows 0 and 2 (16 px),
+    GPU 1 rows 1 and 3-5 (32 px). At 20 ns per pixel: render0 0-320, render1 0-640; GPU 1's
+    128 B cross at 1 B/ns: d2h 640-768, host copy -896, h2d -1024; the composite draws 32 px at
+    1 ns plus 2 strips at 5 ns each: 1024-1066; present 1076."""
+    r = simulate(make_experiment(_costs(ns_per_input=5.0), gpus=2, width=8, height=6, frames=3,
+                                 iterations=20, tiles=4))
+    assert r.config["strip_rows"] == (1, 1, 1, 3) and r.config["tile_rows"] == (2, 4)
+    f0 = r.trace[r.trace.frame == 0].set_index("task")
+    assert (f0.loc["render0", "start_ns"], f0.loc["render0", "end_ns"]) == (0, 320)
+    assert (f0.loc["render1", "start_ns"], f0.loc["render1", "end_ns"]) == (0, 640)
+    assert (f0.loc["h2d1", "start_ns"], f0.loc["h2d1", "end_ns"]) == (896, 1024)
+    assert (f0.loc["composite", "start_ns"], f0.loc["composite", "end_ns"]) == (1024, 1066)
+    assert f0.loc["present", "end_ns"] == 1076
+    assert r.config["contribution_bytes_per_frame"] == 128
+    from mgpusim.program import build_program
+    render = next(t for t in build_program(make_experiment(gpus=2, height=6, tiles=4)).templates[0]
+                  if t.name == "render1")
+    assert "one tile per GPU" in render.params["unsupported"]  # the runner refuses it
+
+
+@pytest.mark.parametrize("opts, field", [({"tiles": 1}, "schedule.tiles"),
+                                         ({"tiles": 7}, "schedule.tiles"),
+                                         ({"tiles": 4, "tile_rows": [3, 3]}, "schedule.tiles")])
+def test_sort_first_strips_bad_input(opts, field):
+    from mgpusim import InputError
+    from mgpusim.program import build_program
+    with pytest.raises(InputError, match=field):
+        build_program(make_experiment(gpus=2, height=6, **opts))
+
+
+def test_balanced_strips_give_a_slower_gpu_fewer_exact_timeline():
+    """GPU 1 twice as slow (2 ns per pixel-iteration), 8x12, 10 iterations, free composite:
+    balanced tiles are 8 / 4 rows (640 + 10 present vs 640 ns), so of 6 strips of 2 rows GPU 0
+    gets 4 and GPU 1 2, interleaved 0,1,0,0,1,0. Renders 0-640 on both; GPU 1's 32 px x 4 B =
+    128 B cross at 1 B/ns: d2h 640-768, host copy -896, h2d -1024; composite 0 ns; present
+    1024-1034."""
+    from mgpusim.experiment import parse_experiment
+    from mgpusim.profile import parse_profile
+    prof = profile_dict(gpus=1)
+    prof["gpus"][0]["costs"]["composite_sort_first"] = {"ns_per_pixel": 0.0, "ns_per_input": 0.0}
+    slow = copy.deepcopy(prof["gpus"][0])
+    slow["costs"]["fragment_loop"]["ns_per_pixel_iteration"] = 2.0
+    prof["gpus"].append(slow)
+    data = {"name": "t", "scene": {"width": 8, "height": 12, "passes": [
+        {"name": "p", "kind": "fragment_loop", "iterations": 10}]},
+        "schedule": {"name": "sort_first", "gpus": 2, "frames": 3, "warmup_frames": 1,
+                     "tiles": 6, "balance": True}}
+    r = simulate(parse_experiment(data, "t.toml", profile=parse_profile(prof, "p")))
+    assert r.config["strip_gpus"] == (0, 1, 0, 0, 1, 0) and r.config["tile_rows"] == (8, 4)
+    f0 = r.trace[r.trace.frame == 0].set_index("task")
+    assert (f0.loc["render0", "end_ns"], f0.loc["render1", "end_ns"]) == (640, 640)
+    assert (f0.loc["h2d1", "start_ns"], f0.loc["h2d1", "end_ns"]) == (896, 1024)
+    assert f0.loc["present", "end_ns"] == 1034
+    data["schedule"]["balance"] = False  # round robin: 3 strips each, GPU 1 renders 6 rows
+    even = simulate(parse_experiment(data, "t.toml", profile=parse_profile(prof, "p")))
+    assert even.config["strip_gpus"] == (0, 1, 0, 1, 0, 1)
+    assert even.trace[(even.trace.frame == 0) & (even.trace.task == "render1")].end_ns.item() == 960
+
+
+def _objects_experiment(**sched):
+    data = {"name": "t", "scene": {"width": 8, "height": 4, "objects": 8, "dataset_bytes": 8000,
+                                   "passes": [{"name": "p", "kind": "mesh", "triangles": 800}]},
+            "schedule": {"name": "sort_last", "gpus": 3, "frames": 3, "warmup_frames": 1, **sched}}
+    from mgpusim.experiment import parse_experiment
+    from mgpusim.profile import parse_profile
+    return parse_experiment(data, "t.toml", profile=parse_profile(profile_dict(gpus=3), "p"))
+
+
+def test_sort_last_whole_objects_exact_timeline():
+    """8 statues of 100 triangles on 3 GPUs: 3/3/2 whole objects, renders of 300/300/200 ns at
+    1 ns per triangle. 32 px x 6 B = 192 B per secondary at 1 B/ns: d2h1 300-492, d2h2
+    200-392; the one memcpy thread takes host copies in submission order: 1 492-684, 2 684-876;
+    h2d1 684-876, h2d2 876-1068; composite 64 px 1068-1132; present 1142. The runner draws
+    triangles [0, 300), [300, 600), [600, 800); memory holds 3/8, 3/8, 2/8 of the data set."""
+    from mgpusim.memory import memory_report
+    from mgpusim.program import build_program
+    exp = _objects_experiment()
+    r = simulate(exp)
+    f0 = r.trace[r.trace.frame == 0].set_index("task")
+    assert [f0.loc[f"render{i}", "end_ns"] for i in range(3)] == [300, 300, 200]
+    assert (f0.loc["h2d2", "start_ns"], f0.loc["h2d2", "end_ns"]) == (876, 1068)
+    assert f0.loc["present", "end_ns"] == 1142
+    assert r.config["object_counts"] == (3, 3, 2)
+    program = build_program(exp)
+    ranges = [(t.params["first"], t.params["count"]) for t in program.templates[0] if t.step == "render"]
+    assert ranges == [(0, 300), (300, 300), (600, 200)]
+    used = memory_report(program, exp)
+    assert used["gpu2"]["used_bytes"] - used["gpu1"]["used_bytes"] == 2000 - 3000
+    given = simulate(_objects_experiment(object_counts=[2, 2, 4]))
+    assert given.trace[(given.trace.frame == 0) & (given.trace.task == "render2")].end_ns.item() == 400
+
+
+@pytest.mark.parametrize("counts", [[3, 3], [3, 3, 3], [4, 4, -0.5]])
+def test_sort_last_object_counts_bad_input(counts):
+    from mgpusim import InputError
+    from mgpusim.program import build_program
+    with pytest.raises(InputError, match="schedule.object_counts"):
+        build_program(_objects_experiment(object_counts=counts))
+
+
+def test_objects_and_strips_carry_their_placed_mesh_terms():
+    """A whole-object share draws the triangle range the runner draws ([300, 600) of 800 for
+    GPU 1 of 3/3/2), and a GPU drawing several strips sums its strips' placed terms."""
+    from mgpusim.geometry import MeshView, Placement, coverage
+    from mgpusim.program import build_program
+    program = build_program(_objects_experiment())
+    work = {t.name: t.work for t in program.templates[0] if t.step == "render"}
+    assert work["render1"]["visible_triangle"] == coverage(MeshView(800, (8, 4), None, 300, 300)).triangles
+    data = {"name": "t", "scene": {"width": 16, "height": 6, "passes": [
+        {"name": "p", "kind": "mesh", "triangles": 400}]},
+        "schedule": {"name": "sort_first", "gpus": 2, "frames": 3, "warmup_frames": 1, "tiles": 3}}
+    from mgpusim.experiment import parse_experiment
+    from mgpusim.profile import parse_profile
+    exp = parse_experiment(data, "t.toml", profile=parse_profile(profile_dict(gpus=2), "p"))
+    render0 = next(t for t in build_program(exp).templates[0] if t.name == "render0")
+    expected = sum(coverage(Placement((16, 6), (0, y, 16, 2)).mesh_view(400)).triangles for y in (0, 4))
+    assert render0.work["visible_triangle"] == expected

@@ -94,3 +94,52 @@ def test_a_follower_of_two_skip_chains_is_rejected():
     program = FrameProgram("two_chains", 1, 2, 0, (tasks,))
     with pytest.raises(ScheduleError, match="two skip chains"):
         Engine(program, CostModel(parse_profile(profile_dict(), "p")))
+
+
+def test_cpu_tasks_on_the_main_thread_exact_timeline():
+    """'wait', 50 ns of CPU work per frame, the main thread copies the 500 B itself at 1 B/ns.
+    Frame 0: cpu.frame 0-50; update 50-550 on GPU 1; d2h 550-1050; the main thread waits for it
+    and copies 1050-1550; h2d 1550-2050; draw 2050-2055, lighting -2355, present -2365.
+    Frame 1: the main thread is free at 1550: cpu.frame 1550-1600, update 1600-2100, d2h -2600,
+    copy 2600-3100, ... present 3915. The CPU-side wait sets the period: 50 + 500 + 500 + 500."""
+    kw = dict(frames=4, policy="wait", cpu_copy=True, cpu_frame_us=0.05)
+    r = run(**kw)
+    assert rows(r, "cpu.frame") == [(0, 50), (1550, 1600), (3100, 3150), (4650, 4700)]
+    assert rows(r, "cpu.particles", 0) == [(1050, 1550)] and rows(r, "particles.h2d", 0) == [(1550, 2050)]
+    assert rows(r, "particle_update", 1) == [(1600, 2100)]
+    assert rows(r, "render.shadow", 2) == [(3915, 4015)]
+    assert presents(r) == [2365, 3915, 5465, 7015]
+    cpu = r.trace[r.trace.step.isin(["cpu", "cpu_copy"])]
+    assert set(zip(cpu.device, cpu.engine)) == {("host", "main")}
+    assert "host_copy" not in set(r.trace.step)
+    analytic = simulate(experiment(profile(), "particles", ENGINE, particles=500,
+                                   vertex_bytes_per_particle=1, host_copy=False, warmup=1, **kw),
+                        fidelity="analytic")
+    assert presents(analytic) == presents(r)
+
+
+def test_cpu_copy_under_new_wait_never_blocks_the_primary():
+    r = run(frames=14, cpu_copy=True)
+    ran = sorted(r.trace[r.trace.task == "particle_update"].frame)
+    assert sorted(r.trace[r.trace.task == "cpu.particles"].frame) == ran and len(ran) < 14
+    assert presents(r) == [PRIMARY_FRAME * (f + 1) for f in range(14)]
+
+
+def test_cpu_tasks_are_refused_by_the_runner_and_checked():
+    from mgpusim.program import build_program
+    program = build_program(experiment(profile(), "particles", ENGINE, cpu_frame_us=1.0))
+    cpu = next(t for t in program.templates[0] if t.name == "cpu.frame")
+    assert "simulated only" in cpu.params["unsupported"]
+    with pytest.raises(InputError, match="schedule.cpu_frame_us"):
+        experiment(profile(), "particles", ENGINE, cpu_frame_us=-1.0)
+
+
+@pytest.mark.parametrize("policy", ["wait", "new_wait"])
+def test_cpu_copy_fast_forward_is_exact(policy):
+    exp = experiment(profile(), "particles", ENGINE, frames=2000, particles=500,
+                     vertex_bytes_per_particle=1, host_copy=False, warmup=1, policy=policy,
+                     cpu_copy=True, cpu_frame_us=0.05)
+    fast, slow = simulate(exp, record_trace=False), simulate(exp, record_trace=False, fast_forward=False)
+    assert fast.summary["fast_forward"]["used"] is True
+    assert fast.frames.present_ns.tolist() == slow.frames.present_ns.tolist()
+    assert fast.summary.get("skipped_tasks") == slow.summary.get("skipped_tasks")

@@ -80,3 +80,24 @@ def test_20000_frames_no_drift(scaling):
                             width=37, height=11, cbpp=3, dbpp=3, fif=3, frames=20_000,
                             scaling=scaling, handoff_us=0.333), record_trace=False)
     assert assert_no_drift(r.frames.present_ns) == 1
+
+
+def test_device_group_copy_of_colour_and_depth_at_4_bytes_each():
+    """The sample's transfer: the other GPU's eye as colour + depth at 4 B per pixel each
+    (scene color/depth_bytes_per_pixel = 4), device to device over a peer link (a device
+    group): a 2x2 eye is 32 B. GPU 0's transfer queue copies its own view (d2d at 1 B/ns,
+    1000-1032), then pulls GPU 1's over the 2 B/ns link (1032-1048): one copy, no host memory."""
+    r = xr(profile(peer_gbps=2.0), frames=2, cbpp=4, dbpp=4, path="peer")
+    assert rows(r, "view0.d2d", 0) == [(1000, 1032)] and rows(r, "view1.p2p", 0) == [(1032, 1048)]
+    assert set(r.trace[r.trace.task == "view1.p2p"].device) == {"gpu0"}
+    assert not r.trace.step.isin(["d2h", "h2d", "host_copy"]).any()
+    assert presents(r)[0] == 1058 and r.config["bytes_per_frame"] == 64
+
+
+def test_device_group_copy_without_a_peer_link():
+    """path = 'group': GPU 0's transfer queue pulls GPU 1's 32 B view over PCIe at the slower
+    of GPU 1's d2h (4 B/ns) and GPU 0's h2d (2 B/ns): 1032-1048, after its own view's d2d."""
+    r = xr(profile([gpu(gbps=2.0), gpu(gbps=4.0)]), frames=2, cbpp=4, dbpp=4, path="group")
+    assert rows(r, "view0.d2d", 0) == [(1000, 1032)] and rows(r, "view1.group", 0) == [(1032, 1048)]
+    assert set(r.trace[r.trace.task == "view1.group"].device) == {"gpu0"}
+    assert presents(r)[0] == 1058

@@ -238,9 +238,9 @@ def _copy(task: CopyTask, res: Resources) -> Recorder:
     """image -> buffer (download), buffer -> image (upload), image -> image, buffer -> buffer;
     `params` give the rows of a chunk, where the picture lands in a larger image, and
     (`images`) several images moved through one buffer, one after the other."""
-    if task.path == "p2p":
-        raise ScheduleError(f"copy {task.name!r}: peer copies are not supported by the runner "
-                            f"(set schedule.path = 'host')")
+    if task.path in ("p2p", "group"):
+        raise ScheduleError(f"copy {task.name!r}: peer and device-group copies are not supported "
+                            f"by the runner (set schedule.path = 'host')")
     if task.src is None or task.dst is None:
         raise ScheduleError(f"copy {task.name!r} names no src/dst resources")
     if task.bytes == 0:  # an empty tile: nothing to move

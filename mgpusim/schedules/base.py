@@ -9,6 +9,7 @@ what each task reads and writes (`resources`, for the Vulkan runner), what every
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Callable, Mapping, Sequence
@@ -20,7 +21,7 @@ from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
 from ..costs import pass_work
 from ..geometry import Placement, even_split  # noqa: F401  (even_split: the schedules' import)
-from ..tasks import CopyTask, Dep, HostCopyTask, PassTask, QueueRef, Resource, Task
+from ..tasks import CopyTask, CpuTask, Dep, HostCopyTask, PassTask, QueueRef, Resource, Task
 
 
 @dataclass(frozen=True)
@@ -32,9 +33,19 @@ class Footprint:
     share: float
     targets: int
     staging: int
+    #: With a sectioned data set: the whole sections this GPU holds and their bytes (which
+    #: then replace `share` x the data set).
+    sections: tuple[str, ...] = ()
+    section_bytes: int | None = None
+
+    def data(self, dataset_bytes: int) -> int:
+        """Bytes of the data set this GPU holds."""
+        if self.section_bytes is not None:
+            return self.section_bytes
+        return int(round(self.share * dataset_bytes))
 
     def used(self, dataset_bytes: int) -> int:
-        return int(round(self.share * dataset_bytes)) + self.targets + self.staging
+        return self.data(dataset_bytes) + self.targets + self.staging
 
 
 @dataclass(frozen=True)
@@ -61,6 +72,9 @@ class FrameProgram:
     footprints: tuple[Footprint, ...] = ()
     resources: tuple[Resource, ...] | None = None
     rate_tasks: tuple[str, ...] = ()
+    #: Display refresh rate (Hz) the present waits for (vsync, FIFO: one flip per refresh);
+    #: 0 = present as soon as its work ends. Set from `schedule.refresh_hz` for every schedule.
+    refresh_hz: float = 0.0
 
     def tasks(self, frame: int) -> tuple[Task, ...]:
         return self.templates[frame % len(self.templates)]
@@ -69,6 +83,31 @@ class FrameProgram:
     def buffers(self) -> int:
         """The deepest multi-buffering of the declared resources (1 without resources)."""
         return max((r.buffers for r in self.resources or ()), default=1)
+
+
+#: Bound on `schedule.refresh_hz` (vsync).
+MAX_REFRESH_HZ = 10_000.0
+#: The application's thread that records and submits frames (`schedule.cpu_frame_us` and the
+#: schedules' CPU tasks run on it).
+MAIN_THREAD = "main"
+
+
+def with_cpu_frame(program: FrameProgram, cpu_frame_us: float, frames_in_flight: int) -> FrameProgram:
+    """The program with the application's own CPU work per frame (`cpu.frame`, on the main
+    thread, first in submission order): it starts once frame f-fif was presented, and every
+    task of the frame with no input of its own frame waits for it (the thread submits them)."""
+    if not cpu_frame_us:
+        return program
+    cpu = CpuTask("cpu.frame", "cpu", MAIN_THREAD, fixed_ns=cpu_frame_us * 1000,
+                  deps=(Dep(program.present_task, -frames_in_flight),))
+    gate = Dep(cpu.name)
+
+    def gated(task: Task) -> Task:
+        if any(d.offset == 0 for d in task.deps):
+            return task
+        return dataclasses.replace(task, deps=task.deps + (gate,))
+    templates = tuple((cpu,) + tuple(gated(t) for t in tasks) for tasks in program.templates)
+    return dataclasses.replace(program, templates=templates)
 
 
 @dataclass(frozen=True)
@@ -93,6 +132,8 @@ class ScheduleConfig:
     warmup_frames: int
     frames_in_flight: int
     options: Mapping[str, Any]
+    refresh_hz: float = 0.0
+    cpu_frame_us: float = 0.0
 
     def opt(self, key: str) -> Any:
         return self.options[key]
@@ -135,6 +176,10 @@ def parse_schedule_config(t: Table) -> ScheduleConfig:
         frames_in_flight=t.get("frames_in_flight", int, 2, minimum=1, maximum=L.MAX_BUFFERS,
                                why=L.WHY_ALLOC),
         options=MappingProxyType(options),
+        refresh_hz=t.get("refresh_hz", float, 0.0, minimum=0.0, maximum=MAX_REFRESH_HZ,
+                         why="faster than any display"),
+        cpu_frame_us=t.get("cpu_frame_us", float, 0.0, minimum=0.0,
+                           maximum=L.MAX_TASK_NS / 1000, why=L.WHY_TIME),
     )
     t.finish()
     if cfg.warmup_frames >= cfg.frames:
@@ -159,8 +204,19 @@ def chain_passes(specs: Sequence[PassSpec], queue: QueueRef, first_deps: tuple[D
 
 
 def task_device(task: Task) -> str:
-    """Where a task runs: `gpu{i}` for queue work, `host` for host copies."""
-    return "host" if isinstance(task, HostCopyTask) else task.queue.device_name
+    """Where a task runs: `gpu{i}` for queue work, `host` for host copies and CPU tasks."""
+    return "host" if isinstance(task, (HostCopyTask, CpuTask)) else task.queue.device_name
+
+
+def wakes_host(producer: Task, task: Task) -> bool:
+    """Whether a host thread must wake to act on `task`'s input from `producer`: always for a
+    host copy (the dispatching thread), for a CPU task unless the input ran on its own
+    thread, else when the input ran on another device."""
+    if isinstance(task, HostCopyTask):
+        return True
+    if isinstance(task, CpuTask):
+        return not (isinstance(producer, CpuTask) and producer.thread == task.thread)
+    return task_device(producer) != task_device(task)
 
 
 def waits_for_labels(program: FrameProgram) -> list[dict[str, str]]:
@@ -219,6 +275,9 @@ def _check_task(program: FrameProgram, profile: HardwareProfile, phase: int, tas
         if dep.task not in names[(phase + dep.offset) % period]:
             raise ScheduleError(f"task {task.name!r} depends on {dep.task!r} (frame offset "
                                 f"{dep.offset}), which that frame does not have")
+    if isinstance(task, CpuTask) and not task.cost_ns <= L.MAX_TASK_NS:
+        raise ScheduleError(f"CPU task {task.name!r} would take {task.cost_ns:.3g} ns, more than "
+                            f"the {L.MAX_TASK_NS:.0e} ns one task may last")
     if isinstance(task, HostCopyTask) and task.chunk_min_bytes < 1:
         raise ScheduleError(f"task {task.name!r}: chunk_min_bytes must be >= 1")
 

@@ -16,13 +16,17 @@ from ..profile import HardwareProfile
 from ..tasks import CopyTask, Dep, HostCopyTask, QueueRef, Task
 from .base import Option, queue_or_graphics
 
+#: How buffers cross GPUs (the `path` option of every schedule that moves them).
+PATHS = ("auto", "host", "peer", "group")
+
 COPY_OPTIONS = {
     "copy_queue": Option(str, "transfer", "queue that records cross-GPU copies: 'transfer' (the copy "
                          "engine, or graphics where the GPU has none) or 'graphics'",
                          choices=("transfer", "graphics")),
     "path": Option(str, "auto", "how buffers cross GPUs: 'host' (through host memory), 'peer' (a "
-                   "peer link, which the profile must have) or 'auto' (peer if present)",
-                   choices=("auto", "host", "peer")),
+                   "peer link, which the profile must have), 'group' (GPU to GPU over PCIe in a "
+                   "device group / linked-node adapter) or 'auto' (peer if present)",
+                   choices=PATHS),
     "host_copy": Option(bool, False, "add a host-to-host memcpy between the two staging buffers "
                         "(Vulkan memory objects belong to one device); false: one host allocation "
                         "imported by both devices"),
@@ -71,11 +75,12 @@ def cross(prefix: str, profile: HardwareProfile, src: int, dst: int, nbytes: int
     if src == dst:
         q = copy_queue(profile, src, route.copy_queue)
         return [CopyTask(f"{prefix}.d2d", "d2d", q, "d2d", nbytes, deps + dst_deps, skip_if_busy=skip)]
-    if use_peer(profile, src, dst, route):
+    if route.path == "group" or use_peer(profile, src, dst, route):
         dev, peer = (dst, src) if pull else (src, dst)
         q = copy_queue(profile, dev, route.copy_queue)
-        return [CopyTask(f"{prefix}.p2p", "p2p", q, "p2p", nbytes, deps + dst_deps, peer=peer,
-                         skip_if_busy=skip)]
+        path = "group" if route.path == "group" else "p2p"
+        return [CopyTask(f"{prefix}.{path}", "p2p", q, path, nbytes, deps + dst_deps, peer=peer,
+                         skip_if_busy=skip, pull=pull)]
     d2h = CopyTask(f"{prefix}.d2h", "d2h", copy_queue(profile, src, route.copy_queue), "d2h",
                    nbytes, deps, skip_if_busy=skip)
     out: list[Task] = [d2h]

@@ -20,14 +20,18 @@ from typing import Any
 
 from ..scene import Scene
 from ..tasks import CopyTask, HostCopyTask, PassTask, Resource, Task
+from .pass_io import simulated_only
 
 Rect = tuple[int, int, int, int]  # x, y, width, height in frame pixels
 
 
 def bind_io(tasks: list[Task], scene: Scene, gpus: int, composite_kind: str,
-            tile_rows: tuple[int, ...] | None, buffers: int,
-            host_copy: bool) -> tuple[list[Task], tuple[Resource, ...]]:
-    """The tasks with reads/writes/src/dst/params filled in, and the resources they name."""
+            tile_rows: tuple[int, ...] | None, buffers: int, host_copy: bool,
+            geometry: list[tuple[int, int, int]] | None = None
+            ) -> tuple[list[Task], tuple[Resource, ...]]:
+    """The tasks with reads/writes/src/dst/params filled in, and the resources they name;
+    `geometry`: per GPU (first, end, units) of the mesh a sort-last GPU draws (default: an
+    even split, GPU i draws [i, i + 1) of N units)."""
     w, h = scene.width, scene.height
     depth = composite_kind == "composite_sort_last"
     by_name = {t.name: t for t in tasks}
@@ -58,8 +62,9 @@ def bind_io(tasks: list[Task], scene: Scene, gpus: int, composite_kind: str,
             i = task.queue.device
             target = "gpu0.frame" if i == 0 else image(f"gpu{i}.target", i, rects[i], buffers)
             origin = (0, 0) if i == 0 else rects[i][:2]
+            part = geometry[i] if geometry else (i, i + 1, gpus)
             out.append(dataclasses.replace(task, writes=(target,), params=MappingProxyType(
-                _render_params(task, scene, rects[i], origin, gpus, i, depth))))
+                _render_params(task, scene, rects[i], origin, part, i, depth))))
         elif isinstance(task, PassTask) and task.step == "composite":
             ins = tuple(f"gpu0.input{i}" for i in range(1, gpus))
             for i in range(1, gpus):
@@ -94,19 +99,22 @@ def _source_gpu(task: Task, by_name: dict[str, Task]) -> int:
     return task.queue.device
 
 
-def _render_params(task: PassTask, scene: Scene, rect: Rect, origin: tuple[int, int], gpus: int,
-                   gpu: int, depth: bool) -> dict[str, Any]:
+def _render_params(task: PassTask, scene: Scene, rect: Rect, origin: tuple[int, int],
+                   part: tuple[int, int, int], gpu: int, depth: bool) -> dict[str, Any]:
     """Tile rectangle (frame pixels), the target's origin in the frame, and the pass's knobs;
-    sort-last GPU i draws triangles [first, first + count) of the scene's mesh."""
+    sort-last GPU i draws triangles [first, first + count) of the scene's mesh: units
+    [begin, end) of `part` = (begin, end, units)."""
     spec = next(s for s in scene.passes if task.name in (f"render{gpu}", f"render{gpu}.{s.name}"))
     params: dict[str, Any] = {"rect": rect, "origin": origin, "frame": (scene.width, scene.height),
                               "clear": spec is scene.passes[0], "depth": depth,
                               **{k: v for k, v in spec.params.items()}}
     if "triangles" in spec.params:
         total = int(spec.params["triangles"])
-        first = total * gpu // gpus if depth else 0
+        begin, end, units = part
+        first = total * begin // units if depth else 0
         params.update(triangles=total, first=first,
-                      count=(total * (gpu + 1) // gpus if depth else total) - first)
+                      count=(total * end // units if depth else total) - first)
     if "iterations" in spec.params:
         params["iterations"] = int(spec.params["iterations"])
+    params.update(simulated_only(spec))
     return params

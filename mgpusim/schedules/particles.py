@@ -24,9 +24,10 @@ from .. import limits as L
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..scene import PassSpec, Scene
-from ..tasks import Dep, PassTask, QueueRef, Resource, Task
+from ..tasks import CpuTask, Dep, PassTask, QueueRef, Resource, Task
 from ..particle_layout import CALC_BYTES, STATE_BYTES, UPDATE_DT, VERTEX_BYTES
-from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, present_task,
+from .base import (MAIN_THREAD, Footprint, FrameProgram, Option, ScheduleConfig, chain_passes,
+                   present_task,
                    queue_or_graphics, register)
 from .binding import Bindings, bind_crossing
 from .crossing import Route, cross
@@ -49,6 +50,10 @@ OPTIONS = {
     "update_queue": Option(str, "compute", "queue of the particle GPU that runs the update: "
                            "'compute' (its graphics queue where it has none) or 'graphics'",
                            choices=("compute", "graphics")),
+    "cpu_copy": Option(bool, False, "the main thread itself waits for the vertex download and "
+                       "copies the readback buffer into the upload buffer (a CPU task at one "
+                       "memcpy thread's speed) before it submits the upload; false: the copy "
+                       "runs on the memcpy threads (host_copy) or not at all"),
 }
 
 
@@ -62,12 +67,15 @@ def build_particles(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile)
              else QueueRef(pg, "graphics"))
     update = PassTask("particle_update", "particle_update", queue,
                       "particle_update", MappingProxyType({"particle": float(n)}),
-                      (Dep("present", -cfg.frames_in_flight),), skip_if_busy=new_wait)
+                      _frame_gate(cfg), skip_if_busy=new_wait)
     chain: list[Task] = [update]
     if pg != 0:
+        cpu_copy = cfg.opt("cpu_copy")
         chain += cross("particles", profile, pg, 0, nbytes, (Dep(update.name),),
-                       Route("transfer", "host", cfg.opt("host_copy")),
+                       Route("transfer", "host", cfg.opt("host_copy") and not cpu_copy),
                        dst_deps=(Dep("particle_render", -2),), skip=new_wait)
+        if cpu_copy:
+            chain = _copy_on_main_thread(chain, profile, nbytes, new_wait)
     draw_deps = () if new_wait else (Dep(chain[-1].name),)
     tasks = chain + _engine(cfg, scene, n, draw_deps)
     record = {"particles": n, "particle_gpu": pg, "policy": cfg.opt("policy"),
@@ -78,7 +86,22 @@ def build_particles(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile)
                         footprints=_footprints(scene, cfg.gpus, n, pg), resources=resources)
 
 
-#: The runner's time step of one particle update (a skipped update's step goes to the next).
+def _frame_gate(cfg: ScheduleConfig) -> tuple[Dep, ...]:
+    """What a frame's first GPU work waits for: frame f-fif's present."""
+    return (Dep("present", -cfg.frames_in_flight),)
+
+
+def _copy_on_main_thread(chain: list[Task], profile: HardwareProfile, nbytes: int,
+                         new_wait: bool) -> list[Task]:
+    """[update, download, upload] -> [update, download, `cpu.particles`, upload]: the main
+    thread waits for the download (it wakes on the fence) and copies the readback buffer
+    into the upload buffer at one memcpy thread's speed before it submits the upload."""
+    update, d2h, h2d = chain
+    host = profile.host
+    copy = CpuTask("cpu.particles", "cpu_copy", MAIN_THREAD, fixed_ns=host.host_copy_fixed_ns,
+                   ns_per_item=1 / host.memcpy_thread_gbps, items=nbytes,
+                   deps=(Dep(d2h.name),), skip_if_busy=new_wait)
+    return [update, d2h, copy, replace(h2d, deps=(Dep(copy.name),) + h2d.deps[1:])]
 
 
 def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, n: int, pg: int,
@@ -162,7 +185,7 @@ def _engine(cfg: ScheduleConfig, scene: Scene, n: int, draw_deps: tuple[Dep, ...
     at = [p.name for p in scene.passes].index(cfg.opt("draw_after")) + 1
     specs = scene.passes[:at] + (draw,) + scene.passes[at:]
     out: list[Task] = []
-    for task in chain_passes(specs, queue, (Dep("present", -cfg.frames_in_flight),), scene.pixels,
+    for task in chain_passes(specs, queue, _frame_gate(cfg), scene.pixels,
                              lambda spec: "particle_render" if spec is draw else f"render.{spec.name}",
                              step=lambda spec: "particle_render" if spec is draw else "render",
                              place=scene.whole_frame):

@@ -36,8 +36,18 @@ def frame_params(spec: PassSpec, scene: Scene, **extra: Any) -> Mapping[str, Any
         params.update(triangles=total, first=0, count=total)
     if "iterations" in spec.params:
         params["iterations"] = int(spec.params["iterations"])
+    params.update(simulated_only(spec))
     params.update(extra)
     return MappingProxyType(params)
+
+
+def simulated_only(spec: PassSpec) -> dict[str, str]:
+    """`{"unsupported": why}` for a pass whose parameters the Vulkan runner's pass library
+    does not draw (a mesh's `texture_bytes`: its passes sample no textures), else {}."""
+    if "texture_bytes" in spec.params:
+        return {"unsupported": f"pass {spec.name!r}: texture_bytes is simulated only (the "
+                               "runner's meshes sample no textures)"}
+    return {}
 
 
 def filter_sources(passes: Sequence[PassSpec], index: int) -> list[str] | str:

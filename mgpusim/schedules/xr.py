@@ -33,7 +33,8 @@ from .afr import present_queue
 from .binding import Bindings, bind_crossing
 from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, even_split,
                    present_task, queue_or_graphics, register)
-from .crossing import Route, cross
+from .crossing import PATHS, Route, cross
+from .pass_io import simulated_only
 
 MAX_FRAMES_IN_FLIGHT = 3
 
@@ -44,8 +45,9 @@ OPTIONS = {
                    choices=("multi", "simulated")),
     "views": Option(int, 0, "2 (one eye per view) or 4 (half an eye); 0 = one per GPU",
                     choices=(0, 2, 4)),
-    "path": Option(str, "auto", "how views reach GPU 0: 'peer', 'host' or 'auto' (peer if the "
-                   "profile has a link)", choices=("auto", "host", "peer")),
+    "path": Option(str, "auto", "how views reach GPU 0: 'peer', 'host', 'group' (device to "
+                   "device over PCIe in a device group, as the sample) or 'auto' (peer if the "
+                   "profile has a link)", choices=PATHS),
     "host_copy": Option(bool, False, "host-to-host memcpy between staging buffers on the host path"),
     "handoff_us": Option(float, 0.0, "cost of one queue-family ownership hand-off (a barrier), "
                          "in reference microseconds (a 'timed' pass)", minimum=0.0,
@@ -144,6 +146,7 @@ def _bind_view(task: PassTask, scene: Scene, v: int, gpu: int,
     if spec.kind not in ("fragment_loop", "mesh"):
         params["unsupported"] = (f"XR views run fragment_loop and mesh passes on the Vulkan "
                                  f"runner, not {spec.kind!r} ({spec.name!r})")
+    params.update(simulated_only(spec))
     return replace(task, writes=(f"gpu{gpu}.view{v}",), params=MappingProxyType(params))
 
 

@@ -32,8 +32,8 @@ import numpy as np
 
 from ..costs import CostModel
 from ..errors import InputError, ScheduleError
-from ..schedules.base import FrameProgram, even_split, task_device
-from ..tasks import HostCopyTask, PassTask, Task
+from ..schedules.base import FrameProgram, even_split, wakes_host
+from ..tasks import CpuTask, HostCopyTask, PassTask, Task
 from .effects import choose_effects
 from .engine import Engine, RawResult
 from .fastforward import Repeat
@@ -58,6 +58,8 @@ class _Node:
     device: str
     engine: str
     waits_for: str
+    #: a CPU task: its thread wakes after an input from elsewhere, with no submit cost
+    cpu: bool = False
 
 
 def _round_div(nbytes: int, rate: Fraction) -> int:
@@ -70,6 +72,9 @@ class Analytic:
     """The recurrence for one program and cost model (see the module doc)."""
 
     def __init__(self, program: FrameProgram, costs: CostModel, effects: frozenset[str]):
+        if program.refresh_hz:
+            raise InputError("the analytic fidelity level does not model vsync: use --fidelity "
+                             "queues or full", field="schedule.refresh_hz")
         self.program, self.costs, self.effects = program, costs, effects
         host = costs.profile.host
         submission = "host_submission" in effects
@@ -81,8 +86,8 @@ class Analytic:
                        effects=effects - {"shared_executor", "shared_gpu", "link_sharing",
                                           "host_memory_sharing"})
         self.threads = host.memcpy_threads
-        #: per frame phase, task name -> its device (a name may sit on other devices in other phases)
-        self.device_of = [{t.name: task_device(t) for t in tasks} for tasks in program.templates]
+        #: per frame phase, task name -> its task (a name may sit on other devices in other phases)
+        self.task_of = [{t.name: t for t in tasks} for tasks in program.templates]
         thread_cap = costs.memcpy_thread_cap()
         mem = costs.host_memory_bandwidth()
         self.part_rate = thread_cap if thread_cap < mem else mem
@@ -96,12 +101,15 @@ class Analytic:
 
     def _node(self, op: Any, phase: int) -> _Node:
         task = op.task
-        deps = tuple((d.task, d.offset, self._crosses(task, d.task, (phase + d.offset) % len(self.device_of)))
+        deps = tuple((d.task, d.offset, self._crosses(task, d.task, (phase + d.offset) % len(self.task_of)))
                      for d in task.deps)
         if isinstance(task, HostCopyTask):
             parts = tuple(even_split(task.bytes, task.parts(self.threads)))
             return _Node(task.name, task, "host", deps, op.duration, task.bytes, None, 0, parts,
                          "host", "memcpy", op.waits_for)
+        if isinstance(task, CpuTask):
+            return _Node(task.name, task, f"host.{task.thread}", deps, op.duration, 0, None, 0, (),
+                         "host", task.thread, op.waits_for, cpu=True)
         rate = None
         if op.channel is not None:
             bw = op.channel.bandwidth
@@ -112,9 +120,7 @@ class Analytic:
     def _crosses(self, task: Task, dep: str, dep_phase: int) -> bool:
         """Whether a host thread must wake to act on this input (as the engine decides): the
         input's producer, in its own frame phase, is on another device or the host."""
-        if isinstance(task, HostCopyTask):
-            return True
-        return self.device_of[dep_phase][dep] != task.queue.device_name
+        return wakes_host(self.task_of[dep_phase][dep], task)
 
     @staticmethod
     def _order(nodes: list[_Node]) -> list[_Node]:
@@ -267,7 +273,10 @@ class _Recurrence:
         """After its inputs, the task before it on its queue and its submit clock; then its gap,
         its pass or copy time, and its bytes at the link's fixed rate."""
         s = max(ready, self.queue_end.get(node.stream, 0))
-        if self.m.timeline:
+        if self.m.timeline and node.cpu:  # the thread wakes on its input; nothing to submit
+            if cross > NEG:
+                s = max(s, cross + self.m.dispatch)
+        elif self.m.timeline:
             clock = self.sub.get(node.stream, 0)
             if cross > NEG:
                 clock = max(clock, cross + self.m.dispatch)

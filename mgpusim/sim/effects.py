@@ -25,7 +25,7 @@ from ..costs import CostModel
 from ..errors import InputError
 from ..profile import HardwareProfile
 from ..schedules.base import FrameProgram
-from ..tasks import CopyTask, HostCopyTask, Task
+from ..tasks import CopyTask, CpuTask, HostCopyTask, Task
 from .executors import shared_gpu_groups
 
 FIDELITIES: tuple[str, ...] = ("analytic", "queues", "full")
@@ -56,7 +56,7 @@ def _link_channels_shared(program: FrameProgram, profile: HardwareProfile) -> bo
     users: dict[tuple, set] = {}
     for t in _all_tasks(program):
         if isinstance(t, CopyTask):
-            key = (t.queue.device, t.path, t.peer if t.path == "p2p" else None)
+            key = (t.queue.device, t.path, t.peer if t.path in ("p2p", "group") else None)
             users.setdefault(key, set()).add(t.queue)
     return any(len(q) > 1 for q in users.values())
 
@@ -74,15 +74,18 @@ def _copy_caps_bind(program: FrameProgram, profile: HardwareProfile) -> bool:
         cap = costs.copy_cap(t.queue.device, t.queue.family, t.path)
         if cap is None:
             continue
-        bw = (costs.peer_bandwidth(t.queue.device, t.peer) if t.path == "p2p"  # type: ignore[arg-type]
-              else costs.link_bandwidth(t.queue.device, t.path))
+        if t.path == "group":
+            bw = costs.group_bandwidth(*t.ends())
+        else:
+            bw = (costs.peer_bandwidth(t.queue.device, t.peer) if t.path == "p2p"  # type: ignore[arg-type]
+                  else costs.link_bandwidth(t.queue.device, t.path))
         if cap < bw:
             return True
     return False
 
 
 def _gaps(program: FrameProgram, profile: HardwareProfile) -> bool:
-    return any(not isinstance(t, HostCopyTask) and profile.gpus[t.queue.device].task_gap_ns
+    return any(not isinstance(t, (HostCopyTask, CpuTask)) and profile.gpus[t.queue.device].task_gap_ns
                for t in _all_tasks(program))
 
 

@@ -22,11 +22,11 @@ from typing import Callable
 import numpy as np
 import simpy
 
-from ..costs import CostModel
+from ..costs import CostModel, gbps_fraction, ns, round_half_up
 from ..errors import InputError, ScheduleError
 from ..limits import INT64_MAX
-from ..schedules.base import FrameProgram, even_split, task_device, waits_for_labels
-from ..tasks import CopyTask, HostCopyTask, PassTask, QueueRef, Task
+from ..schedules.base import FrameProgram, even_split, waits_for_labels, wakes_host
+from ..tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
 from .channel import Channel, FixedRateChannel
 from .effects import choose_effects
 from .executors import Executor, Runner, make_executors
@@ -53,6 +53,8 @@ class _Op:
     #: The queue's idle time before the task (the GPU's task_gap_ns), on the host's executor.
     gap: int = 0
     gap_run: Runner | None = None
+    #: a CPU task: its thread wakes `dispatch_ns` after an input from elsewhere, no submit cost
+    cpu: bool = False
 
 
 @dataclass
@@ -116,6 +118,10 @@ class Engine:
         self._ops: list[list[_Op]] = []
         #: called with the frame number when a frame presents (the fast-forward's probe)
         self.on_present: Callable[[int], None] | None = None
+        #: vsync: the display's refresh period in ns (exact), and the last flip's time
+        self.refresh_period = (Fraction(10 ** 9) / gbps_fraction(program.refresh_hz)
+                               if program.refresh_hz else None)
+        self._last_flip = -1
         self._setup_resources()
 
     # ----- build -------------------------------------------------------------------------
@@ -130,7 +136,7 @@ class Engine:
                 for dep in task.deps:
                     k = -dep.offset
                     producer = self._index[(q - k) % self.period][dep.task]
-                    cross = task_device(producer) != task_device(task) or task_device(task) == "host"
+                    cross = wakes_host(producer, task)
                     out[(q - k) % self.period][dep.task].append(
                         (task.name, k, task, len(task.deps), lag, cross))
         return out
@@ -153,7 +159,8 @@ class Engine:
                 if isinstance(task, HostCopyTask):
                     host_ops[phase].append(op)
                 else:
-                    queues.setdefault(task.queue, [[] for _ in range(self.period)])[phase].append(op)
+                    stream = ("host", task.thread) if isinstance(task, CpuTask) else task.queue
+                    queues.setdefault(stream, [[] for _ in range(self.period)])[phase].append(op)
         for plan in queues.values():
             self.processes.append(self.env.process(self._stream_proc(plan)))
         if any(host_ops):
@@ -181,6 +188,11 @@ class Engine:
                                       "host.memcpy_thread_gbps")
             return _Op(task, duration, None, None, 0, "host", "memcpy", self._waits_for[phase][task.name],
                        task.name == self.program.present_task)
+        if isinstance(task, CpuTask):  # one host thread's time (a core's, on emulated GPUs)
+            run, amount = self.executors["host"].runner(duration, 1)
+            return _Op(task, duration, None, None, 0, "host", task.thread,
+                       self._waits_for[phase][task.name], task.name == self.program.present_task,
+                       run, amount, cpu=True)
         executor = self.executors[task.queue.device_name]
         if isinstance(task, CopyTask):
             nbytes = task.bytes
@@ -206,26 +218,30 @@ class Engine:
     def _check_copy_time(self, task: CopyTask, cap: Fraction | None, setup: int) -> None:
         """A copy alone on its path must end within the bound on one task's time."""
         bw, dev = self._path_bandwidth(task), task.queue.device
-        field = {"p2p": "peer_links", "d2d": f"gpus[{dev}].local_copy_gbps"}.get(
+        field = {"p2p": "peer_links", "d2d": f"gpus[{dev}].local_copy_gbps",
+                 "group": f"gpus[{task.ends()[0]}].link.d2h_gbps"}.get(
             task.path, f"gpus[{dev}].link.{task.path}_gbps")
         if cap is not None and cap < bw:
             bw, field = cap, f"gpus[{dev}].copy.{task.queue.family}.{task.path}_gbps"
         self.costs.check_transfer(task.name, task.bytes, bw, setup, field)
 
 
-    def _dispatch_wait(self, key: Key) -> int:
+    def _dispatch_wait(self, key: Key, keep: bool = False) -> int:
         """Host dispatch still owed before `key` starts: `dispatch_ns` after the last of its
-        inputs from another device or the host finished (0 if that is long past)."""
-        done = self._cross_done.pop(key, None)
+        inputs from another device or the host finished (0 if that is long past). `keep`: leave
+        the input's end for :meth:`_submitted`."""
+        done = self._cross_done.get(key) if keep else self._cross_done.pop(key, None)
         if done is None:
             return 0
         return max(0, done + self._dispatch_ns - self.env.now)
 
-    def _submitted(self, key: Key, previous: int) -> int:
-        """When the queue's submit thread has recorded and submitted `key`: after the task
-        before it, and after waking on its last input from another device or the host."""
+    def _submitted(self, key: Key, previous: int, woke: int = 0) -> int:
+        """When the queue's submit thread has submitted `key`: `submit_ns` after the task
+        before it, and after waking on its last input from another device or the host
+        (`dispatch_ns` after that input ended, or at `woke` where waking was work on a shared
+        executor that ended later)."""
         done = self._cross_done.pop(key, None)
-        ready = previous if done is None else max(previous, done + self._dispatch_ns)
+        ready = previous if done is None else max(previous, done + self._dispatch_ns, woke)
         return ready + self._submit_ns
 
     def _duration(self, task: Task) -> int:
@@ -233,11 +249,13 @@ class Engine:
             return self.costs.pass_ns(task.queue.device, task.kind, task.work)
         if isinstance(task, CopyTask):
             return self.costs.copy_setup_ns(task.queue.device, task.queue.family, task.path, task.peer)
+        if isinstance(task, CpuTask):
+            return ns(task.cost_ns)
         return self.costs.profile.host.host_copy_fixed_ns
 
     def _channel_name(self, task: CopyTask) -> str:
         dev = task.queue.device
-        if task.path == "p2p":
+        if task.path in ("p2p", "group"):
             if task.peer is None:
                 raise ScheduleError(f"copy {task.name!r} on a peer path names no peer")
             return f"peer{dev}-{task.peer}"
@@ -247,6 +265,8 @@ class Engine:
         dev = task.queue.device
         if task.path == "p2p":
             return self.costs.peer_bandwidth(dev, task.peer)  # type: ignore[arg-type]
+        if task.path == "group":
+            return self.costs.group_bandwidth(*task.ends())
         return self.costs.link_bandwidth(dev, task.path)
 
     def _channel_for(self, task: CopyTask) -> Channel | FixedRateChannel:
@@ -330,11 +350,22 @@ class Engine:
                     self._dispatch_host_copy(frame, op)
                     continue
                 if self._host_timeline:
-                    submitted = self._submitted(key, submitted)
-                    if submitted > env.now:
-                        yield env.timeout(submitted - env.now)
-                    if self._submit_load is not None:
-                        self._submit_load(self._submit_ns)  # the submit thread's cores
+                    # the queue's submit thread: it submits ahead of the queue, one task after
+                    # another; a task fed by another device or the host waits for the thread to
+                    # wake on that input, which is the thread's own work on the host's executor
+                    # (on CPU-emulated GPUs it competes for the cores with the GPUs' passes); a
+                    # CPU task's thread itself wakes on its input and submits nothing
+                    wait = self._dispatch_wait(key, keep=True) if self._cross_done else 0
+                    if wait:
+                        yield self._host_work(wait)
+                    if op.cpu:
+                        self._cross_done.pop(key, None)
+                    else:
+                        submitted = self._submitted(key, submitted, env.now if wait else 0)
+                        if submitted > env.now:
+                            yield env.timeout(submitted - env.now)
+                        if self._submit_load is not None:
+                            self._submit_load(self._submit_ns)  # the submit thread's cores
                 if op.gap:
                     yield op.gap_run(op.gap)
                 start = env.now
@@ -354,14 +385,32 @@ class Engine:
         end = self.env.now
         if start < self.frame_start[frame]:
             self.frame_start[frame] = start
-        if op.is_present:
-            self.present_end[frame] = end
-            if self.on_present is not None:
-                self.on_present(frame)
         if self.record:
             self.rows.append((frame, op.device, engine, op.task.step, op.task.name, start, end, nbytes,
                               op.waits_for))
+        if not op.is_present:
+            self._complete(frame, op.task)
+        elif self.refresh_period is None:
+            self._presented(frame, op)
+        else:  # vsync: the frame is shown (and its present complete) at the next free refresh
+            flip = self._next_vblank(end)
+            self.env.timeout(flip - end).callbacks.append(lambda _e: self._presented(frame, op))
+
+    def _presented(self, frame: int, op: _Op) -> None:
+        self.present_end[frame] = self.env.now
+        if self.on_present is not None:
+            self.on_present(frame)
         self._complete(frame, op.task)
+
+    def _next_vblank(self, t: int) -> int:
+        """The first refresh at or after `t` and after the last flip (FIFO: one image per
+        refresh). Refresh k is at k x period ns, rounded half up (exact for any rate)."""
+        period = self.refresh_period
+        k = max(0, int(t // period) - 1)
+        while (v := round_half_up(k * period)) < t or v <= self._last_flip:
+            k += 1
+        self._last_flip = v
+        return v
 
     def _dispatch_host_copy(self, frame: int, op: _Op) -> None:
         """Split into parts of >= chunk_min_bytes, at most one per memcpy thread."""

@@ -20,7 +20,7 @@ import simpy
 from ..costs import CostModel
 from ..profile import QUEUE_FAMILIES, HardwareProfile
 from ..schedules.base import FrameProgram
-from ..tasks import CopyTask, HostCopyTask, PassTask, QueueRef, Task
+from ..tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
 from .channel import Channel, GpuChannel
 
 #: A runner: called with an amount, returns the event that fires when that work is done.
@@ -192,7 +192,7 @@ def shared_gpu_groups(program: FrameProgram, profile: HardwareProfile) -> dict[i
     used: dict[int, set[WorkTag]] = {}
     for tasks in program.templates:
         for t in tasks:
-            if not isinstance(t, HostCopyTask):
+            if not isinstance(t, (HostCopyTask, CpuTask)):  # the host's work, not a GPU's
                 used.setdefault(profile.physical_of(t.queue.device), set()).add(work_tag(t))
     out: dict[int, tuple[WorkTag, ...]] = {}
     for phys, tags in used.items():

@@ -84,6 +84,9 @@ class FastForward:
         if unknown:  # its state is not written down: a repeat could not be trusted
             self.active = False
             self.reason = f"executor {', '.join(unknown)} has state this fast-forward does not describe"
+        if engine.refresh_period is not None:  # the refresh grid's phase is not in the state
+            self._give_up("vsync (schedule.refresh_hz): presents follow the display's refresh, "
+                          "whose phase the fast-forward does not describe")
 
     # ----- driven by the engine -----------------------------------------------------------
     def on_present(self, frame: int) -> None:

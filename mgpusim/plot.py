@@ -119,19 +119,31 @@ def timeline_png(trace: pd.DataFrame, path: str | Path, links: pd.DataFrame | No
 
 def comparison_png(measured: pd.DataFrame, simulated: pd.DataFrame, path: str | Path, title: str = "",
                    frames: Sequence[int] | None = None, sim_links: pd.DataFrame | None = None) -> Path:
-    """Measured and simulated timelines one above the other, same frames, same time axis."""
-    frames = last_frames(measured) if frames is None else frames
+    """Measured and simulated timelines one above the other, same frames, same time axis. A
+    measured steady window of frames the (shorter) simulation does not have is drawn beside the
+    simulation's last frames, as many of them: both in steady state."""
+    frames, sim_frames = comparison_frames(measured, simulated, frames)
     rows = max(len(_rows(measured)), len(_rows(simulated)), 3)
     fig = Figure(figsize=(12, 2.5 + 0.6 * rows))
     top, bottom = fig.subplots(2, 1, sharex=True)
     lo_m = measured[measured["frame"].isin(list(frames))]
-    lo_s = simulated[simulated["frame"].isin(list(frames))]
+    lo_s = simulated[simulated["frame"].isin(sim_frames)]
     draw_timeline(top, lo_m, None, f"measured: {title}", frames)
-    draw_timeline(bottom, lo_s, sim_links, f"simulated: {title}", frames)
+    draw_timeline(bottom, lo_s, sim_links, f"simulated: {title}", sim_frames)
     span = max(_span(lo_m), _span(lo_s))
     bottom.set_xlim(0, span * 1.02 if span else 1)
     fig.savefig(path, dpi=110, bbox_inches="tight")
     return Path(path)
+
+
+def comparison_frames(measured: pd.DataFrame, simulated: pd.DataFrame,
+                      frames: Sequence[int] | None = None) -> tuple[list[int], list[int]]:
+    """The measured frames to draw (default its last four) and the simulated ones: the same
+    numbers where the simulation has them, else its last frames, as many."""
+    frames = list(last_frames(measured) if frames is None else frames)
+    if set(frames) <= set(simulated["frame"].unique()):
+        return frames, frames
+    return frames, last_frames(simulated, len(frames))
 
 
 def _span(df: pd.DataFrame) -> float:

@@ -10,13 +10,15 @@ import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import MappingProxyType
-from typing import Mapping
+from typing import Mapping, TypeVar
 
 from . import limits as L
 from .config import Table, did_you_mean, read_toml
 from .costs import WORK_TERMS, work_terms
 from .errors import InputError
 from .overrides import set_dotted
+
+_T = TypeVar("_T")
 
 #: Per-lane data rate in GB/s after line encoding (8b/10b for gen 1-2, 128b/130b for 3-5,
 #: FLIT 242/256 for 6). PCIe 3.0: 8 GT/s * 128/130 / 8 = 0.985 GB/s per lane.
@@ -135,10 +137,18 @@ class GpuProfile:
     #: (OVERLAP_PAIRS): their throughput together over one alone, from 1 (no gain: back to back)
     #: to 2 (each at full speed). Empty: none given (every pair at its default).
     queue_overlap: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
+    #: Per pass kind, the efficiencies of the pairs that pass is in where they differ from
+    #: `queue_overlap` (`[gpus.queue_overlap.<kind>]`): how much two pieces of work slow each
+    #: other depends on what they are bound by (a blending draw suffers from a copy's memory
+    #: traffic; an arithmetic-bound loop hardly does).
+    overlap_by_kind: Mapping[str, Mapping[str, float]] = field(default_factory=lambda: MappingProxyType({}))
 
-    def overlap(self, pair: str) -> float:
-        """The overlap efficiency of `pair` (its default where the profile gives none)."""
-        return self.queue_overlap.get(pair, OVERLAP_DEFAULTS[pair])
+    def overlap(self, pair: str, kinds: tuple[str, ...] = ()) -> float:
+        """The overlap efficiency of `pair` between work of `kinds` (pass kinds; "copy" for a
+        copy): the lowest a kind's own table gives, else the GPU's, else the default."""
+        own = [self.overlap_by_kind[k][pair] for k in kinds
+               if k in self.overlap_by_kind and pair in self.overlap_by_kind[k]]
+        return min(own) if own else self.queue_overlap.get(pair, OVERLAP_DEFAULTS[pair])
 
     def has_queue(self, family: str, index: int = 0) -> bool:
         return self.queues.get(family, 0) > index
@@ -251,12 +261,14 @@ def parse_profile(data: dict, file: str) -> HardwareProfile:
     top.table("sources", None).rest()  # free-text provenance notes, kept in the file
     host = _parse_host(top.table("host"))
     gpus: list[GpuProfile] = []
+    tables: list[str] = []  # each GPU's [[gpus]] table, for messages
     for t in top.tables("gpus"):
         count = t.get("count", int, 1, minimum=1, maximum=L.MAX_GPUS, why=L.WHY_ALLOC)
         if len(gpus) + count > L.MAX_GPUS:
             raise t.error("count", f"the profile would have {len(gpus) + count} GPUs, more than "
                                    f"{L.MAX_GPUS} ({L.WHY_ALLOC})")
         gpus.extend([_parse_gpu(t)] * count)
+        tables.extend([t.path] * count)
     gpus = _resize(gpus, top.get("gpu_count", int, len(gpus), minimum=1, maximum=L.MAX_GPUS,
                                  why=L.WHY_ALLOC))
     peers = tuple(_parse_peer(t, len(gpus)) for t in (top.tables("peer_links") if top.has("peer_links") else []))
@@ -264,22 +276,25 @@ def parse_profile(data: dict, file: str) -> HardwareProfile:
         peers = _peer_mesh(top.table("peer_mesh"), len(gpus), peers)
     top.finish()
     profile = HardwareProfile(name=name, host=host, gpus=tuple(gpus), peer_links=peers, source=file)
-    _check_physical(profile, file)
+    _check_physical(profile, _resize(tables, len(profile.gpus)), file)
     return profile
 
 
-def _check_physical(profile: HardwareProfile, file: str) -> None:
-    """Logical GPUs on one physical GPU describe it alike: one `queue_overlap` per physical GPU."""
+def _check_physical(profile: HardwareProfile, tables: list[str], file: str) -> None:
+    """Logical GPUs on one physical GPU describe it alike: one `queue_overlap` per physical GPU
+    (`tables`: each GPU's [[gpus]] table, named in the message)."""
     first: dict[int, int] = {}
     for i, gpu in enumerate(profile.gpus):
         j = first.setdefault(profile.physical_of(i), i)
-        if dict(gpu.queue_overlap) != dict(profile.gpus[j].queue_overlap):
+        other = profile.gpus[j]
+        if (dict(gpu.queue_overlap), {k: dict(v) for k, v in gpu.overlap_by_kind.items()}) != \
+                (dict(other.queue_overlap), {k: dict(v) for k, v in other.overlap_by_kind.items()}):
             raise InputError(f"GPUs {j} and {i} run on physical GPU {profile.physical_of(i)} but give "
                              "different queue_overlap tables (one physical GPU has one)", file=file,
-                             field=f"gpus[{i}].queue_overlap")
+                             field=f"{tables[i]}.queue_overlap")
 
 
-def _resize(gpus: list[GpuProfile], count: int) -> list[GpuProfile]:
+def _resize(gpus: list[_T], count: int) -> list[_T]:
     """`gpu_count` (a what-if): the first `count` GPUs, the last one repeated to reach it."""
     return (gpus + [gpus[-1]] * count)[:count]
 
@@ -325,14 +340,26 @@ def _parse_gpu(t: Table) -> GpuProfile:
         task_gap_ns=_ns(t, "task_gap_ns", 0),
         speed=t.get("speed", float, 1.0, above=0, maximum=L.MAX_SPEED),
         physical=t.get("physical", int, None, minimum=0, maximum=L.MAX_GPUS - 1, why=L.WHY_ALLOC),
-        queue_overlap=_parse_overlap(t.table("queue_overlap", None)),
+        **_parse_overlap(t.table("queue_overlap", None)),
     )
     t.finish()
     return gpu
 
 
-def _parse_overlap(t: Table) -> Mapping[str, float]:
-    """`[gpus.queue_overlap]`: an efficiency in (0, 2] per pair of OVERLAP_PAIRS."""
+def _parse_overlap(t: Table) -> dict[str, Mapping]:
+    """`[gpus.queue_overlap]`: an efficiency in (0, 2] per pair of OVERLAP_PAIRS, and per pass
+    kind a table of the pairs it is in (`[gpus.queue_overlap.particle_render]`)."""
+    for key in t.data:
+        if key not in OVERLAP_PAIRS and key not in WORK_TERMS:
+            raise t.error(key, f"unknown pair or pass kind{did_you_mean(key, [*OVERLAP_PAIRS, *WORK_TERMS])} "
+                               f"(pairs: {', '.join(OVERLAP_PAIRS)}; or a pass kind's table of them)")
+    by_kind = {}
+    for kind in [k for k in t.data if k in WORK_TERMS]:
+        by_kind[kind] = _overlap_pairs(t.table(kind))
+    return {"queue_overlap": _overlap_pairs(t), "overlap_by_kind": MappingProxyType(by_kind)}
+
+
+def _overlap_pairs(t: Table) -> Mapping[str, float]:
     given = {pair: t.get(pair, float, None, above=0, maximum=2.0, why="2 = each at full speed")
              for pair in OVERLAP_PAIRS}
     t.finish()

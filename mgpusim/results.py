@@ -152,7 +152,10 @@ def _busy(df: pd.DataFrame, lo: int, hi: int) -> dict[str, int]:
 
 def link_track(channel: str) -> tuple[str, str]:
     """(device, track) on which a channel's busy intervals are drawn: `gpu1.d2h` ->
-    ("gpu1", "link d2h"), `peer0-1` -> ("gpu0", "link peer0-1"), `host.memory` -> ("host", "memory")."""
+    ("gpu1", "link d2h"), `peer0-1` -> ("gpu0", "link peer0-1"), `host.memory` -> ("host", "memory"),
+    a shared GPU's execution `gpu0.exec` -> ("gpu0", "exec")."""
+    if channel.endswith(".exec"):
+        return channel.partition(".")[0], "exec"
     if channel.startswith("host."):
         return "host", channel.partition(".")[2]
     if channel.startswith("peer"):

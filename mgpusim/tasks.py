@@ -97,6 +97,12 @@ class CopyTask:
     #: (several images through one buffer), `unsupported` (why the runner refuses the copy).
     params: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
 
+    def ends(self) -> tuple[int, int]:
+        """(source, destination) device of a `p2p` or `group` copy: pulled by the destination
+        (`pull`), else pushed by the source."""
+        other = self.peer if self.peer is not None else self.queue.device
+        return (other, self.queue.device) if self.pull else (self.queue.device, other)
+
 
 @dataclass(frozen=True, slots=True)
 class HostCopyTask:

@@ -40,3 +40,27 @@ def test_cpu_frame_refused_by_the_runner_and_checked():
     assert "simulated only" in program.templates[0][0].params["unsupported"]
     with pytest.raises(InputError, match="schedule.cpu_frame_us"):
         make_experiment(gpus=2, cpu_frame_us=-1.0)
+
+
+def test_cpu_frame_beside_queues_that_share_a_gpu():
+    """CPU tasks are the host's work: a GPU whose queues share it (queue_overlap) ignores
+    them. The primary's compute queue updates 1000 particles (1000 ns) while its graphics
+    queue renders 320 ns, after 100 ns of CPU work."""
+    from tests.test_gpu_sharing import _particles, _profile
+    r = simulate(_particles(_profile({"graphics_compute": 1.0}), cpu_frame_us=0.1))
+    f0 = r.trace[r.trace.frame == 0].set_index("task")
+    assert f0.loc["cpu.frame", "end_ns"] == 100
+    assert f0.loc["particle_update", "start_ns"] == 100 and f0.loc["render.geometry", "start_ns"] == 100
+    assert "shared_gpu" in r.summary["modelled_effects"]
+
+
+def test_fast_forward_with_cpu_tasks_is_exact():
+    """A CPU thread's state is part of what the fast-forward compares: 3000 frames skipped
+    ahead equal 3000 frames simulated one by one."""
+    prof = profile_dict()
+    prof["host"]["dispatch_ns"] = 30
+    exp = make_experiment(prof, gpus=2, frames=3000, iterations=20, cpu_frame_us=0.25)
+    fast = simulate(exp, record_trace=False)
+    slow = simulate(exp, record_trace=False, fast_forward=False)
+    assert fast.summary["fast_forward"]["used"] is True
+    assert fast.frames.present_ns.tolist() == slow.frames.present_ns.tolist()

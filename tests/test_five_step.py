@@ -1,6 +1,8 @@
 """The five-step sort-first / sort-last schedule in the model."""
 from __future__ import annotations
 
+import copy
+
 import pandas as pd
 import pytest
 
@@ -200,13 +202,41 @@ def test_sort_first_interleaved_strips_exact_timeline():
 
 @pytest.mark.parametrize("opts, field", [({"tiles": 1}, "schedule.tiles"),
                                          ({"tiles": 7}, "schedule.tiles"),
-                                         ({"tiles": 4, "balance": True}, "schedule.tiles"),
                                          ({"tiles": 4, "tile_rows": [3, 3]}, "schedule.tiles")])
 def test_sort_first_strips_bad_input(opts, field):
     from mgpusim import InputError
     from mgpusim.program import build_program
     with pytest.raises(InputError, match=field):
         build_program(make_experiment(gpus=2, height=6, **opts))
+
+
+def test_balanced_strips_give_a_slower_gpu_fewer_exact_timeline():
+    """GPU 1 twice as slow (2 ns per pixel-iteration), 8x12, 10 iterations, free composite:
+    balanced tiles are 8 / 4 rows (640 + 10 present vs 640 ns), so of 6 strips of 2 rows GPU 0
+    gets 4 and GPU 1 2, interleaved 0,1,0,0,1,0. Renders 0-640 on both; GPU 1's 32 px x 4 B =
+    128 B cross at 1 B/ns: d2h 640-768, host copy -896, h2d -1024; composite 0 ns; present
+    1024-1034."""
+    from mgpusim.experiment import parse_experiment
+    from mgpusim.profile import parse_profile
+    prof = profile_dict(gpus=1)
+    prof["gpus"][0]["costs"]["composite_sort_first"] = {"ns_per_pixel": 0.0, "ns_per_input": 0.0}
+    slow = copy.deepcopy(prof["gpus"][0])
+    slow["costs"]["fragment_loop"]["ns_per_pixel_iteration"] = 2.0
+    prof["gpus"].append(slow)
+    data = {"name": "t", "scene": {"width": 8, "height": 12, "passes": [
+        {"name": "p", "kind": "fragment_loop", "iterations": 10}]},
+        "schedule": {"name": "sort_first", "gpus": 2, "frames": 3, "warmup_frames": 1,
+                     "tiles": 6, "balance": True}}
+    r = simulate(parse_experiment(data, "t.toml", profile=parse_profile(prof, "p")))
+    assert r.config["strip_gpus"] == (0, 1, 0, 0, 1, 0) and r.config["tile_rows"] == (8, 4)
+    f0 = r.trace[r.trace.frame == 0].set_index("task")
+    assert (f0.loc["render0", "end_ns"], f0.loc["render1", "end_ns"]) == (640, 640)
+    assert (f0.loc["h2d1", "start_ns"], f0.loc["h2d1", "end_ns"]) == (896, 1024)
+    assert f0.loc["present", "end_ns"] == 1034
+    data["schedule"]["balance"] = False  # round robin: 3 strips each, GPU 1 renders 6 rows
+    even = simulate(parse_experiment(data, "t.toml", profile=parse_profile(prof, "p")))
+    assert even.config["strip_gpus"] == (0, 1, 0, 1, 0, 1)
+    assert even.trace[(even.trace.frame == 0) & (even.trace.task == "render1")].end_ns.item() == 960
 
 
 def _objects_experiment(**sched):

@@ -111,7 +111,8 @@ def test_copy_on_the_copy_engine_shares_by_graphics_transfer():
 def test_capacity_of_several_queues():
     prof = parse_profile(_profile({"graphics_compute": 1.5, "graphics_transfer": 1.8,
                                    "compute_transfer": 1.2}, gpus=1), "p")
-    g, c, x = QueueRef(0, "graphics"), QueueRef(0, "compute"), QueueRef(0, "transfer")
+    g, c, x = ((QueueRef(0, fam), kind) for fam, kind in
+               (("graphics", "fragment_loop"), ("compute", "particle_update"), ("transfer", "copy")))
     assert capacity(prof, (g,)) == 1
     assert capacity(prof, (g, c)) == Fraction(3, 2)
     # three at once: 1 + 2 x mean gain (0.5, 0.8, 0.2) = 2
@@ -119,6 +120,23 @@ def test_capacity_of_several_queues():
     worst = parse_profile(_profile({"graphics_compute": 0.5, "graphics_transfer": 0.5,
                                     "compute_transfer": 0.5}, gpus=1), "p")
     assert capacity(worst, (g, c, x)) == Fraction(1, 2)  # never below the worst pair
+
+
+def test_a_pass_kinds_own_efficiency_wins_for_the_pairs_it_is_in():
+    # the draw blends (memory-bound): a copy hurts it more than the fragment loop
+    prof = _profile({"graphics_transfer": 1.9})
+    prof["gpus"][0]["queue_overlap"]["particle_render"] = {"graphics_transfer": 1.2}
+    p = parse_profile(prof, "p")
+    draw, loop = (QueueRef(0, "graphics"), "particle_render"), (QueueRef(0, "graphics"), "fragment_loop")
+    copy_ = (QueueRef(0, "transfer"), "copy")
+    assert capacity(p, (draw, copy_)) == Fraction(6, 5) and capacity(p, (loop, copy_)) == Fraction(19, 10)
+    # a profile with only a kind's own table still turns the effect on where that kind overlaps
+    only = _profile()
+    only["gpus"][0]["queue_overlap"] = {"fragment_loop": {"graphics_transfer": 1.0}}
+    exp = make_experiment(only, gpus=2)
+    assert "shared_gpu" in choose_effects(build_program(exp), exp.profile)
+    mesh = make_experiment(only, schedule="sort_last", gpus=2)  # meshes, not fragment loops
+    assert "shared_gpu" not in choose_effects(build_program(mesh), mesh.profile)
 
 
 def test_fast_forward_and_levels_with_a_shared_gpu():

@@ -268,3 +268,14 @@ def test_perfetto_of_a_window_of_a_one_gpu_run():
     assert len(slices) == len(trace) and {e["args"]["frame"] for e in slices} == set(range(15, 20))
     names = {e["args"]["name"] for e in doc["traceEvents"] if e.get("name") == "thread_name"}
     assert f"{trace.loc[first, 'engine']} (2)" in names
+
+
+def test_comparison_draws_the_simulations_last_frames_beside_a_later_measured_window():
+    """A measured steady window (frames 30-33 of a long run) beside a 24-frame simulation: the
+    simulated panel shows the simulation's last four frames, not an empty window."""
+    from mgpusim.plot import comparison_frames
+    import pandas as pd
+    measured = pd.DataFrame({"frame": list(range(40))})
+    simulated = pd.DataFrame({"frame": list(range(24))})
+    assert comparison_frames(measured, simulated, [30, 31, 32, 33]) == ([30, 31, 32, 33], [20, 21, 22, 23])
+    assert comparison_frames(measured, simulated, [10, 11]) == ([10, 11], [10, 11])

@@ -77,6 +77,25 @@ def test_calibrate_writes_queue_overlap_into_a_real_gpus_profile(tmp_path, capsy
     assert not load_profile(lava).gpus[0].queue_overlap
 
 
+def test_another_graphics_work_gets_a_table_of_its_own(tmp_path):
+    g, x = "gpu0.graphics", "gpu0.transfer"
+    draw = [dict(_row("graphics_transfer", 0, 1000, 1000, 1250, g, x), graphics="particle_render"),
+            dict(_row("compute_transfer", 0, 1000, 1000, 1100, "gpu0.compute", x), graphics="particle_render")]
+    df = pd.concat([_table().assign(graphics="fragment_loop"), pd.DataFrame(draw)], ignore_index=True)
+    fitted, _ = fit_overlap(df)
+    assert fitted["particle_render.graphics_transfer"][0] == pytest.approx(1.6)
+    assert fitted["graphics_transfer"][0] == pytest.approx(2.0)  # the fragment loop's, unchanged
+    assert fitted["compute_transfer"][0] == pytest.approx(2000 / 1100)  # no graphics work in it
+    table = tmp_path / "overlap.csv"
+    df.to_csv(table, index=False)
+    out = tmp_path / "p.toml"
+    assert main(["calibrate", str(table), "--base", str(ROOT / "hardware_profiles/h100.toml"),
+                 "--out", str(out)]) == 0
+    gpu = load_profile(out).gpus[0]
+    assert gpu.overlap("graphics_transfer", ("particle_render", "copy")) == pytest.approx(1.6)
+    assert gpu.overlap("graphics_transfer", ("fragment_loop", "copy")) == pytest.approx(2.0)
+
+
 def test_overlap_rows_need_positive_alone_times(tmp_path):
     df = _table()
     df.loc[0, "alone_a_ns"] = 0

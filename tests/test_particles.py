@@ -132,3 +132,14 @@ def test_cpu_tasks_are_refused_by_the_runner_and_checked():
     assert "simulated only" in cpu.params["unsupported"]
     with pytest.raises(InputError, match="schedule.cpu_frame_us"):
         experiment(profile(), "particles", ENGINE, cpu_frame_us=-1.0)
+
+
+@pytest.mark.parametrize("policy", ["wait", "new_wait"])
+def test_cpu_copy_fast_forward_is_exact(policy):
+    exp = experiment(profile(), "particles", ENGINE, frames=2000, particles=500,
+                     vertex_bytes_per_particle=1, host_copy=False, warmup=1, policy=policy,
+                     cpu_copy=True, cpu_frame_us=0.05)
+    fast, slow = simulate(exp, record_trace=False), simulate(exp, record_trace=False, fast_forward=False)
+    assert fast.summary["fast_forward"]["used"] is True
+    assert fast.frames.present_ns.tolist() == slow.frames.present_ns.tolist()
+    assert fast.summary.get("skipped_tasks") == slow.summary.get("skipped_tasks")

@@ -9,11 +9,12 @@ import pytest
 PASSES = [timed("a", 1000, output_bytes=200), timed("b", 400, output_bytes=100), timed("c", 300)]
 
 
-def run(**kw):
+def run(fidelity="full", **kw):
     kw.setdefault("split_at", 2)
     kw.setdefault("fif", 3)
     kw.setdefault("warmup", 1)
-    return simulate(experiment(kw.pop("prof", profile()), "pipelining", PASSES, **kw))
+    return simulate(experiment(kw.pop("prof", profile()), "pipelining", PASSES, **kw),
+                    fidelity=fidelity)
 
 
 def test_exact_timeline_per_pass_copies():
@@ -132,8 +133,62 @@ def test_device_group_copies_go_gpu_to_gpu_over_pcie():
     assert set(r.trace[r.trace.task == "out.a.group"].device) == {"gpu1"}
     assert not r.trace.step.isin(["d2h", "h2d", "host_copy"]).any()
     assert presents(r)[0] == 1760
+    assert presents(run(frames=6, prof=prof, path="group", fidelity="analytic")) == \
+        presents(run(frames=6, prof=prof, path="group"))
     from mgpusim.program import build_program
     copy = next(t for t in build_program(experiment(prof, "pipelining", PASSES, split_at=2,
                                                      path="group")).templates[0]
                 if t.name == "out.a.group")
     assert copy.path == "group" and copy.src is None  # left unbound: the runner refuses it
+
+
+def test_reads_on_one_gpu_is_the_baseline():
+    """The same file with gpus = 1: nothing crosses, `reads` is only checked for names."""
+    kw = dict(split_at=1, frames=2, fif=3, warmup=1, gpus=1, consumer_waits="reads")
+    r = simulate(experiment(profile(), "pipelining", READS, reads={"d": ["a"]}, **kw))
+    assert presents(r)[0] == 1000 + 300 + 200 + 10
+    with pytest.raises(InputError, match="schedule.reads.d"):
+        simulate(experiment(profile(), "pipelining", READS, reads={"d": ["x"]}, **kw))
+
+
+def test_producer_chunks_copy_each_piece_as_it_is_rendered():
+    """Two chunks, each of GPU 1's passes in two halves: a#0 0-500, a#1 500-1000, b#0
+    1000-1200, b#1 1200-1400. a's first 100 B leave at 500 (d2h 500-600, h2d 600-700), its
+    second at 1000 (1000-1100-1200); b's 50 B pieces 1200-1250-1300 and 1400-1450-1500.
+    c 1500-1800, present 1810: 50 ns less than chunks that leave after the whole pass."""
+    r = run(frames=2, chunks=2, producer_chunks=True)
+    assert rows(r, "render.a#0", 0) == [(0, 500)] and rows(r, "render.b#1", 0) == [(1200, 1400)]
+    assert rows(r, "out.a#0.d2h", 0) == [(500, 600)] and rows(r, "out.a#0.h2d", 0) == [(600, 700)]
+    assert rows(r, "out.b#0.h2d", 0) == [(1250, 1300)] and rows(r, "out.b#1.h2d", 0) == [(1450, 1500)]
+    assert presents(r)[0] == 1810
+    assert rows(r, "render.a#0", 1) == [(1400, 1900)]  # GPU 1 goes on with the next frame
+    from mgpusim.program import build_program
+    piece = next(t for t in build_program(experiment(profile(), "pipelining", PASSES, chunks=2,
+                                                      producer_chunks=True)).templates[0]
+                 if t.name == "render.a#1")
+    assert "simulated only" in piece.params["unsupported"]
+    with pytest.raises(InputError, match="schedule.producer_chunks"):
+        run(frames=2, chunks=2, producer_chunks=True, copy_granularity="frame")
+
+
+def test_consumer_chunks_each_piece_after_its_chunk():
+    """d (200 ns, reads a) in two halves, each after its chunk of a: chunk 0 arrives at 1200
+    (d2h 1000-1100, h2d 1100-1200), chunk 1 at 1300: d#0 1200-1300, d#1 1300-1400, present 1410
+    (1510 when d waits for both). With producer_chunks too, a's halves leave at 500 and 1000:
+    chunk 0 arrives at 700, chunk 1 at 1200: d#0 700-800, d#1 1200-1300, present 1310."""
+    kw = dict(split_at=1, frames=2, fif=3, warmup=1, chunks=2, consumer_waits="reads",
+              reads={"d": ["a"]}, consumer_chunks=True)
+    r = simulate(experiment(profile(), "pipelining", READS, **kw))
+    assert rows(r, "render.c", 0) == [(0, 300)]
+    assert rows(r, "render.d#0", 0) == [(1200, 1300)] and rows(r, "render.d#1", 0) == [(1300, 1400)]
+    assert presents(r)[0] == 1410
+    both = simulate(experiment(profile(), "pipelining", READS, producer_chunks=True, **kw))
+    assert rows(both, "render.d#0", 0) == [(700, 800)] and rows(both, "render.d#1", 0) == [(1200, 1300)]
+    assert presents(both)[0] == 1310
+    from mgpusim.program import build_program
+    up = next(t for t in build_program(experiment(profile(), "pipelining", READS, **kw)).templates[0]
+              if t.name == "out.a#1.h2d")
+    assert ("render.d#1", -2) in [(d.task, d.offset) for d in up.deps]  # its reader frees it
+    with pytest.raises(InputError, match="schedule.consumer_chunks"):
+        build_program(experiment(profile(), "pipelining", READS, split_at=1, chunks=2,
+                                 consumer_chunks=True))

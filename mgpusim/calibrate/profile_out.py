@@ -13,8 +13,8 @@ import numpy as np
 
 from ..profile import parse_profile
 from .fit import Fit
-from .overlap import apply_overlap
 from .model import Calibration
+from .overlap import apply_overlap, overlap_line
 
 DEFAULT_SIMULATED_GPUS = 4
 
@@ -144,7 +144,7 @@ def report(cal: Calibration) -> str:
         th = ", ".join(f"{k} thr: {v:.3g} GB/s" for k, v in cal.host.get("throughput_by_threads_gbps", {}).items())
         lines.append(f"  host copies: {th}")
     if cal.overlap:
-        lines.append("  " + (apply_overlap({"gpus": []}, cal.overlap) or ""))
+        lines.append("  " + overlap_line(cal.overlap))
     lines += [f"warning: {w}" for w in cal.warnings]
     return "\n".join(lines)
 

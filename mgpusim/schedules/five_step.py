@@ -9,7 +9,9 @@ ahead of the last present.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import replace
+from fractions import Fraction
 from types import MappingProxyType
 
 from .. import limits as L
@@ -47,7 +49,8 @@ SORT_FIRST_OPTIONS = {
                       "includes compositing and present); overrides tile_rows"),
     "tiles": Option(int, 0, "sort-first: the screen in this many horizontal strips of equal "
                     "height (the last takes the remainder), strip k on GPU k mod N (interleaved "
-                    "small tiles); 0 = one tile per GPU", minimum=0, maximum=L.MAX_SIDE,
+                    "small tiles; with balance, strips in proportion to the balanced tile "
+                    "heights); 0 = one tile per GPU", minimum=0, maximum=L.MAX_SIDE,
                     why=L.WHY_IMAGE),
 }
 SORT_LAST_OPTIONS = {
@@ -77,12 +80,29 @@ def build_sort_first(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile
                   {"tile_rows": tuple(rows), "balanced": bool(cfg.opt("balance"))}, places)
 
 
-def strip_gpus(height: int, tiles: int, gpus: int) -> tuple[list[int], list[int]]:
-    """Interleaved sort-first strips: their heights (equal, the last takes the remainder) and
-    rows per GPU (strip k on GPU k mod `gpus`)."""
-    strips = even_split(height, tiles)
-    rows = [sum(strips[g::gpus]) for g in range(gpus)]
-    return strips, rows
+def strip_owners(tiles: int, counts: list[int]) -> list[int]:
+    """The GPU of each of `tiles` strips, `counts[g]` strips for GPU g, interleaved as evenly
+    as the counts allow (smooth weighted round robin; equal counts: strip k on GPU k mod N)."""
+    total, current, owners = sum(counts), [0] * len(counts), []
+    for _ in range(tiles):
+        current = [c + w for c, w in zip(current, counts)]
+        g = max(range(len(counts)), key=lambda i: (current[i], -i))
+        current[g] -= total
+        owners.append(g)
+    return owners
+
+
+def _strip_counts(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> list[int]:
+    """Strips per GPU: round robin (k mod N), or with `balance` in proportion to the balanced
+    tile heights (largest remainder), so a slower GPU gets fewer of them."""
+    n, tiles = cfg.gpus, cfg.opt("tiles")
+    if not cfg.opt("balance"):
+        return [len(range(g, tiles, n)) for g in range(n)]
+    exact = [Fraction(r * tiles, scene.height) for r in balanced_rows(scene, profile, n)]
+    counts = [math.floor(e) for e in exact]
+    for g in sorted(range(n), key=lambda g: (counts[g] - exact[g], g))[:tiles - sum(counts)]:
+        counts[g] += 1
+    return counts
 
 
 def _build_strips(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> FrameProgram:
@@ -90,26 +110,27 @@ def _build_strips(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -
     (scissored to them), a secondary's strips cross as one copy, and the composite draws one
     rectangle per strip from a secondary (its `input` term counts the strips)."""
     n, tiles = cfg.gpus, cfg.opt("tiles")
-    for key in ("balance", "tile_rows"):
-        if cfg.opt(key):
-            raise InputError(f"tiles = {tiles} places interleaved strips; it cannot be combined "
-                             f"with {key}", field="schedule.tiles")
+    if cfg.opt("tile_rows"):
+        raise InputError(f"tiles = {tiles} places interleaved strips; it cannot be combined "
+                         "with tile_rows", field="schedule.tiles")
     if tiles < n or tiles > scene.height:
         raise InputError(f"expected 0 or {n}..{scene.height} strips (at least one per GPU, at "
                          f"most one per row), got {tiles}", field="schedule.tiles")
-    strips, rows = strip_gpus(scene.height, tiles, n)
+    strips = even_split(scene.height, tiles)
+    owners = strip_owners(tiles, _strip_counts(cfg, scene, profile))
+    rows = [sum(h for h, g in zip(strips, owners) if g == gpu) for gpu in range(n)]
     pixels = [scene.width * r for r in rows]
     contribution = [p * scene.color_bytes_per_pixel for p in pixels]
-    remote = sum(1 for k in range(tiles) if k % n)
+    remote = sum(1 for g in owners if g)
     composite = _composite("composite_sort_first", remote, sum(pixels[1:]))
     record = {"tile_rows": tuple(rows), "strip_rows": tuple(strips), "tiles": tiles,
-              "balanced": False}
+              "strip_gpus": tuple(owners), "balanced": bool(cfg.opt("balance"))}
     why = (f"the Vulkan runner renders one tile per GPU; schedule.tiles = {tiles} interleaved "
            "strips are simulated only")
     frame = (scene.width, scene.height)
     tops = [sum(strips[:k]) for k in range(tiles)]
     places = [tuple(Placement(frame, (0, tops[k], scene.width, strips[k]))
-                    for k in range(g, tiles, n)) for g in range(n)]
+                    for k in range(tiles) if owners[k] == g) for g in range(n)]
     return _build(cfg, scene, profile, pixels, [1.0] * n, contribution, composite, record,
                   places, unsupported=why)
 

@@ -104,7 +104,6 @@ def _copy_on_main_thread(chain: list[Task], profile: HardwareProfile, nbytes: in
     return [update, d2h, copy, replace(h2d, deps=(Dep(copy.name),) + h2d.deps[1:])]
 
 
-
 def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, n: int, pg: int,
           new_wait: bool) -> tuple[list[Task], tuple[Resource, ...]]:
     """What every task reads and writes on the Vulkan runner.

@@ -43,6 +43,13 @@ OPTIONS = {
                              choices=("all", "reads")),
     "reads": Option(dict, {}, "with consumer_waits = 'reads': GPU 0 pass -> the GPU 1 passes "
                     "whose outputs it reads (a filter reads its inputs unless listed here)"),
+    "producer_chunks": Option(bool, False, "GPU 1's passes render their output in `chunks` "
+                              "pieces (a sub-pass each, with its own fixed cost), and a piece's "
+                              "copy leaves as soon as its sub-pass ended; false: a copy leaves "
+                              "after its whole pass"),
+    "consumer_chunks": Option(bool, False, "with consumer_waits = 'reads': a GPU 0 pass that "
+                              "reads GPU 1 outputs runs in `chunks` pieces (a sub-pass each), "
+                              "piece c waiting only for chunk c of what it reads"),
 }
 
 
@@ -58,6 +65,8 @@ def build_pipelining(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile
     readers = _readers(cfg, scene, split)
     if first:
         renders = _passes(1, first, scene, (Dep("present", -fif),))
+        if _producer_split(cfg):
+            renders = _split_renders(renders, first, cfg.opt("chunks"))
         copies, arrivals = _copies(cfg, scene, profile, route, first, readers)
         # GPU 1 may overwrite its outputs once the copies of frame f-buffers have read them
         reads = tuple(Dep(c.name, -buffers) for c in copies if c.step in ("d2h", "p2p"))
@@ -68,7 +77,8 @@ def build_pipelining(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile
         tasks.extend(_passes(0, rest, scene, gate))
         after = tuple(Dep(a) for _, a in arrivals[-1:]) if not rest else ()
     else:
-        tasks.extend(_reading_passes(rest, scene, fif, readers, arrivals))
+        pieces = cfg.opt("chunks") if _consumer_split(cfg) else 1
+        tasks.extend(_reading_passes(rest, scene, fif, readers, arrivals, pieces))
         unread = {g for g, _ in arrivals} - {g for gs in readers.values() for g in gs}
         after = tuple(Dep(a) for g, a in arrivals if g in unread)
     last = tasks[-1].name if rest else None
@@ -115,6 +125,8 @@ def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene,
     for task in tasks:
         if task.name in crossed:
             out.append(crossed[task.name])
+        elif isinstance(task, PassTask) and "unsupported" in task.params:
+            out.append(task)  # a sub-pass of a pass rendered in pieces: simulated only
         elif isinstance(task, PassTask) and task.step == "render":
             index = next(i for i, s in enumerate(scene.passes) if task.name == f"render.{s.name}")
             spec, on_gpu0 = scene.passes[index], task.queue.device == 0
@@ -209,11 +221,51 @@ def _copies(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, route: 
         consumer = _consumer(cfg, scene, prefix, readers)
         for c, size in enumerate(even_split(nbytes, chunks)):
             name = prefix if chunks == 1 else f"{prefix}#{c}"
-            piece = cross(name, profile, 1, 0, size, (Dep(after),), route,
-                          dst_deps=(Dep(consumer, -buffers),))
+            ready = f"{after}#{c}" if _producer_split(cfg) else after
+            reader = f"{consumer}#{c}" if _consumer_split(cfg) and consumer != "present" else consumer
+            piece = cross(name, profile, 1, 0, size, (Dep(ready),), route,
+                          dst_deps=(Dep(reader, -buffers),))
             tasks.extend(piece)
             arrivals.append((prefix, piece[-1].name))
     return tasks, arrivals
+
+
+def _producer_split(cfg: ScheduleConfig) -> bool:
+    """Whether GPU 1's passes render their output in `chunks` pieces."""
+    if not cfg.opt("producer_chunks"):
+        return False
+    if cfg.opt("copy_granularity") == "frame":
+        raise InputError("a pass's output leaves in pieces only with copy_granularity = 'pass'",
+                         field="schedule.producer_chunks")
+    return cfg.opt("chunks") > 1
+
+
+def _consumer_split(cfg: ScheduleConfig) -> bool:
+    """Whether GPU 0's reading passes run in `chunks` pieces, each after its chunk."""
+    if not cfg.opt("consumer_chunks"):
+        return False
+    if cfg.opt("consumer_waits") != "reads" or cfg.opt("copy_granularity") == "frame":
+        raise InputError("pieces of a reading pass wait for chunks of what it reads: needs "
+                         "consumer_waits = 'reads' and copy_granularity = 'pass'",
+                         field="schedule.consumer_chunks")
+    return cfg.opt("chunks") > 1 and cfg.gpus > 1
+
+
+def _split_renders(renders: list[PassTask], specs: tuple[PassSpec, ...],
+                   chunks: int) -> list[PassTask]:
+    """Each of GPU 1's passes as `chunks` sub-passes in order (`render.X#c`, each 1/chunks of
+    the work plus the pass's fixed cost); the Vulkan runner does not split passes."""
+    why = MappingProxyType({"unsupported": "schedule.producer_chunks: passes rendered in "
+                            "pieces are simulated only"})
+    out: list[PassTask] = []
+    for task, spec in zip(renders, specs):
+        work = MappingProxyType({k: v / chunks for k, v in task.work.items()})
+        for c in range(chunks):
+            deps = task.deps if c == 0 else (Dep(out[-1].name),)
+            if c == 0 and out:
+                deps = (Dep(out[-1].name),) + task.deps[1:]
+            out.append(replace(task, name=f"{task.name}#{c}", work=work, deps=deps, params=why))
+    return out
 
 
 def _consumer(cfg: ScheduleConfig, scene: Scene, group: str,
@@ -229,12 +281,15 @@ def _consumer(cfg: ScheduleConfig, scene: Scene, group: str,
 def _readers(cfg: ScheduleConfig, scene: Scene,
              split: int) -> dict[str, tuple[str, ...]] | None:
     """With consumer_waits = 'reads': every GPU 0 pass (in order) -> the copy groups whose
-    arrival it waits for; None with 'all'. A pass reads the GPU 1 outputs `reads` lists,
+    arrival it waits for; None with 'all' or one GPU. A pass reads the GPU 1 outputs `reads` lists,
     a filter without an entry its `inputs` passes that ran on GPU 1."""
     given = cfg.opt("reads")
     if cfg.opt("consumer_waits") == "all":
         if given:
             raise InputError("reads applies with consumer_waits = 'reads'", field="schedule.reads")
+        return None
+    if cfg.gpus == 1:  # nothing crosses; the same file runs as the one-GPU baseline
+        _check_names(given, [p.name for p in scene.passes])
         return None
     first = [p.name for p in scene.passes[:split]]
     rest = scene.passes[split:]
@@ -257,17 +312,39 @@ def _readers(cfg: ScheduleConfig, scene: Scene,
     return out
 
 
+def _check_names(given: dict, names: list[str]) -> None:
+    """`reads` names scene passes only (checked on one GPU, where no pass runs on GPU 1)."""
+    for name, sources in given.items():
+        if name not in names or not isinstance(sources, list) or not all(s in names for s in sources):
+            raise InputError(f"expected scene passes ({names}) read by a scene pass, got "
+                             f"{name!r} = {sources!r}", field=f"schedule.reads.{name}")
+
+
 def _spec(scene: Scene, name: str) -> PassSpec:
     return next(p for p in scene.passes if p.name == name)
 
 
 def _reading_passes(rest: tuple[PassSpec, ...], scene: Scene, fif: int,
-                    readers: dict[str, tuple[str, ...]],
-                    arrivals: list[tuple[str, str]]) -> list[PassTask]:
-    """GPU 0's passes in order; each also waits for every piece of the groups it reads."""
-    out = _passes(0, rest, scene, (Dep("present", -fif),))
-    return [_with_deps(t, tuple(Dep(a) for g, a in arrivals if g in readers[spec.name]))
-            for t, spec in zip(out, rest)]
+                    readers: dict[str, tuple[str, ...]], arrivals: list[tuple[str, str]],
+                    pieces: int = 1) -> list[PassTask]:
+    """GPU 0's passes in order; each also waits for every piece of the groups it reads. With
+    `pieces` > 1 a reading pass runs as that many sub-passes, piece c after chunk c of each
+    group it reads (arrivals come in chunk order per group)."""
+    out: list[PassTask] = []
+    for task, spec in zip(_passes(0, rest, scene, (Dep("present", -fif),)), rest):
+        groups = readers[spec.name]
+        if out:
+            task = replace(task, deps=(Dep(out[-1].name),) + task.deps[1:])
+        if pieces == 1 or not groups:
+            out.append(_with_deps(task, tuple(Dep(a) for g, a in arrivals if g in groups)))
+            continue
+        chunk = {g: [a for gg, a in arrivals if gg == g] for g in groups}
+        split = _split_renders([task], (spec,), pieces)
+        for c, sub in enumerate(split):
+            if c:
+                sub = replace(sub, deps=(Dep(out[-1].name),))
+            out.append(_with_deps(sub, tuple(Dep(chunk[g][c]) for g in groups)))
+    return out
 
 
 def _needed_on_gpu0(scene: Scene, split: int) -> set[str]:

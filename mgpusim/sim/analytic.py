@@ -32,7 +32,7 @@ import numpy as np
 
 from ..costs import CostModel
 from ..errors import InputError, ScheduleError
-from ..schedules.base import FrameProgram, even_split, task_device, wakes_host
+from ..schedules.base import FrameProgram, even_split, wakes_host
 from ..tasks import CpuTask, HostCopyTask, PassTask, Task
 from .effects import choose_effects
 from .engine import Engine, RawResult
@@ -86,8 +86,7 @@ class Analytic:
                        effects=effects - {"shared_executor", "shared_gpu", "link_sharing",
                                           "host_memory_sharing"})
         self.threads = host.memcpy_threads
-        #: per frame phase, task name -> its device (a name may sit on other devices in other phases)
-        self.device_of = [{t.name: task_device(t) for t in tasks} for tasks in program.templates]
+        #: per frame phase, task name -> its task (a name may sit on other devices in other phases)
         self.task_of = [{t.name: t for t in tasks} for tasks in program.templates]
         thread_cap = costs.memcpy_thread_cap()
         mem = costs.host_memory_bandwidth()
@@ -102,7 +101,7 @@ class Analytic:
 
     def _node(self, op: Any, phase: int) -> _Node:
         task = op.task
-        deps = tuple((d.task, d.offset, self._crosses(task, d.task, (phase + d.offset) % len(self.device_of)))
+        deps = tuple((d.task, d.offset, self._crosses(task, d.task, (phase + d.offset) % len(self.task_of)))
                      for d in task.deps)
         if isinstance(task, HostCopyTask):
             parts = tuple(even_split(task.bytes, task.parts(self.threads)))

@@ -75,18 +75,13 @@ def _copy_caps_bind(program: FrameProgram, profile: HardwareProfile) -> bool:
         if cap is None:
             continue
         if t.path == "group":
-            bw = costs.group_bandwidth(*_group_ends(t))
+            bw = costs.group_bandwidth(*t.ends())
         else:
             bw = (costs.peer_bandwidth(t.queue.device, t.peer) if t.path == "p2p"  # type: ignore[arg-type]
                   else costs.link_bandwidth(t.queue.device, t.path))
         if cap < bw:
             return True
     return False
-
-
-def _group_ends(t: CopyTask) -> tuple[int, int]:
-    from .engine import group_ends  # noqa: PLC0415 (the engine imports this module)
-    return group_ends(t)
 
 
 def _gaps(program: FrameProgram, profile: HardwareProfile) -> bool:

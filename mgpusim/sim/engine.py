@@ -25,7 +25,7 @@ import simpy
 from ..costs import CostModel, gbps_fraction, ns, round_half_up
 from ..errors import InputError, ScheduleError
 from ..limits import INT64_MAX
-from ..schedules.base import FrameProgram, even_split, task_device, waits_for_labels, wakes_host
+from ..schedules.base import FrameProgram, even_split, waits_for_labels, wakes_host
 from ..tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
 from .channel import Channel, FixedRateChannel
 from .effects import choose_effects
@@ -55,12 +55,6 @@ class _Op:
     gap_run: Runner | None = None
     #: a CPU task: its thread wakes `dispatch_ns` after an input from elsewhere, no submit cost
     cpu: bool = False
-
-
-def group_ends(task: CopyTask) -> tuple[int, int]:
-    """(source, destination) of a device-group copy: pulled by the destination, else pushed."""
-    other = task.peer if task.peer is not None else task.queue.device
-    return (other, task.queue.device) if task.pull else (task.queue.device, other)
 
 
 @dataclass
@@ -205,7 +199,7 @@ class Engine:
             full_cap = self.costs.copy_cap(task.queue.device, task.queue.family, task.path)
             self._check_copy_time(task, full_cap, duration)
             cap = full_cap if "copy_engine_caps" in self.effects else None
-            if executor.copies_on_cores:  # the copy is a memcpy in the queue's thread
+            if executor.copies_on_cores:  # a memcpy in the queue's thread / its GPU's work
                 bw = self._path_bandwidth(task)
                 rate = bw if cap is None else min(cap, bw)
                 duration += -(-nbytes * rate.denominator // rate.numerator)
@@ -225,26 +219,29 @@ class Engine:
         """A copy alone on its path must end within the bound on one task's time."""
         bw, dev = self._path_bandwidth(task), task.queue.device
         field = {"p2p": "peer_links", "d2d": f"gpus[{dev}].local_copy_gbps",
-                 "group": f"gpus[{group_ends(task)[0]}].link.d2h_gbps"}.get(
+                 "group": f"gpus[{task.ends()[0]}].link.d2h_gbps"}.get(
             task.path, f"gpus[{dev}].link.{task.path}_gbps")
         if cap is not None and cap < bw:
             bw, field = cap, f"gpus[{dev}].copy.{task.queue.family}.{task.path}_gbps"
         self.costs.check_transfer(task.name, task.bytes, bw, setup, field)
 
 
-    def _dispatch_wait(self, key: Key) -> int:
+    def _dispatch_wait(self, key: Key, keep: bool = False) -> int:
         """Host dispatch still owed before `key` starts: `dispatch_ns` after the last of its
-        inputs from another device or the host finished (0 if that is long past)."""
-        done = self._cross_done.pop(key, None)
+        inputs from another device or the host finished (0 if that is long past). `keep`: leave
+        the input's end for :meth:`_submitted`."""
+        done = self._cross_done.get(key) if keep else self._cross_done.pop(key, None)
         if done is None:
             return 0
         return max(0, done + self._dispatch_ns - self.env.now)
 
-    def _submitted(self, key: Key, previous: int) -> int:
-        """When the queue's submit thread has recorded and submitted `key`: after the task
-        before it, and after waking on its last input from another device or the host."""
+    def _submitted(self, key: Key, previous: int, woke: int = 0) -> int:
+        """When the queue's submit thread has submitted `key`: `submit_ns` after the task
+        before it, and after waking on its last input from another device or the host
+        (`dispatch_ns` after that input ended, or at `woke` where waking was work on a shared
+        executor that ended later)."""
         done = self._cross_done.pop(key, None)
-        ready = previous if done is None else max(previous, done + self._dispatch_ns)
+        ready = previous if done is None else max(previous, done + self._dispatch_ns, woke)
         return ready + self._submit_ns
 
     def _duration(self, task: Task) -> int:
@@ -269,8 +266,7 @@ class Engine:
         if task.path == "p2p":
             return self.costs.peer_bandwidth(dev, task.peer)  # type: ignore[arg-type]
         if task.path == "group":
-            src, dst = group_ends(task)
-            return self.costs.group_bandwidth(src, dst)
+            return self.costs.group_bandwidth(*task.ends())
         return self.costs.link_bandwidth(dev, task.path)
 
     def _channel_for(self, task: CopyTask) -> Channel | FixedRateChannel:
@@ -354,12 +350,18 @@ class Engine:
                     self._dispatch_host_copy(frame, op)
                     continue
                 if self._host_timeline:
-                    if op.cpu:  # the thread itself wakes on its input; nothing to submit
-                        wait = self._dispatch_wait(key)
-                        if wait:
-                            yield env.timeout(wait)
+                    # the queue's submit thread: it submits ahead of the queue, one task after
+                    # another; a task fed by another device or the host waits for the thread to
+                    # wake on that input, which is the thread's own work on the host's executor
+                    # (on CPU-emulated GPUs it competes for the cores with the GPUs' passes); a
+                    # CPU task's thread itself wakes on its input and submits nothing
+                    wait = self._dispatch_wait(key, keep=True) if self._cross_done else 0
+                    if wait:
+                        yield self._host_work(wait)
+                    if op.cpu:
+                        self._cross_done.pop(key, None)
                     else:
-                        submitted = self._submitted(key, submitted)
+                        submitted = self._submitted(key, submitted, env.now if wait else 0)
                         if submitted > env.now:
                             yield env.timeout(submitted - env.now)
                         if self._submit_load is not None:

@@ -19,6 +19,7 @@ import simpy
 
 from ..costs import CostModel
 from ..profile import QUEUE_FAMILIES, HardwareProfile
+from ..schedules.base import FrameProgram
 from ..tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
 from .channel import Channel, GpuChannel
 
@@ -127,25 +128,37 @@ class SharedGpu(Dedicated):
     def task_runner(self, task: Task, ns: int) -> tuple[Runner | None, int]:
         if not ns:
             return None, 0
-        transfer, tag = self.channel.transfer, task.queue  # type: ignore[union-attr]
+        transfer, tag = self.channel.transfer, work_tag(task)
         return (lambda amount: transfer(amount, None, tag)), ns
 
 
-def pair_efficiency(profile: HardwareProfile, a: QueueRef, b: QueueRef) -> float:
-    """Overlap efficiency of work on queues `a` and `b` of one physical GPU: passes of two
+#: What a piece of work on a shared GPU is, for its overlap efficiencies: its queue and its
+#: pass kind ("copy" for a copy).
+WorkTag = tuple[QueueRef, str]
+
+
+def work_tag(task: Task) -> WorkTag:
+    return task.queue, task.kind if isinstance(task, PassTask) else "copy"  # type: ignore[union-attr]
+
+
+def pair_efficiency(profile: HardwareProfile, a: WorkTag, b: WorkTag) -> float:
+    """Overlap efficiency of work `a` and `b` on queues of one physical GPU: passes of two
     logical GPUs take `devices` (a copy engine is shared across them by its family pair), two
-    queues of one family `same_family`, else the families' pair (graphics_compute, ...)."""
-    gpu = profile.gpus[a.device]
-    if a.device != b.device and "transfer" not in (a.family, b.family):
-        return gpu.overlap("devices")
-    if a.family == b.family:
-        return gpu.overlap("same_family")
-    first, second = sorted((a.family, b.family), key=QUEUE_FAMILIES.index)
-    return gpu.overlap(f"{first}_{second}")
+    queues of one family `same_family`, else the families' pair (graphics_compute, ...); a pass
+    kind's own table (`queue_overlap.<kind>`) wins over the GPU's."""
+    (qa, ka), (qb, kb) = a, b
+    gpu = profile.gpus[qa.device]
+    if qa.device != qb.device and "transfer" not in (qa.family, qb.family):
+        pair = "devices"
+    elif qa.family == qb.family:
+        pair = "same_family"
+    else:
+        pair = "_".join(sorted((qa.family, qb.family), key=QUEUE_FAMILIES.index))
+    return gpu.overlap(pair, (ka, kb))
 
 
-def capacity(profile: HardwareProfile, tags: tuple) -> Fraction:
-    """What n pieces of work on these queues deliver together, in units of one alone: 1 for
+def capacity(profile: HardwareProfile, tags: tuple[WorkTag, ...]) -> Fraction:
+    """What n pieces of work (tagged by queue and kind) deliver together, in units of one alone: 1 for
     one; for two their pair's efficiency; for more, each extra one adds the pairs' mean gain,
     1 + (n - 1) x mean(e - 1), kept within [min(1, the worst pair), n]."""
     n = len(tags)
@@ -170,27 +183,28 @@ def overlap_efficiency(alone_a: float, alone_b: float, together: float) -> float
     return 2.0 if shared <= short else min(2.0, 2.0 * short / shared)
 
 
-def shared_gpu_groups(program, profile: HardwareProfile) -> dict[int, tuple[QueueRef, ...]]:
-    """Physical GPUs whose queues must share them: the queues the program uses on each, where
-    two of them overlap less than perfectly (efficiency < 2). Never on CPU-emulated GPUs: the
-    host's cores are their shared resource (SharedCores)."""
+def shared_gpu_groups(program: FrameProgram, profile: HardwareProfile) -> dict[int, tuple[WorkTag, ...]]:
+    """Physical GPUs whose queues must share them: the work the program puts on each, where
+    two pieces on different queues overlap less than perfectly (efficiency < 2). Never on
+    CPU-emulated GPUs: the host's cores are their shared resource (SharedCores)."""
     if profile.host.gpus_share_cpu:
         return {}
-    used: dict[int, set[QueueRef]] = {}
+    used: dict[int, set[WorkTag]] = {}
     for tasks in program.templates:
         for t in tasks:
-            if not isinstance(t, (HostCopyTask, CpuTask)):  # host work: no GPU queue
-                used.setdefault(profile.physical_of(t.queue.device), set()).add(t.queue)
-    out = {}
-    for phys, queues in used.items():
-        qs = sorted(queues, key=str)
-        if any(pair_efficiency(profile, a, b) < 2 for i, a in enumerate(qs) for b in qs[i + 1:]):
-            out[phys] = tuple(qs)
+            if not isinstance(t, (HostCopyTask, CpuTask)):  # the host's work, not a GPU's
+                used.setdefault(profile.physical_of(t.queue.device), set()).add(work_tag(t))
+    out: dict[int, tuple[WorkTag, ...]] = {}
+    for phys, tags in used.items():
+        ts = sorted(tags, key=str)
+        if any(a[0] != b[0] and pair_efficiency(profile, a, b) < 2
+               for i, a in enumerate(ts) for b in ts[i + 1:]):
+            out[phys] = tuple(ts)
     return out
 
 
 class Executor(Protocol):
-    """What the engine asks of an executor (Dedicated and SharedCores are the two kinds)."""
+    """What the engine asks of an executor (Dedicated, SharedCores and SharedGpu are the kinds)."""
 
     #: whether other devices draw on the same cores (its `channel` is then one of the run's)
     shared: bool
@@ -209,7 +223,7 @@ class Executor(Protocol):
 
 
 def make_executors(env: simpy.Environment, costs: CostModel, shared: bool,
-                   program=None) -> dict[str, Executor]:
+                   program: FrameProgram | None = None) -> dict[str, Executor]:
     """One executor per device name ("gpu<i>") and "host". `shared`: every device and the host
     draw on the host's cores (the shared_executor effect). `program` (the shared_gpu effect):
     the logical GPUs of each physical GPU whose queues share it get one SharedGpu."""

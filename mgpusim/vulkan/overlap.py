@@ -3,7 +3,9 @@
 Why: the queues of one GPU share it. A particle update on the compute queue slows a render on
 the graphics queue, and a copy on the copy engine takes memory bandwidth from both. The model
 gives each pair of queues an *overlap efficiency* (docs/queues.md). This measures it:
-- `graphics`: a full-screen fragment loop (`width` x `height`, `iterations`);
+- `graphics`: a full-screen fragment loop (`width` x `height`, `iterations`), or with
+  `graphics=particle_render` the particle draw (`particles` billboards blended into `width` x
+  `height`): how much two pieces of work slow each other depends on what they are bound by;
 - `compute`: the particle update (`particles`);
 - `transfer`: a copy on the copy engine (`copy`: h2d, d2h or d2d, `bytes`).
 Pairs: graphics_compute, graphics_transfer, compute_transfer on the queues of one VkDevice, and
@@ -21,7 +23,7 @@ from ..sim.executors import overlap_efficiency
 from .copies import CopyD2D, CopyD2H, CopyH2D
 from .device import Gpu
 from .particles import ParticleUpdate
-from .passes import FragmentLoop
+from .passes import FragmentLoop, ParticleRender
 
 #: Each pair: the queue families of its two pieces of work, and whether they run on two
 #: VkDevices of one physical GPU.
@@ -31,14 +33,21 @@ PAIRS: dict[str, tuple[str, str, bool]] = {
     "compute_transfer": ("compute", "transfer", False),
     "devices": ("graphics", "compute", True),
 }
-PARAMS: dict[str, int | str] = {"pair": "graphics_compute", "width": 1024, "height": 768,
-                                "iterations": 1000, "particles": 1 << 20, "bytes": 1 << 26,
-                                "copy": "h2d"}
+PARAMS: dict[str, int | str] = {"pair": "graphics_compute", "graphics": "fragment_loop",
+                                "width": 1024, "height": 768, "iterations": 1000,
+                                "particles": 1 << 20, "bytes": 1 << 26, "copy": "h2d"}
+#: The graphics work the pairs can use (a pass kind of the cost model).
+GRAPHICS = ("fragment_loop", "particle_render")
 _COPIES: dict[str, Callable[..., Any]] = {"h2d": CopyH2D, "d2h": CopyD2H, "d2d": CopyD2D}
 
 
 def _work(gpu: Gpu, family: str, p: dict[str, Any]) -> Any:
     if family == "graphics":
+        if p["graphics"] not in GRAPHICS:
+            raise InputError(f"must be one of {', '.join(GRAPHICS)}, got {p['graphics']!r}",
+                             field="graphics")
+        if p["graphics"] == "particle_render":
+            return ParticleRender(gpu, p["width"], p["height"], p["particles"])
         return FragmentLoop(gpu, p["width"], p["height"], p["iterations"])
     if family == "compute":
         return ParticleUpdate(gpu, p["particles"])

@@ -34,3 +34,14 @@ def test_overlap_table_says_which_families_are_missing(tmp_path, capsys):
     assert set(fitted) == {"devices"}  # the one-queue pair says nothing and is left out
     assert any("graphics_compute" in w and "not fitted" in w for w in warnings)
     assert len(fastest_of(df)) == 2
+
+
+def test_the_graphics_work_can_be_the_particle_draw(tmp_path):
+    out = tmp_path / "draw.csv"
+    assert main(["measure", "--pass", "overlap", "--sweep", "pair=devices",
+                 "--sweep", "graphics=particle_render", *SMALL, "--quiet", "--out", str(out)]) == 0
+    df = pd.read_csv(out)
+    assert set(df.graphics) == {"particle_render"} and (df.alone_a_ns > 0).all()
+    assert set(fit_overlap(df)[0]) == {"particle_render.devices"}
+    assert main(["measure", "--pass", "overlap", "--sweep", "graphics=mesh", *SMALL, "--quiet",
+                 "--out", str(tmp_path / "bad.csv")]) != 0

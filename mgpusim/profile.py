@@ -63,6 +63,10 @@ class HostProfile:
     #: cores or more (context switches, cache misses); from 1 at as many threads as cores it
     #: falls linearly to this. 1 = perfect sharing.
     oversubscribed_efficiency: float = 1.0
+    #: Lavapipe: the share of each pass's `cpu_overhead_ns` that competes for the cores (the
+    #: part of the driver's work outside the pass that does not overlap the pass itself); the
+    #: calibration's grid search picks it on the calibration runs.
+    cpu_overhead_scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -102,6 +106,12 @@ class PassCost:
     #: lavapipe shades and bins vertices on one thread, so a mesh pass barely gains from more
     #: threads (and two GPUs drawing meshes hardly slow each other down), unlike a fragment pass.
     cores: float | None = None
+    #: CPU-emulated GPUs only: CPU time a pass costs outside its own timestamps (the driver's
+    #: threads setting it up and finishing it; the intercept of the CPU-time fit), one core's
+    #: work on the shared cores that nobody waits on. Why: it takes cores from whatever else
+    #: runs, so small passes of several GPUs at once slow each other more than their `cores`
+    #: alone say.
+    cpu_overhead_ns: float = 0.0
     #: The calibration's standard errors of `fixed_ns` ("fixed_ns") and of each `ns_per` term
     #: (by term): simulate carries them into results as a band (empty: no band).
     stderr: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
@@ -310,6 +320,7 @@ def _parse_host(t: Table) -> HostProfile:
         dispatch_ns=_ns(t, "dispatch_ns", 0),
         submit_ns=_ns(t, "submit_ns", 0),
         oversubscribed_efficiency=t.get("oversubscribed_efficiency", float, 1.0, above=0),
+        cpu_overhead_scale=t.get("cpu_overhead_scale", float, 1.0, minimum=0, maximum=1),
     )
     _check_host(t, host)
     t.finish()
@@ -389,6 +400,8 @@ def _parse_costs(t: Table) -> Mapping[str, PassCost]:
         kt = t.table(kind)
         fixed = kt.get("fixed_ns", float, 0.0, minimum=0, maximum=L.MAX_TASK_NS, why=L.WHY_TIME)
         cores = kt.get("cores", float, None, minimum=0.01, maximum=L.MAX_THREADS, why=L.WHY_ALLOC)
+        overhead = kt.get("cpu_overhead_ns", float, 0.0, minimum=0, maximum=L.MAX_TASK_NS,
+                          why=L.WHY_TIME)
         known = [f"ns_per_{term}" for term in work_terms(kind)]
         stderr = _parse_stderr(kt.table("stderr", {}), known) if kt.has("stderr") else {}
         ns_per: dict[str, float] = {}
@@ -396,12 +409,14 @@ def _parse_costs(t: Table) -> Mapping[str, PassCost]:
             if key == "stderr":
                 continue
             if key not in known:
-                raise kt.error(key, f"unknown cost key{did_you_mean(key, [*known, 'fixed_ns', 'cores', 'stderr'])}"
-                                    f" ({kind} takes fixed_ns, cores, stderr, {', '.join(known)})")
+                raise kt.error(key, f"unknown cost key{did_you_mean(key, [*known, 'fixed_ns', 'cores', 'cpu_overhead_ns', 'stderr'])}"
+                                    f" ({kind} takes fixed_ns, cores, cpu_overhead_ns, stderr, "
+                                    f"{', '.join(known)})")
             ns_per[key.removeprefix("ns_per_")] = kt.get(key, float, minimum=0,
                                                          maximum=L.MAX_COEFFICIENT)
         kt.finish()
-        costs[kind] = PassCost(fixed, MappingProxyType(ns_per), cores, MappingProxyType(stderr))
+        costs[kind] = PassCost(fixed, MappingProxyType(ns_per), cores, overhead,
+                               MappingProxyType(stderr))
     return MappingProxyType(costs)
 
 

@@ -97,3 +97,49 @@ def test_slight_oversubscription_loses_little():
     assert renders(make_experiment(prof, gpus=2, iterations=100)) == {"render0": 2667, "render1": 2667}
     alone = renders(make_experiment(prof, gpus=1, iterations=100, width=8, height=2), names=("render0",))
     assert alone == {"render0": 1600}
+
+
+def test_driver_overhead_takes_a_core_from_the_other_gpu():
+    """Each render keeps 1 core busy and costs 800 core-ns of driver work outside it: two GPUs
+    at once put four flows on the two cores, half a core each, until the overheads end at
+    1600 ns; the renders then finish their last 800 ns at a full core: 2400 ns. Alone, the
+    render and its overhead fit the two cores (1600 ns); at scale 0 the overhead is off."""
+    prof = lavapipe_profile(2, None)
+    for gpu in prof["gpus"]:
+        gpu["costs"]["fragment_loop"].update(cores=1.0, cpu_overhead_ns=800)
+    assert renders(make_experiment(prof, gpus=2, iterations=100)) == {"render0": 2400, "render1": 2400}
+    alone = renders(make_experiment(prof, gpus=1, iterations=100, width=8, height=2), names=("render0",))
+    assert alone == {"render0": 1600}
+    prof["host"]["cpu_overhead_scale"] = 0.0
+    assert renders(make_experiment(prof, gpus=2, iterations=100)) == {"render0": 1600, "render1": 1600}
+
+
+def test_submit_thread_waking_competes_for_busy_cores():
+    """A task fed by another device waits for its submit thread to wake (dispatch_ns). On
+    real GPUs that is exactly dispatch_ns after the input; on CPU-emulated GPUs it is one
+    core's work, so while both cores render it takes longer."""
+    def wake_gaps(prof):
+        t = simulate(make_experiment(prof, gpus=2, frames=6, iterations=2000)).trace
+        by = t.set_index(["frame", "task"])
+        return [int(by.loc[(f, "h2d1"), "start_ns"] - by.loc[(f, "host_copy1"), "end_ns"]) for f in range(1, 6)]
+    real = profile_dict(gpus=2)
+    real["host"]["dispatch_ns"] = 5000
+    assert set(wake_gaps(real)) == {5000}
+    emulated = lavapipe_profile(2, None)
+    emulated["host"]["dispatch_ns"] = 5000
+    gaps = wake_gaps(emulated)
+    assert min(gaps) >= 5000 and max(gaps) > 5000
+
+
+def test_driver_overhead_fields_are_checked():
+    import pytest
+    from mgpusim.errors import InputError
+    from mgpusim.profile import parse_profile
+    prof = lavapipe_profile(2, None)
+    prof["gpus"][0]["costs"]["fragment_loop"]["cpu_overhead_ns"] = -1
+    with pytest.raises(InputError, match="cpu_overhead_ns"):
+        parse_profile(prof, "p")
+    prof = lavapipe_profile(2, None)
+    prof["host"]["cpu_overhead_scale"] = 1.5
+    with pytest.raises(InputError, match="cpu_overhead_scale"):
+        parse_profile(prof, "p")

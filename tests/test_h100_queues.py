@@ -37,6 +37,7 @@ def test_held_out_runs_on_one_vkdevice_within_five_percent(tmp_path: Path) -> No
     table = validate(study, study.held_out, study.held_out_runs, study.profile, tmp_path,
                      lambda m: None).set_index("config")
     assert table.loc[list(ONE_DEVICE), "frame_time_error"].abs().max() <= 0.05
+    assert table["frame_time_error"].abs().median() <= 0.05  # the target, over all seven
     # two VkDevices on the GPU: the sharing moves the model towards the measurement
     entry = next(e for e in study.held_out if e.name == "p2m_2dev_wait")
     exp = entry.load(study.profile)

@@ -107,7 +107,8 @@ def with_pass_fits(profile_data: dict[str, Any], fits: dict[str, Fit]) -> dict[s
         for kind, fit in fits.items():
             if any("cannot tell" in w for w in fit.warnings):
                 continue
-            kept = {k: v for k, v in gpu["costs"].get(kind, {}).items() if k == "cores"}
+            kept = {k: v for k, v in gpu["costs"].get(kind, {}).items()
+                    if k in ("cores", "cpu_overhead_ns")}
             gpu["costs"][kind] = {**cost_table(fit), **kept}
     return out
 

@@ -81,7 +81,25 @@ class SharedCores:
         return run, -(-ns * cores.numerator // cores.denominator)
 
     def task_runner(self, task: Task, ns: int) -> tuple[Runner | None, int]:
-        return self.runner(ns, self.cores(task))
+        """The task's work at its cores; a pass with a `cpu_overhead_ns` also puts that much
+        of one core's work on the pool when it starts, which nobody waits on."""
+        run, amount = self.runner(ns, self.cores(task))
+        overhead = self._overhead(task)
+        if not overhead or run is None:
+            return run, amount
+        transfer, main = self.channel.transfer, run
+
+        def with_overhead(amount: int) -> simpy.Event:
+            transfer(overhead, 1)
+            return main(amount)
+        return with_overhead, amount
+
+    def _overhead(self, task: Task) -> int:
+        if not isinstance(task, PassTask):
+            return 0
+        cost = self.costs.profile.gpus[task.queue.device].costs.get(task.kind)
+        scale = self.costs.profile.host.cpu_overhead_scale
+        return int(round(cost.cpu_overhead_ns * scale)) if cost is not None else 0
 
     def work(self, ns: int) -> simpy.Event:
         """One thread's `ns` of time: one core's work on the pool."""

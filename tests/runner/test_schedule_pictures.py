@@ -190,7 +190,7 @@ def test_xr_transfer_and_present_queues_are_recorded(eye_renders):
 def test_peer_copies_are_refused_with_one_message():
     prof = profile()
     prof["peer_links"] = [{"gpus": [0, 1], "bandwidth_gbps": 50.0, "latency_ns": 0}]
-    with pytest.raises(ScheduleError, match="peer copies are not supported by the runner"):
+    with pytest.raises(ScheduleError, match="peer and device-group copies are not supported by the runner"):
         run("xr", 2, XR_PASSES["mesh"], prof=prof, frames=2)
 
 

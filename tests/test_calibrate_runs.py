@@ -47,3 +47,27 @@ def test_host_effects_from_multi_gpu_runs():
     assert found == {"dispatch_ns": 400, "oversubscribed_efficiency": 0.8}
     assert score == pytest.approx(0.0, abs=1e-9)
 
+
+
+def test_refit_keeps_the_placed_terms_in_proportion():
+    """Whole-frame runs cannot tell a mesh's placed terms apart: the refit keeps the
+    microbenchmarks' per-term coefficients in proportion and fits a fixed cost and one scale;
+    placed_shapes picks the kinds whose table fit has placed terms."""
+    from mgpusim.calibrate.recipe import placed_shapes
+    from mgpusim.calibrate.runs import _fit_scale
+    shape = {"triangle": 40.0, "visible_triangle": 50.0, "triangle_edge": 45.0, "pixel": 0.5}
+    samples = []
+    for tri, edge, px in ((5000, 9000, 12288), (20000, 19000, 49152), (40000, 30000, 76800)):
+        work = {"triangle": tri, "visible_triangle": tri, "triangle_edge": edge, "pixel": px}
+        samples.append((work, 60_000 + 1.2 * sum(shape[t] * v for t, v in work.items())))
+    fit = _fit_scale(samples, shape, "mesh")
+    got = dict(zip(fit.names, fit.coef))
+    assert got["fixed_ns"] == pytest.approx(60_000, rel=1e-6)
+    for term, coef in shape.items():
+        assert got[f"ns_per_{term}"] == pytest.approx(1.2 * coef, rel=1e-6)
+    data = {"gpus": [{"costs": {"mesh": {"fixed_ns": 1.0, "ns_per_triangle": 2.0,
+                                         "ns_per_visible_triangle": 3.0},
+                                "fragment_loop": {"ns_per_pixel": 1.0}}}]}
+    assert placed_shapes(data) == {"mesh": {"triangle": 2.0, "visible_triangle": 3.0}}
+    data["gpus"][0]["costs"]["mesh"]["ns_per_visible_triangle"] = 0.0
+    assert placed_shapes(data) == {}

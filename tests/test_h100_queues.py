@@ -9,18 +9,11 @@ from pathlib import Path
 from mgpusim.cli import main
 from mgpusim.simulate import simulate
 from mgpusim.study import load_study, validate
+from tests.test_h200_offline import _flat  # one flattening of profile tables for both studies
 
 ROOT = Path(__file__).resolve().parents[1]
 STUDY = ROOT / "experiments" / "h100" / "queues.toml"
 ONE_DEVICE = ("p2m_graphics", "p2m_compute", "p4m_compute", "p4m_graphics")
-
-
-def _flat(d: object, prefix: str = "") -> dict[str, object]:
-    if isinstance(d, dict):
-        return {k2: v for k, v in d.items() for k2, v in _flat(v, f"{prefix}.{k}").items()}
-    if isinstance(d, list):
-        return {k2: v for i, v in enumerate(d) for k2, v in _flat(v, f"{prefix}.{i}").items()}
-    return {prefix: d}
 
 
 def test_study_calibration_rebuilds_the_committed_profile(tmp_path: Path) -> None:

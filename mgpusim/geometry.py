@@ -99,6 +99,12 @@ class Placement:
     eye: int | None = None
     span: int = 1
 
+    @property
+    def pixels(self) -> int:
+        """The pixels the pass renders: its rectangle's, or the whole frame's."""
+        w, h = self.rect[2:] if self.rect else self.frame
+        return w * h
+
     def mesh_view(self, triangles: int) -> MeshView:
         k, n = self.share
         first = triangles * k // n

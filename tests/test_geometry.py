@@ -120,3 +120,8 @@ def test_schedules_place_their_meshes_where_the_runner_draws_them():
     assert all(v.work["visible_triangle"] < v.work["triangle"] for v in views)
     by_view = {v.name: v.work for v in views}
     assert by_view["render0.tori"] != by_view["render2.tori"]  # left and right eyes differ
+
+
+def test_a_placement_renders_its_rectangle_or_the_whole_frame():
+    assert Placement(FRAME).pixels == 256 * 192
+    assert Placement(FRAME, (128, 0, 128, 96)).pixels == 128 * 96

@@ -78,8 +78,7 @@ def pass_work(row: pd.Series) -> dict[str, float]:
     if kind == "mesh" and all(k in row and pd.notna(row[k]) for k in MESH_PLACE):
         place = mesh_placement(row.to_dict())
         view = place.mesh_view(int(params["triangles"]))
-        rect = place.rect or (0, 0, *place.frame)
-        return pass_work_placed(spec, rect[2] * rect[3], view.count / view.triangles, place)
+        return pass_work_placed(spec, place.pixels, view.count / view.triangles, place)
     return WORK_TERMS[kind](spec, pixels, 1.0)
 
 

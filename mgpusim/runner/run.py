@@ -18,6 +18,7 @@ import pandas as pd
 
 from ..errors import InputError, MgpusimError, ScheduleError
 from ..experiment import Experiment
+from ..profile import HardwareProfile
 from ..program import build_program, run_config
 from ..results import frames_from_trace, summarize, task_rates
 from ..schedules.base import FrameProgram
@@ -151,6 +152,16 @@ def _final_image(gpu: Gpu, res: Resources) -> tuple[np.ndarray, np.ndarray | Non
     return image, depth
 
 
+def profile_lp_threads(profile: HardwareProfile, gpus: int) -> list[int | None] | None:
+    """The rasterizer threads a lavapipe profile gives each of `gpus` simulated GPUs (None:
+    not a lavapipe profile, or it does not say): a run measures the machine the profile
+    describes."""
+    if not profile.host.gpus_share_cpu:
+        return None
+    threads = [profile.gpus[min(i, len(profile.gpus) - 1)].cpu_threads for i in range(gpus)]
+    return threads if any(t is not None for t in threads) else None
+
+
 def run_experiment(exp: Experiment, *, devices: Sequence[int] | None = None,
                    lp_threads: Sequence[int | None] | None = None, host_threads: int | None = None,
                    prewarm_frames: int | None = None, validation: bool | None = None,
@@ -158,13 +169,17 @@ def run_experiment(exp: Experiment, *, devices: Sequence[int] | None = None,
     """Build `exp`'s program as the simulator does, open its GPUs, run it, close them.
 
     `devices[i]`: physical device of simulated GPU i (NVIDIA; default i mod count; lavapipe
-    always gives each simulated GPU its own instance). `host_threads`: memcpy threads
-    (default: the profile's `host.memcpy_threads`, the simulator's split)."""
+    always gives each simulated GPU its own instance). `lp_threads[i]`: LP_NUM_THREADS of GPU i
+    (default: a lavapipe profile's `cpu_threads` of that GPU, the threads it was calibrated
+    with). `host_threads`: memcpy threads (default: the profile's `host.memcpy_threads`, the
+    simulator's split)."""
     from ..vulkan.machine import close_gpus, machine_record  # noqa: PLC0415
     from .machine import open_gpus  # noqa: PLC0415
 
     program = build_program(exp)
     threads = exp.profile.host.memcpy_threads if host_threads is None else host_threads
+    if lp_threads is None:
+        lp_threads = profile_lp_threads(exp.profile, program.gpus)
     gpus = open_gpus(program.gpus, devices=devices, lp_threads=lp_threads, validation=validation)
     try:
         result = run_program(program, gpus, host_threads=threads, prewarm_frames=prewarm_frames,

@@ -28,7 +28,8 @@ def measure_microbenchmarks(study: Study, out: Path, progress: Progress) -> list
 
     mb = study.microbenchmarks
     out.mkdir(parents=True, exist_ok=True)
-    gpus = make_gpus(1)
+    threads = study.lavapipe_threads()
+    gpus = make_gpus(1, lp_threads=None if threads is None else [threads])
     tables: dict[str, list[pd.DataFrame]] = {name: [] for name, _ in mb.sweeps}
     paths = []
     try:
@@ -58,6 +59,7 @@ def measure_runs(study: Study, entries: tuple[Entry, ...], profile: Path, out: P
     from ..runner.run import run_experiment  # noqa: PLC0415 - Vulkan is needed only to measure
 
     rs = study.runs
+    threads = study.lavapipe_threads()
     exps = {e.name: with_run_length(e.load(profile), rs.run_seconds, rs.max_frames) for e in entries}
     runs: dict[str, list[tuple[str, Any]]] = {e.name: [] for e in entries}
     for rep in range(rs.repeats):
@@ -65,6 +67,7 @@ def measure_runs(study: Study, entries: tuple[Entry, ...], profile: Path, out: P
             progress(f"run {e.name} ({rep + 1}/{rs.repeats})")
             gpus = exps[e.name].schedule.gpus
             result = run_experiment(exps[e.name], devices=devices[:gpus] if devices else None,
+                                    lp_threads=None if threads is None else [threads] * gpus,
                                     prewarm_frames=rs.prewarm_frames)
             folder = out / e.name / f"run{rep}" if rs.repeats > 1 or rs.steady_window else out / e.name
             write_measured(result, folder)

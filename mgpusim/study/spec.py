@@ -8,6 +8,7 @@ adding a study file.
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -99,6 +100,21 @@ class Study:
     #: committed measured runs of each half (None: measured into the study's output folder)
     calibration_runs: Path | None = None
     held_out_runs: Path | None = None
+    #: lavapipe rasterizer threads per host core for every measurement (None: lavapipe's own
+    #: default, one per core)
+    lavapipe_threads_per_core: float | None = None
+
+    def lavapipe_threads(self) -> int | None:
+        """LP_NUM_THREADS of every lavapipe GPU the study measures, from this machine's cores.
+
+        Why more threads than cores: with one rasterizer thread per core a lavapipe mesh pass
+        runs in one of two modes at random, for tens of frames at a time, 1.3x apart (both
+        threads busy, or one doing nearly all the bins while the other waits); with twice as
+        many threads the bins spread evenly and every run lands in the fast mode."""
+        if self.lavapipe_threads_per_core is None:
+            return None
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+        return max(1, round(self.lavapipe_threads_per_core * (cores or 1)))
 
     def entries(self, held_out: bool = True) -> tuple[Entry, ...]:
         return self.calibration + (self.held_out if held_out else ())
@@ -122,6 +138,8 @@ def load_study(path: Path | str) -> Study:
         held_out=_entries(held, base),
         calibration_runs=_folder(cal, base),
         held_out_runs=_folder(held, base),
+        lavapipe_threads_per_core=top.get("lavapipe_threads_per_core", float, None, minimum=0.25,
+                                          maximum=16),
     )
     cal.finish()
     held.finish()

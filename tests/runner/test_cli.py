@@ -81,3 +81,21 @@ def test_the_other_schedules_shipped_lavapipe_experiments_run(tmp_path, name, se
     assert main(argv) == 0
     assert mpimg.imread(out / "image.png").shape[:2] == (48, width)
     assert json.loads((out / "summary.json").read_text())["frame_time_ms"] > 0
+
+
+def test_a_run_uses_the_rasterizer_threads_its_lavapipe_profile_was_calibrated_with():
+    """A profile's `cpu_threads` is how many rasterizer threads each lavapipe GPU ran with when
+    it was calibrated: a run on that profile opens its GPUs with as many, unless told."""
+    from dataclasses import replace
+
+    from mgpusim.experiment import load_experiment, parse_overrides
+    from mgpusim.runner.run import run_experiment
+
+    exp = load_experiment(EXPERIMENT, parse_overrides([
+        "schedule.gpus=2", "scene.width=64", "scene.height=32", "schedule.frames=3",
+        "schedule.warmup_frames=1", 'scene.passes=[{name="f",kind="fragment_loop",iterations=20}]']))
+    profile = replace(exp.profile, gpus=tuple(replace(g, cpu_threads=3) for g in exp.profile.gpus))
+    exp = replace(exp, profile=profile)
+    assert [g["lp_num_threads"] for g in run_experiment(exp).machine["gpus"]] == [3, 3]
+    told = run_experiment(exp, lp_threads=[1, 2]).machine["gpus"]
+    assert [g["lp_num_threads"] for g in told] == [1, 2]

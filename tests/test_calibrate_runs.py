@@ -48,6 +48,19 @@ def test_host_effects_from_multi_gpu_runs():
     assert score == pytest.approx(0.0, abs=1e-9)
 
 
+def test_host_grid_gives_the_same_answer_on_one_process_and_on_several(monkeypatch):
+    """The trials are shared among forked workers; the winner (the first of the lowest error)
+    and its score do not depend on how many."""
+    prof = truth()
+    multi = runs(prof, [(2, 32, 16, 40), (1, 16, 16, 10)])
+    grid = {"dispatch_ns": (0, 100, 200, 300, 400, 600, 800), "submit_ns": (0, 50, 100)}
+    monkeypatch.setattr("os.sched_getaffinity", lambda _pid: {0, 1, 2}, raising=False)
+    several = fit_host_effects(copy.deepcopy(prof), multi, grid)
+    monkeypatch.setattr("os.sched_getaffinity", lambda _pid: {0}, raising=False)
+    one = fit_host_effects(copy.deepcopy(prof), multi, grid)
+    assert several == one
+
+
 
 def test_refit_keeps_the_placed_terms_in_proportion():
     """Whole-frame runs cannot tell a mesh's placed terms apart: the refit keeps the

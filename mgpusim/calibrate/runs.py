@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import copy
 import itertools
+import multiprocessing
+import os
 from collections import defaultdict
 from dataclasses import replace
 from typing import Any, Mapping, Sequence
@@ -129,7 +131,9 @@ def fit_host_effects(profile_data: dict[str, Any], runs: Sequence[Run],
     """The host effects (dispatch cost, per-task submit time, oversubscribed-core efficiency)
     that minimise the mean |frame-time error| over all calibration runs: a grid search, since
     there are three parameters, few runs, and each evaluation is a short simulation. Single-GPU
-    runs take part too: a submit thread that is too slow would throttle them."""
+    runs take part too: a submit thread that is too slow would throttle them. The trials are
+    shared among the machine's cores (a study's calibration waits on nothing else); the first
+    trial of the lowest error wins, whatever the number of processes."""
     grid = grid or HOST_GRID
     multi = list(runs)
     host = profile_data["host"]
@@ -138,18 +142,44 @@ def fit_host_effects(profile_data: dict[str, Any], runs: Sequence[Run],
     # the measured side does not change with the trial: summarised once
     measured = [steady_summary(trace, exp.schedule.warmup_frames)["frame_time_ms"]
                 for exp, trace in multi]
-    best: tuple[float, dict[str, Any]] | None = None
-    for values in itertools.product(*grid.values()):
-        trial = dict(zip(grid, values))
-        data = copy.deepcopy(profile_data)
-        data["host"].update(trial)
-        profile = parse_profile(data, "<calibration>")
-        score = float(np.mean([abs(_error(exp, ms, profile))
-                               for (exp, _), ms in zip(multi, measured)]))
-        if best is None or score < best[0] - 1e-12:
-            best = (score, trial)
-    assert best is not None
-    return best[1], best[0]
+    trials = [dict(zip(grid, values)) for values in itertools.product(*grid.values())]
+    scores = _trial_scores(profile_data, [exp for exp, _ in multi], measured, trials)
+    best = 0
+    for i, score in enumerate(scores):
+        if score < scores[best] - 1e-12:
+            best = i
+    return trials[best], scores[best]
+
+
+#: What the grid's worker processes read (set before they fork, so nothing is pickled).
+_GRID: tuple[dict[str, Any], list[Experiment], list[float]] | None = None
+
+
+def _trial_scores(profile_data: dict[str, Any], exps: list[Experiment], measured: list[float],
+                  trials: list[dict[str, Any]]) -> list[float]:
+    """Mean |frame-time error| of each trial, in trial order, on up to all cores (forked
+    workers where the platform forks; else one process)."""
+    global _GRID
+    workers = min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1,
+                  len(trials))
+    _GRID = (profile_data, exps, measured)
+    try:
+        if workers < 2 or "fork" not in multiprocessing.get_all_start_methods():
+            return [_trial_score(t) for t in trials]
+        ctx = multiprocessing.get_context("fork")
+        with ctx.Pool(workers) as pool:
+            return pool.map(_trial_score, trials, chunksize=max(1, len(trials) // (4 * workers)))
+    finally:
+        _GRID = None
+
+
+def _trial_score(trial: dict[str, Any]) -> float:
+    assert _GRID is not None
+    profile_data, exps, measured = _GRID
+    data = copy.deepcopy(profile_data)
+    data["host"].update(trial)
+    profile = parse_profile(data, "<calibration>")
+    return float(np.mean([abs(_error(exp, ms, profile)) for exp, ms in zip(exps, measured)]))
 
 
 #: Simulated frames after the warm-up in the grid search, for speed: a measured run of

@@ -39,9 +39,10 @@ PARAM_COLUMNS = ("width", "height") + WORK_PARAMS + tuple(MESH_PLACE)
 @dataclass
 class Calibration:
     pass_fits: dict[str, Fit] = field(default_factory=dict)
-    #: lavapipe: cores each pass kind keeps busy (CPU time over pass time), with the
-    #: per-size ratios (CPU time less the submission's, over pass time)
+    #: lavapipe: cores each pass kind keeps busy, with the per-size values (see fit_cores)
     cores: dict[str, tuple[float, list[float]]] = field(default_factory=dict)
+    #: lavapipe: how each kind's cores were measured, where not by CPU time
+    cores_method: dict[str, str] = field(default_factory=dict)
     #: lavapipe: per pass kind, CPU time of a submission outside the pass (the fit's intercept)
     submission_cpu_ns: dict[str, float] = field(default_factory=dict)
     copy_fits: dict[tuple[str, str], Fit] = field(default_factory=dict)
@@ -99,16 +100,21 @@ def fit_passes(df: pd.DataFrame, cal: Calibration) -> None:
 
 
 def fit_cores(df: pd.DataFrame, cal: Calibration) -> None:
-    """lavapipe: per pass kind, the cores it keeps busy while it runs = the slope of the
-    process's CPU time (`cpu_ns`, all threads) against the pass's duration over the sizes
-    measured (medians per size; the intercept is what a submission costs outside the pass's
-    timestamps, 0.1-0.4 ms), at least 1 (the queue thread runs the pass) and at most the
-    GPU's threads.
+    """lavapipe: per pass kind, the cores it keeps busy while it runs, which is what decides how
+    much passes running at once slow each other. Measured two ways:
 
-    Why not time on one rasterizer thread over time on all, as before: for meshes that ratio
-    (1.2-1.45) counted idle hand-offs between the binning and the rasterizer threads as work,
-    and two GPUs rendering 30k-triangle meshes at once were hardly slower than one alone
-    (the model, at 1.32 cores, made them 33 % slower); the CPU time says 1.1-1.2."""
+    - where the table has the kind on two GPUs at once (`gpus` = 2) and alone at the same
+      sizes: the median over sizes of (time together / time alone). Two passes that each keep
+      c of the two cores busy take c times as long together (each gets one core), so that
+      slowdown *is* c as the model uses it. Why it wins: a lavapipe mesh pass keeps ~1.2 cores
+      busy by CPU time, but two at once take 1.2-1.5x as long (their binning competes for the
+      caches and memory, not only the cores), and with 1.2 the model made every multi-GPU mesh
+      run 5-20 % too fast;
+    - else the slope of the process's CPU time (`cpu_ns`, all threads) against the pass's
+      duration over the sizes measured (medians per size; the intercept is what a submission
+      costs outside the pass's timestamps, 0.1-0.4 ms).
+
+    Either is at least 1 (the queue thread runs the pass) and at most the GPU's threads."""
     if "cpu_ns" not in df.columns or "lp_threads" not in df.columns:
         return  # only lavapipe GPUs (lp_threads set) run their passes on the host's cores
     rows = df[_solo(df) & _all_threads(df) & df["cpu_ns"].notna() & df["lp_threads"].notna()]
@@ -117,16 +123,34 @@ def fit_cores(df: pd.DataFrame, cal: Calibration) -> None:
         keys = [c for c in PARAM_COLUMNS if c in mine.columns and mine[c].notna().all()]
         if mine.empty or not keys:
             continue
+        most = float(mine["lp_threads"].max())
+        pair = _pair_slowdowns(df, kind, keys)
+        if pair is not None:
+            cal.cores[kind] = (float(np.clip(pair.median(), 1.0, most)), [float(r) for r in pair])
+            cal.cores_method[kind] = "slowdown of two at once"
         sizes = mine.groupby(keys)[["duration_ns", "cpu_ns"]].median()
         if sizes["duration_ns"].nunique() < 2:
-            cal.warnings.append(f"{kind}: CPU time measured at one size only, cores not fitted")
+            if pair is None:
+                cal.warnings.append(f"{kind}: CPU time measured at one size only, cores not fitted")
             continue
         X = np.column_stack([sizes["duration_ns"], np.ones(len(sizes))])
         (slope, overhead), *_ = np.linalg.lstsq(X, sizes["cpu_ns"].to_numpy(dtype=float), rcond=None)
-        per_size = (sizes["cpu_ns"] - overhead) / sizes["duration_ns"]
-        cal.cores[kind] = (float(np.clip(slope, 1.0, mine["lp_threads"].max())),
-                           [float(r) for r in per_size])
         cal.submission_cpu_ns[kind] = float(overhead)
+        if pair is None:
+            per_size = (sizes["cpu_ns"] - overhead) / sizes["duration_ns"]
+            cal.cores[kind] = (float(np.clip(slope, 1.0, most)), [float(r) for r in per_size])
+
+
+def _pair_slowdowns(df: pd.DataFrame, kind: str, keys: list[str]) -> pd.Series | None:
+    """Per size measured both ways, the median time of `kind` on two GPUs at once over its
+    median time alone (None where no size was)."""
+    if "gpus" not in df.columns:
+        return None
+    mine = df[(df["pass"] == kind) & _all_threads(df)]
+    alone = mine[mine["gpus"].fillna(1) <= 1].groupby(keys)["duration_ns"].median()
+    both = mine[mine["gpus"] == 2].groupby(keys)["duration_ns"].median()
+    ratio = (both / alone).dropna()
+    return ratio if len(ratio) else None
 
 
 def fit_copies(df: pd.DataFrame, cal: Calibration) -> None:

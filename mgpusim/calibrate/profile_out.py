@@ -140,7 +140,8 @@ def report(cal: Calibration) -> str:
         lines.append(f"  copy {path} on {queue}: fixed_ns={_fmt(fit.coef[0], fit.stderr[0])}, "
                      f"{bw:.3g} GB/s; rms {fit.rel_rms:.1%}")
     for kind, (value, ratios) in cal.cores.items():
-        lines.append(f"  {kind}: cores={value:.3g} (slope of CPU time on pass time; submission "
+        method = cal.cores_method.get(kind, "slope of CPU time on pass time")
+        lines.append(f"  {kind}: cores={value:.3g} ({method}; submission "
                      f"{cal.submission_cpu_ns.get(kind, 0) / 1e3:.0f} us; per size: "
                      + ", ".join(f"{r:.2f}" for r in ratios) + ")")
     if cal.host:

@@ -21,30 +21,37 @@ Progress = Callable[[str], None]
 
 
 def measure_microbenchmarks(study: Study, out: Path, progress: Progress) -> list[Path]:
-    """Run every sweep on one simulated GPU in `rounds` rounds; one table (+ machine record) per
-    pass. Each row has the pass's time and the process's CPU time while it ran."""
+    """Run every sweep on one simulated GPU, and every pair sweep alone and on two at once, in
+    `rounds` rounds; one table (+ machine record) per pass. Each row has the pass's time, and a
+    row of one GPU the process's CPU time while it ran."""
     from ..vulkan import measure as m  # noqa: PLC0415 - Vulkan is needed only to measure
     from ..vulkan.machine import close_gpus, machine_record, make_gpus  # noqa: PLC0415
 
     mb = study.microbenchmarks
     out.mkdir(parents=True, exist_ok=True)
     threads = study.lavapipe_threads()
-    gpus = make_gpus(1, lp_threads=None if threads is None else [threads])
-    tables: dict[str, list[pd.DataFrame]] = {name: [] for name, _ in mb.sweeps}
+    count = 2 if mb.pairs else 1
+    gpus = make_gpus(count, lp_threads=None if threads is None else [threads] * count)
+    plan = [(name, sweeps, gpus[:1]) for name, sweeps in mb.sweeps]
+    plan += [(name, sweeps, g) for name, sweeps in mb.pairs for g in (gpus[:1], gpus)]
+    tables: dict[str, list[pd.DataFrame]] = {name: [] for name in mb.passes()}
     paths = []
     try:
         for r in range(mb.rounds):
-            for name, sweeps in mb.sweeps:
-                progress(f"measure {name} (round {r + 1}/{mb.rounds})")
-                df = m.measure(name, gpus, {k: list(v) for k, v in sweeps.items()},
+            for name, sweeps, on in plan:
+                progress(f"measure {name}{' on two GPUs at once' if len(on) > 1 else ''} "
+                         f"(round {r + 1}/{mb.rounds})")
+                df = m.measure(name, on, {k: list(v) for k, v in sweeps.items()},
                                reps=mb.reps, warmup=mb.warmup)
                 tables[name].append(df.assign(repetition=df["repetition"] + r * mb.reps))
-        for name, sweeps in mb.sweeps:
+        for name in mb.passes():
             path = out / f"{name}.csv"
             m.write_table(pd.concat(tables[name], ignore_index=True), str(path))
-            record = machine_record(gpus, {
-                "pass": name, "sweeps": {k: list(v) for k, v in sweeps.items()}, "rounds": mb.rounds,
-                "reps": mb.reps, "warmup": mb.warmup, "command": f"mgpusim study measure {study.file}"})
+            record = machine_record(gpus[:1], {
+                "pass": name, "sweeps": {k: list(v) for n, sw in mb.sweeps if n == name for k, v in sw.items()},
+                "pairs": {k: list(v) for n, sw in mb.pairs if n == name for k, v in sw.items()},
+                "rounds": mb.rounds, "reps": mb.reps, "warmup": mb.warmup,
+                "command": f"mgpusim study measure {study.file}"})
             write_json(record, path.with_name(path.name + ".machine.json"))
             paths.append(path)
     finally:

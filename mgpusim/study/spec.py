@@ -37,9 +37,12 @@ class Entry:
 
 @dataclass(frozen=True)
 class Microbenchmarks:
-    """Pass sweeps to measure (`rounds` x `reps` repetitions each), or committed `tables`."""
+    """Pass sweeps to measure (`rounds` x `reps` repetitions each), or committed `tables`.
+    `pairs`: sweeps measured alone and on two simulated GPUs at once, for the kinds whose
+    `cores` is fitted from how much two of them slow each other (lavapipe)."""
 
     sweeps: tuple[tuple[str, Mapping[str, tuple[Any, ...]]], ...] = ()
+    pairs: tuple[tuple[str, Mapping[str, tuple[Any, ...]]], ...] = ()
     rounds: int = 1
     reps: int = 5
     warmup: int = 2
@@ -50,7 +53,11 @@ class Microbenchmarks:
         """The tables the calibration reads: committed ones, or those measured under `measured`."""
         if self.folder is not None:
             return [self.folder / f for f in self.files]
-        return [measured / f"{name}.csv" for name, _ in self.sweeps]
+        return [measured / f"{name}.csv" for name in self.passes()]
+
+    def passes(self) -> list[str]:
+        """Every pass measured, once each, in the order of the sweeps then the pairs."""
+        return list(dict.fromkeys(name for name, _ in (*self.sweeps, *self.pairs)))
 
 
 @dataclass(frozen=True)
@@ -157,12 +164,16 @@ def _existing(p: Path, t: Table, key: str) -> Path:
     return p
 
 
+def _sweeps(t: Table) -> tuple[tuple[str, Mapping[str, tuple[Any, ...]]], ...]:
+    return tuple((name, MappingProxyType({k: tuple(v) for k, v in t.table(name).rest().items()}))
+                 for name in list(t.data))
+
+
 def _microbenchmarks(t: Table, base: Path) -> Microbenchmarks:
-    sweeps_t = t.table("sweeps", {})
-    sweeps = tuple((name, MappingProxyType({k: tuple(v) for k, v in sweeps_t.table(name).rest().items()}))
-                   for name in list(sweeps_t.data))
+    sweeps = _sweeps(t.table("sweeps", {}))
+    pairs = _sweeps(t.table("pairs", {}))
     folder = t.get("tables", str, None)
-    mb = Microbenchmarks(sweeps=sweeps, rounds=t.get("rounds", int, 1, minimum=1),
+    mb = Microbenchmarks(sweeps=sweeps, pairs=pairs, rounds=t.get("rounds", int, 1, minimum=1),
                          reps=t.get("reps", int, 5, minimum=1), warmup=t.get("warmup", int, 2, minimum=0),
                          folder=_existing(base / folder, t, "tables") if folder else None,
                          files=tuple(t.get("files", list, [])))

@@ -49,7 +49,7 @@ SOURCES = (
            PROFILES / "h100.toml"),
     Source("lavapipe five-step", EXPERIMENTS / "lavapipe/study.toml", LAVAPIPE_RUNS / "five_step/runs",
            LAVAPIPE_RUNS / "five_step/profile.toml"),
-    Source("lavapipe schedules", EXPERIMENTS / "lavapipe/schedules.toml", LAVAPIPE_RUNS / "schedules/runs",
+    Source("lavapipe schedules", EXPERIMENTS / "lavapipe/study.toml", LAVAPIPE_RUNS / "schedules/runs",
            LAVAPIPE_RUNS / "schedules/profile.toml"),
 )
 

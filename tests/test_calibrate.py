@@ -106,6 +106,36 @@ def test_cores_per_pass_from_cpu_time_against_pass_time():
     assert not calibrate(df.drop(columns="cpu_ns"), {}).cores
 
 
+def test_cores_of_a_kind_measured_in_pairs_are_its_slowdown_two_at_once():
+    """Where a table has a kind on two GPUs at once as well as alone (pair sweeps), its cores
+    are the median over sizes of time together / time alone, whatever its CPU time says; the
+    pair rows enter no cost fit, and a kind without pairs keeps the CPU-time slope."""
+    rows = []
+    slowdown = {128: 1.3, 256: 1.45, 512: 1.5}
+    for kind, cpu_cores in (("mesh", 1.15), ("fragment_loop", 1.9)):
+        for width in (128, 256, 512):
+            for gpus in (1, 2):
+                if gpus == 2 and kind != "mesh":
+                    continue
+                for rep, noise in enumerate((1.0, 1.01, 0.99)):
+                    alone = 1e6 * width / 128 * noise
+                    duration = alone * (slowdown[width] if gpus == 2 else 1.0)
+                    for gpu in range(gpus):
+                        rows.append({"pass": kind, "width": width, "height": 64, "lp_threads": 4,
+                                     "triangles" if kind == "mesh" else "iterations": 100,
+                                     "gpus": gpus, "gpu": f"gpu{gpu}", "repetition": rep,
+                                     "duration_ns": duration, "cpu_ns": cpu_cores * duration + 1e5})
+    df = pd.DataFrame(rows)
+    df["source"] = "t"
+    cal = calibrate(df, {})
+    assert cal.cores["mesh"][0] == pytest.approx(1.45, rel=1e-3)
+    assert sorted(cal.cores["mesh"][1]) == pytest.approx([1.3, 1.45, 1.5], rel=1e-3)
+    assert cal.cores_method == {"mesh": "slowdown of two at once"}
+    assert cal.cores["fragment_loop"][0] == pytest.approx(1.9, rel=1e-3)
+    # the cost fit saw the rows alone (with the pair rows, 1.3-1.5x slower, it could not fit)
+    assert cal.pass_fits["mesh"].rel_rms < 0.02
+
+
 def test_filter_pass_is_fitted_with_its_inputs():
     """The filter (temporal pass, pipelining chain) gets ns per pixel, per pixel iteration and
     per pixel and input, as the schedules' work terms count them."""

@@ -148,6 +148,9 @@ class Engine:
                 self.channels[ex.channel.name] = ex.channel
         host_ex = self.executors["host"]
         self._host_work = host_ex.work  # one host thread's ns of time
+        self._serial_dispatch = host_ex.serial_dispatch
+        self._interp_busy = False  # a host thread is waking (serial dispatch)
+        self._interp_waiting: deque[simpy.Event] = deque()  # threads waiting for their turn
         self._submit_load = host_ex.background() if self._submit_ns else None
         queues: dict[QueueRef, list[list[_Op]]] = {}
         host_ops: list[list[_Op]] = [[] for _ in range(self.period)]
@@ -234,6 +237,23 @@ class Engine:
         if done is None:
             return 0
         return max(0, done + self._dispatch_ns - self.env.now)
+
+    def _interpreter_turn(self) -> simpy.Event | None:
+        """A host thread about to wake on an input takes the interpreter: None if it is free
+        (taken now), else an event that fires when the threads before it are done (FIFO)."""
+        if not self._interp_busy:
+            self._interp_busy = True
+            return None
+        turn = self.env.event()
+        self._interp_waiting.append(turn)
+        return turn
+
+    def _interpreter_done(self) -> None:
+        """Hand the interpreter to the next waiting thread, or free it."""
+        if self._interp_waiting:
+            self._interp_waiting.popleft().succeed()
+        else:
+            self._interp_busy = False
 
     def _submitted(self, key: Key, previous: int, woke: int = 0) -> int:
         """When the queue's submit thread has submitted `key`: `submit_ns` after the task
@@ -346,7 +366,13 @@ class Engine:
                     if self._cross_done:
                         wait = self._dispatch_wait(key)
                         if wait:
+                            if self._serial_dispatch:
+                                turn = self._interpreter_turn()
+                                if turn is not None:
+                                    yield turn
                             yield self._host_work(wait)
+                            if self._serial_dispatch:
+                                self._interpreter_done()
                     self._dispatch_host_copy(frame, op)
                     continue
                 if self._host_timeline:
@@ -357,7 +383,13 @@ class Engine:
                     # CPU task's thread itself wakes on its input and submits nothing
                     wait = self._dispatch_wait(key, keep=True) if self._cross_done else 0
                     if wait:
+                        if self._serial_dispatch:
+                            turn = self._interpreter_turn()
+                            if turn is not None:
+                                yield turn
                         yield self._host_work(wait)
+                        if self._serial_dispatch:
+                            self._interpreter_done()
                     if op.cpu:
                         self._cross_done.pop(key, None)
                     else:

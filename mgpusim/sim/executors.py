@@ -33,6 +33,9 @@ class Dedicated:
     shared = False
     #: a copy crosses a link channel (a real copy engine), not the device's own cores
     copies_on_cores = False
+    #: host threads waking on inputs take turns (see SharedCores); a real GPU's host has the
+    #: cores to wake them at once, and its calibrated `dispatch_ns` holds what they wait for
+    serial_dispatch = False
 
     def __init__(self, env: simpy.Environment):
         self.env = env
@@ -64,6 +67,10 @@ class SharedCores:
     shared = True
     #: a copy is a memcpy in the queue's thread: one core's work
     copies_on_cores = True
+    #: the runner's submit threads wake and submit in Python, one at a time (the interpreter
+    #: lock): with 3-4 lavapipe GPUs on two cores, the secondaries woken by one present start
+    #: their frames 0.4-1.5 ms apart, one after another, not together
+    serial_dispatch = True
 
     def __init__(self, env: simpy.Environment, costs: CostModel):
         host = costs.profile.host

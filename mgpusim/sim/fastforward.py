@@ -4,11 +4,12 @@ The event model is deterministic, so its future is a function of its state. At t
 every frame (its present) the engine's whole state is written down relative to that moment
 and that frame: every queue's process (where its generator stands and its locals), every
 pending SimPy event (time from now, priority, order, what it will call), dependency counts,
-ready and skipped instances, host wake-ups, the memcpy threads and their queue, and every
-channel's flows (exact remaining bytes, rates, scale). Times are written relative to now and
-frame numbers relative to the frame, so two moments with equal descriptions are the same state
-shifted by P frames and T ns. From the first such pair on, the run is the block between them
-repeated, until the end of the run comes into view.
+ready and skipped instances, host wake-ups and the threads waiting for their turn to wake, the
+memcpy threads and their queue, and every channel's flows (exact remaining bytes, rates,
+scale). Times are written relative to now and frame numbers relative to the frame, so two
+moments with equal descriptions are the same state shifted by P frames and T ns. From the
+first such pair on, the run is the block between them repeated, until the end of the run comes
+into view.
 
 The run is then shortened in place: the streams stop after N' = N - kP frames, for the largest
 k that keeps the end out of view at the repeat (every frame the state names is below N' - 1),
@@ -250,6 +251,7 @@ class _Describer:
             tuple(sorted(self.key(k) for k in e._skip)),
             self._chains(),
             self._host_threads(),
+            (e._interp_busy, len(e._interp_waiting)),
             tuple(self._channel(name, ch) for name, ch in e.channels.items()),
         )
 
@@ -271,6 +273,8 @@ class _Describer:
                     self.ident.setdefault(id(flow.done), ("flow", name, j))
         for key, ev in self.e._waiters.items():
             self.ident.setdefault(id(ev), ("wait", self.key(key)))
+        for i, ev in enumerate(self.e._interp_waiting):
+            self.ident.setdefault(id(ev), ("interpreter turn", i))
 
     def _event(self, ev: Any) -> Any:
         if ev is None:
@@ -348,7 +352,7 @@ class _Describer:
             return self.opid[id(value)]
         if name == "key":
             return self.key(value)
-        if name == "ev":
+        if name in ("ev", "turn"):
             return self._event(value)
         if name == "wait":
             return value

@@ -40,17 +40,15 @@ class Source:
     profile: Path | None = None
 
 
-#: The committed measured runs: the NVIDIA studies' own folders, and the steady windows of two
-#: lavapipe jobs (data/lavapipe/runs_2026-11-23/, each with the profile that job fitted).
-LAVAPIPE_RUNS = EXPERIMENTS.parent / "data/lavapipe/runs_2026-11-23"
+#: The committed measured runs: the NVIDIA studies' own folders, and the steady windows of the
+#: lavapipe main job (data/lavapipe/main_job_2026-11-23/, with the profile that job fitted).
+LAVAPIPE_RUNS = EXPERIMENTS.parent / "data/lavapipe/main_job_2026-11-23"
 SOURCES = (
     Source("2x H200", EXPERIMENTS / "h200/study.toml"),
     Source("H100", EXPERIMENTS / "h200/study.toml", EXPERIMENTS.parent / "data/nvidia/h100/runs_1gpu",
            PROFILES / "h100.toml"),
-    Source("lavapipe five-step", EXPERIMENTS / "lavapipe/study.toml", LAVAPIPE_RUNS / "five_step/runs",
-           LAVAPIPE_RUNS / "five_step/profile.toml"),
-    Source("lavapipe schedules", EXPERIMENTS / "lavapipe/study.toml", LAVAPIPE_RUNS / "schedules/runs",
-           LAVAPIPE_RUNS / "schedules/profile.toml"),
+    Source("lavapipe", EXPERIMENTS / "lavapipe/study.toml", LAVAPIPE_RUNS / "runs",
+           LAVAPIPE_RUNS / "profile.toml"),
 )
 
 

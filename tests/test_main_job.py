@@ -1,27 +1,50 @@
-"""The README's main job end to end on lavapipe, with one run per configuration (~20 s)."""
+"""The README's main job end to end on lavapipe: the shipped study, cut to a few calibration
+configurations and one short round of microbenchmarks, with one run per configuration."""
 from __future__ import annotations
 
 import json
 
 import pytest
+import tomli_w
 
 from mgpusim import load_profile
 from mgpusim.cli import main
 from mgpusim.commands.main_job import LAVAPIPE_STUDY
+from mgpusim.config import read_toml
 from mgpusim.study import load_study
+
+#: one configuration of each schedule, 1 and 2 GPUs
+KEEP = ("sf_1gpu_128x96_it500", "sl_1gpu_256x192_t5k", "sort_first_2gpu", "sort_last_2gpu",
+        "afr_2gpu", "xr_2gpu")
+
+
+@pytest.fixture
+def short_study():
+    data = read_toml(LAVAPIPE_STUDY)
+    data["microbenchmarks"].update(rounds=1, reps=2, warmup=1)
+    data["calibration"]["config"] = [c for c in data["calibration"]["config"] if c["name"] in KEEP]
+    path = LAVAPIPE_STUDY.with_name("short_study_tmp.toml")  # beside it: its paths are relative
+    path.write_text(tomli_w.dumps(data))
+    yield path
+    path.unlink()
 
 
 @pytest.mark.vulkan
-def test_main_job_measures_calibrates_validates_and_reports(tmp_path):
+def test_main_job_measures_calibrates_validates_and_reports(tmp_path, short_study):
     out = tmp_path / "main"
-    assert main(["main", "--out", str(out), "--repeats", "1", "--run-seconds", "0.1"]) == 0
+    assert main(["main", "--out", str(out), "--repeats", "1", "--run-seconds", "0.1",
+                 "--study", str(short_study)]) == 0
     profile = load_profile(out / "profile.toml")
     assert profile.host.gpus_share_cpu and profile.gpus[0].task_gap_ns > 0
+    threads = load_study(LAVAPIPE_STUDY).lavapipe_threads()
+    assert profile.gpus[0].cpu_threads == threads  # what every run of the profile will use
+    assert "mesh: cores=" in (out / "profile.toml").read_text()
     stats = json.loads((out / "errors.json").read_text())["Calibration runs (seen by the fit)"]
-    assert stats["configurations"] == len(load_study(LAVAPIPE_STUDY).calibration)
-    for name in ("sort_first_2gpu", "sort_last_2gpu"):
+    assert stats["configurations"] == len(KEEP)
+    for name in ("sort_first_2gpu", "sort_last_2gpu", "xr_2gpu"):
         summary = json.loads((out / "validation" / name / "summary.json").read_text())
         assert abs(summary["frame_time_error"]) < 1.0  # finite and not absurd on a noisy machine
         assert (out / "validation" / name / "timelines.png").is_file()
         assert (out / "validation" / name / "measured.perfetto.json").is_file()
-    assert "| sort_first_2gpu |" in (out / "report.md").read_text()
+    report = (out / "report.md").read_text()
+    assert "| sort_first_2gpu |" in report and "### xr" in report

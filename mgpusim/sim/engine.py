@@ -240,7 +240,10 @@ class Engine:
 
     def _interpreter_turn(self) -> simpy.Event | None:
         """A host thread about to wake on an input takes the interpreter: None if it is free
-        (taken now), else an event that fires when the threads before it are done (FIFO)."""
+        (taken now) or the host's threads need no turns, else an event that fires when the
+        threads before it are done (FIFO)."""
+        if not self._serial_dispatch:
+            return None
         if not self._interp_busy:
             self._interp_busy = True
             return None
@@ -250,6 +253,8 @@ class Engine:
 
     def _interpreter_done(self) -> None:
         """Hand the interpreter to the next waiting thread, or free it."""
+        if not self._serial_dispatch:
+            return
         if self._interp_waiting:
             self._interp_waiting.popleft().succeed()
         else:
@@ -366,13 +371,11 @@ class Engine:
                     if self._cross_done:
                         wait = self._dispatch_wait(key)
                         if wait:
-                            if self._serial_dispatch:
-                                turn = self._interpreter_turn()
-                                if turn is not None:
-                                    yield turn
+                            turn = self._interpreter_turn()
+                            if turn is not None:
+                                yield turn
                             yield self._host_work(wait)
-                            if self._serial_dispatch:
-                                self._interpreter_done()
+                            self._interpreter_done()
                     self._dispatch_host_copy(frame, op)
                     continue
                 if self._host_timeline:
@@ -383,13 +386,11 @@ class Engine:
                     # CPU task's thread itself wakes on its input and submits nothing
                     wait = self._dispatch_wait(key, keep=True) if self._cross_done else 0
                     if wait:
-                        if self._serial_dispatch:
-                            turn = self._interpreter_turn()
-                            if turn is not None:
-                                yield turn
+                        turn = self._interpreter_turn()
+                        if turn is not None:
+                            yield turn
                         yield self._host_work(wait)
-                        if self._serial_dispatch:
-                            self._interpreter_done()
+                        self._interpreter_done()
                     if op.cpu:
                         self._cross_done.pop(key, None)
                     else:

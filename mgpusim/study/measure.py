@@ -48,8 +48,7 @@ def measure_microbenchmarks(study: Study, out: Path, progress: Progress) -> list
             path = out / f"{name}.csv"
             m.write_table(pd.concat(tables[name], ignore_index=True), str(path))
             record = machine_record(gpus[:1], {
-                "pass": name, "sweeps": {k: list(v) for n, sw in mb.sweeps if n == name for k, v in sw.items()},
-                "pairs": {k: list(v) for n, sw in mb.pairs if n == name for k, v in sw.items()},
+                "pass": name, "sweeps": _sweep_of(mb.sweeps, name), "pairs": _sweep_of(mb.pairs, name),
                 "rounds": mb.rounds, "reps": mb.reps, "warmup": mb.warmup,
                 "command": f"mgpusim study measure {study.file}"})
             write_json(record, path.with_name(path.name + ".machine.json"))
@@ -57,6 +56,11 @@ def measure_microbenchmarks(study: Study, out: Path, progress: Progress) -> list
     finally:
         close_gpus(gpus)
     return paths
+
+
+def _sweep_of(sweeps: tuple, name: str) -> dict[str, list[Any]]:
+    """Pass `name`'s sweep among `sweeps` as plain lists ({} if it has none)."""
+    return {k: list(v) for n, sweep in sweeps if n == name for k, v in sweep.items()}
 
 
 def measure_runs(study: Study, entries: tuple[Entry, ...], profile: Path, out: Path,

@@ -367,30 +367,25 @@ class Engine:
                 if skip and key in skip:
                     self._skip_task(key, op.task)
                     continue
+                # a host thread waking on the task's input from another device or the host:
+                # the host-copy thread before it hands the copy to the memcpy threads, a queue's
+                # submit thread before it submits (its own work on the host's executor: on
+                # CPU-emulated GPUs it competes for the cores with the GPUs' passes)
+                wait = 0
+                if self._cross_done and (host or self._host_timeline):
+                    wait = self._dispatch_wait(key, keep=not host)
+                if wait:
+                    turn = self._interpreter_turn()
+                    if turn is not None:
+                        yield turn
+                    yield self._host_work(wait)
+                    self._interpreter_done()
                 if host:
-                    if self._cross_done:
-                        wait = self._dispatch_wait(key)
-                        if wait:
-                            turn = self._interpreter_turn()
-                            if turn is not None:
-                                yield turn
-                            yield self._host_work(wait)
-                            self._interpreter_done()
                     self._dispatch_host_copy(frame, op)
                     continue
                 if self._host_timeline:
-                    # the queue's submit thread: it submits ahead of the queue, one task after
-                    # another; a task fed by another device or the host waits for the thread to
-                    # wake on that input, which is the thread's own work on the host's executor
-                    # (on CPU-emulated GPUs it competes for the cores with the GPUs' passes); a
-                    # CPU task's thread itself wakes on its input and submits nothing
-                    wait = self._dispatch_wait(key, keep=True) if self._cross_done else 0
-                    if wait:
-                        turn = self._interpreter_turn()
-                        if turn is not None:
-                            yield turn
-                        yield self._host_work(wait)
-                        self._interpreter_done()
+                    # the queue's submit thread submits ahead of the queue, one task after
+                    # another; a CPU task's thread itself wakes on its input and submits nothing
                     if op.cpu:
                         self._cross_done.pop(key, None)
                     else:

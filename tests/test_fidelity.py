@@ -278,8 +278,9 @@ def test_fidelity_command_writes_the_table(tmp_path: Path):
     from mgpusim.cli import main
     from mgpusim.fidelity import configurations
     assert len(configurations()) >= 100  # the committed H200, H100 and lavapipe runs
-    assert main(["fidelity", "--out", str(tmp_path), "--repeats", "1"]) == 0
-    table = pd.read_csv(tmp_path / "per_config.csv")
+    out = tmp_path / "new" / "folder"  # made as needed
+    assert main(["fidelity", "--out", str(out), "--repeats", "1"]) == 0
+    table = pd.read_csv(out / "per_config.csv")
     assert set(table["level"]) == {"analytic", "queues", "full", "full, no fast-forward"}
     assert table["wall_ms"].gt(0).all()
     nvidia = table[table.machine.isin(["2x H200", "H100"])]

@@ -33,6 +33,7 @@ def run(args: argparse.Namespace) -> int:
     configs = configurations()
     table = run_levels(configs, repeats=max(1, args.repeats))
     levels = summarize_levels(table)
+    args.out.mkdir(parents=True, exist_ok=True)
     write_table(table, args.out / "per_config.csv")
     write_table(levels, args.out / "levels.csv")
     dev = summarize_deviations(deviations(repeats=max(1, args.repeats)))

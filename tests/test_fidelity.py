@@ -292,9 +292,9 @@ def test_fidelity_command_writes_the_table(tmp_path: Path):
     full = table[table.level == "full"].set_index(key)["frame_ms"]
     noff = table[table.level == "full, no fast-forward"].set_index(key)["frame_ms"]
     assert (full == noff.loc[full.index]).all()
-    assert (tmp_path / "fidelity_pareto.png").stat().st_size > 10_000
-    assert "| analytic | all |" in (tmp_path / "fidelity.md").read_text()
-    dev = pd.read_csv(tmp_path / "deviations.csv").set_index("level")
+    assert (out / "fidelity_pareto.png").stat().st_size > 10_000
+    assert "| analytic | all |" in (out / "fidelity.md").read_text()
+    dev = pd.read_csv(out / "deviations.csv").set_index("level")
     assert dev.loc["full", "worst_abs_deviation"] == 0  # the reference, with and without fast-forward
     assert dev.loc["full, no fast-forward", "worst_abs_deviation"] == 0
     assert dev.loc["analytic", "worst_abs_deviation"] > 0.3  # lavapipe: the shared cores matter

@@ -9,6 +9,7 @@ import pytest
 
 from mgpusim import load_profile
 from mgpusim.calibrate import calibrate, fit_nonnegative
+from mgpusim.calibrate.profile_out import apply, lavapipe_base
 from mgpusim.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -131,6 +132,8 @@ def test_cores_of_a_kind_measured_in_pairs_are_its_slowdown_two_at_once():
     assert cal.cores["mesh"][0] == pytest.approx(1.45, rel=1e-3)
     assert sorted(cal.cores["mesh"][1]) == pytest.approx([1.3, 1.45, 1.5], rel=1e-3)
     assert cal.cores_method == {"mesh": "slowdown of two at once"}
+    written = apply(cal, lavapipe_base({"cpu_count": 2}), "test")["gpus"][0]["costs"]
+    assert written["mesh"]["cores_from_pairs"] and "cores_from_pairs" not in written["fragment_loop"]
     assert cal.cores["fragment_loop"][0] == pytest.approx(1.9, rel=1e-3)
     # the cost fit saw the rows alone (with the pair rows, 1.3-1.5x slower, it could not fit)
     assert cal.pass_fits["mesh"].rel_rms < 0.02

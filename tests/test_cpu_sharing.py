@@ -86,6 +86,17 @@ def test_a_pass_that_keeps_fewer_cores_busy_is_slowed_less():
     assert alone == {"render0": 1600}  # alone, the measured time whatever the cores
 
 
+def test_passes_whose_cores_were_measured_in_pairs_lose_nothing_to_oversubscription():
+    """A kind whose cores came from two passes at once (`cores_from_pairs`) already says how it
+    shares the cores: two renders at 2 cores each on 2 cores take twice as long, not the 4000
+    ns that the 0.8 loss gives a kind measured otherwise."""
+    prof = lavapipe_profile(2, None)
+    prof["host"]["oversubscribed_efficiency"] = 0.8
+    for gpu in prof["gpus"]:
+        gpu["costs"]["fragment_loop"]["cores_from_pairs"] = True
+    assert renders(make_experiment(prof, gpus=2, iterations=100)) == {"render0": 3200, "render1": 3200}
+
+
 def test_slight_oversubscription_loses_little():
     """Passes keeping 1.5 cores busy each: 3 cores wanted of 2, half-way to twice the cores,
     so the cores deliver half the oversubscribed loss: 2 - 0.4 / 2 = 1.8, 0.9 per render; the

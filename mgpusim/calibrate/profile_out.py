@@ -51,6 +51,8 @@ def apply(cal: Calibration, base: dict[str, Any], command: str) -> dict[str, Any
             costs[kind] = cost_table(fit)
             if kind in cal.cores:
                 costs[kind]["cores"] = round(cal.cores[kind][0], 3)
+                if kind in cal.cores_method:
+                    costs[kind]["cores_from_pairs"] = True
                 overhead = cal.submission_cpu_ns.get(kind, 0.0)
                 if overhead > 0:
                     costs[kind]["cpu_overhead_ns"] = round(overhead)

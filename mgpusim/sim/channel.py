@@ -26,6 +26,9 @@ import simpy
 
 
 _ZERO = Fraction(0)
+#: A flow's tag on an oversubscribed channel: work that shares the cores as its cap says, with
+#: no loss when threads outnumber cores (a kind whose slowdown two at once is its cores).
+LOSSLESS = "lossless"
 
 
 class _Flow:
@@ -170,14 +173,20 @@ class Channel:
         """What the channel delivers to the flows it has now."""
         if self.oversubscribed is None:
             return self.bandwidth
-        return self._capacity(self._demand())
+        demand = self._demand()
+        lossless = sum((f.cap for f in self.flows if f.tag == LOSSLESS and f.cap is not None), _ZERO)
+        return self._capacity(demand, demand - lossless if lossless else None)
 
-    def _capacity(self, demand: Fraction) -> Fraction:
+    def _capacity(self, demand: Fraction, lossy: Fraction | None = None) -> Fraction:
         """What the cores deliver under `demand`: all of `bandwidth` up to it, then less as
-        threads outnumber cores (context switches, caches), `oversubscribed` from twice it."""
+        threads outnumber cores (context switches, caches), `oversubscribed` from twice it;
+        only the `lossy` part of the demand loses (default all of it)."""
         assert self.oversubscribed is not None
         excess = min(max(demand - self.bandwidth, _ZERO), self.bandwidth)
-        return self.bandwidth - (self.bandwidth - self.oversubscribed) * excess / self.bandwidth
+        loss = (self.bandwidth - self.oversubscribed) * excess / self.bandwidth
+        if lossy is not None and demand > 0:
+            loss = loss * min(lossy, demand) / demand
+        return self.bandwidth - loss
 
     def _demand(self) -> Fraction:
         """What the flows would take if alone together: the sum of their caps (an uncapped

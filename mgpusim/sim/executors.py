@@ -21,7 +21,7 @@ from ..costs import CostModel
 from ..profile import QUEUE_FAMILIES, HardwareProfile
 from ..schedules.base import FrameProgram
 from ..tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
-from .channel import Channel, GpuChannel
+from .channel import LOSSLESS, Channel, GpuChannel
 
 #: A runner: called with an amount, returns the event that fires when that work is done.
 Runner = Callable[[int], simpy.Event]
@@ -79,18 +79,18 @@ class SharedCores:
         eff = Fraction(repr(host.oversubscribed_efficiency))
         self.channel = Channel(env, "host.cpu", cores, cores * eff if eff != 1 else None)
 
-    def runner(self, ns: int, cores: Fraction | int = 1) -> tuple[Runner | None, int]:
+    def runner(self, ns: int, cores: Fraction | int = 1, tag: object = None) -> tuple[Runner | None, int]:
         cores = Fraction(cores)
         transfer = self.channel.transfer
 
         def run(amount: int) -> simpy.Event:
-            return transfer(amount, cores)
+            return transfer(amount, cores, tag)
         return run, -(-ns * cores.numerator // cores.denominator)
 
     def task_runner(self, task: Task, ns: int) -> tuple[Runner | None, int]:
         """The task's work at its cores; a pass with a `cpu_overhead_ns` also puts that much
         of one core's work on the pool when it starts, which nobody waits on."""
-        run, amount = self.runner(ns, self.cores(task))
+        run, amount = self.runner(ns, self.cores(task), self._tag(task))
         overhead = self._overhead(task)
         if not overhead or run is None:
             return run, amount
@@ -100,6 +100,15 @@ class SharedCores:
             transfer(overhead, 1)
             return main(amount)
         return with_overhead, amount
+
+    def _tag(self, task: Task) -> object:
+        """LOSSLESS for a pass whose cores were measured two at once (it shares the cores as
+        they say, with no loss when threads outnumber cores), else nothing."""
+        if isinstance(task, PassTask):
+            cost = self.costs.profile.gpus[task.queue.device].costs.get(task.kind)
+            if cost is not None and cost.cores_from_pairs:
+                return LOSSLESS
+        return None
 
     def _overhead(self, task: Task) -> int:
         if not isinstance(task, PassTask):

@@ -59,9 +59,11 @@ class HostProfile:
     #: queue are submitted one after another, a task fed by another device or the host only
     #: after the thread woke (dispatch_ns). Where the GPUs share the CPU it also takes cores.
     submit_ns: int = 0
-    #: Lavapipe: the fraction of the cores' time left for work when busy threads want twice the
-    #: cores or more (context switches, cache misses); from 1 at as many threads as cores it
-    #: falls linearly to this. 1 = perfect sharing.
+    #: Lavapipe: the fraction of the cores' time left for work when busy threads of different
+    #: work want twice the cores or more (context switches, each evicting the other's caches);
+    #: from 1 at as many threads as cores it falls linearly to this. 1 = perfect sharing.
+    #: Passes of one kind alone together lose nothing: two GPUs' fragment loops at once take
+    #: twice as long, while a filter beside a fragment loop was slowed more than their cores say.
     oversubscribed_efficiency: float = 1.0
     #: Lavapipe: the share of each pass's `cpu_overhead_ns` that competes for the cores (the
     #: part of the driver's work outside the pass that does not overlap the pass itself); the
@@ -114,10 +116,9 @@ class PassCost:
     cpu_overhead_ns: float = 0.0
     #: CPU-emulated GPUs only: `cores` was measured as the slowdown of two passes at once, so
     #: the pass shares the cores exactly as `cores` says and takes no part in the host's
-    #: `oversubscribed_efficiency` loss. Why: a fragment loop's slowdown two at once equals its
-    #: CPU-time cores (2.0), and a mesh's is what its cores now say; the loss that one curve
-    #: fitted for every kind made the loops of AFR 12-19 % too slow wherever it helped the
-    #: copies, composites and hand-offs, which do lose when threads outnumber cores.
+    #: `oversubscribed_efficiency` loss, even beside other work. Why: a mesh's slowdown two at
+    #: once (1.4-1.5x) is more than its CPU time says (1.2 cores), and that measured slowdown
+    #: already holds what the two lose to each other.
     cores_from_pairs: bool = False
     #: The calibration's standard errors of `fixed_ns` ("fixed_ns") and of each `ns_per` term
     #: (by term): simulate carries them into results as a band (empty: no band).

@@ -7,7 +7,7 @@ import simpy
 from hypothesis import given, settings, strategies as st
 
 from mgpusim.costs import round_half_up
-from mgpusim.sim.channel import Channel
+from mgpusim.sim.channel import Channel, PassWork
 
 
 def run_flows(bandwidth: Fraction, flows: list[tuple[int, int, Fraction | None]]) -> list[int]:
@@ -69,3 +69,47 @@ def test_work_conservation_bounds(flows, bw):
     same_start = run_flows(Fraction(bw), [(0, b, None) for _, b in flows])
     total = sum(b for _, b in flows)
     assert abs(max(same_start) - Fraction(total, bw)) <= len(flows)
+
+
+def run_core_flows(tags: list[object], caps: list[Fraction], work: int = 3200) -> list[int]:
+    """Flows of `work` at `caps` cores on 2 cores that deliver 1.6 at twice the demand."""
+    env = simpy.Environment()
+    ch = Channel(env, "host.cpu", Fraction(2), Fraction(8, 5))
+    ends: list[int] = [0] * len(tags)
+
+    def one(i: int):
+        yield ch.transfer(work, caps[i], tags[i])
+        ends[i] = env.now
+
+    for i in range(len(tags)):
+        env.process(one(i))
+    env.run()
+    return ends
+
+
+def test_different_work_on_oversubscribed_cores_loses_what_the_efficiency_says():
+    """Two kinds of pass at 2 cores each on 2 cores (twice the demand): the cores deliver 1.6,
+    0.8 each, so 3200 core-ns take 4000 ns; a copy (untagged) beside a pass loses the same."""
+    two = [Fraction(2), Fraction(2)]
+    assert run_core_flows([PassWork("fragment_loop"), PassWork("filter")], two) == [4000, 4000]
+    assert run_core_flows([PassWork("fragment_loop"), None], two) == [4000, 4000]
+
+
+def test_passes_of_one_kind_lose_nothing_when_they_oversubscribe_the_cores():
+    two = [Fraction(2), Fraction(2)]
+    assert run_core_flows([PassWork("fragment_loop")] * 2, two) == [3200, 3200]
+    assert run_core_flows([None, None], two) == [4000, 4000]  # untagged work always mixes
+
+
+def test_a_lossless_kind_takes_no_part_in_the_loss_beside_other_work():
+    """A mesh whose cores were measured two at once (lossless) beside a filter: only the
+    filter's half of the demand loses, 2 - 0.4 / 2 = 1.8 cores, 0.9 each: 3200 / 0.9 = 3556."""
+    two = [Fraction(2), Fraction(2)]
+    assert run_core_flows([PassWork("mesh", lossless=True), PassWork("filter")], two) == [3556, 3556]
+
+
+def test_slight_oversubscription_by_different_work_loses_little():
+    """1.5 cores each, 3 wanted of 2, half-way to twice the cores: half the loss, 1.8 cores,
+    0.9 each; 2400 core-ns take 2400 / 0.9 = 2667 ns."""
+    caps = [Fraction(3, 2), Fraction(3, 2)]
+    assert run_core_flows([PassWork("fragment_loop"), PassWork("filter")], caps, 2400) == [2667, 2667]

@@ -19,6 +19,7 @@ transfers costs one rate computation, not N.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from fractions import Fraction
 from typing import Callable
 
@@ -26,9 +27,16 @@ import simpy
 
 
 _ZERO = Fraction(0)
-#: A flow's tag on an oversubscribed channel: work that shares the cores as its cap says, with
-#: no loss when threads outnumber cores (a kind whose slowdown two at once is its cores).
-LOSSLESS = "lossless"
+
+
+@dataclass(frozen=True)
+class PassWork:
+    """A flow's tag on an oversubscribed channel: a pass of this kind. Passes of one kind
+    alone together lose nothing when their threads outnumber the cores; a `lossless` kind (its
+    slowdown two at once was measured: that is its cap) loses nothing beside other work either."""
+
+    kind: str
+    lossless: bool = False
 
 
 class _Flow:
@@ -173,14 +181,19 @@ class Channel:
         """What the channel delivers to the flows it has now."""
         if self.oversubscribed is None:
             return self.bandwidth
+        tags = {f.tag for f in self.flows}
+        if len(tags) == 1 and isinstance(next(iter(tags)), PassWork):
+            return self.bandwidth  # one kind of pass alone: its threads take turns without loss
         demand = self._demand()
-        lossless = sum((f.cap for f in self.flows if f.tag == LOSSLESS and f.cap is not None), _ZERO)
+        lossless = sum((f.cap for f in self.flows
+                        if isinstance(f.tag, PassWork) and f.tag.lossless and f.cap is not None), _ZERO)
         return self._capacity(demand, demand - lossless if lossless else None)
 
     def _capacity(self, demand: Fraction, lossy: Fraction | None = None) -> Fraction:
         """What the cores deliver under `demand`: all of `bandwidth` up to it, then less as
-        threads outnumber cores (context switches, caches), `oversubscribed` from twice it;
-        only the `lossy` part of the demand loses (default all of it)."""
+        threads of different work outnumber cores (context switches, each evicting the other's
+        caches), `oversubscribed` from twice it; only the `lossy` part of the demand loses
+        (default all of it)."""
         assert self.oversubscribed is not None
         excess = min(max(demand - self.bandwidth, _ZERO), self.bandwidth)
         loss = (self.bandwidth - self.oversubscribed) * excess / self.bandwidth

@@ -21,7 +21,7 @@ from ..costs import CostModel
 from ..profile import QUEUE_FAMILIES, HardwareProfile
 from ..schedules.base import FrameProgram
 from ..tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
-from .channel import LOSSLESS, Channel, GpuChannel
+from .channel import Channel, GpuChannel, PassWork
 
 #: A runner: called with an amount, returns the event that fires when that work is done.
 Runner = Callable[[int], simpy.Event]
@@ -102,12 +102,11 @@ class SharedCores:
         return with_overhead, amount
 
     def _tag(self, task: Task) -> object:
-        """LOSSLESS for a pass whose cores were measured two at once (it shares the cores as
-        they say, with no loss when threads outnumber cores), else nothing."""
+        """What the cores share: a pass's kind (lossless where its cores were measured two at
+        once: they say how it shares the cores), else nothing (a copy, a host thread)."""
         if isinstance(task, PassTask):
             cost = self.costs.profile.gpus[task.queue.device].costs.get(task.kind)
-            if cost is not None and cost.cores_from_pairs:
-                return LOSSLESS
+            return PassWork(task.kind, cost is not None and cost.cores_from_pairs)
         return None
 
     def _overhead(self, task: Task) -> int:

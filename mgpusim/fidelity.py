@@ -41,8 +41,8 @@ class Source:
 
 
 #: The committed measured runs: the NVIDIA studies' own folders, and the steady windows of the
-#: lavapipe main job (data/lavapipe/main_job_2026-11-23/, with the profile that job fitted).
-LAVAPIPE_RUNS = EXPERIMENTS.parent / "data/lavapipe/main_job_2026-11-23"
+#: lavapipe main job (data/lavapipe/main_job_2026-11-24/, with the profile that job fitted).
+LAVAPIPE_RUNS = EXPERIMENTS.parent / "data/lavapipe/main_job_2026-11-24"
 SOURCES = (
     Source("2x H200", EXPERIMENTS / "h200/study.toml"),
     Source("H100", EXPERIMENTS / "h200/study.toml", EXPERIMENTS.parent / "data/nvidia/h100/runs_1gpu",

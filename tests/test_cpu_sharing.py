@@ -1,7 +1,14 @@
 """CPU-emulated GPUs (lavapipe): simulated GPUs' passes share the host's cores."""
 from __future__ import annotations
 
+import simpy
+
 from mgpusim import simulate
+from mgpusim.costs import CostModel
+from mgpusim.profile import parse_profile
+from mgpusim.sim.channel import PassWork
+from mgpusim.sim.executors import SharedCores
+from mgpusim.tasks import CopyTask, PassTask, QueueRef
 from tests.conftest import make_experiment, profile_dict
 
 
@@ -157,3 +164,16 @@ def test_host_threads_woken_at_once_take_turns_on_lavapipe(monkeypatch):
     assert together[-1] - together[0] < 10_000
     gaps = [b - a for a, b in zip(serial, serial[1:])]
     assert all(g >= 300_000 for g in gaps), gaps
+
+
+def test_the_cores_know_each_pass_by_its_kind_and_a_pair_measured_kind_as_lossless():
+    """What the host channel's loss rule reads: a pass's kind, lossless where the profile says
+    its cores came from pairs; a copy is no pass."""
+    prof = lavapipe_profile(2, None)
+    for gpu in prof["gpus"]:
+        gpu["costs"]["mesh"] = {"fixed_ns": 1000, "ns_per_triangle": 10, "cores_from_pairs": True}
+    cores = SharedCores(simpy.Environment(), CostModel(parse_profile(prof, "test")))
+    q = QueueRef(1, "graphics")
+    assert cores._tag(PassTask("r", "render", q, "fragment_loop")) == PassWork("fragment_loop", False)
+    assert cores._tag(PassTask("m", "render", q, "mesh")) == PassWork("mesh", True)
+    assert cores._tag(CopyTask("c", "d2h", q, 64, "d2h")) is None

@@ -181,10 +181,12 @@ class Channel:
         """What the channel delivers to the flows it has now."""
         if self.oversubscribed is None:
             return self.bandwidth
-        tags = {f.tag for f in self.flows}
-        if len(tags) == 1 and isinstance(next(iter(tags)), PassWork):
-            return self.bandwidth  # one kind of pass alone: its threads take turns without loss
         demand = self._demand()
+        if demand <= self.bandwidth:
+            return self.bandwidth  # the threads fit the cores: nothing to lose
+        first = self.flows[0].tag
+        if isinstance(first, PassWork) and all(f.tag == first for f in self.flows):
+            return self.bandwidth  # one kind of pass alone: its threads take turns without loss
         lossless = sum((f.cap for f in self.flows
                         if isinstance(f.tag, PassWork) and f.tag.lossless and f.cap is not None), _ZERO)
         return self._capacity(demand, demand - lossless if lossless else None)

@@ -84,3 +84,27 @@ def test_refit_keeps_the_placed_terms_in_proportion():
     assert placed_shapes(data) == {"mesh": {"triangle": 2.0, "visible_triangle": 3.0}}
     data["gpus"][0]["costs"]["mesh"]["ns_per_visible_triangle"] = 0.0
     assert placed_shapes(data) == {}
+
+
+def test_kinds_only_multi_gpu_runs_have_are_scaled_to_their_instances_alone():
+    """A sort-last composite that costs twice per pixel what the microbenchmark fit says is
+    found twice as costly (fixed cost kept), from the instances no other GPU's pass overlapped;
+    1-GPU runs (no composite) give nothing to scale."""
+    from mgpusim.calibrate.runs import fit_alone_scales, with_alone_scales
+    prof = profile_dict(gpus=3)
+    prof["gpus"][0]["costs"]["composite_sort_last"] = {"fixed_ns": 100.0, "ns_per_pixel": 3.0,
+                                                       "ns_per_input": 0.0}
+    measured = []
+    for gpus, w, h in ((2, 32, 16), (3, 16, 16), (1, 16, 16)):
+        exp = make_experiment(copy.deepcopy(prof), schedule="sort_last", gpus=gpus, width=w,
+                              height=h, iterations=200, frames=12)
+        measured.append((exp, simulate(exp).trace))
+    bench = {"composite_sort_last": {"fixed_ns": 100.0, "ns_per_pixel": 1.5, "ns_per_input": 0.0}}
+    scales = fit_alone_scales(measured, ["composite_sort_last"], bench)
+    scale, rows = scales["composite_sort_last"]
+    assert scale == pytest.approx(2.0, rel=0.01)
+    assert rows >= 10
+    scaled = with_alone_scales({"gpus": [{"costs": copy.deepcopy(bench)}]}, scales)
+    assert scaled["gpus"][0]["costs"]["composite_sort_last"] == pytest.approx(
+        {"fixed_ns": 100.0, "ns_per_pixel": 3.0, "ns_per_input": 0.0}, rel=0.01)
+    assert fit_alone_scales(measured[2:], ["composite_sort_last"], bench) == {}

@@ -29,6 +29,8 @@ def test_lavapipe_study_keeps_held_out_apart() -> None:
 @pytest.mark.parametrize("edit, field", [
     (("[runs]", "[runs]\nrepeets = 3"), "runs.repeets"),
     (('base = "machine"', 'base = "gpu"'), "calibration.base"),
+    (('run_fit_alone = ["composite_sort_last"]', 'run_fit_alone = ["composite"]'),
+     "calibration.run_fit_alone"),
     (('experiment = "sort_first.toml"', 'experiment = "nope.toml"'), "experiment"),
     (('name = "sf_1gpu_128x96_it500"', 'name = "sf_1gpu_256x192_it2000"'), None),
 ])

@@ -9,7 +9,8 @@ The one place that says how a profile is fitted for a machine. The steps a study
    with that many threads;
 3. cost kinds and host keys copied from another profile (a machine with no multi-GPU runs of
    its own borrowing the runner-form fits of one of the same chip);
-4. pass costs refitted on the calibration runs' own rows (what the runner records);
+4. pass costs refitted on the calibration runs' own rows (what the runner records), and the
+   kinds only multi-GPU runs have scaled to their instances that ran alone on the cores;
 5. the queues' idle gap between tasks (1-GPU runs);
 6. a grid search of the host effects on the runs' frame-time error.
 """
@@ -27,7 +28,8 @@ from ..costs import PLACED_TERMS
 from .fit import fit_nonnegative
 from .model import calibrate, read_measurements
 from .profile_out import apply, lavapipe_base, report
-from .runs import Run, fit_host_effects, fit_passes_from_runs, fit_task_gap, with_pass_fits
+from .runs import (Run, fit_alone_scales, fit_host_effects, fit_passes_from_runs, fit_task_gap,
+                   with_alone_scales, with_pass_fits)
 
 
 def profile_from_tables(recipe: Any, tables: Sequence[Path], profile: Path,
@@ -61,6 +63,15 @@ def refine_on_runs(recipe: Any, data: dict[str, Any], runs: Sequence[Run]) -> tu
         terms = ", ".join(f"{n}={v:.4g}+-{e:.2g}" for n, v, e in zip(f.names, f.coef, f.stderr))
         warn = f" ({'; '.join(f.warnings)})" if f.warnings else ""
         lines.append(f"  {kind}: {terms}; rms {f.rel_rms:.1%} ({len(f.rel_residuals)} rows){warn}")
+    if recipe.run_fit_alone:
+        scales = fit_alone_scales(runs, recipe.run_fit_alone, data["gpus"][0]["costs"])
+        data = with_alone_scales(data, scales)
+        for kind in recipe.run_fit_alone:
+            scale, rows = scales.get(kind, (float("nan"), 0))
+            lines.append(f"  {kind}: work terms x {scale:.3g} (median over {rows} instances alone on "
+                         f"the cores in multi-GPU runs; fixed cost kept)" if rows else
+                         f"  {kind}: no instance ran alone in a multi-GPU calibration run; "
+                         f"microbenchmark costs kept")
     if recipe.task_gap:
         gap = fit_task_gap(runs)
         if gap is not None:

@@ -84,6 +84,51 @@ def _fit_scale(samples: list[tuple[dict[str, float], float]], shape: Mapping[str
                f.condition, f.warnings)
 
 
+def fit_alone_scales(runs: Sequence[Run], kinds: Sequence[str],
+                     costs: Mapping[str, Mapping[str, float]]) -> dict[str, tuple[float, int]]:
+    """For pass kinds that only multi-GPU runs have (a composite): the factor by which their
+    instances that ran alone (no pass of another simulated GPU overlapping them) cost more than
+    the microbenchmark fit's work terms say, the fixed cost kept: the median over rows of
+    (duration - fixed_ns) / (the terms' cost). Returns kind -> (scale, rows).
+
+    Why: on lavapipe a sort-last composite in a run costs about twice per pixel and input what
+    the microbenchmark measures (its inputs there are never written, its target never cleared,
+    its images stay in the caches between repetitions), while the 1-GPU runs that refit the
+    other kinds have no composite. Only instances alone on the cores are used, so that the
+    sharing the model adds on top is not counted twice."""
+    ratios: dict[str, list[float]] = defaultdict(list)
+    for exp, trace in runs:
+        if exp.schedule.gpus < 2:
+            continue
+        program = build_program(exp)
+        tasks = {t.name: t for tpl in program.templates for t in tpl if isinstance(t, PassTask)}
+        steady = trace[trace["frame"] >= exp.schedule.warmup_frames]
+        passes = steady[steady["task"].isin(list(tasks))]
+        for row in passes[passes["task"].isin([n for n, t in tasks.items() if t.kind in kinds])].itertuples():
+            task = tasks[row.task]
+            others = passes[(passes["device"] != row.device) & (passes["start_ns"] < row.end_ns)
+                            & (passes["end_ns"] > row.start_ns)]
+            cost = costs.get(task.kind, {})
+            var = sum(float(cost.get(f"ns_per_{t}", 0.0)) * v for t, v in task.work.items())
+            if others.empty and var > 0:
+                fixed = float(cost.get("fixed_ns", 0.0))
+                ratios[task.kind].append((row.end_ns - row.start_ns - fixed) / var)
+    return {k: (float(np.median(r)), len(r)) for k, r in ratios.items()}
+
+
+def with_alone_scales(profile_data: dict[str, Any], scales: Mapping[str, tuple[float, int]]) -> dict[str, Any]:
+    """Profile data with each kind's work-term coefficients times its scale (fixed_ns kept)."""
+    out = copy.deepcopy(profile_data)
+    for gpu in out["gpus"]:
+        for kind, (scale, _rows) in scales.items():
+            table = gpu["costs"].get(kind)
+            if table is None:
+                continue
+            for key in [k for k in table if k.startswith("ns_per_")]:
+                table[key] = float(table[key]) * scale
+    return out
+
+
 def fit_task_gap(runs: Sequence[Run]) -> int | None:
     """Median idle time between consecutive tasks of one queue in 1-GPU runs (where no other
     device or host thread feeds the queue, so every gap is the queue's own overhead)."""

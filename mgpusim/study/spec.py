@@ -15,6 +15,7 @@ from types import MappingProxyType
 from typing import Any, Mapping, Sequence
 
 from ..config import Table, read_toml
+from ..costs import WORK_TERMS
 from ..errors import InputError
 from ..experiment import Experiment, load_experiment, parse_overrides
 from ..profile import HardwareProfile
@@ -79,7 +80,8 @@ class Recipe:
     structure); host copy cost from `host_copy_table` on the host's memcpy threads; costs and
     host keys copied from another profile; pass costs from the calibration runs (`run_fitted`
     kinds, all kinds when empty; runs of `run_fit_gpus` GPUs only when set; `run_fit_terms` work
-    terms only when set); the queues' idle gap (`task_gap`); a grid search of host effects."""
+    terms only when set); the `run_fit_alone` kinds (those only multi-GPU runs have) scaled to
+    their instances that ran alone on the cores; the queues' idle gap (`task_gap`); a grid search of host effects."""
 
     base: str = "profile"
     host_copy_table: str | None = None
@@ -89,6 +91,7 @@ class Recipe:
     run_fitted: tuple[str, ...] = ()
     run_fit_gpus: int | None = None
     run_fit_terms: tuple[str, ...] | None = None
+    run_fit_alone: tuple[str, ...] = ()
     task_gap: bool = False
     host_grid: Mapping[str, tuple[Any, ...]] = field(default_factory=lambda: MappingProxyType({}))
 
@@ -192,6 +195,15 @@ def _runs(t: Table) -> RunSettings:
     return rs
 
 
+def _pass_kinds(t: Table, key: str) -> tuple[str, ...]:
+    """The list at `key`, each a pass kind of the cost model."""
+    kinds = t.get(key, list, [])
+    unknown = [k for k in kinds if k not in WORK_TERMS]
+    if unknown:
+        raise t.error(key, f"unknown pass kind(s) {unknown}; known: {sorted(WORK_TERMS)}")
+    return tuple(kinds)
+
+
 def _recipe(t: Table, base: Path) -> Recipe:
     copy_t = t.table("copy_from", {})
     copy_profile = copy_t.get("profile", str, None)
@@ -205,6 +217,7 @@ def _recipe(t: Table, base: Path) -> Recipe:
         copy_costs=tuple(copy_t.get("costs", list, [])), copy_host=tuple(copy_t.get("host", list, [])),
         run_fitted=tuple(t.get("run_fitted", list, [])), run_fit_gpus=gpus or None,
         run_fit_terms=tuple(terms) if terms is not None else None,
+        run_fit_alone=_pass_kinds(t, "run_fit_alone"),
         task_gap=t.get("task_gap", bool, False),
         host_grid=MappingProxyType({k: tuple(grid_t.get(k, list)) for k in list(grid_t.data)}))
     copy_t.finish()

@@ -108,3 +108,19 @@ def test_kinds_only_multi_gpu_runs_have_are_scaled_to_their_instances_alone():
     assert scaled["gpus"][0]["costs"]["composite_sort_last"] == pytest.approx(
         {"fixed_ns": 100.0, "ns_per_pixel": 3.0, "ns_per_input": 0.0}, rel=0.01)
     assert fit_alone_scales(measured[2:], ["composite_sort_last"], bench) == {}
+
+
+def test_host_copy_wake_is_measured_from_the_runs():
+    """A host copy that starts 300 ns after its download ended, its thread idle, is found to
+    wake in 300 ns; the model without it starts the copy at once, and a run without host
+    copies gives nothing."""
+    from mgpusim.calibrate.runs import fit_host_copy_wake
+    prof = profile_dict(gpus=2)
+    prof["host"]["host_copy_wake_ns"] = 300
+    woke = make_experiment(copy.deepcopy(prof), gpus=2, width=32, height=16, iterations=40, frames=12)
+    assert fit_host_copy_wake([(woke, simulate(woke).trace)]) == (300, 10)
+    prof["host"]["host_copy_wake_ns"] = 0
+    at_once = make_experiment(copy.deepcopy(prof), gpus=2, width=32, height=16, iterations=40, frames=12)
+    assert fit_host_copy_wake([(at_once, simulate(at_once).trace)])[0] == 0
+    alone = make_experiment(copy.deepcopy(prof), gpus=1, width=32, height=16, iterations=40, frames=12)
+    assert fit_host_copy_wake([(alone, simulate(alone).trace)]) is None

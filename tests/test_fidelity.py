@@ -309,6 +309,7 @@ def _scenes(draw):
                         d2h=draw(st.sampled_from([0.5, 1.0])), latency=draw(st.sampled_from([0, 7])))
     prof["host"]["dispatch_ns"] = draw(st.sampled_from([0, 0, 13]))
     prof["host"]["submit_ns"] = draw(st.sampled_from([0, 0, 5]))
+    prof["host"]["host_copy_wake_ns"] = draw(st.sampled_from([0, 0, 11]))
     prof["gpus"][0]["task_gap_ns"] = draw(st.sampled_from([0, 3]))
     if draw(st.booleans()):
         prof["host"].update(gpus_share_cpu=True, cpu_cores=draw(st.integers(1, 4)))

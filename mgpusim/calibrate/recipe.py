@@ -11,7 +11,7 @@ The one place that says how a profile is fitted for a machine. The steps a study
    its own borrowing the runner-form fits of one of the same chip);
 4. pass costs refitted on the calibration runs' own rows (what the runner records), and the
    kinds only multi-GPU runs have scaled to their instances that ran alone on the cores;
-5. the queues' idle gap between tasks (1-GPU runs);
+5. the queues' idle gap between tasks (1-GPU runs) and the host-copy thread's wake latency;
 6. a grid search of the host effects on the runs' frame-time error.
 """
 from __future__ import annotations
@@ -28,8 +28,8 @@ from ..costs import PLACED_TERMS
 from .fit import fit_nonnegative
 from .model import calibrate, read_measurements
 from .profile_out import apply, lavapipe_base, report
-from .runs import (Run, fit_alone_scales, fit_host_effects, fit_passes_from_runs, fit_task_gap,
-                   with_alone_scales, with_pass_fits)
+from .runs import (Run, fit_alone_scales, fit_host_copy_wake, fit_host_effects, fit_passes_from_runs,
+                   fit_task_gap, with_alone_scales, with_pass_fits)
 
 
 def profile_from_tables(recipe: Any, tables: Sequence[Path], profile: Path,
@@ -78,6 +78,12 @@ def refine_on_runs(recipe: Any, data: dict[str, Any], runs: Sequence[Run]) -> tu
             for gpu in data["gpus"]:
                 gpu["task_gap_ns"] = gap
             lines.append(f"queue task_gap_ns = {gap} (median idle between tasks of a queue, 1-GPU runs)")
+    if recipe.host_copy_wake:
+        wake = fit_host_copy_wake(runs)
+        if wake is not None:
+            data["host"]["host_copy_wake_ns"] = wake[0]
+            lines.append(f"host host_copy_wake_ns = {wake[0]} (median from a host copy's device input "
+                         f"to its start, idle copy thread, {wake[1]} copies)")
     if recipe.host_grid:
         found, score = fit_host_effects(data, runs, dict(recipe.host_grid))
         data["host"].update(found)

@@ -145,6 +145,43 @@ def fit_task_gap(runs: Sequence[Run]) -> int | None:
     return max(0, int(np.median(np.concatenate(gaps))))  # overlapping slices must not make it < 0
 
 
+def fit_host_copy_wake(runs: Sequence[Run]) -> tuple[int, int] | None:
+    """Median time from the end of a host copy's last input on a device to the copy's start,
+    over the host copies of the runs whose host-copy thread was idle when that input ended (the
+    copy before it had finished): the thread's wake latency. Returns (ns, copies) or None when
+    no run has such a copy.
+
+    Why measured, not searched: it is one hop the trace shows directly (0.15-0.4 ms on lavapipe,
+    where the model had none), and the grid's `dispatch_ns`, shared with every submit thread
+    waking on a device, could not take it without making the GPU-to-GPU hand-offs too slow."""
+    gaps: list[float] = []
+    for exp, trace in runs:
+        steady = trace[trace["frame"] >= exp.schedule.warmup_frames]
+        host = steady[steady["device"] == "host"]
+        if host.empty:
+            continue
+        ends = {(int(f), t): int(e) for f, t, e in
+                zip(steady["frame"], steady["task"], steady["end_ns"])}
+        device_tasks = set(steady.loc[steady["device"] != "host", "task"])
+        copies = host.groupby(["frame", "task"], sort=False).agg(
+            start=("start_ns", "min"), end=("end_ns", "max"), waits=("waits_for", "first"))
+        copies = copies.sort_values("start")
+        previous_end = None
+        for (frame, _task), row in copies.iterrows():
+            inputs = [ends.get((int(frame) + int(off), name)) for off, name in
+                      (w.split(":", 1) for w in str(row["waits"]).split(";") if ":" in w)
+                      if name in device_tasks]
+            inputs = [e for e in inputs if e is not None]
+            if inputs:
+                last = max(inputs)
+                if (previous_end is None or previous_end <= last) and row["start"] >= last:
+                    gaps.append(row["start"] - last)
+            previous_end = row["end"] if previous_end is None else max(previous_end, row["end"])
+    if not gaps:
+        return None
+    return int(np.median(gaps)), len(gaps)
+
+
 def with_pass_fits(profile_data: dict[str, Any], fits: dict[str, Fit]) -> dict[str, Any]:
     """Profile data with these kinds' coefficients replaced in every GPU entry. A kind fitted
     on runs at one size only keeps its microbenchmark coefficients for the terms the runs could

@@ -80,7 +80,8 @@ class Analytic:
         submission = "host_submission" in effects
         self.dispatch = host.dispatch_ns if submission else 0
         self.submit = host.submit_ns if submission else 0
-        self.timeline = bool(self.dispatch or self.submit)
+        self.copy_wake = host.host_copy_wake_ns if submission else 0
+        self.timeline = bool(self.dispatch or self.submit or self.copy_wake)
         # the engine's own rules for durations, channels and labels, without running it
         probe = Engine(program, costs, record_trace=False,
                        effects=effects - {"shared_executor", "shared_gpu", "link_sharing",
@@ -254,7 +255,7 @@ class _Recurrence:
         """Dispatched in order (after the host wakes), split over the memcpy threads."""
         t = max(ready, self.host_prev, 0)
         if self.m.timeline and cross > NEG:
-            t = max(t, cross + self.m.dispatch)
+            t = max(t, cross + self.m.copy_wake + self.m.dispatch)
         self.host_prev = t
         end = NEG
         for size in node.parts:
@@ -498,7 +499,7 @@ def _vector_run(model: Analytic, dur: dict, n: int) -> dict[str, np.ndarray]:
             if node.stream == "host":
                 t = np.maximum(np.maximum(ready, host_prev), 0)
                 if model.timeline:
-                    t = np.where(cross > NEG, np.maximum(t, cross + model.dispatch), t)
+                    t = np.where(cross > NEG, np.maximum(t, cross + model.copy_wake + model.dispatch), t)
                 host_prev = t
                 fixed, sizes = dur[node.name]
                 end = neg

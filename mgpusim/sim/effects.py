@@ -119,9 +119,11 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            lambda p, prof: bool(shared_gpu_groups(p, prof))),
     Effect("host_submission",
            "per-queue submit threads (host.submit_ns) and host wake-up before work fed by another "
-           "device (host.dispatch_ns); off: work starts when its inputs are ready",
-           "host.submit_ns or host.dispatch_ns is non-zero",
-           lambda p, prof: bool(prof.host.submit_ns or prof.host.dispatch_ns)),
+           "device (host.dispatch_ns; a host copy's thread also host.host_copy_wake_ns); off: work "
+           "starts when its inputs are ready",
+           "host.submit_ns, host.dispatch_ns or host.host_copy_wake_ns is non-zero",
+           lambda p, prof: bool(prof.host.submit_ns or prof.host.dispatch_ns
+                                or prof.host.host_copy_wake_ns)),
     Effect("task_gaps",
            "a GPU's idle time between two tasks on a queue (task_gap_ns); off: none",
            "a GPU the schedule uses has task_gap_ns > 0",

@@ -105,8 +105,9 @@ class Engine:
         host = costs.profile.host
         submission = "host_submission" in effects
         self._dispatch_ns = host.dispatch_ns if submission else 0
+        self._copy_wake_ns = host.host_copy_wake_ns if submission else 0
         self._submit_ns = host.submit_ns if submission else 0
-        self._host_timeline = bool(self._dispatch_ns or self._submit_ns)
+        self._host_timeline = bool(self._dispatch_ns or self._submit_ns or self._copy_wake_ns)
         self._cross_done: dict[Key, int] = {}  # instance -> when its last cross-device input ended
         self._waits_for = waits_for_labels(program)
         self.channels: dict[str, Channel | FixedRateChannel] = {}
@@ -237,6 +238,17 @@ class Engine:
         if done is None:
             return 0
         return max(0, done + self._dispatch_ns - self.env.now)
+
+    def _copy_wake(self, key: Key) -> int:
+        """When the host-copy thread, idle, is awake to dispatch `key`: `host_copy_wake_ns`
+        after its last input from a device ended (0 without one). The dispatch work after it
+        is owed from then (the input's end is moved there for :meth:`_dispatch_wait`)."""
+        done = self._cross_done.get(key)
+        if done is None:
+            return 0
+        woken = done + self._copy_wake_ns
+        self._cross_done[key] = woken
+        return woken
 
     def _interpreter_turn(self) -> simpy.Event | None:
         """A host thread about to wake on an input takes the interpreter: None if it is free
@@ -372,6 +384,11 @@ class Engine:
                 # submit thread before it submits (its own work on the host's executor: on
                 # CPU-emulated GPUs it competes for the cores with the GPUs' passes)
                 wait = 0
+                if host and self._copy_wake_ns and self._cross_done:
+                    wait = self._copy_wake(key) - env.now
+                    if wait > 0:  # the host-copy thread's wake latency (not CPU work)
+                        yield env.timeout(wait)
+                    wait = 0
                 if self._cross_done and (host or self._host_timeline):
                     wait = self._dispatch_wait(key, keep=not host)
                 if wait:

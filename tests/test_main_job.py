@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import pandas as pd
 import pytest
 import tomli_w
 
@@ -48,3 +49,9 @@ def test_main_job_measures_calibrates_validates_and_reports(tmp_path, short_stud
         assert (out / "validation" / name / "measured.perfetto.json").is_file()
     report = (out / "report.md").read_text()
     assert "| sort_first_2gpu |" in report and "### xr" in report
+    # the machine's speed, probed before and after the microbenchmarks and around the runs
+    probes = pd.concat([pd.read_csv(out / f / "speed_probe.csv") for f in ("measurements", "runs")])
+    assert probes["point"].tolist() == ["before the microbenchmarks"] * 2 + [
+        "after the microbenchmarks"] * 2 + ["runs, round 1 of 1"] * 2 + ["after the runs"] * 2
+    assert (probes["median_ms"] > 0).all()
+    assert "## The machine's speed during the job" in report

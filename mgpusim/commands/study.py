@@ -103,7 +103,8 @@ def validate(args: argparse.Namespace) -> int:
         root = args.runs or pipeline.runs_root(study, held, out)
         tables[title] = pipeline.validate(study, entries, root, profile, out / "validation",
                                           progress, tuple(args.extra))
-    path = pipeline.write_report(out, study, tables, f"profile: {profile}")  # also errors.json
+    probes = pipeline.probes_of(args.runs or pipeline.runs_root(study, False, out))
+    path = pipeline.write_report(out, study, tables, f"profile: {profile}", probes)  # also errors.json
     with pd.option_context("display.width", 200, "display.max_columns", 20):
         for title, table in tables.items():
             print(f"{title}\n{table.to_string(index=False)}")

@@ -15,6 +15,7 @@ import pandas as pd
 from ..measured import TRACE_FILES
 from ..output import write_json, write_measured
 from ..repeated_runs import with_run_length, write_steady_window
+from . import speed
 from .spec import Entry, Study
 
 Progress = Callable[[str], None]
@@ -30,6 +31,7 @@ def measure_microbenchmarks(study: Study, out: Path, progress: Progress) -> list
     mb = study.microbenchmarks
     out.mkdir(parents=True, exist_ok=True)
     threads = study.lavapipe_threads()
+    _probe(out, "before the microbenchmarks", threads, progress)
     count = 2 if mb.pairs else 1
     gpus = make_gpus(count, lp_threads=None if threads is None else [threads] * count)
     plan = [(name, sweeps, gpus[:1]) for name, sweeps in mb.sweeps]
@@ -55,7 +57,14 @@ def measure_microbenchmarks(study: Study, out: Path, progress: Progress) -> list
             paths.append(path)
     finally:
         close_gpus(gpus)
+    _probe(out, "after the microbenchmarks", threads, progress)
     return paths
+
+
+def _probe(out: Path, point: str, threads: int | None, progress: Progress) -> None:
+    """The machine's reference speed now, added to `out`'s probe table (see :mod:`.speed`)."""
+    progress(f"speed probe ({point})")
+    speed.append_probe(out / speed.FILE, speed.measure_probe(point, threads))
 
 
 def _sweep_of(sweeps: tuple, name: str) -> dict[str, list[Any]]:
@@ -73,7 +82,9 @@ def measure_runs(study: Study, entries: tuple[Entry, ...], profile: Path, out: P
     threads = study.lavapipe_threads()
     exps = {e.name: with_run_length(e.load(profile), rs.run_seconds, rs.max_frames) for e in entries}
     runs: dict[str, list[tuple[str, Any]]] = {e.name: [] for e in entries}
+    out.mkdir(parents=True, exist_ok=True)
     for rep in range(rs.repeats):
+        _probe(out, f"runs, round {rep + 1} of {rs.repeats}", threads, progress)
         for e in entries:
             progress(f"run {e.name} ({rep + 1}/{rs.repeats})")
             gpus = exps[e.name].schedule.gpus
@@ -83,6 +94,7 @@ def measure_runs(study: Study, entries: tuple[Entry, ...], profile: Path, out: P
             folder = out / e.name / f"run{rep}" if rs.repeats > 1 or rs.steady_window else out / e.name
             write_measured(result, folder)
             runs[e.name].append((f"run{rep}", result))
+    _probe(out, "after the runs", threads, progress)
     if rs.steady_window:
         for e in entries:
             write_steady_window(exps[e.name], runs[e.name], out / e.name)

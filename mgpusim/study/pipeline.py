@@ -16,6 +16,7 @@ from ..crossvalidate import format_report, validate_experiment
 from ..measured import read_measured
 from ..output import write_json
 from ..validate import error_stats, error_table
+from . import speed
 from .measure import Progress, measure_microbenchmarks, measure_runs, measured_folder
 from .spec import Entry, Study
 
@@ -112,13 +113,19 @@ def run(study: Study, out: Path, progress: Progress, held_out: bool = True,
     if held_out and study.held_out:
         tables_out[HELD_OUT_TITLE] = validate(study, study.held_out, out / "runs", profile,
                                               out / "validation", progress)
-    return write_report(out, study, tables_out, fit_text)
+    return write_report(out, study, tables_out, fit_text, probes_of(out / "runs"))
 
 
-def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_text: str) -> Path:
-    """report.md: per half, per schedule the error table, its statistics and the stacked
-    measured/simulated timelines; errors.json (per half) and errors_by_schedule.json;
-    errors_*.csv."""
+def probes_of(runs: Path) -> pd.DataFrame:
+    """The speed probes of the job whose runs lie in `runs` (and its tables beside them)."""
+    return speed.read_probes([runs.parent / "measurements" / speed.FILE, runs / speed.FILE])
+
+
+def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_text: str,
+                 probes: pd.DataFrame | None = None) -> Path:
+    """report.md: the machine's speed during the job (its probes, when measured); per half, per
+    schedule the error table, its statistics and the stacked measured/simulated timelines;
+    errors.json (per half) and errors_by_schedule.json; errors_*.csv."""
     lines = [f"# mgpusim study {study.name}: measured vs simulated", "",
              "Errors are simulated / measured - 1. With repeated runs the measured side is the "
              "steady window of the interleaved repeats (the window of >= 200 ms at the 10th "
@@ -126,6 +133,7 @@ def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_t
              "`spread` is (slowest / fastest - 1) of the whole runs' frame times, the machine's own "
              "noise. Each configuration's folder under validation/ holds `timelines.png` (measured "
              "above simulated) and both Perfetto traces.", ""]
+    lines += speed.report_lines(probes if probes is not None else speed.read_probes([]))
     stats: dict[str, Any] = {}
     by_schedule: dict[str, dict[str, Any]] = {}
     for title, table in tables.items():

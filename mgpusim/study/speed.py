@@ -1,0 +1,101 @@
+"""The machine's own speed during a job: a short reference probe, measured again at every step.
+
+Why: a job compares times measured minutes apart (the microbenchmarks, then each round of
+runs), and a model fitted on one part can only predict another if the machine ran at one speed
+throughout. A shared virtual machine does not always: on our 2-core development machine one
+job's mesh passes ran at twice the time of the day before, and faster again by its held-out
+runs, which made every error of that job meaningless (its calibration runs were 8 % off their
+own fit). The probe (a fragment loop and a mesh on one GPU, about a second) is measured before
+and after the microbenchmarks and before each round of runs and after the last; the report
+shows how far it moved and warns when it moved more than `DRIFT_LIMIT`.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import pandas as pd
+
+#: The reference passes: one bound by fragment shading, one by geometry and memory.
+PROBE: tuple[tuple[str, dict[str, Any]], ...] = (
+    ("fragment_loop", {"width": 256, "height": 192, "iterations": 500}),
+    ("mesh", {"width": 256, "height": 192, "triangles": 10_000}),
+)
+PROBE_REPS = 8
+#: A job whose probe moved more than this (slowest / fastest - 1, per pass) gets a warning.
+DRIFT_LIMIT = 0.10
+FILE = "speed_probe.csv"
+COLUMNS = ["point", "pass", "median_ms", "unix_time"]
+
+
+def measure_probe(point: str, threads: int | None) -> list[dict[str, Any]]:
+    """The probe's median pass times now, on one fresh lavapipe (or Vulkan) GPU."""
+    from ..vulkan import measure as m  # noqa: PLC0415 - Vulkan is needed only to measure
+    from ..vulkan.machine import close_gpus, make_gpus  # noqa: PLC0415
+
+    gpus = make_gpus(1, lp_threads=None if threads is None else [threads])
+    try:
+        rows = []
+        for name, params in PROBE:
+            df = m.measure(name, gpus, {k: [v] for k, v in params.items()}, reps=PROBE_REPS, warmup=2)
+            rows.append({"point": point, "pass": name,
+                         "median_ms": float(df["duration_ns"].median()) / 1e6,
+                         "unix_time": round(time.time(), 1)})
+        return rows
+    finally:
+        close_gpus(gpus)
+
+
+def append_probe(path: Path, rows: Sequence[dict[str, Any]]) -> None:
+    """Add `rows` to the probe table at `path` (written whole each time: a job cut short keeps
+    every probe it took)."""
+    old = read_probes([path])
+    new = pd.DataFrame(list(rows), columns=COLUMNS)
+    pd.concat([old, new], ignore_index=True).to_csv(path, index=False)
+
+
+def read_probes(paths: Sequence[Path]) -> pd.DataFrame:
+    """The probe rows of every existing table among `paths`, in order."""
+    frames = [pd.read_csv(p) for p in paths if p.is_file()]
+    frames = [f for f in frames if not f.empty]
+    if not frames:
+        return pd.DataFrame(columns=COLUMNS)
+    return pd.concat(frames, ignore_index=True)
+
+
+def drift(probes: pd.DataFrame) -> pd.DataFrame:
+    """Per probe point (rows, in order) and pass (columns): the time relative to the pass's
+    first probe."""
+    table = probes.pivot_table(index="point", columns="pass", values="median_ms", sort=False)
+    return table / table.iloc[0]
+
+
+def worst_drift(probes: pd.DataFrame) -> tuple[float, str]:
+    """The largest slowest/fastest - 1 over the passes, and that pass."""
+    spread = probes.groupby("pass")["median_ms"].agg(lambda s: s.max() / s.min() - 1)
+    return float(spread.max()), str(spread.idxmax())
+
+
+def report_lines(probes: pd.DataFrame, limit: float = DRIFT_LIMIT) -> list[str]:
+    """The report's section on the machine's speed (nothing without probes)."""
+    if probes.empty:
+        return []
+    rel = drift(probes)
+    lines = ["## The machine's speed during the job", "",
+             "A reference fragment loop and mesh (one GPU, median of "
+             f"{PROBE_REPS}), measured at each step; times relative to the first probe.", "",
+             "| point | " + " | ".join(rel.columns) + " |", "|---" * (len(rel.columns) + 1) + "|"]
+    lines += [f"| {point} | " + " | ".join(f"{v:.2f}" for v in row) + " |"
+              for point, row in rel.iterrows()]
+    worst, name = worst_drift(probes)
+    lines.append("")
+    if worst > limit:
+        lines.append(f"**Warning: the machine's speed moved during this job** (the {name} probe by "
+                     f"{worst:.0%}, more than {limit:.0%}): the microbenchmarks and the runs were "
+                     f"measured at different speeds, and every error above includes that. Run the "
+                     f"job again on a quiet machine before reading them as the model's.")
+    else:
+        lines.append(f"The probes stayed within {worst:.0%} of each other: one machine speed "
+                     f"throughout.")
+    return lines + [""]

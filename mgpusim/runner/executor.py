@@ -79,7 +79,10 @@ class Executor:
         self._sem_lock = threading.Lock()
         self._parts: queue_mod.Queue = queue_mod.Queue()
         self._by_key = {(n.frame, n.task.name): n for n in nodes}
+        self._by_id = {id(n): n for n in nodes}
         self._skip_lock = threading.Lock()
+        #: skippable GPU nodes submitted and not yet known to be finished (see `_skipped`)
+        self._running_skippable: set[int] = set()
         self._chains = None
         if any(t.skip_if_busy for tasks in program.templates for t in tasks):
             self._chains = SkipChains(program, [{t.name: t for t in tasks}
@@ -93,9 +96,16 @@ class Executor:
 
     # -- skipping and run-time choices ---------------------------------------------------------
     def _skipped(self, node: Node) -> bool:
-        """Decide now whether `node` (dependencies met) is skipped; a skipped node is done."""
+        """Decide now whether `node` (dependencies met) is skipped; a skipped node is done.
+
+        Whether a chain is still busy is whether its work is still running *now*: its GPU
+        nodes that finished are marked so first (a non-blocking look at their fences). Their
+        reap thread alone would tell too late: it reads each submission's timestamps in queue
+        order, and on lavapipe that read waits for the queue to go idle, so on a busy primary
+        it lagged frames behind and every later update was skipped (3 updates in 57 frames)."""
         if self._chains is None or not node.task.skip_if_busy:
             return False
+        self._mark_finished_skippables()
         key = (node.frame, node.task.name)
         with self._skip_lock:
             self._chains.ready(key, node.task)
@@ -106,6 +116,14 @@ class Executor:
             self._done(node)
         return skipped
 
+    def _mark_finished_skippables(self) -> None:
+        """Every running skippable GPU node whose fence has signalled is done."""
+        with self._skip_lock:
+            running = [self._by_id[i] for i in self._running_skippable]
+        for other in running:
+            if other.submission is not None and other.submission.poll():
+                self._done(other)
+
     def _done(self, node: Node) -> None:
         """`node` finished (or was skipped): wake its waiters, tell the skip chains once. Only
         a skippable task's end needs the lock (the chains are shared state); setting an event
@@ -114,6 +132,7 @@ class Executor:
             node.completed.set()
             return
         with self._skip_lock:
+            self._running_skippable.discard(id(node))
             if node.completed.is_set():
                 return
             node.completed.set()
@@ -222,6 +241,10 @@ class Executor:
                 work.queue, lambda cmd, r=work.record, f=frame, c=choice: r(cmd, f, c),
                 wait=node.waits, signal=list(node.signals.values()), label=node.label,
                 key=work.key(frame, choice))
+            if node.task.skip_if_busy and self._chains is not None:
+                with self._skip_lock:
+                    if not node.completed.is_set():
+                        self._running_skippable.add(id(node))
             node.submitted.set()
 
     def _reap_stream(self, nodes: list[Node]) -> None:

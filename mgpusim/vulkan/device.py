@@ -91,8 +91,23 @@ class Submission:
             return True
 
     def done(self) -> bool:
-        """True once the GPU finished (never blocks)."""
+        """True once the GPU finished (waits for a thread that is waiting on the fence)."""
         return self.finished(0)
+
+    def poll(self) -> bool:
+        """True if the work has finished, without waiting for anything: not for the fence,
+        not for another thread that holds this submission while it waits (fences may be waited
+        on by several threads at once). A slot already recycled was finished."""
+        if self._finished:
+            return True
+        slot = self._slot
+        if slot is None:
+            return True
+        try:
+            vk().vkGetFenceStatus(self.queue.gpu.device, slot[1])
+        except vk().VkNotReady:
+            return False
+        return True
 
     def wait(self, timeout_ns: int = 60_000_000_000) -> "Submission":
         """Block until the work finished; reads the timestamps and recycles the slot."""

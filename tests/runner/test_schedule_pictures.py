@@ -247,6 +247,25 @@ def test_particles_match_numpy(gpus, options):
     assert rates["particle_update"] < rates["frames"]
 
 
+def test_new_wait_keeps_updating_while_the_primary_stays_busy():
+    """'new_wait' skips an update only while the previous one's work is still running: on a
+    primary that is never idle the chain's end is seen at its fences, not when the reap thread
+    (which reads timestamps in queue order, and on lavapipe waits for the queue to go idle)
+    gets there. Before, every update after the first few was skipped (3 in 57 frames)."""
+    busy = [{"name": "shadow", "kind": "fragment_loop", "iterations": 3000},
+            {"name": "geometry", "kind": "fragment_loop", "iterations": 3000},
+            {"name": "lighting", "kind": "filter", "iterations": 200, "inputs": 2}]
+    frames = 40
+    result = run("particles", 2, busy, frames=frames, particles=P, policy="new_wait")
+    skipped = set(result.summary.get("skipped_frames", {}).get("particle_update", []))
+    streak = longest = 0
+    for f in range(frames):
+        streak = streak + 1 if f in skipped else 0
+        longest = max(longest, streak)
+    assert longest <= 4, f"updates starved: skipped frames {sorted(skipped)}"
+    assert frames - len(skipped) >= frames // 5
+
+
 # -- the trace is the schedule's ------------------------------------------------------------------
 @pytest.mark.parametrize("schedule, gpus, passes, options", [
     ("afr", 3, afr_passes("taa"), {"temporal_pass": "taa", "host_copy": True}),

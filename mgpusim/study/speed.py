@@ -23,6 +23,8 @@ PROBE: tuple[tuple[str, dict[str, Any]], ...] = (
     ("mesh", {"width": 256, "height": 192, "triangles": 10_000}),
 )
 PROBE_REPS = 8
+#: Discarded first repetitions: lavapipe's mesh passes get faster over their first ~10 frames.
+PROBE_WARMUP = 12
 #: A job whose probe moved more than this (slowest / fastest - 1, per pass) gets a warning.
 DRIFT_LIMIT = 0.10
 FILE = "speed_probe.csv"
@@ -38,7 +40,8 @@ def measure_probe(point: str, threads: int | None) -> list[dict[str, Any]]:
     try:
         rows = []
         for name, params in PROBE:
-            df = m.measure(name, gpus, {k: [v] for k, v in params.items()}, reps=PROBE_REPS, warmup=2)
+            df = m.measure(name, gpus, {k: [v] for k, v in params.items()}, reps=PROBE_REPS,
+                           warmup=PROBE_WARMUP)
             rows.append({"point": point, "pass": name,
                          "median_ms": float(df["duration_ns"].median()) / 1e6,
                          "unix_time": round(time.time(), 1)})

@@ -124,3 +124,21 @@ def test_host_copy_wake_is_measured_from_the_runs():
     assert fit_host_copy_wake([(at_once, simulate(at_once).trace)])[0] == 0
     alone = make_experiment(copy.deepcopy(prof), gpus=1, width=32, height=16, iterations=40, frames=12)
     assert fit_host_copy_wake([(alone, simulate(alone).trace)]) is None
+
+
+def test_copy_setup_is_measured_on_the_runs_copies():
+    """Copies that cost 700 ns more than bytes over the link are found to have a 700 ns fixed
+    cost on their queue family, whatever the profile being fitted says it is; 1-GPU runs (no
+    copies) give nothing."""
+    from mgpusim.calibrate.runs import fit_copy_setup
+    prof = profile_dict(gpus=2, latency=7)
+    prof["gpus"][0]["copy"] = {"transfer": {"fixed_ns": 700}}
+    two = make_experiment(copy.deepcopy(prof), gpus=2, width=32, height=16, iterations=40, frames=12)
+    fitting = copy.deepcopy(prof)
+    fitting["gpus"][0]["copy"] = {"transfer": {"fixed_ns": 100}}
+    found = fit_copy_setup([(two, simulate(two).trace)], fitting)
+    assert set(found) == {"transfer"}
+    fixed, copies = found["transfer"]
+    assert fixed == pytest.approx(700, abs=1) and copies >= 1
+    one = make_experiment(copy.deepcopy(prof), gpus=1, width=32, height=16, iterations=40, frames=12)
+    assert fit_copy_setup([(one, simulate(one).trace)], fitting) == {}

@@ -9,8 +9,9 @@ The one place that says how a profile is fitted for a machine. The steps a study
    with that many threads;
 3. cost kinds and host keys copied from another profile (a machine with no multi-GPU runs of
    its own borrowing the runner-form fits of one of the same chip);
-4. pass costs refitted on the calibration runs' own rows (what the runner records), and the
-   kinds only multi-GPU runs have scaled to their instances that ran alone on the cores;
+4. pass costs refitted on the calibration runs' own rows (what the runner records), the
+   kinds only multi-GPU runs have scaled to their instances that ran alone on the cores, and
+   the copies' fixed cost from the runs' copies alone on the cores;
 5. the queues' idle gap between tasks (1-GPU runs) and the host-copy thread's wake latency;
 6. a grid search of the host effects on the runs' frame-time error.
 """
@@ -28,8 +29,8 @@ from ..costs import PLACED_TERMS
 from .fit import fit_nonnegative
 from .model import calibrate, read_measurements
 from .profile_out import apply, lavapipe_base, report
-from .runs import (Run, fit_alone_scales, fit_host_copy_wake, fit_host_effects, fit_passes_from_runs,
-                   fit_task_gap, with_alone_scales, with_pass_fits)
+from .runs import (Run, fit_alone_scales, fit_copy_setup, fit_host_copy_wake, fit_host_effects,
+                   fit_passes_from_runs, fit_task_gap, with_alone_scales, with_pass_fits)
 
 
 def profile_from_tables(recipe: Any, tables: Sequence[Path], profile: Path,
@@ -78,6 +79,12 @@ def refine_on_runs(recipe: Any, data: dict[str, Any], runs: Sequence[Run]) -> tu
             for gpu in data["gpus"]:
                 gpu["task_gap_ns"] = gap
             lines.append(f"queue task_gap_ns = {gap} (median idle between tasks of a queue, 1-GPU runs)")
+    if recipe.copy_setup:
+        for family, (fixed, count) in fit_copy_setup(runs, data).items():
+            for gpu in data["gpus"]:
+                gpu.setdefault("copy", {}).setdefault(family, {})["fixed_ns"] = fixed
+            lines.append(f"copy on {family}: fixed_ns = {fixed} (median of the runs' copies alone on "
+                         f"the cores, {count} copies, less bytes over the microbenchmarks' rate)")
     if recipe.host_copy_wake:
         wake = fit_host_copy_wake(runs)
         if wake is not None:

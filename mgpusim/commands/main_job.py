@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import replace
 from pathlib import Path
 
 from ..shipped import shipped_dir
 from ..outpath import check_out_dir
-from ..study import pipeline
+from ..study import pipeline, speed
 from ..study.spec import load_study
 from .study import progress_printer
 
@@ -39,4 +40,11 @@ def run(args: argparse.Namespace) -> int:
         runs = replace(runs, run_seconds=args.run_seconds)
     path = pipeline.run(replace(study, runs=runs), args.out, progress_printer(), args.held_out)
     print(path.read_text())
+    probes = pipeline.probes_of(args.out / "runs")
+    if not probes.empty:
+        worst, name = speed.worst_drift(probes)
+        if worst > speed.DRIFT_LIMIT:
+            print(f"warning: the machine's speed moved during the job (the {name} probe by "
+                  f"{worst:.0%}): the errors include it; see the report's first section",
+                  file=sys.stderr)
     return 0

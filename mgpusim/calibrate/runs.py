@@ -23,9 +23,9 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from ..costs import CostModel
 from ..experiment import Experiment
 from ..profile import HardwareProfile, parse_profile
-from ..costs import CostModel
 from ..program import build_program
 from ..simulate import simulate
 from ..tasks import CopyTask, PassTask
@@ -92,9 +92,9 @@ def fit_alone_scales(runs: Sequence[Run], kinds: Sequence[str],
     the microbenchmark fit's work terms say, the fixed cost kept: the median over rows of
     (duration - fixed_ns) / (the terms' cost). Returns kind -> (scale, rows).
 
-    Why: on lavapipe a sort-last composite in a run costs about twice per pixel and input what
-    the microbenchmark measures (its inputs there are never written, its target never cleared,
-    its images stay in the caches between repetitions), while the 1-GPU runs that refit the
+    Why: on lavapipe a sort-last composite alone in a run costs 1.4-2.1x per pixel and input
+    what the microbenchmark measures (median 1.66; its inputs there are never written, its
+    target never cleared, its images stay in the caches between repetitions), while the 1-GPU runs that refit the
     other kinds have no composite. Only instances alone on the cores are used, so that the
     sharing the model adds on top is not counted twice."""
     ratios: dict[str, list[float]] = defaultdict(list)

@@ -62,7 +62,11 @@ def measure_microbenchmarks(study: Study, out: Path, progress: Progress) -> list
 
 
 def _probe(out: Path, point: str, threads: int | None, progress: Progress) -> None:
-    """The machine's reference speed now, added to `out`'s probe table (see :mod:`.speed`)."""
+    """The machine's reference speed now, added to `out`'s probe table (see :mod:`.speed`):
+    on lavapipe studies (`threads` set), whose GPUs are the host's own shared cores; a real
+    GPU's passes at the probe's size last tens of microseconds, too short to tell its speed."""
+    if threads is None:
+        return
     progress(f"speed probe ({point})")
     speed.append_probe(out / speed.FILE, speed.measure_probe(point, threads))
 

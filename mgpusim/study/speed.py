@@ -5,9 +5,9 @@ runs), and a model fitted on one part can only predict another if the machine ra
 throughout. A shared virtual machine does not always: on our 2-core development machine one
 job's mesh passes ran at twice the time of the day before, and faster again by its held-out
 runs, which made every error of that job meaningless (its calibration runs were 8 % off their
-own fit). The probe (a fragment loop and a mesh on one GPU, about a second) is measured before
-and after the microbenchmarks and before each round of runs and after the last; the report
-shows how far it moved and warns when it moved more than `DRIFT_LIMIT`.
+own fit). On lavapipe studies the probe (a fragment loop and a mesh on one GPU, half a second)
+is measured before and after the microbenchmarks, before each round of runs and after the
+last; the report shows how far it moved and warns when it moved more than `DRIFT_LIMIT`.
 """
 from __future__ import annotations
 

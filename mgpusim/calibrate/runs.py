@@ -18,7 +18,7 @@ import multiprocessing
 import os
 from collections import defaultdict
 from dataclasses import replace
-from typing import Any, Mapping, Sequence
+from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -28,7 +28,7 @@ from ..experiment import Experiment
 from ..profile import HardwareProfile, parse_profile
 from ..program import build_program
 from ..simulate import simulate
-from ..tasks import CopyTask, PassTask
+from ..tasks import CopyTask, PassTask, Task
 from ..validate import rel_error, steady_summary
 from .fit import Fit, fit_nonnegative
 from .profile_out import cost_table
@@ -98,23 +98,34 @@ def fit_alone_scales(runs: Sequence[Run], kinds: Sequence[str],
     other kinds have no composite. Only instances alone on the cores are used, so that the
     sharing the model adds on top is not counted twice."""
     ratios: dict[str, list[float]] = defaultdict(list)
+    for task, duration in _alone_instances(runs):
+        if not isinstance(task, PassTask) or task.kind not in kinds:
+            continue
+        cost = costs.get(task.kind, {})
+        var = sum(float(cost.get(f"ns_per_{t}", 0.0)) * v for t, v in task.work.items())
+        if var > 0:
+            ratios[task.kind].append((duration - float(cost.get("fixed_ns", 0.0))) / var)
+    return {k: (float(np.median(r)), len(r)) for k, r in ratios.items()}
+
+
+def _alone_instances(runs: Sequence[Run]) -> Iterator[tuple[Task, int]]:
+    """(task, duration ns) of every GPU task of the multi-GPU runs' steady frames that no pass
+    of another simulated GPU overlapped: on CPU-emulated GPUs, what it costs with the cores to
+    itself (copies and host threads beside it are small)."""
     for exp, trace in runs:
         if exp.schedule.gpus < 2:
             continue
         program = build_program(exp)
-        tasks = {t.name: t for tpl in program.templates for t in tpl if isinstance(t, PassTask)}
-        steady = trace[trace["frame"] >= exp.schedule.warmup_frames]
-        passes = steady[steady["task"].isin(list(tasks))]
-        for row in passes[passes["task"].isin([n for n, t in tasks.items() if t.kind in kinds])].itertuples():
-            task = tasks[row.task]
-            others = passes[(passes["device"] != row.device) & (passes["start_ns"] < row.end_ns)
-                            & (passes["end_ns"] > row.start_ns)]
-            cost = costs.get(task.kind, {})
-            var = sum(float(cost.get(f"ns_per_{t}", 0.0)) * v for t, v in task.work.items())
-            if others.empty and var > 0:
-                fixed = float(cost.get("fixed_ns", 0.0))
-                ratios[task.kind].append((row.end_ns - row.start_ns - fixed) / var)
-    return {k: (float(np.median(r)), len(r)) for k, r in ratios.items()}
+        tasks = {t.name: t for tpl in program.templates for t in tpl}
+        steady = trace[(trace["frame"] >= exp.schedule.warmup_frames) & (trace["device"] != "host")]
+        passes = steady[steady["task"].map(lambda n: isinstance(tasks.get(n), PassTask))]
+        for row in steady.itertuples():
+            task = tasks.get(row.task)
+            if task is None or not passes[(passes["device"] != row.device)
+                                          & (passes["start_ns"] < row.end_ns)
+                                          & (passes["end_ns"] > row.start_ns)].empty:
+                continue
+            yield task, row.end_ns - row.start_ns
 
 
 def with_alone_scales(profile_data: dict[str, Any], scales: Mapping[str, tuple[float, int]]) -> dict[str, Any]:
@@ -194,27 +205,15 @@ def fit_copy_setup(runs: Sequence[Run], profile_data: dict[str, Any]) -> dict[st
     microbenchmarks' (the runs' copies are too small to tell it)."""
     costs = CostModel(parse_profile(copy.deepcopy(profile_data), "<calibration>"))
     fixed: dict[str, list[float]] = defaultdict(list)
-    for exp, trace in runs:
-        if exp.schedule.gpus < 2:
+    for task, duration in _alone_instances(runs):
+        if not isinstance(task, CopyTask) or task.path not in ("d2h", "h2d", "d2d"):
             continue
-        program = build_program(exp)
-        tasks = {t.name: t for tpl in program.templates for t in tpl}
-        steady = trace[(trace["frame"] >= exp.schedule.warmup_frames) & (trace["device"] != "host")]
-        is_pass = steady["task"].map(lambda n: isinstance(tasks.get(n), PassTask))
-        passes = steady[is_pass]
-        for row in steady[~is_pass].itertuples():
-            task = tasks.get(row.task)
-            if not isinstance(task, CopyTask) or task.path not in ("d2h", "h2d", "d2d"):
-                continue
-            if not passes[(passes["device"] != row.device) & (passes["start_ns"] < row.end_ns)
-                          & (passes["end_ns"] > row.start_ns)].empty:
-                continue
-            dev, family = task.queue.device, task.queue.family
-            moved = float(task.bytes / costs.link_bandwidth(dev, task.path))
-            setup = costs.copy_setup_ns(dev, family, task.path)
-            own = costs.profile.gpus[dev].copy
-            path_latency = setup - (own[family].fixed_ns if family in own else 0)
-            fixed[family].append(row.end_ns - row.start_ns - moved - path_latency)
+        dev, family = task.queue.device, task.queue.family
+        moved = float(task.bytes / costs.link_bandwidth(dev, task.path))
+        own = costs.profile.gpus[dev].copy
+        path_latency = (costs.copy_setup_ns(dev, family, task.path)
+                        - (own[family].fixed_ns if family in own else 0))
+        fixed[family].append(duration - moved - path_latency)
     return {f: (max(0, int(np.median(v))), len(v)) for f, v in fixed.items()}
 
 

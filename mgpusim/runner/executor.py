@@ -79,10 +79,9 @@ class Executor:
         self._sem_lock = threading.Lock()
         self._parts: queue_mod.Queue = queue_mod.Queue()
         self._by_key = {(n.frame, n.task.name): n for n in nodes}
-        self._by_id = {id(n): n for n in nodes}
         self._skip_lock = threading.Lock()
-        #: skippable GPU nodes submitted and not yet known to be finished (see `_skipped`)
-        self._running_skippable: set[int] = set()
+        #: skippable GPU nodes submitted and not yet known to be finished (see `_skipped`), by id
+        self._running_skippable: dict[int, Node] = {}
         self._chains = None
         if any(t.skip_if_busy for tasks in program.templates for t in tasks):
             self._chains = SkipChains(program, [{t.name: t for t in tasks}
@@ -119,7 +118,7 @@ class Executor:
     def _mark_finished_skippables(self) -> None:
         """Every running skippable GPU node whose fence has signalled is done."""
         with self._skip_lock:
-            running = [self._by_id[i] for i in self._running_skippable]
+            running = list(self._running_skippable.values())
         for other in running:
             if other.submission is not None and other.submission.poll():
                 self._done(other)
@@ -132,7 +131,7 @@ class Executor:
             node.completed.set()
             return
         with self._skip_lock:
-            self._running_skippable.discard(id(node))
+            self._running_skippable.pop(id(node), None)
             if node.completed.is_set():
                 return
             node.completed.set()
@@ -244,7 +243,7 @@ class Executor:
             if node.task.skip_if_busy and self._chains is not None:
                 with self._skip_lock:
                     if not node.completed.is_set():
-                        self._running_skippable.add(id(node))
+                        self._running_skippable[id(node)] = node
             node.submitted.set()
 
     def _reap_stream(self, nodes: list[Node]) -> None:

@@ -27,6 +27,8 @@ def test_drift_is_relative_to_the_first_probe_in_job_order():
 def test_the_report_warns_only_when_the_machine_moved():
     moved = "\n".join(speed.report_lines(probes([2.0, 4.0])))
     assert "Warning: the machine's speed moved" in moved and "mesh probe by 100%" in moved
+    assert speed.drift_warning(probes([2.0, 4.0])) is not None
+    assert speed.drift_warning(probes([2.0, 2.1])) is None
     steady = "\n".join(speed.report_lines(probes([2.0, 2.1])))
     assert "Warning" not in steady and "within 5%" in steady
     assert speed.report_lines(speed.read_probes([])) == []

@@ -94,8 +94,8 @@ def fit_alone_scales(runs: Sequence[Run], kinds: Sequence[str],
 
     Why: on lavapipe a sort-last composite alone in a run costs 1.4-2.1x per pixel and input
     what the microbenchmark measures (median 1.66; its inputs there are never written, its
-    target never cleared, its images stay in the caches between repetitions), while the 1-GPU runs that refit the
-    other kinds have no composite. Only instances alone on the cores are used, so that the
+    target never cleared, its images stay in the caches between repetitions), while the 1-GPU
+    runs that refit the other kinds have no composite. Only instances alone on the cores are used, so that the
     sharing the model adds on top is not counted twice."""
     ratios: dict[str, list[float]] = defaultdict(list)
     for task, duration in _alone_instances(runs):
@@ -172,17 +172,16 @@ def fit_host_copy_wake(runs: Sequence[Run]) -> tuple[int, int] | None:
         host = steady[steady["device"] == "host"]
         if host.empty:
             continue
+        program = build_program(exp)
+        tasks = {t.name: t for tpl in program.templates for t in tpl}
+        device = steady[steady["device"] != "host"]
         ends = {(int(f), t): int(e) for f, t, e in
-                zip(steady["frame"], steady["task"], steady["end_ns"])}
-        device_tasks = set(steady.loc[steady["device"] != "host", "task"])
+                zip(device["frame"], device["task"], device["end_ns"])}
         copies = host.groupby(["frame", "task"], sort=False).agg(
-            start=("start_ns", "min"), end=("end_ns", "max"), waits=("waits_for", "first"))
-        copies = copies.sort_values("start")
+            start=("start_ns", "min"), end=("end_ns", "max")).sort_values("start")
         previous_end = None
-        for (frame, _task), row in copies.iterrows():
-            inputs = [ends.get((int(frame) + int(off), name)) for off, name in
-                      (w.split(":", 1) for w in str(row["waits"]).split(";") if ":" in w)
-                      if name in device_tasks]
+        for (frame, name), row in copies.iterrows():
+            inputs = [ends.get((int(frame) + d.offset, d.task)) for d in tasks[name].deps]
             inputs = [e for e in inputs if e is not None]
             if inputs:
                 last = max(inputs)

@@ -40,11 +40,8 @@ def run(args: argparse.Namespace) -> int:
         runs = replace(runs, run_seconds=args.run_seconds)
     path = pipeline.run(replace(study, runs=runs), args.out, progress_printer(), args.held_out)
     print(path.read_text())
-    probes = pipeline.probes_of(args.out / "runs")
-    if not probes.empty:
-        worst, name = speed.worst_drift(probes)
-        if worst > speed.DRIFT_LIMIT:
-            print(f"warning: the machine's speed moved during the job (the {name} probe by "
-                  f"{worst:.0%}): the errors include it; see the report's first section",
-                  file=sys.stderr)
+    warning = speed.drift_warning(pipeline.probes_of(args.out / "runs"))
+    if warning is not None:
+        print(f"warning: {warning}: the errors include it; see the report's first section",
+              file=sys.stderr)
     return 0

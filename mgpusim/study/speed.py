@@ -80,6 +80,17 @@ def worst_drift(probes: pd.DataFrame) -> tuple[float, str]:
     return float(spread.max()), str(spread.idxmax())
 
 
+def drift_warning(probes: pd.DataFrame, limit: float = DRIFT_LIMIT) -> str | None:
+    """One line when a probe moved more than `limit` during the job, else None."""
+    if probes.empty:
+        return None
+    worst, name = worst_drift(probes)
+    if worst <= limit:
+        return None
+    return (f"the machine's speed moved during this job (the {name} probe by {worst:.0%}, more "
+            f"than {limit:.0%})")
+
+
 def report_lines(probes: pd.DataFrame, limit: float = DRIFT_LIMIT) -> list[str]:
     """The report's section on the machine's speed (nothing without probes)."""
     if probes.empty:
@@ -91,14 +102,13 @@ def report_lines(probes: pd.DataFrame, limit: float = DRIFT_LIMIT) -> list[str]:
              "| point | " + " | ".join(rel.columns) + " |", "|---" * (len(rel.columns) + 1) + "|"]
     lines += [f"| {point} | " + " | ".join(f"{v:.2f}" for v in row) + " |"
               for point, row in rel.iterrows()]
-    worst, name = worst_drift(probes)
     lines.append("")
-    if worst > limit:
-        lines.append(f"**Warning: the machine's speed moved during this job** (the {name} probe by "
-                     f"{worst:.0%}, more than {limit:.0%}): the microbenchmarks and the runs were "
-                     f"measured at different speeds, and every error above includes that. Run the "
-                     f"job again on a quiet machine before reading them as the model's.")
+    warning = drift_warning(probes, limit)
+    if warning is not None:
+        lines.append(f"**Warning: {warning}**: the microbenchmarks and the runs were measured at "
+                     f"different speeds, and every error above includes that. Run the job again "
+                     f"on a quiet machine before reading them as the model's.")
     else:
-        lines.append(f"The probes stayed within {worst:.0%} of each other: one machine speed "
-                     f"throughout.")
+        lines.append(f"The probes stayed within {worst_drift(probes)[0]:.0%} of each other: one "
+                     f"machine speed throughout.")
     return lines + [""]

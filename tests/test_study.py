@@ -50,9 +50,9 @@ def test_bad_study_is_one_error_naming_the_field(tmp_path: Path, edit: tuple[str
 
 def test_lavapipe_threads_follow_the_cores_this_process_may_use(monkeypatch: pytest.MonkeyPatch) -> None:
     study = load_study(ROOT / "experiments" / "lavapipe" / "study.toml")
-    assert study.lavapipe_threads_per_core == 2
+    assert study.lavapipe_threads_per_core == 4
     monkeypatch.setattr("os.sched_getaffinity", lambda _pid: {0, 1, 2})
-    assert study.lavapipe_threads() == 6
+    assert study.lavapipe_threads() == 12
     from dataclasses import replace
     assert replace(study, lavapipe_threads_per_core=None).lavapipe_threads() is None
 
@@ -60,7 +60,7 @@ def test_lavapipe_threads_follow_the_cores_this_process_may_use(monkeypatch: pyt
 def test_bad_lavapipe_threads_per_core_names_the_field(tmp_path: Path) -> None:
     src = ROOT / "experiments" / "lavapipe" / "study.toml"
     bad = src.parent / "bad_study_threads_tmp.toml"
-    bad.write_text(src.read_text().replace("lavapipe_threads_per_core = 2", "lavapipe_threads_per_core = 0", 1))
+    bad.write_text(src.read_text().replace("lavapipe_threads_per_core = 4", "lavapipe_threads_per_core = 0", 1))
     try:
         with pytest.raises(InputError, match="lavapipe_threads_per_core"):
             load_study(bad)

@@ -24,6 +24,7 @@ import numpy as np
 from ..errors import InputError, ScheduleError
 from ..schedules.base import FrameProgram
 from ..sim.skipping import SkipChains
+from ..vulkan import host_priority
 from ..vulkan.device import Gpu
 from .plan import HOST_STREAM, Node
 from .work import GpuWork, HostWork
@@ -88,6 +89,10 @@ class Executor:
                                                 for tasks in program.templates])
         #: per reading task, the frame whose output each frame's instance read (`newest`)
         self.read_frames: dict[str, dict[int, int | None]] = defaultdict(dict)
+        #: with MGPUSIM_HOST_PRIORITY=realtime on lavapipe, the runner's threads take
+        #: SCHED_FIFO as lavapipe's do (vulkan/host_priority.py)
+        self.promote_threads = host_priority.wanted() and any(
+            isinstance(n.work, GpuWork) and n.work.gpu.info.is_lavapipe for n in nodes)
 
     @property
     def skipped_frames(self) -> dict[str, list[int]]:
@@ -204,6 +209,8 @@ class Executor:
 
     # -- threads ---------------------------------------------------------------------------
     def _guard(self, fn: Callable[..., None], *args: Any) -> None:
+        if self.promote_threads:
+            host_priority.promote()
         try:
             fn(*args)
         except _Abort:

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 from ..errors import InputError
+from . import host_priority
 from .errors import call, vk
 from .instance import Instance, PhysicalDeviceInfo, QueueFamilyInfo
 from .memory import Buffer, Image
@@ -188,7 +189,9 @@ class Gpu:
                                     ppEnabledExtensionNames=exts or None)
         self.queues: dict[str, Queue] = {}
         self._semaphores: list[Semaphore] = []
+        threads_before = host_priority.snapshot() if self.info.is_lavapipe else None
         self.device = call("vkCreateDevice", v.vkCreateDevice, self.physical, info, None)
+        host_priority.promote_new(threads_before)  # lavapipe's queue thread
         try:  # from here on a failure destroys the device (and pools) it made
             self._finish_setup(chosen)
         except BaseException:

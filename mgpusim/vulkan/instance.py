@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..errors import DependencyError
+from . import host_priority
 from .errors import APT_LAYERS, APT_RUNTIME, VulkanError, call, vk
 from .hostheap import keep_heap
 
@@ -164,6 +165,7 @@ class Instance:
         self._layers, self._extensions = layers, extensions
         info = v.VkInstanceCreateInfo(pApplicationInfo=self._app, ppEnabledLayerNames=layers,
                                       ppEnabledExtensionNames=extensions)
+        threads_before = host_priority.snapshot()
         with _env_lock:
             old = os.environ.get("LP_NUM_THREADS")
             if lp_num_threads is not None:
@@ -195,6 +197,8 @@ class Instance:
                 raise DependencyError(f"Vulkan found no device; install lavapipe with: {APT_RUNTIME}")
             self.physical_handles = list(handles)
             self.devices = [_describe(i, h) for i, h in enumerate(handles)]
+            if any(d.is_lavapipe for d in self.devices):
+                host_priority.promote_new(threads_before)
         except BaseException:
             self.close()
             raise

@@ -14,6 +14,7 @@ from importlib import metadata
 from typing import Any, Sequence
 
 from ..errors import InputError
+from . import host_priority
 from .device import Gpu
 from .hostheap import keep_heap
 from .instance import Instance
@@ -101,6 +102,7 @@ def machine_record(gpus: Sequence[Gpu], extra: dict[str, Any] | None = None) -> 
                                                "VK_DRIVER_FILES", "MGPUSIM_VK_VALIDATION",
                                                "MGPUSIM_KEEP_HEAP")},
         "host_heap": keep_heap(),
+        "host_thread_priority": host_priority.status(),
         "gpus": [{
             "name": g.name, "device": g.info.name, "device_type": g.info.device_type,
             "physical_index": g.physical_index,

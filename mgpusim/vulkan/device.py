@@ -191,7 +191,7 @@ class Gpu:
         self._semaphores: list[Semaphore] = []
         threads_before = host_priority.snapshot() if self.info.is_lavapipe else None
         self.device = call("vkCreateDevice", v.vkCreateDevice, self.physical, info, None)
-        host_priority.promote_new(threads_before)  # lavapipe's queue thread
+        host_priority.promote_new(threads_before)  # its queue thread, rasterizers, compute pool
         try:  # from here on a failure destroys the device (and pools) it made
             self._finish_setup(chosen)
         except BaseException:

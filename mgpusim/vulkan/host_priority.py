@@ -83,8 +83,9 @@ def snapshot() -> set[int] | None:
 
 def promote_new(before: set[int] | None) -> None:
     """Promote the threads started since `before` (a :func:`snapshot`): call it after creating
-    a lavapipe instance (its rasterizers) or device (its queue thread). Threads the driver put
-    in the background itself (SCHED_BATCH, SCHED_IDLE: its shader-cache writer) stay there."""
+    a lavapipe instance or device (Mesa 22.3 starts them all in vkCreateDevice: the queue
+    thread, the rasterizers and the compute-shader pool). Threads the driver put in the
+    background itself (SCHED_BATCH, SCHED_IDLE: its shader-cache writer) stay there."""
     if before is None:
         return
     for tid in thread_ids() - before:

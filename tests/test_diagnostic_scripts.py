@@ -1,0 +1,87 @@
+"""The lavapipe diagnostic scripts under experiments/: hand-off gaps and core use."""
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _script(name: str):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "experiments" / "lavapipe" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+handoff_gaps = _script("handoff_gaps")
+core_use = _script("core_use")
+
+MS = 1_000_000
+
+
+def _trace() -> pd.DataFrame:
+    """Two AFR frames on two GPUs: frame 1's copy waits 0.5 ms after its render, GPU 0's
+    upload 2 ms after that copy, and frame 1 renders beside frame 0 for 3 of its 4 ms."""
+    rows = [
+        (0, "gpu0", "graphics", "render", "render.fragment_loop", 0, 4 * MS, 0, ""),
+        (1, "gpu1", "graphics", "render", "render.fragment_loop", 1 * MS, 5 * MS, 0, "-2:present"),
+        (0, "gpu0", "graphics", "present", "present", 4 * MS, 5 * MS, 0, ""),
+        (1, "gpu1", "transfer", "out", "out.d2h", int(5.5 * MS), 6 * MS, 0, ""),
+        (1, "gpu0", "transfer", "out", "out.h2d", 8 * MS, 9 * MS, 0, "0:out.d2h"),
+    ]
+    columns = ["frame", "device", "engine", "step", "task", "start_ns", "end_ns", "bytes", "waits_for"]
+    return pd.DataFrame(rows, columns=columns).replace({"waits_for": {"": None}})
+
+
+def test_gaps_follow_dependencies_and_frame_order():
+    gaps = handoff_gaps.dependency_gaps(_trace()).groupby("edge").gap_ms.max()
+    assert gaps["0:out.d2h -> out.h2d"] == pytest.approx(2.0)
+    assert gaps["render.fragment_loop => out.d2h"] == pytest.approx(0.5)
+    assert gaps["out.d2h => out.h2d"] == pytest.approx(2.0)
+    assert "-2:present -> render.fragment_loop" not in gaps  # frame -1 is not in the trace
+
+
+def test_render_concurrency_shares_time():
+    shares = handoff_gaps.render_concurrency(_trace())
+    assert shares == {0: 0.0, 1: pytest.approx(0.4), 2: pytest.approx(0.6)}
+
+
+def test_report_reads_a_trace_folder(tmp_path):
+    _trace().to_csv(tmp_path / "trace.csv", index=False)
+    text = handoff_gaps.report(tmp_path, from_frame=0)
+    assert "0:out.d2h -> out.h2d" in text and "render passes running at once" in text
+
+
+def test_core_shares_of_a_window():
+    before = [100, 0, 50, 850, 0, 0, 0, 0]
+    after = [400, 0, 150, 1350, 0, 0, 0, 100]
+    shares = core_use.shares(before, after)
+    assert shares["user"] == pytest.approx(0.3) and shares["idle"] == pytest.approx(0.5)
+    assert shares["steal"] == pytest.approx(0.1) and sum(shares.values()) == pytest.approx(1.0)
+
+
+def test_core_use_finds_the_run_folder():
+    command = ["mgpusim", "run", "x.toml", "--out", "/tmp/somewhere"]
+    assert core_use.out_folder(command) == Path("/tmp/somewhere")
+    assert core_use.out_folder(["mgpusim", "run", "x.toml"]) is None
+
+
+def test_core_use_samples_a_command(tmp_path, capsys):
+    table = tmp_path / "use.csv"
+    rc = core_use.main(["--skip", "0.05", "--window", "0.1", "--label", "sleep", "--csv", str(table),
+                        "--", sys.executable, "-c", "import time; time.sleep(0.5)"])
+    assert rc == 0
+    row = pd.read_csv(table).iloc[0]
+    assert row["label"] == "sleep" and bool(row["outlasted_window"])
+    assert 0.0 <= row["idle"] <= 1.0 and pd.isna(row["frame_time_ms"])
+    assert "label=sleep" in capsys.readouterr().out
+
+
+def test_core_use_reports_a_failed_command(capsys):
+    rc = core_use.main(["--skip", "0", "--window", "0", "--", sys.executable, "-c", "raise SystemExit('no such run')"])
+    assert rc == 1 and "no such run" in capsys.readouterr().err

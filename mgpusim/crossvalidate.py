@@ -17,6 +17,12 @@ from .plot import comparison_png
 from .repeated_runs import measure_repeated, run_spread
 from .simulate import simulate
 from .validate import compare
+from .waits import LONG_WAIT_NS
+
+#: The report lists the hand-offs whose mean wait differs by at least this much (ms), at most
+#: this many: the ones that explain a frame-time error, not every task.
+SHOWN_WAIT_MS = 0.05
+SHOWN_WAITS = 3
 
 
 def validate_experiment(exp: Experiment, out: Path, measured_dir: Path | None = None,
@@ -55,6 +61,12 @@ def format_report(exp: Experiment, r: dict[str, Any]) -> str:
              f"  {'latency (ms)':12} {m['latency_ms']:10.3f} {s['latency_ms']:10.3f} {r['latency_error']:+8.1%}"]
     for step, v in r["steps"].items():
         lines.append(f"  {step:12} {v['measured_ms']:10.3f} {v['simulated_ms']:10.3f} {v['error']:+8.1%}")
+    waits = [(edge, w) for edge, w in r.get("waits", {}).items()
+             if abs(w["difference_ms"]) >= SHOWN_WAIT_MS][:SHOWN_WAITS]
+    if waits:
+        lines.append("  waits from ready to start, mean (ms), where they differ most:")
+        lines += [f"    {edge}: {w['measured_ms']:.3f} measured ({w['measured_long_share']:.0%} over "
+                  f"{LONG_WAIT_NS / 1e6:g} ms), {w['simulated_ms']:.3f} simulated" for edge, w in waits]
     if r.get("measured_runs", 1) > 1:
         lines.append(f"  measured: steady window of {r['measured_runs']} runs; the whole runs' frame "
                      f"times spread {r['measured_spread']:.1%} (the machine's own noise)")

@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 
 from .results import frames_from_trace, summarize
+from .waits import compare_waits
 
 
 def step_means_ns(trace: pd.DataFrame, first_frame: int) -> dict[str, float]:
@@ -33,7 +34,8 @@ def steady_summary(trace: pd.DataFrame, warmup_frames: int,
 
 def compare(measured: pd.DataFrame, simulated: pd.DataFrame, warmup_frames: int,
             present_step: str = "present") -> dict[str, Any]:
-    """Frame time, latency and per-step mean durations of two traces, with relative errors."""
+    """Frame time, latency and per-step mean durations of two traces, with relative errors,
+    and each hand-off's mean wait from ready to start on both sides (:mod:`mgpusim.waits`)."""
     m = steady_summary(measured, warmup_frames, present_step)
     s = steady_summary(simulated, warmup_frames, present_step)
     m_steps, s_steps = step_means_ns(measured, warmup_frames), step_means_ns(simulated, warmup_frames)
@@ -51,6 +53,7 @@ def compare(measured: pd.DataFrame, simulated: pd.DataFrame, warmup_frames: int,
         "steps": steps,
         "steps_only_measured": sorted(set(m_steps) - set(s_steps)),
         "steps_only_simulated": sorted(set(s_steps) - set(m_steps)),
+        "waits": compare_waits(measured, simulated, warmup_frames),
     }
 
 

@@ -7,8 +7,8 @@ Each argument is a folder with a trace.csv: a `mgpusim run --out` folder (measur
 schedule (a task's `waits_for`, e.g. `-2:present -> render.fragment_loop`) and for one task
 after the one before it in the same frame (`out.d2h => out.h2d`), it prints how long the
 consumer started after its producer ended (count, mean, median, 90th percentile, max, in ms),
-then the wait of each task from the moment it was ready (all its dependencies and its device's
-previous task done) by what ended last, each task's duration and the share of time with 0, 1, 2... render passes running. Frames
+then the wait of each task from the moment it was ready by what ended last (mgpusim.waits, which
+`mgpusim validate` reports too), each task's duration and the share of time with 0, 1, 2... render passes running. Frames
 before `--from-frame` (default 40) are left out. Why: the two traces name the same tasks, so a
 gap that is 0.3 ms in the model and 2 ms on the machine points at the hand-off that the model
 gets wrong, where the frame time alone only says that something does.
@@ -20,6 +20,8 @@ import sys
 from pathlib import Path
 
 import pandas as pd
+
+from mgpusim.waits import ready_waits
 
 
 def load(folder: Path, from_frame: int) -> pd.DataFrame:
@@ -41,27 +43,6 @@ def dependency_gaps(trace: pd.DataFrame) -> pd.DataFrame:
         tasks = list(frame.itertuples())
         rows += [(f"{a.task} => {b.task}", (b.start_ns - a.end_ns) / 1e6)
                  for a, b in zip(tasks, tasks[1:])]
-    return pd.DataFrame(rows, columns=["edge", "gap_ms"])
-
-
-def ready_gaps(trace: pd.DataFrame) -> pd.DataFrame:
-    """One row per task: (binding, gap_ms), the wait from the moment it was ready (every
-    dependency ended and its device's previous task, in start order: lavapipe has one queue)
-    to its start, named by what ended last (`queue` where the device's previous task did)."""
-    ends = {(r.frame, r.task): r.end_ns for r in trace.itertuples()}
-    rows = []
-    for _, tasks in trace.sort_values("start_ns").groupby("device"):
-        previous_end = None
-        for r in tasks.itertuples():
-            ready, binding = previous_end, "queue"
-            for dep in str(r.waits_for).split(";") if isinstance(r.waits_for, str) else ():
-                offset, task = dep.split(":", 1)
-                end = ends.get((r.frame + int(offset), task))
-                if end is not None and (ready is None or end > ready):
-                    ready, binding = end, f"{offset}:{task}"
-            if ready is not None:
-                rows.append((f"{binding} -> {r.task}", (r.start_ns - ready) / 1e6))
-            previous_end = r.end_ns
     return pd.DataFrame(rows, columns=["edge", "gap_ms"])
 
 
@@ -98,7 +79,7 @@ def report(folder: Path, from_frame: int) -> str:
         f"(share of time): {render_concurrency(trace)}",
         "gaps after each dependency (ms):", summary(gaps.groupby("edge").gap_ms).to_string(),
         "waits from ready to start, by what ended last (ms):",
-        summary(ready_gaps(trace).groupby("edge").gap_ms).to_string(),
+        summary(ready_waits(trace).assign(gap_ms=lambda w: w.wait_ns / 1e6).groupby("edge").gap_ms).to_string(),
         "durations (ms):", summary(trace.groupby(["device", "task"]).dur_ms).to_string(), ""])
 
 

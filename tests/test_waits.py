@@ -1,0 +1,90 @@
+"""Waits from ready to start (mgpusim.waits) and their place in a cross-validation report."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from mgpusim.crossvalidate import format_report
+from mgpusim.experiment import load_experiment
+from mgpusim.simulate import simulate
+from mgpusim.trace import make_trace
+from mgpusim.validate import compare
+from mgpusim.waits import LONG_WAIT_NS, compare_waits, ready_waits, wait_stats
+
+MS = 1_000_000
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _afr_frames(upload_delay_ns: int):
+    """Three AFR frames: frame f renders on GPU f mod 2; frame 1 crosses to GPU 0 (d2h, then
+    an h2d that starts `upload_delay_ns` after the d2h ends) and presents there."""
+    rows = []
+    for f in range(3):
+        base = f * 10 * MS
+        gpu = f"gpu{f % 2}"
+        rows.append((f, gpu, "graphics", "render", "render", base, base + 4 * MS, 0,
+                     "-2:present" if f >= 2 else ""))
+        if f % 2:
+            rows.append((f, gpu, "graphics", "out", "out.d2h", base + 4 * MS, base + 5 * MS, 0, ""))
+            start = base + 5 * MS + upload_delay_ns
+            rows.append((f, "gpu0", "graphics", "out", "out.h2d", start, start + MS, 0, "0:out.d2h"))
+            rows.append((f, "gpu0", "graphics", "present", "present", start + MS, start + 2 * MS, 0, ""))
+        else:
+            rows.append((f, gpu, "graphics", "present", "present", base + 4 * MS, base + 5 * MS, 0, ""))
+    return make_trace(rows)
+
+
+def _afr_experiment():
+    return load_experiment(ROOT / "experiments" / "lavapipe" / "afr.toml",
+                           {"schedule.gpus": 2, "schedule.frames": 8, "schedule.warmup_frames": 2})
+
+
+def test_a_task_waits_on_what_ended_last():
+    waits = ready_waits(_afr_frames(3 * MS)).groupby("edge")["wait_ns"].max()
+    assert waits["0:out.d2h -> out.h2d"] == 3 * MS  # its input from GPU 1, not GPU 0's queue
+    assert waits["queue -> out.d2h"] == 0
+    assert waits["queue -> present"] == 0
+    # frame 2's render waited for frame 0's present (ended at 5 ms), GPU 0's queue ended later
+    assert "queue -> render" in waits.index
+
+
+def test_first_frame_leaves_the_warm_up_out_but_still_reads_its_ends():
+    waits = ready_waits(_afr_frames(0), first_frame=2)
+    assert set(waits["edge"]) == {"queue -> render", "queue -> present"}
+
+
+def test_long_waits_are_counted_and_the_largest_difference_comes_first():
+    slow, fast = _afr_frames(3 * MS), _afr_frames(0)
+    stats = wait_stats(slow, 0)["0:out.d2h -> out.h2d"]
+    assert stats == {"count": 1, "mean_ms": pytest.approx(3.0), "long_share": 1.0}
+    assert 3 * MS > LONG_WAIT_NS
+    compared = compare_waits(slow, fast, 0)
+    first_edge, first = next(iter(compared.items()))
+    assert first_edge == "0:out.d2h -> out.h2d"
+    assert first["difference_ms"] == pytest.approx(3.0) and first["simulated_ms"] == 0
+
+
+def test_a_validation_report_names_the_hand_off_the_model_misses():
+    exp = _afr_experiment()
+    simulated = simulate(exp).trace
+    measured = simulated.copy()
+    # every upload's start is recorded 0.09 ms later (it is longer than that): a slow hand-off
+    late = measured["task"] == "out.h2d"
+    assert ((measured.loc[late, "end_ns"] - measured.loc[late, "start_ns"]) > 90_000).all()
+    measured.loc[late, "start_ns"] += 90_000
+    report = compare(measured, simulated, exp.schedule.warmup_frames)
+    edge = next(iter(report["waits"]))
+    assert edge.endswith("-> out.h2d")
+    assert report["waits"][edge]["difference_ms"] == pytest.approx(0.09)
+    assert all(w["difference_ms"] == 0 for e, w in report["waits"].items() if e != edge)
+    text = format_report(exp, {**report, "measured_runs": 1})
+    assert "waits from ready to start" in text and edge in text
+
+
+def test_a_report_without_differences_lists_no_waits():
+    exp = _afr_experiment()
+    trace = simulate(exp).trace
+    report = compare(trace, trace, exp.schedule.warmup_frames)
+    assert all(w["difference_ms"] == 0 for w in report["waits"].values())
+    assert "waits from ready to start" not in format_report(exp, {**report, "measured_runs": 1})

@@ -26,7 +26,10 @@ def ready_waits(trace: pd.DataFrame, first_frame: int = 0) -> pd.DataFrame:
     last: ``queue`` for the task before it on its queue, else the input as ``offset:task``,
     then `` -> `` and the task) and `wait_ns` (start - ready; negative where the start was
     recorded before the input's end, as a measured copy slice can be)."""
-    ends = {(int(f), str(t)): int(e) for f, t, e in zip(trace["frame"], trace["task"], trace["end_ns"])}
+    ends: dict[tuple[int, str], int] = {}
+    for f, t, e in zip(trace["frame"], trace["task"], trace["end_ns"]):
+        key = (int(f), str(t))  # a host copy has a row per thread part: it ends with the last
+        ends[key] = max(int(e), ends.get(key, int(e)))
     edges, waits = [], []
     for _, queue in trace.sort_values(["start_ns", "end_ns"], kind="stable").groupby(
             ["device", "engine"], sort=False):
@@ -34,7 +37,7 @@ def ready_waits(trace: pd.DataFrame, first_frame: int = 0) -> pd.DataFrame:
         for frame, task, start, end, inputs in zip(queue["frame"], queue["task"], queue["start_ns"],
                                                    queue["end_ns"], queue["waits_for"]):
             ready, binding = previous_end, "queue"
-            for offset, name in _inputs(inputs):
+            for offset, name in parse_waits_for(inputs):
                 input_end = ends.get((int(frame) + offset, name))
                 if input_end is not None and (ready is None or input_end > ready):
                     ready, binding = input_end, f"{offset}:{name}"
@@ -45,7 +48,7 @@ def ready_waits(trace: pd.DataFrame, first_frame: int = 0) -> pd.DataFrame:
     return pd.DataFrame({"edge": edges, "wait_ns": np.asarray(waits, dtype=np.int64)})
 
 
-def _inputs(waits_for: Any) -> list[tuple[int, str]]:
+def parse_waits_for(waits_for: Any) -> list[tuple[int, str]]:
     """`waits_for` (``-2:present;0:out.d2h``) as (frame offset, task) pairs."""
     if not isinstance(waits_for, str) or not waits_for:
         return []

@@ -88,3 +88,12 @@ def test_a_report_without_differences_lists_no_waits():
     report = compare(trace, trace, exp.schedule.warmup_frames)
     assert all(w["difference_ms"] == 0 for w in report["waits"].values())
     assert "waits from ready to start" not in format_report(exp, {**report, "measured_runs": 1})
+
+
+def test_a_host_copy_ends_with_its_last_part():
+    rows = [(0, "gpu0", "graphics", "render", "render", 0, MS, 0, ""),
+            (0, "host", "memcpy0", "copy", "host_copy", MS, 2 * MS, 0, "0:render"),
+            (0, "host", "memcpy1", "copy", "host_copy", MS, 3 * MS, 0, "0:render"),
+            (0, "gpu1", "graphics", "in", "in.h2d", 4 * MS, 5 * MS, 0, "0:host_copy")]
+    waits = ready_waits(make_trace(rows)).set_index("edge")["wait_ns"]
+    assert waits["0:host_copy -> in.h2d"] == MS  # from the second part's end at 3 ms

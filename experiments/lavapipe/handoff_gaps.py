@@ -7,9 +7,9 @@ Each argument is a folder with a trace.csv: a `mgpusim run --out` folder (measur
 schedule (a task's `waits_for`, e.g. `-2:present -> render.fragment_loop`) and for one task
 after the one before it in the same frame (`out.d2h => out.h2d`), it prints how long the
 consumer started after its producer ended (count, mean, median, 90th percentile, max, in ms),
-then the wait of each task from the moment it was ready by what ended last (mgpusim.waits, which
-`mgpusim validate` reports too), each task's duration and the share of time with 0, 1, 2... render passes running. Frames
-before `--from-frame` (default 40) are left out. Why: the two traces name the same tasks, so a
+then the wait of each task from the moment it was ready by what ended last (mgpusim.waits,
+which `mgpusim validate` reports too), each task's duration and the share of time with 0, 1,
+2... render passes running. Frames before `--from-frame` (default 40) are left out. Why: the two traces name the same tasks, so a
 gap that is 0.3 ms in the model and 2 ms on the machine points at the hand-off that the model
 gets wrong, where the frame time alone only says that something does.
 """
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from mgpusim.waits import ready_waits
+from mgpusim.waits import parse_waits_for, ready_waits
 
 
 def load(folder: Path, from_frame: int) -> pd.DataFrame:
@@ -34,9 +34,8 @@ def dependency_gaps(trace: pd.DataFrame) -> pd.DataFrame:
     ends = {(r.frame, r.task): r.end_ns for r in trace.itertuples()}
     rows = []
     for r in trace.itertuples():
-        for dep in str(r.waits_for).split(";") if isinstance(r.waits_for, str) else ():
-            offset, task = dep.split(":", 1)
-            end = ends.get((r.frame + int(offset), task))
+        for offset, task in parse_waits_for(r.waits_for):
+            end = ends.get((r.frame + offset, task))
             if end is not None:
                 rows.append((f"{offset}:{task} -> {r.task}", (r.start_ns - end) / 1e6))
     for _, frame in trace.sort_values("start_ns").groupby("frame"):

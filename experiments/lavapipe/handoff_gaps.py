@@ -21,6 +21,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from mgpusim.validate import steady_summary
 from mgpusim.waits import parse_waits_for, ready_waits
 
 
@@ -71,8 +72,7 @@ def report(folder: Path, from_frame: int) -> str:
         raise SystemExit(f"{folder}: no frames from {from_frame} on in trace.csv")
     gaps = dependency_gaps(trace)
     trace["dur_ms"] = (trace.end_ns - trace.start_ns) / 1e6
-    presents = trace[trace.task == "present"].end_ns.sort_values()
-    period = presents.diff().mean() / 1e6 if len(presents) > 1 else float("nan")
+    period = steady_summary(trace, 0)["frame_time_ms"]  # the trace starts at --from-frame
     return "\n".join([
         f"== {folder}: {period:.3f} ms between presents; render passes running at once "
         f"(share of time): {render_concurrency(trace)}",

@@ -40,6 +40,11 @@ OVERLAP_DEFAULTS: Mapping[str, float] = MappingProxyType(
      "devices": 1.0})
 
 
+#: The busy_wake effect's window: a pass is "young" for this long after it starts (a copy's
+#: thread woken later finds the pass's threads spread over the cores; measured on lavapipe).
+BUSY_WAKE_WINDOW_NS = 1_000_000
+
+
 @dataclass(frozen=True)
 class HostProfile:
     """Host memory and the memcpy thread pool used for host-to-host copies."""
@@ -74,6 +79,14 @@ class HostProfile:
     #: part of the driver's work outside the pass that does not overlap the pass itself); the
     #: calibration's grid search picks it on the calibration runs.
     cpu_overhead_scale: float = 1.0
+    #: Lavapipe (the busy_wake effect): of the copies about to start within
+    #: `busy_wake_window_ns` of another GPU's core-filling pass starting, counted once per
+    #: (pass, GPU) pair, the share whose woken thread waits behind that pass's threads while a
+    #: core idles, `busy_wake_ns` (or until the pass is done). Measured on the calibration
+    #: runs' traces; 0 turns it off.
+    busy_wake_share: float = 0.0
+    busy_wake_ns: int = 0
+    busy_wake_window_ns: int = BUSY_WAKE_WINDOW_NS
 
 
 @dataclass(frozen=True)
@@ -335,6 +348,9 @@ def _parse_host(t: Table) -> HostProfile:
         submit_ns=_ns(t, "submit_ns", 0),
         oversubscribed_efficiency=t.get("oversubscribed_efficiency", float, 1.0, above=0),
         cpu_overhead_scale=t.get("cpu_overhead_scale", float, 1.0, minimum=0, maximum=1),
+        busy_wake_share=t.get("busy_wake_share", float, 0.0, minimum=0, maximum=1),
+        busy_wake_ns=_ns(t, "busy_wake_ns", 0),
+        busy_wake_window_ns=_ns(t, "busy_wake_window_ns", BUSY_WAKE_WINDOW_NS),
     )
     _check_host(t, host)
     t.finish()

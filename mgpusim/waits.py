@@ -26,26 +26,43 @@ def ready_waits(trace: pd.DataFrame, first_frame: int = 0) -> pd.DataFrame:
     last: ``queue`` for the task before it on its queue, else the input as ``offset:task``,
     then `` -> `` and the task) and `wait_ns` (start - ready; negative where the start was
     recorded before the input's end, as a measured copy slice can be)."""
+    trace = trace.reset_index(drop=True)
+    ready = ready_times(trace)
+    keep = ready["ready_ns"].notna() & (trace["frame"] >= first_frame)
+    rows = ready[keep].sort_values("order", kind="stable")
+    starts = trace.loc[rows.index, "start_ns"].to_numpy(np.int64)
+    edges = [f"{b} -> {t}" for b, t in zip(rows["binding"], trace.loc[rows.index, "task"])]
+    return pd.DataFrame({"edge": edges, "wait_ns": starts - rows["ready_ns"].to_numpy(np.int64)})
+
+
+def ready_times(trace: pd.DataFrame) -> pd.DataFrame:
+    """Per trace row (same index): `ready_ns`, when its inputs (`waits_for`) and the task
+    before it on its queue (same device and engine, in start order) had all ended (NaN for a
+    queue's first task without inputs); `binding`, which of them ended last; `order`, the row's
+    place in the queue-by-queue walk (what `ready_waits` lists rows in)."""
     ends: dict[tuple[int, str], int] = {}
     for f, t, e in zip(trace["frame"], trace["task"], trace["end_ns"]):
         key = (int(f), str(t))  # a host copy has a row per thread part: it ends with the last
         ends[key] = max(int(e), ends.get(key, int(e)))
-    edges, waits = [], []
-    for _, queue in trace.sort_values(["start_ns", "end_ns"], kind="stable").groupby(
-            ["device", "engine"], sort=False):
+    n = len(trace)
+    ready, binding = np.full(n, np.nan), np.full(n, "", dtype=object)
+    order = np.full(n, -1, dtype=np.int64)
+    walk = trace.assign(_pos=np.arange(n)).sort_values(["start_ns", "end_ns"], kind="stable")
+    step = 0
+    for _, queue in walk.groupby(["device", "engine"], sort=False):
         previous_end = None
-        for frame, task, start, end, inputs in zip(queue["frame"], queue["task"], queue["start_ns"],
-                                                   queue["end_ns"], queue["waits_for"]):
-            ready, binding = previous_end, "queue"
+        for pos, frame, inputs, end in zip(queue["_pos"], queue["frame"], queue["waits_for"],
+                                           queue["end_ns"]):
+            at, bound = previous_end, "queue"
             for offset, name in parse_waits_for(inputs):
                 input_end = ends.get((int(frame) + offset, name))
-                if input_end is not None and (ready is None or input_end > ready):
-                    ready, binding = input_end, f"{offset}:{name}"
+                if input_end is not None and (at is None or input_end > at):
+                    at, bound = input_end, f"{offset}:{name}"
             previous_end = int(end)
-            if ready is not None and frame >= first_frame:
-                edges.append(f"{binding} -> {task}")
-                waits.append(int(start) - ready)
-    return pd.DataFrame({"edge": edges, "wait_ns": np.asarray(waits, dtype=np.int64)})
+            order[pos], step = step, step + 1
+            if at is not None:
+                ready[pos], binding[pos] = at, bound
+    return pd.DataFrame({"ready_ns": ready, "binding": binding, "order": order}, index=trace.index)
 
 
 def parse_waits_for(waits_for: Any) -> list[tuple[int, str]]:

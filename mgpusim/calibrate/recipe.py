@@ -26,6 +26,8 @@ import pandas as pd
 
 from ..config import read_toml
 from ..costs import PLACED_TERMS
+from ..profile import BUSY_WAKE_WINDOW_NS
+from .busy_wake import fit_busy_wake
 from .fit import fit_nonnegative
 from .model import calibrate, read_measurements
 from .profile_out import apply, lavapipe_base, report
@@ -91,12 +93,30 @@ def refine_on_runs(recipe: Any, data: dict[str, Any], runs: Sequence[Run]) -> tu
             data["host"]["host_copy_wake_ns"] = wake[0]
             lines.append(f"host host_copy_wake_ns = {wake[0]} (median from a host copy's device input "
                          f"to its start, idle copy thread, {wake[1]} copies)")
+    if recipe.busy_wake:
+        lines.append(_busy_wake(data, runs))
     if recipe.host_grid:
         found, score = fit_host_effects(data, runs, dict(recipe.host_grid))
         data["host"].update(found)
         lines.append(f"host {found} (grid search; mean |frame-time error| {score:.1%} on the "
                      f"calibration runs)")
     return data, lines
+
+
+def _busy_wake(data: dict[str, Any], runs: Sequence[Run]) -> str:
+    """Measure the busy_wake effect on the runs into `data`'s host (before the grid search, so
+    that the search sees the model with it)."""
+    window = int(data["host"].get("busy_wake_window_ns", BUSY_WAKE_WINDOW_NS))
+    found = fit_busy_wake(runs, data, window)
+    if found is None:
+        return ("host busy_wake: no copy was made ready within the window of another GPU's "
+                "core-filling pass in the calibration runs; off")
+    data["host"].update(busy_wake_share=round(found.share, 4), busy_wake_ns=found.ns,
+                        busy_wake_window_ns=window)
+    return (f"host busy_wake_share = {found.share:.4g}, busy_wake_ns = {found.ns} (of {found.pairs} "
+            f"(pass, GPU) pairs with a copy made ready within {window / 1e6:g} ms of another "
+            f"GPU's core-filling pass starting, those whose copy was left behind; their wait over "
+            f"{found.full_waits} pairs whose pass outlasted it)")
 
 
 def placed_shapes(data: dict[str, Any]) -> dict[str, dict[str, float]]:

@@ -85,7 +85,7 @@ class Analytic:
         # the engine's own rules for durations, channels and labels, without running it
         probe = Engine(program, costs, record_trace=False,
                        effects=effects - {"shared_executor", "shared_gpu", "link_sharing",
-                                          "host_memory_sharing"})
+                                          "host_memory_sharing", "busy_wake"})
         self.threads = host.memcpy_threads
         #: per frame phase, task name -> its task (a name may sit on other devices in other phases)
         self.task_of = [{t.name: t for t in tasks} for tasks in program.templates]
@@ -151,6 +151,8 @@ class Analytic:
             out.append("shared_gpu: the queues of each GPU taken as independent (an optimistic bound)")
         if "shared_executor" in needed:
             out.append("shared_executor: the emulated GPUs taken as independent devices (not a bound)")
+        if "busy_wake" in needed:
+            out.append("busy_wake: no copy waits behind another GPU's young pass (an optimistic bound)")
         return out
 
     # ----- one configuration ---------------------------------------------------------------

@@ -84,6 +84,12 @@ def _copy_caps_bind(program: FrameProgram, profile: HardwareProfile) -> bool:
     return False
 
 
+def _devices(program: FrameProgram) -> int:
+    """How many devices (GPUs) the schedule's tasks run on."""
+    return len({t.queue.device for t in _all_tasks(program)
+                if not isinstance(t, (HostCopyTask, CpuTask))})
+
+
 def _gaps(program: FrameProgram, profile: HardwareProfile) -> bool:
     return any(not isinstance(t, (HostCopyTask, CpuTask)) and profile.gpus[t.queue.device].task_gap_ns
                for t in _all_tasks(program))
@@ -124,6 +130,15 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            "host.submit_ns, host.dispatch_ns or host.host_copy_wake_ns is non-zero",
            lambda p, prof: bool(prof.host.submit_ns or prof.host.dispatch_ns
                                 or prof.host.host_copy_wake_ns)),
+    Effect("busy_wake",
+           "a copy about to start within host.busy_wake_window_ns of another GPU's core-filling "
+           "pass starting: per (pass, GPU) pair, host.busy_wake_share of them first wait "
+           "host.busy_wake_ns (at most the pass's remaining work), a core idle meanwhile (the "
+           "copy's thread queued behind the pass's threads on one core); off: none",
+           "the GPUs share the host CPU, the schedule has 2 or more GPUs, and host.busy_wake_share "
+           "and host.busy_wake_ns are non-zero",
+           lambda p, prof: bool(prof.host.gpus_share_cpu and prof.host.busy_wake_share
+                                and prof.host.busy_wake_ns and _devices(p) > 1)),
     Effect("task_gaps",
            "a GPU's idle time between two tasks on a queue (task_gap_ns); off: none",
            "a GPU the schedule uses has task_gap_ns > 0",
@@ -135,7 +150,8 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
 )}
 
 #: Effects the `queues` level leaves out.
-QUEUES_OMITS = frozenset({"link_sharing", "host_memory_sharing", "shared_executor", "shared_gpu"})
+QUEUES_OMITS = frozenset({"link_sharing", "host_memory_sharing", "shared_executor", "shared_gpu",
+                          "busy_wake"})
 
 
 def parse_effects(text: str | None, option: str = "--effects") -> dict[str, bool]:

@@ -27,6 +27,7 @@ from ..errors import InputError, ScheduleError
 from ..limits import INT64_MAX
 from ..schedules.base import FrameProgram, even_split, waits_for_labels, wakes_host
 from ..tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
+from .busy_wake import BusyWake
 from .channel import Channel, FixedRateChannel
 from .effects import choose_effects
 from .executors import Executor, Runner, make_executors
@@ -55,6 +56,8 @@ class _Op:
     gap_run: Runner | None = None
     #: a CPU task: its thread wakes `dispatch_ns` after an input from elsewhere, no submit cost
     cpu: bool = False
+    #: a pass that keeps every host core busy (the busy_wake effect): the cores it keeps busy
+    fill_cores: Fraction | None = None
 
 
 @dataclass
@@ -109,6 +112,8 @@ class Engine:
         self._submit_ns = host.submit_ns if submission else 0
         self._host_timeline = bool(self._dispatch_ns or self._submit_ns or self._copy_wake_ns)
         self._cross_done: dict[Key, int] = {}  # instance -> when its last cross-device input ended
+        self._busy_wake = (BusyWake(host.busy_wake_share, host.busy_wake_ns, host.busy_wake_window_ns)
+                           if "busy_wake" in effects else None)
         self._waits_for = waits_for_labels(program)
         self.channels: dict[str, Channel | FixedRateChannel] = {}
         self._unfinished = self._tasks_in(0, program.frames)
@@ -215,9 +220,13 @@ class Engine:
             if gap:
                 gap_run = executor.work
         run, amount = executor.task_runner(task, duration)
+        cores = executor.cores(task) if isinstance(task, PassTask) else None
+        fills = (cores if self._busy_wake is not None and cores is not None
+                 and self._busy_wake.fills(cores, self.costs.profile.host.cpu_cores, duration)
+                 else None)
         return _Op(task, duration, channel, cap, nbytes, task.queue.device_name, task.queue.engine,
                    self._waits_for[phase][task.name], task.name == self.program.present_task,
-                   run, amount, gap, gap_run)
+                   run, amount, gap, gap_run, fill_cores=fills)
 
     def _check_copy_time(self, task: CopyTask, cap: Fraction | None, setup: int) -> None:
         """A copy alone on its path must end within the bound on one task's time."""
@@ -413,9 +422,17 @@ class Engine:
                             self._submit_load(self._submit_ns)  # the submit thread's cores
                 if op.gap:
                     yield op.gap_run(op.gap)
+                if self._busy_wake is not None and isinstance(op.task, CopyTask):
+                    wait = self._busy_wake.copy_wait(op.device, env.now)
+                    if wait:  # the copy's thread waits behind the pass; a core idles meanwhile
+                        yield self._host_work(wait)
                 start = env.now
+                if op.fill_cores is not None:
+                    self._busy_wake.pass_started(op.device, start, op.fill_cores, op.duration)
                 if op.run is not None:
                     yield op.run(op.amount)
+                if op.fill_cores is not None:
+                    self._busy_wake.pass_ended(op.device)
                 if op.channel is not None:
                     yield op.channel.transfer(op.nbytes, op.cap)
                 self._finish(frame, op, op.engine, start, op.nbytes)

@@ -252,6 +252,7 @@ class _Describer:
             self._chains(),
             self._host_threads(),
             (e._interp_busy, len(e._interp_waiting)),
+            e._busy_wake.state(self.now) if e._busy_wake is not None else None,
             tuple(self._channel(name, ch) for name, ch in e.channels.items()),
         )
 

@@ -83,7 +83,8 @@ class Recipe:
     terms only when set); the `run_fit_alone` kinds (those only multi-GPU runs have) scaled to
     their instances that ran alone on the cores; the copies' fixed cost from the runs' copies
     alone on the cores (`copy_setup`); the queues' idle gap (`task_gap`); the host-copy
-    thread's wake latency (`host_copy_wake`); a grid search of host effects."""
+    thread's wake latency (`host_copy_wake`); the copies left behind a young core-filling pass
+    of another GPU (`busy_wake`); a grid search of host effects."""
 
     base: str = "profile"
     host_copy_table: str | None = None
@@ -96,6 +97,7 @@ class Recipe:
     run_fit_alone: tuple[str, ...] = ()
     task_gap: bool = False
     host_copy_wake: bool = False
+    busy_wake: bool = False
     copy_setup: bool = False
     host_grid: Mapping[str, tuple[Any, ...]] = field(default_factory=lambda: MappingProxyType({}))
 
@@ -224,6 +226,7 @@ def _recipe(t: Table, base: Path) -> Recipe:
         run_fit_alone=_pass_kinds(t, "run_fit_alone"),
         task_gap=t.get("task_gap", bool, False),
         host_copy_wake=t.get("host_copy_wake", bool, False),
+        busy_wake=t.get("busy_wake", bool, False),
         copy_setup=t.get("copy_setup", bool, False),
         host_grid=MappingProxyType({k: tuple(grid_t.get(k, list)) for k in list(grid_t.data)}))
     copy_t.finish()

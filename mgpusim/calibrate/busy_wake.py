@@ -3,8 +3,8 @@
 On a host whose cores emulate several GPUs (lavapipe), a GPU's pass that keeps every core busy
 wakes its rasterizer threads when it starts. A copy of another GPU whose thread is woken in the
 first moments of that pass is often placed behind those threads on one core, and waits there
-while the other core sits idle, until the pass is nearly done: the pass runs on one core and the
-copy starts late. Where it happens the hand-off chain of alternate-frame rendering, particle
+while the other core sits idle, for a few scheduler ticks or until the pass is done: the pass
+runs on one core and the copy starts late. Where it happens the hand-off chain of alternate-frame rendering, particle
 offload and pipelining stalls; the model, whose woken threads get a fair share of the cores at
 once, had none of it. How often it happens, and how long the copy waits, are properties of the
 host's scheduler: they are measured per (pass, other GPU) pair, with the definitions the model
@@ -68,7 +68,11 @@ def fit_busy_wake(runs: Sequence[Run], profile_data: Mapping[str, Any],
         pairs += young_pass_delays(steady, filling, copies, window_ns)
     if not pairs:
         return None
-    delay, left = (np.asarray(x, dtype=np.int64) for x in zip(*pairs))
+    return _left_behind(*(np.asarray(x, dtype=np.int64) for x in zip(*pairs)))
+
+
+def _left_behind(delay: np.ndarray, left: np.ndarray) -> BusyWake:
+    """The share and wait from each pair's (delay, the pass's remaining time)."""
     behind = (delay > LEFT_BEHIND_NS) & (2 * delay > np.minimum(left, 2 * LONG_WAIT_NS))
     if not behind.any():
         return BusyWake(0.0, 0, len(delay), 0)
@@ -107,7 +111,8 @@ def young_pass_delays(trace: pd.DataFrame, filling: set[str], copies: set[str],
 
 def _fills(profile_data: Mapping[str, Any], kind: str) -> bool:
     """Whether a pass kind keeps every host core busy, as the model's executor reads the
-    profile (its `cores`, at most the GPU's rasterizer threads and the host's cores)."""
+    profile (its `cores`, at most the GPU's rasterizer threads and the host's cores; the first
+    GPU entry's, as CPU-emulated GPUs are all of one kind)."""
     gpus = profile_data.get("gpus") or [{}]
     cores = float(profile_data["host"]["cpu_cores"])
     most = min(float(gpus[0].get("cpu_threads") or cores), cores)

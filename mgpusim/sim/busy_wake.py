@@ -19,6 +19,8 @@ from __future__ import annotations
 from collections import defaultdict
 from fractions import Fraction
 
+from ..costs import round_half_up
+
 #: A pass "fills the cores" when its kind keeps at least this share of the host's cores busy:
 #: the fragment-heavy kinds (about 2 of 2 cores); a mesh pass (about 1.5) leaves a core free.
 FILLS_CORES = Fraction(9, 10)
@@ -66,7 +68,7 @@ class BusyWake:
         self._credit -= 1
         start, cores, work = self._latest[pass_device]
         left = max(work - cores * (now - start), Fraction(0))
-        return min(self.ns, (left.numerator * 2 + left.denominator) // (2 * left.denominator))
+        return min(self.ns, round_half_up(left))
 
     def _young(self, now: int) -> list[str]:
         return [d for d, n in self._running.items()

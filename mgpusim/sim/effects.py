@@ -84,12 +84,6 @@ def _copy_caps_bind(program: FrameProgram, profile: HardwareProfile) -> bool:
     return False
 
 
-def _devices(program: FrameProgram) -> int:
-    """How many devices (GPUs) the schedule's tasks run on."""
-    return len({t.queue.device for t in _all_tasks(program)
-                if not isinstance(t, (HostCopyTask, CpuTask))})
-
-
 def _gaps(program: FrameProgram, profile: HardwareProfile) -> bool:
     return any(not isinstance(t, (HostCopyTask, CpuTask)) and profile.gpus[t.queue.device].task_gap_ns
                for t in _all_tasks(program))
@@ -138,7 +132,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            "the GPUs share the host CPU, the schedule has 2 or more GPUs, and host.busy_wake_share "
            "and host.busy_wake_ns are non-zero",
            lambda p, prof: bool(prof.host.gpus_share_cpu and prof.host.busy_wake_share
-                                and prof.host.busy_wake_ns and _devices(p) > 1)),
+                                and prof.host.busy_wake_ns and p.gpus > 1)),
     Effect("task_gaps",
            "a GPU's idle time between two tasks on a queue (task_gap_ns); off: none",
            "a GPU the schedule uses has task_gap_ns > 0",

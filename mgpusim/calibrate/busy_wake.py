@@ -17,11 +17,10 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from ..program import build_program
 from ..sim.busy_wake import FILLS_CORES
 from ..tasks import CopyTask, PassTask
 from ..waits import LONG_WAIT_NS, ready_times
-from .runs import Run
+from .runs import Run, tasks_by_name
 
 
 #: A copy is left behind when its delay is over this (the model's own hand-off gaps on lavapipe
@@ -59,8 +58,7 @@ def fit_busy_wake(runs: Sequence[Run], profile_data: Mapping[str, Any],
     for exp, trace in runs:
         if exp.schedule.gpus < 2:
             continue
-        program = build_program(exp)
-        tasks = {t.name: t for tpl in program.templates for t in tpl}
+        tasks = tasks_by_name(exp)
         filling = {name for name, t in tasks.items()
                    if isinstance(t, PassTask) and _fills(profile_data, t.kind)}
         copies = {name for name, t in tasks.items() if isinstance(t, CopyTask)}

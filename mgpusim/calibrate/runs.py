@@ -36,6 +36,11 @@ from .profile_out import cost_table
 Run = tuple[Experiment, pd.DataFrame]  # an experiment and its measured trace
 
 
+def tasks_by_name(exp: Experiment) -> dict[str, Task]:
+    """The tasks of an experiment's program by the names its traces use."""
+    return {t.name: t for tpl in build_program(exp).templates for t in tpl}
+
+
 def fit_passes_from_runs(runs: Sequence[Run], kinds: Sequence[str] = (), gpus: int | None = None,
                          terms: Sequence[str] | None = None,
                          shapes: Mapping[str, Mapping[str, float]] | None = None) -> dict[str, Fit]:
@@ -115,8 +120,7 @@ def _alone_instances(runs: Sequence[Run]) -> Iterator[tuple[Task, int]]:
     for exp, trace in runs:
         if exp.schedule.gpus < 2:
             continue
-        program = build_program(exp)
-        tasks = {t.name: t for tpl in program.templates for t in tpl}
+        tasks = tasks_by_name(exp)
         steady = trace[(trace["frame"] >= exp.schedule.warmup_frames) & (trace["device"] != "host")]
         passes = steady[steady["task"].map(lambda n: isinstance(tasks.get(n), PassTask))]
         for row in steady.itertuples():
@@ -172,8 +176,7 @@ def fit_host_copy_wake(runs: Sequence[Run]) -> tuple[int, int] | None:
         host = steady[steady["device"] == "host"]
         if host.empty:
             continue
-        program = build_program(exp)
-        tasks = {t.name: t for tpl in program.templates for t in tpl}
+        tasks = tasks_by_name(exp)
         device = steady[steady["device"] != "host"]
         ends = {(int(f), t): int(e) for f, t, e in
                 zip(device["frame"], device["task"], device["end_ns"])}

@@ -20,20 +20,20 @@ TWO = Fraction(2)
 def test_a_young_pass_of_another_gpu_makes_a_share_of_its_pairs_wait():
     """A pass of 2 cores x 5000 ns: a copy left behind 50 ns after its start waits `ns`, or the
     9900 core-ns of work the pass has left if less."""
-    bw = BusyWake(share=0.5, ns=4000, window_ns=100)
+    bw = BusyWake(share=0.5, ns=4000, window_ns=100, host_cores=2)
     bw.pass_started("gpu1", 1000, TWO, 5000)
     assert bw.copy_wait("gpu1", 1010) == 0  # its own GPU's pass: not this effect
     assert bw.copy_wait("gpu0", 1050) == 0  # credit 1/2
     assert bw.copy_wait("gpu0", 1060) == 0  # the pair (gpu1's pass, gpu0) counted already
     assert bw.copy_wait("gpu2", 1050) == 4000  # credit 1: waits
     bw.pass_ended("gpu1")
-    long_wait = BusyWake(share=1.0, ns=50_000, window_ns=100)
+    long_wait = BusyWake(share=1.0, ns=50_000, window_ns=100, host_cores=2)
     long_wait.pass_started("gpu1", 2000, TWO, 5000)
     assert long_wait.copy_wait("gpu0", 2050) == 9900  # let go when the pass is done
 
 
 def test_a_pass_older_than_the_window_or_ended_delays_nothing():
-    bw = BusyWake(share=1.0, ns=4000, window_ns=100)
+    bw = BusyWake(share=1.0, ns=4000, window_ns=100, host_cores=2)
     bw.pass_started("gpu1", 1000, TWO, 5000)
     assert bw.copy_wait("gpu0", 1101) == 0
     bw.pass_ended("gpu1")
@@ -45,14 +45,14 @@ def test_a_pass_older_than_the_window_or_ended_delays_nothing():
 
 
 def test_only_long_passes_that_fill_the_cores_count():
-    bw = BusyWake(share=1.0, ns=4000, window_ns=100)
-    assert bw.fills(Fraction(199, 100), 2, 5000)
-    assert not bw.fills(Fraction(147, 100), 2, 5000)  # a mesh pass leaves a core free
-    assert not bw.fills(TWO, 2, 99)  # over before the window is
+    bw = BusyWake(share=1.0, ns=4000, window_ns=100, host_cores=2)
+    assert bw.fills(Fraction(199, 100), 5000)
+    assert not bw.fills(Fraction(147, 100), 5000)  # a mesh pass leaves a core free
+    assert not bw.fills(TWO, 99)  # over before the window is
 
 
 def test_the_state_is_relative_to_now_and_forgets_old_pairs():
-    a, b = BusyWake(0.5, 4000, 100), BusyWake(0.5, 4000, 100)
+    a, b = BusyWake(0.5, 4000, 100, 2), BusyWake(0.5, 4000, 100, 2)
     a.pass_started("gpu1", 1000, TWO, 5000)
     b.pass_started("gpu1", 5000, TWO, 5000)
     assert a.state(1040) == b.state(5040)

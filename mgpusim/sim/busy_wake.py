@@ -30,17 +30,18 @@ class BusyWake:
     """The effect's state in one simulation: which GPUs' core-filling passes are running, since
     when and with how much work, which (pass, GPU) pairs have counted, and the credit."""
 
-    def __init__(self, share: float, ns: int, window_ns: int) -> None:
+    def __init__(self, share: float, ns: int, window_ns: int, host_cores: int) -> None:
         self.share, self.ns, self.window_ns = Fraction(repr(share)), ns, window_ns
+        self._filling_cores = FILLS_CORES * host_cores
         self._credit = Fraction(0)
         self._running: dict[str, int] = defaultdict(int)  # device -> filling passes running
         #: device -> its latest filling pass: (start, cores, work in core-ns)
         self._latest: dict[str, tuple[int, Fraction, Fraction]] = {}
         self._counted: set[tuple[str, str]] = set()  # (pass device, copy device)
 
-    def fills(self, cores: Fraction, host_cores: int, duration_ns: int) -> bool:
+    def fills(self, cores: Fraction, duration_ns: int) -> bool:
         """Whether a pass keeping `cores` busy for `duration_ns` (alone) counts as filling."""
-        return cores >= FILLS_CORES * host_cores and duration_ns >= self.window_ns
+        return cores >= self._filling_cores and duration_ns >= self.window_ns
 
     def pass_started(self, device: str, now: int, cores: Fraction, duration_ns: int) -> None:
         self._running[device] += 1

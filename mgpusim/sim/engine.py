@@ -112,7 +112,8 @@ class Engine:
         self._submit_ns = host.submit_ns if submission else 0
         self._host_timeline = bool(self._dispatch_ns or self._submit_ns or self._copy_wake_ns)
         self._cross_done: dict[Key, int] = {}  # instance -> when its last cross-device input ended
-        self._busy_wake = (BusyWake(host.busy_wake_share, host.busy_wake_ns, host.busy_wake_window_ns)
+        self._busy_wake = (BusyWake(host.busy_wake_share, host.busy_wake_ns,
+                                    host.busy_wake_window_ns, host.cpu_cores)
                            if "busy_wake" in effects else None)
         self._waits_for = waits_for_labels(program)
         self.channels: dict[str, Channel | FixedRateChannel] = {}
@@ -220,10 +221,10 @@ class Engine:
             if gap:
                 gap_run = executor.work
         run, amount = executor.task_runner(task, duration)
-        cores = executor.cores(task) if isinstance(task, PassTask) else None
-        fills = (cores if self._busy_wake is not None and cores is not None
-                 and self._busy_wake.fills(cores, self.costs.profile.host.cpu_cores, duration)
-                 else None)
+        fills = None
+        if self._busy_wake is not None and isinstance(task, PassTask):
+            cores = executor.cores(task)
+            fills = cores if self._busy_wake.fills(cores, duration) else None
         return _Op(task, duration, channel, cap, nbytes, task.queue.device_name, task.queue.engine,
                    self._waits_for[phase][task.name], task.name == self.program.present_task,
                    run, amount, gap, gap_run, fill_cores=fills)

@@ -11,13 +11,16 @@ host's scheduler: they are measured per (pass, other GPU) pair, with the definit
 applies (mgpusim.sim.busy_wake)."""
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
 
+from ..profile import parse_profile
 from ..sim.busy_wake import FILLS_CORES
+from ..sim.executors import task_cores
 from ..tasks import CopyTask, PassTask
 from ..waits import LONG_WAIT_NS, ready_times
 from .runs import Run, tasks_by_name
@@ -54,13 +57,14 @@ def fit_busy_wake(runs: Sequence[Run], profile_data: Mapping[str, Any],
     is left behind when the delay is over LEFT_BEHIND_NS and over LONG_WAIT_NS or half the
     pass's remaining time (its end less the copy's ready time) if less: a short pass lets the
     copy go when it ends (the model cuts the wait there too)."""
+    profile = parse_profile(copy.deepcopy(dict(profile_data)), "<calibration>")
     pairs: list[tuple[int, int]] = []
     for exp, trace in runs:
         if exp.schedule.gpus < 2:
             continue
         tasks = tasks_by_name(exp)
-        filling = {name for name, t in tasks.items()
-                   if isinstance(t, PassTask) and _fills(profile_data, t.kind)}
+        filling = {name for name, t in tasks.items() if isinstance(t, PassTask)
+                   and task_cores(profile, t) >= FILLS_CORES * profile.host.cpu_cores}
         copies = {name for name, t in tasks.items() if isinstance(t, CopyTask)}
         steady = trace[trace["frame"] >= exp.schedule.warmup_frames].reset_index(drop=True)
         pairs += young_pass_delays(steady, filling, copies, window_ns)
@@ -105,15 +109,3 @@ def young_pass_delays(trace: pd.DataFrame, filling: set[str], copies: set[str],
         if pair not in first or at < first[pair][0]:
             first[pair] = (at, int(row.end_ns - at - median[row.task]), int(f_end[j] - at))
     return [(delay, left) for _at, delay, left in first.values()]
-
-
-def _fills(profile_data: Mapping[str, Any], kind: str) -> bool:
-    """Whether a pass kind keeps every host core busy, as the model's executor reads the
-    profile (its `cores`, at most the GPU's rasterizer threads and the host's cores; the first
-    GPU entry's, as CPU-emulated GPUs are all of one kind)."""
-    gpus = profile_data.get("gpus") or [{}]
-    cores = float(profile_data["host"]["cpu_cores"])
-    most = min(float(gpus[0].get("cpu_threads") or cores), cores)
-    cost = gpus[0].get("costs", {}).get(kind, {})
-    kind_cores = min(float(cost["cores"]), most) if cost.get("cores") is not None else most
-    return kind_cores >= float(FILLS_CORES) * cores

@@ -125,17 +125,8 @@ class SharedCores:
         return lambda ns: self.channel.transfer(ns, 1)
 
     def cores(self, task: Task) -> Fraction:
-        """Cores a task keeps busy: a copy the queue thread, a pass its kind's measured
-        `cores`, else the GPU's rasterizer threads."""
-        host = self.costs.profile.host
-        if isinstance(task, (CopyTask, HostCopyTask)):
-            return Fraction(1)
-        gpu = self.costs.profile.gpus[task.queue.device]
-        threads = Fraction(min(gpu.cpu_threads or host.cpu_cores, host.cpu_cores))
-        cost = gpu.costs.get(task.kind) if isinstance(task, PassTask) else None
-        if cost is None or cost.cores is None:
-            return threads
-        return min(Fraction(repr(cost.cores)).limit_denominator(1000), threads)
+        """Cores a task keeps busy (see `task_cores`)."""
+        return task_cores(self.costs.profile, task)
 
 
 class SharedGpu(Dedicated):
@@ -168,6 +159,20 @@ class SharedGpu(Dedicated):
 #: What a piece of work on a shared GPU is, for its overlap efficiencies: its queue and its
 #: pass kind ("copy" for a copy).
 WorkTag = tuple[QueueRef, str]
+
+
+def task_cores(profile: HardwareProfile, task: Task) -> Fraction:
+    """Cores a task of CPU-emulated GPUs keeps busy: a copy the queue thread, a pass its kind's
+    measured `cores`, else the GPU's rasterizer threads (never more than the host's cores)."""
+    host = profile.host
+    if isinstance(task, (CopyTask, HostCopyTask)):
+        return Fraction(1)
+    gpu = profile.gpus[task.queue.device]
+    threads = Fraction(min(gpu.cpu_threads or host.cpu_cores, host.cpu_cores))
+    cost = gpu.costs.get(task.kind) if isinstance(task, PassTask) else None
+    if cost is None or cost.cores is None:
+        return threads
+    return min(Fraction(repr(cost.cores)).limit_denominator(1000), threads)
 
 
 def work_tag(task: Task) -> WorkTag:

@@ -126,6 +126,27 @@ def test_host_copy_wake_is_measured_from_the_runs():
     assert fit_host_copy_wake([(alone, simulate(alone).trace)]) is None
 
 
+def test_host_copy_wait_is_split_between_wake_and_dispatch():
+    """A host copy waits its thread's wake latency and then the dispatch work: the measured
+    wait (500 ns here) holds both, so the grid gives the wake what is left after each trial's
+    dispatch, and gets back the 300 ns wake and 200 ns dispatch that made the runs (counting
+    the whole wait as the wake would make every host copy start 200 ns late)."""
+    from mgpusim.calibrate.runs import copy_wake_after_dispatch, fit_host_copy_wake
+    prof = profile_dict(gpus=2)
+    prof["host"].update(host_copy_wake_ns=300, dispatch_ns=200)
+    made = [make_experiment(copy.deepcopy(prof), gpus=2, width=w, height=16, iterations=it,
+                            frames=12) for w, it in ((32, 40), (64, 10))]
+    measured = [(exp, simulate(exp).trace) for exp in made]
+    wait, _copies = fit_host_copy_wake(measured)
+    assert wait == 500
+    start = copy.deepcopy(prof)
+    start["host"].update(host_copy_wake_ns=wait, dispatch_ns=0)
+    found, score = fit_host_effects(start, measured, {"dispatch_ns": (0, 100, 200, 400)}, wait)
+    assert found == {"dispatch_ns": 200, "host_copy_wake_ns": 300}
+    assert score == pytest.approx(0.0, abs=1e-9)
+    assert copy_wake_after_dispatch(150, 200) == 0  # never negative
+
+
 def test_copy_setup_is_measured_on_the_runs_copies():
     """Copies that cost 700 ns more than bytes over the link are found to have a 700 ns fixed
     cost on their queue family, whatever the profile being fitted says it is; 1-GPU runs (no

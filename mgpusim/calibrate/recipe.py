@@ -31,8 +31,9 @@ from .busy_wake import fit_busy_wake
 from .fit import fit_nonnegative
 from .model import calibrate, read_measurements
 from .profile_out import apply, lavapipe_base, report
-from .runs import (Run, fit_alone_scales, fit_copy_setup, fit_host_copy_wake, fit_host_effects,
-                   fit_passes_from_runs, fit_task_gap, with_alone_scales, with_pass_fits)
+from .runs import (Run, copy_wake_after_dispatch, fit_alone_scales, fit_copy_setup,
+                   fit_host_copy_wake, fit_host_effects, fit_passes_from_runs, fit_task_gap,
+                   with_alone_scales, with_pass_fits)
 
 
 def profile_from_tables(recipe: Any, tables: Sequence[Path], profile: Path,
@@ -87,16 +88,20 @@ def refine_on_runs(recipe: Any, data: dict[str, Any], runs: Sequence[Run]) -> tu
                 gpu.setdefault("copy", {}).setdefault(family, {})["fixed_ns"] = fixed
             lines.append(f"copy on {family}: fixed_ns = {fixed} (median of the runs' copies alone on "
                          f"the cores, {count} copies, less bytes over the microbenchmarks' rate)")
+    copy_wait = None
     if recipe.host_copy_wake:
         wake = fit_host_copy_wake(runs)
         if wake is not None:
-            data["host"]["host_copy_wake_ns"] = wake[0]
-            lines.append(f"host host_copy_wake_ns = {wake[0]} (median from a host copy's device input "
-                         f"to its start, idle copy thread, {wake[1]} copies)")
+            copy_wait = wake[0]
+            dispatch = int(data["host"].get("dispatch_ns", 0))
+            data["host"]["host_copy_wake_ns"] = copy_wake_after_dispatch(copy_wait, dispatch)
+            lines.append(f"host copy wait {copy_wait} ns (median from a host copy's device input to "
+                         f"its start, idle copy thread, {wake[1]} copies) = host_copy_wake_ns + "
+                         f"dispatch_ns (the grid search below splits it)")
     if recipe.busy_wake:
         lines.append(_busy_wake(data, runs))
     if recipe.host_grid:
-        found, score = fit_host_effects(data, runs, dict(recipe.host_grid))
+        found, score = fit_host_effects(data, runs, dict(recipe.host_grid), copy_wait)
         data["host"].update(found)
         lines.append(f"host {found} (grid search; mean |frame-time error| {score:.1%} on the "
                      f"calibration runs)")

@@ -169,7 +169,9 @@ def fit_host_copy_wake(runs: Sequence[Run]) -> tuple[int, int] | None:
 
     Why measured, not searched: it is one hop the trace shows directly (0.15-0.4 ms on lavapipe,
     where the model had none), and the grid's `dispatch_ns`, shared with every submit thread
-    waking on a device, could not take it without making the GPU-to-GPU hand-offs too slow."""
+    waking on a device, could not take it without making the GPU-to-GPU hand-offs too slow.
+    The median is the whole wait, the model's wake latency and its dispatch work together:
+    :func:`copy_wake_after_dispatch` splits it once `dispatch_ns` is known."""
     gaps: list[float] = []
     for exp, trace in runs:
         steady = trace[trace["frame"] >= exp.schedule.warmup_frames]
@@ -194,6 +196,12 @@ def fit_host_copy_wake(runs: Sequence[Run]) -> tuple[int, int] | None:
     if not gaps:
         return None
     return int(np.median(gaps)), len(gaps)
+
+
+def copy_wake_after_dispatch(wait_ns: int, dispatch_ns: int) -> int:
+    """The host-copy thread's wake latency that, followed by `dispatch_ns` of dispatch work,
+    makes the measured wait `wait_ns` (the model spends both before a host copy starts)."""
+    return max(0, int(wait_ns) - int(dispatch_ns))
 
 
 def fit_copy_setup(runs: Sequence[Run], profile_data: dict[str, Any]) -> dict[str, tuple[int, int]]:
@@ -246,13 +254,16 @@ HOST_GRID: dict[str, tuple] = {
 
 
 def fit_host_effects(profile_data: dict[str, Any], runs: Sequence[Run],
-                     grid: dict[str, tuple] | None = None) -> tuple[dict[str, Any], float]:
+                     grid: dict[str, tuple] | None = None,
+                     copy_wait_ns: int | None = None) -> tuple[dict[str, Any], float]:
     """The host effects (dispatch cost, per-task submit time, oversubscribed-core efficiency)
     that minimise the mean |frame-time error| over all calibration runs: a grid search, since
     there are three parameters, few runs, and each evaluation is a short simulation. Single-GPU
     runs take part too: a submit thread that is too slow would throttle them. The trials are
     shared among the machine's cores (a study's calibration waits on nothing else); the first
-    trial of the lowest error wins, whatever the number of processes."""
+    trial of the lowest error wins, whatever the number of processes. `copy_wait_ns`: the
+    measured wait before a host copy (:func:`fit_host_copy_wake`); each trial's
+    `host_copy_wake_ns` is what is left of it after the trial's `dispatch_ns`."""
     grid = grid or HOST_GRID
     multi = list(runs)
     host = profile_data["host"]
@@ -262,6 +273,10 @@ def fit_host_effects(profile_data: dict[str, Any], runs: Sequence[Run],
     measured = [steady_summary(trace, exp.schedule.warmup_frames)["frame_time_ms"]
                 for exp, trace in multi]
     trials = [dict(zip(grid, values)) for values in itertools.product(*grid.values())]
+    if copy_wait_ns is not None:
+        for trial in trials:
+            trial["host_copy_wake_ns"] = copy_wake_after_dispatch(
+                copy_wait_ns, trial.get("dispatch_ns", host.get("dispatch_ns", 0)))
     scores = _trial_scores(profile_data, [exp for exp, _ in multi], measured, trials)
     best = 0
     for i, score in enumerate(scores):

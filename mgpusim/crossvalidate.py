@@ -10,14 +10,14 @@ from pathlib import Path
 from typing import Any
 
 from .experiment import Experiment
-from .measured import read_measured
+from .measured import read_measured, read_submissions
 from .output import frame_window, write_json, write_table, write_text
 from .perfetto import chrome_trace_json
 from .plot import comparison_png
 from .repeated_runs import measure_repeated, run_spread
 from .simulate import simulate
 from .validate import compare
-from .waits import LONG_WAIT_NS
+from .waits import LONG_WAIT_NS, host_split
 
 #: The report lists the hand-offs whose mean wait differs by at least this much (ms), at most
 #: this many: the ones that explain a frame-time error, not every task.
@@ -40,6 +40,9 @@ def validate_experiment(exp: Experiment, out: Path, measured_dir: Path | None = 
     report["config"] = {**sim.config, "overrides_from": exp.file}  # simulate's own run_config
     report["measured_spread"], report["measured_runs"] = run_spread(measured_dir)
     report["measured_from"] = str(measured_dir)
+    submissions = read_submissions(measured_dir)
+    if submissions is not None:
+        report["measured_host_split"] = host_split(measured, submissions, exp.schedule.warmup_frames)
     out.mkdir(parents=True, exist_ok=True)
     write_json(report, out / "summary.json")
     write_table(sim.trace, out / "simulated_trace.parquet")
@@ -65,8 +68,14 @@ def format_report(exp: Experiment, r: dict[str, Any]) -> str:
              if abs(w["difference_ms"]) >= SHOWN_WAIT_MS][:SHOWN_WAITS]
     if waits:
         lines.append("  waits from ready to start, mean (ms), where they differ most:")
-        lines += [f"    {edge}: {w['measured_ms']:.3f} measured ({w['measured_long_share']:.0%} over "
-                  f"{LONG_WAIT_NS / 1e6:g} ms), {w['simulated_ms']:.3f} simulated" for edge, w in waits]
+        split = r.get("measured_host_split", {})
+        for edge, w in waits:
+            lines.append(f"    {edge}: {w['measured_ms']:.3f} measured ({w['measured_long_share']:.0%} "
+                         f"over {LONG_WAIT_NS / 1e6:g} ms), {w['simulated_ms']:.3f} simulated")
+            if edge in split:  # where the measured wait went, at the submit thread
+                h = split[edge]
+                lines.append(f"      measured: inputs seen after {h['input_seen_ms']:.3f}, submit "
+                             f"called {h['submit_call_ms']:.3f} later, started {h['device_start_ms']:.3f} later")
     if r.get("measured_runs", 1) > 1:
         lines.append(f"  measured: steady window of {r['measured_runs']} runs; the whole runs' frame "
                      f"times spread {r['measured_spread']:.1%} (the machine's own noise)")

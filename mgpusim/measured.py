@@ -14,8 +14,10 @@ from .errors import InputError
 from .experiment import Experiment
 from .measured_check import (check_physical_gpus, check_recorded_config, check_trace,
                              read_json_object, read_table)
+from .trace import SUBMISSION_COLUMNS
 
 TRACE_FILES = ("trace.parquet", "trace.csv")
+SUBMISSION_FILES = ("submissions.parquet", "submissions.csv")
 
 
 def read_measured(folder: Path, exp: Experiment) -> pd.DataFrame:
@@ -40,3 +42,18 @@ def read_measured(folder: Path, exp: Experiment) -> pd.DataFrame:
     if machine.is_file():
         check_physical_gpus(read_json_object(machine), exp, str(machine))
     return trace
+
+
+def read_submissions(folder: Path) -> pd.DataFrame | None:
+    """The host side of a measured run's submissions (:data:`mgpusim.trace.SUBMISSION_COLUMNS`),
+    or None where the folder has none (runs saved before the runner recorded them)."""
+    for name in SUBMISSION_FILES:
+        path = folder / name
+        if path.is_file():
+            table = read_table(path)
+            missing = [c for c in SUBMISSION_COLUMNS if c not in table.columns]
+            if missing:
+                raise InputError(f"missing columns {missing} (expected {', '.join(SUBMISSION_COLUMNS)})",
+                                 file=str(path))
+            return table
+    return None

@@ -73,10 +73,13 @@ def _jsonable(value: Any) -> Any:
 
 def write_measured(result: Any, out: Path, trace_format: str = "csv") -> Path:
     """A measured run (`mgpusim.runner.RunResult`) as `validate --measured` reads it: trace,
-    frames, summary.json with the configuration, machine.json."""
+    frames, the host side of its submissions (when it has any), summary.json with the
+    configuration, machine.json."""
     out.mkdir(parents=True, exist_ok=True)
     write_table(result.trace, out / f"trace.{trace_format}")
     write_table(result.frames, out / f"frames.{trace_format}")
+    if result.submissions is not None and len(result.submissions):
+        write_table(result.submissions, out / f"submissions.{trace_format}")
     write_json({**result.summary, "config": result.config}, out / "summary.json")
     write_json(result.machine, out / "machine.json")
     return out

@@ -43,6 +43,8 @@ def write_steady_window(exp: Experiment, runs: list[tuple[str, Any]], out: Path)
     steady = out / "steady"
     steady.mkdir(parents=True, exist_ok=True)
     write_table(sw.window_trace(chosen.trace, window, warmup), steady / "trace.csv")
+    if chosen.submissions is not None and len(chosen.submissions):  # same frames, renumbered
+        write_table(sw.window_trace(chosen.submissions, window, warmup), steady / "submissions.csv")
     choice = {"policy": f"window at quantile {sw.QUANTILE} of frame time, windows of at least "
                         f"{sw.WINDOW_MS:g} ms and {sw.MIN_PERIODS} frame periods",
               "run": name, "frames": [window.first, window.last],

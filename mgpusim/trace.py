@@ -20,6 +20,13 @@ TRACE_DTYPES: dict[str, str] = {
     "waits_for": "string",
 }
 FRAME_COLUMNS: tuple[str, ...] = ("frame", "start_ns", "present_ns", "latency_ns")
+#: A measured run's host side of each GPU task (host clock, as the trace): when its submit
+#: thread had seen every input it waits for on the host (another device's fence, a host copy),
+#: and when it called vkQueueSubmit and got control back. Splits a hand-off's wait into the
+#: thread waking, its own work before the submit, and the device picking the work up.
+SUBMISSION_COLUMNS: tuple[str, ...] = (
+    "frame", "device", "engine", "task", "inputs_seen_ns", "submit_ns", "submitted_ns",
+)
 
 
 @functools.cache
@@ -34,3 +41,11 @@ def make_trace(rows: list[tuple]) -> pd.DataFrame:
     df = pd.DataFrame.from_records(rows, columns=list(TRACE_COLUMNS))
     df = df.astype(TRACE_DTYPES)
     return df.sort_values(["start_ns", "end_ns", "device", "engine"], kind="stable").reset_index(drop=True)
+
+
+def make_submissions(rows: list[tuple]) -> pd.DataFrame:
+    """Build a submissions table from row tuples in SUBMISSION_COLUMNS order, by submit time."""
+    df = pd.DataFrame.from_records(rows, columns=list(SUBMISSION_COLUMNS))
+    df = df.astype({"frame": "int64", "device": "string", "engine": "string", "task": "string",
+                    "inputs_seen_ns": "int64", "submit_ns": "int64", "submitted_ns": "int64"})
+    return df.sort_values(["submit_ns", "device"], kind="stable").reset_index(drop=True)

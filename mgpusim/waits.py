@@ -94,3 +94,32 @@ def compare_waits(measured: pd.DataFrame, simulated: pd.DataFrame,
                    "measured_long_share": m[edge]["long_share"], "measured_count": m[edge]["count"]}
             for edge in set(m) & set(s)}
     return dict(sorted(rows.items(), key=lambda kv: (-abs(kv[1]["difference_ms"]), kv[0])))
+
+
+def host_split(trace: pd.DataFrame, submissions: pd.DataFrame,
+               first_frame: int) -> dict[str, dict[str, float]]:
+    """Per hand-off bound by an input (not by the task before it on its queue), the measured
+    wait split at the submit thread, mean ms: `input_seen_ms` from the input's end until the
+    thread had seen all its inputs, `submit_call_ms` from then to its vkQueueSubmit call (its
+    own work, and its turn at the interpreter), `device_start_ms` from that call to the task's
+    start (the submit itself and the device picking the work up); `count`. Largest wait
+    first. Where a model's one `dispatch_ns` is wrong for some hand-offs, this says which part
+    of the wait it misses."""
+    trace = trace.reset_index(drop=True)
+    ready = ready_times(trace)
+    keep = (ready["ready_ns"].notna() & (ready["binding"] != "queue")
+            & (trace["frame"] >= first_frame)).to_numpy()
+    rows = trace[keep].assign(ready_ns=ready["ready_ns"][keep],
+                              edge=ready["binding"][keep] + " -> " + trace["task"][keep])
+    host = submissions[["frame", "task", "inputs_seen_ns", "submit_ns"]].astype(
+        {"frame": "int64", "task": "string"})
+    rows = rows.astype({"task": "string"}).merge(host, on=["frame", "task"], how="inner")
+    parts = pd.DataFrame({"edge": rows["edge"],
+                          "input_seen_ms": (rows["inputs_seen_ns"] - rows["ready_ns"]) / 1e6,
+                          "submit_call_ms": (rows["submit_ns"] - rows["inputs_seen_ns"]) / 1e6,
+                          "device_start_ms": (rows["start_ns"] - rows["submit_ns"]) / 1e6})
+    out = {str(edge): {**{k: float(v) for k, v in g.drop(columns="edge").mean().items()},
+                       "count": int(len(g))}
+           for edge, g in parts.groupby("edge")}
+    total = {e: v["input_seen_ms"] + v["submit_call_ms"] + v["device_start_ms"] for e, v in out.items()}
+    return dict(sorted(out.items(), key=lambda kv: (-total[kv[0]], kv[0])))

@@ -58,3 +58,28 @@ def test_window_trace_summarises_to_the_window_frame_time():
     cut = sw.window_trace(trace, fast, warmup_frames=2)
     assert cut["frame"].min() == 0 and cut["frame"].max() == fast.last - fast.first + 2
     assert steady_summary(cut, 2)["frame_time_ms"] == pytest.approx(fast.frame_time_ms)
+
+
+def test_the_steady_folder_keeps_the_window_of_the_host_side_too(tmp_path):
+    """A study keeps only the steady window of its runs: the submissions table is cut to the
+    same frames, renumbered as the trace is, so the two still join row by row."""
+    from types import SimpleNamespace
+
+    from mgpusim.repeated_runs import write_steady_window
+    from mgpusim.trace import make_submissions
+
+    def result(periods):
+        trace = run_trace(periods)
+        subs = make_submissions([(f, d, e, t, s - 50, s - 40, s - 30) for f, d, e, t, s in zip(
+            trace["frame"], trace["device"], trace["engine"], trace["task"], trace["start_ns"])])
+        return SimpleNamespace(trace=trace, frames=frames_from_trace(trace), submissions=subs,
+                               config={}, machine={}, summary={"frame_time_ms": 0.0})
+
+    exp = SimpleNamespace(schedule=SimpleNamespace(warmup_frames=2))
+    runs = [("run0", result([10.0] * 30)), ("run1", result([10.0] * 10 + [6.0] * 10 + [10.0] * 10))]
+    steady = write_steady_window(exp, runs, tmp_path)
+    trace = pd.read_csv(steady / "trace.csv")
+    subs = pd.read_csv(steady / "submissions.csv")
+    joined = trace.merge(subs, on=["frame", "device", "engine", "task"])
+    assert len(joined) == len(trace) == len(subs) and trace["frame"].min() == 0
+    assert ((joined["start_ns"] - joined["submit_ns"]) == 40).all()

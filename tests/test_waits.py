@@ -97,3 +97,21 @@ def test_a_host_copy_ends_with_its_last_part():
             (0, "gpu1", "graphics", "in", "in.h2d", 4 * MS, 5 * MS, 0, "0:host_copy")]
     waits = ready_waits(make_trace(rows)).set_index("edge")["wait_ns"]
     assert waits["0:host_copy -> in.h2d"] == MS  # from the second part's end at 3 ms
+
+
+def test_the_host_split_says_where_a_measured_hand_off_went():
+    """out.h2d of frame 1 is ready when GPU 1's d2h ends (5 ms into the frame, 3 ms before it
+    starts): its submit thread saw that 1 ms later, called the submit 0.5 ms after that, and
+    the device started it 1.5 ms after the call. Hand-offs bound by their queue are left out,
+    as is a task without a submissions row."""
+    from mgpusim.trace import make_submissions
+    from mgpusim.waits import host_split
+    trace = _afr_frames(3 * MS)
+    d2h_end = 15 * MS
+    rows = [(1, "gpu0", "graphics", "out.h2d", d2h_end + MS, d2h_end + MS + MS // 2,
+             d2h_end + 2 * MS),
+            (1, "gpu1", "graphics", "render", 9 * MS, 9 * MS, 10 * MS)]
+    split = host_split(trace, make_submissions(rows), 0)
+    assert list(split) == ["0:out.d2h -> out.h2d"]
+    assert split["0:out.d2h -> out.h2d"] == pytest.approx(
+        {"input_seen_ms": 1.0, "submit_call_ms": 0.5, "device_start_ms": 1.5, "count": 1})

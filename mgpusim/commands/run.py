@@ -2,7 +2,8 @@
 
 Executes the experiment's schedule (the very FrameProgram `simulate` runs) on Vulkan devices and
 writes what `mgpusim validate --measured DIR` reads: trace.csv|parquet, frames.csv|parquet,
-summary.json (with the config), machine.json, and image.png (the final displayed frame).
+submissions.csv|parquet (the host side of each GPU task), summary.json (with the config),
+machine.json, and image.png (the final displayed frame).
 """
 from __future__ import annotations
 

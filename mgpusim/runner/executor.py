@@ -60,7 +60,8 @@ class _Abort(Exception):
 
 
 class Executor:
-    """Runs `nodes` once; `rows` are trace tuples (TRACE_COLUMNS order, absolute host ns).
+    """Runs `nodes` once; `rows` are trace tuples (TRACE_COLUMNS order, absolute host ns),
+    `submissions` the host side of each GPU task (SUBMISSION_COLUMNS order, absolute host ns).
 
     Skippable tasks (`skip_if_busy`, the particle demo's "new wait") follow the simulator's
     rule (:class:`mgpusim.sim.skipping.SkipChains`), decided when the task's stream reaches it
@@ -75,6 +76,7 @@ class Executor:
         self.abort = threading.Event()
         self.errors: list[BaseException] = []
         self.rows: list[tuple] = []
+        self.submissions: list[tuple] = []
         self._rows_lock = threading.Lock()
         self._sem_pool: dict[int, list[Any]] = defaultdict(list)
         self._sem_lock = threading.Lock()
@@ -230,6 +232,7 @@ class Executor:
                     self._wait(prod.submitted, node, f"{prod.label} to be submitted")
                     if not prod.skipped:
                         node.waits.append(prod.signals.pop(id(node)))
+            seen = time.monotonic_ns()
             if self.abort.is_set():
                 raise _Abort()
             if self._skipped(node):
@@ -243,10 +246,14 @@ class Executor:
                 node.signals[id(cons)] = self._semaphore(work.gpu)
             frame = node.frame
             choice = work.choose(frame, self) if work.choose is not None else None
+            call = time.monotonic_ns()
             node.submission = work.gpu.submit(
                 work.queue, lambda cmd, r=work.record, f=frame, c=choice: r(cmd, f, c),
                 wait=node.waits, signal=list(node.signals.values()), label=node.label,
                 key=work.key(frame, choice))
+            with self._rows_lock:
+                self.submissions.append((frame, f"gpu{work.device}", work.engine, node.task.name,
+                                         seen, call, time.monotonic_ns()))
             if node.task.skip_if_busy and self._chains is not None:
                 with self._skip_lock:
                     if not node.completed.is_set():

@@ -22,7 +22,7 @@ from ..profile import HardwareProfile
 from ..program import build_program, run_config
 from ..results import frames_from_trace, summarize, task_rates
 from ..schedules.base import FrameProgram
-from ..trace import make_trace
+from ..trace import make_submissions, make_trace
 from ..vulkan.copies import download
 from ..vulkan.device import Gpu
 from .executor import Executor
@@ -45,6 +45,8 @@ class RunResult:
     machine: dict[str, Any] = field(default_factory=dict)
     #: resources named in `read=`, every buffered copy, as bytes (uint8) after the run
     readback: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    #: the host side of each GPU task (:data:`mgpusim.trace.SUBMISSION_COLUMNS`), same clock
+    submissions: pd.DataFrame | None = None
 
 
 def run_program(program: FrameProgram, gpus: Sequence[Gpu], *, host_threads: int = 1,
@@ -93,8 +95,10 @@ def run_program(program: FrameProgram, gpus: Sequence[Gpu], *, host_threads: int
             obj.destroy()
         res.destroy()
     origin = min(r[5] for r in rows)
+    submitted = timed.submissions
     if rebase:
         rows = [r[:5] + (r[5] - origin, r[6] - origin) + r[7:] for r in rows]
+        submitted = [r[:4] + tuple(t - origin for t in r[4:]) for r in submitted]
     trace = make_trace(rows)
     frames = frames_from_trace(trace, _present_step(program))
     summary = summarize(frames, trace, program.warmup_frames)
@@ -107,7 +111,8 @@ def run_program(program: FrameProgram, gpus: Sequence[Gpu], *, host_threads: int
     if fallbacks:
         summary["queue_fallbacks"] = fallbacks
     _skips(program, timed, summary)
-    return RunResult(summary, trace, frames, image, depth, readback=readback)
+    return RunResult(summary, trace, frames, image, depth, readback=readback,
+                     submissions=make_submissions(submitted))
 
 
 def _skips(program: FrameProgram, timed: Executor, summary: dict[str, Any]) -> None:

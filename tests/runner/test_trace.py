@@ -8,7 +8,7 @@ from mgpusim.errors import ScheduleError
 from mgpusim.runner import run_experiment
 from mgpusim.program import build_program
 from mgpusim.simulate import simulate
-from mgpusim.trace import TRACE_COLUMNS
+from mgpusim.trace import SUBMISSION_COLUMNS, TRACE_COLUMNS
 
 from .conftest import experiment, lavapipe_profile
 from .trace_checks import assert_dependencies_honoured
@@ -55,6 +55,31 @@ def test_dependencies_and_queue_order_are_honoured(sort_first_3):
     s = measured.summary
     assert s["frame_time_ms"] > 0 and s["frames"] == 6 and set(s["step_mean_ms"]) == {
         "render", "d2h", "host_copy", "h2d", "composite", "present"}
+
+
+def test_every_gpu_task_has_its_host_side(sort_first_3):
+    """Each GPU task of the trace has one submissions row on the same clock: its submit thread
+    saw its inputs, then called vkQueueSubmit, then got control back; every input that another
+    device or the host produced had ended by then, and the task started after the call (the
+    device timestamps are mapped to the host clock to within a few microseconds)."""
+    from mgpusim.waits import host_split
+    exp, measured = sort_first_3
+    sub, tr = measured.submissions, measured.trace
+    gpu = tr[tr["device"] != "host"]
+    assert list(sub.columns) == list(SUBMISSION_COLUMNS)
+    assert len(sub) == len(gpu)
+    joined = gpu.merge(sub, on=["frame", "device", "engine", "task"], how="inner")
+    assert len(joined) == len(gpu)
+    assert (joined["inputs_seen_ns"] <= joined["submit_ns"]).all()
+    assert (joined["submit_ns"] <= joined["submitted_ns"]).all()
+    assert (joined["start_ns"] >= joined["submit_ns"] - 50_000).all()
+    host = tr[tr["device"] == "host"].groupby(["frame", "task"])["end_ns"].max()  # all parts
+    h2d = joined[joined["step"] == "h2d"]  # h2dK waits on the host for host_copyK of its frame
+    copied = [host[(row.frame, row.task.replace("h2d", "host_copy"))] for row in h2d.itertuples()]
+    assert len(h2d) == 12 and (h2d["inputs_seen_ns"].to_numpy() >= copied).all()
+    split = host_split(tr, sub, 0)  # hand-offs bound by their host copy (else by the composite)
+    bound = [split[e] for e in ("0:host_copy1 -> h2d1", "0:host_copy2 -> h2d2") if e in split]
+    assert bound and all(p["input_seen_ms"] >= 0 and p["device_start_ms"] > -0.05 for p in bound)
 
 
 def test_without_host_copy_there_is_no_step_3():

@@ -26,13 +26,20 @@ def ready_waits(trace: pd.DataFrame, first_frame: int = 0) -> pd.DataFrame:
     last: ``queue`` for the task before it on its queue, else the input as ``offset:task``,
     then `` -> `` and the task) and `wait_ns` (start - ready; negative where the start was
     recorded before the input's end, as a measured copy slice can be)."""
+    rows = _ready_rows(trace, first_frame).sort_values("order", kind="stable")
+    return pd.DataFrame({"edge": rows["edge"].to_numpy(object),
+                         "wait_ns": rows["start_ns"].to_numpy(np.int64)
+                         - rows["ready_ns"].to_numpy(np.int64)})
+
+
+def _ready_rows(trace: pd.DataFrame, first_frame: int) -> pd.DataFrame:
+    """The rows of frame >= `first_frame` with a known ready time, with :func:`ready_times`'
+    columns and `edge` (what ended last, then `` -> `` and the task)."""
     trace = trace.reset_index(drop=True)
     ready = ready_times(trace)
     keep = ready["ready_ns"].notna() & (trace["frame"] >= first_frame)
-    rows = ready[keep].sort_values("order", kind="stable")
-    starts = trace.loc[rows.index, "start_ns"].to_numpy(np.int64)
-    edges = [f"{b} -> {t}" for b, t in zip(rows["binding"], trace.loc[rows.index, "task"])]
-    return pd.DataFrame({"edge": edges, "wait_ns": starts - rows["ready_ns"].to_numpy(np.int64)})
+    rows = trace[keep].join(ready[keep])
+    return rows.assign(edge=rows["binding"] + " -> " + rows["task"].astype(str))
 
 
 def ready_times(trace: pd.DataFrame) -> pd.DataFrame:
@@ -105,21 +112,18 @@ def host_split(trace: pd.DataFrame, submissions: pd.DataFrame,
     start (the submit itself and the device picking the work up); `count`. Largest wait
     first. Where a model's one `dispatch_ns` is wrong for some hand-offs, this says which part
     of the wait it misses."""
-    trace = trace.reset_index(drop=True)
-    ready = ready_times(trace)
-    keep = (ready["ready_ns"].notna() & (ready["binding"] != "queue")
-            & (trace["frame"] >= first_frame)).to_numpy()
-    rows = trace[keep].assign(ready_ns=ready["ready_ns"][keep],
-                              edge=ready["binding"][keep] + " -> " + trace["task"][keep])
+    rows = _ready_rows(trace, first_frame)
+    rows = rows[rows["binding"] != "queue"].astype({"task": "string"})
     host = submissions[["frame", "task", "inputs_seen_ns", "submit_ns"]].astype(
         {"frame": "int64", "task": "string"})
-    rows = rows.astype({"task": "string"}).merge(host, on=["frame", "task"], how="inner")
+    rows = rows.merge(host, on=["frame", "task"], how="inner")
     parts = pd.DataFrame({"edge": rows["edge"],
                           "input_seen_ms": (rows["inputs_seen_ns"] - rows["ready_ns"]) / 1e6,
                           "submit_call_ms": (rows["submit_ns"] - rows["inputs_seen_ns"]) / 1e6,
-                          "device_start_ms": (rows["start_ns"] - rows["submit_ns"]) / 1e6})
-    out = {str(edge): {**{k: float(v) for k, v in g.drop(columns="edge").mean().items()},
-                       "count": int(len(g))}
-           for edge, g in parts.groupby("edge")}
-    total = {e: v["input_seen_ms"] + v["submit_call_ms"] + v["device_start_ms"] for e, v in out.items()}
-    return dict(sorted(out.items(), key=lambda kv: (-total[kv[0]], kv[0])))
+                          "device_start_ms": (rows["start_ns"] - rows["submit_ns"]) / 1e6,
+                          "wait_ms": (rows["start_ns"] - rows["ready_ns"]) / 1e6})
+    means = parts.groupby("edge").mean().sort_values("wait_ms", ascending=False, kind="stable")
+    counts = parts.groupby("edge").size()
+    return {str(edge): {"input_seen_ms": float(m.input_seen_ms), "submit_call_ms": float(m.submit_call_ms),
+                        "device_start_ms": float(m.device_start_ms), "count": int(counts[edge])}
+            for edge, m in means.iterrows()}

@@ -9,7 +9,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import nnls
 
 from ..errors import InputError
 
@@ -60,6 +59,8 @@ def fit_nonnegative(X: np.ndarray, y: np.ndarray, names: list[str], what: str) -
     elif condition > ILL_CONDITIONED:
         warnings.append(f"{what}: ill-conditioned fit (condition number {condition:.3g}); "
                         "coefficients are uncertain, see their stderr")
+    from scipy.optimize import nnls  # noqa: PLC0415 - here, so measuring never needs scipy
+
     maxiter = 50 * max(1, Xs.shape[1])
     try:
         sol, _ = nnls(Xs, np.ones_like(y), maxiter=maxiter)

@@ -15,18 +15,22 @@ SMALL = ["--sweep", "width=32", "--sweep", "height=32", "--sweep", "iterations=1
 
 def test_overlap_table_says_which_families_are_missing(tmp_path, capsys):
     out = tmp_path / "overlap.csv"
+    # five repetitions: the one-queue check below compares medians, as one 0.2 ms repetition
+    # alone can come out slower than a pair on a busy machine
     rc = main(["measure", "--pass", "overlap", "--sweep", "pair=graphics_compute,devices", *SMALL,
-               "--out", str(out)])
+               "--reps", "5", "--out", str(out)])
     assert rc == 0
     printed = capsys.readouterr().out
     assert "no compute family: ran on graphics" in printed and "efficiency" in printed
     df = pd.read_csv(out)
-    assert len(df) == 2 * 2 and set(df["pass"]) == {"overlap"}
+    assert len(df) == 2 * 5 and set(df["pass"]) == {"overlap"}
     assert (df.alone_a_ns > 0).all() and (df.alone_b_ns > 0).all()
     assert ((df.efficiency > 0) & (df.efficiency <= 2)).all()
     one = df[df.pair == "graphics_compute"]
     # lavapipe has one queue family: both pieces ran on its one queue, one after the other
-    assert (one.queue_a == one.queue_b).all() and (one.duration_ns >= one[["alone_a_ns", "alone_b_ns"]].max(axis=1)).all()
+    # (their sum, were it not for noise): the pair's median outlasts the slower piece's median
+    assert (one.queue_a == one.queue_b).all()
+    assert one.duration_ns.median() >= max(one.alone_a_ns.median(), one.alone_b_ns.median())
     two = df[df.pair == "devices"]
     assert (two.queue_a == "gpu0.graphics").all() and (two.queue_b == "gpu1.graphics").all()
     assert (two.gpus == 2).all()

@@ -1,0 +1,29 @@
+#!/usr/bin/env bash
+# On an NVIDIA device machine: measure the lavapipe study on two of its CPU cores (one thread
+# of each of two distinct physical cores), the setting of the 2-core development machine.
+# Needs .gl, .whl (with tqdm and tomli_w), .lvp (scripts/bundle_lavapipe.sh) and .spvcache.
+# Usage: bash scripts/device_lavapipe_job.sh OUTDIR [study measure args...]
+set -euo pipefail
+out=$1; shift
+source .gl/env.sh; source .lvp/env.sh
+export PYTHONPATH=$PWD:$PYTHONPATH MGPUSIM_CACHE=$PWD/.spvcache
+mkdir -p "$out"
+cores=$(python3 - <<'PY'
+import os
+seen, pick = set(), []
+for cpu in sorted(os.sched_getaffinity(0), reverse=True):
+    base = f"/sys/devices/system/cpu/cpu{cpu}/topology/"
+    core = (open(base + "physical_package_id").read().strip(), open(base + "core_id").read().strip())
+    if core not in seen:
+        seen.add(core); pick.append(cpu)
+    if len(pick) == 2:
+        break
+print(",".join(map(str, sorted(pick))))
+PY
+)
+{ echo "cores: $cores"; lscpu; nvidia-smi -L || true; } > "$out/machine.txt" 2>&1
+echo "pinned to CPUs $cores"
+taskset -c "$cores" python3 -m mgpusim devices | tee "$out/devices.txt"
+taskset -c "$cores" python3 -c "from mgpusim.study.speed import measure_probe
+for i in range(3): print([(x['pass'], round(x['median_ms'], 3)) for x in measure_probe('check', 8)])" | tee "$out/speed_check.txt"
+taskset -c "$cores" python3 -m mgpusim study measure experiments/lavapipe/study.toml --out "$out/job" "$@"

@@ -86,7 +86,21 @@ def build_nodes(program: FrameProgram, works: list[dict[str, Work]], frames: int
             node.deps.append((prod, kind))
             if kind == "semaphore":
                 prod.sem_consumers.append(node)
+        node.deps.sort(key=earliest_first)
     return nodes
+
+
+def earliest_first(dep: tuple[Node, EdgeKind]) -> tuple[int, int]:
+    """The order a submit thread checks a node's inputs in: the earliest submitted first.
+
+    Why: each input from another queue costs the thread a fence call, and after the call a
+    turn at the interpreter among the run's busy Python threads. Checked in the task's listed
+    order, XR strong scaling's render waited on the last frame's render first and only then
+    looked at the present and acquire of two frames back, long finished: two more turns after
+    the wake, each up to the switch interval, before the submit. The older inputs are checked
+    while the newest is still running, so only its wake stands between its end and the submit."""
+    producer = dep[0]
+    return producer.frame, producer.index
 
 
 def _edge(prod: Work, cons: Work, same_stream: bool) -> EdgeKind:

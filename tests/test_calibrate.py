@@ -169,7 +169,7 @@ def test_a_fit_that_does_not_converge_is_an_input_error(monkeypatch):
 
     def no_convergence(*args, **kwargs):
         raise RuntimeError("Maximum number of iterations reached.")
-    monkeypatch.setattr(fit_module, "nnls", no_convergence)
+    monkeypatch.setattr("scipy.optimize.nnls", no_convergence)  # imported where it fits
     X = np.array([[1.0, 1.0], [1.0, 2.0], [1.0, 3.0]])
     with pytest.raises(InputError, match="mesh: .*did not converge"):
         fit_module.fit_nonnegative(X, np.array([2.0, 3.0, 4.0]), ["fixed_ns", "ns_per_pixel"], "mesh")

@@ -1,6 +1,6 @@
 """The host-side split of every input-bound hand-off in a job's steady runs (with submissions).
 
-Usage: python handoff_split.py JOB/runs OUT.csv  (prints medians by the number of inputs from other queues
+Usage: python handoff_split.py JOB/runs OUT.csv  (prints medians by the number of inputs from other GPUs
 and by configuration)."""
 import sys, glob, os, pandas as pd, numpy as np
 sys.path.insert(0, str(__import__('pathlib').Path(__file__).resolve().parents[3]))

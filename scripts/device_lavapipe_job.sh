@@ -2,13 +2,14 @@
 # On an NVIDIA device machine: measure the lavapipe study on two of its CPU cores (one thread
 # of each of two distinct physical cores), the setting of the 2-core development machine.
 # Needs .gl, .whl (with tqdm and tomli_w), .lvp (scripts/bundle_lavapipe.sh) and .spvcache.
-# Usage: bash scripts/device_lavapipe_job.sh OUTDIR [study measure args...]
+# Usage: [CORES=a,b] bash scripts/device_lavapipe_job.sh OUTDIR [study measure args...]
+# (default: the two highest-numbered CPUs of distinct cores)
 set -euo pipefail
 out=$1; shift
 source .gl/env.sh; source .lvp/env.sh
 export PYTHONPATH=$PWD:$PYTHONPATH MGPUSIM_CACHE=$PWD/.spvcache
 mkdir -p "$out"
-cores=$(python3 - <<'PY'
+cores=${CORES:-$(python3 - <<'PY'
 import os
 seen, pick = set(), []
 for cpu in sorted(os.sched_getaffinity(0), reverse=True):
@@ -20,7 +21,7 @@ for cpu in sorted(os.sched_getaffinity(0), reverse=True):
         break
 print(",".join(map(str, sorted(pick))))
 PY
-)
+)}
 { echo "cores: $cores"; lscpu; nvidia-smi -L || true; } > "$out/machine.txt" 2>&1
 echo "pinned to CPUs $cores"
 taskset -c "$cores" python3 -m mgpusim devices | tee "$out/devices.txt"

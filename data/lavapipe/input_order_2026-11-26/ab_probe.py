@@ -15,15 +15,13 @@ A record of one experiment, not part of the package.
 """
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
-import pandas as pd
-
 import mgpusim.runner.plan as plan
-from mgpusim.cli import main
-from mgpusim.waits import _ready_rows
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from xr_ab import alternate  # noqa: E402 - the shared A/B loop beside this folder
 
 EARLIEST = plan.earliest_first
 CASES = {"strong2": ["schedule.scaling=strong", "schedule.gpus=2"],
@@ -31,38 +29,13 @@ CASES = {"strong2": ["schedule.scaling=strong", "schedule.gpus=2"],
          "weak2": ["schedule.scaling=weak", "schedule.gpus=2"]}
 
 
-def split(folder: Path) -> dict[str, float]:
-    trace, subs = pd.read_csv(folder / "trace.csv"), pd.read_csv(folder / "submissions.csv")
-    rows = _ready_rows(trace, 1)
-    rows = rows[(rows.binding != "queue") & (rows.step == "render")]
-    rows = rows.merge(subs[["frame", "task", "inputs_seen_ns"]], on=["frame", "task"])
-    summary = json.loads((folder / "summary.json").read_text())
-    return {"frame_ms": summary["frame_time_ms"], "latency_ms": summary["latency_ms"],
-            "handoffs": len(rows),
-            "seen_us": float((rows.inputs_seen_ns - rows.ready_ns).median() / 1e3),
-            "start_us": float((rows.start_ns - rows.ready_ns).median() / 1e3)}
-
-
-def run(out: Path, case: str, variant: str) -> dict[str, float]:
+def use(variant: str) -> None:
     plan.earliest_first = EARLIEST if variant == "earliest" else (lambda dep: 0)
-    sets = [*CASES[case], "schedule.frames=60"]
-    rc = main(["run", "experiments/lavapipe/xr.toml", *[a for s in sets for a in ("--set", s)],
-               "--lp-threads", "8", "--out", str(out)])
-    assert rc == 0, rc
-    return split(out)
 
 
 if __name__ == "__main__":
     root, pairs = Path(sys.argv[1]), int(sys.argv[2]) if len(sys.argv) > 2 else 6
-    rows = []
-    for i in range(pairs):
-        for case in CASES:
-            order = ("listed", "earliest") if i % 2 == 0 else ("earliest", "listed")
-            for variant in order:
-                r = run(root / f"{case}_{i}_{variant}", case, variant)
-                rows.append({"pair": i, "case": case, "variant": variant, **r})
-    df = pd.DataFrame(rows)
-    df.to_csv(root / "ab.csv", index=False)
+    df = alternate(root, pairs, CASES, ("listed", "earliest"), use)
     cols = ["frame_ms", "latency_ms", "seen_us", "start_us"]
     print(df.groupby(["case", "variant"])[cols].median().round(3).to_string())
     ratio = df.pivot_table(index=["case", "pair"], columns="variant", values="frame_ms")

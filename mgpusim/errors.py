@@ -28,3 +28,8 @@ class ScheduleError(MgpusimError):
 
 class DependencyError(MgpusimError):
     """A dependency (package, driver, compiler) is missing; says how to install it."""
+
+
+class UnsteadyMachineError(MgpusimError):
+    """The machine's own speed moved more than the user allowed before a job began: its errors
+    would measure the machine, not the model."""

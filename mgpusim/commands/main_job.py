@@ -1,4 +1,4 @@
-"""`mgpusim main [--out DIR] [--held-out] [--repeats R] [--run-seconds S]`: the lavapipe study
+"""`mgpusim main [--out DIR] [--held-out] [--repeats R] [--run-seconds S] [--steady-check F]`: the lavapipe study
 (measure, calibrate, validate, report), the README's main command."""
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from ..shipped import shipped_dir
 from ..outpath import check_out_dir
 from ..study import pipeline, speed
 from ..study.spec import load_study
-from .study import progress_printer
+from .study import add_steady_check, progress_printer, steady_check
 
 #: The lavapipe study, shipped beside the package's experiments.
 LAVAPIPE_STUDY = shipped_dir("experiments") / "lavapipe" / "study.toml"
@@ -27,6 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--run-seconds", type=float, default=None,
                    help="timed length of each measured run (frames are added to reach it; default: the study's)")
     p.add_argument("--study", type=Path, default=LAVAPIPE_STUDY, help="study file (default: the lavapipe study)")
+    add_steady_check(p)
     p.set_defaults(func=run)
 
 
@@ -38,7 +39,9 @@ def run(args: argparse.Namespace) -> int:
         runs = replace(runs, repeats=args.repeats)
     if args.run_seconds is not None:
         runs = replace(runs, run_seconds=args.run_seconds)
-    path = pipeline.run(replace(study, runs=runs), args.out, progress_printer(), args.held_out)
+    progress = progress_printer()
+    steady_check(args, study, args.out, progress)
+    path = pipeline.run(replace(study, runs=runs), args.out, progress, args.held_out)
     print(path.read_text())
     warning = speed.drift_warning(pipeline.probes_of(args.out / "runs"))
     if warning is not None:

@@ -18,7 +18,7 @@ import pandas as pd
 
 from ..config import int_list
 from ..outpath import check_out_dir
-from ..study import pipeline
+from ..study import pipeline, speed
 from ..study.measure import measure_microbenchmarks, measure_runs
 from ..study.spec import Study, load_study
 
@@ -36,6 +36,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         if name in ("measure", "run"):
             s.add_argument("--devices", help="physical device of each simulated GPU, e.g. 0,1 (NVIDIA)")
             s.add_argument("--only", help="only the configurations whose name contains this")
+        if name in ("measure", "run"):
+            add_steady_check(s)
         if name in ("measure", "run", "validate"):
             s.add_argument("--held-out", action="store_true", help="include the held-out configurations")
         if name in ("calibrate", "validate"):
@@ -46,6 +48,23 @@ def register(sub: argparse._SubParsersAction) -> None:
             s.add_argument("--set", dest="extra", action="append", default=[], metavar="KEY=VALUE",
                            help="an override added to every configuration (repeatable)")
         s.set_defaults(func=_STEPS[name])
+
+
+def add_steady_check(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--steady-check", type=float, default=None, metavar="FRACTION",
+                   help="first measure the machine's speed probe a few times (about 30 s) and stop "
+                        "if it moved more than FRACTION (e.g. 0.1); lavapipe studies only")
+
+
+def steady_check(args: argparse.Namespace, study: Study, out: Path,
+                 progress: Callable[[str], None]) -> None:
+    """With --steady-check: the probes before any other work; on a steady machine they open the
+    job's probe table (out/measurements), on a drifting one nothing is written."""
+    if args.steady_check is None:
+        return
+    rows = speed.check_steady(study.lavapipe_threads(), args.steady_check, progress)
+    (out / "measurements").mkdir(parents=True, exist_ok=True)
+    speed.append_probe(out / "measurements" / speed.FILE, rows)
 
 
 def progress_printer() -> Callable[[str], None]:
@@ -74,6 +93,7 @@ def _filtered(study: Study, args: argparse.Namespace) -> Study:
 def measure(args: argparse.Namespace) -> int:
     study = _filtered(load_study(args.study), args)
     out, progress = _out(args, study), progress_printer()
+    steady_check(args, study, out, progress)
     if study.microbenchmarks.sweeps and study.microbenchmarks.folder is None:
         measure_microbenchmarks(study, out / "measurements", progress)
     measure_runs(study, study.entries(args.held_out), study.profile, out / "runs", progress,
@@ -115,8 +135,9 @@ def validate(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     study = _filtered(load_study(args.study), args)
-    path = pipeline.run(study, _out(args, study), progress_printer(), args.held_out,
-                        int_list(args.devices, "--devices"))
+    out, progress = _out(args, study), progress_printer()
+    steady_check(args, study, out, progress)
+    path = pipeline.run(study, out, progress, args.held_out, int_list(args.devices, "--devices"))
     print(path.read_text())
     return 0
 

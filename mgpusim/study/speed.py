@@ -13,9 +13,11 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import pandas as pd
+
+from ..errors import InputError, UnsteadyMachineError
 
 #: The reference passes: one bound by fragment shading, one by geometry and memory.
 PROBE: tuple[tuple[str, dict[str, Any]], ...] = (
@@ -27,6 +29,9 @@ PROBE_REPS = 8
 PROBE_WARMUP = 12
 #: A job whose probe moved more than this (slowest / fastest - 1, per pass) gets a warning.
 DRIFT_LIMIT = 0.10
+#: A steadiness check before a job: this many probes, this far apart (about half a minute).
+CHECKS = 5
+CHECK_PAUSE_S = 3.0
 FILE = "speed_probe.csv"
 COLUMNS = ["point", "pass", "median_ms", "unix_time"]
 
@@ -48,6 +53,43 @@ def measure_probe(point: str, threads: int | None) -> list[dict[str, Any]]:
         return rows
     finally:
         close_gpus(gpus)
+
+
+def check_steady(threads: int | None, limit: float, progress: Callable[[str], None],
+                 checks: int | None = None, pause_s: float | None = None,
+                 probe: Callable[[str, int | None], list[dict[str, Any]]] | None = None,
+                 ) -> list[dict[str, Any]]:
+    """The probe `checks` times (CHECKS), `pause_s` apart (CHECK_PAUSE_S); its rows if no pass moved more than `limit`
+    (slowest / fastest - 1), else UnsteadyMachineError naming the pass and its times.
+
+    Why before the job: a job on a machine whose speed moves takes as long and says nothing about
+    the model (the report's warning comes minutes later); half a minute of probes tells first."""
+    if threads is None:
+        raise InputError("the steadiness check needs a lavapipe study (its GPUs are this "
+                         "host's cores); this study measures real GPUs", field="--steady-check")
+    if not 0 < limit < 10:
+        raise InputError(f"expected a fraction such as 0.1 (10 %), got {limit}",
+                         field="--steady-check")
+    checks = CHECKS if checks is None else checks
+    pause_s = CHECK_PAUSE_S if pause_s is None else pause_s
+    probe = probe or measure_probe
+    rows: list[dict[str, Any]] = []
+    for i in range(checks):
+        progress(f"steadiness check {i + 1}/{checks}")
+        rows += probe(f"steadiness check {i + 1} of {checks}", threads)
+        if i + 1 < checks:
+            time.sleep(pause_s)
+    probes = pd.DataFrame(rows, columns=COLUMNS)
+    worst, name = worst_drift(probes)
+    if worst > limit:
+        times = probes.loc[probes["pass"] == name, "median_ms"]
+        raise UnsteadyMachineError(
+            f"the machine's speed moved before the job: the {name} probe took "
+            f"{times.min():.2f}-{times.max():.2f} ms over {checks} checks ({worst:.0%}, more than "
+            f"the {limit:.0%} allowed by --steady-check); its errors would carry that. Run it "
+            f"when the machine is quiet, or without --steady-check to measure anyway")
+    progress(f"steady: every probe within {worst:.0%}")
+    return rows
 
 
 def append_probe(path: Path, rows: Sequence[dict[str, Any]]) -> None:

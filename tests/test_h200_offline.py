@@ -50,6 +50,8 @@ def test_error_table_over_saved_runs(tmp_path: Path) -> None:
     assert list(table["config"]) == [CONFIG, "sl_1080p_t3M"]
     assert table["frame_time_error"].abs().max() <= 0.15
     assert not table.drop(columns="run_to_run_spread").isna().any().any()
+    # every row says where it differs most
+    assert (table["step_most_off"] != "").all() and (table["wait_most_off"] != "").all()
 
 
 def _flat(d: object, prefix: str = "") -> dict[str, object]:

@@ -49,6 +49,7 @@ def test_main_job_measures_calibrates_validates_and_reports(tmp_path, short_stud
         assert (out / "validation" / name / "measured.perfetto.json").is_file()
     report = (out / "report.md").read_text()
     assert "| sort_first_2gpu |" in report and "### xr" in report
+    assert "| step most off (simulated - measured) |" in report and " ms (" in report
     # the machine's speed, probed before and after the microbenchmarks and around the runs
     probes = pd.concat([pd.read_csv(out / f / "speed_probe.csv") for f in ("measurements", "runs")])
     assert probes["point"].tolist() == ["before the microbenchmarks"] * 2 + [

@@ -91,7 +91,25 @@ def validate(study: Study, entries: tuple[Entry, ...], root: Path, profile: Path
     if rows:
         table["schedule"] = [name for name, _ in rows]
         table["run_to_run_spread"] = [r["measured_spread"] for _, r in rows]
+        table = table.join(pd.DataFrame([most_off(r) for _, r in rows], index=table.index))
     return table
+
+
+def most_off(report: dict[str, Any]) -> dict[str, Any]:
+    """Where one comparison differs most: the step whose mean duration is furthest off in ms
+    (simulated - measured, and as simulated / measured - 1) and the hand-off whose mean wait
+    from ready to start is (measured - simulated ms; none where no wait was compared). Why: a
+    frame-time error says how far the model is off, these say where to look for the effect it
+    lacks; in ms, since a tiny step far off in % moves a frame little."""
+    steps = report.get("steps", {})
+    step = max(steps, key=lambda k: (abs(_step_ms(steps[k])), k), default="")
+    waits = report.get("waits", {})
+    edge = next(iter(waits), "")  # sorted by |difference|, largest first
+    return {"step_most_off": step,
+            "step_difference_ms": _step_ms(steps[step]) if step else float("nan"),
+            "step_error": steps[step]["error"] if step else float("nan"),
+            "wait_most_off": edge,
+            "wait_difference_ms": waits[edge]["difference_ms"] if edge else float("nan")}
 
 
 def run(study: Study, out: Path, progress: Progress, held_out: bool = True,
@@ -164,11 +182,28 @@ def _stats_line(st: dict[str, Any]) -> str:
 
 def markdown_table(table: pd.DataFrame) -> str:
     head = ("| config | measured frame (ms) | simulated | error | spread | measured latency (ms) | "
-            "simulated | error |")
-    rows = [head, "|---|---|---|---|---|---|---|---|"]
+            "simulated | error | step most off (simulated - measured) | hand-off most off (measured - "
+            "simulated) |")
+    rows = [head, "|---|---|---|---|---|---|---|---|---|---|"]
     for r in table.itertuples():
         spread = getattr(r, "run_to_run_spread", float("nan"))
         rows.append(f"| {r.config} | {r.measured_frame_ms:.2f} | {r.simulated_frame_ms:.2f} | "
                     f"{r.frame_time_error:+.1%} | {spread:.0%} | {r.measured_latency_ms:.2f} | "
-                    f"{r.simulated_latency_ms:.2f} | {r.latency_error:+.1%} |")
+                    f"{r.simulated_latency_ms:.2f} | {r.latency_error:+.1%} | {_step_cell(r)} | "
+                    f"{_wait_cell(r)} |")
     return "\n".join(rows)
+
+
+def _step_ms(step: dict[str, float]) -> float:
+    return step["simulated_ms"] - step["measured_ms"]
+
+
+def _step_cell(r: Any) -> str:
+    step = getattr(r, "step_most_off", "")
+    return (f"{step} {r.step_difference_ms:+.2f} ms ({r.step_error:+.0%})"
+            if isinstance(step, str) and step else "")
+
+
+def _wait_cell(r: Any) -> str:
+    edge = getattr(r, "wait_most_off", "")
+    return f"`{edge}` {r.wait_difference_ms:+.2f} ms" if isinstance(edge, str) and edge else ""

@@ -1,5 +1,5 @@
-"""`mgpusim main [--out DIR] [--held-out] [--repeats R] [--run-seconds S] [--steady-check F]`: the lavapipe study
-(measure, calibrate, validate, report), the README's main command."""
+"""`mgpusim main [--out DIR] [--held-out] [--repeats R] [--run-seconds S] [--steady-check F]`:
+the lavapipe study (measure, calibrate, validate, report), the README's main command."""
 from __future__ import annotations
 
 import argparse

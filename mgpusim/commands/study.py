@@ -36,7 +36,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         if name in ("measure", "run"):
             s.add_argument("--devices", help="physical device of each simulated GPU, e.g. 0,1 (NVIDIA)")
             s.add_argument("--only", help="only the configurations whose name contains this")
-        if name in ("measure", "run"):
             add_steady_check(s)
         if name in ("measure", "run", "validate"):
             s.add_argument("--held-out", action="store_true", help="include the held-out configurations")

@@ -59,8 +59,9 @@ def check_steady(threads: int | None, limit: float, progress: Callable[[str], No
                  checks: int | None = None, pause_s: float | None = None,
                  probe: Callable[[str, int | None], list[dict[str, Any]]] | None = None,
                  ) -> list[dict[str, Any]]:
-    """The probe `checks` times (CHECKS), `pause_s` apart (CHECK_PAUSE_S); its rows if no pass moved more than `limit`
-    (slowest / fastest - 1), else UnsteadyMachineError naming the pass and its times.
+    """The probe `checks` times (default CHECKS), `pause_s` apart (CHECK_PAUSE_S); its rows if
+    no pass moved more than `limit` (slowest / fastest - 1), else UnsteadyMachineError naming the
+    pass and its times. `probe` stands in for the real one in tests.
 
     Why before the job: a job on a machine whose speed moves takes as long and says nothing about
     the model (the report's warning comes minutes later); half a minute of probes tells first."""

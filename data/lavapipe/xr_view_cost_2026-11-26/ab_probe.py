@@ -2,7 +2,7 @@
 and as XR's two eye views on one GPU (`mode=simulated`), alternated run by run (80 frames,
 8 rasterizer threads), so that the drifting machine's speed falls on both alike.
 
-    .venv/bin/python data/lavapipe/xr_view_cost_2026-11-26/ab_probe.py OUT PAIRS
+    .venv/bin/python data/lavapipe/xr_view_cost_2026-11-26/ab_probe.py OUT PAIRS [strong]
 
 A record of one experiment, not part of the package."""
 import sys
@@ -17,9 +17,11 @@ cases = {
   "sl": ["experiments/lavapipe/sort_last.toml", "schedule.gpus=1", "scene.width=192", "scene.height=192", "scene.passes.0.triangles=10000"],
   "xr2": ["experiments/lavapipe/xr.toml", "schedule.gpus=1", "schedule.mode=simulated", "schedule.views=2"],
 }
+if len(sys.argv) > 3 and sys.argv[3] == "strong":  # also XR's views rendered under strong scaling
+    cases["xr2s"] = cases["xr2"] + ["schedule.scaling=strong"]
 rows = []
 for i in range(pairs):
-    for name in (cases if i % 2 == 0 else list(cases)[::-1]):
+    for name in (list(cases) if i % 2 == 0 else list(cases)[::-1]):
         exp, *sets = cases[name]
         out = root / f"{name}_{i}"
         args = ["run", exp, "--lp-threads", "8", "--out", str(out), "--set", "schedule.frames=80"]
@@ -31,4 +33,6 @@ for i in range(pairs):
 df = pd.DataFrame(rows); df.to_csv(root / "ab.csv", index=False)
 print(df.groupby(["case", "task"]).us.median().round(0))
 p = df.groupby(["pair", "case"]).us.median().unstack()
-print("xr2 eye view / sl mono render, per pair: median %.3f IQR %.3f-%.3f" % tuple((p.xr2 / p.sl).quantile([.5, .25, .75])))
+for c in [c for c in cases if c != "sl"]:
+    print(f"{c} eye view / sl mono render, per pair: median %.3f IQR %.3f-%.3f"
+          % tuple((p[c] / p.sl).quantile([.5, .25, .75])))

@@ -71,7 +71,15 @@ class Submission:
         self._slot: tuple[Any, Any, Any] | None = slot
         self._ticks: tuple[int, int] | None = None
         self._finished = False
+        #: held while a thread waits on the fence (one waiter at a time)
         self._lock = threading.Lock()
+        #: held by the one thread that reads the timestamps and recycles the slot
+        self._read_lock = threading.Lock()
+        #: held while the fence is looked at without waiting, and while it is reset and the
+        #: slot recycled: vkResetFences needs the fence to itself, and a recycled slot belongs
+        #: to the next submission, so neither may overlap a look from another thread. Not held
+        #: while the timestamps are read: that read can block for milliseconds on lavapipe.
+        self._slot_lock = threading.Lock()
 
     def finished(self, timeout_ns: int) -> bool:
         """True once the work has finished, waiting at most `timeout_ns` on its fence; any
@@ -99,39 +107,50 @@ class Submission:
         """True if the work has finished, without waiting for anything: not for the fence,
         not for another thread that holds this submission while it waits (fences may be waited
         on by several threads at once). A slot already recycled was finished."""
-        if self._finished:
+        with self._slot_lock:
+            if self._finished or self._slot is None:
+                return True
+            try:
+                vk().vkGetFenceStatus(self.queue.gpu.device, self._slot[1])
+            except vk().VkNotReady:
+                return False
             return True
-        slot = self._slot
-        if slot is None:
-            return True
-        try:
-            vk().vkGetFenceStatus(self.queue.gpu.device, slot[1])
-        except vk().VkNotReady:
-            return False
-        return True
 
     def wait(self, timeout_ns: int = 60_000_000_000) -> "Submission":
         """Block until the work finished; reads the timestamps and recycles the slot."""
         if self._ticks is not None:
             return self
-        v = vk()
         if not self.finished(timeout_ns):
             raise vk().VkTimeout(f"{self.label} did not finish within {timeout_ns} ns")
+        with self._read_lock:
+            if self._ticks is None:  # another thread may have read them meanwhile
+                ticks = self._read_ticks()
+                with self._slot_lock:
+                    self._recycle()
+                    self._ticks = ticks
+        return self
+
+    def _read_ticks(self) -> tuple[int, int]:
+        """The finished work's two timestamps, in device ticks."""
+        v = vk()
         assert self._slot is not None
-        cmd, fence, pool = self._slot
-        dev = self.queue.gpu.device
         data = v.ffi.new("uint64_t[2]")
-        call("vkGetQueryPoolResults", v.vkGetQueryPoolResults, dev, pool, 0, 2, 16, data, 8,
+        call("vkGetQueryPoolResults", v.vkGetQueryPoolResults, self.queue.gpu.device,
+             self._slot[2], 0, 2, 16, data, 8,
              v.VK_QUERY_RESULT_64_BIT | v.VK_QUERY_RESULT_WAIT_BIT)
-        self._ticks = (int(data[0]), int(data[1]))
-        call("vkResetFences", v.vkResetFences, dev, 1, [fence])
+        return int(data[0]), int(data[1])
+
+    def _recycle(self) -> None:
+        """Reset the fence and give the slot back to its queue, for the next submission."""
+        v = vk()
+        assert self._slot is not None
+        call("vkResetFences", v.vkResetFences, self.queue.gpu.device, 1, [self._slot[1]])
         with self.queue.lock:
             if self.key is None:
                 self.queue.free.append(self._slot)
             else:
                 self.queue.recorded.setdefault(self.key, []).append(self._slot)
         self._slot = None
-        return self
 
     def raw_ticks(self) -> tuple[int, int]:
         """Device timestamp ticks (start, end)."""

@@ -1,0 +1,98 @@
+"""A submission's fence is never reset while another thread looks at it.
+
+Vulkan requires vkResetFences to have the fence to itself; a `poll()` from one thread (the
+runner's leaders look at other GPUs' work) must not overlap the reset that `wait()` does in
+another (the reap thread, recycling the fence for the next submission). The Khronos validation
+layer caught that overlap once in a test run; the window is microseconds there, so this test
+stands in a fake binding whose fence look lasts 50 ms and which records any reset inside it.
+Two threads that wait for one submission must likewise reset its fence and give its slot back
+once.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from types import SimpleNamespace
+
+import pytest
+
+from mgpusim.vulkan import device, errors
+
+
+class _NotReady(Exception):
+    pass
+
+
+class _Timeout(Exception):
+    pass
+
+
+class FakeBinding:
+    """The few Vulkan calls a Submission makes, on one fence, with overlaps recorded."""
+
+    VkNotReady, VkTimeout = _NotReady, _Timeout
+    VkException = VkError = ProcedureNotFoundError = ExtensionNotSupportedError = RuntimeError
+    VK_TRUE, VK_QUERY_RESULT_64_BIT, VK_QUERY_RESULT_WAIT_BIT = 1, 1, 2
+
+    def __init__(self) -> None:
+        self.ffi = SimpleNamespace(new=lambda _type: [0, 0])
+        self.looking = threading.Event()
+        self.overlaps: list[str] = []
+        self.resets = 0
+
+    def vkGetFenceStatus(self, _dev, _fence) -> None:
+        self.looking.set()
+        time.sleep(0.05)
+        self.looking.clear()
+        raise _NotReady()
+
+    def vkWaitForFences(self, *_args) -> None:
+        return None
+
+    def vkGetQueryPoolResults(self, _dev, _pool, _first, _count, _size, data, *_rest) -> None:
+        time.sleep(0.02)  # lavapipe's read blocks until the queue is idle
+        data[0], data[1] = 10, 20
+
+    def vkResetFences(self, *_args) -> None:
+        if self.looking.is_set():
+            self.overlaps.append("vkResetFences during vkGetFenceStatus")
+        self.resets += 1
+
+
+@pytest.fixture
+def fake(monkeypatch):
+    binding = FakeBinding()
+    monkeypatch.setattr(device, "vk", lambda: binding)
+    monkeypatch.setattr(errors, "vk", lambda: binding)
+    return binding
+
+
+def _submission() -> tuple[device.Submission, SimpleNamespace]:
+    queue = SimpleNamespace(gpu=SimpleNamespace(device="dev"), lock=threading.Lock(), free=[],
+                            recorded={})
+    return device.Submission(queue, ("cmd", "fence", "pool"), "probe"), queue
+
+
+def test_wait_does_not_reset_the_fence_while_another_thread_polls(fake):
+    sub, queue = _submission()
+    seen: list[bool] = []
+    poller = threading.Thread(target=lambda: seen.append(sub.poll()))
+    poller.start()
+    assert fake.looking.wait(5), "the poll never looked at the fence"
+    assert sub.wait().raw_ticks() == (10, 20)
+    poller.join()
+    assert fake.overlaps == []
+    assert seen == [False]  # it looked before the work was known finished
+    assert queue.free == [("cmd", "fence", "pool")] and fake.resets == 1
+    assert sub.poll()  # the slot is recycled: finished, without touching the fence again
+
+
+def test_two_waiters_reset_and_recycle_once(fake):
+    sub, queue = _submission()
+    threads = [threading.Thread(target=sub.wait) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert fake.resets == 1
+    assert queue.free == [("cmd", "fence", "pool")]

@@ -104,9 +104,10 @@ class Submission:
         return self.finished(0)
 
     def poll(self) -> bool:
-        """True if the work has finished, without waiting for anything: not for the fence,
-        not for another thread that holds this submission while it waits (fences may be waited
-        on by several threads at once). A slot already recycled was finished."""
+        """True if the work has finished, without waiting for the fence or for another thread
+        that holds this submission while it waits (fences may be waited on by several threads
+        at once); at most for the microseconds of a fence reset. A slot already recycled was
+        finished."""
         with self._slot_lock:
             if self._finished or self._slot is None:
                 return True

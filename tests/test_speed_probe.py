@@ -75,3 +75,59 @@ def test_the_check_refuses_what_it_cannot_judge(threads, limit, what):
     with pytest.raises(InputError, match=what):
         speed.check_steady(threads, limit, lambda m: None, checks=2, pause_s=0,
                            probe=fake_probe([2.0, 2.0]))
+
+
+class FakeTime:
+    """A clock that moves only when slept on."""
+
+    def __init__(self) -> None:
+        self.now, self.slept = 0.0, []
+
+    def clock(self) -> float:
+        return self.now
+
+    def sleep(self, s: float) -> None:
+        self.slept.append(s)
+        self.now += s
+
+
+def test_waiting_tries_again_until_the_machine_is_steady():
+    said: list[str] = []
+    t = FakeTime()
+    # two drifting tries of 3 checks, then a steady one
+    rows = speed.wait_steady(8, 0.1, 30, said.append, retry_pause_s=60, checks=3, pause_s=0,
+                             probe=fake_probe([2.0, 3.0, 2.0, 2.0, 2.6, 2.0, 2.0, 2.1, 2.05]),
+                             clock=t.clock, sleep=t.sleep)
+    assert [r["median_ms"] for r in rows if r["pass"] == "mesh"] == [2.0, 2.1, 2.05]
+    assert t.slept == [60, 60]
+    waits = [m for m in said if m.startswith("not steady yet")]
+    assert waits == [
+        "not steady yet: the mesh probe took 2.00-3.00 ms over 3 checks (50%, more than the 10% "
+        "allowed by --steady-check); next try in 60 s (0 of 30 minutes waited)",
+        "not steady yet: the mesh probe took 2.00-2.60 ms over 3 checks (30%, more than the 10% "
+        "allowed by --steady-check); next try in 60 s (1 of 30 minutes waited)"]
+    assert said[-1] == "steady: every probe within 5%"
+
+
+def test_waiting_gives_up_when_its_time_is_spent():
+    t = FakeTime()
+    with pytest.raises(UnsteadyMachineError,
+                       match=r"mesh probe took 2.00-4.00 ms .* \(still after 3 tries over 2 of "
+                             r"the 2.5 minutes allowed by --wait-steady\)"):
+        speed.wait_steady(8, 0.1, 2.5, lambda m: None, retry_pause_s=60, checks=2, pause_s=0,
+                          probe=fake_probe([2.0, 4.0] * 10), clock=t.clock, sleep=t.sleep)
+    assert t.slept == [60, 60]
+
+
+@pytest.mark.parametrize("minutes", [0, -1, 24 * 60 + 1])
+def test_waiting_refuses_a_wait_it_cannot_keep(minutes):
+    with pytest.raises(InputError, match="expected minutes to wait"):
+        speed.wait_steady(8, 0.1, minutes, lambda m: None, probe=fake_probe([]))
+
+
+def test_the_main_job_refuses_to_wait_without_a_check(tmp_path: Path, capsys):
+    from mgpusim.cli import main
+    out = tmp_path / "job"
+    assert main(["main", "--wait-steady", "5", "--out", str(out)]) == 2
+    assert "--wait-steady waits for --steady-check to pass" in capsys.readouterr().err
+    assert not out.exists()

@@ -17,6 +17,7 @@ from typing import Callable
 import pandas as pd
 
 from ..config import int_list
+from ..errors import InputError
 from ..outpath import check_out_dir
 from ..study import pipeline, speed
 from ..study.measure import measure_microbenchmarks, measure_runs
@@ -53,15 +54,26 @@ def add_steady_check(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steady-check", type=float, default=None, metavar="FRACTION",
                    help="first measure the machine's speed probe a few times (about 30 s) and stop "
                         "if it moved more than FRACTION (e.g. 0.1); lavapipe studies only")
+    p.add_argument("--wait-steady", type=float, default=None, metavar="MINUTES",
+                   help="with --steady-check: instead of stopping, check again every minute until "
+                        "the machine is steady, for up to MINUTES")
 
 
 def steady_check(args: argparse.Namespace, study: Study, out: Path,
                  progress: Callable[[str], None]) -> None:
-    """With --steady-check: the probes before any other work; on a steady machine they open the
-    job's probe table (out/measurements), on a drifting one nothing is written."""
+    """With --steady-check: the probes before any other work (with --wait-steady, tried until
+    they agree); on a steady machine they open the job's probe table (out/measurements), on a
+    drifting one nothing is written."""
     if args.steady_check is None:
+        if args.wait_steady is not None:
+            raise InputError("--wait-steady waits for --steady-check to pass; give both",
+                             field="--wait-steady")
         return
-    rows = speed.check_steady(study.lavapipe_threads(), args.steady_check, progress)
+    if args.wait_steady is None:
+        rows = speed.check_steady(study.lavapipe_threads(), args.steady_check, progress)
+    else:
+        rows = speed.wait_steady(study.lavapipe_threads(), args.steady_check, args.wait_steady,
+                                 progress)
     (out / "measurements").mkdir(parents=True, exist_ok=True)
     speed.append_probe(out / "measurements" / speed.FILE, rows)
 

@@ -32,6 +32,10 @@ DRIFT_LIMIT = 0.10
 #: A steadiness check before a job: this many probes, this far apart (about half a minute).
 CHECKS = 5
 CHECK_PAUSE_S = 3.0
+#: Waiting for a steady machine: the pause between two steadiness checks.
+RETRY_PAUSE_S = 60.0
+#: The longest wait a job may ask for (a day).
+MAX_WAIT_MINUTES = 24 * 60
 FILE = "speed_probe.csv"
 COLUMNS = ["point", "pass", "median_ms", "unix_time"]
 
@@ -65,12 +69,59 @@ def check_steady(threads: int | None, limit: float, progress: Callable[[str], No
 
     Why before the job: a job on a machine whose speed moves takes as long and says nothing about
     the model (the report's warning comes minutes later); half a minute of probes tells first."""
+    _check_limit(threads, limit)
+    rows, finding = _try_steady(threads, limit, progress, checks, pause_s, probe)
+    if finding is not None:
+        raise UnsteadyMachineError(_unsteady_message(finding))
+    return rows
+
+
+def wait_steady(threads: int | None, limit: float, minutes: float,
+                progress: Callable[[str], None], *, retry_pause_s: float = RETRY_PAUSE_S,
+                checks: int | None = None, pause_s: float | None = None,
+                probe: Callable[[str, int | None], list[dict[str, Any]]] | None = None,
+                clock: Callable[[], float] = time.monotonic,
+                sleep: Callable[[float], None] = time.sleep) -> list[dict[str, Any]]:
+    """The steadiness check, tried again every `retry_pause_s` until it passes (its rows) or
+    `minutes` have gone by since the first try (UnsteadyMachineError: the last try's finding and
+    how long it waited). `probe`, `clock` and `sleep` stand in for the real ones in tests.
+
+    Why: a shared machine that drifts now is often steady an hour later, and a job started by
+    hand when it looks quiet may still catch a drift; the job itself can wait for a quiet spell."""
+    _check_limit(threads, limit)
+    if not 0 < minutes <= MAX_WAIT_MINUTES:
+        raise InputError(f"expected minutes to wait, more than 0 and at most "
+                         f"{MAX_WAIT_MINUTES}, got {minutes}", field="--wait-steady")
+    start, tries = clock(), 0
+    while True:
+        tries += 1
+        rows, finding = _try_steady(threads, limit, progress, checks, pause_s, probe)
+        if finding is None:
+            return rows
+        waited = clock() - start
+        if waited + retry_pause_s > minutes * 60:
+            raise UnsteadyMachineError(
+                f"{_unsteady_message(finding)} (still after {tries} tries over "
+                f"{waited / 60:.0f} of the {minutes:g} minutes allowed by --wait-steady)")
+        progress(f"not steady yet: {finding}; next try in {retry_pause_s:.0f} s "
+                 f"({waited / 60:.0f} of {minutes:g} minutes waited)")
+        sleep(retry_pause_s)
+
+
+def _check_limit(threads: int | None, limit: float) -> None:
     if threads is None:
         raise InputError("the steadiness check needs a lavapipe study (its GPUs are this "
                          "host's cores); this study measures real GPUs", field="--steady-check")
     if not 0 < limit < 10:
         raise InputError(f"expected a fraction such as 0.1 (10 %), got {limit}",
                          field="--steady-check")
+
+
+def _try_steady(threads: int | None, limit: float, progress: Callable[[str], None],
+                checks: int | None, pause_s: float | None,
+                probe: Callable[[str, int | None], list[dict[str, Any]]] | None,
+                ) -> tuple[list[dict[str, Any]], str | None]:
+    """One steadiness check: its probe rows, and what moved more than `limit` (None: nothing)."""
     checks = CHECKS if checks is None else checks
     pause_s = CHECK_PAUSE_S if pause_s is None else pause_s
     probe = probe or measure_probe
@@ -84,13 +135,16 @@ def check_steady(threads: int | None, limit: float, progress: Callable[[str], No
     worst, name = worst_drift(probes)
     if worst > limit:
         times = probes.loc[probes["pass"] == name, "median_ms"]
-        raise UnsteadyMachineError(
-            f"the machine's speed moved before the job: the {name} probe took "
-            f"{times.min():.2f}-{times.max():.2f} ms over {checks} checks ({worst:.0%}, more than "
-            f"the {limit:.0%} allowed by --steady-check); its errors would carry that. Run it "
-            f"when the machine is quiet, or without --steady-check to measure anyway")
+        return rows, (f"the {name} probe took {times.min():.2f}-{times.max():.2f} ms over "
+                      f"{checks} checks ({worst:.0%}, more than the {limit:.0%} allowed by "
+                      f"--steady-check)")
     progress(f"steady: every probe within {worst:.0%}")
-    return rows
+    return rows, None
+
+
+def _unsteady_message(finding: str) -> str:
+    return (f"the machine's speed moved before the job: {finding}; its errors would carry that. "
+            f"Run it when the machine is quiet, or without --steady-check to measure anyway")
 
 
 def append_probe(path: Path, rows: Sequence[dict[str, Any]]) -> None:

@@ -163,3 +163,19 @@ def test_copy_setup_is_measured_on_the_runs_copies():
     assert fixed == pytest.approx(700, abs=1) and copies >= 1
     one = make_experiment(copy.deepcopy(prof), gpus=1, width=32, height=16, iterations=40, frames=12)
     assert fit_copy_setup([(one, simulate(one).trace)], fitting) == {}
+
+
+def test_an_alone_scale_is_never_negative():
+    """Instances alone shorter than the fixed cost (a noisy machine's small composites) give a
+    scale of 0, not a negative coefficient that the profile would refuse."""
+    from mgpusim.calibrate import runs as r
+
+    task = r.PassTask("comp", "composite", None, "composite_sort_last",
+                      {"pixel": 1000.0, "input": 2.0}, ())
+    bench = {"composite_sort_last": {"fixed_ns": 100_000.0, "ns_per_pixel": 2.0, "ns_per_input": 10.0}}
+    orig = r._alone_instances
+    try:
+        r._alone_instances = lambda runs: iter([(task, 60_000), (task, 80_000), (task, 90_000)])
+        assert r.fit_alone_scales([], ["composite_sort_last"], bench) == {"composite_sort_last": (0.0, 3)}
+    finally:
+        r._alone_instances = orig

@@ -110,7 +110,9 @@ def fit_alone_scales(runs: Sequence[Run], kinds: Sequence[str],
         var = sum(float(cost.get(f"ns_per_{t}", 0.0)) * v for t, v in task.work.items())
         if var > 0:
             ratios[task.kind].append((duration - float(cost.get("fixed_ns", 0.0))) / var)
-    return {k: (float(np.median(r)), len(r)) for k, r in ratios.items()}
+    # never below 0: instances alone that ran shorter than the fixed cost (small composites on a
+    # noisy machine) say the work terms cost nothing more, not that they give time back
+    return {k: (max(0.0, float(np.median(r))), len(r)) for k, r in ratios.items()}
 
 
 def _alone_instances(runs: Sequence[Run]) -> Iterator[tuple[Task, int]]:

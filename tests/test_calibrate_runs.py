@@ -165,7 +165,7 @@ def test_copy_setup_is_measured_on_the_runs_copies():
     assert fit_copy_setup([(one, simulate(one).trace)], fitting) == {}
 
 
-def test_an_alone_scale_is_never_negative():
+def test_an_alone_scale_is_never_negative(monkeypatch):
     """Instances alone shorter than the fixed cost (a noisy machine's small composites) give a
     scale of 0, not a negative coefficient that the profile would refuse."""
     from mgpusim.calibrate import runs as r
@@ -173,9 +173,6 @@ def test_an_alone_scale_is_never_negative():
     task = r.PassTask("comp", "composite", None, "composite_sort_last",
                       {"pixel": 1000.0, "input": 2.0}, ())
     bench = {"composite_sort_last": {"fixed_ns": 100_000.0, "ns_per_pixel": 2.0, "ns_per_input": 10.0}}
-    orig = r._alone_instances
-    try:
-        r._alone_instances = lambda runs: iter([(task, 60_000), (task, 80_000), (task, 90_000)])
-        assert r.fit_alone_scales([], ["composite_sort_last"], bench) == {"composite_sort_last": (0.0, 3)}
-    finally:
-        r._alone_instances = orig
+    monkeypatch.setattr(r, "_alone_instances",
+                        lambda runs: iter([(task, 60_000), (task, 80_000), (task, 90_000)]))
+    assert r.fit_alone_scales([], ["composite_sort_last"], bench) == {"composite_sort_last": (0.0, 3)}

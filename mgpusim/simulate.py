@@ -71,8 +71,8 @@ def _run_model(exp: Experiment, program: FrameProgram, chosen: frozenset[str], f
     try:
         if fidelity == "analytic":
             from .sim.analytic import analytic_raw  # noqa: PLC0415 (only this level needs it)
-            return analytic_raw(program, CostModel(exp.profile), chosen, record_trace)
-        engine = Engine(program, CostModel(exp.profile), record_trace=record_trace or fast_forward,
+            return analytic_raw(program, CostModel(exp.profile, exp.schedule.name), chosen, record_trace)
+        engine = Engine(program, CostModel(exp.profile, exp.schedule.name), record_trace=record_trace or fast_forward,
                         effects=chosen)
     except TimeBoundError as exc:  # the profile's rates times the experiment's work
         raise TimeBoundError(f"{exc.detail} (with the work of {exp.file})", file=exc.file,

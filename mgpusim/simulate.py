@@ -68,12 +68,12 @@ def _band(exp: Experiment, program: FrameProgram, chosen: frozenset[str], fideli
 def _run_model(exp: Experiment, program: FrameProgram, chosen: frozenset[str], fidelity: str,
                record_trace: bool, fast_forward: bool):
     """The engine (with its fast-forward) or the analytic recurrence: the RawResult."""
+    costs = CostModel(exp.profile, exp.schedule.name)  # the schedule picks its cost factors
     try:
         if fidelity == "analytic":
             from .sim.analytic import analytic_raw  # noqa: PLC0415 (only this level needs it)
-            return analytic_raw(program, CostModel(exp.profile, exp.schedule.name), chosen, record_trace)
-        engine = Engine(program, CostModel(exp.profile, exp.schedule.name), record_trace=record_trace or fast_forward,
-                        effects=chosen)
+            return analytic_raw(program, costs, chosen, record_trace)
+        engine = Engine(program, costs, record_trace=record_trace or fast_forward, effects=chosen)
     except TimeBoundError as exc:  # the profile's rates times the experiment's work
         raise TimeBoundError(f"{exc.detail} (with the work of {exp.file})", file=exc.file,
                              field=exc.field) from None

@@ -98,10 +98,10 @@ def fit_schedule_scales(runs: Sequence[Run], profile_data: dict[str, Any], kinds
     ratios: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
     for exp, task, durations in _pass_rows(runs, kinds, gpus):
         cost = costs.pass_cost_ns(task.queue.device, task.kind, task.work)
-        if cost > 0:
+        if cost > 0 and durations:
             ratios[task.kind][exp.schedule.name].extend(d / cost for d in durations)
-    return {kind: {name: (float(np.median(r)), len(r)) for name, r in sorted(by.items()) if r}
-            for kind, by in ratios.items() if sum(1 for r in by.values() if r) >= 2}
+    return {kind: {name: (float(np.median(r)), len(r)) for name, r in sorted(by.items())}
+            for kind, by in ratios.items() if len(by) >= 2}
 
 
 def with_schedule_scales(profile_data: dict[str, Any],

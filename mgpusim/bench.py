@@ -127,7 +127,7 @@ def analytic_speed(experiment: Path = DEFAULT_EXPERIMENT, configurations: int = 
     `simulate(fidelity="analytic")` for comparison."""
     import numpy as np  # noqa: PLC0415
     exp = load_experiment(experiment)
-    program, costs = build_program(exp), CostModel(exp.profile, exp.schedule.name)
+    program, costs = build_program(exp), CostModel(exp.profile)
     rng = np.random.default_rng(0)
     scales = rng.uniform(0.25, 4.0, (2, configurations))
     t0 = time.perf_counter()

@@ -106,13 +106,10 @@ def pass_work(spec: PassSpec, pixels: float, geometry_share: float = 1.0,
 
 
 class CostModel:
-    """Turns tasks into engine inputs using one hardware profile's coefficients, for the frames
-    of one schedule (`schedule`: its name, which picks each kind's `schedule_scale`; empty:
-    no schedule's factor)."""
+    """Turns tasks into engine inputs using one hardware profile's coefficients."""
 
-    def __init__(self, profile: HardwareProfile, schedule: str = ""):
+    def __init__(self, profile: HardwareProfile):
         self.profile = profile
-        self.schedule = schedule
 
     def pass_ns(self, device: int, kind: str, work: Mapping[str, float]) -> int:
         """A pass's duration in integer ns: its cost, rounded once and bounded."""
@@ -120,9 +117,8 @@ class CostModel:
         return self._bounded(self.pass_cost_ns(device, kind, work), kind, work, where)
 
     def pass_cost_ns(self, device: int, kind: str, work: Mapping[str, float]) -> float:
-        """A pass's cost before the one rounding: fixed + sum(coefficient x work), times the
-        kind's factor in this schedule, over the GPU's speed factor (callers that scale costs
-        first, like analytic sweeps, round later)."""
+        """A pass's cost before the one rounding: fixed + sum(coefficient x work), over the
+        GPU's speed factor (callers that scale costs first, like analytic sweeps, round later)."""
         gpu = self.profile.gpus[device]
         cost = gpu.costs.get(kind)
         where = f"gpus[{device}].costs.{kind}"
@@ -145,7 +141,7 @@ class CostModel:
                     raise InputError(f"missing coefficient for work term {term!r}",
                                      file=self.profile.source, field=f"{where}.ns_per_{term}")
             total += coef * amount
-        return total * cost.schedule_scale.get(self.schedule, 1.0) / gpu.speed
+        return total / gpu.speed
 
     def _bounded(self, total: float, kind: str, work: Mapping[str, float], where: str) -> int:
         """`total` ns rounded, refused beyond MAX_TASK_NS (simulated time must fit int64)."""

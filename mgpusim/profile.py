@@ -20,9 +20,6 @@ from .overrides import set_dotted
 
 _T = TypeVar("_T")
 
-#: The largest factor a pass kind's cost may take in one schedule (`schedule_scale`).
-MAX_SCHEDULE_SCALE = 10.0
-
 #: Per-lane data rate in GB/s after line encoding (8b/10b for gen 1-2, 128b/130b for 3-5,
 #: FLIT 242/256 for 6). PCIe 3.0: 8 GT/s * 128/130 / 8 = 0.985 GB/s per lane.
 PCIE_LANE_GBPS: Mapping[int, float] = MappingProxyType({
@@ -141,12 +138,6 @@ class PassCost:
     #: once (1.4-1.5x) is more than its CPU time says (1.2 cores), and that measured slowdown
     #: already holds what the two lose to each other.
     cores_from_pairs: bool = False
-    #: Per schedule name, a factor on the whole cost of this kind's passes in that schedule's
-    #: frames (unnamed schedules: 1). Why: on lavapipe the same pass costs a few percent more
-    #: or less in one schedule's frame than in another's (a sort-last render 5 % under its
-    #: microbenchmark, XR's eye views 0-11 % over), by what the frame around it does; a
-    #: calibration measures the factor on each schedule's own 1-GPU runs.
-    schedule_scale: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
     #: The calibration's standard errors of `fixed_ns` ("fixed_ns") and of each `ns_per` term
     #: (by term): simulate carries them into results as a band (empty: no band).
     stderr: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
@@ -444,14 +435,12 @@ def _parse_costs(t: Table) -> Mapping[str, PassCost]:
         from_pairs = kt.get("cores_from_pairs", bool, False)
         known = [f"ns_per_{term}" for term in work_terms(kind)]
         stderr = _parse_stderr(kt.table("stderr", {}), known) if kt.has("stderr") else {}
-        scale = _parse_schedule_scale(kt.table("schedule_scale")) if kt.has("schedule_scale") else {}
         ns_per: dict[str, float] = {}
         for key in list(kt.rest()):
-            if key in ("stderr", "schedule_scale"):
+            if key == "stderr":
                 continue
             if key not in known:
-                extra = ['fixed_ns', 'cores', 'cpu_overhead_ns', 'cores_from_pairs', 'stderr',
-                         'schedule_scale']
+                extra = ['fixed_ns', 'cores', 'cpu_overhead_ns', 'cores_from_pairs', 'stderr']
                 raise kt.error(key, f"unknown cost key{did_you_mean(key, [*known, *extra])}"
                                     f" ({kind} takes {', '.join(extra)}, "
                                     f"{', '.join(known)})")
@@ -459,24 +448,8 @@ def _parse_costs(t: Table) -> Mapping[str, PassCost]:
                                                          maximum=L.MAX_COEFFICIENT)
         kt.finish()
         costs[kind] = PassCost(fixed, MappingProxyType(ns_per), cores, overhead, from_pairs,
-                               MappingProxyType(scale), MappingProxyType(stderr))
+                               MappingProxyType(stderr))
     return MappingProxyType(costs)
-
-
-def _parse_schedule_scale(t: Table) -> dict[str, float]:
-    """A kind's factor per schedule name; a name that is no schedule is refused (a misspelt
-    one would silently leave its schedule unscaled)."""
-    from .schedules import SCHEDULES, ensure_loaded  # noqa: PLC0415 (schedules import profiles)
-    ensure_loaded()
-    out = {}
-    for name in list(t.data):
-        if name not in SCHEDULES:
-            raise t.error(name, f"unknown schedule{did_you_mean(name, SCHEDULES)} (schedules: "
-                                f"{', '.join(sorted(SCHEDULES))})")
-        out[name] = t.get(name, float, above=0, maximum=MAX_SCHEDULE_SCALE,
-                          why="a factor on a pass's whole cost; larger says the fit went wrong")
-    t.finish()
-    return out
 
 
 def _parse_stderr(t: Table, known: list[str]) -> dict[str, float]:

@@ -68,7 +68,7 @@ def _band(exp: Experiment, program: FrameProgram, chosen: frozenset[str], fideli
 def _run_model(exp: Experiment, program: FrameProgram, chosen: frozenset[str], fidelity: str,
                record_trace: bool, fast_forward: bool):
     """The engine (with its fast-forward) or the analytic recurrence: the RawResult."""
-    costs = CostModel(exp.profile, exp.schedule.name)  # the schedule picks its cost factors
+    costs = CostModel(exp.profile)
     try:
         if fidelity == "analytic":
             from .sim.analytic import analytic_raw  # noqa: PLC0415 (only this level needs it)

@@ -14,8 +14,8 @@ from pathlib import Path
 
 
 def shipped_experiments(root: Path) -> list[Path]:
-    """experiments/*.toml and experiments/*/*.toml that are experiments (have a [schedule])."""
-    paths = sorted(root.glob("experiments/*.toml")) + sorted(root.glob("experiments/*/*.toml"))
+    """Every TOML file under experiments/ that is an experiment (has a [schedule])."""
+    paths = sorted(root.glob("experiments/**/*.toml"))
     return [p for p in paths if "[schedule]" in p.read_text()]
 
 

@@ -31,7 +31,6 @@ def test_lavapipe_study_keeps_held_out_apart() -> None:
     (('base = "machine"', 'base = "gpu"'), "calibration.base"),
     (('run_fit_alone = ["composite_sort_last"]', 'run_fit_alone = ["composite"]'),
      "calibration.run_fit_alone"),
-    (('schedule_scale = ["mesh"]', 'schedule_scale = ["meshes"]'), "calibration.schedule_scale"),
     (('experiment = "sort_first.toml"', 'experiment = "nope.toml"'), "experiment"),
     (('name = "sf_1gpu_128x96_it500"', 'name = "sf_1gpu_256x192_it2000"'), None),
 ])

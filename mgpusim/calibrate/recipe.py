@@ -10,9 +10,8 @@ The one place that says how a profile is fitted for a machine. The steps a study
 3. cost kinds and host keys copied from another profile (a machine with no multi-GPU runs of
    its own borrowing the runner-form fits of one of the same chip);
 4. pass costs refitted on the calibration runs' own rows (what the runner records), the
-   chosen kinds' factor per schedule where several schedules' runs have them, the kinds only
-   multi-GPU runs have scaled to their instances that ran alone on the cores, and the copies'
-   fixed cost from the runs' copies alone on the cores;
+   kinds only multi-GPU runs have scaled to their instances that ran alone on the cores, and
+   the copies' fixed cost from the runs' copies alone on the cores;
 5. the queues' idle gap between tasks (1-GPU runs) and the host-copy thread's wake latency;
 6. a grid search of the host effects on the runs' frame-time error.
 """
@@ -33,9 +32,8 @@ from .fit import fit_nonnegative
 from .model import calibrate, read_measurements
 from .profile_out import apply, lavapipe_base, report
 from .runs import (Run, copy_wake_after_dispatch, fit_alone_scales, fit_copy_setup,
-                   fit_host_copy_wake, fit_host_effects, fit_passes_from_runs,
-                   fit_schedule_scales, fit_task_gap, with_alone_scales, with_pass_fits,
-                   with_schedule_scales)
+                   fit_host_copy_wake, fit_host_effects, fit_passes_from_runs, fit_task_gap,
+                   with_alone_scales, with_pass_fits)
 
 
 def profile_from_tables(recipe: Any, tables: Sequence[Path], profile: Path,
@@ -69,11 +67,6 @@ def refine_on_runs(recipe: Any, data: dict[str, Any], runs: Sequence[Run]) -> tu
         terms = ", ".join(f"{n}={v:.4g}+-{e:.2g}" for n, v, e in zip(f.names, f.coef, f.stderr))
         warn = f" ({'; '.join(f.warnings)})" if f.warnings else ""
         lines.append(f"  {kind}: {terms}; rms {f.rel_rms:.1%} ({len(f.rel_residuals)} rows){warn}")
-    if recipe.schedule_scale:
-        by_schedule = fit_schedule_scales(runs, data, recipe.schedule_scale, recipe.run_fit_gpus)
-        data = with_schedule_scales(data, by_schedule)
-        lines.extend(f"  {kind}: x {f:.4g} in {name}'s frames (median over its {n} rows)"
-                     for kind, by in by_schedule.items() for name, (f, n) in by.items())
     if recipe.run_fit_alone:
         scales = fit_alone_scales(runs, recipe.run_fit_alone, data["gpus"][0]["costs"])
         data = with_alone_scales(data, scales)

@@ -54,9 +54,17 @@ def fit_passes_from_runs(runs: Sequence[Run], kinds: Sequence[str] = (), gpus: i
     coefficients (the microbenchmarks' fit, made over placements the runs do not vary), with
     only a fixed cost and one scale fitted on the runs."""
     rows: dict[str, list[tuple[dict[str, float], float]]] = defaultdict(list)
-    for _exp, task, durations in _pass_rows(runs, kinds, gpus):
-        work = {t: (v if terms is None or t in terms else 0.0) for t, v in task.work.items()}
-        rows[task.kind].extend((work, d) for d in durations)
+    for exp, trace in runs:
+        if gpus is not None and exp.schedule.gpus != gpus:
+            continue
+        program = build_program(exp)
+        steady = trace[trace["frame"] >= exp.schedule.warmup_frames]
+        duration = steady["end_ns"] - steady["start_ns"]
+        for task in program.templates[0]:
+            if not isinstance(task, PassTask) or (kinds and task.kind not in kinds):
+                continue
+            work = {t: (v if terms is None or t in terms else 0.0) for t, v in task.work.items()}
+            rows[task.kind].extend((work, float(d)) for d in duration[steady["task"] == task.name])
     fits = {}
     for kind, samples in rows.items():
         if shapes and kind in shapes:
@@ -67,52 +75,6 @@ def fit_passes_from_runs(runs: Sequence[Run], kinds: Sequence[str] = (), gpus: i
         y = np.array([d for _, d in samples])
         fits[kind] = fit_nonnegative(X, y, ["fixed_ns"] + [f"ns_per_{t}" for t in names], f"{kind} (runs)")
     return fits
-
-
-def _pass_rows(runs: Sequence[Run], kinds: Sequence[str] = (),
-               gpus: int | None = None) -> Iterator[tuple[Experiment, PassTask, list[float]]]:
-    """(experiment, pass task, its steady-state durations in ns) of the runs' frame passes:
-    of these kinds (all when empty), in runs of `gpus` GPUs (all when None)."""
-    for exp, trace in runs:
-        if gpus is not None and exp.schedule.gpus != gpus:
-            continue
-        steady = trace[trace["frame"] >= exp.schedule.warmup_frames]
-        duration = steady["end_ns"] - steady["start_ns"]
-        for task in build_program(exp).templates[0]:
-            if isinstance(task, PassTask) and (not kinds or task.kind in kinds):
-                yield exp, task, [float(d) for d in duration[steady["task"] == task.name]]
-
-
-def fit_schedule_scales(runs: Sequence[Run], profile_data: dict[str, Any], kinds: Sequence[str] = (),
-                        gpus: int | None = None) -> dict[str, dict[str, tuple[float, int]]]:
-    """Per pass kind that the runs of two or more schedules have: per schedule, the median over
-    its rows of (measured duration / the profile's cost of the row). Rows are chosen as the
-    refit's (`kinds`, `gpus`). Returns kind -> schedule -> (factor, rows).
-
-    Why: the refit is one fit over every schedule's rows, so a schedule whose frame makes a
-    pass dearer than another's is left off by that difference. On lavapipe, in three steady
-    jobs, sort-last's renders ran 5 % under the microbenchmark fit and XR's eye views 0-11 %
-    over it, with the same work terms; the refit follows sort-last (most of its rows), and
-    XR's frames came out 4-9 % too fast. Each schedule's factor is measured on its own runs."""
-    costs = CostModel(parse_profile(copy.deepcopy(profile_data), "<calibration>"))
-    ratios: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
-    for exp, task, durations in _pass_rows(runs, kinds, gpus):
-        cost = costs.pass_cost_ns(task.queue.device, task.kind, task.work)
-        if cost > 0 and durations:
-            ratios[task.kind][exp.schedule.name].extend(d / cost for d in durations)
-    return {kind: {name: (float(np.median(r)), len(r)) for name, r in sorted(by.items())}
-            for kind, by in ratios.items() if len(by) >= 2}
-
-
-def with_schedule_scales(profile_data: dict[str, Any],
-                         scales: Mapping[str, Mapping[str, tuple[float, int]]]) -> dict[str, Any]:
-    """Profile data with each kind's `schedule_scale` table set to these factors."""
-    out = copy.deepcopy(profile_data)
-    for gpu in out["gpus"]:
-        for kind, by in scales.items():
-            if kind in gpu["costs"]:
-                gpu["costs"][kind]["schedule_scale"] = {n: round(f, 4) for n, (f, _) in by.items()}
-    return out
 
 
 def _fit_scale(samples: list[tuple[dict[str, float], float]], shape: Mapping[str, float],

@@ -98,7 +98,7 @@ def _strip_counts(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -
     n, tiles = cfg.gpus, cfg.opt("tiles")
     if not cfg.opt("balance"):
         return [len(range(g, tiles, n)) for g in range(n)]
-    exact = [Fraction(r * tiles, scene.height) for r in balanced_rows(scene, profile, n, cfg.name)]
+    exact = [Fraction(r * tiles, scene.height) for r in balanced_rows(scene, profile, n)]
     counts = [math.floor(e) for e in exact]
     for g in sorted(range(n), key=lambda g: (counts[g] - exact[g], g))[:tiles - sum(counts)]:
         counts[g] += 1
@@ -138,7 +138,7 @@ def _build_strips(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -
 def _sort_first_rows(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> list[int]:
     """Tile heights: balanced from costs, as given per GPU, or equal."""
     if cfg.opt("balance"):
-        return balanced_rows(scene, profile, cfg.gpus, cfg.name)
+        return balanced_rows(scene, profile, cfg.gpus)
     given = list(cfg.opt("tile_rows"))
     if not given:
         return tile_rows(scene.height, cfg.gpus)
@@ -160,13 +160,12 @@ def _graphics_load(scene: Scene, costs: CostModel, gpu: int, rows: int, n: int) 
     return load
 
 
-def balanced_rows(scene: Scene, profile: HardwareProfile, n: int, schedule: str = "") -> list[int]:
+def balanced_rows(scene: Scene, profile: HardwareProfile, n: int) -> list[int]:
     """Tile heights that minimise the largest per-frame graphics load (the thesis's proposed
     load balancing, from the GPUs' costs): the smallest time T for which the rows each GPU
     can render within T cover the screen, found by bisection on integer ns. Copies run on
-    other queues and overlap the next frame, so they do not enter the balance. `schedule`: the
-    schedule whose factors the costs take."""
-    costs, h = CostModel(profile, schedule), scene.height
+    other queues and overlap the next frame, so they do not enter the balance."""
+    costs, h = CostModel(profile), scene.height
 
     def rows_within(gpu: int, t: int) -> int:
         lo, hi = -1, h  # largest r in [0, h] with load <= t, or -1

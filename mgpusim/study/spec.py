@@ -81,8 +81,7 @@ class Recipe:
     host keys copied from another profile; pass costs from the calibration runs (`run_fitted`
     kinds, all kinds when empty; runs of `run_fit_gpus` GPUs only when set; `run_fit_terms` work
     terms only when set); the `run_fit_alone` kinds (those only multi-GPU runs have) scaled to
-    their instances that ran alone on the cores; the `schedule_scale` kinds' factor per schedule
-    (where two or more schedules' runs have the kind); the copies' fixed cost from the runs' copies
+    their instances that ran alone on the cores; the copies' fixed cost from the runs' copies
     alone on the cores (`copy_setup`); the queues' idle gap (`task_gap`); the host-copy
     thread's wake latency (`host_copy_wake`); the copies left behind a young core-filling pass
     of another GPU (`busy_wake`); a grid search of host effects."""
@@ -96,7 +95,6 @@ class Recipe:
     run_fit_gpus: int | None = None
     run_fit_terms: tuple[str, ...] | None = None
     run_fit_alone: tuple[str, ...] = ()
-    schedule_scale: tuple[str, ...] = ()
     task_gap: bool = False
     host_copy_wake: bool = False
     busy_wake: bool = False
@@ -226,7 +224,6 @@ def _recipe(t: Table, base: Path) -> Recipe:
         run_fitted=tuple(t.get("run_fitted", list, [])), run_fit_gpus=gpus or None,
         run_fit_terms=tuple(terms) if terms is not None else None,
         run_fit_alone=_pass_kinds(t, "run_fit_alone"),
-        schedule_scale=_pass_kinds(t, "schedule_scale"),
         task_gap=t.get("task_gap", bool, False),
         host_copy_wake=t.get("host_copy_wake", bool, False),
         busy_wake=t.get("busy_wake", bool, False),

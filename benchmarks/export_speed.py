@@ -11,9 +11,9 @@ import time
 from pathlib import Path
 
 import mgpusim
-from mgpusim.output import TRACE_FRAMES, frame_window
-from mgpusim.perfetto import chrome_trace_json
-from mgpusim.plot import timeline_png
+from mgpusim.io.output import TRACE_FRAMES, frame_window
+from mgpusim.io.perfetto import chrome_trace_json
+from mgpusim.io.plot import timeline_png
 
 ROOT = Path(__file__).resolve().parents[1]
 

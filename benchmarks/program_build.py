@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from mgpusim import load_experiment  # noqa: E402
-from mgpusim.simulate import build_program  # noqa: E402
+from mgpusim.sim.simulation import build_program  # noqa: E402
 
 
 def main() -> None:

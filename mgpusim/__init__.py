@@ -8,12 +8,12 @@ Python API::
     result.summary["frame_time_ms"], result.trace, result.frames
     table = mgpusim.sweep("experiments/sort_first_tc1.toml", {"schedule.gpus": [1, 2, 3]}, out="out/sweep")
 """
-from .errors import InputError, MgpusimError, ScheduleError
-from .experiment import Experiment, load_experiment
-from .profile import HardwareProfile, load_profile
-from .results import Result
-from .simulate import simulate
-from .sweeps import sweep
+from mgpusim.model.errors import InputError, MgpusimError, ScheduleError
+from mgpusim.model.profile import HardwareProfile, load_profile
+from mgpusim.results.summary import Result
+from mgpusim.schedules.experiment import Experiment, load_experiment
+from mgpusim.sim.simulation import simulate
+from mgpusim.studies.sweep_grid import sweep
 
 __all__ = ["Experiment", "HardwareProfile", "InputError", "MgpusimError", "Result", "ScheduleError",
            "load_experiment", "load_profile", "simulate", "sweep"]

@@ -1,6 +1,6 @@
 """`python -m mgpusim ...`: the same command line as `mgpusim ...`."""
 import sys
 
-from .cli import main
+from mgpusim.cli import main
 
 sys.exit(main())

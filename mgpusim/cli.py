@@ -10,8 +10,8 @@ import importlib
 import sys
 from typing import NoReturn
 
-from . import __version__
-from .errors import MgpusimError
+from mgpusim import __version__
+from mgpusim.model.errors import MgpusimError
 
 #: Packages that only the Vulkan backend needs: the `vulkan` extra installs them.
 VULKAN_PACKAGES = ("vulkan", "cffi")

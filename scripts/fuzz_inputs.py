@@ -35,11 +35,11 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mgpusim.config import read_toml  # noqa: E402
-from mgpusim.errors import MgpusimError  # noqa: E402
-from mgpusim.experiment import load_experiment, parse_experiment  # noqa: E402
-from mgpusim.profile import parse_profile  # noqa: E402
-from mgpusim.simulate import simulate  # noqa: E402
+from mgpusim.model.config import read_toml  # noqa: E402
+from mgpusim.model.errors import MgpusimError  # noqa: E402
+from mgpusim.model.profile import parse_profile  # noqa: E402
+from mgpusim.schedules.experiment import load_experiment, parse_experiment  # noqa: E402
+from mgpusim.sim.simulation import simulate  # noqa: E402
 
 #: Frames simulated per case at most (see the module docstring).
 FRAMES_CAP = 12
@@ -238,7 +238,8 @@ def run_case(case: Case, tmp: Path) -> str:
 
 def run_table_case(case: Case, tmp: Path) -> str:
     """Calibrate from the mutated table and write the profile in memory (checked on load)."""
-    from mgpusim.calibrate import apply, calibrate, lavapipe_base, read_measurements  # noqa: PLC0415
+    from mgpusim.calibration import (apply, calibrate, lavapipe_base,  # noqa: PLC0415
+                                     read_measurements)
 
     path = tmp / case.source.name
     case.table.to_csv(path, index=False)

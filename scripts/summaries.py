@@ -20,8 +20,7 @@ def shipped_experiments(root: Path) -> list[Path]:
 
 
 def collect(root: Path) -> dict:
-    from mgpusim.experiment import load_experiment
-    from mgpusim.simulate import simulate
+    from mgpusim import load_experiment, simulate  # the public API: the same in every layout
     out = {}
     for path in shipped_experiments(root):
         result = simulate(load_experiment(path))

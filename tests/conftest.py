@@ -6,8 +6,8 @@ from typing import Any
 
 import pytest
 
-from mgpusim.experiment import parse_experiment
-from mgpusim.profile import parse_profile
+from mgpusim.model.profile import parse_profile
+from mgpusim.schedules.experiment import parse_experiment
 
 
 def gpu_dict(transfer: int = 1, h2d: float = 1.0, d2h: float = 1.0, latency: int = 0,

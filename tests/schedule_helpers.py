@@ -6,8 +6,8 @@ from __future__ import annotations
 import copy
 from typing import Any
 
-from mgpusim.experiment import parse_experiment
-from mgpusim.profile import parse_profile
+from mgpusim.model.profile import parse_profile
+from mgpusim.schedules.experiment import parse_experiment
 
 COSTS = {
     "present": {"fixed_ns": 10, "ns_per_pixel": 0.0},

@@ -21,11 +21,11 @@ import tomli_w
 
 from mgpusim import InputError, load_experiment, simulate
 from mgpusim.cli import main
-from mgpusim.costs import CostModel
-from mgpusim.profile import parse_profile
+from mgpusim.model.costs import CostModel
+from mgpusim.model.profile import parse_profile
+from mgpusim.model.tasks import Dep, PassTask, QueueRef
 from mgpusim.schedules.base import FrameProgram
 from mgpusim.sim.engine import Engine
-from mgpusim.tasks import Dep, PassTask, QueueRef
 from tests.conftest import profile_dict
 
 ROOT = Path(__file__).resolve().parents[1]

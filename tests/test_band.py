@@ -8,10 +8,10 @@ from pathlib import Path
 import pytest
 
 from mgpusim.cli import main
-from mgpusim.errors import InputError
-from mgpusim.experiment import load_experiment
-from mgpusim.profile import load_profile
-from mgpusim.simulate import simulate
+from mgpusim.model.errors import InputError
+from mgpusim.model.profile import load_profile
+from mgpusim.schedules.experiment import load_experiment
+from mgpusim.sim.simulation import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 TABLES = [ROOT / "data" / "lavapipe" / f"{t}.csv" for t in ("fragment_loop", "mesh", "copy_d2d", "copy_d2h",

@@ -7,10 +7,10 @@ from fractions import Fraction
 import pytest
 
 from mgpusim import simulate
-from mgpusim.calibrate.busy_wake import fit_busy_wake
-from mgpusim.errors import InputError
-from mgpusim.experiment import parse_experiment
-from mgpusim.profile import parse_profile
+from mgpusim.calibration.busy_wake_fit import fit_busy_wake
+from mgpusim.model.errors import InputError
+from mgpusim.model.profile import parse_profile
+from mgpusim.schedules.experiment import parse_experiment
 from mgpusim.sim.busy_wake import BusyWake
 from tests.conftest import profile_dict
 
@@ -128,7 +128,7 @@ def test_a_bad_share_or_time_is_refused(key, value):
 def test_the_recipe_writes_the_measured_effect_into_the_profile():
     """The calibration step sets the host's three keys and says what it measured; on 1-GPU runs
     it leaves the effect off."""
-    from mgpusim.calibrate.recipe import _busy_wake
+    from mgpusim.calibration.recipe import _busy_wake
     exp, prof = afr_on_shared_cores(0.5)
     data = copy.deepcopy(prof)
     for key in ("busy_wake_share", "busy_wake_ns", "busy_wake_window_ns"):

@@ -8,8 +8,8 @@ import pandas as pd
 import pytest
 
 from mgpusim import load_profile
-from mgpusim.calibrate import calibrate, fit_nonnegative
-from mgpusim.calibrate.profile_out import apply, lavapipe_base
+from mgpusim.calibration import calibrate, fit_nonnegative
+from mgpusim.calibration.profile_out import apply, lavapipe_base
 from mgpusim.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -152,7 +152,7 @@ def test_filter_pass_is_fitted_with_its_inputs():
                              "duration_ns": 2000 + 0.3 * px + 0.01 * px * it + 0.2 * px * inputs})
     df = pd.DataFrame(rows)
     df["source"] = "synthetic"
-    from mgpusim.calibrate.tables import check_measure_table
+    from mgpusim.calibration.measure_tables import check_measure_table
     check_measure_table(df, "filter.csv")  # a known pass of the measure library
     fit = calibrate(df, {}).pass_fits["filter"]
     got = dict(zip(fit.names, fit.coef))
@@ -164,8 +164,8 @@ def test_filter_pass_is_fitted_with_its_inputs():
 def test_a_fit_that_does_not_converge_is_an_input_error(monkeypatch):
     """scipy's solver raises RuntimeError at its iteration limit: calibrate says so in one line
     naming the fit instead of crashing."""
-    from mgpusim.calibrate import fit as fit_module
-    from mgpusim.errors import InputError
+    from mgpusim.calibration import fit as fit_module
+    from mgpusim.model.errors import InputError
 
     def no_convergence(*args, **kwargs):
         raise RuntimeError("Maximum number of iterations reached.")

@@ -6,7 +6,7 @@ import copy
 import pytest
 
 from mgpusim import simulate
-from mgpusim.calibrate.runs import fit_host_effects, fit_passes_from_runs, fit_task_gap
+from mgpusim.calibration.run_fit import fit_host_effects, fit_passes_from_runs, fit_task_gap
 from tests.conftest import make_experiment, profile_dict
 
 
@@ -66,8 +66,8 @@ def test_refit_keeps_the_placed_terms_in_proportion():
     """Whole-frame runs cannot tell a mesh's placed terms apart: the refit keeps the
     microbenchmarks' per-term coefficients in proportion and fits a fixed cost and one scale;
     placed_shapes picks the kinds whose table fit has placed terms."""
-    from mgpusim.calibrate.recipe import placed_shapes
-    from mgpusim.calibrate.runs import _fit_scale
+    from mgpusim.calibration.recipe import placed_shapes
+    from mgpusim.calibration.run_fit import _fit_scale
     shape = {"triangle": 40.0, "visible_triangle": 50.0, "triangle_edge": 45.0, "pixel": 0.5}
     samples = []
     for tri, edge, px in ((5000, 9000, 12288), (20000, 19000, 49152), (40000, 30000, 76800)):
@@ -90,7 +90,7 @@ def test_kinds_only_multi_gpu_runs_have_are_scaled_to_their_instances_alone():
     """A sort-last composite that costs twice per pixel what the microbenchmark fit says is
     found twice as costly (fixed cost kept), from the instances no other GPU's pass overlapped;
     1-GPU runs (no composite) give nothing to scale."""
-    from mgpusim.calibrate.runs import fit_alone_scales, with_alone_scales
+    from mgpusim.calibration.run_fit import fit_alone_scales, with_alone_scales
     prof = profile_dict(gpus=3)
     prof["gpus"][0]["costs"]["composite_sort_last"] = {"fixed_ns": 100.0, "ns_per_pixel": 3.0,
                                                        "ns_per_input": 0.0}
@@ -114,7 +114,7 @@ def test_host_copy_wake_is_measured_from_the_runs():
     """A host copy that starts 300 ns after its download ended, its thread idle, is found to
     wake in 300 ns; the model without it starts the copy at once, and a run without host
     copies gives nothing."""
-    from mgpusim.calibrate.runs import fit_host_copy_wake
+    from mgpusim.calibration.run_fit import fit_host_copy_wake
     prof = profile_dict(gpus=2)
     prof["host"]["host_copy_wake_ns"] = 300
     woke = make_experiment(copy.deepcopy(prof), gpus=2, width=32, height=16, iterations=40, frames=12)
@@ -131,7 +131,7 @@ def test_host_copy_wait_is_split_between_wake_and_dispatch():
     wait (500 ns here) holds both, so the grid gives the wake what is left after each trial's
     dispatch, and gets back the 300 ns wake and 200 ns dispatch that made the runs (counting
     the whole wait as the wake would make every host copy start 200 ns late)."""
-    from mgpusim.calibrate.runs import copy_wake_after_dispatch, fit_host_copy_wake
+    from mgpusim.calibration.run_fit import copy_wake_after_dispatch, fit_host_copy_wake
     prof = profile_dict(gpus=2)
     prof["host"].update(host_copy_wake_ns=300, dispatch_ns=200)
     made = [make_experiment(copy.deepcopy(prof), gpus=2, width=w, height=16, iterations=it,
@@ -151,7 +151,7 @@ def test_copy_setup_is_measured_on_the_runs_copies():
     """Copies that cost 700 ns more than bytes over the link are found to have a 700 ns fixed
     cost on their queue family, whatever the profile being fitted says it is; 1-GPU runs (no
     copies) give nothing."""
-    from mgpusim.calibrate.runs import fit_copy_setup
+    from mgpusim.calibration.run_fit import fit_copy_setup
     prof = profile_dict(gpus=2, latency=7)
     prof["gpus"][0]["copy"] = {"transfer": {"fixed_ns": 700}}
     two = make_experiment(copy.deepcopy(prof), gpus=2, width=32, height=16, iterations=40, frames=12)
@@ -168,7 +168,7 @@ def test_copy_setup_is_measured_on_the_runs_copies():
 def test_an_alone_scale_is_never_negative(monkeypatch):
     """Instances alone shorter than the fixed cost (a noisy machine's small composites) give a
     scale of 0, not a negative coefficient that the profile would refuse."""
-    from mgpusim.calibrate import runs as r
+    from mgpusim.calibration import run_fit as r
 
     task = r.PassTask("comp", "composite", None, "composite_sort_last",
                       {"pixel": 1000.0, "input": 2.0}, ())

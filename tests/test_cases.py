@@ -9,13 +9,13 @@ from pathlib import Path
 import pytest
 
 from mgpusim import cli
-from mgpusim.cases import (Case, CaseResult, case_names, copy_limited_fps, docs_block, load_case, markdown,
-                           metric, run_case, sections_rendered, span_ms, steady, table,
-                           with_docs_block)
-from mgpusim.errors import InputError
-from mgpusim.geometry import mesh_placement
-from mgpusim.simulate import simulate
-from mgpusim.study.spec import load_study
+from mgpusim.model.errors import InputError
+from mgpusim.model.geometry import mesh_placement
+from mgpusim.sim.simulation import simulate
+from mgpusim.studies.cases import (Case, CaseResult, case_names, copy_limited_fps, docs_block,
+                                   load_case, markdown, metric, run_case, sections_rendered,
+                                   span_ms, steady, table, with_docs_block)
+from mgpusim.studies.spec import load_study
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = ("dx12_pipelining", "particle_offload", "vulkan_thesis", "xr_stereo")
@@ -208,7 +208,7 @@ def test_lavapipe_study_loads_and_simulates_on_the_lavapipe_profile(name):
     study = load_study(ROOT / "experiments" / "cases" / name / "lavapipe.toml")
     assert study.calibration and study.held_out
     try:
-        from mgpusim.vulkan.measure import parse_sweeps
+        from mgpusim.real.vulkan.microbench import parse_sweeps
     except ImportError:  # pragma: no cover - the Vulkan extra is not installed
         parse_sweeps = None
     if parse_sweeps is not None:

@@ -4,9 +4,10 @@ from __future__ import annotations
 from fractions import Fraction
 
 import simpy
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from mgpusim.costs import round_half_up
+from mgpusim.model.costs import round_half_up
 from mgpusim.sim.channel import Channel, PassWork
 
 

@@ -4,11 +4,11 @@ from __future__ import annotations
 import simpy
 
 from mgpusim import simulate
-from mgpusim.costs import CostModel
-from mgpusim.profile import parse_profile
+from mgpusim.model.costs import CostModel
+from mgpusim.model.profile import parse_profile
+from mgpusim.model.tasks import CopyTask, PassTask, QueueRef
 from mgpusim.sim.channel import PassWork
 from mgpusim.sim.executors import SharedCores
-from mgpusim.tasks import CopyTask, PassTask, QueueRef
 from tests.conftest import make_experiment, profile_dict
 
 
@@ -128,8 +128,9 @@ def test_submit_thread_waking_competes_for_busy_cores():
 
 def test_driver_overhead_fields_are_checked():
     import pytest
-    from mgpusim.errors import InputError
-    from mgpusim.profile import parse_profile
+
+    from mgpusim.model.errors import InputError
+    from mgpusim.model.profile import parse_profile
     prof = lavapipe_profile(2, None)
     prof["gpus"][0]["costs"]["fragment_loop"]["cpu_overhead_ns"] = -1
     with pytest.raises(InputError, match="cpu_overhead_ns"):
@@ -145,7 +146,8 @@ def _secondary_starts(serial: bool, monkeypatch) -> list[int]:
     sort-last run with a 0.3 ms dispatch: each waits for the primary's present two frames back,
     so all three submit threads wake on the same input."""
     from pathlib import Path
-    from mgpusim.experiment import load_experiment, parse_overrides
+
+    from mgpusim.schedules.experiment import load_experiment, parse_overrides
     from mgpusim.sim.executors import SharedCores
     monkeypatch.setattr(SharedCores, "serial_dispatch", serial)
     exp = load_experiment(Path(__file__).resolve().parents[1] / "experiments/lavapipe/sort_last.toml",

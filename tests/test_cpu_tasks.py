@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from mgpusim import InputError, simulate
-from mgpusim.program import build_program
+from mgpusim.schedules.program import build_program
 from tests.conftest import make_experiment, profile_dict
 
 

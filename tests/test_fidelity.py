@@ -7,16 +7,17 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from hypothesis import assume, given, settings, strategies as st
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
-from mgpusim.costs import CostModel
-from mgpusim.errors import InputError
-from mgpusim.experiment import load_experiment
-from mgpusim.periodic import shifted_overlap
+from mgpusim.model.costs import CostModel
+from mgpusim.model.errors import InputError
+from mgpusim.results.periodic import shifted_overlap
+from mgpusim.schedules.experiment import load_experiment
 from mgpusim.sim.effects import EFFECTS, choose_effects, parse_effects
 from mgpusim.sim.engine import Engine
 from mgpusim.sim.executors import make_executors
-from mgpusim.simulate import build_program, simulate
+from mgpusim.sim.simulation import build_program, simulate
 from tests.conftest import make_experiment, profile_dict
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -236,7 +237,7 @@ def test_analytic_extrapolates_long_runs():
 
 
 def test_streamed_trace_file_is_the_whole_trace(tmp_path: Path):
-    from mgpusim.output import write_table, write_trace
+    from mgpusim.io.output import write_table, write_trace
     exp = load_experiment(ROOT / "experiments" / "sort_first_tc1.toml", {"schedule.frames": 600})
     on, off = simulate(exp), simulate(exp, fast_forward=False)
     assert on.compact
@@ -255,6 +256,7 @@ def test_streamed_trace_file_is_the_whole_trace(tmp_path: Path):
                                   "pipelining_miniengine_pcie3x8.toml"])
 def test_sweep_lane_equals_analytic(name: str):
     import numpy as np
+
     from mgpusim.sim.analytic import sweep
     exp = load_experiment(ROOT / "experiments" / name)
     out = sweep(build_program(exp), CostModel(exp.profile), np.array([1.0, 2.0]), np.array([1.0, 1.0]))
@@ -267,6 +269,7 @@ def test_sweep_lane_equals_analytic(name: str):
 def test_sweep_honours_the_gpus_speed_factor():
     """A sweep lane of a profile whose GPUs are 2x faster equals that profile simulated."""
     import numpy as np
+
     from mgpusim.sim.analytic import sweep
     exp = load_experiment(ROOT / "experiments" / "sort_first_tc1.toml", {"profile.gpus.*.speed": 2.0})
     out = sweep(build_program(exp), CostModel(exp.profile), np.array([1.0]), np.array([1.0]))
@@ -276,7 +279,7 @@ def test_sweep_honours_the_gpus_speed_factor():
 
 def test_fidelity_command_writes_the_table(tmp_path: Path):
     from mgpusim.cli import main
-    from mgpusim.fidelity import configurations
+    from mgpusim.studies.accuracy_cost import configurations
     assert len(configurations()) >= 100  # the committed H200, H100 and lavapipe runs
     out = tmp_path / "new" / "folder"  # made as needed
     assert main(["fidelity", "--out", str(out), "--repeats", "1"]) == 0
@@ -326,7 +329,7 @@ def _scenes(draw):
 
 def _make(scene):
     """The scene's experiment, or None where the schedule refuses it (e.g. too few GPUs)."""
-    from mgpusim.errors import MgpusimError
+    from mgpusim.model.errors import MgpusimError
     prof, kw = scene
     try:
         exp = make_experiment(prof, **kw)
@@ -411,6 +414,7 @@ def test_without_a_trace_the_summary_does_not_depend_on_the_fast_forward(name: s
 
 def test_sweep_refuses_skippable_schedules():
     import numpy as np
+
     from mgpusim.sim.analytic import sweep
     exp = load_experiment(ROOT / "experiments" / "particles_machine.toml")
     with pytest.raises(InputError, match="skippable"):
@@ -420,7 +424,7 @@ def test_sweep_refuses_skippable_schedules():
 def test_written_outputs_do_not_depend_on_the_fast_forward(tmp_path: Path):
     """The windows of a compact trace (timeline, Perfetto) and the tables are the files the
     whole trace gives."""
-    from mgpusim.output import write_result
+    from mgpusim.io.output import write_result
     exp = load_experiment(ROOT / "experiments" / "sort_first_tc1.toml", {"schedule.frames": 600})
     on, off = simulate(exp), simulate(exp, fast_forward=False)
     assert on.compact

@@ -163,8 +163,8 @@ def test_measured_run_recorded_before_a_new_option_still_matches():
     """A run recorded before `pipelining` existed lacks it: at its default that changes
     nothing, so the run still matches; set to something else, the difference is named."""
     from mgpusim import InputError
-    from mgpusim.measured_check import check_recorded_config
-    from mgpusim.program import recorded_inputs
+    from mgpusim.schedules.program import recorded_inputs
+    from mgpusim.validation.measured_check import check_recorded_config
     exp = make_experiment(gpus=2)
     config = {"schedule": "sort_first", "gpus": 2, "inputs": recorded_inputs(exp)}
     del config["inputs"]["schedule"]["pipelining"]
@@ -194,7 +194,7 @@ def test_sort_first_interleaved_strips_exact_timeline():
     assert (f0.loc["composite", "start_ns"], f0.loc["composite", "end_ns"]) == (1024, 1066)
     assert f0.loc["present", "end_ns"] == 1076
     assert r.config["contribution_bytes_per_frame"] == 128
-    from mgpusim.program import build_program
+    from mgpusim.schedules.program import build_program
     render = next(t for t in build_program(make_experiment(gpus=2, height=6, tiles=4)).templates[0]
                   if t.name == "render1")
     assert "one tile per GPU" in render.params["unsupported"]  # the runner refuses it
@@ -205,7 +205,7 @@ def test_sort_first_interleaved_strips_exact_timeline():
                                          ({"tiles": 4, "tile_rows": [3, 3]}, "schedule.tiles")])
 def test_sort_first_strips_bad_input(opts, field):
     from mgpusim import InputError
-    from mgpusim.program import build_program
+    from mgpusim.schedules.program import build_program
     with pytest.raises(InputError, match=field):
         build_program(make_experiment(gpus=2, height=6, **opts))
 
@@ -216,8 +216,8 @@ def test_balanced_strips_give_a_slower_gpu_fewer_exact_timeline():
     gets 4 and GPU 1 2, interleaved 0,1,0,0,1,0. Renders 0-640 on both; GPU 1's 32 px x 4 B =
     128 B cross at 1 B/ns: d2h 640-768, host copy -896, h2d -1024; composite 0 ns; present
     1024-1034."""
-    from mgpusim.experiment import parse_experiment
-    from mgpusim.profile import parse_profile
+    from mgpusim.model.profile import parse_profile
+    from mgpusim.schedules.experiment import parse_experiment
     prof = profile_dict(gpus=1)
     prof["gpus"][0]["costs"]["composite_sort_first"] = {"ns_per_pixel": 0.0, "ns_per_input": 0.0}
     slow = copy.deepcopy(prof["gpus"][0])
@@ -243,8 +243,8 @@ def _objects_experiment(**sched):
     data = {"name": "t", "scene": {"width": 8, "height": 4, "objects": 8, "dataset_bytes": 8000,
                                    "passes": [{"name": "p", "kind": "mesh", "triangles": 800}]},
             "schedule": {"name": "sort_last", "gpus": 3, "frames": 3, "warmup_frames": 1, **sched}}
-    from mgpusim.experiment import parse_experiment
-    from mgpusim.profile import parse_profile
+    from mgpusim.model.profile import parse_profile
+    from mgpusim.schedules.experiment import parse_experiment
     return parse_experiment(data, "t.toml", profile=parse_profile(profile_dict(gpus=3), "p"))
 
 
@@ -254,8 +254,8 @@ def test_sort_last_whole_objects_exact_timeline():
     200-392; the one memcpy thread takes host copies in submission order: 1 492-684, 2 684-876;
     h2d1 684-876, h2d2 876-1068; composite 64 px 1068-1132; present 1142. The runner draws
     triangles [0, 300), [300, 600), [600, 800); memory holds 3/8, 3/8, 2/8 of the data set."""
-    from mgpusim.memory import memory_report
-    from mgpusim.program import build_program
+    from mgpusim.schedules.memory_check import memory_report
+    from mgpusim.schedules.program import build_program
     exp = _objects_experiment()
     r = simulate(exp)
     f0 = r.trace[r.trace.frame == 0].set_index("task")
@@ -275,7 +275,7 @@ def test_sort_last_whole_objects_exact_timeline():
 @pytest.mark.parametrize("counts", [[3, 3], [3, 3, 3], [4, 4, -0.5]])
 def test_sort_last_object_counts_bad_input(counts):
     from mgpusim import InputError
-    from mgpusim.program import build_program
+    from mgpusim.schedules.program import build_program
     with pytest.raises(InputError, match="schedule.object_counts"):
         build_program(_objects_experiment(object_counts=counts))
 
@@ -283,16 +283,16 @@ def test_sort_last_object_counts_bad_input(counts):
 def test_objects_and_strips_carry_their_placed_mesh_terms():
     """A whole-object share draws the triangle range the runner draws ([300, 600) of 800 for
     GPU 1 of 3/3/2), and a GPU drawing several strips sums its strips' placed terms."""
-    from mgpusim.geometry import MeshView, Placement, coverage
-    from mgpusim.program import build_program
+    from mgpusim.model.geometry import MeshView, Placement, coverage
+    from mgpusim.schedules.program import build_program
     program = build_program(_objects_experiment())
     work = {t.name: t.work for t in program.templates[0] if t.step == "render"}
     assert work["render1"]["visible_triangle"] == coverage(MeshView(800, (8, 4), None, 300, 300)).triangles
     data = {"name": "t", "scene": {"width": 16, "height": 6, "passes": [
         {"name": "p", "kind": "mesh", "triangles": 400}]},
         "schedule": {"name": "sort_first", "gpus": 2, "frames": 3, "warmup_frames": 1, "tiles": 3}}
-    from mgpusim.experiment import parse_experiment
-    from mgpusim.profile import parse_profile
+    from mgpusim.model.profile import parse_profile
+    from mgpusim.schedules.experiment import parse_experiment
     exp = parse_experiment(data, "t.toml", profile=parse_profile(profile_dict(gpus=2), "p"))
     render0 = next(t for t in build_program(exp).templates[0] if t.name == "render0")
     expected = sum(coverage(Placement((16, 6), (0, y, 16, 2)).mesh_view(400)).triangles for y in (0, 4))

@@ -5,13 +5,14 @@ from types import MappingProxyType
 
 import pytest
 
-from mgpusim.costs import CostModel, pass_work
-from mgpusim.experiment import load_experiment
-from mgpusim.program import build_program
-from mgpusim.errors import InputError
-from mgpusim.geometry import MeshView, Placement, coverage, mesh_placement, torus_mesh
-from mgpusim.profile import load_profile
-from mgpusim.scene import PassSpec
+from mgpusim.model.costs import CostModel
+from mgpusim.model.errors import InputError
+from mgpusim.model.geometry import MeshView, Placement, coverage, mesh_placement, torus_mesh
+from mgpusim.model.profile import load_profile
+from mgpusim.model.scene import PassSpec
+from mgpusim.model.work_terms import pass_work
+from mgpusim.schedules.experiment import load_experiment
+from mgpusim.schedules.program import build_program
 
 FRAME = (256, 192)
 

@@ -9,15 +9,14 @@ from fractions import Fraction
 import pytest
 
 from mgpusim import simulate
-from mgpusim.errors import InputError
-from mgpusim.profile import parse_profile
+from mgpusim.model.errors import InputError
+from mgpusim.model.profile import parse_profile
+from mgpusim.model.tasks import QueueRef
+from mgpusim.schedules.experiment import parse_experiment
 from mgpusim.sim.effects import choose_effects
 from mgpusim.sim.executors import capacity
-from mgpusim.simulate import build_program
-from mgpusim.tasks import QueueRef
+from mgpusim.sim.simulation import build_program
 from tests.conftest import experiment_dict, make_experiment, profile_dict
-
-from mgpusim.experiment import parse_experiment
 
 
 def _profile(overlap: dict | None = None, physical: int | None = None, gpus: int = 2) -> dict:
@@ -173,7 +172,7 @@ def test_logical_gpus_of_one_physical_gpu_describe_it_alike():
 
 
 def test_a_run_on_one_gpu_is_compared_only_with_a_profile_that_says_so(tmp_path):
-    from mgpusim.measured_check import check_physical_gpus
+    from mgpusim.validation.measured_check import check_physical_gpus
 
     one_gpu = {"gpus": [{"name": "gpu0", "physical_index": 0}, {"name": "gpu1", "physical_index": 0}]}
     apart = make_experiment(_profile(), gpus=2)
@@ -196,8 +195,8 @@ def test_h100_queues_study_configurations_model_the_sharing():
     queues share it; the second logical GPU is on the same physical GPU."""
     from pathlib import Path
 
-    from mgpusim.overrides import parse_overrides
-    from mgpusim.study import load_study
+    from mgpusim.model.overrides import parse_overrides
+    from mgpusim.studies import load_study
 
     root = Path(__file__).resolve().parents[1]
     study = load_study(root / "experiments" / "h100" / "queues.toml")

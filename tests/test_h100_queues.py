@@ -7,8 +7,8 @@ import tomllib
 from pathlib import Path
 
 from mgpusim.cli import main
-from mgpusim.simulate import simulate
-from mgpusim.study import load_study, validate
+from mgpusim.sim.simulation import simulate
+from mgpusim.studies import load_study, validate
 from tests.test_h200_offline import _flat  # one flattening of profile tables for both studies
 
 ROOT = Path(__file__).resolve().parents[1]

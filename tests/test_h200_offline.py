@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 
 from mgpusim.cli import main
-from mgpusim.study import load_study, validate
-from mgpusim.study.measure import measured_folder
-from mgpusim.study.nvlink import nvlink_whatif
+from mgpusim.studies import load_study, validate
+from mgpusim.studies.measuring import measured_folder
+from mgpusim.studies.nvlink import nvlink_whatif
 
 ROOT = Path(__file__).resolve().parents[1]
 STUDY = ROOT / "experiments" / "h200" / "study.toml"
@@ -83,7 +83,7 @@ def test_nvlink_whatif_is_faster_than_pcie() -> None:
 
 @pytest.mark.parametrize("profile", ["h200_x2.toml", "h100.toml"])
 def test_nvidia_profiles_load(profile: str) -> None:
-    from mgpusim.experiment import load_experiment
+    from mgpusim.schedules.experiment import load_experiment
     exp = load_experiment(ROOT / "experiments" / "h200" / "sort_first.toml", {"schedule.gpus": 1},
                           profile=str(ROOT / "hardware_profiles" / profile))
     assert exp.profile.host.memcpy_threads == 8

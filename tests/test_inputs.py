@@ -8,12 +8,12 @@ from pathlib import Path
 import pytest
 
 from mgpusim import InputError, ScheduleError, load_experiment, simulate
-from mgpusim.costs import CostModel
-from mgpusim.experiment import parse_experiment
-from mgpusim.profile import parse_profile
+from mgpusim.model.costs import CostModel
+from mgpusim.model.profile import parse_profile
+from mgpusim.model.tasks import Dep, PassTask, QueueRef
 from mgpusim.schedules.base import FrameProgram
+from mgpusim.schedules.experiment import parse_experiment
 from mgpusim.sim.engine import Engine
-from mgpusim.tasks import Dep, PassTask, QueueRef
 from tests.conftest import experiment_dict, profile_dict
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -11,8 +11,8 @@ import tomli_w
 from mgpusim import load_profile
 from mgpusim.cli import main
 from mgpusim.commands.main_job import LAVAPIPE_STUDY
-from mgpusim.config import read_toml
-from mgpusim.study import load_study
+from mgpusim.model.config import read_toml
+from mgpusim.studies import load_study
 
 #: one configuration of each schedule, 1 and 2 GPUs
 KEEP = ("sf_1gpu_128x96_it500", "sl_1gpu_256x192_t5k", "sort_first_2gpu", "sort_last_2gpu",

@@ -4,8 +4,8 @@ from __future__ import annotations
 import pytest
 
 from mgpusim import InputError, simulate
-from mgpusim.memory import footprints, max_dataset_bytes
-from mgpusim.program import build_program
+from mgpusim.schedules.memory_check import footprints, max_dataset_bytes
+from mgpusim.schedules.program import build_program
 from tests.schedule_helpers import experiment, gpu, profile, timed
 
 MESH = [{"name": "m", "kind": "mesh", "triangles": 10}]

@@ -10,8 +10,8 @@ import pytest
 import mgpusim
 from mgpusim import simulate
 from mgpusim.cli import main
-from mgpusim.perfetto import chrome_trace
-from mgpusim.trace import TRACE_COLUMNS
+from mgpusim.io.perfetto import chrome_trace
+from mgpusim.results.trace import TRACE_COLUMNS
 from tests.conftest import make_experiment, profile_dict
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -70,7 +70,7 @@ def test_summary_with_one_or_no_steady_frame():
     import pytest
 
     from mgpusim import InputError
-    from mgpusim.results import frames_table, summarize
+    from mgpusim.results.summary import frames_table, summarize
     frames = frames_table(np.array([0, 100, 200]), np.array([150, 260, 370]))
     assert summarize(frames, None, warmup_frames=2)["frame_time_ms"] * 1e6 == 110  # 370 - 260
     assert summarize(frames, None, warmup_frames=1)["frame_time_ms"] * 1e6 == 110
@@ -182,7 +182,7 @@ def test_bad_frame_window_is_one_error(tmp_path, capsys, bad):
 def test_timeline_numbers_frames_and_keeps_the_legend_outside(tmp_path):
     import matplotlib.pyplot as plt
 
-    from mgpusim.plot import draw_timeline, step_colours
+    from mgpusim.io.plot import draw_timeline, step_colours
 
     exp = mgpusim.load_experiment(ROOT / "experiments" / "particles_machine.toml", {"schedule.frames": 20})
     result = mgpusim.simulate(exp)
@@ -203,8 +203,8 @@ def test_timeline_numbers_frames_and_keeps_the_legend_outside(tmp_path):
 
 
 def test_link_rates_attribute_peer_copies_to_their_link():
-    from mgpusim.perfetto import link_rates
-    from mgpusim.trace import make_trace
+    from mgpusim.io.perfetto import link_rates
+    from mgpusim.results.trace import make_trace
 
     # gpu0 has two peer links: each copy goes to the one busy when it ended
     trace = make_trace([(0, "gpu0", "transfer", "p2p", "a", 0, 100, 1000, ""),
@@ -273,8 +273,9 @@ def test_perfetto_of_a_window_of_a_one_gpu_run():
 def test_comparison_draws_the_simulations_last_frames_beside_a_later_measured_window():
     """A measured steady window (frames 30-33 of a long run) beside a 24-frame simulation: the
     simulated panel shows the simulation's last four frames, not an empty window."""
-    from mgpusim.plot import comparison_frames
     import pandas as pd
+
+    from mgpusim.io.plot import comparison_frames
     measured = pd.DataFrame({"frame": list(range(40))})
     simulated = pd.DataFrame({"frame": list(range(24))})
     assert comparison_frames(measured, simulated, [30, 31, 32, 33]) == ([30, 31, 32, 33], [20, 21, 22, 23])

@@ -6,12 +6,12 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from mgpusim.calibrate.model import read_measurements
-from mgpusim.calibrate.overlap import fit_overlap
+from mgpusim.calibration.overlap_fit import fit_overlap
+from mgpusim.calibration.pass_fit import read_measurements
 from mgpusim.cli import main
-from mgpusim.errors import InputError
-from mgpusim.profile import load_profile
-from mgpusim.sim.executors import overlap_efficiency
+from mgpusim.model.costs import overlap_efficiency
+from mgpusim.model.errors import InputError
+from mgpusim.model.profile import load_profile
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -15,9 +15,9 @@ from pathlib import Path
 import pytest
 
 import mgpusim
-from mgpusim import shipped
 from mgpusim.cli import build_parser, main
-from mgpusim.errors import InputError
+from mgpusim.io import shipped
+from mgpusim.model.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Options that still lack help text, in a command whose module is being rewritten elsewhere.
@@ -44,8 +44,8 @@ def test_wheel_ships_experiments_profiles_and_shaders(tmp_path):
         assert f"mgpusim/experiments/{path.relative_to(ROOT / 'experiments').as_posix()}" in names
     for path in (ROOT / "hardware_profiles").glob("*.toml"):
         assert f"mgpusim/hardware_profiles/{path.name}" in names
-    for path in (ROOT / "mgpusim" / "vulkan" / "shaders").iterdir():
-        assert f"mgpusim/vulkan/shaders/{path.name}" in names
+    for path in (ROOT / "mgpusim" / "real" / "vulkan" / "shaders").iterdir():
+        assert f"mgpusim/real/vulkan/shaders/{path.name}" in names
     meta = next(n for n in names if n.endswith(".dist-info/METADATA"))
     text = zipfile.ZipFile(wheel).read(meta).decode()
     assert f"Version: {mgpusim.__version__}" in text
@@ -98,7 +98,7 @@ def test_version_and_python_dash_m():
 
 
 def test_without_the_vulkan_extra_one_line_says_how_to_install(monkeypatch, capsys):
-    from mgpusim.vulkan import errors
+    from mgpusim.real.vulkan import vk_errors as errors
 
     monkeypatch.setitem(sys.modules, "vulkan", None)  # `import vulkan` now fails as if not installed
     monkeypatch.setattr(errors, "_vk", None)
@@ -114,7 +114,7 @@ def test_a_command_that_cannot_load_is_one_line_and_the_others_still_run(monkeyp
     import importlib
 
     from mgpusim import cli
-    from mgpusim.errors import InputError
+    from mgpusim.model.errors import InputError
     real = importlib.import_module
 
     def fake(name: str, *a):

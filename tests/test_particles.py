@@ -2,12 +2,12 @@
 updates skip their copies, update rate beside frame rate, no drift."""
 from __future__ import annotations
 
-from hypothesis import given, settings, strategies as st
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mgpusim import InputError, simulate
 from tests.schedule_helpers import assert_no_drift, experiment, presents, profile, rows, timed
-
-import pytest
 
 ENGINE = [timed("shadow", 100), timed("geometry", 200), timed("lighting", 300)]
 PRIMARY_FRAME = 100 + 200 + 5 + 300 + 10  # passes + particle draw + present
@@ -78,12 +78,12 @@ def test_20000_frames_no_drift(policy):
 
 
 def test_a_follower_of_two_skip_chains_is_rejected():
-    from mgpusim.costs import CostModel
-    from mgpusim.errors import ScheduleError
-    from mgpusim.profile import parse_profile
+    from mgpusim.model.costs import CostModel
+    from mgpusim.model.errors import ScheduleError
+    from mgpusim.model.profile import parse_profile
+    from mgpusim.model.tasks import Dep, PassTask, QueueRef
     from mgpusim.schedules.base import FrameProgram
     from mgpusim.sim.engine import Engine
-    from mgpusim.tasks import Dep, PassTask, QueueRef
     from tests.conftest import profile_dict
 
     q = QueueRef(0, "graphics")
@@ -126,7 +126,7 @@ def test_cpu_copy_under_new_wait_never_blocks_the_primary():
 
 
 def test_cpu_tasks_are_refused_by_the_runner_and_checked():
-    from mgpusim.program import build_program
+    from mgpusim.schedules.program import build_program
     program = build_program(experiment(profile(), "particles", ENGINE, cpu_frame_us=1.0))
     cpu = next(t for t in program.templates[0] if t.name == "cpu.frame")
     assert "simulated only" in cpu.params["unsupported"]

@@ -1,10 +1,10 @@
 """Frame pipelining: exact timelines, chunking, copy placement, peer path, no drift."""
 from __future__ import annotations
 
+import pytest
+
 from mgpusim import InputError, simulate
 from tests.schedule_helpers import assert_no_drift, experiment, gpu, presents, profile, rows, timed
-
-import pytest
 
 PASSES = [timed("a", 1000, output_bytes=200), timed("b", 400, output_bytes=100), timed("c", 300)]
 
@@ -96,7 +96,7 @@ def test_consumer_waits_reads_overlaps_arrival_with_gpu0_work():
                                   consumer_waits="reads", reads={"d": ["a"]}, **base))
     assert rows(chunked, "out.a#1.h2d", 0) == [(1200, 1300)]
     assert rows(chunked, "render.d", 0) == [(1300, 1500)] and presents(chunked)[0] == 1510
-    from mgpusim.program import build_program
+    from mgpusim.schedules.program import build_program
     program = build_program(experiment(profile(), "pipelining", READS, split_at=1, chunks=2,
                                        consumer_waits="reads", reads={"d": ["a"]}))
     up = next(t for t in program.templates[0] if t.name == "out.a#0.h2d")
@@ -118,7 +118,7 @@ def test_consumer_waits_unread_piece_arrives_before_present():
     ({"consumer_waits": "reads", "reads": {"d": "a"}}, "schedule.reads.d"),
     ({"consumer_waits": "some"}, "schedule.consumer_waits")])
 def test_consumer_waits_bad_input(opts, field):
-    from mgpusim.program import build_program
+    from mgpusim.schedules.program import build_program
     with pytest.raises(InputError, match=field):
         build_program(experiment(profile(), "pipelining", READS, split_at=1, **opts))
 
@@ -135,7 +135,7 @@ def test_device_group_copies_go_gpu_to_gpu_over_pcie():
     assert presents(r)[0] == 1760
     assert presents(run(frames=6, prof=prof, path="group", fidelity="analytic")) == \
         presents(run(frames=6, prof=prof, path="group"))
-    from mgpusim.program import build_program
+    from mgpusim.schedules.program import build_program
     copy = next(t for t in build_program(experiment(prof, "pipelining", PASSES, split_at=2,
                                                      path="group")).templates[0]
                 if t.name == "out.a.group")
@@ -162,7 +162,7 @@ def test_producer_chunks_copy_each_piece_as_it_is_rendered():
     assert rows(r, "out.b#0.h2d", 0) == [(1250, 1300)] and rows(r, "out.b#1.h2d", 0) == [(1450, 1500)]
     assert presents(r)[0] == 1810
     assert rows(r, "render.a#0", 1) == [(1400, 1900)]  # GPU 1 goes on with the next frame
-    from mgpusim.program import build_program
+    from mgpusim.schedules.program import build_program
     piece = next(t for t in build_program(experiment(profile(), "pipelining", PASSES, chunks=2,
                                                       producer_chunks=True)).templates[0]
                  if t.name == "render.a#1")
@@ -185,7 +185,7 @@ def test_consumer_chunks_each_piece_after_its_chunk():
     both = simulate(experiment(profile(), "pipelining", READS, producer_chunks=True, **kw))
     assert rows(both, "render.d#0", 0) == [(700, 800)] and rows(both, "render.d#1", 0) == [(1200, 1300)]
     assert presents(both)[0] == 1310
-    from mgpusim.program import build_program
+    from mgpusim.schedules.program import build_program
     up = next(t for t in build_program(experiment(profile(), "pipelining", READS, **kw)).templates[0]
               if t.name == "out.a#1.h2d")
     assert ("render.d#1", -2) in [(d.task, d.offset) for d in up.deps]  # its reader frees it

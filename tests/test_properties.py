@@ -1,7 +1,8 @@
 """Laws every five-step run obeys, over random machines and scenes (Hypothesis)."""
 from __future__ import annotations
 
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mgpusim import simulate
 from mgpusim.schedules.five_step import tile_rows

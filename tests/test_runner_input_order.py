@@ -5,11 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 from types import SimpleNamespace
 
-from mgpusim.experiment import load_experiment
-from mgpusim.program import build_program
-from mgpusim.runner.plan import build_nodes
-from mgpusim.runner.work import GpuWork, HostWork
-from mgpusim.tasks import HostCopyTask
+from mgpusim.model.tasks import HostCopyTask
+from mgpusim.real.runner.plan import build_nodes
+from mgpusim.real.runner.work import GpuWork, HostWork
+from mgpusim.schedules.experiment import load_experiment
+from mgpusim.schedules.program import build_program
 
 XR = Path(__file__).resolve().parents[1] / "experiments" / "lavapipe" / "xr.toml"
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 from collections import defaultdict
 from pathlib import Path
 
-from mgpusim.program import build_program
-from mgpusim.study.spec import load_study
+from mgpusim.schedules.program import build_program
+from mgpusim.studies.spec import load_study
 
 STUDY = Path(__file__).resolve().parents[1] / "experiments" / "lavapipe" / "study.toml"
 

@@ -6,10 +6,10 @@ import copy
 import pytest
 
 from mgpusim import InputError, simulate
-from mgpusim.experiment import parse_experiment
-from mgpusim.memory import check_memory, memory_report
-from mgpusim.profile import parse_profile
-from mgpusim.program import build_program
+from mgpusim.model.profile import parse_profile
+from mgpusim.schedules.experiment import parse_experiment
+from mgpusim.schedules.memory_check import check_memory, memory_report
+from mgpusim.schedules.program import build_program
 from tests.conftest import profile_dict
 
 SECTIONS = [{"name": "a", "geometry_bytes": 1000, "texture_bytes": 3000},

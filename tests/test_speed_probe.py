@@ -6,8 +6,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from mgpusim.errors import InputError, UnsteadyMachineError
-from mgpusim.study import speed
+from mgpusim.model.errors import InputError, UnsteadyMachineError
+from mgpusim.studies import speed_probe as speed
 
 
 def probes(mesh_ms: list[float]) -> pd.DataFrame:

@@ -1,13 +1,13 @@
-"""The steady window of noisy measured runs (mgpusim.steady_window)."""
+"""The steady window of noisy measured runs (mgpusim.validation.steady_window)."""
 from __future__ import annotations
 
 import pandas as pd
 import pytest
 
-from mgpusim import steady_window as sw
-from mgpusim.errors import InputError
-from mgpusim.results import frames_from_trace
-from mgpusim.validate import steady_summary
+from mgpusim.model.errors import InputError
+from mgpusim.results.summary import frames_from_trace
+from mgpusim.validation import steady_window as sw
+from mgpusim.validation.compare import steady_summary
 
 MS = 1_000_000
 
@@ -65,8 +65,8 @@ def test_the_steady_folder_keeps_the_window_of_the_host_side_too(tmp_path):
     same frames, renumbered as the trace is, so the two still join row by row."""
     from types import SimpleNamespace
 
-    from mgpusim.repeated_runs import write_steady_window
-    from mgpusim.trace import make_submissions
+    from mgpusim.results.trace import make_submissions
+    from mgpusim.validation.repeated_runs import write_steady_window
 
     def result(periods):
         trace = run_trace(periods)

@@ -5,8 +5,8 @@ from pathlib import Path
 
 import pytest
 
-from mgpusim.errors import InputError
-from mgpusim.study import load_study
+from mgpusim.model.errors import InputError
+from mgpusim.studies import load_study
 
 ROOT = Path(__file__).resolve().parents[1]
 STUDIES = sorted((ROOT / "experiments").glob("*/study.toml"))

@@ -16,7 +16,8 @@ from types import SimpleNamespace
 
 import pytest
 
-from mgpusim.vulkan import device, errors
+from mgpusim.real.vulkan import device
+from mgpusim.real.vulkan import vk_errors as errors
 
 
 class _NotReady(Exception):

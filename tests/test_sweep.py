@@ -14,9 +14,9 @@ import pandas as pd
 import pytest
 
 import mgpusim
-from mgpusim import sweeps
 from mgpusim.cli import main
-from mgpusim.errors import InputError
+from mgpusim.model.errors import InputError
+from mgpusim.studies import sweep_grid as sweeps
 
 ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENT = ROOT / "experiments" / "sort_first_tc1.toml"
@@ -201,7 +201,7 @@ def test_fidelity_is_checked_once_then_passed_to_every_point(tmp_path, monkeypat
 def test_sweep_plot_lines_or_heatmap_by_number_of_keys():
     from matplotlib.figure import Figure
 
-    from mgpusim.plot import draw_sweep
+    from mgpusim.io.plot import draw_sweep
 
     combos = [(a, b, c) for a in (1, 2, 3) for b in (5, 6) for c in ("x", "y")]
     rows = [{"point": i, "a": a, "b": b, "c": c, "error": None if a < 3 else "bad",

@@ -1,16 +1,16 @@
-"""Waits from ready to start (mgpusim.waits) and their place in a cross-validation report."""
+"""Waits from ready to start (mgpusim.results.waits) and their place in a cross-validation report."""
 from __future__ import annotations
 
 from pathlib import Path
 
 import pytest
 
-from mgpusim.crossvalidate import format_report
-from mgpusim.experiment import load_experiment
-from mgpusim.simulate import simulate
-from mgpusim.trace import make_trace
-from mgpusim.validate import compare
-from mgpusim.waits import LONG_WAIT_NS, compare_waits, ready_waits, wait_stats
+from mgpusim.results.trace import make_trace
+from mgpusim.results.waits import LONG_WAIT_NS, compare_waits, ready_waits, wait_stats
+from mgpusim.schedules.experiment import load_experiment
+from mgpusim.sim.simulation import simulate
+from mgpusim.validation.compare import compare
+from mgpusim.validation.crossvalidate import format_report
 
 MS = 1_000_000
 ROOT = Path(__file__).resolve().parents[1]
@@ -104,8 +104,8 @@ def test_the_host_split_says_where_a_measured_hand_off_went():
     starts): its submit thread saw that 1 ms later, called the submit 0.5 ms after that, and
     the device started it 1.5 ms after the call. Hand-offs bound by their queue are left out,
     as is a task without a submissions row."""
-    from mgpusim.trace import make_submissions
-    from mgpusim.waits import host_split
+    from mgpusim.results.trace import make_submissions
+    from mgpusim.results.waits import host_split
     trace = _afr_frames(3 * MS)
     d2h_end = 15 * MS
     rows = [(1, "gpu0", "graphics", "out.h2d", d2h_end + MS, d2h_end + MS + MS // 2,

@@ -9,8 +9,8 @@ import pytest
 
 from mgpusim import InputError, load_experiment, simulate
 from mgpusim.cli import main
-from mgpusim.experiment import parse_overrides
-from mgpusim.profile import PCIE_LANE_GBPS, load_profile
+from mgpusim.model.profile import PCIE_LANE_GBPS, load_profile
+from mgpusim.schedules.experiment import parse_overrides
 
 ROOT = Path(__file__).resolve().parents[1]
 SORT_FIRST = ROOT / "experiments" / "sort_first_tc1.toml"

@@ -2,7 +2,8 @@
 from __future__ import annotations
 
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mgpusim import InputError, simulate
 from tests.schedule_helpers import assert_no_drift, experiment, gpu, presents, profile, rows, timed

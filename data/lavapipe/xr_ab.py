@@ -14,7 +14,7 @@ from typing import Callable, Sequence
 import pandas as pd
 
 from mgpusim.cli import main
-from mgpusim.waits import _ready_rows
+from mgpusim.results.waits import _ready_rows
 
 
 def split(folder: Path) -> dict[str, float]:

@@ -12,7 +12,7 @@ import time
 
 import pandas as pd
 
-from mgpusim.vulkan.machine import close_gpus, make_gpus
+from mgpusim.real.vulkan.host_machine import close_gpus, make_gpus
 
 out = sys.argv[1]
 gpus = make_gpus(1)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mgpusim.cases import case_names, load_case, markdown, run_case, with_docs_block
+from mgpusim.studies.cases import case_names, load_case, markdown, run_case, with_docs_block
 from mgpusim.commands.case import write_timelines
 
 DOCS = Path(__file__).resolve().parent

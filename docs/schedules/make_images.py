@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import mgpusim
-from mgpusim.plot import timeline_png
+from mgpusim.io.plot import timeline_png
 
 ROOT = Path(__file__).resolve().parents[2]
 IMG = Path(__file__).with_name("img")

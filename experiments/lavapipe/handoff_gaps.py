@@ -7,7 +7,7 @@ Each argument is a folder with a trace.csv: a `mgpusim run --out` folder (measur
 schedule (a task's `waits_for`, e.g. `-2:present -> render.fragment_loop`) and for one task
 after the one before it in the same frame (`out.d2h => out.h2d`), it prints how long the
 consumer started after its producer ended (count, mean, median, 90th percentile, max, in ms),
-then the wait of each task from the moment it was ready by what ended last (mgpusim.waits,
+then the wait of each task from the moment it was ready by what ended last (mgpusim.results.waits,
 which `mgpusim validate` reports too), each task's duration and the share of time with 0, 1,
 2... render passes running. Frames before `--from-frame` (default 40) are left out. Why: the two traces name the same tasks, so a
 gap that is 0.3 ms in the model and 2 ms on the machine points at the hand-off that the model
@@ -21,8 +21,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from mgpusim.validate import steady_summary
-from mgpusim.waits import parse_waits_for, ready_waits
+from mgpusim.validation.compare import steady_summary
+from mgpusim.results.waits import parse_waits_for, ready_waits
 
 
 def load(folder: Path, from_frame: int) -> pd.DataFrame:

@@ -6,7 +6,7 @@ import json, sys
 from pathlib import Path
 import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-from mgpusim.geometry import coverage, MeshView
+from mgpusim.model.geometry import coverage, MeshView
 from scipy.optimize import nnls
 best = {}
 for f in sys.argv[1:]:

@@ -9,9 +9,9 @@ Run it on a quiet machine (about 15 s a round). docs/model.md ("Mesh cost") has 
 import itertools, json, sys, time
 from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-from mgpusim.vulkan.hostheap import keep_heap
-from mgpusim.vulkan.machine import make_gpus, close_gpus
-from mgpusim.vulkan.passes import Mesh
+from mgpusim.real.vulkan.hostheap import keep_heap
+from mgpusim.real.vulkan.host_machine import make_gpus, close_gpus
+from mgpusim.real.vulkan.passes import Mesh
 from mgpusim.schedules.base import even_split
 
 keep_heap()

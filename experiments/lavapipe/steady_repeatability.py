@@ -4,7 +4,7 @@
 
 OUT_A and OUT_B are `mgpusim main` output folders (their runs/ are read, nothing is run).
 For every configuration in both, it prints the median and worst |A / B - 1| of the frame time
-estimated as the fastest whole run and as the steady window (mgpusim.steady_window).
+estimated as the fastest whole run and as the steady window (mgpusim.validation.steady_window).
 """
 from __future__ import annotations
 
@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from mgpusim import steady_window as sw
-from mgpusim.results import frames_from_trace, summarize
+from mgpusim.validation import steady_window as sw
+from mgpusim.results.summary import frames_from_trace, summarize
 
 def warmup_frames(run: Path) -> int:
     """The schedule's warm-up of the experiment the run was made from."""

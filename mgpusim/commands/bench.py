@@ -5,9 +5,10 @@ import argparse
 import json
 from pathlib import Path
 
-from ..bench import DEFAULT_EXPERIMENT, analytic_speed, effect_costs, effects_saving, long_run, run_bench
-from ..errors import InputError
-from ..shipped import resolve_experiment
+from mgpusim.io.shipped import resolve_experiment
+from mgpusim.model.errors import InputError
+from mgpusim.studies.model_speed import (DEFAULT_EXPERIMENT, analytic_speed, effect_costs,
+                                         effects_saving, long_run, run_bench)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -9,14 +9,14 @@ from pathlib import Path
 
 import tomli_w
 
-from ..calibrate import apply, calibrate, lavapipe_base, read_measurements, report
-from ..calibrate.profile_out import fit_details
-from ..config import read_toml
-from ..errors import InputError
-from ..limits import MAX_GPUS
-from ..outpath import check_out_file
-from ..profile import parse_profile
-from ..output import write_json
+from mgpusim.calibration import apply, calibrate, lavapipe_base, read_measurements, report
+from mgpusim.calibration.profile_out import fit_details
+from mgpusim.io.outpath import check_out_file
+from mgpusim.io.output import write_json
+from mgpusim.model.config import read_toml
+from mgpusim.model.errors import InputError
+from mgpusim.model.limits import MAX_GPUS
+from mgpusim.model.profile import parse_profile
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -9,11 +9,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..cases import CaseResult, case_names, load_case, markdown, run_case, table
-from ..errors import InputError
-from ..outpath import check_out_dir
-from ..output import write_table, write_text
-from ..plot import last_frames, timeline_png
+from mgpusim.io.outpath import check_out_dir
+from mgpusim.io.output import write_table, write_text
+from mgpusim.io.plot import last_frames, timeline_png
+from mgpusim.model.errors import InputError
+from mgpusim.studies.cases import CaseResult, case_names, load_case, markdown, run_case, table
 
 
 def register(sub: argparse._SubParsersAction) -> None:

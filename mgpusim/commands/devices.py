@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..vulkan.instance import EXT_CALIBRATED, EXT_HOST_MEMORY, Instance
+from mgpusim.real.vulkan.instance import EXT_CALIBRATED, EXT_HOST_MEMORY, Instance
 
 _FLAGS = {1: "graphics", 2: "compute", 4: "transfer", 8: "sparse", 16: "protected",
           32: "video_decode", 64: "video_encode", 256: "optical_flow"}

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..shipped import examples
+from mgpusim.io.shipped import examples
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -7,11 +7,12 @@ from pathlib import Path
 
 import pandas as pd
 
-from ..errors import InputError
-from ..fidelity import (configurations, deviations, deviations_markdown, markdown, run_levels,
-                        summarize_deviations, summarize_levels)
-from ..output import write_table
-from ..outpath import check_out_dir
+from mgpusim.io.outpath import check_out_dir
+from mgpusim.io.output import write_table
+from mgpusim.model.errors import InputError
+from mgpusim.studies.accuracy_cost import (configurations, deviations, deviations_markdown,
+                                           markdown, run_levels, summarize_deviations,
+                                           summarize_levels)
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 

@@ -7,11 +7,12 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from ..shipped import shipped_dir
-from ..outpath import check_out_dir
-from ..study import pipeline, speed
-from ..study.spec import load_study
-from .study import add_steady_check, progress_printer, steady_check
+from mgpusim.commands.study import add_steady_check, progress_printer, steady_check
+from mgpusim.io.outpath import check_out_dir
+from mgpusim.io.shipped import shipped_dir
+from mgpusim.studies import speed_probe as speed
+from mgpusim.studies import steps as pipeline
+from mgpusim.studies.spec import load_study
 
 #: The lavapipe study, shipped beside the package's experiments.
 LAVAPIPE_STUDY = shipped_dir("experiments") / "lavapipe" / "study.toml"

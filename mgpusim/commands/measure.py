@@ -10,14 +10,15 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..config import int_list
-from ..errors import InputError
-from ..outpath import check_out_file
-from ..output import write_json
+from mgpusim.io.outpath import check_out_file
+from mgpusim.io.output import write_json
+from mgpusim.model.config import int_list
+from mgpusim.model.errors import InputError
 
 
 def _list() -> int:
-    from ..vulkan.measure import PASSES  # noqa: PLC0415 - keeps `--help` free of numpy/pandas
+    from mgpusim.real.vulkan.microbench import \
+        PASSES  # noqa: PLC0415 - keeps `--help` free of numpy/pandas
 
     for spec in PASSES.values():
         params = ", ".join(f"{k}={v}" for k, v in spec.params.items())
@@ -27,7 +28,7 @@ def _list() -> int:
 
 def _overlap_table(df) -> str:
     """Each pair's efficiency from the fastest of its repetitions, per measured size."""
-    from ..calibrate.overlap import fastest_of  # noqa: PLC0415
+    from mgpusim.calibration.overlap_fit import fastest_of  # noqa: PLC0415
 
     lines = ["pair                queues                          alone A / B (ms)   together (ms)"
              "  efficiency  note"]
@@ -53,15 +54,16 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"must be >= 0, got {args.warmup}", field="--warmup")
     from tqdm import tqdm  # noqa: PLC0415
 
-    from ..vulkan import measure as m  # noqa: PLC0415
-    from ..vulkan.machine import close_gpus, machine_record, make_gpus  # noqa: PLC0415
+    from mgpusim.real.vulkan import microbench as m  # noqa: PLC0415
+    from mgpusim.real.vulkan.host_machine import (close_gpus, machine_record,  # noqa: PLC0415
+                                                  make_gpus)
 
     sweeps = m.parse_sweeps(args.pass_name, args.sweep or [])
     combos = len(m.combinations(args.pass_name, sweeps))
     lp = int_list(args.lp_threads, "--lp-threads")
     count, device = args.gpus, args.device
     if args.pass_name == "overlap":  # its pairs' VkDevices, all on one physical GPU
-        from ..vulkan.overlap import gpus_needed  # noqa: PLC0415
+        from mgpusim.real.vulkan.overlap_probe import gpus_needed  # noqa: PLC0415
         count, device = gpus_needed(sweeps.get("pair", [m.PASSES["overlap"].params["pair"]])), device or 0
     gpus = [] if m.spec(args.pass_name).host else make_gpus(count, lp_threads=lp, physical=device)
     try:

@@ -10,15 +10,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..config import int_list
-from ..errors import InputError
-from ..limits import MAX_FRAMES, MAX_THREADS
-from ..outpath import check_out_dir
+from mgpusim.io.outpath import check_out_dir
+from mgpusim.model.config import int_list
+from mgpusim.model.errors import InputError
+from mgpusim.model.limits import MAX_FRAMES, MAX_THREADS
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..experiment import load_experiment, parse_overrides  # noqa: PLC0415
-    from ..output import write_measured  # noqa: PLC0415
+    from mgpusim.io.output import write_measured  # noqa: PLC0415
+    from mgpusim.schedules.experiment import load_experiment, parse_overrides  # noqa: PLC0415
 
     exp = load_experiment(args.experiment, parse_overrides(args.overrides))
     devices = int_list(args.devices, "--devices")
@@ -31,7 +31,8 @@ def run(args: argparse.Namespace) -> int:
     _check_counts(args, devices)
     out = args.out or Path("out") / f"{exp.name}-measured"
     check_out_dir(out)
-    from ..runner.run import run_experiment  # noqa: PLC0415 - Vulkan only after the checks
+    from mgpusim.real.runner.execute import \
+        run_experiment  # noqa: PLC0415 - Vulkan only after the checks
     result = run_experiment(exp, devices=devices, lp_threads=int_list(args.lp_threads, "--lp-threads"),
                             host_threads=args.host_threads, prewarm_frames=args.prewarm)
     write_measured(result, out, args.format)

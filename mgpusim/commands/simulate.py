@@ -4,13 +4,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..errors import InputError
-from ..experiment import load_experiment, parse_overrides
-from ..outpath import check_out_dir
-from ..output import TRACE_FRAMES, write_result
-from ..shipped import resolve_experiment
-from ..sim.effects import EFFECTS, FIDELITIES, parse_effects
-from ..simulate import simulate
+from mgpusim.io.outpath import check_out_dir
+from mgpusim.io.output import TRACE_FRAMES, write_result
+from mgpusim.io.shipped import resolve_experiment
+from mgpusim.model.errors import InputError
+from mgpusim.schedules.experiment import load_experiment, parse_overrides
+from mgpusim.sim.effects import EFFECTS, FIDELITIES, parse_effects
+from mgpusim.sim.simulation import simulate
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -16,12 +16,13 @@ from typing import Callable
 
 import pandas as pd
 
-from ..config import int_list
-from ..errors import InputError
-from ..outpath import check_out_dir
-from ..study import pipeline, speed
-from ..study.measure import measure_microbenchmarks, measure_runs
-from ..study.spec import Study, load_study
+from mgpusim.io.outpath import check_out_dir
+from mgpusim.model.config import int_list
+from mgpusim.model.errors import InputError
+from mgpusim.studies import speed_probe as speed
+from mgpusim.studies import steps as pipeline
+from mgpusim.studies.measuring import measure_microbenchmarks, measure_runs
+from mgpusim.studies.spec import Study, load_study
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -9,9 +9,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..experiment import parse_overrides
-from ..shipped import resolve_experiment
-from ..sweeps import parse_grid, sweep
+from mgpusim.io.shipped import resolve_experiment
+from mgpusim.schedules.experiment import parse_overrides
+from mgpusim.studies.sweep_grid import parse_grid, sweep
 
 
 def register(sub: argparse._SubParsersAction) -> None:

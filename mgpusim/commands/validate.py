@@ -10,10 +10,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..crossvalidate import format_report, validate_experiment
-from ..errors import InputError
-from ..experiment import load_experiment, parse_overrides
-from ..outpath import check_out_dir
+from mgpusim.io.outpath import check_out_dir
+from mgpusim.model.errors import InputError
+from mgpusim.schedules.experiment import load_experiment, parse_overrides
+from mgpusim.validation.crossvalidate import format_report, validate_experiment
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -13,16 +13,16 @@ from __future__ import annotations
 from dataclasses import replace
 from types import MappingProxyType
 
-from .. import limits as L
-from ..errors import InputError
-from ..profile import HardwareProfile
-from ..scene import Scene
-from ..tasks import Dep, PassTask, QueueRef, Resource, Task
-from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, present_task,
-                   register)
-from .binding import Bindings, bind_crossing
-from .crossing import COPY_OPTIONS, Route, cross
-from .pass_io import bind_full_frame, filter_sources, pass_image
+from mgpusim.model import limits as L
+from mgpusim.model.errors import InputError
+from mgpusim.model.profile import HardwareProfile
+from mgpusim.model.scene import Scene
+from mgpusim.model.tasks import Dep, PassTask, QueueRef, Resource, Task
+from mgpusim.schedules.base import Footprint, FrameProgram, chain_passes, present_task
+from mgpusim.schedules.binding import Bindings, bind_crossing
+from mgpusim.schedules.crossing import COPY_OPTIONS, Route, cross
+from mgpusim.schedules.pass_io import bind_full_frame, filter_sources, pass_image
+from mgpusim.schedules.registry import Option, ScheduleConfig, register
 
 OPTIONS = {
     **COPY_OPTIONS,

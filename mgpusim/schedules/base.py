@@ -14,14 +14,14 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Callable, Mapping, Sequence
 
-from .. import limits as L
-from ..config import Table
-from ..errors import ScheduleError
-from ..profile import HardwareProfile
-from ..scene import PassSpec, Scene
-from ..costs import pass_work
-from ..geometry import Placement, even_split  # noqa: F401  (even_split: the schedules' import)
-from ..tasks import CopyTask, CpuTask, Dep, HostCopyTask, PassTask, QueueRef, Resource, Task
+from mgpusim.model import limits as L
+from mgpusim.model.errors import ScheduleError
+from mgpusim.model.geometry import Placement
+from mgpusim.model.profile import HardwareProfile
+from mgpusim.model.scene import PassSpec
+from mgpusim.model.tasks import (CopyTask, CpuTask, Dep, HostCopyTask, PassTask, QueueRef, Resource,
+                                 Task)
+from mgpusim.model.work_terms import pass_work
 
 
 @dataclass(frozen=True)
@@ -108,83 +108,6 @@ def with_cpu_frame(program: FrameProgram, cpu_frame_us: float, frames_in_flight:
         return dataclasses.replace(task, deps=task.deps + (gate,))
     templates = tuple((cpu,) + tuple(gated(t) for t in tasks) for tasks in program.templates)
     return dataclasses.replace(program, templates=templates)
-
-
-@dataclass(frozen=True)
-class Option:
-    """A schedule-specific key of the experiment's [schedule] table."""
-
-    kind: type
-    default: Any
-    doc: str
-    choices: tuple[Any, ...] | None = None
-    minimum: float | None = None
-    maximum: float | None = None
-    #: what the upper bound protects (said in the message that refuses a larger value)
-    why: str = ""
-
-
-@dataclass(frozen=True)
-class ScheduleConfig:
-    name: str
-    gpus: int
-    frames: int
-    warmup_frames: int
-    frames_in_flight: int
-    options: Mapping[str, Any]
-    refresh_hz: float = 0.0
-    cpu_frame_us: float = 0.0
-
-    def opt(self, key: str) -> Any:
-        return self.options[key]
-
-
-Builder = Callable[[ScheduleConfig, Scene, HardwareProfile], FrameProgram]
-
-
-@dataclass(frozen=True)
-class ScheduleDef:
-    name: str
-    build: Builder
-    options: Mapping[str, Option]
-    doc: str
-
-
-SCHEDULES: dict[str, ScheduleDef] = {}
-
-
-def register(name: str, doc: str, options: Mapping[str, Option] | None = None) -> Callable[[Builder], Builder]:
-    def wrap(build: Builder) -> Builder:
-        SCHEDULES[name] = ScheduleDef(name, build, MappingProxyType(dict(options or {})), doc)
-        return build
-    return wrap
-
-
-def parse_schedule_config(t: Table) -> ScheduleConfig:
-    from . import ensure_loaded
-    ensure_loaded()
-    name = t.get("name", str, choices=SCHEDULES.keys())
-    sdef = SCHEDULES[name]
-    options = {key: t.get(key, o.kind, o.default, choices=o.choices, minimum=o.minimum,
-                          maximum=o.maximum, why=o.why)
-               for key, o in sdef.options.items()}
-    cfg = ScheduleConfig(
-        name=name,
-        gpus=t.get("gpus", int, 1, minimum=1, maximum=L.MAX_GPUS, why=L.WHY_ALLOC),
-        frames=t.get("frames", int, 60, minimum=1, maximum=L.MAX_FRAMES, why=L.WHY_FRAMES),
-        warmup_frames=t.get("warmup_frames", int, 5, minimum=0),
-        frames_in_flight=t.get("frames_in_flight", int, 2, minimum=1, maximum=L.MAX_BUFFERS,
-                               why=L.WHY_ALLOC),
-        options=MappingProxyType(options),
-        refresh_hz=t.get("refresh_hz", float, 0.0, minimum=0.0, maximum=MAX_REFRESH_HZ,
-                         why="faster than any display"),
-        cpu_frame_us=t.get("cpu_frame_us", float, 0.0, minimum=0.0,
-                           maximum=L.MAX_TASK_NS / 1000, why=L.WHY_TIME),
-    )
-    t.finish()
-    if cfg.warmup_frames >= cfg.frames:
-        raise t.error("warmup_frames", f"must be < frames ({cfg.frames}), got {cfg.warmup_frames}")
-    return cfg
 
 
 def chain_passes(specs: Sequence[PassSpec], queue: QueueRef, first_deps: tuple[Dep, ...],

@@ -20,7 +20,7 @@ import dataclasses
 from types import MappingProxyType
 from typing import Any, Mapping, Sequence
 
-from ..tasks import CopyTask, HostCopyTask, Resource, Task
+from mgpusim.model.tasks import CopyTask, HostCopyTask, Resource, Task
 
 
 class Bindings:

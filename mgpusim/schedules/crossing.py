@@ -11,10 +11,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from ..errors import InputError
-from ..profile import HardwareProfile
-from ..tasks import CopyTask, Dep, HostCopyTask, QueueRef, Task
-from .base import Option, queue_or_graphics
+from mgpusim.model.errors import InputError
+from mgpusim.model.profile import HardwareProfile
+from mgpusim.model.tasks import CopyTask, Dep, HostCopyTask, QueueRef, Task
+from mgpusim.schedules.base import queue_or_graphics
+from mgpusim.schedules.registry import Option
 
 #: How buffers cross GPUs (the `path` option of every schedule that moves them).
 PATHS = ("auto", "host", "peer", "group")

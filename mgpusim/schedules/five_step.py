@@ -14,16 +14,18 @@ from dataclasses import replace
 from fractions import Fraction
 from types import MappingProxyType
 
-from .. import limits as L
-from ..costs import PLACED_TERMS, CostModel, pass_work
-from ..geometry import Placement
-from ..errors import InputError
-from ..profile import HardwareProfile
-from ..scene import PassSpec, Scene
-from ..tasks import CopyTask, Dep, HostCopyTask, PassTask, QueueRef, Task
-from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, even_split,
-                   present_task, present_work, queue_or_graphics, register)
-from .five_step_io import bind_io
+from mgpusim.model import limits as L
+from mgpusim.model.costs import CostModel
+from mgpusim.model.errors import InputError
+from mgpusim.model.geometry import Placement, even_split
+from mgpusim.model.profile import HardwareProfile
+from mgpusim.model.scene import PassSpec, Scene
+from mgpusim.model.tasks import CopyTask, Dep, HostCopyTask, PassTask, QueueRef, Task
+from mgpusim.model.work_terms import PLACED_TERMS, pass_work
+from mgpusim.schedules.base import (Footprint, FrameProgram, chain_passes, present_task,
+                                    present_work, queue_or_graphics)
+from mgpusim.schedules.five_step_io import bind_io
+from mgpusim.schedules.registry import Option, ScheduleConfig, register
 
 #: `pipelining` modes, from most to least overlap (see OPTIONS).
 PIPELINING = ("full", "secondary_wait", "lockstep")

@@ -18,9 +18,9 @@ import dataclasses
 from types import MappingProxyType
 from typing import Any
 
-from ..scene import Scene
-from ..tasks import CopyTask, HostCopyTask, PassTask, Resource, Task
-from .pass_io import simulated_only
+from mgpusim.model.scene import Scene
+from mgpusim.model.tasks import CopyTask, HostCopyTask, PassTask, Resource, Task
+from mgpusim.schedules.pass_io import simulated_only
 
 Rect = tuple[int, int, int, int]  # x, y, width, height in frame pixels
 

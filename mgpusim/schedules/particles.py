@@ -20,18 +20,18 @@ from __future__ import annotations
 from dataclasses import replace
 from types import MappingProxyType
 
-from .. import limits as L
-from ..errors import InputError
-from ..profile import HardwareProfile
-from ..scene import PassSpec, Scene
-from ..tasks import CpuTask, Dep, PassTask, QueueRef, Resource, Task
-from ..particle_layout import CALC_BYTES, STATE_BYTES, UPDATE_DT, VERTEX_BYTES
-from .base import (MAIN_THREAD, Footprint, FrameProgram, Option, ScheduleConfig, chain_passes,
-                   present_task,
-                   queue_or_graphics, register)
-from .binding import Bindings, bind_crossing
-from .crossing import Route, cross
-from .pass_io import bind_full_frame, filter_sources, pass_image
+from mgpusim.model import limits as L
+from mgpusim.model.errors import InputError
+from mgpusim.model.particle_layout import CALC_BYTES, STATE_BYTES, UPDATE_DT, VERTEX_BYTES
+from mgpusim.model.profile import HardwareProfile
+from mgpusim.model.scene import PassSpec, Scene
+from mgpusim.model.tasks import CpuTask, Dep, PassTask, QueueRef, Resource, Task
+from mgpusim.schedules.base import (MAIN_THREAD, Footprint, FrameProgram, chain_passes,
+                                    present_task, queue_or_graphics)
+from mgpusim.schedules.binding import Bindings, bind_crossing
+from mgpusim.schedules.crossing import Route, cross
+from mgpusim.schedules.pass_io import bind_full_frame, filter_sources, pass_image
+from mgpusim.schedules.registry import Option, ScheduleConfig, register
 
 OPTIONS = {
     "particles": Option(int, 4096, "number of particles", minimum=0, maximum=10**12,

@@ -13,9 +13,9 @@ import dataclasses
 from types import MappingProxyType
 from typing import Any, Mapping, Sequence
 
-from ..scene import PassSpec, Scene
-from ..tasks import PassTask
-from .binding import Bindings
+from mgpusim.model.scene import PassSpec, Scene
+from mgpusim.model.tasks import PassTask
+from mgpusim.schedules.binding import Bindings
 
 
 def pass_image(b: Bindings, name: str, device: int, scene: Scene, spec: PassSpec,

@@ -14,16 +14,17 @@ from collections import defaultdict
 from dataclasses import replace
 from types import MappingProxyType
 
-from .. import limits as L
-from ..errors import InputError
-from ..profile import HardwareProfile
-from ..scene import PassSpec, Scene
-from ..tasks import Dep, PassTask, QueueRef, Resource, Task
-from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, even_split,
-                   present_task, register)
-from .binding import Bindings, bind_crossing, row_chunks
-from .crossing import COPY_OPTIONS, Route, cross
-from .pass_io import bind_full_frame, filter_sources, pass_image
+from mgpusim.model import limits as L
+from mgpusim.model.errors import InputError
+from mgpusim.model.geometry import even_split
+from mgpusim.model.profile import HardwareProfile
+from mgpusim.model.scene import PassSpec, Scene
+from mgpusim.model.tasks import Dep, PassTask, QueueRef, Resource, Task
+from mgpusim.schedules.base import Footprint, FrameProgram, chain_passes, present_task
+from mgpusim.schedules.binding import Bindings, bind_crossing, row_chunks
+from mgpusim.schedules.crossing import COPY_OPTIONS, Route, cross
+from mgpusim.schedules.pass_io import bind_full_frame, filter_sources, pass_image
+from mgpusim.schedules.registry import Option, ScheduleConfig, register
 
 OPTIONS = {
     **COPY_OPTIONS,

@@ -22,19 +22,20 @@ from dataclasses import replace
 from types import MappingProxyType
 from typing import Any
 
-from .. import limits as L
-from ..costs import pass_work
-from ..geometry import Placement
-from ..errors import InputError
-from ..profile import HardwareProfile
-from ..scene import PassSpec, Scene
-from ..tasks import Dep, PassTask, QueueRef, Resource, Task
-from .afr import present_queue
-from .binding import Bindings, bind_crossing
-from .base import (Footprint, FrameProgram, Option, ScheduleConfig, chain_passes, even_split,
-                   present_task, queue_or_graphics, register)
-from .crossing import PATHS, Route, cross
-from .pass_io import simulated_only
+from mgpusim.model import limits as L
+from mgpusim.model.errors import InputError
+from mgpusim.model.geometry import Placement, even_split
+from mgpusim.model.profile import HardwareProfile
+from mgpusim.model.scene import PassSpec, Scene
+from mgpusim.model.tasks import Dep, PassTask, QueueRef, Resource, Task
+from mgpusim.model.work_terms import pass_work
+from mgpusim.schedules.afr import present_queue
+from mgpusim.schedules.base import (Footprint, FrameProgram, chain_passes, present_task,
+                                    queue_or_graphics)
+from mgpusim.schedules.binding import Bindings, bind_crossing
+from mgpusim.schedules.crossing import PATHS, Route, cross
+from mgpusim.schedules.pass_io import simulated_only
+from mgpusim.schedules.registry import Option, ScheduleConfig, register
 
 MAX_FRAMES_IN_FLIGHT = 3
 

@@ -30,13 +30,14 @@ from typing import Any
 
 import numpy as np
 
-from ..costs import CostModel
-from ..errors import InputError, ScheduleError
-from ..schedules.base import FrameProgram, even_split, wakes_host
-from ..tasks import CpuTask, HostCopyTask, PassTask, Task
-from .effects import choose_effects
-from .engine import Engine, RawResult
-from .fastforward import Repeat
+from mgpusim.model.costs import CostModel
+from mgpusim.model.errors import InputError, ScheduleError
+from mgpusim.model.geometry import even_split
+from mgpusim.model.tasks import CpuTask, HostCopyTask, PassTask, Task
+from mgpusim.schedules.base import FrameProgram, wakes_host
+from mgpusim.sim.effects import choose_effects
+from mgpusim.sim.engine import Engine, RawResult
+from mgpusim.sim.fastforward import Repeat
 
 NEG = -(1 << 62)  # "no constraint" (before time 0)
 
@@ -340,7 +341,7 @@ class _Recurrence:
 
 
 class _Skips:
-    """The skip rule of the event model (mgpusim.sim.skipping), decided from times: a chain's
+    """The skip rule of the event model (mgpusim.schedules.skipping), decided from times: a chain's
     leader is skipped when a task of an earlier instance of its chain that ran ends after the
     leader's inputs are ready; a follower when one of its skippable inputs of the frame was."""
 
@@ -376,7 +377,7 @@ class _Skips:
 
 def _skip_chains(nodes: list[_Node]) -> dict[str, tuple[str, tuple[str, ...] | None]]:
     """Skippable task -> (its chain's leader, its same-frame skippable inputs or None for a
-    leader), as mgpusim.sim.skipping groups them."""
+    leader), as mgpusim.schedules.skipping groups them."""
     out: dict[str, tuple[str, tuple[str, ...] | None]] = {}
     for n in nodes:
         if not n.task.skip_if_busy:
@@ -414,7 +415,7 @@ def _thread(free: list[int], t: int) -> int:
 
 
 def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str], record_trace: bool = True):
-    """A RawResult from the recurrence, for :func:`mgpusim.results.build_result`."""
+    """A RawResult from the recurrence, for :func:`mgpusim.results.summary.build_result`."""
     model = Analytic(program, costs, effects)
     rows, start, present, repeat = model.run(record=record_trace)
     skipped = {n: len(v) for n, v in model.skipped_frames.items()}

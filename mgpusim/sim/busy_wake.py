@@ -19,7 +19,7 @@ from __future__ import annotations
 from collections import defaultdict
 from fractions import Fraction
 
-from ..costs import round_half_up
+from mgpusim.model.costs import round_half_up
 
 #: A pass "fills the cores" when its kind keeps at least this share of the host's cores busy:
 #: the fragment-heavy kinds (about 2 of 2 cores); a mesh pass (about 1.5) leaves a core free.

@@ -25,7 +25,6 @@ from typing import Callable
 
 import simpy
 
-
 _ZERO = Fraction(0)
 
 

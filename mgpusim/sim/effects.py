@@ -21,12 +21,12 @@ import difflib
 from dataclasses import dataclass
 from typing import Callable, Iterable, Mapping
 
-from ..costs import CostModel
-from ..errors import InputError
-from ..profile import HardwareProfile
-from ..schedules.base import FrameProgram
-from ..tasks import CopyTask, CpuTask, HostCopyTask, Task
-from .executors import shared_gpu_groups
+from mgpusim.model.costs import CostModel
+from mgpusim.model.errors import InputError
+from mgpusim.model.profile import HardwareProfile
+from mgpusim.model.tasks import CopyTask, CpuTask, HostCopyTask, Task
+from mgpusim.schedules.base import FrameProgram
+from mgpusim.sim.executors import shared_gpu_groups
 
 FIDELITIES: tuple[str, ...] = ("analytic", "queues", "full")
 

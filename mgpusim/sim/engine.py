@@ -19,19 +19,21 @@ from collections import defaultdict, deque
 from dataclasses import dataclass, field
 from fractions import Fraction
 from typing import Callable
+
 import numpy as np
 import simpy
 
-from ..costs import CostModel, gbps_fraction, ns, round_half_up
-from ..errors import InputError, ScheduleError
-from ..limits import INT64_MAX
-from ..schedules.base import FrameProgram, even_split, waits_for_labels, wakes_host
-from ..tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
-from .busy_wake import BusyWake
-from .channel import Channel, FixedRateChannel
-from .effects import choose_effects
-from .executors import Executor, Runner, make_executors
-from .skipping import SkipChains
+from mgpusim.model.costs import CostModel, gbps_fraction, ns, round_half_up
+from mgpusim.model.errors import InputError, ScheduleError
+from mgpusim.model.geometry import even_split
+from mgpusim.model.limits import INT64_MAX
+from mgpusim.model.tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
+from mgpusim.schedules.base import FrameProgram, waits_for_labels, wakes_host
+from mgpusim.schedules.skipping import SkipChains
+from mgpusim.sim.busy_wake import BusyWake
+from mgpusim.sim.channel import Channel, FixedRateChannel
+from mgpusim.sim.effects import choose_effects
+from mgpusim.sim.executors import Executor, Runner, make_executors
 
 Key = tuple[int, str]
 
@@ -62,7 +64,7 @@ class _Op:
 
 @dataclass
 class RawResult:
-    """What the engine observed; :mod:`mgpusim.results` turns it into tables."""
+    """What the engine observed; :mod:`mgpusim.results.summary` turns it into tables."""
 
     rows: list[tuple]
     frame_start: np.ndarray

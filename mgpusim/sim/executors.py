@@ -17,11 +17,11 @@ from typing import Callable, Protocol
 
 import simpy
 
-from ..costs import CostModel
-from ..profile import QUEUE_FAMILIES, HardwareProfile
-from ..schedules.base import FrameProgram
-from ..tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
-from .channel import Channel, GpuChannel, PassWork
+from mgpusim.model.costs import CostModel
+from mgpusim.model.profile import QUEUE_FAMILIES, HardwareProfile
+from mgpusim.model.tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
+from mgpusim.schedules.base import FrameProgram
+from mgpusim.sim.channel import Channel, GpuChannel, PassWork
 
 #: A runner: called with an amount, returns the event that fires when that work is done.
 Runner = Callable[[int], simpy.Event]
@@ -206,19 +206,6 @@ def capacity(profile: HardwareProfile, tags: tuple[WorkTag, ...]) -> Fraction:
             for i, a in enumerate(tags) for b in tags[i + 1:]]
     mean_gain = sum(e - 1 for e in effs) / len(effs)
     return min(Fraction(n), max(min(Fraction(1), min(effs)), 1 + (n - 1) * mean_gain))
-
-
-def overlap_efficiency(alone_a: float, alone_b: float, together: float) -> float:
-    """The overlap efficiency `e` that the model's rule gives for two pieces of work of
-    `alone_a` and `alone_b` ns that take `together` ns from the first start to the last end
-    when started at once: both run at e/2 until the shorter ends, the rest alone, so
-    together = 2 min / e + |a - b| and e = 2 min(a, b) / (together - |a - b|); for equal
-    pieces (a + b) / together. Kept within (0, 2] (2: no slowdown at all)."""
-    short, gap = min(alone_a, alone_b), abs(alone_a - alone_b)
-    if short <= 0:
-        raise ValueError("overlap_efficiency: both pieces of work must take time")
-    shared = together - gap
-    return 2.0 if shared <= short else min(2.0, 2.0 * short / shared)
 
 
 def shared_gpu_groups(program: FrameProgram, profile: HardwareProfile) -> dict[int, tuple[WorkTag, ...]]:

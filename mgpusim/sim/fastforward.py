@@ -27,11 +27,11 @@ from typing import TYPE_CHECKING, Any
 
 import simpy
 
-from .channel import Channel, FixedRateChannel
-from .executors import Dedicated, SharedCores, SharedGpu
+from mgpusim.sim.channel import Channel, FixedRateChannel
+from mgpusim.sim.executors import Dedicated, SharedCores, SharedGpu
 
 if TYPE_CHECKING:
-    from .engine import Engine
+    from mgpusim.sim.engine import Engine
 
 #: Stop looking for a repeat after this many frames (the run then simply continues).
 PROBE_FRAMES = 4000

@@ -9,10 +9,10 @@ import pytest
 
 os.environ["MGPUSIM_VK_VALIDATION"] = "1"
 
-from mgpusim.errors import DependencyError  # noqa: E402
-from mgpusim.experiment import parse_experiment  # noqa: E402
-from mgpusim.profile import parse_profile  # noqa: E402
-from mgpusim.vulkan import instance as vkinst  # noqa: E402
+from mgpusim.model.errors import DependencyError  # noqa: E402
+from mgpusim.model.profile import parse_profile  # noqa: E402
+from mgpusim.real.vulkan import instance as vkinst  # noqa: E402
+from mgpusim.schedules.experiment import parse_experiment  # noqa: E402
 
 
 def lavapipe_profile(gpus: int = 4, transfer: int = 0, threads: int = 2) -> dict[str, Any]:

@@ -88,8 +88,8 @@ def test_a_run_uses_the_rasterizer_threads_its_lavapipe_profile_was_calibrated_w
     it was calibrated: a run on that profile opens its GPUs with as many, unless told."""
     from dataclasses import replace
 
-    from mgpusim.experiment import load_experiment, parse_overrides
-    from mgpusim.runner.run import run_experiment
+    from mgpusim.real.runner.execute import run_experiment
+    from mgpusim.schedules.experiment import load_experiment, parse_overrides
 
     exp = load_experiment(EXPERIMENT, parse_overrides([
         "schedule.gpus=2", "scene.width=64", "scene.height=32", "schedule.frames=3",

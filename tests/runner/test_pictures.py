@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mgpusim.runner import run_experiment
+from mgpusim.real.runner import run_experiment
 
 from .conftest import experiment
 

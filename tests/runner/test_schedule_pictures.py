@@ -12,16 +12,16 @@ from typing import Any
 import numpy as np
 import pytest
 
-from mgpusim.errors import ScheduleError
-from mgpusim.experiment import parse_experiment
-from mgpusim.profile import parse_profile
-from mgpusim.program import build_program
-from mgpusim.runner import run_experiment
-from mgpusim.simulate import simulate
-from mgpusim.vulkan.copies import download
-from mgpusim.vulkan.machine import close_gpus, make_gpus
-from mgpusim.vulkan.particles import initial_state, reference_update
-from mgpusim.vulkan.passes import FragmentLoop, Mesh
+from mgpusim.model.errors import ScheduleError
+from mgpusim.model.profile import parse_profile
+from mgpusim.real.runner import run_experiment
+from mgpusim.real.vulkan.copies import download
+from mgpusim.real.vulkan.host_machine import close_gpus, make_gpus
+from mgpusim.real.vulkan.particle_passes import initial_state, reference_update
+from mgpusim.real.vulkan.passes import FragmentLoop, Mesh
+from mgpusim.schedules.experiment import parse_experiment
+from mgpusim.schedules.program import build_program
+from mgpusim.sim.simulation import simulate
 
 from .conftest import lavapipe_profile
 from .trace_checks import assert_dependencies_honoured

@@ -4,11 +4,11 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
-from mgpusim.errors import ScheduleError
-from mgpusim.runner import run_experiment
-from mgpusim.program import build_program
-from mgpusim.simulate import simulate
-from mgpusim.trace import SUBMISSION_COLUMNS, TRACE_COLUMNS
+from mgpusim.model.errors import ScheduleError
+from mgpusim.real.runner import run_experiment
+from mgpusim.results.trace import SUBMISSION_COLUMNS, TRACE_COLUMNS
+from mgpusim.schedules.program import build_program
+from mgpusim.sim.simulation import simulate
 
 from .conftest import experiment, lavapipe_profile
 from .trace_checks import assert_dependencies_honoured
@@ -62,7 +62,7 @@ def test_every_gpu_task_has_its_host_side(sort_first_3):
     saw its inputs, then called vkQueueSubmit, then got control back; every input that another
     device or the host produced had ended by then, and the task started after the call (the
     device timestamps are mapped to the host clock to within a few microseconds)."""
-    from mgpusim.waits import host_split
+    from mgpusim.results.waits import host_split
     exp, measured = sort_first_3
     sub, tr = measured.submissions, measured.trace
     gpu = tr[tr["device"] != "host"]
@@ -96,7 +96,7 @@ def test_missing_transfer_queue_is_reported():
 
 
 def test_schedule_without_resources_is_a_clear_error():
-    from mgpusim.runner.run import run_program
+    from mgpusim.real.runner.execute import run_program
     from mgpusim.schedules.base import FrameProgram
 
     program = FrameProgram("x", 1, 2, 0, (tuple(build_program(experiment()).tasks(0)),))

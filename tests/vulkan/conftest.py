@@ -12,8 +12,8 @@ import pytest
 
 os.environ["MGPUSIM_VK_VALIDATION"] = "1"
 
-from mgpusim.errors import DependencyError  # noqa: E402
-from mgpusim.vulkan import instance as vkinst  # noqa: E402
+from mgpusim.model.errors import DependencyError  # noqa: E402
+from mgpusim.real.vulkan import instance as vkinst  # noqa: E402
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -36,7 +36,7 @@ def instance():
 
 @pytest.fixture(scope="session")
 def gpu(instance):
-    from mgpusim.vulkan.device import Gpu
+    from mgpusim.real.vulkan.device import Gpu
 
     g = Gpu(instance, 0, "gpu0")
     yield g

@@ -7,9 +7,9 @@ import pandas as pd
 import pytest
 
 from mgpusim.cli import main
-from mgpusim.errors import DependencyError
-from mgpusim.vulkan import errors as vkerrors
-from mgpusim.vulkan import shader_cache
+from mgpusim.model.errors import DependencyError
+from mgpusim.real.vulkan import shader_cache
+from mgpusim.real.vulkan import vk_errors as vkerrors
 
 pytestmark = pytest.mark.vulkan
 

@@ -7,11 +7,11 @@ import time
 import numpy as np
 import pytest
 
-from mgpusim.vulkan.copies import (CopyD2D, CopyD2H, CopyH2D, copy_image_to_buffer, download,
-                                   upload)
-from mgpusim.vulkan.hostcopy import MIN_CHUNK, HostCopier
-from mgpusim.vulkan.machine import close_gpus, make_gpus
-from mgpusim.vulkan.passes import FragmentLoop, Mesh
+from mgpusim.real.vulkan.copies import (CopyD2D, CopyD2H, CopyH2D, copy_image_to_buffer, download,
+                                        upload)
+from mgpusim.real.vulkan.host_machine import close_gpus, make_gpus
+from mgpusim.real.vulkan.hostcopy import MIN_CHUNK, HostCopier
+from mgpusim.real.vulkan.passes import FragmentLoop, Mesh
 
 pytestmark = pytest.mark.vulkan
 

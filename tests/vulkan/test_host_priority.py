@@ -9,12 +9,12 @@ import threading
 import pytest
 
 from mgpusim.cli import main
-from mgpusim.errors import InputError
-from mgpusim.runner import executor
-from mgpusim.vulkan import host_priority
-from mgpusim.vulkan.device import Gpu
-from mgpusim.vulkan.instance import Instance
-from mgpusim.vulkan.machine import machine_record
+from mgpusim.model.errors import InputError
+from mgpusim.real.runner import executor
+from mgpusim.real.vulkan import host_priority
+from mgpusim.real.vulkan.device import Gpu
+from mgpusim.real.vulkan.host_machine import machine_record
+from mgpusim.real.vulkan.instance import Instance
 
 pytestmark = pytest.mark.vulkan
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
-from mgpusim.calibrate.overlap import fastest_of, fit_overlap
+from mgpusim.calibration.overlap_fit import fastest_of, fit_overlap
 from mgpusim.cli import main
 
 pytestmark = pytest.mark.vulkan

@@ -14,7 +14,7 @@ import threading
 
 import pytest
 
-from mgpusim.vulkan import instance as vkinst
+from mgpusim.real.vulkan import instance as vkinst
 
 pytestmark = pytest.mark.vulkan
 

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import pytest
 
-from mgpusim.vulkan import instance as vkinst
-from mgpusim.vulkan.errors import vk
+from mgpusim.real.vulkan import instance as vkinst
+from mgpusim.real.vulkan.vk_errors import vk
 
 pytestmark = pytest.mark.vulkan
 

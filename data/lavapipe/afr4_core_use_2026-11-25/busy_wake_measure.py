@@ -2,9 +2,9 @@
 # held-out runs (python busy_wake_measure.py data/lavapipe/main_job_2026-11-25_8threads ...).
 import sys, tomllib
 from pathlib import Path
-from mgpusim.calibrate.runs import fit_busy_wake
-from mgpusim.study.spec import load_study
-from mgpusim.study.pipeline import load_runs
+from mgpusim.calibration.run_fit import fit_busy_wake
+from mgpusim.studies.spec import load_study
+from mgpusim.studies.steps import load_runs
 study = load_study("experiments/lavapipe/study.toml")
 for job in sys.argv[1:]:
     prof = Path(job)/"profile.toml"

@@ -5,10 +5,10 @@ import sys
 import tomllib
 from pathlib import Path
 
-from mgpusim.calibrate.busy_wake import fit_busy_wake
-from mgpusim.profile import BUSY_WAKE_WINDOW_NS
-from mgpusim.study.pipeline import load_runs
-from mgpusim.study.spec import load_study
+from mgpusim.calibration.busy_wake_fit import fit_busy_wake
+from mgpusim.model.profile import BUSY_WAKE_WINDOW_NS
+from mgpusim.studies.steps import load_runs
+from mgpusim.studies.spec import load_study
 
 study = load_study("experiments/lavapipe/study.toml")
 for job in sys.argv[1:]:

@@ -4,7 +4,7 @@ Usage: python handoff_split.py JOB/runs OUT.csv  (prints medians by the number o
 and by configuration)."""
 import sys, glob, os, pandas as pd, numpy as np
 sys.path.insert(0, str(__import__('pathlib').Path(__file__).resolve().parents[3]))
-from mgpusim.waits import _ready_rows, parse_waits_for
+from mgpusim.results.waits import _ready_rows, parse_waits_for
 root = sys.argv[1]
 out = []
 for d in sorted(glob.glob(f'{root}/*/steady')):

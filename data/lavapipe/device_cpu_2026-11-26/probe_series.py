@@ -4,8 +4,8 @@ threads: quantiles and medians of blocks of 40, to see how a machine's speed mov
     python3 probe_series.py THREADS REPS   (pinned with taskset to the CPUs to try)
 """
 import sys, numpy as np
-from mgpusim.vulkan.machine import make_gpus, close_gpus
-from mgpusim.vulkan import measure as m
+from mgpusim.real.vulkan.host_machine import make_gpus, close_gpus
+from mgpusim.real.vulkan import microbench as m
 threads = int(sys.argv[1]); reps = int(sys.argv[2])
 gpus = make_gpus(1, lp_threads=[threads])
 for name, p in [("mesh", dict(width=[256], height=[192], triangles=[10000])), ("fragment_loop", dict(width=[256], height=[192], iterations=[500]))]:

@@ -20,7 +20,7 @@ import sys
 import time
 from pathlib import Path
 
-import mgpusim.vulkan.device as device
+import mgpusim.real.vulkan.device as device
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from xr_ab import alternate  # noqa: E402 - the shared A/B loop beside this folder

@@ -1,7 +1,7 @@
 """A submit thread checking a task's inputs earliest first, against in the listed order, on XR.
 
 The runner checks a node's inputs from other queues earliest submitted first
-(`mgpusim.runner.plan.earliest_first`); before, it checked them in the order the task lists them.
+(`mgpusim.real.runner.plan.earliest_first`); before, it checked them in the order the task lists them.
 This runs `experiments/lavapipe/xr.toml` under strong scaling on 2 and 4 lavapipe GPUs and
 under weak scaling on 2 (60 frames, 8 rasterizer threads per GPU), alternating run by run
 between `earliest` (the runner as it is) and `listed` (the order patched back from outside), and
@@ -18,7 +18,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import mgpusim.runner.plan as plan
+import mgpusim.real.runner.plan as plan
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from xr_ab import alternate  # noqa: E402 - the shared A/B loop beside this folder

@@ -12,12 +12,12 @@ from pathlib import Path
 
 import pandas as pd
 
-from mgpusim.calibrate.runs import tasks_by_name
-from mgpusim.costs import CostModel
-from mgpusim.profile import load_profile
-from mgpusim.study.pipeline import load_runs
-from mgpusim.study.spec import load_study
-from mgpusim.tasks import PassTask
+from mgpusim.calibration.run_fit import tasks_by_name
+from mgpusim.model.costs import CostModel
+from mgpusim.model.profile import load_profile
+from mgpusim.studies.steps import load_runs
+from mgpusim.studies.spec import load_study
+from mgpusim.model.tasks import PassTask
 
 STUDY = Path("experiments/lavapipe/study.toml")
 

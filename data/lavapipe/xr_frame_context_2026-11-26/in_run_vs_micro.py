@@ -7,8 +7,8 @@ Median of the steady window per task, in us; work terms as the schedule gives th
 A record of one analysis, not part of the package."""
 import sys, tomllib, pandas as pd, numpy as np
 sys.path.insert(0, '.')
-from mgpusim.experiment import load_experiment
-from mgpusim.program import build_program
+from mgpusim.schedules.experiment import load_experiment
+from mgpusim.schedules.program import build_program
 J = sys.argv[1]
 study = tomllib.load(open('experiments/lavapipe/study.toml', 'rb'))
 cfgs = {c['name']: c for k in ('calibration', 'held_out') for c in study[k]['config']}
@@ -19,7 +19,7 @@ def cost(c, w):
 rows = []
 for name in ['sl_1gpu_128x96_t5k', 'sl_1gpu_256x192_t5k', 'sl_1gpu_256x192_t10k', 'sl_1gpu_256x192_t20k', 'sl_1gpu_320x240_t40k', 'xr_sim_2views', 'xr_sim_4views']:
     c = cfgs[name]
-    from mgpusim.overrides import parse_overrides; overrides = parse_overrides(c['set'])
+    from mgpusim.model.overrides import parse_overrides; overrides = parse_overrides(c['set'])
     exp = load_experiment('experiments/lavapipe/' + c['experiment'], overrides=overrides)
     prog = build_program(exp)
     tr = pd.read_csv(f'{J}/runs/{name}/steady/trace.csv')

@@ -19,10 +19,10 @@ from pathlib import Path
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[3]))
-from mgpusim.vulkan.device import Gpu  # noqa: E402
-from mgpusim.vulkan.framepasses import MeshShare, copy_image  # noqa: E402
-from mgpusim.vulkan.instance import Instance  # noqa: E402
-from mgpusim.vulkan.pipelines import RenderTarget  # noqa: E402
+from mgpusim.real.vulkan.device import Gpu  # noqa: E402
+from mgpusim.real.vulkan.framepasses import MeshShare, copy_image  # noqa: E402
+from mgpusim.real.vulkan.instance import Instance  # noqa: E402
+from mgpusim.real.vulkan.pipelines import RenderTarget  # noqa: E402
 
 out, frames = sys.argv[1], int(sys.argv[2])
 w, h, tri = (int(x) for x in (sys.argv[3:6] if len(sys.argv) > 5 else (192, 192, 10000)))
@@ -36,7 +36,7 @@ shown = gpu.image(w, h)
 def empty(cmd):
     pass
 def copy_into(src, x0):
-    from mgpusim.vulkan.copies import copy_rect  # noqa: PLC0415
+    from mgpusim.real.vulkan.copies import copy_rect  # noqa: PLC0415
     return lambda cmd: copy_rect(cmd, src, final, (0, 0), (x0, 0), (w, h))
 steps = {
     "sl": [("render0", A.record), ("e", lambda c: copy_image(c, A.targets[0].color, shown))],

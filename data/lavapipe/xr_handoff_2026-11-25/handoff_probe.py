@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-import mgpusim.vulkan.device as device
+import mgpusim.real.vulkan.device as device
 from mgpusim.cli import main
 
 LOG: list[tuple] = []

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pandas as pd
 
-import mgpusim.vulkan.framepasses as fp
+import mgpusim.real.vulkan.framepasses as fp
 from mgpusim.cli import main
 
 _INIT = fp.MeshShare.__init__

@@ -1,0 +1,219 @@
+"""Turn `mgpusim measure` tables into cost-model coefficients and a hardware profile.
+
+- pass kinds: fixed_ns + ns_per_<term> * work, the work terms of :mod:`mgpusim.model.costs`;
+- copies: per path and queue family, fixed_ns + bytes / bandwidth;
+- host copies: throughput against thread count, min(threads * per_thread, memory bandwidth);
+- lavapipe: each simulated GPU's passes are CPU work on the host's cores (`host.gpus_share_cpu`),
+  with `cpu_threads` per GPU, so GPUs and host threads running at once slow each other down.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from mgpusim.calibration.fit import Fit, fit_nonnegative
+from mgpusim.calibration.measure_tables import check_measure_table
+from mgpusim.calibration.overlap_fit import fit_overlap
+from mgpusim.model.errors import InputError
+from mgpusim.model.geometry import MESH_PLACE, mesh_placement
+from mgpusim.model.scene import PassSpec
+from mgpusim.model.work_terms import WORK_TERMS
+from mgpusim.model.work_terms import pass_work as pass_work_placed
+from mgpusim.validation.measured_check import read_json_object, read_table
+
+#: Every pass kind of the cost model that is measured and fitted: all but "timed" (a pass known
+#: only by a reference time).
+PASS_KINDS = tuple(kind for kind in WORK_TERMS if kind != "timed")
+COPY_PASSES = {"copy_d2h": "d2h", "copy_h2d": "h2d", "copy_d2d": "d2d"}
+
+
+#: Pass parameters that enter the work terms, and all columns that identify one measured
+#: configuration of a pass.
+WORK_PARAMS = ("iterations", "triangles", "inputs", "particles")
+PARAM_COLUMNS = ("width", "height") + WORK_PARAMS + tuple(MESH_PLACE)
+
+
+@dataclass
+class Calibration:
+    pass_fits: dict[str, Fit] = field(default_factory=dict)
+    #: lavapipe: cores each pass kind keeps busy, with the per-size values (see fit_cores)
+    cores: dict[str, tuple[float, list[float]]] = field(default_factory=dict)
+    #: lavapipe: how each kind's cores were measured, where not by CPU time
+    cores_method: dict[str, str] = field(default_factory=dict)
+    #: lavapipe: per pass kind, CPU time of a submission outside the pass (the fit's intercept)
+    submission_cpu_ns: dict[str, float] = field(default_factory=dict)
+    copy_fits: dict[tuple[str, str], Fit] = field(default_factory=dict)
+    host: dict[str, float] = field(default_factory=dict)
+    #: overlap efficiency per queue pair: (median over sizes, each size's) (calibrate/overlap.py)
+    overlap: dict[str, tuple[float, list[float]]] = field(default_factory=dict)
+    machine: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+
+def read_measurements(paths: list[Path]) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """Concatenate measure tables (CSV or Parquet); return them and the first machine record."""
+    frames, machine = [], {}
+    for path in paths:
+        df = check_measure_table(read_table(path), str(path))
+        df["source"] = path.name
+        frames.append(df)
+        record = path.with_name(path.name + ".machine.json")
+        if record.is_file() and not machine:
+            machine = read_json_object(record)
+    return pd.concat(frames, ignore_index=True), machine
+
+
+def pass_work(row: pd.Series) -> dict[str, float]:
+    """Work terms of one measured pass, as the schedules would give them. A mesh row of a
+    table that says where it drew (the placement columns) has the placed terms too; an older
+    table's rows keep the triangles-and-pixels model."""
+    kind = row["pass"]
+    pixels = float(row.get("width", 0) or 0) * float(row.get("height", 0) or 0)
+    params = {k: float(row[k]) for k in WORK_PARAMS if k in row and pd.notna(row[k])}
+    if kind == "composite_sort_last":
+        pixels *= params.get("inputs", 1)  # one full-screen quad per input
+    spec = PassSpec(kind, kind, params)
+    if kind == "mesh" and all(k in row and pd.notna(row[k]) for k in MESH_PLACE):
+        place = mesh_placement(row.to_dict())
+        view = place.mesh_view(int(params["triangles"]))
+        return pass_work_placed(spec, place.pixels, view.count / view.triangles, place)
+    return WORK_TERMS[kind](spec, pixels, 1.0)
+
+
+def fit_passes(df: pd.DataFrame, cal: Calibration) -> None:
+    """One fit per pass kind, on single-GPU rows at the GPU's full thread count (rows on fewer
+    lavapipe threads are another GPU's)."""
+    solo = df[_solo(df) & _all_threads(df)]
+    for kind in PASS_KINDS:
+        rows = solo[solo["pass"] == kind]
+        if rows.empty:
+            continue
+        works = [pass_work(r) for _, r in rows.iterrows()]
+        terms = sorted({t for w in works for t in w})
+        X = np.array([[1.0] + [w.get(t, 0.0) for t in terms] for w in works])
+        fit = fit_nonnegative(X, rows["duration_ns"].to_numpy(), ["fixed_ns"] + [f"ns_per_{t}" for t in terms], kind)
+        cal.pass_fits[kind] = fit
+        cal.warnings.extend(fit.warnings)
+
+
+def fit_cores(df: pd.DataFrame, cal: Calibration) -> None:
+    """lavapipe: per pass kind, the cores it keeps busy while it runs, which is what decides how
+    much passes running at once slow each other. Measured two ways:
+
+    - where the table has the kind on two GPUs at once (`gpus` = 2) and alone at the same
+      sizes: the median over sizes of (time together / time alone). Two passes that each keep
+      c of the two cores busy take c times as long together (each gets one core), so that
+      slowdown *is* c as the model uses it. Why it wins: a lavapipe mesh pass keeps ~1.2 cores
+      busy by CPU time, but two at once take 1.2-1.5x as long (their binning competes for the
+      caches and memory, not only the cores), and with 1.2 the model made every multi-GPU mesh
+      run 5-20 % too fast;
+    - else the slope of the process's CPU time (`cpu_ns`, all threads) against the pass's
+      duration over the sizes measured (medians per size; the intercept is what a submission
+      costs outside the pass's timestamps, 0.1-0.4 ms).
+
+    Either is at least 1 (the queue thread runs the pass) and at most the GPU's threads."""
+    if "cpu_ns" not in df.columns or "lp_threads" not in df.columns:
+        return  # only lavapipe GPUs (lp_threads set) run their passes on the host's cores
+    rows = df[_solo(df) & _all_threads(df) & df["cpu_ns"].notna() & df["lp_threads"].notna()]
+    for kind in PASS_KINDS:
+        mine = rows[rows["pass"] == kind]
+        keys = [c for c in PARAM_COLUMNS if c in mine.columns and mine[c].notna().all()]
+        if mine.empty or not keys:
+            continue
+        most = float(mine["lp_threads"].max())
+        pair = _pair_slowdowns(df, kind, keys)
+        if pair is not None:
+            cal.cores[kind] = (float(np.clip(pair.median(), 1.0, most)), [float(r) for r in pair])
+            cal.cores_method[kind] = "slowdown of two at once"
+        sizes = mine.groupby(keys)[["duration_ns", "cpu_ns"]].median()
+        if sizes["duration_ns"].nunique() < 2:
+            if pair is None:
+                cal.warnings.append(f"{kind}: CPU time measured at one size only, cores not fitted")
+            continue
+        X = np.column_stack([sizes["duration_ns"], np.ones(len(sizes))])
+        (slope, overhead), *_ = np.linalg.lstsq(X, sizes["cpu_ns"].to_numpy(dtype=float), rcond=None)
+        cal.submission_cpu_ns[kind] = float(overhead)
+        if pair is None:
+            per_size = (sizes["cpu_ns"] - overhead) / sizes["duration_ns"]
+            cal.cores[kind] = (float(np.clip(slope, 1.0, most)), [float(r) for r in per_size])
+
+
+def _pair_slowdowns(df: pd.DataFrame, kind: str, keys: list[str]) -> pd.Series | None:
+    """Per size measured both ways, the median time of `kind` on two GPUs at once over its
+    median time alone (None where no size was)."""
+    if "gpus" not in df.columns:
+        return None
+    mine = df[(df["pass"] == kind) & _all_threads(df)]
+    alone = mine[mine["gpus"].fillna(1) <= 1].groupby(keys)["duration_ns"].median()
+    both = mine[mine["gpus"] == 2].groupby(keys)["duration_ns"].median()
+    ratio = (both / alone).dropna()
+    return ratio if len(ratio) else None
+
+
+def fit_copies(df: pd.DataFrame, cal: Calibration) -> None:
+    for name, path in COPY_PASSES.items():
+        rows = df[(df["pass"] == name) & _solo(df)]
+        if rows.empty:
+            continue
+        for queue, group in rows.groupby("queue"):
+            X = np.column_stack([np.ones(len(group)), group["bytes"].to_numpy(dtype=float)])
+            fit = fit_nonnegative(X, group["duration_ns"].to_numpy(), ["fixed_ns", "ns_per_byte"], f"{name} on {queue}")
+            cal.copy_fits[(path, str(queue))] = fit
+            cal.warnings.extend(fit.warnings)
+
+
+def fit_host_copies(df: pd.DataFrame, cal: Calibration) -> None:
+    """Throughput per thread count; per-thread speed from 1 thread, the plateau from the most."""
+    rows = df[df["pass"] == "host_copy"]
+    if rows.empty:
+        return
+    throughput: dict[int, float] = {}
+    fixed: list[float] = []
+    for threads, group in rows.groupby("threads"):
+        X = np.column_stack([np.ones(len(group)), group["bytes"].to_numpy(dtype=float)])
+        fit = fit_nonnegative(X, group["duration_ns"].to_numpy(), ["fixed_ns", "ns_per_byte"], f"host_copy x{threads}")
+        cal.warnings.extend(fit.warnings)
+        throughput[int(threads)] = 1.0 / fit.coef[1] if fit.coef[1] > 0 else float("inf")
+        fixed.append(fit.coef[0])
+    one = throughput.get(1, min(throughput.values()))
+    most = max(throughput)
+    plateau = throughput[most]
+    cal.host = {"memcpy_thread_gbps": one, "host_copy_fixed_ns": float(np.median(fixed)),
+                "throughput_by_threads_gbps": {str(k): v for k, v in sorted(throughput.items())}}
+    if plateau >= 0.9 * most * one:
+        cal.warnings.append(f"host copies still scale at {most} threads: memory bandwidth is at least "
+                            f"{plateau:.1f} GB/s (not saturated in the measured range)")
+    cal.host["memory_bandwidth_gbps"] = max(plateau, one)
+
+
+def _solo(df: pd.DataFrame) -> pd.Series:
+    """Rows measured with one simulated GPU at a time."""
+    if "gpus" in df.columns:
+        return df["gpus"].fillna(1) <= 1
+    return ~df["source"].str.contains("gpus")  # tables written before the column existed
+
+
+def _all_threads(df: pd.DataFrame) -> pd.Series:
+    """Rows of real GPUs, or of lavapipe GPUs on the most threads measured for their pass."""
+    if "lp_threads" not in df.columns:
+        return pd.Series(True, index=df.index)
+    most = df.groupby("pass")["lp_threads"].transform("max")
+    return df["lp_threads"].isna() | (df["lp_threads"] == most)
+
+
+def calibrate(df: pd.DataFrame, machine: dict[str, Any]) -> Calibration:
+    cal = Calibration(machine=machine)
+    fit_passes(df, cal)
+    fit_cores(df, cal)
+    fit_copies(df, cal)
+    fit_host_copies(df, cal)
+    cal.overlap, warnings = fit_overlap(df)
+    cal.warnings.extend(warnings)
+    if not (cal.pass_fits or cal.copy_fits or cal.host or cal.overlap):
+        raise InputError("nothing to fit: no single-GPU pass, copy or host-copy rows (at the "
+                         "GPU's full thread count) in " + ", ".join(sorted(set(map(str, df["source"])))))
+    return cal

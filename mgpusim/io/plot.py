@@ -1,0 +1,210 @@
+"""Timeline pictures: one row per GPU queue, copy engine, host thread and link direction.
+
+Works on any trace in the common schema; `frames` limits the picture to a window of frames
+so that long runs stay readable. Files are drawn on matplotlib Figures without pyplot: no
+display needed and no global backend switched (a notebook's inline plots keep working).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+from matplotlib import patheffects
+from matplotlib.figure import Figure
+
+from mgpusim.results.summary import link_track
+
+STEP_COLOURS = {
+    "render": "#4c72b0", "d2h": "#dd8452", "host_copy": "#937860", "h2d": "#55a868",
+    "composite": "#c44e52", "present": "#8172b3", "link": "#bbbbbb",
+}
+#: Colours for steps not in STEP_COLOURS, handed out in the order of the steps' names.
+_MORE_COLOURS = ("#da8bc3", "#ccb974", "#64b5cd", "#8c8c8c", "#17becf", "#bcbd22", "#ff7f0e",
+                 "#9467bd", "#2ca02c", "#d62728", "#1f77b4", "#e377c2")
+#: Frame numbers are written on slices at least this fraction of the window wide.
+_LABEL_MIN_WIDTH = 0.025
+
+
+def step_colours(steps: Sequence[str]) -> dict[str, str]:
+    """A distinct colour per step: the usual steps keep theirs, others get the next free one."""
+    out = {s: STEP_COLOURS[s] for s in steps if s in STEP_COLOURS}
+    spare = [c for c in _MORE_COLOURS if c not in out.values()]
+    for i, step in enumerate(sorted(s for s in set(steps) if s not in STEP_COLOURS)):
+        out[step] = spare[i % len(spare)]
+    return out
+
+
+def _rows(trace: pd.DataFrame) -> list[str]:
+    labels = (trace["device"].astype(str) + "." + trace["engine"].astype(str)).unique().tolist()
+
+    def key(label: str) -> tuple:
+        dev, _, eng = label.partition(".")
+        num = int(eng[6:]) if eng.startswith("thread") and eng[6:].isdigit() else -1
+        return (dev == "host", dev, eng.startswith("link"), num, eng)
+    return sorted(labels, key=key)
+
+
+def draw_timeline(ax, trace: pd.DataFrame, links: pd.DataFrame | None = None,
+                  title: str = "", frames: Sequence[int] | None = None) -> None:
+    """Draw one timeline on `ax`: time in ms on x from the window's first start, a row per
+    queue, engine, host thread and link direction, slices coloured by step and numbered by
+    frame where they are wide enough, frame ends marked on the top axis, the legend outside."""
+    df = trace
+    if frames is not None:
+        df = df[df["frame"].isin(list(frames))]
+    if len(df) == 0:
+        ax.set_title(title + " (no frames in the window)")
+        return
+    lo, hi = int(df["start_ns"].min()), int(df["end_ns"].max())
+    parts = [df.assign(label=df["device"].astype(str) + "." + df["engine"].astype(str))]
+    if links is not None and len(links):
+        lk = links[(links["end_ns"] > lo) & (links["start_ns"] < hi)]
+        parts.append(pd.DataFrame({"label": lk["channel"].astype(str).map(lambda c: ".".join(link_track(c))),
+                                   "start_ns": lk["start_ns"].clip(lo, hi), "end_ns": lk["end_ns"].clip(lo, hi),
+                                   "step": "link", "frame": -1}))
+    both = pd.concat(parts, ignore_index=True)
+    rows = _rows(both.assign(device=both["label"].str.partition(".")[0], engine=both["label"].str.partition(".")[2]))
+    y = {label: i for i, label in enumerate(reversed(rows))}
+    colours = step_colours(both["step"].astype(str).unique().tolist())
+    for step, group in both.groupby("step", sort=False):
+        for label, g2 in group.groupby("label"):
+            sp = list(zip((g2["start_ns"] - lo) / 1e6, ((g2["end_ns"] - g2["start_ns"]) / 1e6).clip(lower=1e-6)))
+            ax.broken_barh(sp, (y[label] - 0.4, 0.8), facecolors=colours[str(step)],
+                           edgecolor="black", linewidth=0.2, label=str(step))
+    _frame_labels(ax, both, y, lo, hi)
+    ax.set_yticks(range(len(rows)), list(reversed(rows)), fontsize=7)
+    ax.set_xlabel("time (ms)")
+    ax.set_xlim(0, (hi - lo) / 1e6 * 1.01)
+    ax.set_title(title, fontsize=9)
+    handles, labels = ax.get_legend_handles_labels()
+    uniq = dict(zip(labels, handles))
+    ax.legend(uniq.values(), uniq.keys(), fontsize=7, title="step", title_fontsize=7,
+              loc="upper left", bbox_to_anchor=(1.005, 1.0), borderaxespad=0.0)
+
+
+def _frame_labels(ax, both: pd.DataFrame, y: dict[str, int], lo: int, hi: int) -> None:
+    """Frame numbers on the slices wide enough to hold one, and each frame's end (its last
+    task) as a tick on the top axis."""
+    tasks = both[both["frame"] >= 0]
+    wide = tasks[(tasks["end_ns"] - tasks["start_ns"]) >= _LABEL_MIN_WIDTH * max(hi - lo, 1)]
+    for label, frame, s, e in zip(wide["label"], wide["frame"], wide["start_ns"], wide["end_ns"]):
+        ax.text(((s + e) / 2 - lo) / 1e6, y[label], str(int(frame)), ha="center", va="center", fontsize=6,
+                color="white", fontweight="bold", clip_on=True)
+    ends = tasks.groupby("frame")["end_ns"].max()
+    top = ax.secondary_xaxis("top")
+    top.set_xticks(((ends - lo) / 1e6).tolist(), [str(int(f)) for f in ends.index], fontsize=6)
+    top.set_xlabel("frame ends (frame number)", fontsize=7)
+    for x in (ends - lo) / 1e6:
+        ax.axvline(x, color="#444444", linewidth=0.4, linestyle=":", zorder=0)
+
+
+def last_frames(trace: pd.DataFrame, count: int = 4) -> list[int]:
+    top = int(trace["frame"].max()) if len(trace) else 0
+    return list(range(max(0, top - count + 1), top + 1))
+
+
+def timeline_png(trace: pd.DataFrame, path: str | Path, links: pd.DataFrame | None = None,
+                 title: str = "", frames: Sequence[int] | None = None) -> Path:
+    """Write a timeline PNG of `frames` (default: the last four frames)."""
+    frames = last_frames(trace) if frames is None else frames
+    n_rows = max(3, len(_rows(trace)) + (0 if links is None else links["channel"].nunique()))
+    fig = Figure(figsize=(13, 1.6 + 0.3 * n_rows))
+    ax = fig.subplots()
+    draw_timeline(ax, trace, links, title, frames)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    return Path(path)
+
+
+def comparison_png(measured: pd.DataFrame, simulated: pd.DataFrame, path: str | Path, title: str = "",
+                   frames: Sequence[int] | None = None, sim_links: pd.DataFrame | None = None) -> Path:
+    """Measured and simulated timelines one above the other, same frames, same time axis. A
+    measured steady window of frames the (shorter) simulation does not have is drawn beside the
+    simulation's last frames, as many of them: both in steady state."""
+    frames, sim_frames = comparison_frames(measured, simulated, frames)
+    rows = max(len(_rows(measured)), len(_rows(simulated)), 3)
+    fig = Figure(figsize=(12, 2.5 + 0.6 * rows))
+    top, bottom = fig.subplots(2, 1, sharex=True)
+    lo_m = measured[measured["frame"].isin(list(frames))]
+    lo_s = simulated[simulated["frame"].isin(sim_frames)]
+    draw_timeline(top, lo_m, None, f"measured: {title}", frames)
+    draw_timeline(bottom, lo_s, sim_links, f"simulated: {title}", sim_frames)
+    span = max(_span(lo_m), _span(lo_s))
+    bottom.set_xlim(0, span * 1.02 if span else 1)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    return Path(path)
+
+
+def comparison_frames(measured: pd.DataFrame, simulated: pd.DataFrame,
+                      frames: Sequence[int] | None = None) -> tuple[list[int], list[int]]:
+    """The measured frames to draw (default its last four) and the simulated ones: the same
+    numbers where the simulation has them, else its last frames, as many."""
+    frames = list(last_frames(measured) if frames is None else frames)
+    if set(frames) <= set(simulated["frame"].unique()):
+        return frames, frames
+    return frames, last_frames(simulated, len(frames))
+
+
+def _span(df: pd.DataFrame) -> float:
+    return (int(df["end_ns"].max()) - int(df["start_ns"].min())) / 1e6 if len(df) else 0.0
+
+
+def sweep_png(table: pd.DataFrame, keys: Sequence[str], path: str | Path, metric: str = "frame_time_ms") -> Path:
+    """:func:`draw_sweep` into a PNG file."""
+    fig = Figure(figsize=(8, 4.8))
+    draw_sweep(fig.subplots(), table, keys, metric)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, format="png")
+    return Path(path)
+
+
+def draw_sweep(ax, table: pd.DataFrame, keys: Sequence[str], metric: str = "frame_time_ms") -> None:
+    """A sweep's `metric` against its keys on `ax`: a line for one key, a heatmap for two
+    (failed cells say so), and for more a line over the first key for each combination of
+    the others. Failed points are left out of lines (their rows carry the error)."""
+    ok = table[table["error"].isna()] if "error" in table else table
+    if metric not in ok or ok[metric].isna().all():
+        ax.text(0.5, 0.5, f"no point has a {metric}", ha="center", va="center", transform=ax.transAxes)
+        ax.set_axis_off()
+    elif len(keys) == 2:  # every cell of the grid shown, the failed ones blank
+        failed = table["error"].notna() if "error" in table else False
+        _heatmap(ax.figure, ax, table.assign(**{metric: table[metric].mask(failed)}), keys, metric)
+    else:
+        _lines(ax, ok, keys, metric)
+
+
+def _heatmap(fig, ax, df: pd.DataFrame, keys: Sequence[str], metric: str) -> None:
+    grid = df.pivot_table(index=keys[0], columns=keys[1], values=metric, aggfunc="mean", sort=True,
+                          dropna=False)
+    image = ax.imshow(grid.to_numpy(dtype=float), aspect="auto", cmap="viridis_r", origin="lower")
+    ax.set_xticks(range(grid.shape[1]), [str(c) for c in grid.columns])
+    ax.set_yticks(range(grid.shape[0]), [str(i) for i in grid.index])
+    ax.set_xlabel(keys[1])
+    ax.set_ylabel(keys[0])
+    outline = [patheffects.withStroke(linewidth=2, foreground="white")]
+    for (i, j), value in np.ndenumerate(grid.to_numpy(dtype=float)):
+        ax.text(j, i, f"{value:.3g}" if value == value else "failed", ha="center", va="center",
+                fontsize=8, color="black", path_effects=outline)
+    fig.colorbar(image, ax=ax, label=metric)
+    ax.set_title(f"{metric} by {keys[0]} and {keys[1]}", fontsize=10)
+
+
+def _lines(ax, df: pd.DataFrame, keys: Sequence[str], metric: str) -> None:
+    x_key, others = keys[0], list(keys[1:])
+    numeric = pd.api.types.is_numeric_dtype(df[x_key])
+    order = sorted(df[x_key].unique(), key=lambda v: (str(type(v)), v))
+    groups = df.groupby(others, sort=True) if others else [((), df)]
+    for label, group in groups:
+        group = group.sort_values(x_key, key=lambda s: s.map(order.index)) if not numeric else group.sort_values(x_key)
+        x = group[x_key] if numeric else group[x_key].map(order.index)
+        name = ", ".join(f"{k}={v}" for k, v in zip(others, label if isinstance(label, tuple) else (label,)))
+        ax.plot(x, group[metric], marker="o", label=name or None)
+    if not numeric:
+        ax.set_xticks(range(len(order)), [str(v) for v in order])
+    ax.set_xlabel(x_key)
+    ax.set_ylabel(metric)
+    ax.grid(alpha=0.3)
+    if others:
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1), borderaxespad=0)
+    ax.set_title(f"{metric} by {', '.join(keys)}", fontsize=10)

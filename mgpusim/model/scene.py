@@ -1,0 +1,142 @@
+"""Scenes: resolution, bytes per pixel and the passes of a frame with their work.
+
+A pass's parameters (iterations, triangles, particles, duration_ms, output_bytes, ...) are
+kept as given; :func:`mgpusim.model.costs.pass_work` turns them, with the pixels and geometry share a
+schedule assigns to a GPU, into the work terms the cost coefficients multiply.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from types import MappingProxyType
+from typing import Mapping
+
+from mgpusim.model import limits as L
+from mgpusim.model.config import Table, did_you_mean
+from mgpusim.model.geometry import Placement
+
+
+@dataclass(frozen=True)
+class PassSpec:
+    name: str
+    kind: str
+    params: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
+
+    def param(self, key: str, default: float = 0.0) -> float:
+        return float(self.params.get(key, default))
+
+
+@dataclass(frozen=True)
+class Section:
+    """A part of the data set that a GPU holds whole (a terrain tile, a statue): its geometry
+    and its textures as decoded in GPU memory (compressed files grow when decoded)."""
+
+    name: str
+    geometry_bytes: int
+    texture_bytes: int
+
+    @property
+    def bytes(self) -> int:
+        return self.geometry_bytes + self.texture_bytes
+
+
+@dataclass(frozen=True)
+class Scene:
+    width: int
+    height: int
+    passes: tuple[PassSpec, ...]
+    color_bytes_per_pixel: int = 4
+    depth_bytes_per_pixel: int = 2
+    #: Resident data that sort-last splits between GPUs (geometry + textures), bytes.
+    dataset_bytes: int = 0
+    #: Whole objects the geometry is made of (sort-last gives each GPU whole objects);
+    #: 0 = geometry that splits into any fraction.
+    objects: int = 0
+    #: The data set by section (then `dataset_bytes` is their sum and `objects` their count).
+    sections: tuple[Section, ...] = ()
+
+    @property
+    def pixels(self) -> int:
+        return self.width * self.height
+
+    @property
+    def whole_frame(self) -> Placement:
+        """A pass that draws the whole frame, all of the geometry, with the mono camera."""
+        return Placement((self.width, self.height))
+
+    @property
+    def color_bytes(self) -> int:
+        return self.pixels * self.color_bytes_per_pixel
+
+    @property
+    def depth_bytes(self) -> int:
+        return self.pixels * self.depth_bytes_per_pixel
+
+
+def parse_scene(t: Table, pass_params: Mapping[str, tuple[str, ...]],
+                common_params: tuple[str, ...] = ()) -> Scene:
+    """The [scene] table; `pass_params` maps each pass kind to the parameters it reads (a
+    parameter it does not read is a typo: refused with the closest name)."""
+    passes = []
+    names: set[str] = set()
+    for pt in t.tables("passes"):
+        name = pt.get("name", str)
+        if name in names:
+            raise pt.error("name", f"duplicate pass name {name!r}")
+        names.add(name)
+        kind = pt.get("kind", str, choices=pass_params.keys())
+        known = (*pass_params[kind], *common_params)
+        params = {}
+        for key in pt.rest():
+            if key not in known:
+                raise pt.error(key, f"unknown parameter of a {kind} pass{did_you_mean(key, known)} "
+                                    f"(it takes {', '.join(known)})")
+            params[key] = pt.get(key, float, minimum=0, maximum=L.MAX_WORK, why=L.WHY_WORK)
+        pt.finish()
+        passes.append(PassSpec(name, kind, MappingProxyType(params)))
+    sections = _sections(t) if t.has("sections") else ()
+    side = {"minimum": 1, "maximum": L.MAX_SIDE, "why": L.WHY_IMAGE}
+    per_pixel = {"maximum": L.MAX_BYTES_PER_PIXEL, "why": L.WHY_IMAGE}
+    scene = Scene(
+        width=t.get("width", int, **side),
+        height=t.get("height", int, **side),
+        passes=tuple(passes),
+        color_bytes_per_pixel=t.get("color_bytes_per_pixel", int, 4, minimum=1, **per_pixel),
+        depth_bytes_per_pixel=t.get("depth_bytes_per_pixel", int, 2, minimum=0, **per_pixel),
+        dataset_bytes=t.get("dataset_bytes", int, 0, minimum=0, maximum=L.MAX_BYTES, why=L.WHY_BYTES),
+        objects=t.get("objects", int, 0, minimum=0, maximum=L.MAX_WORK, why=L.WHY_WORK),
+        sections=sections,
+    )
+    t.finish()
+    if sections:
+        scene = _with_sections(scene, t)
+    return scene
+
+
+def _sections(t: Table) -> tuple[Section, ...]:
+    """`[[scene.sections]]`: name, geometry_bytes, texture_bytes (decoded)."""
+    out: list[Section] = []
+    for st in t.tables("sections"):
+        name = st.get("name", str)
+        if name in {s.name for s in out}:
+            raise st.error("name", f"duplicate section name {name!r}")
+        size = {"minimum": 0, "maximum": L.MAX_BYTES, "why": L.WHY_BYTES}
+        out.append(Section(name, st.get("geometry_bytes", int, **size),
+                           st.get("texture_bytes", int, 0, **size)))
+        st.finish()
+    return tuple(out)
+
+
+def _with_sections(scene: Scene, t: Table) -> Scene:
+    """A sectioned data set: `dataset_bytes` is the sections' sum, `objects` their count
+    (either, if also given, must agree)."""
+    total, count = sum(s.bytes for s in scene.sections), len(scene.sections)
+    if scene.dataset_bytes not in (0, total):
+        raise t.error("dataset_bytes", f"the sections hold {total} bytes, but dataset_bytes = "
+                                       f"{scene.dataset_bytes} (give one or the other)")
+    if scene.objects not in (0, count):
+        raise t.error("objects", f"there are {count} sections, but objects = {scene.objects} "
+                                 "(a GPU holds whole sections: they are the objects)")
+    if total > L.MAX_BYTES:
+        raise t.error("sections", f"the sections hold {total} bytes, more than {L.MAX_BYTES} "
+                                  f"({L.WHY_BYTES})")
+    return replace(scene, dataset_bytes=total, objects=count)

@@ -1,0 +1,295 @@
+"""A fast-forwarded run's logs, as the full run's: a prefix, a block repeated, and the rest.
+
+The engine's fast-forward (:mod:`mgpusim.sim.fastforward`) ran a shorter run that passes through
+the same states; the full run logged the shorter run's prefix, then its repeated block once per
+step (each shifted by `frames` frames and `ns` ns), then the shorter run's rest shifted by all
+the skipped steps, in that order. Everything here works on that compact form, so tables,
+per-frame figures and busy times of a 10^6-frame run cost what the shorter run cost; the full
+trace is built only when asked for, or streamed in chunks sorted as :func:`trace.make_trace`
+sorts (by start, end, device, engine; ties in logging order).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Iterator
+
+import numpy as np
+import pandas as pd
+
+from mgpusim.results.trace import TRACE_COLUMNS, TRACE_DTYPES
+
+_INT = ("frame", "start_ns", "end_ns", "bytes")
+_STR = ("device", "engine", "step", "task", "waits_for")
+
+
+@dataclass(frozen=True)
+class Shift:
+    """Step `frames` frames and `ns` ns, `copies` + 1 times for the block; the rest moves by
+    `copies` steps."""
+
+    frames: int
+    ns: int
+    copies: int
+
+
+def _columns(rows: list[tuple]) -> dict[str, np.ndarray]:
+    cols = list(zip(*rows)) if rows else [()] * len(TRACE_COLUMNS)
+    out: dict[str, np.ndarray] = {}
+    for name, values in zip(TRACE_COLUMNS, cols):
+        out[name] = np.array(values, dtype=np.int64 if name in _INT else object)
+    return out
+
+
+def _shifted(cols: dict[str, np.ndarray], frames: int, ns: int) -> dict[str, np.ndarray]:
+    out = dict(cols)
+    out["frame"] = cols["frame"] + frames
+    out["start_ns"] = cols["start_ns"] + ns
+    out["end_ns"] = cols["end_ns"] + ns
+    return out
+
+
+class RepeatedRows:
+    """The trace rows of a fast-forwarded run (see the module doc). String columns are kept as
+    codes into one sorted dictionary per column (code order is string order)."""
+
+    def __init__(self, rows: list[tuple], split: tuple[int, int], shift: Shift):
+        parts = [_columns(rows[:split[0]]), _columns(rows[split[0]:split[1]]), _columns(rows[split[1]:])]
+        self.dictionary = {c: np.unique(np.concatenate([p[c] for p in parts]).astype(str)) for c in _STR}
+        for p in parts:
+            for c in _STR:
+                p[c] = np.searchsorted(self.dictionary[c], p[c].astype(str)).astype(np.int32)
+        self.prefix, self.block = parts[0], parts[1]
+        self.rest = _shifted(parts[2], shift.copies * shift.frames, shift.copies * shift.ns)
+        self.shift = shift
+        self._host = _code(self.dictionary["device"], "host")
+
+    def __len__(self) -> int:
+        return len(self.prefix["frame"]) + (self.shift.copies + 1) * len(self.block["frame"]) + \
+            len(self.rest["frame"])
+
+    # ----- per frame ---------------------------------------------------------------------
+    def frame_arrays(self, frames: int, present_task: str) -> tuple[np.ndarray, np.ndarray]:
+        """(first task start, present end) per frame, as the engine records them."""
+        present_code = _code(self.dictionary["task"], present_task)
+        start = np.full(frames, np.iinfo(np.int64).max, dtype=np.int64)
+        present = np.full(frames, -1, dtype=np.int64)
+        for part in (self.prefix, self.rest):
+            np.minimum.at(start, part["frame"], part["start_ns"])
+            mask = _present(part, present_code, self._host)
+            np.maximum.at(present, part["frame"][mask], part["end_ns"][mask])
+        steps = np.arange(self.shift.copies + 1, dtype=np.int64)
+        b = self.block
+        mask = _present(b, present_code, self._host)
+        for frame in np.unique(b["frame"]):
+            idx = frame + self.shift.frames * steps
+            in_frame = b["frame"] == frame
+            first = b["start_ns"][in_frame].min()
+            start[idx] = np.minimum(start[idx], first + self.shift.ns * steps)
+            ends = b["end_ns"][in_frame & mask]
+            if len(ends):
+                present[idx] = np.maximum(present[idx], ends.max() + self.shift.ns * steps)
+        return start, present
+
+    # ----- busy time ---------------------------------------------------------------------
+    def busy(self, lo: int, hi: int) -> dict[str, int]:
+        """Busy ns of every queue and host thread (`device.engine`) inside [lo, hi]."""
+        out: dict[str, int] = {}
+        for part in (self.prefix, self.rest):
+            _add_clipped(out, self._resource(part), part["start_ns"], part["end_ns"], lo, hi)
+        b = self.block
+        for name, s, e in zip(self._resource(b), b["start_ns"].tolist(), b["end_ns"].tolist()):
+            out[name] = out.get(name, 0) + shifted_overlap(s, e, self.shift.ns, self.shift.copies, lo, hi)
+        return out
+
+    def _resource(self, part: dict[str, np.ndarray]) -> list[str]:
+        dev, eng = self.dictionary["device"][part["device"]], self.dictionary["engine"][part["engine"]]
+        return [f"{d}.{e}" for d, e in zip(dev.tolist(), eng.tolist())]
+
+    # ----- the trace ---------------------------------------------------------------------
+    def chunks(self, rows_per_chunk: int = 1_000_000) -> Iterator[pd.DataFrame]:
+        """The whole trace, sorted as make_trace sorts it, in chunks of about `rows_per_chunk`
+        rows (by start time: every row of one start time is in one chunk)."""
+        for cols in self._sorted_chunks(rows_per_chunk):
+            yield self._frame(cols)
+
+    def arrow_chunks(self, schema: Any, rows_per_chunk: int = 1_000_000) -> Iterator[Any]:
+        """The same chunks as pyarrow Tables of `schema` (strings built in Arrow, not Python)."""
+        import pyarrow as pa  # noqa: PLC0415 (only the streaming writer needs it)
+        dicts = {c: pa.array(self.dictionary[c].tolist(), type=pa.string()) for c in _STR}
+        for cols in self._sorted_chunks(rows_per_chunk):
+            arrays = []
+            for field in schema:
+                if field.name in _STR:
+                    codes = pa.array(cols[field.name], type=pa.int32())
+                    arrays.append(pa.DictionaryArray.from_arrays(codes, dicts[field.name]).cast(field.type))
+                else:
+                    arrays.append(pa.array(cols[field.name], type=field.type))
+            yield pa.Table.from_arrays(arrays, schema=schema)
+
+    def window(self, first: int, last: int) -> pd.DataFrame:
+        """The rows of frames first..last-1 only, sorted as the whole trace is."""
+        parts = [_frames_in(self.prefix, first, last)]
+        b = self.block
+        if len(b["frame"]) and self.shift.frames:
+            p = self.shift.frames
+            j0 = max(0, -((int(b["frame"].max()) - first) // p))
+            j1 = min(self.shift.copies, (last - 1 - int(b["frame"].min())) // p)
+            for j in range(j0, j1 + 1):
+                parts.append(_frames_in(_shifted(b, j * p, j * self.shift.ns), first, last))
+        parts.append(_frames_in(self.rest, first, last))
+        return self._frame(_sort({c: np.concatenate([x[c] for x in parts]) for c in TRACE_COLUMNS}))
+
+    def _sorted_chunks(self, rows_per_chunk: int) -> Iterator[dict[str, np.ndarray]]:
+        starts = [p["start_ns"] for p in (self.prefix, self.block, self.rest) if len(p["start_ns"])]
+        if not starts:
+            yield {c: self.prefix[c] for c in TRACE_COLUMNS}
+            return
+        lo = min(int(s.min()) for s in starts)
+        hi = max(int(s.max()) for s in starts) + self.shift.copies * self.shift.ns + 1
+        per_step = max(1, len(self.block["frame"]))
+        steps = max(1, rows_per_chunk // per_step)
+        width = steps * self.shift.ns if self.shift.ns else hi - lo
+        a = lo
+        while a < hi:
+            b = min(hi, a + width)
+            yield self._between(a, b)
+            a = b
+
+    def frame(self) -> pd.DataFrame:
+        """The whole trace as one DataFrame (what make_trace would build from every row)."""
+        return pd.concat(list(self.chunks(rows_per_chunk=len(self) + 1)), ignore_index=True)
+
+    def _between(self, a: int, b: int) -> dict[str, np.ndarray]:
+        """Rows starting in [a, b), sorted."""
+        parts = [_take(self.prefix, a, b)]
+        blk = self.block
+        if len(blk["frame"]):
+            t = self.shift.ns
+            if t:
+                j0 = max(0, -((int(blk["start_ns"].max()) - a) // t))  # ceil((a - max) / t)
+                j1 = min(self.shift.copies, (b - 1 - int(blk["start_ns"].min())) // t)
+            else:
+                j0, j1 = 0, self.shift.copies
+            if j1 >= j0:
+                parts.append(_tiled(blk, j0, j1, self.shift, a, b))
+        parts.append(_take(self.rest, a, b))
+        return _sort({c: np.concatenate([p[c] for p in parts]) for c in TRACE_COLUMNS})
+
+    def _frame(self, cols: dict[str, np.ndarray]) -> pd.DataFrame:
+        """A DataFrame with make_trace's dtypes; strings are built in Arrow from the codes
+        (no Python string per row)."""
+        import pyarrow as pa  # noqa: PLC0415
+        data: dict[str, Any] = {}
+        for c in TRACE_COLUMNS:
+            if c in _STR:
+                codes = pa.array(cols[c].astype(np.int32), type=pa.int32())
+                strings = pa.DictionaryArray.from_arrays(codes, pa.array(self.dictionary[c].tolist(),
+                                                                         type=pa.string()))
+                data[c] = pd.array(strings.cast(pa.large_string()), dtype=TRACE_DTYPES[c])
+            else:
+                data[c] = cols[c].astype(TRACE_DTYPES[c])
+        return pd.DataFrame(data, columns=list(TRACE_COLUMNS))
+
+
+def _code(dictionary: np.ndarray, value: str) -> int:
+    i = int(np.searchsorted(dictionary, value))
+    return i if i < len(dictionary) and dictionary[i] == value else -1
+
+
+def _present(part: dict[str, np.ndarray], present_code: int, host_code: int) -> np.ndarray:
+    return (part["task"] == present_code) & (part["device"] != host_code)
+
+
+def _tiled(block: dict[str, np.ndarray], j0: int, j1: int, shift: Shift, a: int, b: int) -> dict[str, np.ndarray]:
+    """Copies j0..j1 of the block, in order, keeping rows that start in [a, b)."""
+    n = j1 - j0 + 1
+    steps = np.repeat(np.arange(j0, j1 + 1, dtype=np.int64), len(block["frame"]))
+    out = {c: np.tile(v, n) for c, v in block.items()}
+    out["frame"] = out["frame"] + steps * shift.frames
+    out["start_ns"] = out["start_ns"] + steps * shift.ns
+    out["end_ns"] = out["end_ns"] + steps * shift.ns
+    return _take(out, a, b)
+
+
+def _frames_in(part: dict[str, np.ndarray], first: int, last: int) -> dict[str, np.ndarray]:
+    mask = (part["frame"] >= first) & (part["frame"] < last)
+    return {c: v[mask] for c, v in part.items()}
+
+
+def _sort(cols: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """make_trace's order: start, end, device, engine; ties in logging order (stable)."""
+    if not len(cols["frame"]):
+        return cols
+    order = np.lexsort((cols["engine"], cols["device"], cols["end_ns"], cols["start_ns"]))
+    return {c: v[order] for c, v in cols.items()}
+
+
+def _add_clipped(out: dict[str, int], names: list[str], s: np.ndarray, e: np.ndarray, lo: int, hi: int) -> None:
+    dur = np.clip(e, lo, hi) - np.clip(s, lo, hi)
+    for name, d in zip(names, dur.tolist()):
+        out[name] = out.get(name, 0) + int(d)
+
+
+def shifted_overlap(s: int, e: int, t: int, copies: int, lo: int, hi: int) -> int:
+    """Sum over j = 0..copies of the overlap of [s + j t, e + j t] with [lo, hi] (exact)."""
+    def overlap(j: int) -> int:
+        return max(0, min(e + j * t, hi) - max(s + j * t, lo))
+    if t == 0:
+        return (copies + 1) * overlap(0)
+    first = max(0, (lo - e) // t + 1)          # first j whose interval ends after lo
+    last = min(copies, -((s - hi) // t) - 1)   # last j whose interval starts before hi
+    if first > last:
+        return 0
+    inside_lo = max(first, -((s - lo) // t) if s < lo else 0)  # s + j t >= lo
+    inside_hi = min(last, (hi - e) // t)                       # e + j t <= hi
+    total = 0
+    if inside_lo <= inside_hi:
+        total += (inside_hi - inside_lo + 1) * (e - s)
+        edges = list(range(first, inside_lo)) + list(range(inside_hi + 1, last + 1))
+    else:
+        edges = list(range(first, last + 1))
+    return total + sum(overlap(j) for j in edges)
+
+
+def _take(part: dict[str, np.ndarray], a: int, b: int) -> dict[str, np.ndarray]:
+    mask = (part["start_ns"] >= a) & (part["start_ns"] < b)
+    return {c: v[mask] for c, v in part.items()}
+
+
+class RepeatedIntervals:
+    """One log of (start, end) intervals (a channel's busy times) of a fast-forwarded run."""
+
+    def __init__(self, intervals: list[tuple[int, int]], split: tuple[int, int], shift: Shift,
+                 held_open_since: int | None = None):
+        """`held_open_since`: the log's interval was open over the whole block; it began then
+        (its start does not move with the repeats, its end does)."""
+        arr = np.array(intervals, dtype=np.int64).reshape(-1, 2)
+        self.prefix, self.block = arr[:split[0]], arr[split[0]:split[1]]
+        self.rest = arr[split[1]:] + shift.copies * shift.ns
+        if held_open_since is not None and len(self.rest):
+            self.rest[0, 0] = held_open_since
+        self.shift = shift
+
+    def __len__(self) -> int:
+        return len(self.prefix) + (self.shift.copies + 1) * len(self.block) + len(self.rest)
+
+    def array(self) -> np.ndarray:
+        steps = self.shift.ns * np.arange(self.shift.copies + 1, dtype=np.int64)
+        blocks = (self.block[None, :, :] + steps[:, None, None]).reshape(-1, 2)
+        return np.concatenate([self.prefix, blocks, self.rest])
+
+    def busy(self, lo: int, hi: int) -> int:
+        total = int((np.clip(self.prefix[:, 1], lo, hi) - np.clip(self.prefix[:, 0], lo, hi)).sum())
+        total += int((np.clip(self.rest[:, 1], lo, hi) - np.clip(self.rest[:, 0], lo, hi)).sum())
+        for s, e in self.block.tolist():
+            total += shifted_overlap(s, e, self.shift.ns, self.shift.copies, lo, hi)
+        return total
+
+
+def repeated_list(values: list[int], split: tuple[int, int], shift: Shift) -> np.ndarray:
+    """A log of frame numbers (e.g. the frames a task was skipped in), repeated."""
+    arr = np.asarray(values, dtype=np.int64)
+    block = arr[split[0]:split[1]]
+    steps = shift.frames * np.arange(shift.copies + 1, dtype=np.int64)
+    blocks = (block[None, :] + steps[:, None]).reshape(-1)
+    return np.concatenate([arr[:split[0]], blocks, arr[split[1]:] + shift.copies * shift.frames])

@@ -1,0 +1,240 @@
+"""Results: the trace, the per-frame table and the summary, from what the engine observed.
+
+Pure functions of data, shared by simulated and measured runs (a measured trace goes through
+:func:`frames_from_trace` and :func:`summarize` just the same).
+"""
+from __future__ import annotations
+
+from typing import Any, Callable, Iterator, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from mgpusim.model.errors import InputError
+from mgpusim.results.periodic import RepeatedIntervals, RepeatedRows, Shift, repeated_list
+from mgpusim.results.trace import FRAME_COLUMNS, make_trace
+from mgpusim.schedules.base import FrameProgram
+
+#: a table, or a function that builds it on first use
+LazyTable = pd.DataFrame | Callable[[], pd.DataFrame]
+
+
+class Result:
+    """One run: `.trace` (per task), `.frames` (per frame), `.summary` (dict), `.links`.
+
+    `.trace` and `.links` may be built on first use: a fast-forwarded long run keeps them in
+    compact form (:mod:`mgpusim.results.periodic`) and :meth:`trace_chunks` streams them."""
+
+    def __init__(self, summary: dict[str, Any], trace: LazyTable, frames: pd.DataFrame,
+                 links: LazyTable | None = None, config: dict[str, Any] | None = None,
+                 repeated: RepeatedRows | None = None):
+        self.summary, self.frames, self.config = summary, frames, config if config is not None else {}
+        self._trace, self._links = trace, links if links is not None else pd.DataFrame()
+        #: the compact trace of a fast-forwarded run (None: `.trace` is the whole table)
+        self.repeated = repeated
+        #: seconds the model itself took (engine or recurrence), set by simulate()
+        self.model_wall_s: float | None = None
+
+    @property
+    def trace(self) -> pd.DataFrame:
+        if callable(self._trace):
+            self._trace = self._trace()
+        return self._trace
+
+    @trace.setter
+    def trace(self, value: pd.DataFrame) -> None:
+        self._trace = value
+
+    @property
+    def links(self) -> pd.DataFrame:
+        if callable(self._links):
+            self._links = self._links()
+        return self._links
+
+    @links.setter
+    def links(self, value: pd.DataFrame) -> None:
+        self._links = value
+
+    @property
+    def compact(self) -> bool:
+        """True while the trace is kept compact (not built whole yet)."""
+        return self.repeated is not None and callable(self._trace)
+
+    def trace_chunks(self, rows_per_chunk: int = 1_000_000) -> Iterator[pd.DataFrame]:
+        """The trace in sorted chunks, without building it whole when it is kept compact."""
+        if self.compact:
+            yield from self.repeated.chunks(rows_per_chunk)
+            return
+        trace = self.trace
+        for lo in range(0, max(len(trace), 1), rows_per_chunk):
+            yield trace.iloc[lo:lo + rows_per_chunk]
+
+    def trace_window(self, first: int, last: int) -> pd.DataFrame:
+        """The trace rows of frames first..last-1 (sorted as the whole trace), without
+        building the whole trace of a long fast-forwarded run."""
+        if self.compact:
+            return self.repeated.window(first, last)
+        trace = self.trace
+        return trace[(trace["frame"] >= first) & (trace["frame"] < last)].reset_index(drop=True)
+
+
+def frames_table(frame_start: np.ndarray, present_end: np.ndarray) -> pd.DataFrame:
+    frames = np.arange(len(present_end), dtype=np.int64)
+    return pd.DataFrame({"frame": frames, "start_ns": frame_start.astype(np.int64),
+                         "present_ns": present_end.astype(np.int64),
+                         "latency_ns": (present_end - frame_start).astype(np.int64)},
+                        columns=list(FRAME_COLUMNS))
+
+
+def frames_from_trace(trace: pd.DataFrame, present_step: str = "present") -> pd.DataFrame:
+    """Per-frame start (first task start) and present (end of the present step)."""
+    start = trace.groupby("frame")["start_ns"].min()
+    present = trace[trace["step"] == present_step].groupby("frame")["end_ns"].max()
+    df = pd.DataFrame({"start_ns": start, "present_ns": present}).dropna().astype("int64")
+    df["latency_ns"] = df["present_ns"] - df["start_ns"]
+    return df.reset_index().rename(columns={"index": "frame"})[list(FRAME_COLUMNS)]
+
+
+def summarize(frames: pd.DataFrame, trace: pd.DataFrame | None, warmup_frames: int,
+              links: pd.DataFrame | None = None,
+              busy: Callable[[int, int], dict[str, int]] | None = None) -> dict[str, Any]:
+    """Steady-state figures after `warmup_frames`: frame time = mean period between presents.
+    With a single steady frame its period is measured from the last warm-up frame's present
+    (or, with no warm-up, from its own start). Utilization comes from `busy(lo, hi)` (busy ns
+    per resource in the window) when given, else from the trace and links tables."""
+    steady = frames[frames["frame"] >= warmup_frames]
+    if steady.empty:
+        raise InputError(f"no frame presents after the {warmup_frames} warm-up frames "
+                         f"(the run has {len(frames)})", field="schedule.warmup_frames")
+    presents = steady["present_ns"].to_numpy(dtype=np.int64)
+    if len(presents) == 1:
+        before = frames.loc[frames["frame"] < warmup_frames, "present_ns"].to_numpy(dtype=np.int64)
+        origin = int(before[-1]) if len(before) else int(steady["start_ns"].iloc[0])
+        presents = np.array([origin, presents[0]], dtype=np.int64)
+    periods = np.diff(presents)
+    frame_time = float(periods.mean())
+    window = (int(presents[0]), int(presents[-1]))
+    out: dict[str, Any] = {
+        "frame_time_ms": frame_time / 1e6,
+        "fps": 1e9 / frame_time if frame_time > 0 else float("inf"),
+        "latency_ms": float(steady["latency_ns"].mean()) / 1e6,
+        "frame_time_jitter_ms": float(periods.std()) / 1e6,
+        "frame_time_min_ms": float(periods.min()) / 1e6,
+        "frame_time_max_ms": float(periods.max()) / 1e6,
+        "frames": int(len(frames)),
+        "warmup_frames": int(warmup_frames),
+        "window_ns": list(window),
+    }
+    if busy is not None:
+        span = max(window[1] - window[0], 1)
+        out["utilization"] = {name: round(b / span, 6) for name, b in sorted(busy(*window).items())}
+    elif trace is not None and len(trace):
+        out["utilization"] = utilization(trace, links, window)
+    return out
+
+
+def utilization(trace: pd.DataFrame, links: pd.DataFrame | None, window: tuple[int, int]) -> dict[str, float]:
+    """Busy fraction of every queue, host thread and link over the steady-state window."""
+    lo, hi = window
+    span = max(hi - lo, 1)
+    busy = _busy(trace.assign(resource=trace["device"] + "." + trace["engine"]), lo, hi)
+    if links is not None and len(links):
+        busy.update(_busy(links.rename(columns={"channel": "resource"}), lo, hi))
+    return {name: round(b / span, 6) for name, b in sorted(busy.items())}
+
+
+def _busy(df: pd.DataFrame, lo: int, hi: int) -> dict[str, int]:
+    s = df["start_ns"].clip(lo, hi).to_numpy()
+    e = df["end_ns"].clip(lo, hi).to_numpy()
+    d = pd.DataFrame({"resource": df["resource"].to_numpy(), "dur": e - s})
+    return {str(k): int(v) for k, v in d.groupby("resource")["dur"].sum().items()}
+
+
+def link_track(channel: str) -> tuple[str, str]:
+    """(device, track) on which a channel's busy intervals are drawn: `gpu1.d2h` ->
+    ("gpu1", "link d2h"), `peer0-1` -> ("gpu0", "link peer0-1"), `host.memory` -> ("host", "memory"),
+    a shared GPU's execution `gpu0.exec` -> ("gpu0", "exec")."""
+    if channel.endswith(".exec"):
+        return channel.partition(".")[0], "exec"
+    if channel.startswith("host."):
+        return "host", channel.partition(".")[2]
+    if channel.startswith("peer"):
+        return "gpu" + channel[4:].split("-")[0], f"link {channel}"
+    device, _, path = channel.partition(".")
+    return device, f"link {path}"
+
+
+LINK_DTYPES = {"channel": "string", "start_ns": "int64", "end_ns": "int64"}
+_NO_LINKS = pd.DataFrame([], columns=list(LINK_DTYPES)).astype(LINK_DTYPES)
+
+
+def links_table(channels: dict) -> pd.DataFrame:
+    rows = [(name, s, e) for name, ch in channels.items() for s, e in ch.busy]
+    if not rows:  # common (one GPU, the analytic level): no table to build
+        return _NO_LINKS.copy()
+    return pd.DataFrame(rows, columns=list(LINK_DTYPES)).astype(LINK_DTYPES)
+
+
+def build_result(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
+    if getattr(raw, "repeat", None) is not None:
+        return _build_repeated(raw, warmup_frames, config)
+    trace = make_trace(raw.rows)
+    frames = frames_table(raw.frame_start, raw.present_end)
+    links = links_table(raw.channels)
+    summary = summarize(frames, trace if len(trace) else None, warmup_frames, links)
+    summary["effects"] = raw.effects
+    if raw.skipped:
+        summary["skipped_tasks"] = raw.skipped
+    return Result(summary, trace, frames, links, config)
+
+
+def _build_repeated(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
+    """The result of a fast-forwarded run: tables from its compact logs (mgpusim.results.periodic)."""
+    r = raw.repeat
+    shift = Shift(r.frames, r.ns, r.copies)
+    rows = RepeatedRows(raw.rows, r.rows, shift)
+    start, present = rows.frame_arrays(len(raw.frame_start), raw.present_task)
+    frames = frames_table(start, present)
+    links = {name: RepeatedIntervals(ch.busy, r.busy.get(name, (len(ch.busy), len(ch.busy))), shift,
+                                     r.held_open.get(name))
+             for name, ch in raw.channels.items()}
+
+    def busy(lo: int, hi: int) -> dict[str, int]:
+        out = rows.busy(lo, hi)
+        out.update({name: log.busy(lo, hi) for name, log in links.items() if len(log)})
+        return out
+
+    def links_frame() -> pd.DataFrame:
+        arrays = {name: log.array() for name, log in links.items()}
+        parts = [pd.DataFrame({"channel": name, "start_ns": a[:, 0], "end_ns": a[:, 1]}) for name, a in arrays.items()]
+        df = pd.concat(parts, ignore_index=True) if parts else _NO_LINKS.copy()
+        return df.astype(LINK_DTYPES)
+
+    summary = summarize(frames, None, warmup_frames, busy=busy if len(rows) and raw.recorded else None)
+    summary["effects"] = raw.effects
+    if raw.skipped:
+        # a task first skipped after the repeat was found has all its skips in the rest
+        raw.skipped_frames = {name: repeated_list(f, r.skipped.get(name, (0, 0)), shift)
+                              for name, f in raw.skipped_frames.items()}
+        summary["skipped_tasks"] = {name: len(f) for name, f in raw.skipped_frames.items()}
+    if not raw.recorded:
+        return Result(summary, make_trace([]), frames, links_frame, config)
+    return Result(summary, rows.frame, frames, links_frame, config, repeated=rows)
+
+
+def task_rates(program: FrameProgram, skipped_frames: Mapping[str, Sequence[int]],
+               summary: Mapping[str, Any]) -> dict[str, float] | None:
+    """Steady-state completion rate (Hz) of each skippable task (e.g. particle updates under
+    "new wait") beside the frame rate: runs in frames after warm-up over the summary's present
+    window. The same rule for simulated and measured runs; None if the program has none."""
+    if not program.rate_tasks:
+        return None
+    lo, hi = summary["window_ns"]
+    first = program.warmup_frames + 1
+    frames = program.frames - first
+    rates = {}
+    for name in program.rate_tasks:
+        skipped = sum(1 for f in skipped_frames.get(name, ()) if f >= first)
+        rates[name] = (frames - skipped) * 1e9 / (hi - lo) if hi > lo else 0.0
+    rates["frames"] = summary["fps"]
+    return rates

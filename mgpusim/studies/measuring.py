@@ -1,0 +1,117 @@
+"""Measuring a study on Vulkan: the microbenchmark sweeps, then every configuration's runs.
+
+Runs of the configurations are interleaved over the repeats, so that a slow phase of a noisy
+machine hits different configurations each round; with `steady_window` the compared run is
+the steady window of the repeats (:mod:`mgpusim.validation.steady_window`), written as a measured folder
+`runs/<config>/steady`. Every run is kept under `runs/<config>/run<k>`.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Callable
+
+import pandas as pd
+
+from mgpusim.io.output import write_json, write_measured
+from mgpusim.studies import speed_probe as speed
+from mgpusim.studies.spec import Entry, Study
+from mgpusim.validation.measured import TRACE_FILES
+from mgpusim.validation.repeated_runs import with_run_length, write_steady_window
+
+Progress = Callable[[str], None]
+
+
+def measure_microbenchmarks(study: Study, out: Path, progress: Progress) -> list[Path]:
+    """Run every sweep on one simulated GPU, and every pair sweep alone and on two at once, in
+    `rounds` rounds; one table (+ machine record) per pass. Each row has the pass's time, and a
+    row of one GPU the process's CPU time while it ran."""
+    from mgpusim.real.vulkan import \
+        microbench as m  # noqa: PLC0415 - Vulkan is needed only to measure
+    from mgpusim.real.vulkan.host_machine import (close_gpus, machine_record,  # noqa: PLC0415
+                                                  make_gpus)
+
+    mb = study.microbenchmarks
+    out.mkdir(parents=True, exist_ok=True)
+    threads = study.lavapipe_threads()
+    _probe(out, "before the microbenchmarks", threads, progress)
+    count = 2 if mb.pairs else 1
+    gpus = make_gpus(count, lp_threads=None if threads is None else [threads] * count)
+    plan = [(name, sweeps, gpus[:1]) for name, sweeps in mb.sweeps]
+    plan += [(name, sweeps, g) for name, sweeps in mb.pairs for g in (gpus[:1], gpus)]
+    tables: dict[str, list[pd.DataFrame]] = {name: [] for name in mb.passes()}
+    paths = []
+    try:
+        for r in range(mb.rounds):
+            for name, sweeps, on in plan:
+                progress(f"measure {name}{' on two GPUs at once' if len(on) > 1 else ''} "
+                         f"(round {r + 1}/{mb.rounds})")
+                df = m.measure(name, on, {k: list(v) for k, v in sweeps.items()},
+                               reps=mb.reps, warmup=mb.warmup)
+                tables[name].append(df.assign(repetition=df["repetition"] + r * mb.reps))
+        for name in mb.passes():
+            path = out / f"{name}.csv"
+            m.write_table(pd.concat(tables[name], ignore_index=True), str(path))
+            record = machine_record(gpus[:1], {
+                "pass": name, "sweeps": _sweep_of(mb.sweeps, name), "pairs": _sweep_of(mb.pairs, name),
+                "rounds": mb.rounds, "reps": mb.reps, "warmup": mb.warmup,
+                "command": f"mgpusim study measure {study.file}"})
+            write_json(record, path.with_name(path.name + ".machine.json"))
+            paths.append(path)
+    finally:
+        close_gpus(gpus)
+    _probe(out, "after the microbenchmarks", threads, progress)
+    return paths
+
+
+def _probe(out: Path, point: str, threads: int | None, progress: Progress) -> None:
+    """The machine's reference speed now, added to `out`'s probe table (see :mod:`.speed`):
+    on lavapipe studies (`threads` set), whose GPUs are the host's own shared cores; a real
+    GPU's passes at the probe's size last tens of microseconds, too short to tell its speed."""
+    if threads is None:
+        return
+    progress(f"speed probe ({point})")
+    speed.append_probe(out / speed.FILE, speed.measure_probe(point, threads))
+
+
+def _sweep_of(sweeps: tuple, name: str) -> dict[str, list[Any]]:
+    """Pass `name`'s sweep among `sweeps` as plain lists ({} if it has none)."""
+    return {k: list(v) for n, sweep in sweeps if n == name for k, v in sweep.items()}
+
+
+def measure_runs(study: Study, entries: tuple[Entry, ...], profile: Path, out: Path,
+                 progress: Progress, devices: list[int] | None = None) -> dict[str, Path]:
+    """Run every entry `repeats` times, interleaved; return each entry's measured folder (its
+    steady window, or its single run)."""
+    from mgpusim.real.runner.execute import \
+        run_experiment  # noqa: PLC0415 - Vulkan is needed only to measure
+
+    rs = study.runs
+    threads = study.lavapipe_threads()
+    exps = {e.name: with_run_length(e.load(profile), rs.run_seconds, rs.max_frames) for e in entries}
+    runs: dict[str, list[tuple[str, Any]]] = {e.name: [] for e in entries}
+    out.mkdir(parents=True, exist_ok=True)
+    for rep in range(rs.repeats):
+        _probe(out, f"runs, round {rep + 1} of {rs.repeats}", threads, progress)
+        for e in entries:
+            progress(f"run {e.name} ({rep + 1}/{rs.repeats})")
+            gpus = exps[e.name].schedule.gpus
+            result = run_experiment(exps[e.name], devices=devices[:gpus] if devices else None,
+                                    lp_threads=None if threads is None else [threads] * gpus,
+                                    prewarm_frames=rs.prewarm_frames)
+            folder = out / e.name / f"run{rep}" if rs.repeats > 1 or rs.steady_window else out / e.name
+            write_measured(result, folder)
+            runs[e.name].append((f"run{rep}", result))
+    _probe(out, "after the runs", threads, progress)
+    if rs.steady_window:
+        for e in entries:
+            write_steady_window(exps[e.name], runs[e.name], out / e.name)
+    return {e.name: measured_folder(out, e.name) for e in entries}
+
+
+def measured_folder(root: Path, name: str) -> Path:
+    """Where entry `name`'s compared run lies under `root`: its steady window if it has one,
+    else the one run in the folder itself, else the first of its repeated runs."""
+    for folder in (root / name / "steady", root / name, root / name / "run0"):
+        if any((folder / f).is_file() for f in TRACE_FILES):
+            return folder
+    return root / name

@@ -1,0 +1,210 @@
+"""A study's steps: measure -> calibrate -> validate -> report, each usable on its own.
+
+`run` does all four into one output folder (what `mgpusim main` does for the lavapipe study);
+`calibrate` and `validate` also work on committed runs with no device (the NVIDIA studies).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import tomli_w
+
+from mgpusim.calibration.recipe import profile_from_tables, refine_on_runs
+from mgpusim.io.output import write_json
+from mgpusim.studies import speed_probe as speed
+from mgpusim.studies.measuring import (Progress, measure_microbenchmarks, measure_runs,
+                                       measured_folder)
+from mgpusim.studies.spec import Entry, Study
+from mgpusim.validation.compare import error_stats, error_table
+from mgpusim.validation.crossvalidate import format_report, validate_experiment
+from mgpusim.validation.measured import read_measured
+
+CALIBRATION_TITLE = "Calibration runs (seen by the fit)"
+HELD_OUT_TITLE = "Held-out runs (never seen by the fit)"
+
+
+def runs_root(study: Study, held_out: bool, out: Path) -> Path:
+    """Where a half's measured runs lie: the study's committed folder, or `out/runs`."""
+    committed = study.held_out_runs if held_out else study.calibration_runs
+    return committed if committed is not None else out / "runs"
+
+
+def load_runs(study: Study, entries: tuple[Entry, ...], root: Path,
+              profile: Path | None = None) -> list[tuple[Any, pd.DataFrame]]:
+    """(experiment, measured trace) of every entry whose run lies under `root`."""
+    runs = []
+    for e in entries:
+        folder = measured_folder(root, e.name)
+        if folder.is_dir():
+            exp = e.load(profile or study.profile)
+            runs.append((exp, read_measured(folder, exp)))
+    return runs
+
+
+def calibrate(study: Study, out: Path, progress: Progress, tables: list[Path] | None = None,
+              runs_dir: Path | None = None) -> tuple[Path, str]:
+    """Fit the study's profile on its tables, then on its calibration runs (committed, under
+    `runs_dir`, or under `out/runs`); write `out/profile.toml`; return it and the fit text."""
+    tables = tables or study.microbenchmarks.tables(out / "measurements")
+    data, lines = profile_from_tables(study.recipe, tables, study.profile,
+                                      f"mgpusim study calibrate {study.file}")
+    progress(f"calibrate from {len(tables)} tables")
+    return fit_on_runs(study, data, lines, runs_dir or runs_root(study, False, out), out)
+
+
+def fit_on_runs(study: Study, data: dict[str, Any], lines: list[str], root: Path, out: Path,
+                profile: Path | None = None) -> tuple[Path, str]:
+    """The recipe's run-based steps on the calibration runs under `root` (their experiments
+    built on `profile`, default the study's); write `out/profile.toml` with the fit report."""
+    runs = load_runs(study, study.calibration, root, profile)
+    data, more = refine_on_runs(study.recipe, data, runs)
+    return write_profile(data, out / "profile.toml", lines + more), "\n".join(lines + more)
+
+
+def write_profile(data: dict[str, Any], path: Path, lines: list[str]) -> Path:
+    """The profile TOML with the fit report as its header comment, written whole or not at all."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    header = "# Calibrated by mgpusim study. Fit report:\n" + "".join(
+        f"#   {line}\n" for text in lines for line in text.splitlines())
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(header + "\n" + tomli_w.dumps(data))
+    tmp.replace(path)
+    return path
+
+
+def validate(study: Study, entries: tuple[Entry, ...], root: Path, profile: Path, out: Path,
+             progress: Progress, extra: tuple[str, ...] = ()) -> pd.DataFrame:
+    """Compare each entry's measured run under `root` with the model on `profile` (no device
+    needed); one row per entry with a run; `run_to_run_spread` where repeats were kept."""
+    rows = []
+    for e in entries:
+        folder = measured_folder(root, e.name)
+        if not folder.is_dir():
+            continue
+        exp = e.load(profile, extra)
+        report = validate_experiment(exp, out / e.name, folder)
+        report["config"] = e.name
+        progress(format_report(exp, report))
+        rows.append((exp.schedule.name, report))
+    table = error_table([r for _, r in rows])
+    if rows:
+        table["schedule"] = [name for name, _ in rows]
+        table["run_to_run_spread"] = [r["measured_spread"] for _, r in rows]
+        table = table.join(pd.DataFrame([most_off(r) for _, r in rows], index=table.index))
+    return table
+
+
+def most_off(report: dict[str, Any]) -> dict[str, Any]:
+    """Where one comparison differs most: the step whose mean duration is furthest off in ms
+    (simulated - measured, and as simulated / measured - 1) and the hand-off whose mean wait
+    from ready to start is (measured - simulated ms; none where no wait was compared). Why: a
+    frame-time error says how far the model is off, these say where to look for the effect it
+    lacks; in ms, since a tiny step far off in % moves a frame little."""
+    steps = report.get("steps", {})
+    step = max(steps, key=lambda k: (abs(_step_ms(steps[k])), k), default="")
+    waits = report.get("waits", {})
+    edge = next(iter(waits), "")  # sorted by |difference|, largest first
+    return {"step_most_off": step,
+            "step_difference_ms": _step_ms(steps[step]) if step else float("nan"),
+            "step_error": steps[step]["error"] if step else float("nan"),
+            "wait_most_off": edge,
+            "wait_difference_ms": waits[edge]["difference_ms"] if edge else float("nan")}
+
+
+def run(study: Study, out: Path, progress: Progress, held_out: bool = True,
+        devices: list[int] | None = None) -> Path:
+    """Measure, calibrate, validate and report the whole study into `out`."""
+    out.mkdir(parents=True, exist_ok=True)
+    tables = None
+    if study.microbenchmarks.sweeps and study.microbenchmarks.folder is None:
+        tables = measure_microbenchmarks(study, out / "measurements", progress)
+    command = f"mgpusim study run {study.file}"
+    data, lines = profile_from_tables(study.recipe, tables or study.microbenchmarks.tables(out / "measurements"),
+                                      study.profile, command)
+    base = write_profile(data, out / "profile_microbenchmarks.toml", lines)
+    measure_runs(study, study.entries(held_out), base, out / "runs", progress, devices)
+    progress("calibrate from runs")
+    profile, fit_text = fit_on_runs(study, data, lines, out / "runs", out, base)
+    tables_out = {CALIBRATION_TITLE: validate(study, study.calibration, out / "runs", profile,
+                                              out / "validation", progress)}
+    if held_out and study.held_out:
+        tables_out[HELD_OUT_TITLE] = validate(study, study.held_out, out / "runs", profile,
+                                              out / "validation", progress)
+    return write_report(out, study, tables_out, fit_text, probes_of(out / "runs"))
+
+
+def probes_of(runs: Path) -> pd.DataFrame:
+    """The speed probes of the job whose runs lie in `runs` (and its tables beside them)."""
+    return speed.read_probes([runs.parent / "measurements" / speed.FILE, runs / speed.FILE])
+
+
+def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_text: str,
+                 probes: pd.DataFrame | None = None) -> Path:
+    """report.md: the machine's speed during the job (its probes, when measured); per half, per
+    schedule the error table, its statistics and the stacked measured/simulated timelines;
+    errors.json (per half) and errors_by_schedule.json; errors_*.csv."""
+    lines = [f"# mgpusim study {study.name}: measured vs simulated", "",
+             "Errors are simulated / measured - 1. With repeated runs the measured side is the "
+             "steady window of the interleaved repeats (the window of >= 200 ms at the 10th "
+             "percentile of frame time over all runs; outside interference only adds time), and "
+             "`spread` is (slowest / fastest - 1) of the whole runs' frame times, the machine's own "
+             "noise. Each configuration's folder under validation/ holds `timelines.png` (measured "
+             "above simulated) and both Perfetto traces.", ""]
+    lines += speed.report_lines(probes if probes is not None else speed.read_probes([]))
+    stats: dict[str, Any] = {}
+    by_schedule: dict[str, dict[str, Any]] = {}
+    for title, table in tables.items():
+        if table.empty:
+            continue
+        stats[title] = error_stats(table)
+        lines += [f"## {title}", "", _stats_line(stats[title]), ""]
+        groups = table.groupby("schedule", sort=False) if "schedule" in table else [("", table)]
+        for schedule, part in groups:
+            st = by_schedule.setdefault(title, {})[schedule] = error_stats(part)
+            lines += [f"### {schedule}", "", markdown_table(part), "", _stats_line(st), ""]
+            lines += [f"![{c}](validation/{c}/timelines.png)" for c in part["config"]] + [""]
+        table.to_csv(out / f"errors_{title.split()[0].lower()}.csv", index=False)
+    lines += ["## Calibration", "", "```", fit_text, "```", ""]
+    path = out / "report.md"
+    path.write_text("\n".join(lines))
+    write_json(stats, out / "errors.json")
+    write_json(by_schedule, out / "errors_by_schedule.json")
+    return path
+
+
+def _stats_line(st: dict[str, Any]) -> str:
+    return (f"Median |frame-time error| {st['median_abs_frame_time_error']:.1%}, worst "
+            f"{st['worst_abs_frame_time_error']:.1%} over {st['configurations']} configurations; "
+            f"median |latency error| {st['median_abs_latency_error']:.1%}, worst "
+            f"{st['worst_abs_latency_error']:.1%}.")
+
+
+def markdown_table(table: pd.DataFrame) -> str:
+    head = ("| config | measured frame (ms) | simulated | error | spread | measured latency (ms) | "
+            "simulated | error | step most off (simulated - measured) | hand-off most off (measured - "
+            "simulated) |")
+    rows = [head, "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in table.itertuples():
+        spread = getattr(r, "run_to_run_spread", float("nan"))
+        rows.append(f"| {r.config} | {r.measured_frame_ms:.2f} | {r.simulated_frame_ms:.2f} | "
+                    f"{r.frame_time_error:+.1%} | {spread:.0%} | {r.measured_latency_ms:.2f} | "
+                    f"{r.simulated_latency_ms:.2f} | {r.latency_error:+.1%} | {_step_cell(r)} | "
+                    f"{_wait_cell(r)} |")
+    return "\n".join(rows)
+
+
+def _step_ms(step: dict[str, float]) -> float:
+    return step["simulated_ms"] - step["measured_ms"]
+
+
+def _step_cell(r: Any) -> str:
+    step = getattr(r, "step_most_off", "")
+    return (f"{step} {r.step_difference_ms:+.2f} ms ({r.step_error:+.0%})"
+            if isinstance(step, str) and step else "")
+
+
+def _wait_cell(r: Any) -> str:
+    edge = getattr(r, "wait_most_off", "")
+    return f"`{edge}` {r.wait_difference_ms:+.2f} ms" if isinstance(edge, str) and edge else ""

@@ -1,0 +1,75 @@
+"""Cross-validation: the same schedule measured and simulated, compared step by step.
+
+Errors are relative and signed: simulated / measured - 1 (positive = the model is slow).
+Both sides go through the same summary code, on the same frames after warm-up.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from mgpusim.results.summary import frames_from_trace, summarize
+from mgpusim.results.waits import compare_waits
+
+
+def step_means_ns(trace: pd.DataFrame, first_frame: int) -> dict[str, float]:
+    """Mean duration of every step over the steady-state frames (one row = one execution;
+    host copies: one row per thread part, on both sides)."""
+    steady = trace[trace["frame"] >= first_frame]
+    dur = steady["end_ns"] - steady["start_ns"]
+    return {str(k): float(v) for k, v in dur.groupby(steady["step"]).mean().items()}
+
+
+def rel_error(simulated: float, measured: float) -> float:
+    return float(simulated / measured - 1.0) if measured else float("nan")
+
+
+def steady_summary(trace: pd.DataFrame, warmup_frames: int,
+                   present_step: str = "present") -> dict[str, Any]:
+    """Frame time, latency and jitter of one trace after the warm-up (either side)."""
+    return summarize(frames_from_trace(trace, present_step), None, warmup_frames)
+
+
+def compare(measured: pd.DataFrame, simulated: pd.DataFrame, warmup_frames: int,
+            present_step: str = "present") -> dict[str, Any]:
+    """Frame time, latency and per-step mean durations of two traces, with relative errors,
+    and each hand-off's mean wait from ready to start on both sides (:mod:`mgpusim.results.waits`)."""
+    m = steady_summary(measured, warmup_frames, present_step)
+    s = steady_summary(simulated, warmup_frames, present_step)
+    m_steps, s_steps = step_means_ns(measured, warmup_frames), step_means_ns(simulated, warmup_frames)
+    steps = {k: {"measured_ms": m_steps[k] / 1e6, "simulated_ms": s_steps[k] / 1e6,
+                 "error": rel_error(s_steps[k], m_steps[k])}
+             for k in sorted(set(m_steps) & set(s_steps))}
+    return {
+        "measured": {"frame_time_ms": m["frame_time_ms"], "latency_ms": m["latency_ms"],
+                     "frame_time_jitter_ms": m["frame_time_jitter_ms"]},
+        "simulated": {"frame_time_ms": s["frame_time_ms"], "latency_ms": s["latency_ms"],
+                      "frame_time_jitter_ms": s["frame_time_jitter_ms"]},
+        "frame_time_error": rel_error(s["frame_time_ms"], m["frame_time_ms"]),
+        "latency_error": rel_error(s["latency_ms"], m["latency_ms"]),
+        "step_errors": {k: v["error"] for k, v in steps.items()},
+        "steps": steps,
+        "steps_only_measured": sorted(set(m_steps) - set(s_steps)),
+        "steps_only_simulated": sorted(set(s_steps) - set(m_steps)),
+        "waits": compare_waits(measured, simulated, warmup_frames),
+    }
+
+
+def error_table(rows: list[dict[str, Any]]) -> pd.DataFrame:
+    """One row per configuration: measured and simulated frame time, latency, errors."""
+    table = pd.DataFrame([{
+        "config": r["config"], "measured_frame_ms": r["measured"]["frame_time_ms"],
+        "simulated_frame_ms": r["simulated"]["frame_time_ms"], "frame_time_error": r["frame_time_error"],
+        "measured_latency_ms": r["measured"]["latency_ms"], "simulated_latency_ms": r["simulated"]["latency_ms"],
+        "latency_error": r["latency_error"]} for r in rows])
+    return table
+
+
+def error_stats(table: pd.DataFrame) -> dict[str, float]:
+    err = np.abs(table["frame_time_error"].to_numpy())
+    lat = np.abs(table["latency_error"].to_numpy())
+    return {"configurations": int(len(table)), "median_abs_frame_time_error": float(np.median(err)),
+            "worst_abs_frame_time_error": float(err.max()), "median_abs_latency_error": float(np.median(lat)),
+            "worst_abs_latency_error": float(lat.max())}

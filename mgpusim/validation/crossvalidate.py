@@ -1,0 +1,82 @@
+"""One experiment measured (or a saved run) and simulated, compared, and written to a folder.
+
+Used by `mgpusim validate` and by studies. The comparison itself is :mod:`mgpusim.validation.compare`
+(pure); this module adds the measuring, the simulation and the files: summary.json, the
+simulated trace, measured-above-simulated timelines and both Perfetto traces.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from mgpusim.io.output import frame_window, write_json, write_table, write_text
+from mgpusim.io.perfetto import chrome_trace_json
+from mgpusim.io.plot import comparison_png
+from mgpusim.results.waits import LONG_WAIT_NS, host_split
+from mgpusim.schedules.experiment import Experiment
+from mgpusim.sim.simulation import simulate
+from mgpusim.validation.compare import compare
+from mgpusim.validation.measured import read_measured, read_submissions
+from mgpusim.validation.repeated_runs import measure_repeated, run_spread
+
+#: The report lists the hand-offs whose mean wait differs by at least this much (ms), at most
+#: this many: the ones that explain a frame-time error, not every task.
+SHOWN_WAIT_MS = 0.05
+SHOWN_WAITS = 3
+
+
+def validate_experiment(exp: Experiment, out: Path, measured_dir: Path | None = None,
+                        repeats: int = 3, run_seconds: float = 1.0) -> dict[str, Any]:
+    """Measure (or load) and simulate `exp`; write the comparison to `out`; return its summary.
+
+    Measuring runs the experiment `repeats` times, each about `run_seconds` long, under
+    `out/measured/` and compares their steady window (:mod:`mgpusim.periodic_runs`); the
+    report's `measured_spread` is how far the whole runs differed."""
+    if measured_dir is None:
+        measured_dir = measure_repeated(exp, out / "measured", repeats, run_seconds)
+    measured = read_measured(measured_dir, exp)
+    sim = simulate(exp)
+    report = compare(measured, sim.trace, exp.schedule.warmup_frames)
+    report["config"] = {**sim.config, "overrides_from": exp.file}  # simulate's own run_config
+    report["measured_spread"], report["measured_runs"] = run_spread(measured_dir)
+    report["measured_from"] = str(measured_dir)
+    submissions = read_submissions(measured_dir)
+    if submissions is not None:
+        report["measured_host_split"] = host_split(measured, submissions, exp.schedule.warmup_frames)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(report, out / "summary.json")
+    write_table(sim.trace, out / "simulated_trace.parquet")
+    title = f"{exp.schedule.name}, {exp.schedule.gpus} GPU(s), {exp.scene.width}x{exp.scene.height}"
+    comparison_png(measured, sim.trace, out / "timelines.png", title, sim_links=sim.links)
+    write_text(chrome_trace_json(*frame_window(measured, None), f"measured {title}"),
+               out / "measured.perfetto.json")
+    write_text(chrome_trace_json(*frame_window(sim.trace, sim.links), f"simulated {title}"),
+               out / "simulated.perfetto.json")
+    return report
+
+
+def format_report(exp: Experiment, r: dict[str, Any]) -> str:
+    """The comparison as a small text table: frame time, latency, every step."""
+    m, s = r["measured"], r["simulated"]
+    lines = [f"{exp.name}: {exp.schedule.name}, {exp.schedule.gpus} GPU(s), {exp.scene.width}x{exp.scene.height}",
+             f"  {'':12} {'measured':>10} {'simulated':>10} {'error':>8}",
+             f"  {'frame (ms)':12} {m['frame_time_ms']:10.3f} {s['frame_time_ms']:10.3f} {r['frame_time_error']:+8.1%}",
+             f"  {'latency (ms)':12} {m['latency_ms']:10.3f} {s['latency_ms']:10.3f} {r['latency_error']:+8.1%}"]
+    for step, v in r["steps"].items():
+        lines.append(f"  {step:12} {v['measured_ms']:10.3f} {v['simulated_ms']:10.3f} {v['error']:+8.1%}")
+    waits = [(edge, w) for edge, w in r.get("waits", {}).items()
+             if abs(w["difference_ms"]) >= SHOWN_WAIT_MS][:SHOWN_WAITS]
+    if waits:
+        lines.append("  waits from ready to start, mean (ms), where they differ most:")
+        split = r.get("measured_host_split", {})
+        for edge, w in waits:
+            lines.append(f"    {edge}: {w['measured_ms']:.3f} measured ({w['measured_long_share']:.0%} "
+                         f"over {LONG_WAIT_NS / 1e6:g} ms), {w['simulated_ms']:.3f} simulated")
+            if edge in split:  # where the measured wait went, at the submit thread
+                h = split[edge]
+                lines.append(f"      measured: inputs seen after {h['input_seen_ms']:.3f}, submit "
+                             f"called {h['submit_call_ms']:.3f} later, started {h['device_start_ms']:.3f} later")
+    if r.get("measured_runs", 1) > 1:
+        lines.append(f"  measured: steady window of {r['measured_runs']} runs; the whole runs' frame "
+                     f"times spread {r['measured_spread']:.1%} (the machine's own noise)")
+    return "\n".join(lines)

@@ -1,0 +1,59 @@
+"""Reading a saved measured run (from `mgpusim run`, a study, or a committed data folder).
+
+A measured folder holds `trace.parquet` or `trace.csv` in the trace schema and, usually,
+`summary.json` with the configuration it was measured with; that configuration must match the
+experiment it is compared with, or the comparison would report the difference as model error.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+
+from mgpusim.model.errors import InputError
+from mgpusim.results.trace import SUBMISSION_COLUMNS
+from mgpusim.schedules.experiment import Experiment
+from mgpusim.validation.measured_check import (check_physical_gpus, check_recorded_config,
+                                               check_trace, read_json_object, read_table)
+
+TRACE_FILES = ("trace.parquet", "trace.csv")
+SUBMISSION_FILES = ("submissions.parquet", "submissions.csv")
+
+
+def read_measured(folder: Path, exp: Experiment) -> pd.DataFrame:
+    """A saved measured trace, checked (columns, whole times, end >= start); its recorded
+    configuration must match the experiment's (:mod:`mgpusim.validation.measured_check`)."""
+    if not folder.is_dir():
+        raise InputError("not a folder (expected a measured run from `mgpusim run`)", file=str(folder))
+    for name in TRACE_FILES:
+        path = folder / name
+        if path.is_file():
+            trace = check_trace(read_table(path), str(path))
+            break
+    else:
+        raise InputError("no trace.parquet or trace.csv in the measured folder", file=str(folder))
+    summary = folder / "summary.json"
+    if summary.is_file():
+        config = read_json_object(summary).get("config", {})
+        if not isinstance(config, dict):
+            raise InputError("expected an object", file=str(summary), field="config")
+        check_recorded_config(config, exp, str(summary))
+    machine = folder / "machine.json"
+    if machine.is_file():
+        check_physical_gpus(read_json_object(machine), exp, str(machine))
+    return trace
+
+
+def read_submissions(folder: Path) -> pd.DataFrame | None:
+    """The host side of a measured run's submissions (:data:`mgpusim.results.trace.SUBMISSION_COLUMNS`),
+    or None where the folder has none (runs saved before the runner recorded them)."""
+    for name in SUBMISSION_FILES:
+        path = folder / name
+        if path.is_file():
+            table = read_table(path)
+            missing = [c for c in SUBMISSION_COLUMNS if c not in table.columns]
+            if missing:
+                raise InputError(f"missing columns {missing} (expected {', '.join(SUBMISSION_COLUMNS)})",
+                                 file=str(path))
+            return table
+    return None

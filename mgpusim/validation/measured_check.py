@@ -1,0 +1,222 @@
+"""Checks on measured data read back from disk (measured runs, measure tables), so that a
+broken or mismatched file is one InputError naming it and the column or field, never a
+pandas traceback or a comparison of unlike runs.
+
+`read_table` and `read_json_object` are the only functions here that touch files; the checks
+take what they read.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+import pandas as pd
+
+from mgpusim.model.errors import InputError
+from mgpusim.results.trace import TRACE_COLUMNS
+from mgpusim.schedules.program import recorded_inputs
+
+#: How a key missing on one side shows in a mismatch message.
+_ABSENT = "no value"
+#: Integer columns of a measured trace.
+TRACE_INT_COLUMNS = ("frame", "start_ns", "end_ns", "bytes")
+#: Recorded-configuration keys every run has had: compared even on runs recorded before the
+#: full inputs were (those lack "inputs").
+BASIC_CONFIG_KEYS = ("schedule", "gpus", "width", "height", "host_copy")
+
+
+def read_table(path: Path) -> pd.DataFrame:
+    """A CSV or Parquet table (by extension); unreadable, empty or corrupt files are one
+    InputError naming the file."""
+    file = str(path)
+    try:
+        if not path.is_file():
+            raise InputError("not found (or not a file)", file=file)
+        if path.suffix in (".parquet", ".pq"):
+            return pd.read_parquet(path)
+        return pd.read_csv(path, keep_default_na=False, na_values=[""], encoding="utf-8")
+    except pd.errors.EmptyDataError:
+        raise InputError("the file is empty, expected a table with a header row", file=file) from None
+    except UnicodeDecodeError:
+        raise InputError("not UTF-8 text, expected a CSV table", file=file) from None
+    except (ValueError, OSError, TypeError, NotImplementedError) as exc:  # parser and Arrow errors
+        kind = "Parquet" if path.suffix in (".parquet", ".pq") else "CSV"
+        raise InputError(f"cannot read as {kind} ({_short(exc)})", file=file) from None
+
+
+def read_json_object(path: Path) -> dict[str, Any]:
+    """A JSON file holding one object (summary.json, machine.json)."""
+    file = str(path)
+    try:
+        data = json.loads(path.read_bytes().decode("utf-8"))
+    except OSError as exc:
+        raise InputError(f"cannot read ({exc.strerror or exc})", file=file) from None
+    except (UnicodeDecodeError, ValueError) as exc:  # JSONDecodeError is a ValueError
+        raise InputError(f"not valid JSON ({_short(exc)})", file=file) from None
+    if not isinstance(data, dict):
+        raise InputError(f"expected a JSON object, got {type(data).__name__}", file=file)
+    return data
+
+
+def check_trace(df: pd.DataFrame, file: str) -> pd.DataFrame:
+    """A measured trace with the trace columns, integer times (end >= start), frames >= 0;
+    returned with int64 times."""
+    missing = [c for c in TRACE_COLUMNS if c not in df.columns]
+    if missing:
+        raise InputError(f"not a trace: missing column(s) {', '.join(missing)} (a trace has "
+                         f"{', '.join(TRACE_COLUMNS)})", file=file)
+    if df.empty:
+        raise InputError("the trace has no rows", file=file)
+    out = df.copy()
+    for col in TRACE_INT_COLUMNS:
+        out[col] = integer_column(df[col], file, col, minimum=0)
+    bad = np.flatnonzero(out["end_ns"].to_numpy() < out["start_ns"].to_numpy())
+    if len(bad):
+        i = int(bad[0])
+        more = f" and {len(bad) - 1} other row(s)" if len(bad) > 1 else ""
+        raise InputError(f"end_ns < start_ns in row {i} ({out['end_ns'].iat[i]} < "
+                         f"{out['start_ns'].iat[i]}){more}", file=file, field="end_ns")
+    for col in ("device", "engine", "step", "task", "waits_for"):
+        out[col] = out[col].fillna("").astype(str)
+    return out
+
+
+def integer_column(col: pd.Series, file: str, name: str, minimum: int | None = None) -> pd.Series:
+    """`col` as int64: every value a finite whole number in [minimum, int64]."""
+    values = pd.to_numeric(col, errors="coerce")
+    as_float = values.astype(float)
+    ok = np.isfinite(as_float) & (as_float == np.floor(as_float)) & (as_float.abs() < 2.0 ** 63)
+    if minimum is not None:
+        ok &= as_float >= minimum
+    if not ok.all():
+        i = int(np.flatnonzero(~ok.to_numpy())[0])
+        need = f"whole numbers >= {minimum}" if minimum is not None else "whole numbers"
+        raise InputError(f"expected {need}, got {_short(col.iat[i])} in row {i}", file=file,
+                         field=name)
+    return values.astype("int64")
+
+
+def number_column(col: pd.Series, file: str, name: str, *, minimum: float | None = None,
+                  above: float | None = None, maximum: float | None = None,
+                  rows: pd.Series | None = None) -> pd.Series:
+    """`col` as float: finite numbers (in the range) on `rows` (all rows by default)."""
+    values = pd.to_numeric(col, errors="coerce").astype(float)
+    ok = np.isfinite(values)
+    if minimum is not None:
+        ok &= values >= minimum
+    if above is not None:
+        ok &= values > above
+    if maximum is not None:
+        ok &= values <= maximum
+    if rows is not None:
+        ok |= ~rows
+    if not ok.all():
+        i = int(np.flatnonzero(~ok.to_numpy())[0])
+        bound = f" > {above:g}" if above is not None else f" >= {minimum:g}" if minimum is not None else ""
+        bound += f" and <= {maximum:g}" if maximum is not None else ""
+        raise InputError(f"expected finite numbers{bound}, got {_short(col.iat[i])} in row {i}",
+                         file=file, field=name)
+    return values
+
+
+def check_recorded_config(config: dict[str, Any], exp: Any, file: str) -> None:
+    """Refuse a measured run whose recorded configuration differs from the experiment's (one
+    line, naming the first difference). Runs recorded before the inputs were are compared on
+    the basic keys only."""
+    want = {"schedule": exp.schedule.name, "gpus": exp.schedule.gpus, "width": exp.scene.width,
+            "height": exp.scene.height, "inputs": recorded_inputs(exp)}
+    if "host_copy" in exp.schedule.options:
+        want["host_copy"] = exp.schedule.options["host_copy"]
+    _drop_newer_defaults(config, want["inputs"], exp.schedule.name)
+    for key in (*BASIC_CONFIG_KEYS, "inputs"):
+        if key in config and key in want:
+            where = first_difference(config[key], want[key], f"config.{key}")
+            if where is not None:
+                path, got, expected = where
+                raise InputError(f"the measured run has {_short(got)} but the experiment has "
+                                 f"{_short(expected)}: measure it again or --set the experiment "
+                                 "to match", file=file, field=path)
+
+
+def _drop_newer_defaults(config: dict[str, Any], inputs: dict[str, Any], schedule: str) -> None:
+    """Leave out of the comparison the schedule options that a measured run does not record
+    and that the experiment leaves at their default: options added after the run was recorded,
+    which change nothing at their default."""
+    recorded = config.get("inputs", {}).get("schedule") if isinstance(config.get("inputs"), dict) else None
+    if not isinstance(recorded, dict):
+        return
+    from mgpusim.schedules import SCHEDULES, ensure_loaded
+    ensure_loaded()
+    options = SCHEDULES[schedule].options if schedule in SCHEDULES else {}
+    for key, option in options.items():
+        default = json.loads(json.dumps(option.default, default=list))  # as inputs record it
+        if key not in recorded and inputs["schedule"].get(key) == default:
+            inputs["schedule"].pop(key, None)
+
+
+def check_physical_gpus(machine: dict[str, Any], exp: Any, file: str) -> None:
+    """Refuse to compare a run whose simulated GPUs shared real GPUs differently from the
+    profile (`gpus.physical`): two VkDevices on one GPU slow each other down, which the model
+    shows only when the profile says they share it. Lavapipe GPUs share the CPU instead
+    (host.gpus_share_cpu); runs recorded before `physical_index` was are not checked."""
+    profile = exp.profile
+    gpus = machine.get("gpus")
+    if profile.host.gpus_share_cpu or not isinstance(gpus, list):
+        return
+    ran = [g.get("physical_index") if isinstance(g, dict) else None for g in gpus]
+    n = min(len(ran), len(profile.gpus))
+    if any(not isinstance(p, int) for p in ran[:n]):
+        return
+    for j in range(n):
+        for i in range(j):
+            together, modelled = ran[i] == ran[j], profile.physical_of(i) == profile.physical_of(j)
+            if together != modelled:
+                said = "gives them GPUs of their own" if together else "puts them on one"
+                raise InputError(f"simulated GPUs {i} and {j} ran on "
+                                 f"{'one physical GPU' if together else 'different physical GPUs'}, "
+                                 f"but the profile {said}: give the profile's GPUs `physical` as "
+                                 "they ran (e.g. --set profile.gpus.0.physical=0 with "
+                                 "profile.gpu_count)", file=file, field=f"gpus[{j}].physical")
+
+
+def first_difference(got: Any, want: Any, path: str) -> tuple[str, Any, Any] | None:
+    """(dotted path, got, want) of the first place two JSON-shaped values differ, or None."""
+    if isinstance(got, dict) and isinstance(want, dict):
+        for key in sorted(set(got) | set(want)):
+            diff = first_difference(got.get(key, _ABSENT), want.get(key, _ABSENT), f"{path}.{key}")
+            if diff:
+                return diff
+        return None
+    if isinstance(got, list) and isinstance(want, list):
+        if len(got) != len(want):
+            return (path, f"{len(got)} entries", f"{len(want)}")
+        for i, (g, w) in enumerate(zip(got, want)):
+            diff = first_difference(g, w, f"{path}[{i}]")
+            if diff:
+                return diff
+        return None
+    if _same(got, want):
+        return None
+    return (path, got, want)
+
+
+def _same(a: Any, b: Any) -> bool:
+    if isinstance(a, bool) or isinstance(b, bool):
+        return a is b
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)):
+        return math.isclose(a, b, rel_tol=1e-12, abs_tol=0)
+    return a == b
+
+
+def unknown_names(values: Iterable[Any], known: Iterable[str]) -> list[str]:
+    """The distinct values not in `known`, in first-seen order."""
+    known = set(known)
+    return list(dict.fromkeys(str(v) for v in values if str(v) not in known))
+
+
+def _short(value: Any, limit: int = 80) -> str:
+    text = str(value).replace("\n", " ")
+    return text if len(text) <= limit else text[:limit] + "..."

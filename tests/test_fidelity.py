@@ -277,12 +277,20 @@ def test_sweep_honours_the_gpus_speed_factor():
                                                     rel=1e-12)
 
 
+def test_fidelity_without_the_measured_data_is_one_clear_error(tmp_path: Path, capsys):
+    from mgpusim.cli import main
+    assert main(["fidelity", "--data", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
+    assert "lacks the committed measured runs" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
 def test_fidelity_command_writes_the_table(tmp_path: Path):
     from mgpusim.cli import main
-    from mgpusim.studies.accuracy_cost import configurations
-    assert len(configurations()) >= 100  # the committed H200, H100 and lavapipe runs
+    from mgpusim.studies.accuracy_cost import committed_sources, configurations
+    # the committed H200, H100 and lavapipe runs
+    assert len(configurations(committed_sources(ROOT / "data"))) >= 100
     out = tmp_path / "new" / "folder"  # made as needed
-    assert main(["fidelity", "--out", str(out), "--repeats", "1"]) == 0
+    assert main(["fidelity", "--data", str(ROOT / "data"), "--out", str(out), "--repeats", "1"]) == 0
     table = pd.read_csv(out / "per_config.csv")
     assert set(table["level"]) == {"analytic", "queues", "full", "full, no fast-forward"}
     assert table["wall_ms"].gt(0).all()

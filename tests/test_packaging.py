@@ -52,6 +52,44 @@ def test_wheel_ships_experiments_profiles_and_shaders(tmp_path):
     assert "Requires-Dist: vulkan" in text and "extra == \"vulkan\"" in text.split("Requires-Dist: vulkan")[1][:80]
 
 
+@pytest.mark.vulkan
+def test_an_installed_wheel_runs_the_readme_commands_from_another_folder(tmp_path):
+    """The wheel, installed on its own (no checkout on the path), run from an empty folder:
+    the README's commands find the shipped experiments and study files by their checkout paths;
+    what needs the checkout's measured data says so in one line."""
+    built = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w",
+                            str(tmp_path / "dist"), str(_copy_sources(tmp_path / "src"))],
+                           capture_output=True, text=True, timeout=300)
+    assert built.returncode == 0, built.stderr[-2000:]
+    (wheel,) = (tmp_path / "dist").glob("mgpusim-*.whl")
+    site = tmp_path / "site"
+    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(site),
+                    str(wheel)], check=True, capture_output=True, timeout=300)
+    work = tmp_path / "elsewhere"
+    work.mkdir()
+    env = {**os.environ, "PYTHONPATH": str(site)}  # the installed copy comes before the checkout's
+
+    def cmd(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "mgpusim", *args], cwd=work, env=env,
+                              capture_output=True, text=True, timeout=600)
+
+    where = subprocess.run([sys.executable, "-c", "import mgpusim; print(mgpusim.__file__)"],
+                           cwd=work, env=env, capture_output=True, text=True)
+    assert where.stdout.startswith(str(site))
+    frames = ("--set", "schedule.frames=12", "--set", "schedule.warmup_frames=2")
+    assert cmd("simulate", "experiments/sort_first_tc1.toml", *frames, "--out", "o").returncode == 0
+    run = cmd("run", "experiments/lavapipe/sort_first.toml", *frames, "--out", "m")
+    assert run.returncode == 0, run.stderr
+    val = cmd("validate", "experiments/lavapipe/sort_first.toml", *frames, "--measured", "m", "--out", "v")
+    assert val.returncode == 0, val.stderr
+    assert (work / "v" / "summary.json").is_file()
+    study = cmd("study", "validate", "experiments/h200/study.toml", "--held-out", "--out", "sv")
+    assert study.returncode == 2 and len(study.stderr.strip().splitlines()) == 1
+    assert "data/nvidia/h200x2" in study.stderr and not (work / "sv").exists()
+    fidelity = cmd("fidelity", "--out", "f")
+    assert fidelity.returncode == 2 and "pass a checkout's data/ folder" in fidelity.stderr
+
+
 def test_examples_list_and_names_resolve(capsys):
     items = {e.name: e for e in shipped.examples()}
     assert {"sort_first_tc1", "afr_tc1", "lavapipe/sort_first", "h200/sort_last"} <= set(items)

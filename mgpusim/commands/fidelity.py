@@ -1,4 +1,4 @@
-"""`mgpusim fidelity [--out DIR] [--docs]`: every committed measured configuration at every
+"""`mgpusim fidelity [--data DIR] [--out DIR] [--docs]`: every committed measured configuration at every
 fidelity level: error against the measurement and simulation time (the accuracy/time table)."""
 from __future__ import annotations
 
@@ -10,15 +10,17 @@ import pandas as pd
 from mgpusim.io.outpath import check_out_dir
 from mgpusim.io.output import write_table
 from mgpusim.model.errors import InputError
-from mgpusim.studies.accuracy_cost import (configurations, deviations, deviations_markdown,
-                                           markdown, run_levels, summarize_deviations,
-                                           summarize_levels)
+from mgpusim.studies.accuracy_cost import (committed_sources, configurations, deviations,
+                                           deviations_markdown, markdown, run_levels,
+                                           summarize_deviations, summarize_levels)
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("fidelity", help="error vs measured runs and simulation time, per fidelity level")
+    p.add_argument("--data", type=Path, default=Path("data"),
+                   help="a checkout's data/ folder: the committed measured runs (default: ./data)")
     p.add_argument("--out", type=Path, default=Path("out") / "fidelity",
                    help="folder for per_config.csv, levels.csv, fidelity.md and fidelity_pareto.png")
     p.add_argument("--repeats", type=int, default=3, help="best of this many timed runs per configuration")
@@ -30,8 +32,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.docs and not (DOCS / "fidelity.md").is_file():
         raise InputError(f"needs a checkout with {DOCS / 'fidelity.md'}", field="--docs")
+    sources = committed_sources(args.data)
     check_out_dir(args.out)  # before any work
-    configs = configurations()
+    configs = configurations(sources)
     table = run_levels(configs, repeats=max(1, args.repeats))
     levels = summarize_levels(table)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -18,9 +18,10 @@ from mgpusim.model.limits import MAX_FRAMES, MAX_THREADS
 
 def run(args: argparse.Namespace) -> int:
     from mgpusim.io.output import write_measured  # noqa: PLC0415
+    from mgpusim.io.shipped import resolve_experiment  # noqa: PLC0415
     from mgpusim.schedules.experiment import load_experiment, parse_overrides  # noqa: PLC0415
 
-    exp = load_experiment(args.experiment, parse_overrides(args.overrides))
+    exp = load_experiment(resolve_experiment(args.experiment), parse_overrides(args.overrides))
     devices = int_list(args.devices, "--devices")
     if args.gpus_per_device is not None:
         if devices is not None:
@@ -74,7 +75,7 @@ def _write_png(image, path: Path) -> None:
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("run", help="run an experiment's schedule on Vulkan devices (measured)",
                               description=__doc__)
-    p.add_argument("experiment", type=Path, help="experiment TOML file")
+    p.add_argument("experiment", type=Path, help="experiment TOML file, or a shipped name (`mgpusim examples`)")
     p.add_argument("--set", dest="overrides", action="append", metavar="KEY=VALUE",
                    help="override a field, e.g. schedule.gpus=2 (repeatable)")
     p.add_argument("--devices", metavar="I,J,...",

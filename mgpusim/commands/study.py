@@ -17,6 +17,7 @@ from typing import Callable
 import pandas as pd
 
 from mgpusim.io.outpath import check_out_dir
+from mgpusim.io.shipped import resolve_experiment
 from mgpusim.model.config import int_list
 from mgpusim.model.errors import InputError
 from mgpusim.studies import speed_probe as speed
@@ -33,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                       ("validate", "compare measured runs with the model (no device needed)"),
                       ("run", "measure, calibrate, validate and report")):
         s = steps.add_parser(name, help=doc, description=doc)
-        s.add_argument("study", type=Path, help="study TOML file")
+        s.add_argument("study", type=Path, help="study TOML file (a shipped one by its checkout path too)")
         s.add_argument("--out", type=Path, default=None, help="output folder (default out/<study name>)")
         if name in ("measure", "run"):
             s.add_argument("--devices", help="physical device of each simulated GPU, e.g. 0,1 (NVIDIA)")
@@ -103,7 +104,7 @@ def _filtered(study: Study, args: argparse.Namespace) -> Study:
 
 
 def measure(args: argparse.Namespace) -> int:
-    study = _filtered(load_study(args.study), args)
+    study = _filtered(load_study(resolve_experiment(args.study)), args)
     out, progress = _out(args, study), progress_printer()
     steady_check(args, study, out, progress)
     if study.microbenchmarks.sweeps and study.microbenchmarks.folder is None:
@@ -115,7 +116,7 @@ def measure(args: argparse.Namespace) -> int:
 
 
 def calibrate(args: argparse.Namespace) -> int:
-    study = load_study(args.study)
+    study = load_study(resolve_experiment(args.study))
     out = _out(args, study)
     profile, text = pipeline.calibrate(study, out, progress_printer(), runs_dir=args.runs)
     print(text)
@@ -124,7 +125,7 @@ def calibrate(args: argparse.Namespace) -> int:
 
 
 def validate(args: argparse.Namespace) -> int:
-    study = load_study(args.study)
+    study = load_study(resolve_experiment(args.study))
     out, progress = _out(args, study), progress_printer()
     profile = args.profile or study.profile
     tables = {}
@@ -146,7 +147,7 @@ def validate(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    study = _filtered(load_study(args.study), args)
+    study = _filtered(load_study(resolve_experiment(args.study)), args)
     out, progress = _out(args, study), progress_printer()
     steady_check(args, study, out, progress)
     path = pipeline.run(study, out, progress, args.held_out, int_list(args.devices, "--devices"))

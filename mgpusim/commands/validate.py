@@ -11,6 +11,7 @@ import argparse
 from pathlib import Path
 
 from mgpusim.io.outpath import check_out_dir
+from mgpusim.io.shipped import resolve_experiment
 from mgpusim.model.errors import InputError
 from mgpusim.schedules.experiment import load_experiment, parse_overrides
 from mgpusim.validation.crossvalidate import format_report, validate_experiment
@@ -18,7 +19,7 @@ from mgpusim.validation.crossvalidate import format_report, validate_experiment
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("validate", help="run a schedule for real and in the model, report the errors")
-    p.add_argument("experiment", type=Path, help="experiment TOML file")
+    p.add_argument("experiment", type=Path, help="experiment TOML file, or a shipped name (`mgpusim examples`)")
     p.add_argument("--profile", type=Path, help="calibrated profile to simulate with (default: the experiment's)")
     p.add_argument("--set", dest="overrides", action="append", metavar="KEY=VALUE",
                    help="override a field of the experiment, as simulate takes it (repeatable)")
@@ -34,7 +35,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    exp = load_experiment(args.experiment, parse_overrides(args.overrides), profile=args.profile)
+    exp = load_experiment(resolve_experiment(args.experiment), parse_overrides(args.overrides),
+                          profile=args.profile)
     out = args.out or Path("out") / f"{exp.name}-validate"
     if args.repeats < 1 or not args.run_seconds >= 0:
         raise InputError(f"need --repeats >= 1 and --run-seconds >= 0, got {args.repeats} and "

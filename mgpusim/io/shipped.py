@@ -54,7 +54,8 @@ def examples() -> list[Example]:
 
 def resolve_experiment(ref: str | Path) -> Path:
     """A path as given if something is there (the loader says what is wrong with a folder or
-    an unreadable file); else the shipped experiment it names."""
+    an unreadable file); else the shipped experiment (or study file: they live among the
+    experiments) it names, so that a checkout's path works from a wheel install too."""
     path = Path(ref)
     if path.exists():
         return path

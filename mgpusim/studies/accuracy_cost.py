@@ -18,10 +18,11 @@ import numpy as np
 import pandas as pd
 
 from mgpusim.io.shipped import examples, shipped_dir
+from mgpusim.model.errors import InputError
 from mgpusim.schedules.experiment import Experiment, load_experiment
 from mgpusim.sim.simulation import simulate
 from mgpusim.studies.measuring import measured_folder
-from mgpusim.studies.spec import Entry, load_study
+from mgpusim.studies.spec import load_study
 from mgpusim.validation.compare import rel_error, steady_summary
 from mgpusim.validation.measured import read_measured
 
@@ -31,25 +32,35 @@ PROFILES = shipped_dir("hardware_profiles")
 
 @dataclass(frozen=True)
 class Source:
-    """Measured runs of a study: its committed folders, or `runs` (every entry of the study
-    that has a folder there) simulated on `profile` instead of the study's."""
+    """Measured runs of a study: the folders holding its entries' runs, simulated on `profile`
+    (the study's own when None)."""
 
     name: str
     study: Path
-    runs: Path | None = None
+    runs: tuple[Path, ...]
     profile: Path | None = None
 
 
-#: The committed measured runs: the NVIDIA studies' own folders, and the steady windows of the
-#: lavapipe main job (data/lavapipe/main_job_2026-11-24/, with the profile that job fitted).
-LAVAPIPE_RUNS = EXPERIMENTS.parent / "data/lavapipe/main_job_2026-11-24"
-SOURCES = (
-    Source("2x H200", EXPERIMENTS / "h200/study.toml"),
-    Source("H100", EXPERIMENTS / "h200/study.toml", EXPERIMENTS.parent / "data/nvidia/h100/runs_1gpu",
-           PROFILES / "h100.toml"),
-    Source("lavapipe", EXPERIMENTS / "lavapipe/study.toml", LAVAPIPE_RUNS / "runs",
-           LAVAPIPE_RUNS / "profile.toml"),
-)
+def committed_sources(data: Path) -> tuple[Source, ...]:
+    """The measured runs committed in a checkout's `data/` folder: the H200 study's calibration
+    and held-out runs, the H100's 1-GPU runs of the same study, and the steady windows of the
+    lavapipe main job of 2026-11-24 with the profile that job fitted. `data` is given by the
+    caller (a wheel has no measured data): a folder that lacks them is one clear error."""
+    lavapipe = data / "lavapipe" / "main_job_2026-11-24"
+    sources = (
+        Source("2x H200", EXPERIMENTS / "h200/study.toml",
+               (data / "nvidia/h200x2/calibration_si", data / "nvidia/h200x2/runs_si")),
+        Source("H100", EXPERIMENTS / "h200/study.toml", (data / "nvidia/h100/runs_1gpu",),
+               PROFILES / "h100.toml"),
+        Source("lavapipe", EXPERIMENTS / "lavapipe/study.toml", (lavapipe / "runs",),
+               lavapipe / "profile.toml"),
+    )
+    for src in sources:
+        for folder in (*src.runs, *([src.profile] if src.profile else [])):
+            if not folder.exists():
+                raise InputError(f"{data} lacks the committed measured runs ({folder} is missing);"
+                                 f" pass a checkout's data/ folder", field="--data")
+    return sources
 
 
 @dataclass(frozen=True)
@@ -60,21 +71,18 @@ class Configuration:
     measured: pd.DataFrame  # the measured trace
 
 
-def configurations(sources: tuple[Source, ...] = SOURCES) -> list[Configuration]:
+def configurations(sources: tuple[Source, ...]) -> list[Configuration]:
     """Every entry of every source that has a measured run folder."""
     out = []
     for src in sources:
         study = load_study(src.study)
-        halves: list[tuple[tuple[Entry, ...], Path | None]] = (
-            [(study.entries(), src.runs)] if src.runs is not None else
-            [(study.calibration, study.calibration_runs), (study.held_out, study.held_out_runs)])
-        for entries, root in halves:
-            for entry in entries:
-                folder = measured_folder(root, entry.name) if root is not None else None
-                if folder is None or not folder.is_dir():
-                    continue
-                exp = entry.load(src.profile or study.profile)
-                out.append(Configuration(src.name, entry.name, exp, read_measured(folder, exp)))
+        for entry in study.entries():
+            folder = next((f for f in (measured_folder(root, entry.name) for root in src.runs)
+                           if f.is_dir()), None)
+            if folder is None:
+                continue
+            exp = entry.load(src.profile or study.profile)
+            out.append(Configuration(src.name, entry.name, exp, read_measured(folder, exp)))
     return out
 
 

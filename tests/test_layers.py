@@ -85,3 +85,9 @@ def test_no_two_modules_share_a_name():
                     for p in (ROOT / "mgpusim").rglob("*.py") if p.stem != "__main__")
     names["mgpusim"] -= 1  # the root package itself
     assert [n for n, count in names.items() if count > 1] == []
+
+
+def test_the_architecture_page_lists_the_packages_as_they_are():
+    run = subprocess.run([sys.executable, str(ROOT / "scripts" / "architecture.py"), "--check"],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stdout + run.stderr

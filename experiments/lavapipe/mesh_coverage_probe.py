@@ -12,7 +12,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from mgpusim.real.vulkan.hostheap import keep_heap
 from mgpusim.real.vulkan.host_machine import make_gpus, close_gpus
 from mgpusim.real.vulkan.passes import Mesh
-from mgpusim.schedules.base import even_split
+from mgpusim.model.geometry import even_split
 
 keep_heap()
 out = open(sys.argv[1], "w")

@@ -16,6 +16,7 @@ from mgpusim.cli import main
 from mgpusim.studies import load_study, validate
 from mgpusim.studies.measuring import measured_folder
 from mgpusim.studies.nvlink import nvlink_whatif
+from mgpusim.validation import run_archive
 
 ROOT = Path(__file__).resolve().parents[1]
 STUDY = ROOT / "experiments" / "h200" / "study.toml"
@@ -26,7 +27,7 @@ def test_validate_measured_h200_run_offline(tmp_path: Path) -> None:
     study = load_study(STUDY)
     entry = next(e for e in study.held_out if e.name == CONFIG)
     measured = measured_folder(study.held_out_runs, CONFIG)
-    assert (measured / "trace.csv").is_file()
+    assert run_archive.is_file(measured / "trace.csv")  # committed packed: data/nvidia/h200x2/runs_si
     args = ["validate", str(entry.experiment), "--profile", str(study.profile), "--measured", str(measured),
             "--out", str(tmp_path / "v")]
     for s in entry.sets:

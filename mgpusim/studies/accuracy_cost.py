@@ -23,6 +23,7 @@ from mgpusim.schedules.experiment import Experiment, load_experiment
 from mgpusim.sim.simulation import simulate
 from mgpusim.studies.measuring import measured_folder
 from mgpusim.studies.spec import load_study
+from mgpusim.validation import run_archive
 from mgpusim.validation.compare import rel_error, steady_summary
 from mgpusim.validation.measured import read_measured
 
@@ -78,7 +79,7 @@ def configurations(sources: tuple[Source, ...]) -> list[Configuration]:
         study = load_study(src.study)
         for entry in study.entries():
             folder = next((f for f in (measured_folder(root, entry.name) for root in src.runs)
-                           if f.is_dir()), None)
+                           if run_archive.is_folder(f)), None)
             if folder is None:
                 continue
             exp = entry.load(src.profile or study.profile)

@@ -15,6 +15,7 @@ import pandas as pd
 from mgpusim.io.output import write_json, write_measured
 from mgpusim.studies import speed_probe as speed
 from mgpusim.studies.spec import Entry, Study
+from mgpusim.validation import run_archive
 from mgpusim.validation.measured import TRACE_FILES
 from mgpusim.validation.repeated_runs import with_run_length, write_steady_window
 
@@ -112,6 +113,6 @@ def measured_folder(root: Path, name: str) -> Path:
     """Where entry `name`'s compared run lies under `root`: its steady window if it has one,
     else the one run in the folder itself, else the first of its repeated runs."""
     for folder in (root / name / "steady", root / name, root / name / "run0"):
-        if any((folder / f).is_file() for f in TRACE_FILES):
+        if any(run_archive.is_file(folder / f) for f in TRACE_FILES):
             return folder
     return root / name

@@ -17,6 +17,7 @@ from mgpusim.studies import speed_probe as speed
 from mgpusim.studies.measuring import (Progress, measure_microbenchmarks, measure_runs,
                                        measured_folder)
 from mgpusim.studies.spec import Entry, Study
+from mgpusim.validation import run_archive
 from mgpusim.validation.compare import error_stats, error_table
 from mgpusim.validation.crossvalidate import format_report, validate_experiment
 from mgpusim.validation.measured import read_measured
@@ -37,7 +38,7 @@ def load_runs(study: Study, entries: tuple[Entry, ...], root: Path,
     runs = []
     for e in entries:
         folder = measured_folder(root, e.name)
-        if folder.is_dir():
+        if run_archive.is_folder(folder):
             exp = e.load(profile or study.profile)
             runs.append((exp, read_measured(folder, exp)))
     return runs
@@ -81,7 +82,7 @@ def validate(study: Study, entries: tuple[Entry, ...], root: Path, profile: Path
     rows = []
     for e in entries:
         folder = measured_folder(root, e.name)
-        if not folder.is_dir():
+        if not run_archive.is_folder(folder):
             continue
         exp = e.load(profile, extra)
         report = validate_experiment(exp, out / e.name, folder)

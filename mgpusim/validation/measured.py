@@ -13,6 +13,7 @@ import pandas as pd
 from mgpusim.model.errors import InputError
 from mgpusim.results.trace import SUBMISSION_COLUMNS
 from mgpusim.schedules.experiment import Experiment
+from mgpusim.validation import run_archive
 from mgpusim.validation.measured_check import (check_physical_gpus, check_recorded_config,
                                                check_trace, read_json_object, read_table)
 
@@ -23,23 +24,23 @@ SUBMISSION_FILES = ("submissions.parquet", "submissions.csv")
 def read_measured(folder: Path, exp: Experiment) -> pd.DataFrame:
     """A saved measured trace, checked (columns, whole times, end >= start); its recorded
     configuration must match the experiment's (:mod:`mgpusim.validation.measured_check`)."""
-    if not folder.is_dir():
+    if not run_archive.is_folder(folder):
         raise InputError("not a folder (expected a measured run from `mgpusim run`)", file=str(folder))
     for name in TRACE_FILES:
         path = folder / name
-        if path.is_file():
+        if run_archive.is_file(path):
             trace = check_trace(read_table(path), str(path))
             break
     else:
         raise InputError("no trace.parquet or trace.csv in the measured folder", file=str(folder))
     summary = folder / "summary.json"
-    if summary.is_file():
+    if run_archive.is_file(summary):
         config = read_json_object(summary).get("config", {})
         if not isinstance(config, dict):
             raise InputError("expected an object", file=str(summary), field="config")
         check_recorded_config(config, exp, str(summary))
     machine = folder / "machine.json"
-    if machine.is_file():
+    if run_archive.is_file(machine):
         check_physical_gpus(read_json_object(machine), exp, str(machine))
     return trace
 
@@ -49,7 +50,7 @@ def read_submissions(folder: Path) -> pd.DataFrame | None:
     or None where the folder has none (runs saved before the runner recorded them)."""
     for name in SUBMISSION_FILES:
         path = folder / name
-        if path.is_file():
+        if run_archive.is_file(path):
             table = read_table(path)
             missing = [c for c in SUBMISSION_COLUMNS if c not in table.columns]
             if missing:

@@ -2,8 +2,8 @@
 broken or mismatched file is one InputError naming it and the column or field, never a
 pandas traceback or a comparison of unlike runs.
 
-`read_table` and `read_json_object` are the only functions here that touch files; the checks
-take what they read.
+`read_table` and `read_json_object` are the only functions here that touch files (on disk, or in
+a packed folder of runs: :mod:`mgpusim.validation.run_archive`); the checks take what they read.
 """
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ import pandas as pd
 from mgpusim.model.errors import InputError
 from mgpusim.results.trace import TRACE_COLUMNS
 from mgpusim.schedules.program import recorded_inputs
+from mgpusim.validation import run_archive
 
 #: How a key missing on one side shows in a mismatch message.
 _ABSENT = "no value"
@@ -34,10 +35,13 @@ def read_table(path: Path) -> pd.DataFrame:
     file = str(path)
     try:
         if not path.is_file():
-            raise InputError("not found (or not a file)", file=file)
+            archived = run_archive.archived_table(path)
+            if archived is None:
+                raise InputError("not found (or not a file)", file=file)
+            return archived
         if path.suffix in (".parquet", ".pq"):
             return pd.read_parquet(path)
-        return pd.read_csv(path, keep_default_na=False, na_values=[""], encoding="utf-8")
+        return pd.read_csv(path, **run_archive.CSV_OPTIONS)
     except pd.errors.EmptyDataError:
         raise InputError("the file is empty, expected a table with a header row", file=file) from None
     except UnicodeDecodeError:
@@ -51,7 +55,7 @@ def read_json_object(path: Path) -> dict[str, Any]:
     """A JSON file holding one object (summary.json, machine.json)."""
     file = str(path)
     try:
-        data = json.loads(path.read_bytes().decode("utf-8"))
+        data = json.loads(run_archive.read_text(path))
     except OSError as exc:
         raise InputError(f"cannot read ({exc.strerror or exc})", file=file) from None
     except (UnicodeDecodeError, ValueError) as exc:  # JSONDecodeError is a ValueError

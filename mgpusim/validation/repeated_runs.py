@@ -18,6 +18,7 @@ from typing import Any
 from mgpusim.io.output import write_json, write_measured, write_table
 from mgpusim.schedules.experiment import Experiment
 from mgpusim.sim.simulation import simulate
+from mgpusim.validation import run_archive
 from mgpusim.validation import steady_window as sw
 
 
@@ -80,8 +81,8 @@ def run_spread(folder: Path) -> tuple[float, int]:
     """(slowest / fastest - 1) of the whole runs' frame times beside a steady window, and how
     many runs: the machine's own noise (nan, 1 for a single run)."""
     runs_json = folder.parent / "runs.json"
-    if folder.name != "steady" or not runs_json.is_file():
+    if folder.name != "steady" or not run_archive.is_file(runs_json):
         return float("nan"), 1
-    times = json.loads(runs_json.read_text())["frame_time_ms"]
+    times = json.loads(run_archive.read_text(runs_json))["frame_time_ms"]
     spread = float(max(times) / min(times) - 1) if times and min(times) > 0 else float("nan")
     return spread, len(times)

@@ -1,0 +1,187 @@
+"""Measured runs kept compactly: a folder of runs as two Parquet tables.
+
+A folder of committed runs (a study's calibration or held-out runs, a main job's runs) holds
+hundreds of small files: per run its trace, summary, machine record, frames, and logs beside
+them. :func:`pack` turns such a folder into `runs.parquet` (every run's trace rows, the run's
+folder in column `run`) and `run_files.parquet` (every other file of the runs, by path, as
+text). Readers keep asking for a file by the path it had (`runs/sf_2gpu/steady/trace.csv`):
+:func:`is_file`, :func:`read_text` and :func:`read_table` answer from the disk where the file is
+there, else from the archive of the nearest packed folder above it. :func:`unpack` writes the
+files back, byte for byte.
+"""
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import pandas as pd
+
+#: The archive's two tables, in the packed folder.
+TRACES = "runs.parquet"
+FILES = "run_files.parquet"
+#: The one file of a run stored as columns (the trace schema); the rest are kept as text.
+TRACE_NAME = "trace.csv"
+#: How measured CSV tables are parsed (an empty cell is missing, "NA" is a string).
+CSV_OPTIONS = {"keep_default_na": False, "na_values": [""], "encoding": "utf-8"}
+
+
+@dataclass(frozen=True)
+class Archive:
+    """A packed folder: its runs' traces and the text of their other files."""
+
+    root: Path
+    traces: dict[str, pd.DataFrame]  # run folder (relative, posix) -> its trace
+    files: dict[str, str]  # file path (relative, posix) -> its text
+
+    def has_folder(self, rel: str) -> bool:
+        prefix = f"{rel}/" if rel else ""
+        return rel in self.traces or any(p.startswith(prefix) for p in (*self.files, *self.traces))
+
+
+def _rel(path: Path, root: Path) -> str:
+    rel = path.relative_to(root).as_posix()
+    return "" if rel == "." else rel
+
+
+@lru_cache(maxsize=16)
+def _load(root: Path, stamp: tuple[int, int]) -> Archive:
+    """The archive of `root` (cached while its tables are unchanged: `stamp` is their mtimes)."""
+    table = pd.read_parquet(root / TRACES)
+    traces = {run: rows.drop(columns="run").reset_index(drop=True)
+              for run, rows in table.groupby("run", sort=False)}
+    files = pd.read_parquet(root / FILES)
+    return Archive(root, traces, dict(zip(files["path"], files["text"])))
+
+
+def archive_of(path: Path) -> tuple[Archive, str] | None:
+    """The archive holding `path` (a file or folder that is not on disk) and its relative path
+    there, or None where no folder above it was packed."""
+    for folder in path.parents:
+        if (folder / TRACES).is_file() and (folder / FILES).is_file():
+            stamp = ((folder / TRACES).stat().st_mtime_ns, (folder / FILES).stat().st_mtime_ns)
+            return _load(folder, stamp), _rel(path, folder)
+    return None
+
+
+def is_folder(path: Path) -> bool:
+    """A folder on disk, or one that a packed archive holds."""
+    if path.is_dir():
+        return True
+    found = archive_of(path)
+    return found is not None and found[0].has_folder(found[1])
+
+
+def is_file(path: Path) -> bool:
+    """A file on disk, or one that a packed archive holds."""
+    if path.is_file():
+        return True
+    found = archive_of(path)
+    if found is None:
+        return False
+    archive, rel = found
+    if path.name == TRACE_NAME:
+        return _rel(path.parent, archive.root) in archive.traces
+    return rel in archive.files
+
+
+def read_text(path: Path) -> str:
+    """A text file's content, from the disk or its archive (FileNotFoundError if neither)."""
+    if path.is_file():
+        return path.read_bytes().decode("utf-8")
+    found = archive_of(path)
+    if found is None or found[1] not in found[0].files:
+        raise FileNotFoundError(2, "No such file or directory", str(path))
+    return found[0].files[found[1]]
+
+
+def archived_table(path: Path) -> pd.DataFrame | None:
+    """A CSV table that is not on disk, from its archive (None if no archive holds it): a
+    trace from the traces table, any other table parsed from its text as from the file."""
+    found = archive_of(path)
+    if found is None:
+        return None
+    archive, rel = found
+    if path.name == TRACE_NAME:
+        trace = archive.traces.get(_rel(path.parent, archive.root))
+        return None if trace is None else trace.copy()
+    text = archive.files.get(rel)
+    return None if text is None else pd.read_csv(io.StringIO(text), **CSV_OPTIONS)
+
+
+# ----- packing -----------------------------------------------------------------------------------
+def run_folders(root: Path) -> list[Path]:
+    """The folders under `root` (itself included) that hold a run's trace."""
+    return sorted(p.parent for p in root.rglob(TRACE_NAME))
+
+
+def packed_files(root: Path) -> list[Path]:
+    """What :func:`pack` takes into the archive: every file of a run folder, the repeated-runs
+    records (`runs.json`) beside them, and the run logs directly in `root` (named as a run)."""
+    runs = set(run_folders(root))
+    names = {run.name for run in runs} | {run.parent.name for run in runs}
+    chosen = {f for run in runs for f in run.iterdir() if f.is_file()}
+    chosen |= set(root.rglob("runs.json")) | {f for f in root.glob("*.log") if f.stem in names}
+    return sorted(chosen)
+
+
+def pack(root: Path) -> int:
+    """Archive `root`'s runs (:func:`packed_files`) into its two tables, check that every file
+    reads back exactly as from the disk, then delete the files (and emptied folders); returns
+    how many files went in. A mismatch deletes nothing: the tables are removed again and the
+    error says which file."""
+    files = packed_files(root)
+    if not files:
+        raise ValueError(f"{root}: no run to pack")
+    traces, texts = [], []
+    for f in files:
+        rel = _rel(f, root)
+        if f.name == TRACE_NAME:
+            trace = pd.read_csv(f, **CSV_OPTIONS)
+            traces.append(trace.assign(run=_rel(f.parent, root))[["run", *trace.columns]])
+        else:
+            texts.append((rel, f.read_bytes().decode("utf-8")))
+    pd.concat(traces, ignore_index=True).to_parquet(root / TRACES, index=False, compression="zstd")
+    pd.DataFrame(texts, columns=["path", "text"]).to_parquet(root / FILES, index=False,
+                                                              compression="zstd")
+    try:
+        _check_round_trip(root, files)
+    except AssertionError:
+        (root / TRACES).unlink()
+        (root / FILES).unlink()
+        raise
+    for f in files:
+        f.unlink()
+    for folder in sorted({f.parent for f in files}, key=lambda p: -len(p.parts)):
+        while folder != root and folder.is_dir() and not any(folder.iterdir()):
+            folder.rmdir()
+            folder = folder.parent
+    return len(files)
+
+
+def _check_round_trip(root: Path, files: list[Path]) -> None:
+    stamp = ((root / TRACES).stat().st_mtime_ns, (root / FILES).stat().st_mtime_ns)
+    archive = _load(root, stamp)
+    for f in files:
+        if f.name == TRACE_NAME:
+            stored = archive.traces[_rel(f.parent, root)]
+            pd.testing.assert_frame_equal(stored, pd.read_csv(f, **CSV_OPTIONS), obj=str(f))
+        else:
+            assert archive.files[_rel(f, root)] == f.read_bytes().decode("utf-8"), str(f)
+
+
+def unpack(root: Path) -> int:
+    """Write a packed folder's files back (traces as CSV) and remove its tables; returns how
+    many files were written."""
+    stamp = ((root / TRACES).stat().st_mtime_ns, (root / FILES).stat().st_mtime_ns)
+    archive = _load(root, stamp)
+    for rel, text in archive.files.items():
+        (root / rel).parent.mkdir(parents=True, exist_ok=True)
+        (root / rel).write_bytes(text.encode("utf-8"))
+    for run, trace in archive.traces.items():
+        (root / run).mkdir(parents=True, exist_ok=True)
+        trace.to_csv(root / run / TRACE_NAME, index=False)
+    (root / TRACES).unlink()
+    (root / FILES).unlink()
+    return len(archive.files) + len(archive.traces)

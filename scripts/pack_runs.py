@@ -1,0 +1,46 @@
+"""Pack the committed measured runs under data/ into Parquet tables (or unpack them).
+
+    python scripts/pack_runs.py                 # every runs folder under data/ that is not packed
+    python scripts/pack_runs.py data/nvidia/h200x2/runs_si
+    python scripts/pack_runs.py --unpack data/nvidia/h200x2/runs_si
+
+A runs folder is the folder a study or a `--runs` option names: the first three levels below
+data/ (data/lavapipe/<job>/runs, data/nvidia/h200x2/runs_si), or a run folder standing higher.
+Each becomes runs.parquet + run_files.parquet (mgpusim.validation.run_archive); every file is
+read back and compared before the originals are deleted.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from mgpusim.validation import run_archive
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def runs_folders(data: Path) -> list[Path]:
+    """The folders to pack under `data`: for every run, its ancestor three levels below data/
+    (or the run folder itself where it stands higher)."""
+    found = set()
+    for run in run_archive.run_folders(data):
+        parts = run.relative_to(data).parts
+        found.add(data.joinpath(*parts[:3]) if len(parts) >= 3 else run)
+    return sorted(found)
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("folders", nargs="*", type=Path, help="runs folders (default: all under data/)")
+    p.add_argument("--unpack", action="store_true", help="write the files back instead")
+    args = p.parse_args()
+    folders = args.folders or runs_folders(ROOT / "data")
+    for folder in folders:
+        n = run_archive.unpack(folder) if args.unpack else run_archive.pack(folder)
+        print(f"{'unpacked' if args.unpack else 'packed'} {n:4d} files: {folder}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -55,13 +55,17 @@ def _load(root: Path, stamp: tuple[int, int]) -> Archive:
     return Archive(root, traces, dict(zip(files["path"], files["text"])))
 
 
+def _open(root: Path) -> Archive:
+    """The archive packed in `root`, read once while its two tables stay unchanged."""
+    return _load(root, ((root / TRACES).stat().st_mtime_ns, (root / FILES).stat().st_mtime_ns))
+
+
 def archive_of(path: Path) -> tuple[Archive, str] | None:
     """The archive holding `path` (a file or folder that is not on disk) and its relative path
     there, or None where no folder above it was packed."""
     for folder in path.parents:
         if (folder / TRACES).is_file() and (folder / FILES).is_file():
-            stamp = ((folder / TRACES).stat().st_mtime_ns, (folder / FILES).stat().st_mtime_ns)
-            return _load(folder, stamp), _rel(path, folder)
+            return _open(folder), _rel(path, folder)
     return None
 
 
@@ -161,8 +165,7 @@ def pack(root: Path) -> int:
 
 
 def _check_round_trip(root: Path, files: list[Path]) -> None:
-    stamp = ((root / TRACES).stat().st_mtime_ns, (root / FILES).stat().st_mtime_ns)
-    archive = _load(root, stamp)
+    archive = _open(root)
     for f in files:
         if f.name == TRACE_NAME:
             stored = archive.traces[_rel(f.parent, root)]
@@ -174,8 +177,7 @@ def _check_round_trip(root: Path, files: list[Path]) -> None:
 def unpack(root: Path) -> int:
     """Write a packed folder's files back (traces as CSV) and remove its tables; returns how
     many files were written."""
-    stamp = ((root / TRACES).stat().st_mtime_ns, (root / FILES).stat().st_mtime_ns)
-    archive = _load(root, stamp)
+    archive = _open(root)
     for rel, text in archive.files.items():
         (root / rel).parent.mkdir(parents=True, exist_ok=True)
         (root / rel).write_bytes(text.encode("utf-8"))

@@ -17,8 +17,8 @@ from mgpusim.model.errors import InputError
 
 
 def _list() -> int:
-    from mgpusim.real.vulkan.microbench import \
-        PASSES  # noqa: PLC0415 - keeps `--help` free of numpy/pandas
+    from mgpusim.real.vulkan.microbench import (  # noqa: PLC0415 - keeps `--help` free of numpy/pandas
+        PASSES)
 
     for spec in PASSES.values():
         params = ", ".join(f"{k}={v}" for k, v in spec.params.items())

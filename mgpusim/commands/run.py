@@ -32,8 +32,8 @@ def run(args: argparse.Namespace) -> int:
     _check_counts(args, devices)
     out = args.out or Path("out") / f"{exp.name}-measured"
     check_out_dir(out)
-    from mgpusim.real.runner.execute import \
-        run_experiment  # noqa: PLC0415 - Vulkan only after the checks
+    from mgpusim.real.runner.execute import (  # noqa: PLC0415 - Vulkan only after the checks
+        run_experiment)
     result = run_experiment(exp, devices=devices, lp_threads=int_list(args.lp_threads, "--lp-threads"),
                             host_threads=args.host_threads, prewarm_frames=args.prewarm)
     write_measured(result, out, args.format)

@@ -71,8 +71,8 @@ def _run_model(exp: Experiment, program: FrameProgram, chosen: frozenset[str], f
     costs = CostModel(exp.profile)
     try:
         if fidelity == "analytic":
-            from mgpusim.sim.analytic import \
-                analytic_raw  # noqa: PLC0415 (only this level needs it)
+            from mgpusim.sim.analytic import (  # noqa: PLC0415 (only this level needs it)
+                analytic_raw)
             return analytic_raw(program, costs, chosen, record_trace)
         engine = Engine(program, costs, record_trace=record_trace or fast_forward, effects=chosen)
     except TimeBoundError as exc:  # the profile's rates times the experiment's work

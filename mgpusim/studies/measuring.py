@@ -26,8 +26,7 @@ def measure_microbenchmarks(study: Study, out: Path, progress: Progress) -> list
     """Run every sweep on one simulated GPU, and every pair sweep alone and on two at once, in
     `rounds` rounds; one table (+ machine record) per pass. Each row has the pass's time, and a
     row of one GPU the process's CPU time while it ran."""
-    from mgpusim.real.vulkan import \
-        microbench as m  # noqa: PLC0415 - Vulkan is needed only to measure
+    from mgpusim.real.vulkan import microbench as m  # noqa: PLC0415 - Vulkan is needed only to measure
     from mgpusim.real.vulkan.host_machine import (close_gpus, machine_record,  # noqa: PLC0415
                                                   make_gpus)
 
@@ -83,8 +82,8 @@ def measure_runs(study: Study, entries: tuple[Entry, ...], profile: Path, out: P
                  progress: Progress, devices: list[int] | None = None) -> dict[str, Path]:
     """Run every entry `repeats` times, interleaved; return each entry's measured folder (its
     steady window, or its single run)."""
-    from mgpusim.real.runner.execute import \
-        run_experiment  # noqa: PLC0415 - Vulkan is needed only to measure
+    from mgpusim.real.runner.execute import (  # noqa: PLC0415 - Vulkan is needed only to measure
+        run_experiment)
 
     rs = study.runs
     threads = study.lavapipe_threads()

@@ -42,8 +42,7 @@ COLUMNS = ["point", "pass", "median_ms", "unix_time"]
 
 def measure_probe(point: str, threads: int | None) -> list[dict[str, Any]]:
     """The probe's median pass times now, on one fresh lavapipe (or Vulkan) GPU."""
-    from mgpusim.real.vulkan import \
-        microbench as m  # noqa: PLC0415 - Vulkan is needed only to measure
+    from mgpusim.real.vulkan import microbench as m  # noqa: PLC0415 - Vulkan is needed only to measure
     from mgpusim.real.vulkan.host_machine import close_gpus, make_gpus  # noqa: PLC0415
 
     gpus = make_gpus(1, lp_threads=None if threads is None else [threads])

@@ -63,8 +63,8 @@ def measure_repeated(exp: Experiment, out: Path, repeats: int, run_seconds: floa
     """Run `exp` `repeats` times (each about `run_seconds` long); keep every run under
     `out/run<k>`; return the measured folder to compare: the steady window of the runs, or the
     one run when there is a single short one."""
-    from mgpusim.real.runner.execute import \
-        run_experiment  # noqa: PLC0415 - Vulkan is needed only to measure
+    from mgpusim.real.runner.execute import (  # noqa: PLC0415 - Vulkan is needed only to measure
+        run_experiment)
 
     exp = with_run_length(exp, run_seconds, max_frames)
     runs = []

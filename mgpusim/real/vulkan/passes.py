@@ -20,8 +20,8 @@ from mgpusim.model.errors import InputError
 from mgpusim.model.geometry import even_split
 from mgpusim.real.vulkan.buffers import DEPTH_FORMAT, Buffer, Image
 from mgpusim.real.vulkan.copies import clear_image, upload
-from mgpusim.real.vulkan.draw import \
-    torus_mesh  # noqa: F401  (re-exported: the tests build meshes with it)
+from mgpusim.real.vulkan.draw import (  # noqa: F401  (re-exported: the tests build meshes with it)
+    torus_mesh)
 from mgpusim.real.vulkan.framepasses import (CompositeInto, Filter, FragmentLoopTile, MeshShare,
                                              ParticleDraw, copy_image)
 from mgpusim.real.vulkan.particle_passes import ParticleUpdate

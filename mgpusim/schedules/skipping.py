@@ -9,6 +9,7 @@ was skipped. The engine asks when an instance becomes ready and tells when one f
 from __future__ import annotations
 
 from collections import defaultdict
+from typing import Callable
 
 from mgpusim.model.errors import ScheduleError
 from mgpusim.model.tasks import Task
@@ -85,6 +86,12 @@ class SkipChains:
             else:
                 self._skipped_keys[(frame, name)] = left - 1
         return skipped
+
+    def state(self, key: Callable[[Key], Key]) -> tuple:
+        """What decides which instances are skipped next (for the fast-forward): the chains in
+        flight and the skipped outputs not yet read, `key` making each instance relative."""
+        return (tuple(sorted((n, v) for n, v in self._inflight.items() if v)),
+                tuple(sorted((key(k), v) for k, v in self._skipped_keys.items())))
 
     def _set_skipped(self, key: Key, phase: int, name: str) -> None:
         self.skip.add(key)

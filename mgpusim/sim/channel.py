@@ -25,6 +25,8 @@ from typing import Callable
 
 import simpy
 
+from mgpusim.sim.state import Callback, Relative
+
 _ZERO = Fraction(0)
 
 
@@ -98,7 +100,7 @@ class Channel:
         if not self._settle_pending:
             self._settle_pending = True
             self._gen += 1  # any planned wake-up is stale now
-            self.env.timeout(0).callbacks.append(self._settle)
+            self.env.timeout(0).callbacks.append(_Settle((self,)))
         return done
 
     # ----- one transfer alone -------------------------------------------------------------
@@ -113,8 +115,7 @@ class Channel:
         self._busy_since = now
         end = now + (2 * flow.nbytes * den + num) // (2 * num)  # round half up of bytes / rate
         self._gen += 1
-        gen = self._gen
-        self.env.timeout(end - now).callbacks.append(lambda _e: self._solo_done(gen))
+        self.env.timeout(end - now).callbacks.append(_SoloDone((self, self._gen)))
 
     def _solo_done(self, gen: int) -> None:
         if gen != self._gen:
@@ -230,8 +231,66 @@ class Channel:
         self._gen += 1
         wake = min(self._t + (2 * f.remaining + f.rate) // (2 * f.rate) for f in self.flows)
         wake = max(wake, self.env.now)
-        gen = self._gen
-        self.env.timeout(wake - self.env.now).callbacks.append(lambda _e: gen == self._gen and self._settle())
+        self.env.timeout(wake - self.env.now).callbacks.append(_Wake((self, self._gen)))
+
+    # ----- state (for the fast-forward) -----------------------------------------------------
+    @property
+    def open_since(self) -> int | None:
+        """When the current busy interval began (None while idle)."""
+        return self._busy_since if self.flows else None
+
+    def state(self, rel: Relative) -> tuple:
+        """The flows (exact remaining bytes, rates, caps, start, what they are), the solver's
+        clock while it shares, and its scale."""
+        fluid = any(not f.solo_rate for f in self.flows)
+        flows = tuple((f.remaining, f.cap, f.cap_s, f.rate, rel.t(f.start), f.nbytes, f.solo_rate,
+                       rel.event(f.done), f.tag) for f in self.flows)
+        return (self.name, flows, rel.t(self._t) if fluid else None, self._settle_pending,
+                self._crowd, self._denoms, self._scale)
+
+    def flow_events(self) -> list[simpy.Event]:
+        """The events the running flows will trigger, in order."""
+        return [f.done for f in self.flows]
+
+
+class _Settle(Callback, tuple):
+    """Settle the channel now: flows that arrived in this nanosecond share it from here.
+    (The callbacks are tuples: made at C speed, a new one for every transfer.)"""
+
+    __slots__ = ()
+
+    def __call__(self, _event: simpy.Event) -> None:
+        self[0]._settle()
+
+    def state(self, rel: Relative) -> tuple:
+        return ("settle", self[0].name)
+
+
+class _SoloDone(Callback, tuple):
+    """(channel, generation): a transfer alone on the channel ends, unless the channel moved
+    on to a newer generation."""
+
+    __slots__ = ()
+
+    def __call__(self, _event: simpy.Event) -> None:
+        self[0]._solo_done(self[1])
+
+    def state(self, rel: Relative) -> tuple:
+        return ("solo done", self[0].name, self[1] == self[0]._gen)
+
+
+class _Wake(Callback, tuple):
+    """(channel, generation): the solver's planned wake-up for the next flow due (stale once
+    the generation moved on)."""
+
+    __slots__ = ()
+
+    def __call__(self, _event: simpy.Event) -> None:
+        if self[1] == self[0]._gen:
+            self[0]._settle()
+
+    def state(self, rel: Relative) -> tuple:
+        return ("wake", self[0].name, self[1] == self[0]._gen)
 
 
 class GpuChannel(Channel):
@@ -289,8 +348,7 @@ class FixedRateChannel:
             self._busy_since = self.env.now
         self.active += 1
         self.max_concurrent = max(self.max_concurrent, self.active)
-        self.env.timeout((2 * nbytes * den + num) // (2 * num)).callbacks.append(
-            lambda _e: self._done(done))
+        self.env.timeout((2 * nbytes * den + num) // (2 * num)).callbacks.append(_Deliver((self, done)))
         return done
 
     def _done(self, done: simpy.Event) -> None:
@@ -298,3 +356,31 @@ class FixedRateChannel:
         if not self.active:
             self.busy.append((self._busy_since, self.env.now))
         done.succeed()
+
+    @property
+    def open_since(self) -> int | None:
+        """When the current busy interval began (None while idle)."""
+        return self._busy_since if self.active else None
+
+    def state(self, rel: Relative) -> tuple:
+        """How many transfers are crossing (each one's end is a pending event of its own)."""
+        return (self.name, self.active)
+
+    def flow_events(self) -> list[simpy.Event]:
+        return []
+
+
+class _Deliver(Callback, tuple):
+    """(channel, done): a fixed-rate transfer ends and its `done` event fires."""
+
+    __slots__ = ()
+
+    @property
+    def done(self) -> simpy.Event:
+        return self[1]
+
+    def __call__(self, _event: simpy.Event) -> None:
+        self[0]._done(self[1])
+
+    def state(self, rel: Relative) -> tuple:
+        return ("deliver", self[0].name, rel.event(self[1]))

@@ -34,6 +34,7 @@ from mgpusim.sim.busy_wake import BusyWake
 from mgpusim.sim.channel import Channel, FixedRateChannel
 from mgpusim.sim.effects import choose_effects
 from mgpusim.sim.executors import Executor, Runner, make_executors
+from mgpusim.sim.state import Callback, Environment, Relative
 
 Key = tuple[int, str]
 
@@ -60,6 +61,27 @@ class _Op:
     cpu: bool = False
     #: a pass that keeps every host core busy (the busy_wake effect): the cores it keeps busy
     fill_cores: Fraction | None = None
+
+
+class _Stream:
+    """Where one in-order stream stands, written down as it runs so that its state can be read
+    without looking into its generator: the frame and task it is at, what it waits for there
+    (`at`, one of the labels below), and the values still to be used from that point on."""
+
+    __slots__ = ("host", "frame", "op", "at", "submitted", "start", "wait")
+
+    def __init__(self, host: bool):
+        self.host = host
+        self.frame, self.op, self.at = 0, None, "start"
+        self.submitted = self.start = self.wait = 0
+
+
+#: Where a stream waits (`_Stream.at`): its task's dependencies; the host-copy thread's wake-up;
+#: its turn at the interpreter and its dispatch work (`wait` still to use); its submit thread;
+#: the queue's idle gap; a copy's thread behind a core-filling pass; its work and its transfer
+#: (`start` still to use).
+DEPS, COPY_WAKE, TURN, DISPATCH, SUBMIT, GAP, BUSY_WAKE, RUN, TRANSFER = (
+    "deps", "copy wake", "turn", "dispatch", "submit", "gap", "busy wake", "run", "transfer")
 
 
 @dataclass
@@ -93,7 +115,7 @@ class Engine:
         if effects is None:
             effects = choose_effects(program, costs.profile)
         self.effects = effects
-        self.env = simpy.Environment()
+        self.env = Environment()
         #: frames the streams run (a fast-forward may shorten it while running)
         self.horizon = program.frames
         self.rows: list[tuple] = []
@@ -124,6 +146,7 @@ class Engine:
             lambda env: make_executors(env, costs, "shared_executor" in effects,
                                        program if "shared_gpu" in effects else None))
         self.processes: list[simpy.Process] = []
+        self.streams: list[_Stream] = []  # the processes' positions, in the same order
         self._ops: list[list[_Op]] = []
         #: called with the frame number when a frame presents (the fast-forward's probe)
         self.on_present: Callable[[int], None] | None = None
@@ -174,7 +197,7 @@ class Engine:
                     stream = ("host", task.thread) if isinstance(task, CpuTask) else task.queue
                     queues.setdefault(stream, [[] for _ in range(self.period)])[phase].append(op)
         for plan in queues.values():
-            self.processes.append(self.env.process(self._stream_proc(plan)))
+            self._start_stream(plan, host=False)
         if any(host_ops):
             host = self.costs.profile.host
             self._threads_all = [f"thread{i}" for i in range(host.memcpy_threads)]
@@ -188,7 +211,12 @@ class Engine:
                 self._part_event = lambda size: host_ex.work(-(-size * cap.denominator // cap.numerator))
             else:
                 self._part_event = lambda size: memory.transfer(size, cap)
-            self.processes.append(self.env.process(self._stream_proc(host_ops, host=True)))
+            self._start_stream(host_ops, host=True)
+
+    def _start_stream(self, plan: list[list[_Op]], host: bool) -> None:
+        stream = _Stream(host)
+        self.streams.append(stream)
+        self.processes.append(self.env.process(self._stream_proc(plan, stream)))
 
     def _op(self, phase: int, task: Task) -> _Op:
         """Everything the hot loop needs about one task, computed once."""
@@ -372,21 +400,25 @@ class Engine:
                 self._ready.add(key)
 
     # ----- processes ---------------------------------------------------------------------
-    def _stream_proc(self, plan: list[list[_Op]], host: bool = False):
-        """One in-order stream: a queue, or (`host`) the host thread that dispatches host copies.
-        Each task runs after its dependencies and any host dispatch it owes; a queue task then
-        spends its pass or copy time and crosses its channel, a host copy is handed to the
-        memcpy threads. (One loop for both, inlined: this is the hot path.)"""
-        env, period, skip, ready = self.env, self.period, self._skip, self._ready
+    def _stream_proc(self, plan: list[list[_Op]], st: _Stream):
+        """One in-order stream: a queue, or (`st.host`) the host thread that dispatches host
+        copies. Each task runs after its dependencies and any host dispatch it owes; a queue
+        task then spends its pass or copy time and crosses its channel, a host copy is handed
+        to the memcpy threads. Before each wait it writes in `st` where it stands. (One loop
+        for both, inlined: this is the hot path.)"""
+        env, period, skip, ready, host = self.env, self.period, self._skip, self._ready, st.host
         submitted = 0  # the queue's host submit thread: when it submitted the last task
         frame = 0
         while frame < self.horizon:
+            st.frame = frame
             for op in plan[frame % period]:
+                st.op = op
                 key = (frame, op.task.name)
                 if key in ready:  # the common case: dependencies already met
                     ready.discard(key)
                 elif not self._check_ready(key, op.task):
                     ev = self._waiters[key] = env.event()
+                    st.at = DEPS
                     yield ev
                 if skip and key in skip:
                     self._skip_task(key, op.task)
@@ -399,14 +431,18 @@ class Engine:
                 if host and self._copy_wake_ns and self._cross_done:
                     wait = self._copy_wake(key) - env.now
                     if wait > 0:  # the host-copy thread's wake latency (not CPU work)
+                        st.at = COPY_WAKE
                         yield env.timeout(wait)
                     wait = 0
                 if self._cross_done and (host or self._host_timeline):
                     wait = self._dispatch_wait(key, keep=not host)
                 if wait:
+                    st.wait = wait
                     turn = self._interpreter_turn()
                     if turn is not None:
+                        st.at = TURN
                         yield turn
+                    st.at = DISPATCH
                     yield self._host_work(wait)
                     self._interpreter_done()
                 if host:
@@ -418,25 +454,30 @@ class Engine:
                     if op.cpu:
                         self._cross_done.pop(key, None)
                     else:
-                        submitted = self._submitted(key, submitted, env.now if wait else 0)
+                        submitted = st.submitted = self._submitted(key, submitted, env.now if wait else 0)
                         if submitted > env.now:
+                            st.at = SUBMIT
                             yield env.timeout(submitted - env.now)
                         if self._submit_load is not None:
                             self._submit_load(self._submit_ns)  # the submit thread's cores
                 if op.gap:
+                    st.at = GAP
                     yield op.gap_run(op.gap)
                 if self._busy_wake is not None and isinstance(op.task, CopyTask):
                     wait = self._busy_wake.copy_wait(op.device, env.now)
                     if wait:  # the copy's thread waits behind the pass; a core idles meanwhile
+                        st.at = BUSY_WAKE
                         yield self._host_work(wait)
-                start = env.now
+                start = st.start = env.now
                 if op.fill_cores is not None:
                     self._busy_wake.pass_started(op.device, start, op.fill_cores, op.duration)
                 if op.run is not None:
+                    st.at = RUN
                     yield op.run(op.amount)
                 if op.fill_cores is not None:
                     self._busy_wake.pass_ended(op.device)
                 if op.channel is not None:
+                    st.at = TRANSFER
                     yield op.channel.transfer(op.nbytes, op.cap)
                 self._finish(frame, op, op.engine, start, op.nbytes)
             frame += 1
@@ -459,7 +500,7 @@ class Engine:
             self._presented(frame, op)
         else:  # vsync: the frame is shown (and its present complete) at the next free refresh
             flip = self._next_vblank(end)
-            self.env.timeout(flip - end).callbacks.append(lambda _e: self._presented(frame, op))
+            self.env.timeout(flip - end).callbacks.append(_Presented(self, frame, op))
 
     def _presented(self, frame: int, op: _Op) -> None:
         self.present_end[frame] = self.env.now
@@ -492,13 +533,13 @@ class Engine:
     def _start_part(self, tid: int, part: tuple) -> None:
         start = self.env.now
         if part[1].duration:
-            self.env.timeout(part[1].duration).callbacks.append(lambda _e: self._part_copy(tid, part, start))
+            self.env.timeout(part[1].duration).callbacks.append(_PartStep((self, "copy", tid, part, start)))
         else:
             self._part_copy(tid, part, start)
 
     def _part_copy(self, tid: int, part: tuple, start: int) -> None:
         ev = self._part_event(part[2])
-        ev.callbacks.append(lambda _e: self._part_done(tid, part, start))
+        ev.callbacks.append(_PartStep((self, "done", tid, part, start)))
 
     def _part_done(self, tid: int, part: tuple, start: int) -> None:
         frame, op, size, state = part
@@ -514,6 +555,71 @@ class Engine:
                               self.env.now, size, op.waits_for))
         if state[0] == 0:
             self._complete(frame, op.task)
+
+    # ----- state (for the fast-forward) ------------------------------------------------------
+    @property
+    def skipped_frames(self) -> dict[str, list[int]]:
+        """Frames in which each skippable task was skipped, so far."""
+        return self._chains.skipped_frames
+
+    def cheap_state(self) -> tuple:
+        """A part of the state that is quick to take: how many instances wait on what."""
+        return (len(self._pending), len(self._ready), len(self._cross_done), len(self._skip))
+
+    def named_events(self, rel: Relative) -> list[tuple[tuple, simpy.Event]]:
+        """The events the engine and its channels hold and will trigger, each with a name that
+        says what it stands for: a transfer's end, an instance's dependencies met, a host
+        thread's turn at the interpreter."""
+        out: list[tuple[tuple, simpy.Event]] = []
+        for name, ch in self.channels.items():
+            out.extend((("flow", name, j), ev) for j, ev in enumerate(ch.flow_events()))
+        out.extend((("wait", rel.key(k)), ev) for k, ev in self._waiters.items())
+        out.extend((("interpreter turn", i), ev) for i, ev in enumerate(self._interp_waiting))
+        return out
+
+    def state(self, rel: Relative) -> tuple:
+        """Everything that decides the engine's future besides its pending events (which the
+        environment lists): where every stream stands, the instances waiting on inputs, ready
+        or to be skipped, the host threads, the effects' state and every channel's flows."""
+        host_threads = ((tuple(self._free_threads), tuple(rel.part(p) for p in self._part_queue))
+                        if hasattr(self, "_free_threads") else ())
+        return (
+            tuple(self._stream_state(st, proc, rel) for st, proc in zip(self.streams, self.processes)),
+            tuple(sorted((rel.key(k), v) for k, v in self._pending.items())),
+            tuple(sorted(rel.key(k) for k in self._ready)),
+            tuple(sorted((rel.key(k), rel.t(v)) for k, v in self._cross_done.items())),
+            tuple(sorted(rel.key(k) for k in self._skip)),
+            self._chains.state(rel.key),
+            host_threads,
+            (self._interp_busy, len(self._interp_waiting)),
+            self._busy_wake.state(self.env.now) if self._busy_wake is not None else None,
+            tuple(ch.state(rel) for ch in self.channels.values()),
+        )
+
+    def _stream_state(self, st: _Stream, proc: simpy.Process, rel: Relative) -> tuple:
+        """Where a stream waits, on what, at which frame and task, and the values it still uses
+        from there (see `_Stream`)."""
+        if not proc.is_alive:
+            return ("finished",)
+        out: tuple = (st.at, rel.event(proc.target), rel.f(st.frame), rel.op(st.op))
+        if st.at in (TURN, DISPATCH):
+            out += (st.wait,)
+        elif st.at in (RUN, TRANSFER):
+            out += (rel.t(st.start),)
+        if not st.host:
+            out += (self._submit_clock(st.submitted, rel),)
+        return out
+
+    def _submit_clock(self, value: int, rel: Relative) -> int | None:
+        """A queue's submit-thread clock. Without a submit cost it only ever matters through
+        max(clock, input end + dispatch), with every such input end at least the earliest one
+        still pending (or now): all clocks below that bound are the same state."""
+        if not self._host_timeline:
+            return None
+        if self._submit_ns == 0:
+            floor = min([self.env.now] + [d + self._dispatch_ns for d in self._cross_done.values()])
+            value = max(value, floor)
+        return rel.t(value)
 
     # ----- run ---------------------------------------------------------------------------
     def all_ops(self) -> list[list[_Op]]:
@@ -565,3 +671,36 @@ class Engine:
         return (f"schedule {self.program.schedule!r} cannot finish: {self._unfinished} task(s) never "
                 f"ran; blocked waiting on dependencies: {names or 'none (a queue is stuck)'}")
 
+
+class _Presented(Callback):
+    """Vsync: the frame is shown at its refresh, and its present completes."""
+
+    __slots__ = ("engine", "frame", "op")
+
+    def __init__(self, engine: Engine, frame: int, op: _Op):
+        self.engine, self.frame, self.op = engine, frame, op
+
+    def __call__(self, _event: simpy.Event) -> None:
+        self.engine._presented(self.frame, self.op)
+
+    def state(self, rel: Relative) -> tuple:
+        return ("presented", rel.f(self.frame), rel.op(self.op))
+
+
+class _PartStep(Callback, tuple):
+    """(engine, step, memcpy thread, part, start): a host copy's part has spent its fixed cost
+    and starts copying (`copy`), or its bytes have crossed (`done`). A tuple: made at C speed,
+    two for every part."""
+
+    __slots__ = ()
+
+    def __call__(self, _event: simpy.Event) -> None:
+        engine, step, tid, part, start = self
+        if step == "copy":
+            engine._part_copy(tid, part, start)
+        else:
+            engine._part_done(tid, part, start)
+
+    def state(self, rel: Relative) -> tuple:
+        _engine, step, tid, part, start = self
+        return ("part " + step, tid, rel.part(part), rel.t(start))

@@ -17,8 +17,13 @@ so the shortened run passes through the same states. The full run's logs (trace 
 intervals, skipped frames) are the shortened run's, with the block inserted k more times, each
 shifted by P frames and T ns, and what follows shifted by k blocks (:class:`Repeat`).
 
-Anything in the state that this module cannot describe exactly (an event or a local it does not
-know) stops the fast-forward for that run, and the summary says why; it never guesses.
+The state is what the model's parts expose (:mod:`.state`): the engine's `state()` (its
+streams' positions, the instances waiting, the host threads, the effects and every channel's
+`state()`), and the pending events the environment keeps, each described by its callbacks
+(a stream resuming, or a model :class:`~.state.Callback` saying what it will do). Nothing is
+read from generator frames or SimPy's private attributes. Anything that cannot be described
+exactly (an event or a callback the model does not know) stops the fast-forward for that run,
+and the summary says why; it never guesses.
 """
 from __future__ import annotations
 
@@ -27,18 +32,14 @@ from typing import TYPE_CHECKING, Any
 
 import simpy
 
-from mgpusim.sim.channel import Channel, FixedRateChannel
 from mgpusim.sim.executors import Dedicated, SharedCores, SharedGpu
+from mgpusim.sim.state import Callback, Relative, Unsupported
 
 if TYPE_CHECKING:
     from mgpusim.sim.engine import Engine
 
 #: Stop looking for a repeat after this many frames (the run then simply continues).
 PROBE_FRAMES = 4000
-
-
-class Unsupported(Exception):
-    """A part of the state this module cannot describe exactly."""
 
 
 @dataclass
@@ -97,9 +98,10 @@ class FastForward:
         if frame >= self.probe_frames:
             self._give_up(f"no repeat within the first {self.probe_frames} frames")
             return
-        self.engine.env.timeout(0).callbacks.append(lambda _e: self._probe(frame))
+        self.engine.env.timeout(0).callbacks.append(_Probe(self, frame))
 
-    def _probe(self, frame: int) -> None:
+    def look(self, frame: int) -> None:
+        """Write the state down after frame `frame` presented; shorten the run at a repeat."""
         if not self.active:
             return
         key = self._cheap_key(frame)
@@ -122,15 +124,24 @@ class FastForward:
         if held is None:  # a channel's busy log does not repeat yet: keep looking
             self.seen[sig] = (frame, now, marks)
             return
+        self._stop()
+        self._shorten(earlier, (frame, now, marks), describer.max_frame, held)
+
+    def _stop(self) -> None:
+        """Look no more: forget the states seen; the environment keeps no more events."""
         self.active = False
         self.seen.clear()
         self.cheap.clear()
-        self._shorten(earlier, (frame, now, marks), describer.max_frame, held)
+        self.engine.env.stop_tracking()
+
+    def describe(self, frame: int) -> tuple:
+        """The model's whole state now, relative to now and to frame `frame`: what the states
+        after two presents are compared by."""
+        return _Describer(self.engine, frame, self._opid, self._proc_index).signature()
 
     def _give_up(self, reason: str) -> None:
-        self.active, self.reason = False, reason
-        self.seen.clear()
-        self.cheap.clear()
+        self._stop()
+        self.reason = reason
         if not self.keep_rows:  # memory stays flat for the rest of a long run
             self.engine.record = False
             self.engine.rows.clear()
@@ -140,13 +151,13 @@ class FastForward:
         many instances wait on what. Equal full states have equal cheap keys (when the same
         number of probes is pending, as in a periodic run)."""
         e, now = self.engine, self.engine.env.now
-        times = tuple(sorted(t - now for t, _p, _i, ev in e.env._queue))
-        return (frame % e.period, times, len(e._pending), len(e._ready), len(e._cross_done), len(e._skip))
+        times = tuple(sorted(t - now for t, _p, _ev in e.env.pending()))
+        return (frame % e.period, times, *e.cheap_state())
 
     def _marks(self) -> tuple:
         e = self.engine
         return (len(e.rows), {n: len(c.busy) for n, c in e.channels.items()},
-                {n: len(f) for n, f in e._chains.skipped_frames.items()}, _open_since(e))
+                {n: len(f) for n, f in e.skipped_frames.items()}, _open_since(e))
 
     def _shorten(self, first: tuple, second: tuple, max_frame: int, held: dict[str, int]) -> None:
         (f1, t1, m1), (f2, t2, m2) = first, second
@@ -174,8 +185,10 @@ def run(engine: Engine, enabled: bool = True, record_trace: bool = True) -> Any:
     """Run `engine` (built with record_trace=True when `enabled`), fast-forwarding if its state
     repeats; the RawResult carries the repeat and what the fast-forward did."""
     ff = FastForward(engine, keep_rows=record_trace) if enabled else None
-    if ff is not None:
+    if ff is not None and ff.active:
         engine.on_present = ff.on_present
+    else:
+        engine.env.stop_tracking()
     raw = engine.run()
     raw.recorded = record_trace
     if not record_trace and (ff is None or ff.repeat is None):
@@ -190,12 +203,7 @@ def run(engine: Engine, enabled: bool = True, record_trace: bool = True) -> Any:
 
 def _open_since(engine: Engine) -> dict[str, int]:
     """When each busy channel's current busy interval began."""
-    out = {}
-    for name, ch in engine.channels.items():
-        busy = ch.active if isinstance(ch, FixedRateChannel) else ch.flows
-        if busy:
-            out[name] = ch._busy_since
-    return out
+    return {name: ch.open_since for name, ch in engine.channels.items() if ch.open_since is not None}
 
 
 def _held_open(first: tuple, second: tuple) -> dict[str, int] | None:
@@ -213,10 +221,25 @@ def _held_open(first: tuple, second: tuple) -> dict[str, int] | None:
     return held
 
 
-class _Describer:
-    """The engine's state at one moment, as a hashable value relative to now and a frame."""
+class _Probe(Callback):
+    """The fast-forward's look at the state after a present (not part of the model's state)."""
 
-    _CONSTANT_LOCALS = frozenset({"self", "plan", "host", "env", "period", "skip", "ready"})
+    __slots__ = ("ff", "frame")
+
+    def __init__(self, ff: FastForward, frame: int):
+        self.ff, self.frame = ff, frame
+
+    def __call__(self, _event: simpy.Event) -> None:
+        self.ff.look(self.frame)
+
+
+def _is_probe(event: simpy.Event) -> bool:
+    return any(isinstance(cb, _Probe) for cb in event.callbacks or ())
+
+
+class _Describer(Relative):
+    """The engine's state at one moment, as a hashable value relative to now and a frame: the
+    :class:`~.state.Relative` the model's parts describe themselves with."""
 
     def __init__(self, engine: Engine, frame: int, opid: dict, proc_index: dict):
         self.e, self.now, self.frame = engine, engine.env.now, frame
@@ -237,166 +260,49 @@ class _Describer:
     def key(self, key: tuple[int, str]) -> tuple[int, str]:
         return (self.f(key[0]), key[1])
 
-    # ----- the whole state ---------------------------------------------------------------
-    def signature(self) -> tuple:
-        e = self.e
-        queue = [entry for entry in sorted(e.env._queue, key=lambda q: q[:3]) if not self._is_probe(entry[3])]
-        self._name_events(queue)
-        return (
-            tuple(self._entry(i, entry) for i, entry in enumerate(queue)),
-            tuple(self._process(p) for p in e.processes),
-            tuple(sorted((self.key(k), v) for k, v in e._pending.items())),
-            tuple(sorted(self.key(k) for k in e._ready)),
-            tuple(sorted((self.key(k), self.t(v)) for k, v in e._cross_done.items())),
-            tuple(sorted(self.key(k) for k in e._skip)),
-            self._chains(),
-            self._host_threads(),
-            (e._interp_busy, len(e._interp_waiting)),
-            e._busy_wake.state(self.now) if e._busy_wake is not None else None,
-            tuple(self._channel(name, ch) for name, ch in e.channels.items()),
-        )
+    def op(self, op: Any) -> tuple[int, int]:
+        return self.opid[id(op)]
 
-    def _is_probe(self, event: simpy.Event) -> bool:
-        cbs = event.callbacks or ()
-        return any(getattr(cb, "__code__", None) is not None and cb.__code__.co_qualname.startswith(
-            "FastForward.on_present") for cb in cbs)
+    def part(self, part: tuple) -> tuple:
+        frame, op, size, state = part
+        index = self.objs.setdefault(id(state), len(self.objs))
+        return ("part", self.f(frame), self.opid[id(op)], size, index, state[0])
 
-    def _name_events(self, queue: list) -> None:
-        for i, (_t, _p, _eid, event) in enumerate(queue):
-            self.ident[id(event)] = ("q", i)
-            for cb in event.callbacks or ():
-                done = _closure(cb).get("done")
-                if isinstance(done, simpy.Event):
-                    self.ident.setdefault(id(done), ("fixed", i))
-        for name, ch in self.e.channels.items():
-            if isinstance(ch, Channel):
-                for j, flow in enumerate(ch.flows):
-                    self.ident.setdefault(id(flow.done), ("flow", name, j))
-        for key, ev in self.e._waiters.items():
-            self.ident.setdefault(id(ev), ("wait", self.key(key)))
-        for i, ev in enumerate(self.e._interp_waiting):
-            self.ident.setdefault(id(ev), ("interpreter turn", i))
-
-    def _event(self, ev: Any) -> Any:
+    def event(self, ev: Any) -> Any:
         if ev is None:
             return None
         tag = self.ident.get(id(ev))
         if tag is not None:
             return tag
-        if isinstance(ev, simpy.Event) and ev.callbacks is None:
+        if isinstance(ev, simpy.Event) and ev.processed:
             return ("processed",)
         raise Unsupported(f"an event the engine does not track: {ev!r}")
 
-    def _entry(self, i: int, entry: tuple) -> tuple:
-        time, priority, _eid, event = entry
+    # ----- the whole state ---------------------------------------------------------------
+    def signature(self) -> tuple:
+        queue = [(t, p, ev) for t, p, ev in self.e.env.pending() if not _is_probe(ev)]
+        self._name_events(queue)
+        return (tuple(self._entry(t, p, ev) for t, p, ev in queue), self.e.state(self))
+
+    def _name_events(self, queue: list) -> None:
+        for i, (_t, _p, event) in enumerate(queue):
+            self.ident[id(event)] = ("q", i)
+            for cb in event.callbacks or ():
+                done = cb.done if isinstance(cb, Callback) else None
+                if done is not None:
+                    self.ident.setdefault(id(done), ("fixed", i))
+        for name, ev in self.e.named_events(self):
+            self.ident.setdefault(id(ev), name)
+
+    def _entry(self, time: int, priority: int, event: simpy.Event) -> tuple:
         if isinstance(event, simpy.Process):
             return ("process-end", self.proc_index[id(event)])
         return (self.t(time), int(priority), tuple(self._callback(cb) for cb in event.callbacks or ()))
 
     def _callback(self, cb: Any) -> tuple:
+        if isinstance(cb, Callback):
+            return cb.state(self)
         owner = getattr(cb, "__self__", None)
-        if owner is not None:
-            name = cb.__func__.__name__
-            if isinstance(owner, simpy.Process):
-                return ("resume", self.proc_index[id(owner)])
-            if isinstance(owner, (Channel, FixedRateChannel)):
-                return ("channel", owner.name, name)
-            raise Unsupported(f"a callback {cb!r}")
-        code = getattr(cb, "__code__", None)
-        if code is None:
-            raise Unsupported(f"a callback {cb!r}")
-        cells = _closure(cb)
-        return (code.co_qualname, code.co_firstlineno,
-                tuple(self._cell(name, value, cells) for name, value in sorted(cells.items())))
-
-    def _cell(self, name: str, value: Any, cells: dict) -> Any:
-        if name == "self":
-            return getattr(value, "name", type(value).__name__)
-        if name == "gen":
-            return value == cells["self"]._gen  # only whether the wake-up is stale matters
-        if name == "start":
-            return self.t(value)
-        if name == "tid":
-            return value
-        if name == "part":
-            return self._part(value)
-        if name == "done":
-            return self._event(value)
-        raise Unsupported(f"a callback that holds {name!r}")
-
-    def _part(self, part: tuple) -> tuple:
-        frame, op, size, state = part
-        index = self.objs.setdefault(id(state), len(self.objs))
-        return ("part", self.f(frame), self.opid[id(op)], size, index, state[0])
-
-    def _process(self, proc: simpy.Process) -> tuple:
-        gen = proc._generator
-        frame = gen.gi_frame
-        if frame is None:
-            return ("finished",)
-        out = [frame.f_lasti, self._event(proc._target)]
-        is_host = frame.f_locals.get("host", False)
-        for name, value in sorted(frame.f_locals.items()):
-            if name in self._CONSTANT_LOCALS or (is_host and name == "submitted"):
-                continue  # the host-copy stream keeps no submit clock
-            out.append((name, self._local(name, value)))
-        return tuple(out)
-
-    def _local(self, name: str, value: Any) -> Any:
-        if name == "frame":
-            return self.f(value)
-        if name in ("start",):
-            return self.t(value)
-        if name == "submitted":
-            return self._submitted(value)
-        if name == "op":
-            return self.opid[id(value)]
-        if name == "key":
-            return self.key(value)
-        if name in ("ev", "turn"):
-            return self._event(value)
-        if name == "wait":
-            return value
-        raise Unsupported(f"a queue process local {name!r}")
-
-    def _submitted(self, value: int) -> int | None:
-        """A queue's submit-thread clock. Without a submit cost it only ever matters through
-        max(clock, input end + dispatch), with every such input end at least the earliest one
-        still pending (or now): all clocks below that bound are the same state."""
-        e = self.e
-        if not e._host_timeline:
-            return None
-        if e._submit_ns == 0:
-            floor = min([self.now] + [d + e._dispatch_ns for d in e._cross_done.values()])
-            value = max(value, floor)
-        return self.t(value)
-
-    def _chains(self) -> tuple:
-        c = self.e._chains
-        return (tuple(sorted((n, v) for n, v in c._inflight.items() if v)),
-                tuple(sorted((self.key(k), v) for k, v in c._skipped_keys.items())))
-
-    def _host_threads(self) -> tuple:
-        e = self.e
-        if not hasattr(e, "_free_threads"):
-            return ()
-        return (tuple(e._free_threads), tuple(self._part(p) for p in e._part_queue))
-
-    def _channel(self, name: str, ch: Any) -> tuple:
-        # (when the channel's current busy interval began only goes to its log: see _open_since)
-        if isinstance(ch, FixedRateChannel):
-            return (name, ch.active)
-        if not isinstance(ch, Channel):
-            raise Unsupported(f"channel {name!r} of type {type(ch).__name__}")
-        fluid = any(not f.solo_rate for f in ch.flows)
-        flows = tuple((f.remaining, f.cap, f.cap_s, f.rate, self.t(f.start), f.nbytes, f.solo_rate,
-                       self._event(f.done), f.tag) for f in ch.flows)
-        return (name, flows, self.t(ch._t) if fluid else None, ch._settle_pending,
-                ch._crowd, ch._denoms, ch._scale)
-
-
-def _closure(cb: Any) -> dict[str, Any]:
-    code = getattr(cb, "__code__", None)
-    if code is None or not cb.__closure__:
-        return {}
-    return {name: cell.cell_contents for name, cell in zip(code.co_freevars, cb.__closure__)}
+        if isinstance(owner, simpy.Process):  # a stream resuming
+            return ("resume", self.proc_index[id(owner)])
+        raise Unsupported(f"a callback {cb!r}")

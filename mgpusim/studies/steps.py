@@ -183,14 +183,15 @@ def _stats_line(st: dict[str, Any]) -> str:
 
 
 def markdown_table(table: pd.DataFrame) -> str:
-    head = ("| config | measured frame (ms) | simulated | error | spread | measured latency (ms) | "
-            "simulated | error | step most off (simulated - measured) | hand-off most off (measured - "
-            "simulated) |")
-    rows = [head, "|---|---|---|---|---|---|---|---|---|---|"]
+    head = ("| config | measured frame (ms) | simulated | error | spread | stalls left out | "
+            "measured latency (ms) | simulated | error | step most off (simulated - measured) | "
+            "hand-off most off (measured - simulated) |")
+    rows = [head, "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in table.itertuples():
         spread = getattr(r, "run_to_run_spread", float("nan"))
+        stalls = getattr(r, "stalled_frames", 0)
         rows.append(f"| {r.config} | {r.measured_frame_ms:.2f} | {r.simulated_frame_ms:.2f} | "
-                    f"{r.frame_time_error:+.1%} | {spread:.0%} | {r.measured_latency_ms:.2f} | "
+                    f"{r.frame_time_error:+.1%} | {spread:.0%} | {stalls or ''} | {r.measured_latency_ms:.2f} | "
                     f"{r.simulated_latency_ms:.2f} | {r.latency_error:+.1%} | {_step_cell(r)} | "
                     f"{_wait_cell(r)} |")
     return "\n".join(rows)

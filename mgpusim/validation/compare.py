@@ -2,6 +2,11 @@
 
 Errors are relative and signed: simulated / measured - 1 (positive = the model is slow).
 Both sides go through the same summary code, on the same frames after warm-up.
+
+A stall cannot fool the comparison: a measured frame that took more than STALL_FACTOR times the
+run's median frame (a page fault storm, the machine taking its cores away) is listed in the
+report and left out of the measured frame time and latency, unless the model's own run has such
+frames too (then they belong to the schedule, and both sides keep them).
 """
 from __future__ import annotations
 
@@ -32,12 +37,46 @@ def steady_summary(trace: pd.DataFrame, warmup_frames: int,
     return summarize(frames_from_trace(trace, present_step), None, warmup_frames)
 
 
+#: A frame (period between presents) longer than this many times the run's median is a stall.
+STALL_FACTOR = 3.0
+
+
+def long_frames(frames: pd.DataFrame, warmup_frames: int) -> dict[int, float]:
+    """Steady frames whose period since the previous present is over STALL_FACTOR times the
+    median period: frame -> its period in ms."""
+    steady = frames[frames["frame"] >= warmup_frames]
+    periods = np.diff(steady["present_ns"].to_numpy(dtype=np.int64))
+    if len(periods) < 2:
+        return {}
+    limit = STALL_FACTOR * float(np.median(periods))
+    ids = steady["frame"].to_numpy()[1:]
+    return {int(f): float(p) / 1e6 for f, p in zip(ids, periods) if p > limit}
+
+
+def without_stalls(frames: pd.DataFrame, warmup_frames: int, stalls: dict[int, float]) -> dict[str, Any]:
+    """Frame time, latency and jitter over the steady frames, the stalled frames left out (their
+    periods and their latencies)."""
+    steady = frames[frames["frame"] >= warmup_frames]
+    periods = np.diff(steady["present_ns"].to_numpy(dtype=np.int64))
+    keep = ~np.isin(steady["frame"].to_numpy()[1:], list(stalls))
+    kept = periods[keep]
+    latency = steady.loc[~steady["frame"].isin(list(stalls)), "latency_ns"]
+    return {"frame_time_ms": float(kept.mean()) / 1e6, "latency_ms": float(latency.mean()) / 1e6,
+            "frame_time_jitter_ms": float(kept.std()) / 1e6}
+
+
 def compare(measured: pd.DataFrame, simulated: pd.DataFrame, warmup_frames: int,
             present_step: str = "present") -> dict[str, Any]:
     """Frame time, latency and per-step mean durations of two traces, with relative errors,
-    and each hand-off's mean wait from ready to start on both sides (:mod:`mgpusim.results.waits`)."""
-    m = steady_summary(measured, warmup_frames, present_step)
-    s = steady_summary(simulated, warmup_frames, present_step)
+    and each hand-off's mean wait from ready to start on both sides (:mod:`mgpusim.results.waits`).
+    `stalls`: the measured frames left out (see the module doc)."""
+    m_frames, s_frames = frames_from_trace(measured, present_step), frames_from_trace(simulated, present_step)
+    m, s = summarize(m_frames, None, warmup_frames), summarize(s_frames, None, warmup_frames)
+    stalls = long_frames(m_frames, warmup_frames)
+    if stalls and long_frames(s_frames, warmup_frames):
+        stalls = {}  # the schedule's own long frames: the model has them too
+    if stalls:
+        m = {**m, **without_stalls(m_frames, warmup_frames, stalls)}
     m_steps, s_steps = step_means_ns(measured, warmup_frames), step_means_ns(simulated, warmup_frames)
     steps = {k: {"measured_ms": m_steps[k] / 1e6, "simulated_ms": s_steps[k] / 1e6,
                  "error": rel_error(s_steps[k], m_steps[k])}
@@ -54,6 +93,7 @@ def compare(measured: pd.DataFrame, simulated: pd.DataFrame, warmup_frames: int,
         "steps_only_measured": sorted(set(m_steps) - set(s_steps)),
         "steps_only_simulated": sorted(set(s_steps) - set(m_steps)),
         "waits": compare_waits(measured, simulated, warmup_frames),
+        "stalls": {"factor": STALL_FACTOR, "frames": {str(f): p for f, p in stalls.items()}},
     }
 
 
@@ -63,7 +103,8 @@ def error_table(rows: list[dict[str, Any]]) -> pd.DataFrame:
         "config": r["config"], "measured_frame_ms": r["measured"]["frame_time_ms"],
         "simulated_frame_ms": r["simulated"]["frame_time_ms"], "frame_time_error": r["frame_time_error"],
         "measured_latency_ms": r["measured"]["latency_ms"], "simulated_latency_ms": r["simulated"]["latency_ms"],
-        "latency_error": r["latency_error"]} for r in rows])
+        "latency_error": r["latency_error"],
+        "stalled_frames": len(r.get("stalls", {}).get("frames", {}))} for r in rows])
     return table
 
 

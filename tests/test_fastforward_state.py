@@ -87,3 +87,11 @@ def test_the_fast_forward_reads_no_private_attribute_of_another_object():
                and not node.attr.startswith("__")
                and not (isinstance(node.value, ast.Name) and node.value.id == "self")]
     assert private == []
+
+
+def test_the_bench_long_run_script_runs_in_a_fresh_interpreter():
+    """`mgpusim bench`'s long run is a script string run in a child process: its imports are
+    checked only when it runs."""
+    from mgpusim.studies.model_speed import long_run
+    out = long_run(frames=200)
+    assert out["frames"] == 200 and out["fast_forward"]["used"] is True and out["rows"] > 0

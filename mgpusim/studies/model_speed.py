@@ -35,7 +35,7 @@ import json, resource, sys, tempfile, time
 from pathlib import Path
 t0 = time.perf_counter()
 from mgpusim.schedules.experiment import load_experiment
-from mgpusim.simulate import simulate
+from mgpusim.sim.simulation import simulate
 t1 = time.perf_counter()
 exp = load_experiment(sys.argv[1], {"schedule.frames": int(sys.argv[2])})
 result = simulate(exp, fidelity=sys.argv[3])

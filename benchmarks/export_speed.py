@@ -11,7 +11,8 @@ import time
 from pathlib import Path
 
 import mgpusim
-from mgpusim.io.output import TRACE_FRAMES, frame_window
+from mgpusim.io.defaults import TRACE_FRAMES
+from mgpusim.io.output import frame_window
 from mgpusim.io.perfetto import chrome_trace_json
 from mgpusim.io.plot import timeline_png
 

@@ -8,13 +8,33 @@ Python API::
     result.summary["frame_time_ms"], result.trace, result.frames
     table = mgpusim.sweep("experiments/sort_first_tc1.toml", {"schedule.gpus": [1, 2, 3]}, out="out/sweep")
 """
-from mgpusim.model.errors import InputError, MgpusimError, ScheduleError
-from mgpusim.model.profile import HardwareProfile, load_profile
-from mgpusim.results.summary import Result
-from mgpusim.schedules.experiment import Experiment, load_experiment
-from mgpusim.sim.simulation import simulate
-from mgpusim.studies.sweep_grid import sweep
+from __future__ import annotations
 
-__all__ = ["Experiment", "HardwareProfile", "InputError", "MgpusimError", "Result", "ScheduleError",
-           "load_experiment", "load_profile", "simulate", "sweep"]
+import importlib
+from typing import Any
+
+#: The public API, by the module that holds each name. Loaded on first use, so that a command
+#: (or `mgpusim --version`) pays only for what it imports.
+_API = {
+    "InputError": "mgpusim.model.errors", "MgpusimError": "mgpusim.model.errors",
+    "ScheduleError": "mgpusim.model.errors",
+    "HardwareProfile": "mgpusim.model.profile", "load_profile": "mgpusim.model.profile",
+    "Result": "mgpusim.results.summary",
+    "Experiment": "mgpusim.schedules.experiment", "load_experiment": "mgpusim.schedules.experiment",
+    "simulate": "mgpusim.sim.simulation",
+    "sweep": "mgpusim.studies.sweep_grid",
+}
+__all__ = sorted(_API)
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str) -> Any:
+    if name in _API:
+        value = getattr(importlib.import_module(_API[name]), name)
+        globals()[name] = value  # once loaded, a plain attribute
+        return value
+    raise AttributeError(f"module 'mgpusim' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_API])

@@ -193,3 +193,14 @@ def test_pip_install_in_a_fresh_venv_gives_a_working_mgpusim(tmp_path):
     assert devices.returncode == 2 and "pip install 'mgpusim[vulkan]'" in devices.stderr
     out = subprocess.run([str(bin_ / "python"), "-m", "mgpusim", "--help"], cwd=work, capture_output=True, text=True)
     assert out.returncode == 0 and "sweep" in out.stdout
+
+
+def test_help_and_version_load_no_pandas_matplotlib_or_simpy():
+    """Start-up: `import mgpusim` loads none of the model; every command's parser (what --help
+    and --version build) loads neither pandas nor matplotlib (the speed is a benchmark's: here,
+    what is loaded)."""
+    probe = ("import sys, mgpusim; bare = sorted(m for m in ('numpy', 'simpy', 'pandas') if m in sys.modules); "
+             "from mgpusim.cli import build_parser; build_parser(); "
+             "print(bare, sorted(m for m in ('pandas', 'matplotlib', 'scipy') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[] []"

@@ -7,16 +7,10 @@ import shlex
 import sys
 from pathlib import Path
 
-import tomli_w
-
-from mgpusim.calibration import apply, calibrate, lavapipe_base, read_measurements, report
-from mgpusim.calibration.profile_out import fit_details
 from mgpusim.io.outpath import check_out_file
-from mgpusim.io.output import write_json
 from mgpusim.model.config import read_toml
 from mgpusim.model.errors import InputError
 from mgpusim.model.limits import MAX_GPUS
-from mgpusim.model.profile import parse_profile
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -30,6 +24,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import tomli_w  # noqa: PLC0415
+
+    from mgpusim.calibration import (apply, calibrate, lavapipe_base,  # noqa: PLC0415
+                                     read_measurements, report)
+    from mgpusim.calibration.profile_out import fit_details  # noqa: PLC0415
+    from mgpusim.io.output import write_json  # noqa: PLC0415
     check_out_file(args.out)
     if not 1 <= args.gpus <= MAX_GPUS:
         raise InputError(f"must be in 1..{MAX_GPUS}, got {args.gpus}", field="--gpus")
@@ -53,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _read_base(path: Path) -> dict:
     """The --base profile, validated first so that a bad one names its own file."""
+    from mgpusim.model.profile import parse_profile  # noqa: PLC0415
     base = read_toml(path)
     parse_profile(copy.deepcopy(base), str(path))
     return base

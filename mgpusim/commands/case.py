@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from mgpusim.io.outpath import check_out_dir
-from mgpusim.io.output import write_table, write_text
-from mgpusim.io.plot import last_frames, timeline_png
 from mgpusim.model.errors import InputError
-from mgpusim.studies.cases import CaseResult, case_names, load_case, markdown, run_case, table
+
+if TYPE_CHECKING:  # annotations only: loaded when the command runs
+    from mgpusim.studies.cases import CaseResult
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,6 +29,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mgpusim.io.output import write_table, write_text  # noqa: PLC0415
+    from mgpusim.studies.cases import (case_names, load_case, markdown, run_case,  # noqa: PLC0415
+                                       table)
     if args.list:
         for name in case_names():
             case = load_case(name)
@@ -52,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
 
 def write_timelines(result: CaseResult, folder: Path, prefix: str) -> list[Path]:
     """A timeline picture of the last frames of every run the case names: `<prefix><run>.png`."""
+    from mgpusim.io.plot import last_frames, timeline_png  # noqa: PLC0415
     case, files = result.case, []
     for name in case.timelines:
         res, run_ = result.results[name], case.run(name)

@@ -4,15 +4,13 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-
-import pandas as pd
+from typing import TYPE_CHECKING
 
 from mgpusim.io.outpath import check_out_dir
-from mgpusim.io.output import write_table
 from mgpusim.model.errors import InputError
-from mgpusim.studies.accuracy_cost import (committed_sources, configurations, deviations,
-                                           deviations_markdown, markdown, run_levels,
-                                           summarize_deviations, summarize_levels)
+
+if TYPE_CHECKING:  # annotations only: loaded when the command runs
+    import pandas as pd
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 
@@ -30,6 +28,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mgpusim.io.output import write_table  # noqa: PLC0415
+    from mgpusim.studies.accuracy_cost import (committed_sources, configurations,  # noqa: PLC0415
+                                               deviations, deviations_markdown, markdown,
+                                               run_levels, summarize_deviations, summarize_levels)
     if args.docs and not (DOCS / "fidelity.md").is_file():
         raise InputError(f"needs a checkout with {DOCS / 'fidelity.md'}", field="--docs")
     sources = committed_sources(args.data)

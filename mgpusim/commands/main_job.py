@@ -10,9 +10,6 @@ from pathlib import Path
 from mgpusim.commands.study import add_steady_check, progress_printer, steady_check
 from mgpusim.io.outpath import check_out_dir
 from mgpusim.io.shipped import shipped_dir
-from mgpusim.studies import speed_probe as speed
-from mgpusim.studies import steps as pipeline
-from mgpusim.studies.spec import load_study
 
 #: The lavapipe study, shipped beside the package's experiments.
 LAVAPIPE_STUDY = shipped_dir("experiments") / "lavapipe" / "study.toml"
@@ -33,6 +30,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mgpusim.studies import speed_probe as speed  # noqa: PLC0415
+    from mgpusim.studies import steps as pipeline  # noqa: PLC0415
+    from mgpusim.studies.spec import load_study  # noqa: PLC0415
     check_out_dir(args.out)
     study = load_study(args.study)
     runs = study.runs

@@ -11,7 +11,6 @@ import sys
 from pathlib import Path
 
 from mgpusim.io.outpath import check_out_file
-from mgpusim.io.output import write_json
 from mgpusim.model.config import int_list
 from mgpusim.model.errors import InputError
 
@@ -40,6 +39,7 @@ def _overlap_table(df) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mgpusim.io.output import write_json  # noqa: PLC0415
     if args.list:
         return _list()
     if not args.pass_name or not args.out:

@@ -4,16 +4,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from mgpusim.io.defaults import TRACE_FRAMES
 from mgpusim.io.outpath import check_out_dir
-from mgpusim.io.output import TRACE_FRAMES, write_result
 from mgpusim.io.shipped import resolve_experiment
 from mgpusim.model.errors import InputError
-from mgpusim.schedules.experiment import load_experiment, parse_overrides
-from mgpusim.sim.effects import EFFECTS, FIDELITIES, parse_effects
-from mgpusim.sim.simulation import simulate
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from mgpusim.sim.effects import EFFECTS, FIDELITIES  # noqa: PLC0415
     p = sub.add_parser("simulate", help="run an experiment in the model and write its results")
     p.add_argument("experiment", help="experiment TOML file, or a shipped name (`mgpusim examples`)")
     p.add_argument("--set", dest="overrides", action="append", metavar="KEY=VALUE",
@@ -43,6 +41,10 @@ def parse_frames(text: str) -> range:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mgpusim.io.output import write_result  # noqa: PLC0415
+    from mgpusim.schedules.experiment import load_experiment, parse_overrides  # noqa: PLC0415
+    from mgpusim.sim.effects import parse_effects  # noqa: PLC0415
+    from mgpusim.sim.simulation import simulate  # noqa: PLC0415
     frames = parse_frames(args.frames) if args.frames else None
     if args.trace_frames < 0:
         raise InputError(f"must be >= 0, got {args.trace_frames}", field="--trace-frames")

@@ -12,18 +12,15 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import Callable
-
-import pandas as pd
+from typing import TYPE_CHECKING, Callable
 
 from mgpusim.io.outpath import check_out_dir
 from mgpusim.io.shipped import resolve_experiment
 from mgpusim.model.config import int_list
 from mgpusim.model.errors import InputError
-from mgpusim.studies import speed_probe as speed
-from mgpusim.studies import steps as pipeline
-from mgpusim.studies.measuring import measure_microbenchmarks, measure_runs
-from mgpusim.studies.spec import Study, load_study
+
+if TYPE_CHECKING:  # annotations only: loaded when the command runs
+    from mgpusim.studies.spec import Study
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -66,6 +63,7 @@ def steady_check(args: argparse.Namespace, study: Study, out: Path,
     """With --steady-check: the probes before any other work (with --wait-steady, tried until
     they agree); on a steady machine they open the job's probe table (out/measurements), on a
     drifting one nothing is written."""
+    from mgpusim.studies import speed_probe as speed  # noqa: PLC0415
     if args.steady_check is None:
         if args.wait_steady is not None:
             raise InputError("--wait-steady waits for --steady-check to pass; give both",
@@ -104,6 +102,8 @@ def _filtered(study: Study, args: argparse.Namespace) -> Study:
 
 
 def measure(args: argparse.Namespace) -> int:
+    from mgpusim.studies.measuring import measure_microbenchmarks, measure_runs  # noqa: PLC0415
+    from mgpusim.studies.spec import load_study  # noqa: PLC0415
     study = _filtered(load_study(resolve_experiment(args.study)), args)
     out, progress = _out(args, study), progress_printer()
     steady_check(args, study, out, progress)
@@ -116,6 +116,8 @@ def measure(args: argparse.Namespace) -> int:
 
 
 def calibrate(args: argparse.Namespace) -> int:
+    from mgpusim.studies import steps as pipeline  # noqa: PLC0415
+    from mgpusim.studies.spec import load_study  # noqa: PLC0415
     study = load_study(resolve_experiment(args.study))
     out = _out(args, study)
     profile, text = pipeline.calibrate(study, out, progress_printer(), runs_dir=args.runs)
@@ -125,6 +127,10 @@ def calibrate(args: argparse.Namespace) -> int:
 
 
 def validate(args: argparse.Namespace) -> int:
+    import pandas as pd  # noqa: PLC0415
+
+    from mgpusim.studies import steps as pipeline  # noqa: PLC0415
+    from mgpusim.studies.spec import load_study  # noqa: PLC0415
     study = load_study(resolve_experiment(args.study))
     out, progress = _out(args, study), progress_printer()
     profile = args.profile or study.profile
@@ -147,6 +153,8 @@ def validate(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mgpusim.studies import steps as pipeline  # noqa: PLC0415
+    from mgpusim.studies.spec import load_study  # noqa: PLC0415
     study = _filtered(load_study(resolve_experiment(args.study)), args)
     out, progress = _out(args, study), progress_printer()
     steady_check(args, study, out, progress)

@@ -10,8 +10,6 @@ import argparse
 from pathlib import Path
 
 from mgpusim.io.shipped import resolve_experiment
-from mgpusim.schedules.experiment import parse_overrides
-from mgpusim.studies.sweep_grid import parse_grid, sweep
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -38,6 +36,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mgpusim.schedules.experiment import parse_overrides  # noqa: PLC0415
+    from mgpusim.studies.sweep_grid import parse_grid, sweep  # noqa: PLC0415
     path = resolve_experiment(args.experiment)
     grid = parse_grid(args.grid)
     out = args.out or Path("out") / f"{path.stem}-sweep"

@@ -13,8 +13,6 @@ from pathlib import Path
 from mgpusim.io.outpath import check_out_dir
 from mgpusim.io.shipped import resolve_experiment
 from mgpusim.model.errors import InputError
-from mgpusim.schedules.experiment import load_experiment, parse_overrides
-from mgpusim.validation.crossvalidate import format_report, validate_experiment
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -35,6 +33,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mgpusim.schedules.experiment import load_experiment, parse_overrides  # noqa: PLC0415
+    from mgpusim.validation.crossvalidate import format_report, validate_experiment  # noqa: PLC0415
     exp = load_experiment(resolve_experiment(args.experiment), parse_overrides(args.overrides),
                           profile=args.profile)
     out = args.out or Path("out") / f"{exp.name}-validate"

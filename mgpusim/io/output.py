@@ -8,6 +8,7 @@ from typing import Any
 
 import pandas as pd
 
+from mgpusim.io.defaults import TRACE_FRAMES
 from mgpusim.io.perfetto import chrome_trace_json
 from mgpusim.io.plot import timeline_png
 from mgpusim.results.summary import Result
@@ -15,7 +16,6 @@ from mgpusim.results.trace import make_trace
 
 #: Frames the Perfetto trace covers by default (the last ones): enough to see steady state,
 #: small enough that the UI opens it at once whatever the run's length.
-TRACE_FRAMES = 300
 
 
 def write_table(df: pd.DataFrame, path: Path) -> Path:

@@ -68,7 +68,31 @@ def _unavailable(sub: argparse._SubParsersAction, name: str, why: str, message: 
     p.set_defaults(func=fail)
 
 
+#: Options whose value may start with "-" (`--effects -task_gaps`): argparse would read such a
+#: value as another option, so it is joined to its option first (`--effects=-task_gaps`).
+SIGNED_VALUE_OPTIONS = ("--effects",)
+
+
+def join_signed_values(argv: list[str]) -> list[str]:
+    """`--effects -x` as `--effects=-x`; everything else as given."""
+    out: list[str] = []
+    args = iter(argv)
+    for arg in args:
+        if arg in SIGNED_VALUE_OPTIONS:
+            value = next(args, None)
+            if value is not None and value[:1] in "+-" and not value.startswith("--"):
+                out.append(f"{arg}={value}")
+                continue
+            out.append(arg)
+            if value is not None:
+                out.append(value)
+            continue
+        out.append(arg)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = join_signed_values(sys.argv[1:] if argv is None else list(argv))
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)

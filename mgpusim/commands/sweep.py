@@ -7,6 +7,7 @@ run again after an interruption (even SIGKILL) only runs the points still missin
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from mgpusim.io.shipped import resolve_experiment
@@ -53,4 +54,8 @@ def run(args: argparse.Namespace) -> int:
     for _, row in failed.head(5).iterrows():
         print("  failed " + ", ".join(f"{k}={row[k]}" for k in grid) + f": {row['error']}")
     print(f"  wrote {out / 'sweep.parquet'}, {out / 'sweep.png'}, {out / 'sweep.json'}")
+    if len(failed) == len(df):
+        print(f"mgpusim sweep: error: every point failed (the first: {failed['error'].iloc[0]})",
+              file=sys.stderr)
+        return 1
     return 0

@@ -73,9 +73,11 @@ class Scene:
 
 
 def parse_scene(t: Table, pass_params: Mapping[str, tuple[str, ...]],
-                common_params: tuple[str, ...] = ()) -> Scene:
+                common_params: tuple[str, ...] = (),
+                required: Mapping[str, tuple[str, ...]] | None = None) -> Scene:
     """The [scene] table; `pass_params` maps each pass kind to the parameters it reads (a
-    parameter it does not read is a typo: refused with the closest name)."""
+    parameter it does not read is a typo: refused with the closest name), `required` to those
+    it must be given."""
     passes = []
     names: set[str] = set()
     for pt in t.tables("passes"):
@@ -91,6 +93,10 @@ def parse_scene(t: Table, pass_params: Mapping[str, tuple[str, ...]],
                 raise pt.error(key, f"unknown parameter of a {kind} pass{did_you_mean(key, known)} "
                                     f"(it takes {', '.join(known)})")
             params[key] = pt.get(key, float, minimum=0, maximum=L.MAX_WORK, why=L.WHY_WORK)
+        missing = [key for key in (required or {}).get(kind, ()) if key not in params]
+        if missing:
+            raise pt.error(missing[0], f"missing: a {kind} pass needs {' and '.join(missing)} "
+                                       f"(its work is 0 without)")
         pt.finish()
         passes.append(PassSpec(name, kind, MappingProxyType(params)))
     sections = _sections(t) if t.has("sections") else ()

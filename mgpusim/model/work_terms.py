@@ -46,6 +46,17 @@ PASS_PARAMS: dict[str, tuple[str, ...]] = {
 }
 COMMON_PARAMS = ("output_bytes",)
 
+#: The parameters a scene's pass of each kind must give: without them its work would silently be
+#: 0 (a mesh with no triangles). The schedules' own passes (composites, present) set theirs.
+REQUIRED_PARAMS: dict[str, tuple[str, ...]] = {
+    "fragment_loop": ("iterations",),
+    "mesh": ("triangles",),
+    "filter": ("iterations",),
+    "particle_update": ("particles",),
+    "particle_render": ("particles",),
+    "timed": ("duration_ms",),
+}
+
 #: Terms a pass kind adds where the schedule says where the pass draws (a :class:`Placement`):
 #: a mesh's triangles that reach the view (setup, binning), the sum of their linear sizes in
 #: pixels (blocks their edges cross) and the fragments they cover (:mod:`.geometry`). A profile

@@ -130,6 +130,7 @@ def sweep(experiment: str | Path, grid: Mapping[str, Sequence[Any]], out: str | 
         raise InputError("the grid needs at least one key with at least one value", field="--grid")
     base = dict(overrides or {})
     options = simulate_options(fidelity)
+    check_inputs(path, grid, base)
     identity = {"experiment": hashlib.sha256(path.read_bytes()).hexdigest(), "overrides": base,
                 "fidelity": fidelity}
     points = grid_points(grid, identity)
@@ -150,6 +151,26 @@ def sweep(experiment: str | Path, grid: Mapping[str, Sequence[Any]], out: str | 
         store.finish(df, list(grid), metric, {"experiment": str(path), "grid": grid, "overrides": base,
                                               "fidelity": fidelity, "points": len(points)})
     return df
+
+
+def check_inputs(path: Path, grid: Mapping[str, Sequence[Any]], overrides: Mapping[str, Any]) -> None:
+    """Before any point runs: the base experiment (with the overrides) loads, and each grid key
+    loads with at least one of its values on that base. A broken base, or a key none of whose
+    values loads (a misspelt key, a value of the wrong type), is one error: the sweep would
+    otherwise fail at every point. A key only some of whose values fail is a sweep whose failing
+    points say why."""
+    load_experiment(path, dict(overrides))
+    for key, values in grid.items():
+        first_error = None
+        for value in values:
+            try:
+                load_experiment(path, {**overrides, key: value})
+                break
+            except InputError as exc:
+                first_error = first_error or exc
+        else:
+            raise InputError(f"no value of this grid key loads on the base experiment: "
+                             f"{first_error}", field=f"--grid {key}")
 
 
 def table(points: Sequence[Point], records: Mapping[str, Mapping[str, Any]]) -> pd.DataFrame:

@@ -4,7 +4,7 @@ Errors are relative and signed: simulated / measured - 1 (positive = the model i
 Both sides go through the same summary code, on the same frames after warm-up.
 
 A stall cannot fool the comparison: a measured frame that took more than STALL_FACTOR times the
-run's median frame (a page fault storm, the machine taking its cores away) is listed in the
+mean of the run's other frames (a page fault storm, the machine taking its cores away) is listed in the
 report and left out of the measured frame time and latency, unless the model's own run has such
 frames too (then they belong to the schedule, and both sides keep them).
 """
@@ -37,20 +37,23 @@ def steady_summary(trace: pd.DataFrame, warmup_frames: int,
     return summarize(frames_from_trace(trace, present_step), None, warmup_frames)
 
 
-#: A frame (period between presents) longer than this many times the run's median is a stall.
+#: A frame (period between presents) longer than this many times the mean of the run's other
+#: frames is a stall.
 STALL_FACTOR = 3.0
 
 
 def long_frames(frames: pd.DataFrame, warmup_frames: int) -> dict[int, float]:
     """Steady frames whose period since the previous present is over STALL_FACTOR times the
-    median period: frame -> its period in ms."""
+    mean period of the other steady frames: frame -> its period in ms. The mean of the others,
+    not the median: AFR presents its two GPUs' frames in pairs (a short and a long period), and
+    every long one would be over 3x the median."""
     steady = frames[frames["frame"] >= warmup_frames]
     periods = np.diff(steady["present_ns"].to_numpy(dtype=np.int64))
-    if len(periods) < 2:
+    if len(periods) < 3:
         return {}
-    limit = STALL_FACTOR * float(np.median(periods))
+    others = (periods.sum() - periods) / (len(periods) - 1)
     ids = steady["frame"].to_numpy()[1:]
-    return {int(f): float(p) / 1e6 for f, p in zip(ids, periods) if p > limit}
+    return {int(f): float(p) / 1e6 for f, p, o in zip(ids, periods, others) if p > STALL_FACTOR * o}
 
 
 def without_stalls(frames: pd.DataFrame, warmup_frames: int, stalls: dict[int, float]) -> dict[str, Any]:

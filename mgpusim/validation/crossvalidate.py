@@ -80,7 +80,7 @@ def format_report(exp: Experiment, r: dict[str, Any]) -> str:
     if stalled:
         shown = ", ".join(f"{f} ({ms:.1f} ms)" for f, ms in list(stalled.items())[:5])
         lines.append(f"  measured: {len(stalled)} stalled frame(s) over {r['stalls']['factor']:g}x the "
-                     f"median frame, left out: {shown}{' ...' if len(stalled) > 5 else ''}")
+                     f"mean of the other frames, left out: {shown}{' ...' if len(stalled) > 5 else ''}")
     if r.get("measured_runs", 1) > 1:
         lines.append(f"  measured: steady window of {r['measured_runs']} runs; the whole runs' frame "
                      f"times spread {r['measured_spread']:.1%} (the machine's own noise)")

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from mgpusim.io.output import write_json, write_measured, write_table
+from mgpusim.model.errors import InputError
 from mgpusim.schedules.experiment import Experiment
 from mgpusim.sim.simulation import simulate
 from mgpusim.validation import run_archive
@@ -28,8 +29,11 @@ def with_run_length(exp: Experiment, seconds: float, max_frames: int) -> Experim
     `max_frames`)."""
     if seconds <= 0:
         return exp
-    frame_ms = float(simulate(exp, record_trace=False).summary["frame_time_ms"])
     sched = exp.schedule
+    try:
+        frame_ms = float(simulate(exp, record_trace=False).summary["frame_time_ms"])
+    except InputError:  # the profile cannot cost a pass yet (a new card, before its calibration)
+        return replace(exp, schedule=replace(sched, frames=max(sched.frames, max_frames)))
     frames = max(sched.frames, sched.warmup_frames + math.ceil(seconds * 1e3 / max(frame_ms, 1e-3)))
     return replace(exp, schedule=replace(sched, frames=min(frames, max_frames)))
 

@@ -1,0 +1,50 @@
+"""The 2x H100 study of AFR, XR, frame pipelining and particle offload, offline: the committed
+tables and runs (data/nvidia/h100_x2/, packed) give the committed profile again, and a held-out
+run compares as the study's table says."""
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+
+from mgpusim.cli import main
+from mgpusim.studies.measuring import measured_folder
+from mgpusim.studies.spec import load_study
+
+ROOT = Path(__file__).resolve().parents[1]
+STUDY = ROOT / "experiments" / "h100_x2" / "study.toml"
+
+
+def _body(path: Path) -> dict:
+    return tomllib.loads(path.read_text())
+
+
+def test_the_committed_tables_and_runs_give_the_committed_profile(tmp_path):
+    assert main(["study", "calibrate", str(STUDY), "--out", str(tmp_path)]) == 0
+    fitted, committed = _body(tmp_path / "profile.toml"), _body(ROOT / "hardware_profiles" / "h100_x2.toml")
+    assert fitted["gpus"] == committed["gpus"] and fitted["host"] == committed["host"]
+
+
+def test_a_held_out_pipelining_run_is_within_the_target(tmp_path):
+    study = load_study(STUDY)
+    entry = next(e for e in study.held_out if e.name == "pipe_2gpu_uw3440")
+    args = ["validate", str(entry.experiment), "--measured", str(measured_folder(study.held_out_runs, entry.name)),
+            "--out", str(tmp_path / "v")]
+    for item in entry.sets:
+        args += ["--set", item]
+    assert main(args) == 0
+    summary = json.loads((tmp_path / "v" / "summary.json").read_text())
+    assert abs(summary["frame_time_error"]) <= 0.03
+    assert summary["measured_runs"] == 2  # the steady window of two interleaved runs
+
+
+def test_a_run_on_a_profile_that_cannot_cost_a_pass_gets_max_frames():
+    """A new card's first study: its profile lacks the filter until the calibration, so the run
+    length cannot be estimated; the run gets `max_frames` frames instead of failing."""
+    from mgpusim import load_experiment
+    from mgpusim.validation.repeated_runs import with_run_length
+    exp = load_experiment(STUDY.parent / "afr_temporal.toml", {"schedule.gpus": 1},
+                          profile=ROOT / "hardware_profiles" / "h100.toml")
+    assert with_run_length(exp, 0.5, 123).schedule.frames == 123
+    costed = load_experiment(STUDY.parent / "afr.toml")
+    assert with_run_length(costed, 0.5, 123).schedule.frames < 123

@@ -5,7 +5,7 @@ Pure functions of data, shared by simulated and measured runs (a measured trace 
 """
 from __future__ import annotations
 
-from typing import Any, Callable, Iterator, Mapping, Sequence
+from typing import Any, Callable, Collection, Iterator, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -97,11 +97,13 @@ def frames_from_trace(trace: pd.DataFrame, present_step: str = "present") -> pd.
 
 def summarize(frames: pd.DataFrame, trace: pd.DataFrame | None, warmup_frames: int,
               links: pd.DataFrame | None = None,
-              busy: Callable[[int, int], dict[str, int]] | None = None) -> dict[str, Any]:
+              busy: Callable[[int, int], dict[str, int]] | None = None,
+              leave_out: Collection[int] = ()) -> dict[str, Any]:
     """Steady-state figures after `warmup_frames`: frame time = mean period between presents.
     With a single steady frame its period is measured from the last warm-up frame's present
     (or, with no warm-up, from its own start). Utilization comes from `busy(lo, hi)` (busy ns
-    per resource in the window) when given, else from the trace and links tables."""
+    per resource in the window) when given, else from the trace and links tables. `leave_out`:
+    frames whose period and latency the figures skip (a measured run's stalls)."""
     steady = frames[frames["frame"] >= warmup_frames]
     if steady.empty:
         raise InputError(f"no frame presents after the {warmup_frames} warm-up frames "
@@ -112,8 +114,11 @@ def summarize(frames: pd.DataFrame, trace: pd.DataFrame | None, warmup_frames: i
         origin = int(before[-1]) if len(before) else int(steady["start_ns"].iloc[0])
         presents = np.array([origin, presents[0]], dtype=np.int64)
     periods = np.diff(presents)
-    frame_time = float(periods.mean())
     window = (int(presents[0]), int(presents[-1]))
+    if leave_out:
+        periods = periods[~np.isin(steady["frame"].to_numpy()[1:], list(leave_out))]
+        steady = steady[~steady["frame"].isin(list(leave_out))]
+    frame_time = float(periods.mean())
     out: dict[str, Any] = {
         "frame_time_ms": frame_time / 1e6,
         "fps": 1e9 / frame_time if frame_time > 0 else float("inf"),

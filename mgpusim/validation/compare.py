@@ -56,30 +56,17 @@ def long_frames(frames: pd.DataFrame, warmup_frames: int) -> dict[int, float]:
     return {int(f): float(p) / 1e6 for f, p, o in zip(ids, periods, others) if p > STALL_FACTOR * o}
 
 
-def without_stalls(frames: pd.DataFrame, warmup_frames: int, stalls: dict[int, float]) -> dict[str, Any]:
-    """Frame time, latency and jitter over the steady frames, the stalled frames left out (their
-    periods and their latencies)."""
-    steady = frames[frames["frame"] >= warmup_frames]
-    periods = np.diff(steady["present_ns"].to_numpy(dtype=np.int64))
-    keep = ~np.isin(steady["frame"].to_numpy()[1:], list(stalls))
-    kept = periods[keep]
-    latency = steady.loc[~steady["frame"].isin(list(stalls)), "latency_ns"]
-    return {"frame_time_ms": float(kept.mean()) / 1e6, "latency_ms": float(latency.mean()) / 1e6,
-            "frame_time_jitter_ms": float(kept.std()) / 1e6}
-
-
 def compare(measured: pd.DataFrame, simulated: pd.DataFrame, warmup_frames: int,
             present_step: str = "present") -> dict[str, Any]:
     """Frame time, latency and per-step mean durations of two traces, with relative errors,
     and each hand-off's mean wait from ready to start on both sides (:mod:`mgpusim.results.waits`).
     `stalls`: the measured frames left out (see the module doc)."""
     m_frames, s_frames = frames_from_trace(measured, present_step), frames_from_trace(simulated, present_step)
-    m, s = summarize(m_frames, None, warmup_frames), summarize(s_frames, None, warmup_frames)
     stalls = long_frames(m_frames, warmup_frames)
     if stalls and long_frames(s_frames, warmup_frames):
         stalls = {}  # the schedule's own long frames: the model has them too
-    if stalls:
-        m = {**m, **without_stalls(m_frames, warmup_frames, stalls)}
+    m = summarize(m_frames, None, warmup_frames, leave_out=stalls)
+    s = summarize(s_frames, None, warmup_frames)
     m_steps, s_steps = step_means_ns(measured, warmup_frames), step_means_ns(simulated, warmup_frames)
     steps = {k: {"measured_ms": m_steps[k] / 1e6, "simulated_ms": s_steps[k] / 1e6,
                  "error": rel_error(s_steps[k], m_steps[k])}

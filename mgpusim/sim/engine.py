@@ -18,7 +18,7 @@ import heapq
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 from fractions import Fraction
-from typing import Callable
+from typing import Callable, Mapping
 
 import numpy as np
 import simpy
@@ -61,6 +61,9 @@ class _Op:
     cpu: bool = False
     #: a pass that keeps every host core busy (the busy_wake effect): the cores it keeps busy
     fill_cores: Fraction | None = None
+    #: the duration is a measured one (the replay level): a copy or host-copy part spends
+    #: exactly `duration`, crossing no channel
+    measured: bool = False
 
 
 class _Stream:
@@ -107,11 +110,16 @@ class RawResult:
 class Engine:
     def __init__(self, program: FrameProgram, costs: CostModel, record_trace: bool = True,
                  effects: frozenset[str] | None = None,
-                 executors: Callable[[simpy.Environment], dict[str, Executor]] | None = None):
+                 executors: Callable[[simpy.Environment], dict[str, Executor]] | None = None,
+                 durations: Mapping[Key, int] | None = None):
         """`effects`: the effects to instantiate (default: those the scene needs, see
         :func:`.effects.choose_effects`). `executors`: builds the executor of every device and
-        the host (default: shared host cores where the shared_executor effect is on)."""
+        the host (default: shared host cores where the shared_executor effect is on).
+        `durations`: (phase, task name) -> ns the task takes there instead of its cost (the
+        replay level, :mod:`.replay`: measured durations; a copy then crosses no channel, a
+        host copy's every part takes the given time)."""
         self.program, self.costs, self.record = program, costs, record_trace
+        self._durations = durations or {}
         if effects is None:
             effects = choose_effects(program, costs.profile)
         self.effects = effects
@@ -220,6 +228,9 @@ class Engine:
 
     def _op(self, phase: int, task: Task) -> _Op:
         """Everything the hot loop needs about one task, computed once."""
+        measured = self._durations.get((phase, task.name))
+        if measured is not None:
+            return self._measured_op(phase, task, measured)
         channel, cap, nbytes = None, None, 0
         duration = self._duration(task)
         gap, gap_run = 0, None
@@ -258,6 +269,24 @@ class Engine:
         return _Op(task, duration, channel, cap, nbytes, task.queue.device_name, task.queue.engine,
                    self._waits_for[phase][task.name], task.name == self.program.present_task,
                    run, amount, gap, gap_run, fill_cores=fills)
+
+    def _measured_op(self, phase: int, task: Task, duration: int) -> _Op:
+        """A task that takes the given `duration` (ns) on its queue, thread or memcpy threads,
+        whatever else runs: no channel, cap or shared executor stretches it. The idle gap and
+        host hand-offs before it stay the model's."""
+        waits, present = self._waits_for[phase][task.name], task.name == self.program.present_task
+        if isinstance(task, HostCopyTask):
+            return _Op(task, duration, None, None, 0, "host", "memcpy", waits, present, measured=True)
+        if isinstance(task, CpuTask):
+            run, amount = self.executors["host"].runner(duration, 1)
+            return _Op(task, duration, None, None, 0, "host", task.thread, waits, present, run, amount,
+                       cpu=True, measured=True)
+        executor = self.executors[task.queue.device_name]
+        gap = self.costs.profile.gpus[task.queue.device].task_gap_ns if "task_gaps" in self.effects else 0
+        run, amount = executor.runner(duration, 1)
+        nbytes = task.bytes if isinstance(task, CopyTask) else 0
+        return _Op(task, duration, None, None, nbytes, task.queue.device_name, task.queue.engine, waits,
+                   present, run, amount, gap, executor.work if gap else None, measured=True)
 
     def _check_copy_time(self, task: CopyTask, cap: Fraction | None, setup: int) -> None:
         """A copy alone on its path must end within the bound on one task's time."""
@@ -532,8 +561,10 @@ class Engine:
 
     def _start_part(self, tid: int, part: tuple) -> None:
         start = self.env.now
-        if part[1].duration:
-            self.env.timeout(part[1].duration).callbacks.append(_PartStep((self, "copy", tid, part, start)))
+        op = part[1]
+        if op.duration:  # the part's fixed cost, then its bytes (a measured part: its whole time)
+            step = "done" if op.measured else "copy"
+            self.env.timeout(op.duration).callbacks.append(_PartStep((self, step, tid, part, start)))
         else:
             self._part_copy(tid, part, start)
 

@@ -11,7 +11,9 @@ from pathlib import Path
 import pandas as pd
 
 from mgpusim.model.errors import InputError
+from mgpusim.model.tasks import CpuTask, HostCopyTask, QueueRef
 from mgpusim.results.trace import SUBMISSION_COLUMNS
+from mgpusim.schedules.base import FrameProgram
 from mgpusim.schedules.experiment import Experiment
 from mgpusim.validation import run_archive
 from mgpusim.validation.measured_check import (check_physical_gpus, check_recorded_config,
@@ -43,6 +45,30 @@ def read_measured(folder: Path, exp: Experiment) -> pd.DataFrame:
     if run_archive.is_file(machine):
         check_physical_gpus(read_json_object(machine), exp, str(machine))
     return trace
+
+
+def queues_as_run(trace: pd.DataFrame, program: FrameProgram) -> dict[QueueRef, QueueRef]:
+    """Queues of `program` that the measured run replaced by another queue of the same device:
+    queue -> the queue its tasks ran on. The runner opens one queue per family, so the tasks of
+    a family's second queue run on the first (the run's summary lists them among
+    `queue_fallbacks`). A queue some of whose tasks ran on it is kept."""
+    ran = trace[["task", "device", "engine"]].drop_duplicates()
+    seen: dict[tuple[str, str], set[str]] = {}
+    for task, device, engine in ran.itertuples(index=False):
+        seen.setdefault((str(task), str(device)), set()).add(str(engine))
+    targets: dict[QueueRef, set[str]] = {}
+    for tasks in program.templates:
+        for t in tasks:
+            if not isinstance(t, (HostCopyTask, CpuTask)):
+                engines = seen.get((t.name, t.queue.device_name), set())
+                targets.setdefault(t.queue, set()).update(engines or {t.queue.engine})
+    out = {}
+    for queue, engines in targets.items():
+        if queue.engine not in engines and len(engines) == 1:
+            moved = QueueRef.of(queue.device_name, next(iter(engines)))
+            if moved is not None:
+                out[queue] = moved
+    return out
 
 
 def read_submissions(folder: Path) -> pd.DataFrame | None:

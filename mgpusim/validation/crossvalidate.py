@@ -22,7 +22,8 @@ from mgpusim.schedules.experiment import Experiment
 from mgpusim.sim.simulation import simulate
 from mgpusim.validation.compare import compare
 from mgpusim.schedules.program import build_program
-from mgpusim.validation.measured import queues_as_run, read_measured, read_submissions
+from mgpusim.validation.measured import (other_machine, queues_as_run, read_measured,
+                                         read_submissions, run_machine)
 from mgpusim.validation.replayed import replay_comparison
 from mgpusim.validation.repeated_runs import measure_repeated, run_spread
 
@@ -52,6 +53,9 @@ def validate_experiment(exp: Experiment, out: Path, measured_dir: Path | None = 
     report["replay_latency_error"] = report["replay"]["latency_error"]
     report["measured_spread"], report["measured_runs"] = run_spread(measured_dir)
     report["measured_from"] = str(measured_dir)
+    elsewhere = other_machine(exp.profile, run_machine(measured_dir))
+    if elsewhere is not None:
+        report["profile_machine"] = elsewhere
     submissions = read_submissions(measured_dir)
     if submissions is not None:
         report["measured_host_split"] = host_split(measured, submissions, exp.schedule.warmup_frames)
@@ -97,6 +101,12 @@ def format_report(exp: Experiment, r: dict[str, Any]) -> str:
                 h = split[edge]
                 lines.append(f"      measured: inputs seen after {h['input_seen_ms']:.3f}, submit "
                              f"called {h['submit_call_ms']:.3f} later, started {h['device_start_ms']:.3f} later")
+    elsewhere = r.get("profile_machine")
+    if elsewhere:
+        said = "; ".join(f"{k} {elsewhere['profile'][k]!r}, the run's {elsewhere['run'][k]!r}"
+                         for k in elsewhere["differs"])
+        lines.append(f"  note: the profile was calibrated on another machine ({said}); its accuracy "
+                     "holds there: calibrate one on this machine (bash scripts/main.sh on lavapipe)")
     stalled = r.get("stalls", {}).get("frames", {})
     if stalled:
         shown = ", ".join(f"{f} ({ms:.1f} ms)" for f, ms in list(stalled.items())[:5])

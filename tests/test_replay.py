@@ -116,3 +116,19 @@ def test_validate_reports_both_levels(tmp_path):
     assert summary["replay"]["frame_time_error"] == summary["replay_frame_time_error"]
     assert summary["queues_as_run"] == {"gpu0.graphics#1": "gpu0.graphics"}
     assert (tmp_path / "v" / "replayed_trace.parquet").is_file()
+
+
+def test_an_update_the_run_skipped_is_skipped_in_the_replay():
+    """The replay skips a skippable task exactly where the run did, not by the model's rule: a
+    run whose every other particle update is missing replays with those updates skipped."""
+    exp = load_experiment(EXP / "h100_x2" / "particles.toml",
+                          {"schedule.frames": 30, "schedule.gpus": 1, "schedule.particle_gpu": 0})
+    sim = simulate(exp, fast_forward=False)
+    durations, frames = measured_durations(sim.trace)
+    ran = {f for (f, t) in durations if t == "particle_update"}
+    assert len(ran) == frames  # the model updates every frame here
+    for f in range(1, frames, 2):
+        del durations[(f, "particle_update")]
+    r = replay(exp, durations, frames)
+    updated = set(r.trace.loc[r.trace["task"] == "particle_update", "frame"])
+    assert updated == set(range(0, frames, 2))

@@ -18,7 +18,7 @@ import heapq
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 from fractions import Fraction
-from typing import Callable, Mapping
+from typing import Callable, Iterable, Mapping
 
 import numpy as np
 import simpy
@@ -28,7 +28,7 @@ from mgpusim.model.errors import InputError, ScheduleError
 from mgpusim.model.geometry import even_split
 from mgpusim.model.limits import INT64_MAX
 from mgpusim.model.tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
-from mgpusim.schedules.base import FrameProgram, waits_for_labels, wakes_host
+from mgpusim.schedules.base import FrameProgram, leads_chain, waits_for_labels, wakes_host
 from mgpusim.schedules.skipping import SkipChains
 from mgpusim.sim.busy_wake import BusyWake
 from mgpusim.sim.channel import Channel, FixedRateChannel
@@ -111,13 +111,14 @@ class Engine:
     def __init__(self, program: FrameProgram, costs: CostModel, record_trace: bool = True,
                  effects: frozenset[str] | None = None,
                  executors: Callable[[simpy.Environment], dict[str, Executor]] | None = None,
-                 durations: Mapping[Key, int] | None = None):
+                 durations: Mapping[Key, int] | None = None, skips: Iterable[Key] = ()):
         """`effects`: the effects to instantiate (default: those the scene needs, see
         :func:`.effects.choose_effects`). `executors`: builds the executor of every device and
         the host (default: shared host cores where the shared_executor effect is on).
         `durations`: (phase, task name) -> ns the task takes there instead of its cost (the
         replay level, :mod:`.replay`: measured durations; a copy then crosses no channel, a
-        host copy's every part takes the given time)."""
+        host copy's every part takes the given time). `skips`: (frame, task) instances skipped
+        whatever the skip rule says (the replay: those a measured run skipped)."""
         self.program, self.costs, self.record = program, costs, record_trace
         self._durations = durations or {}
         if effects is None:
@@ -136,6 +137,7 @@ class Engine:
         self._index = [{t.name: t for t in tasks} for tasks in program.templates]
         self._chains = SkipChains(program, self._index)
         self._skip = self._chains.skip  # instances marked to be skipped, read in the hot loop
+        self._skip.update(skips)
         self._dependents = self._reverse_deps()
         host = costs.profile.host
         submission = "host_submission" in effects
@@ -176,7 +178,7 @@ class Engine:
                 for dep in task.deps:
                     k = -dep.offset
                     producer = self._index[(q - k) % self.period][dep.task]
-                    cross = wakes_host(producer, task)
+                    cross = wakes_host(producer, task, leads_chain(task, self._index[q]))
                     out[(q - k) % self.period][dep.task].append(
                         (task.name, k, task, len(task.deps), lag, cross))
         return out

@@ -10,8 +10,9 @@ What the replay keeps from the model: the schedule's tasks and dependencies, eac
 the host's hand-offs (submit and dispatch delays), the queues' idle gaps, vsync. What it takes
 from the run: how long each task ran. Effects that only stretch a task's duration (link and host
 memory sharing, copy caps, a shared executor or GPU, a copy waiting behind a pass's threads) are
-already in the measured durations, so the replay leaves them out. A task the run did not measure
-in some frame (a skipped instance) takes its median over the run's other frames; one it never
+already in the measured durations, so the replay leaves them out. A skippable task (the particle
+update under "new wait") is skipped where the run skipped it, and only there. Another task the
+run did not measure in some frame takes its median over the run's other frames; one it never
 measured is costed by the model.
 """
 from __future__ import annotations
@@ -56,13 +57,29 @@ def replay(exp: Experiment, durations: Durations, frames: int,
     if frames < 1:
         raise InputError("the measured run has no frames to replay", field="frames")
     program = unrolled(on_queues(build_program(exp), queues or {}), frames)
+    skipped = skipped_in_run(program, durations)
+    program = without_skip_rule(program)
     effects = choose_effects(program, exp.profile) - DURATION_EFFECTS
     engine = Engine(program, CostModel(exp.profile), record_trace=True, effects=effects,
-                    durations=filled(program, durations))
+                    durations=filled(program, durations), skips=skipped)
     raw = fastforward.run(engine, enabled=False, record_trace=True)
     result = build_result(raw, program.warmup_frames, run_config(exp, program))
     result.summary.update(fidelity="replay", modelled_effects=sorted(effects), fast_forward=raw.fast_forward)
     return result
+
+
+def skipped_in_run(program: FrameProgram, durations: Durations) -> set[tuple[int, str]]:
+    """The skippable instances the run did not run (no measured duration): the replay skips
+    exactly these, where the run's skip rule decided."""
+    return {(f, t.name) for f in range(program.frames) for t in program.tasks(f)
+            if t.skip_if_busy and (f, t.name) not in durations}
+
+
+def without_skip_rule(program: FrameProgram) -> FrameProgram:
+    """`program` whose tasks are never skipped by the rule (the replay decides from the run)."""
+    templates = tuple(tuple(replace(t, skip_if_busy=False) if t.skip_if_busy else t for t in tasks)
+                      for tasks in program.templates)
+    return replace(program, templates=templates)
 
 
 def filled(program: FrameProgram, durations: Durations) -> dict[tuple[int, str], int]:

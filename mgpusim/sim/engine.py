@@ -277,18 +277,25 @@ class Engine:
         whatever else runs: no channel, cap or shared executor stretches it. The idle gap and
         host hand-offs before it stay the model's."""
         waits, present = self._waits_for[phase][task.name], task.name == self.program.present_task
-        if isinstance(task, HostCopyTask):
-            return _Op(task, duration, None, None, 0, "host", "memcpy", waits, present, measured=True)
+        if isinstance(task, HostCopyTask):  # each part: one memcpy thread's core for its time
+            run, amount = self.executors["host"].runner(duration, 1)
+            return _Op(task, duration, None, None, 0, "host", "memcpy", waits, present, run, amount,
+                       measured=True)
         if isinstance(task, CpuTask):
             run, amount = self.executors["host"].runner(duration, 1)
             return _Op(task, duration, None, None, 0, "host", task.thread, waits, present, run, amount,
                        cpu=True, measured=True)
         executor = self.executors[task.queue.device_name]
         gap = self.costs.profile.gpus[task.queue.device].task_gap_ns if "task_gaps" in self.effects else 0
-        run, amount = executor.runner(duration, 1)
+        run, amount = executor.task_runner(task, duration)
         nbytes = task.bytes if isinstance(task, CopyTask) else 0
+        fills = None
+        if self._busy_wake is not None and isinstance(task, PassTask):
+            cores = executor.cores(task)
+            fills = cores if self._busy_wake.fills(cores, duration) else None
         return _Op(task, duration, None, None, nbytes, task.queue.device_name, task.queue.engine, waits,
-                   present, run, amount, gap, executor.work if gap else None, measured=True)
+                   present, run, amount, gap, executor.work if gap else None, fill_cores=fills,
+                   measured=True)
 
     def _check_copy_time(self, task: CopyTask, cap: Fraction | None, setup: int) -> None:
         """A copy alone on its path must end within the bound on one task's time."""
@@ -564,9 +571,11 @@ class Engine:
     def _start_part(self, tid: int, part: tuple) -> None:
         start = self.env.now
         op = part[1]
-        if op.duration:  # the part's fixed cost, then its bytes (a measured part: its whole time)
-            step = "done" if op.measured else "copy"
-            self.env.timeout(op.duration).callbacks.append(_PartStep((self, step, tid, part, start)))
+        if op.measured:  # its whole time, measured
+            done = op.run(op.amount) if op.run is not None else self.env.timeout(0)
+            done.callbacks.append(_PartStep((self, "done", tid, part, start)))
+        elif op.duration:  # the part's fixed cost, then its bytes
+            self.env.timeout(op.duration).callbacks.append(_PartStep((self, "copy", tid, part, start)))
         else:
             self._part_copy(tid, part, start)
 

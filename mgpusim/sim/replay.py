@@ -9,9 +9,11 @@ error is the timeline's, on any machine.
 What the replay keeps from the model: the schedule's tasks and dependencies, each queue's order,
 the host's hand-offs (submit and dispatch delays), the queues' idle gaps, vsync. What it takes
 from the run: how long each task ran. Effects that only stretch a task's duration (link and host
-memory sharing, copy caps, a shared executor or GPU, a copy waiting behind a pass's threads) are
-already in the measured durations, so the replay leaves them out. A skippable task (the particle
-update under "new wait") is skipped where the run skipped it, and only there. Another task the
+memory sharing, copy caps, a shared executor or GPU) are already in the measured durations, so
+the replay leaves them out; on CPU-emulated GPUs the host's cores stay, occupied by the measured
+work, so that the host threads' own work (waking, submitting) competes with it as it did. A
+skippable task (the particle update under "new wait") is skipped where the run skipped it, and
+only there. Another task the
 run did not measure in some frame takes its median over the run's other frames; one it never
 measured is costed by the model.
 """
@@ -30,10 +32,13 @@ from mgpusim.schedules.program import build_program, on_queues, run_config
 from mgpusim.sim import fastforward
 from mgpusim.sim.effects import choose_effects
 from mgpusim.sim.engine import Engine
+from mgpusim.sim.executors import measured_executors
 
 #: Effects whose whole action is to change a task's duration: measured durations hold them.
+#: (On CPU-emulated GPUs the replay keeps the host's cores, which the measured work occupies:
+#: the host threads' own work competes with it, :class:`mgpusim.sim.executors.MeasuredCores`.)
 DURATION_EFFECTS = frozenset({"link_sharing", "host_memory_sharing", "copy_engine_caps",
-                              "shared_executor", "shared_gpu", "busy_wake"})
+                              "shared_executor", "shared_gpu"})
 
 #: (frame, task name) -> measured ns.
 Durations = Mapping[tuple[int, str], int]
@@ -60,7 +65,9 @@ def replay(exp: Experiment, durations: Durations, frames: int,
     skipped = skipped_in_run(program, durations)
     program = without_skip_rule(program)
     effects = choose_effects(program, exp.profile) - DURATION_EFFECTS
-    engine = Engine(program, CostModel(exp.profile), record_trace=True, effects=effects,
+    costs = CostModel(exp.profile)
+    pool = (lambda env: measured_executors(env, costs)) if exp.profile.host.gpus_share_cpu else None
+    engine = Engine(program, costs, record_trace=True, effects=effects, executors=pool,
                     durations=filled(program, durations), skips=skipped)
     raw = fastforward.run(engine, enabled=False, record_trace=True)
     result = build_result(raw, program.warmup_frames, run_config(exp, program))

@@ -114,3 +114,32 @@ def test_slight_oversubscription_by_different_work_loses_little():
     0.9 each; 2400 core-ns take 2400 / 0.9 = 2667 ns."""
     caps = [Fraction(3, 2), Fraction(3, 2)]
     assert run_core_flows([PassWork("fragment_loop"), PassWork("filter")], caps, 2400) == [2667, 2667]
+
+
+def test_occupants_share_the_channel_and_leave_nothing_behind():
+    """An occupant (measured work replayed) takes its fair share until released: a transfer
+    beside two 2-core occupants on 2 cores gets a third, and one that starts in the nanosecond
+    both leave takes its full time (a pending settle of the emptied channel once ended it at
+    once)."""
+    env = simpy.Environment()
+    ch = Channel(env, "cpu", Fraction(2))
+    ends: list[tuple[int, int]] = []
+
+    def occupant():
+        held = ch.occupy(Fraction(2))
+        yield env.timeout(1000)
+        ch.release(held)
+
+    def work(at: int, ns: int):
+        yield env.timeout(at)
+        start = env.now
+        yield ch.transfer(ns, Fraction(1))
+        ends.append((start, env.now))
+
+    env.process(occupant())
+    env.process(occupant())
+    env.process(work(500, 100))
+    env.process(work(1000, 100))
+    env.run()
+    assert ends == [(500, 650), (1000, 1100)]
+    assert env.now == 1100  # no planned end of an occupant left in the queue

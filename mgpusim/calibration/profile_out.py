@@ -15,6 +15,7 @@ from mgpusim.calibration.fit import Fit
 from mgpusim.calibration.overlap_fit import apply_overlap, overlap_line
 from mgpusim.calibration.pass_fit import Calibration
 from mgpusim.model.profile import parse_profile
+from mgpusim.validation.measured_check import machine_of
 
 DEFAULT_SIMULATED_GPUS = 4
 
@@ -76,6 +77,10 @@ def apply(cal: Calibration, base: dict[str, Any], command: str) -> dict[str, Any
     sources["calibration"] = (f"cost coefficients, copy rates and host copy rates fitted by `{command}` "
                               f"on {cal.machine.get('recorded_at', 'unknown date')} "
                               f"(machine: {cal.machine.get('cpu', '?')}, driver: {_driver(cal.machine)})")
+    machine = machine_of(cal.machine)
+    if machine is not None:  # where this profile's accuracy holds: validation compares it
+        sources["machine"] = {"cpu": machine.cpu, "cpus": machine.cpus, "device": machine.device,
+                              "driver": machine.driver}
     parse_profile(copy.deepcopy(out), "<calibrated profile>")  # what we write must load
     return out
 

@@ -102,10 +102,11 @@ def refine_on_runs(recipe: Any, data: dict[str, Any], runs: Sequence[Run]) -> tu
     if recipe.busy_wake:
         lines.append(_busy_wake(data, runs))
     if recipe.host_grid:
-        found, score = fit_host_effects(data, runs, dict(recipe.host_grid), copy_wait)
+        level = getattr(recipe, "host_grid_level", "prediction")
+        found, score = fit_host_effects(data, runs, dict(recipe.host_grid), copy_wait, level)
         data["host"].update(found)
-        lines.append(f"host {found} (grid search; mean |frame-time error| {score:.1%} on the "
-                     f"calibration runs)")
+        lines.append(f"host {found} (grid search; mean |{level} frame-time error| {score:.1%} on "
+                     f"the calibration runs)")
     return data, lines
 
 

@@ -27,11 +27,17 @@ from mgpusim.calibration.fit import Fit, fit_nonnegative
 from mgpusim.calibration.profile_out import cost_table
 from mgpusim.model.costs import CostModel
 from mgpusim.model.profile import HardwareProfile, parse_profile
-from mgpusim.model.tasks import CopyTask, PassTask, Task
+from mgpusim.model.tasks import CopyTask, PassTask, QueueRef, Task
 from mgpusim.schedules.experiment import Experiment
 from mgpusim.schedules.program import build_program
+from mgpusim.sim.replay import replay
 from mgpusim.sim.simulation import simulate
 from mgpusim.validation.compare import rel_error, steady_summary
+from mgpusim.validation.measured import queues_as_run
+from mgpusim.validation.replayed import measured_durations
+
+#: A run's queues that the runner replaced by another, and the queue it used.
+Queues = Mapping[QueueRef, QueueRef]
 
 Run = tuple[Experiment, pd.DataFrame]  # an experiment and its measured trace
 
@@ -257,7 +263,8 @@ HOST_GRID: dict[str, tuple] = {
 
 def fit_host_effects(profile_data: dict[str, Any], runs: Sequence[Run],
                      grid: dict[str, tuple] | None = None,
-                     copy_wait_ns: int | None = None) -> tuple[dict[str, Any], float]:
+                     copy_wait_ns: int | None = None,
+                     level: str = "prediction") -> tuple[dict[str, Any], float]:
     """The host effects (dispatch cost, per-task submit time, oversubscribed-core efficiency)
     that minimise the mean |frame-time error| over all calibration runs: a grid search, since
     there are three parameters, few runs, and each evaluation is a short simulation. Single-GPU
@@ -265,7 +272,10 @@ def fit_host_effects(profile_data: dict[str, Any], runs: Sequence[Run],
     shared among the machine's cores (a study's calibration waits on nothing else); the first
     trial of the lowest error wins, whatever the number of processes. `copy_wait_ns`: the
     measured wait before a host copy (:func:`fit_host_copy_wake`); each trial's
-    `host_copy_wake_ns` is what is left of it after the trial's `dispatch_ns`."""
+    `host_copy_wake_ns` is what is left of it after the trial's `dispatch_ns`. `level`
+    "replay" scores each trial by the replay of every run on its own measured durations
+    (:mod:`mgpusim.sim.replay`): the host effects are then fitted on the timeline alone, and a
+    pass the cost model gets wrong cannot pull them away from what the hand-offs measure."""
     grid = grid or HOST_GRID
     multi = list(runs)
     host = profile_data["host"]
@@ -279,7 +289,10 @@ def fit_host_effects(profile_data: dict[str, Any], runs: Sequence[Run],
         for trial in trials:
             trial["host_copy_wake_ns"] = copy_wake_after_dispatch(
                 copy_wait_ns, trial.get("dispatch_ns", host.get("dispatch_ns", 0)))
-    scores = _trial_scores(profile_data, [exp for exp, _ in multi], measured, trials)
+    # each run's schedule as it ran (the runner's one queue per family)
+    queues = [queues_as_run(trace, build_program(exp)) for exp, trace in multi]
+    replays = [measured_durations(trace) for _, trace in multi] if level == "replay" else None
+    scores = _trial_scores(profile_data, [exp for exp, _ in multi], measured, trials, queues, replays)
     best = 0
     for i, score in enumerate(scores):
         if score < scores[best] - 1e-12:
@@ -288,17 +301,18 @@ def fit_host_effects(profile_data: dict[str, Any], runs: Sequence[Run],
 
 
 #: What the grid's worker processes read (set before they fork, so nothing is pickled).
-_GRID: tuple[dict[str, Any], list[Experiment], list[float]] | None = None
+_GRID: tuple[dict[str, Any], list[Experiment], list[float], list[Queues], list[Any] | None] | None = None
 
 
 def _trial_scores(profile_data: dict[str, Any], exps: list[Experiment], measured: list[float],
-                  trials: list[dict[str, Any]]) -> list[float]:
+                  trials: list[dict[str, Any]], queues: list[Queues],
+                  replays: list[Any] | None = None) -> list[float]:
     """Mean |frame-time error| of each trial, in trial order, on up to all cores (forked
     workers where the platform forks; else one process)."""
     global _GRID
     workers = min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1,
                   len(trials))
-    _GRID = (profile_data, exps, measured)
+    _GRID = (profile_data, exps, measured, queues, replays)
     try:
         if workers < 2 or "fork" not in multiprocessing.get_all_start_methods():
             return [_trial_score(t) for t in trials]
@@ -311,11 +325,22 @@ def _trial_scores(profile_data: dict[str, Any], exps: list[Experiment], measured
 
 def _trial_score(trial: dict[str, Any]) -> float:
     assert _GRID is not None
-    profile_data, exps, measured = _GRID
+    profile_data, exps, measured, queues, replays = _GRID
     data = copy.deepcopy(profile_data)
     data["host"].update(trial)
     profile = parse_profile(data, "<calibration>")
-    return float(np.mean([abs(_error(exp, ms, profile)) for exp, ms in zip(exps, measured)]))
+    if replays is not None:
+        return float(np.mean([abs(_replay_error(exp, ms, profile, q, r))
+                              for exp, ms, q, r in zip(exps, measured, queues, replays)]))
+    return float(np.mean([abs(_error(exp, ms, profile, q)) for exp, ms, q in zip(exps, measured, queues)]))
+
+
+def _replay_error(exp: Experiment, measured_frame_ms: float, profile: HardwareProfile, queues: Queues,
+                  run: tuple[dict[tuple[int, str], int], int]) -> float:
+    """Signed frame-time error of the replay of a run (its measured durations) on `profile`."""
+    result = replay(replace(exp, profile=profile), run[0], run[1], queues)
+    return rel_error(steady_summary(result.trace, exp.schedule.warmup_frames)["frame_time_ms"],
+                     measured_frame_ms)
 
 
 #: Simulated frames after the warm-up in the grid search, for speed: a measured run of
@@ -324,10 +349,12 @@ def _trial_score(trial: dict[str, Any]) -> float:
 GRID_STEADY_FRAMES = 40
 
 
-def _error(exp: Experiment, measured_frame_ms: float, profile: HardwareProfile) -> float:
-    """Signed frame-time error of `exp` simulated on `profile` against the measured value."""
+def _error(exp: Experiment, measured_frame_ms: float, profile: HardwareProfile,
+           queues: Queues | None = None) -> float:
+    """Signed frame-time error of `exp` simulated on `profile` (its tasks on the `queues` the
+    run used) against the measured value."""
     sched = exp.schedule
     frames = min(sched.frames, sched.warmup_frames + GRID_STEADY_FRAMES)
-    sim = simulate(replace(exp, profile=profile, schedule=replace(sched, frames=frames)))
+    sim = simulate(replace(exp, profile=profile, schedule=replace(sched, frames=frames)), queues=queues)
     return rel_error(steady_summary(sim.trace, sched.warmup_frames)["frame_time_ms"],
                      measured_frame_ms)

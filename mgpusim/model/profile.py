@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import MappingProxyType
-from typing import Mapping, TypeVar
+from typing import Any, Mapping, TypeVar
 
 from mgpusim.model import limits as L
 from mgpusim.model.config import Table, did_you_mean, read_toml
@@ -201,12 +201,30 @@ class PeerLink:
 
 
 @dataclass(frozen=True)
+class CalibratedOn:
+    """The machine a profile was calibrated on (`[sources.machine]`, written by a calibration):
+    its CPU model and usable CPUs, its GPUs' device name and driver. Why: a profile's accuracy
+    holds on the machine it was measured on; a comparison with runs of another machine says so."""
+
+    cpu: str
+    cpus: int
+    device: str
+    driver: str
+
+    def differences(self, other: "CalibratedOn") -> dict[str, tuple[Any, Any]]:
+        """field -> (this machine's value, the other's), where they differ."""
+        return {f: (getattr(self, f), getattr(other, f)) for f in ("cpu", "cpus", "device", "driver")
+                if getattr(self, f) != getattr(other, f)}
+
+
+@dataclass(frozen=True)
 class HardwareProfile:
     name: str
     host: HostProfile
     gpus: tuple[GpuProfile, ...]
     peer_links: tuple[PeerLink, ...] = ()
     source: str = ""
+    calibrated_on: CalibratedOn | None = None
 
     def physical_of(self, gpu: int) -> int:
         """The physical GPU logical GPU `gpu` runs on (`physical`, default its own index)."""
@@ -290,11 +308,20 @@ def _overridden(path: str, overrides: Mapping[str, object]) -> bool:
     return False
 
 
+def _calibrated_on(t: Table) -> CalibratedOn:
+    machine = CalibratedOn(t.get("cpu", str), t.get("cpus", int, minimum=1), t.get("device", str),
+                           t.get("driver", str))
+    t.finish()
+    return machine
+
+
 def parse_profile(data: dict, file: str) -> HardwareProfile:
     top = Table(data, file)
     name = top.get("name", str)
     top.get("description", str, "")
-    top.table("sources", None).rest()  # free-text provenance notes, kept in the file
+    sources = top.table("sources", None)
+    calibrated_on = _calibrated_on(sources.table("machine")) if sources.has("machine") else None
+    sources.rest()  # free-text provenance notes, kept in the file
     host = _parse_host(top.table("host"))
     gpus: list[GpuProfile] = []
     tables: list[str] = []  # each GPU's [[gpus]] table, for messages
@@ -311,7 +338,8 @@ def parse_profile(data: dict, file: str) -> HardwareProfile:
     if top.has("peer_mesh"):
         peers = _peer_mesh(top.table("peer_mesh"), len(gpus), peers)
     top.finish()
-    profile = HardwareProfile(name=name, host=host, gpus=tuple(gpus), peer_links=peers, source=file)
+    profile = HardwareProfile(name=name, host=host, gpus=tuple(gpus), peer_links=peers, source=file,
+                              calibrated_on=calibrated_on)
     _check_physical(profile, _resize(tables, len(profile.gpus)), file)
     return profile
 

@@ -34,6 +34,16 @@ class QueueRef:
     def __str__(self) -> str:
         return f"{self.device_name}.{self.engine}"
 
+    @classmethod
+    def of(cls, device_name: str, engine: str) -> "QueueRef | None":
+        """The queue a trace row names (`gpu1`, `transfer#1`); None for the host's rows or a
+        name that is no queue."""
+        family, _, index = engine.partition("#")
+        if (not device_name.startswith("gpu") or not device_name[3:].isdigit()
+                or family not in ("graphics", "compute", "transfer") or (index and not index.isdigit())):
+            return None
+        return cls(int(device_name[3:]), family, int(index or 0))  # type: ignore[arg-type]
+
 
 @dataclass(frozen=True, slots=True)
 class Dep:

@@ -131,15 +131,24 @@ def task_device(task: Task) -> str:
     return "host" if isinstance(task, (HostCopyTask, CpuTask)) else task.queue.device_name
 
 
-def wakes_host(producer: Task, task: Task) -> bool:
+def wakes_host(producer: Task, task: Task, leads: bool = False) -> bool:
     """Whether a host thread must wake to act on `task`'s input from `producer`: always for a
-    host copy (the dispatching thread), for a CPU task unless the input ran on its own
-    thread, else when the input ran on another device."""
-    if isinstance(task, HostCopyTask):
+    host copy (the dispatching thread) and for the leader of a skippable chain (`leads`: it
+    decides on the host, once its inputs have ended, whether its chain is still busy), for a
+    CPU task unless the input ran on its own thread, else when the input ran on another device."""
+    if isinstance(task, HostCopyTask) or leads:
         return True
     if isinstance(task, CpuTask):
         return not (isinstance(producer, CpuTask) and producer.thread == task.thread)
     return task_device(producer) != task_device(task)
+
+
+def leads_chain(task: Task, frame_tasks: Mapping[str, Task]) -> bool:
+    """A skippable task that decides for its chain: it has no skippable input of its own frame
+    (`frame_tasks`: its frame's tasks by name). A follower is skipped exactly when such an
+    input was (:mod:`mgpusim.schedules.skipping`), so only a leader looks at the chain's state."""
+    return task.skip_if_busy and not any(d.offset == 0 and frame_tasks[d.task].skip_if_busy
+                                         for d in task.deps)
 
 
 def waits_for_labels(program: FrameProgram) -> list[dict[str, str]]:

@@ -8,10 +8,10 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 from types import MappingProxyType
-from typing import Any
+from typing import Any, Mapping
 
 from mgpusim.model.errors import InputError
-from mgpusim.model.tasks import HostCopyTask
+from mgpusim.model.tasks import CpuTask, HostCopyTask, QueueRef
 from mgpusim.schedules import SCHEDULES, ensure_loaded
 from mgpusim.schedules.base import FrameProgram, check_program, with_cpu_frame
 from mgpusim.schedules.experiment import Experiment
@@ -42,6 +42,19 @@ def with_refresh(program: FrameProgram, refresh_hz: float) -> FrameProgram:
                             if t.name == program.present_task and not isinstance(t, HostCopyTask)
                             else t for t in tasks) for tasks in program.templates)
     return replace(program, templates=templates, refresh_hz=refresh_hz)
+
+
+def on_queues(program: FrameProgram, queues: Mapping[QueueRef, QueueRef]) -> FrameProgram:
+    """`program` with the tasks of each queue in `queues` on the queue it maps to, in the same
+    submission order. Why: the Vulkan runner opens one queue per family, so the tasks of a
+    family's second queue (AFR's and XR's present queue) run on the first, in the program's
+    order; a measured run is compared with the program as it ran."""
+    if not queues:
+        return program
+    templates = tuple(tuple(replace(t, queue=queues[t.queue])
+                            if not isinstance(t, (HostCopyTask, CpuTask)) and t.queue in queues else t
+                            for t in tasks) for tasks in program.templates)
+    return replace(program, templates=templates)
 
 
 def run_config(exp: Experiment, program: FrameProgram) -> dict[str, Any]:

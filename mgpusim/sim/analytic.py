@@ -34,7 +34,7 @@ from mgpusim.model.costs import CostModel
 from mgpusim.model.errors import InputError, ScheduleError
 from mgpusim.model.geometry import even_split
 from mgpusim.model.tasks import CpuTask, HostCopyTask, PassTask, Task
-from mgpusim.schedules.base import FrameProgram, wakes_host
+from mgpusim.schedules.base import FrameProgram, leads_chain, wakes_host
 from mgpusim.sim.effects import choose_effects
 from mgpusim.sim.engine import Engine, RawResult
 from mgpusim.sim.fastforward import Repeat
@@ -103,7 +103,7 @@ class Analytic:
 
     def _node(self, op: Any, phase: int) -> _Node:
         task = op.task
-        deps = tuple((d.task, d.offset, self._crosses(task, d.task, (phase + d.offset) % len(self.task_of)))
+        deps = tuple((d.task, d.offset, self._crosses(task, d.task, (phase + d.offset) % len(self.task_of), phase))
                      for d in task.deps)
         if isinstance(task, HostCopyTask):
             parts = tuple(even_split(task.bytes, task.parts(self.threads)))
@@ -119,10 +119,11 @@ class Analytic:
         return _Node(task.name, task, str(task.queue), deps, op.duration, op.nbytes, rate, op.gap, (),
                      op.device, op.engine, op.waits_for)
 
-    def _crosses(self, task: Task, dep: str, dep_phase: int) -> bool:
+    def _crosses(self, task: Task, dep: str, dep_phase: int, phase: int) -> bool:
         """Whether a host thread must wake to act on this input (as the engine decides): the
-        input's producer, in its own frame phase, is on another device or the host."""
-        return wakes_host(self.task_of[dep_phase][dep], task)
+        input's producer, in its own frame phase, is on another device or the host, or the
+        task leads a skippable chain."""
+        return wakes_host(self.task_of[dep_phase][dep], task, leads_chain(task, self.task_of[phase]))
 
     @staticmethod
     def _order(nodes: list[_Node]) -> list[_Node]:

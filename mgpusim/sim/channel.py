@@ -28,6 +28,8 @@ import simpy
 from mgpusim.sim.state import Callback, Relative
 
 _ZERO = Fraction(0)
+#: An occupant's amount (:meth:`Channel.occupy`): more than any run can use up.
+OCCUPANT = 1 << 80
 
 
 @dataclass(frozen=True)
@@ -103,6 +105,32 @@ class Channel:
             self.env.timeout(0).callbacks.append(_Settle((self,)))
         return done
 
+    def occupy(self, cap: Fraction, tag: object = None) -> object:
+        """A flow that takes its fair share (at most `cap`) until :meth:`release`, with no
+        amount of its own: work whose time is known (a measured pass, replayed) but whose
+        load still slows the channel's other flows. Returns the handle to release."""
+        self.transfer(OCCUPANT, cap, tag)
+        return self.flows[-1]
+
+    def release(self, flow: object) -> None:
+        """The occupant `flow` (from :meth:`occupy`) leaves; the others share anew."""
+        assert isinstance(flow, _Flow)
+        if flow.solo_rate:  # alone: its planned end (far away) is dropped
+            self.flows.remove(flow)
+            self._gen += 1
+            self.busy.append((self._busy_since, self.env.now))
+            return
+        self._advance()
+        self.flows.remove(flow)
+        if not self.flows:
+            self._gen += 1
+            self.busy.append((self._busy_since, self.env.now))
+            return
+        if not self._settle_pending:
+            self._settle_pending = True
+            self._gen += 1
+            self.env.timeout(0).callbacks.append(_Settle((self,)))
+
     # ----- one transfer alone -------------------------------------------------------------
     def _start_solo(self, flow: _Flow, now: int) -> None:
         parts = self._solo.get(flow.cap)
@@ -113,8 +141,10 @@ class Channel:
         self.flows.append(flow)
         self.max_concurrent = max(self.max_concurrent, 1)
         self._busy_since = now
-        end = now + (2 * flow.nbytes * den + num) // (2 * num)  # round half up of bytes / rate
         self._gen += 1
+        if flow.nbytes == OCCUPANT:
+            return  # it ends when released
+        end = now + (2 * flow.nbytes * den + num) // (2 * num)  # round half up of bytes / rate
         self.env.timeout(end - now).callbacks.append(_SoloDone((self, self._gen)))
 
     def _solo_done(self, gen: int) -> None:
@@ -213,6 +243,8 @@ class Channel:
     def _settle(self, _event=None) -> None:
         """Complete the flows due now, share the bandwidth anew and plan the next wake-up."""
         self._settle_pending = False
+        if not self.flows or self.flows[0].solo_rate:
+            return  # released empty (an occupant), maybe one flow alone since: nothing to share
         self._advance()
         self._reshare()
         finished = [f for f in self.flows if 2 * f.remaining < f.rate]
@@ -229,7 +261,10 @@ class Channel:
 
     def _plan(self) -> None:
         self._gen += 1
-        wake = min(self._t + (2 * f.remaining + f.rate) // (2 * f.rate) for f in self.flows)
+        due = [f for f in self.flows if f.nbytes != OCCUPANT]
+        if not due:
+            return  # only occupants: nothing ends until one is released
+        wake = min(self._t + (2 * f.remaining + f.rate) // (2 * f.rate) for f in due)
         wake = max(wake, self.env.now)
         self.env.timeout(wake - self.env.now).callbacks.append(_Wake((self, self._gen)))
 

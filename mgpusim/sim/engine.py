@@ -18,7 +18,7 @@ import heapq
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 from fractions import Fraction
-from typing import Callable
+from typing import Callable, Iterable, Mapping
 
 import numpy as np
 import simpy
@@ -28,7 +28,7 @@ from mgpusim.model.errors import InputError, ScheduleError
 from mgpusim.model.geometry import even_split
 from mgpusim.model.limits import INT64_MAX
 from mgpusim.model.tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
-from mgpusim.schedules.base import FrameProgram, waits_for_labels, wakes_host
+from mgpusim.schedules.base import FrameProgram, leads_chain, waits_for_labels, wakes_host
 from mgpusim.schedules.skipping import SkipChains
 from mgpusim.sim.busy_wake import BusyWake
 from mgpusim.sim.channel import Channel, FixedRateChannel
@@ -61,6 +61,9 @@ class _Op:
     cpu: bool = False
     #: a pass that keeps every host core busy (the busy_wake effect): the cores it keeps busy
     fill_cores: Fraction | None = None
+    #: the duration is a measured one (the replay level): a copy or host-copy part spends
+    #: exactly `duration`, crossing no channel
+    measured: bool = False
 
 
 class _Stream:
@@ -107,11 +110,17 @@ class RawResult:
 class Engine:
     def __init__(self, program: FrameProgram, costs: CostModel, record_trace: bool = True,
                  effects: frozenset[str] | None = None,
-                 executors: Callable[[simpy.Environment], dict[str, Executor]] | None = None):
+                 executors: Callable[[simpy.Environment], dict[str, Executor]] | None = None,
+                 durations: Mapping[Key, int] | None = None, skips: Iterable[Key] = ()):
         """`effects`: the effects to instantiate (default: those the scene needs, see
         :func:`.effects.choose_effects`). `executors`: builds the executor of every device and
-        the host (default: shared host cores where the shared_executor effect is on)."""
+        the host (default: shared host cores where the shared_executor effect is on).
+        `durations`: (phase, task name) -> ns the task takes there instead of its cost (the
+        replay level, :mod:`.replay`: measured durations; a copy then crosses no channel, a
+        host copy's every part takes the given time). `skips`: (frame, task) instances skipped
+        whatever the skip rule says (the replay: those a measured run skipped)."""
         self.program, self.costs, self.record = program, costs, record_trace
+        self._durations = durations or {}
         if effects is None:
             effects = choose_effects(program, costs.profile)
         self.effects = effects
@@ -128,6 +137,7 @@ class Engine:
         self._index = [{t.name: t for t in tasks} for tasks in program.templates]
         self._chains = SkipChains(program, self._index)
         self._skip = self._chains.skip  # instances marked to be skipped, read in the hot loop
+        self._skip.update(skips)
         self._dependents = self._reverse_deps()
         host = costs.profile.host
         submission = "host_submission" in effects
@@ -168,7 +178,7 @@ class Engine:
                 for dep in task.deps:
                     k = -dep.offset
                     producer = self._index[(q - k) % self.period][dep.task]
-                    cross = wakes_host(producer, task)
+                    cross = wakes_host(producer, task, leads_chain(task, self._index[q]))
                     out[(q - k) % self.period][dep.task].append(
                         (task.name, k, task, len(task.deps), lag, cross))
         return out
@@ -220,6 +230,9 @@ class Engine:
 
     def _op(self, phase: int, task: Task) -> _Op:
         """Everything the hot loop needs about one task, computed once."""
+        measured = self._durations.get((phase, task.name))
+        if measured is not None:
+            return self._measured_op(phase, task, measured)
         channel, cap, nbytes = None, None, 0
         duration = self._duration(task)
         gap, gap_run = 0, None
@@ -258,6 +271,31 @@ class Engine:
         return _Op(task, duration, channel, cap, nbytes, task.queue.device_name, task.queue.engine,
                    self._waits_for[phase][task.name], task.name == self.program.present_task,
                    run, amount, gap, gap_run, fill_cores=fills)
+
+    def _measured_op(self, phase: int, task: Task, duration: int) -> _Op:
+        """A task that takes the given `duration` (ns) on its queue, thread or memcpy threads,
+        whatever else runs: no channel, cap or shared executor stretches it. The idle gap and
+        host hand-offs before it stay the model's."""
+        waits, present = self._waits_for[phase][task.name], task.name == self.program.present_task
+        if isinstance(task, HostCopyTask):  # each part: one memcpy thread's core for its time
+            run, amount = self.executors["host"].runner(duration, 1)
+            return _Op(task, duration, None, None, 0, "host", "memcpy", waits, present, run, amount,
+                       measured=True)
+        if isinstance(task, CpuTask):
+            run, amount = self.executors["host"].runner(duration, 1)
+            return _Op(task, duration, None, None, 0, "host", task.thread, waits, present, run, amount,
+                       cpu=True, measured=True)
+        executor = self.executors[task.queue.device_name]
+        gap = self.costs.profile.gpus[task.queue.device].task_gap_ns if "task_gaps" in self.effects else 0
+        run, amount = executor.task_runner(task, duration)
+        nbytes = task.bytes if isinstance(task, CopyTask) else 0
+        fills = None
+        if self._busy_wake is not None and isinstance(task, PassTask):
+            cores = executor.cores(task)
+            fills = cores if self._busy_wake.fills(cores, duration) else None
+        return _Op(task, duration, None, None, nbytes, task.queue.device_name, task.queue.engine, waits,
+                   present, run, amount, gap, executor.work if gap else None, fill_cores=fills,
+                   measured=True)
 
     def _check_copy_time(self, task: CopyTask, cap: Fraction | None, setup: int) -> None:
         """A copy alone on its path must end within the bound on one task's time."""
@@ -532,8 +570,12 @@ class Engine:
 
     def _start_part(self, tid: int, part: tuple) -> None:
         start = self.env.now
-        if part[1].duration:
-            self.env.timeout(part[1].duration).callbacks.append(_PartStep((self, "copy", tid, part, start)))
+        op = part[1]
+        if op.measured:  # its whole time, measured
+            done = op.run(op.amount) if op.run is not None else self.env.timeout(0)
+            done.callbacks.append(_PartStep((self, "done", tid, part, start)))
+        elif op.duration:  # the part's fixed cost, then its bytes
+            self.env.timeout(op.duration).callbacks.append(_PartStep((self, "copy", tid, part, start)))
         else:
             self._part_copy(tid, part, start)
 

@@ -129,6 +129,40 @@ class SharedCores:
         return task_cores(self.costs.profile, task)
 
 
+class MeasuredCores(SharedCores):
+    """The host's cores under work whose time was measured (the replay level): a pass or copy
+    takes exactly its time and meanwhile occupies the cores it keeps busy, so that the host
+    threads' own work (waking on an input, submitting) is slowed by it as on the real machine;
+    that work alone is costed by the pool. Why: on CPU-emulated GPUs a submit thread wakes
+    behind the GPUs' threads, which a replay on idle cores would miss."""
+
+    def runner(self, ns: int, cores: Fraction | int = 1, tag: object = None) -> tuple[Runner | None, int]:
+        if not ns:
+            return None, 0
+        channel, env, share = self.channel, self.channel.env, Fraction(cores)
+
+        def run(amount: int) -> simpy.Event:
+            held = channel.occupy(share, tag)
+            done = env.timeout(amount)
+            done.callbacks.append(lambda _event: channel.release(held))
+            return done
+        return run, ns
+
+    def task_runner(self, task: Task, ns: int) -> tuple[Runner | None, int]:
+        """The task's time, its cores occupied; a pass with a `cpu_overhead_ns` also puts that
+        much of one core's work on the pool when it starts (the driver's, beside the pass)."""
+        run, amount = self.runner(ns, self.cores(task), self._tag(task))
+        overhead = self._overhead(task)
+        if not overhead or run is None:
+            return run, amount
+        transfer, main = self.channel.transfer, run
+
+        def with_overhead(amount: int) -> simpy.Event:
+            transfer(overhead, 1)
+            return main(amount)
+        return with_overhead, amount
+
+
 class SharedGpu(Dedicated):
     """One physical GPU whose queues (of one or several logical GPUs) share its execution
     throughput: every pass and copy of its queues is work on one :class:`GpuChannel`. Alone a
@@ -245,6 +279,15 @@ class Executor(Protocol):
     def background(self) -> Callable[[int], object] | None: ...
 
     def cores(self, task: Task) -> Fraction: ...
+
+
+def measured_executors(env: simpy.Environment, costs: CostModel) -> dict[str, Executor]:
+    """Every device and the host on one pool of the host's cores that measured work occupies
+    (:class:`MeasuredCores`): the replay of a run on CPU-emulated GPUs."""
+    pool = MeasuredCores(env, costs)
+    out: dict[str, Executor] = {f"gpu{i}": pool for i in range(len(costs.profile.gpus))}
+    out["host"] = pool
+    return out
 
 
 def make_executors(env: simpy.Environment, costs: CostModel, shared: bool,

@@ -3,15 +3,17 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
+from typing import Mapping
 
 from mgpusim.model.costs import CostModel
 from mgpusim.model.errors import TimeBoundError
 from mgpusim.model.profile import has_cost_stderr, with_cost_band
+from mgpusim.model.tasks import QueueRef
 from mgpusim.results.summary import Result, build_result, task_rates
 from mgpusim.schedules.base import FrameProgram
 from mgpusim.schedules.experiment import Experiment
 from mgpusim.schedules.memory_check import check_memory, memory_report
-from mgpusim.schedules.program import build_program, run_config
+from mgpusim.schedules.program import build_program, on_queues, run_config
 from mgpusim.sim import fastforward
 from mgpusim.sim.effects import choose_effects
 from mgpusim.sim.engine import Engine
@@ -21,7 +23,7 @@ __all__ = ["build_program", "run_config", "simulate"]
 
 def simulate(exp: Experiment, record_trace: bool = True, fidelity: str = "full",
              effects: dict[str, bool] | None = None, fast_forward: bool = True,
-             band: bool = False) -> Result:
+             band: bool = False, queues: Mapping[QueueRef, QueueRef] | None = None) -> Result:
     """Run `exp` in the model. Same experiment, same result, bit for bit.
 
     `fidelity`: "full", "queues" or "analytic" (mgpusim.sim.effects); `effects`: effects forced
@@ -30,8 +32,10 @@ def simulate(exp: Experiment, record_trace: bool = True, fidelity: str = "full",
     pass cost one standard error lower and higher, and report the summary's
     frame_time_ms_lo/hi and latency_ms_lo/hi (the calibration's uncertainty carried through).
     Off by default: it costs two more simulations, which internal callers (calibration
-    searches, run lengths, timings) would throw away; `mgpusim simulate` asks for it."""
-    program = build_program(exp)
+    searches, run lengths, timings) would throw away; `mgpusim simulate` asks for it.
+    `queues`: queues whose tasks run on another queue (where a measured run ran them, see
+    :func:`mgpusim.schedules.program.on_queues`)."""
+    program = on_queues(build_program(exp), queues or {})
     chosen = choose_effects(program, exp.profile, fidelity, effects)
     if "memory_capacity" in chosen:
         check_memory(program, exp)  # overflow is an input error, reported before time 0

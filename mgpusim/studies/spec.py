@@ -100,6 +100,9 @@ class Recipe:
     busy_wake: bool = False
     copy_setup: bool = False
     host_grid: Mapping[str, tuple[Any, ...]] = field(default_factory=lambda: MappingProxyType({}))
+    #: what the grid search scores: the prediction's frame-time error, or the replay's (the
+    #: timeline on the runs' own durations, so that cost errors cannot set host effects)
+    host_grid_level: str = "prediction"
 
 
 @dataclass(frozen=True)
@@ -228,7 +231,8 @@ def _recipe(t: Table, base: Path) -> Recipe:
         host_copy_wake=t.get("host_copy_wake", bool, False),
         busy_wake=t.get("busy_wake", bool, False),
         copy_setup=t.get("copy_setup", bool, False),
-        host_grid=MappingProxyType({k: tuple(grid_t.get(k, list)) for k in list(grid_t.data)}))
+        host_grid=MappingProxyType({k: tuple(grid_t.get(k, list)) for k in list(grid_t.data)}),
+        host_grid_level=t.get("host_grid_level", str, "prediction", choices=("prediction", "replay")))
     copy_t.finish()
     grid_t.finish()
     return recipe

@@ -94,6 +94,8 @@ def error_table(rows: list[dict[str, Any]]) -> pd.DataFrame:
         "simulated_frame_ms": r["simulated"]["frame_time_ms"], "frame_time_error": r["frame_time_error"],
         "measured_latency_ms": r["measured"]["latency_ms"], "simulated_latency_ms": r["simulated"]["latency_ms"],
         "latency_error": r["latency_error"],
+        "replay_frame_time_error": r.get("replay_frame_time_error", float("nan")),
+        "replay_latency_error": r.get("replay_latency_error", float("nan")),
         "stalled_frames": len(r.get("stalls", {}).get("frames", {}))} for r in rows])
     return table
 
@@ -101,6 +103,14 @@ def error_table(rows: list[dict[str, Any]]) -> pd.DataFrame:
 def error_stats(table: pd.DataFrame) -> dict[str, float]:
     err = np.abs(table["frame_time_error"].to_numpy())
     lat = np.abs(table["latency_error"].to_numpy())
-    return {"configurations": int(len(table)), "median_abs_frame_time_error": float(np.median(err)),
-            "worst_abs_frame_time_error": float(err.max()), "median_abs_latency_error": float(np.median(lat)),
-            "worst_abs_latency_error": float(lat.max())}
+    stats = {"configurations": int(len(table)), "median_abs_frame_time_error": float(np.median(err)),
+             "worst_abs_frame_time_error": float(err.max()), "median_abs_latency_error": float(np.median(lat)),
+             "worst_abs_latency_error": float(lat.max())}
+    if "replay_frame_time_error" in table and table["replay_frame_time_error"].notna().all():
+        rep = np.abs(table["replay_frame_time_error"].to_numpy())
+        rep_lat = np.abs(table["replay_latency_error"].to_numpy())
+        stats.update(replay_median_abs_frame_time_error=float(np.median(rep)),
+                     replay_worst_abs_frame_time_error=float(rep.max()),
+                     replay_median_abs_latency_error=float(np.median(rep_lat)),
+                     replay_worst_abs_latency_error=float(rep_lat.max()))
+    return stats

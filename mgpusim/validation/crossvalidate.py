@@ -2,7 +2,12 @@
 
 Used by `mgpusim validate` and by studies. The comparison itself is :mod:`mgpusim.validation.compare`
 (pure); this module adds the measuring, the simulation and the files: summary.json, the
-simulated trace, measured-above-simulated timelines and both Perfetto traces.
+simulated and replayed traces, measured-above-simulated timelines and both Perfetto traces.
+
+Two levels, side by side: the *prediction* (the calibrated cost model) and the *replay* (the
+model's timeline on the run's own task durations, :mod:`mgpusim.validation.replayed`). Both
+model the schedule as it ran: tasks the runner ran on another queue than the schedule's are
+moved there first (`queues_as_run` in the report).
 """
 from __future__ import annotations
 
@@ -16,7 +21,10 @@ from mgpusim.results.waits import LONG_WAIT_NS, host_split
 from mgpusim.schedules.experiment import Experiment
 from mgpusim.sim.simulation import simulate
 from mgpusim.validation.compare import compare
-from mgpusim.validation.measured import read_measured, read_submissions
+from mgpusim.schedules.program import build_program
+from mgpusim.validation.measured import (other_machine, queues_as_run, read_measured,
+                                         read_submissions, run_machine)
+from mgpusim.validation.replayed import replay_comparison
 from mgpusim.validation.repeated_runs import measure_repeated, run_spread
 
 #: The report lists the hand-offs whose mean wait differs by at least this much (ms), at most
@@ -35,17 +43,26 @@ def validate_experiment(exp: Experiment, out: Path, measured_dir: Path | None = 
     if measured_dir is None:
         measured_dir = measure_repeated(exp, out / "measured", repeats, run_seconds)
     measured = read_measured(measured_dir, exp)
-    sim = simulate(exp)
+    queues = queues_as_run(measured, build_program(exp))
+    sim = simulate(exp, queues=queues)
     report = compare(measured, sim.trace, exp.schedule.warmup_frames)
     report["config"] = {**sim.config, "overrides_from": exp.file}  # simulate's own run_config
+    report["queues_as_run"] = {str(a): str(b) for a, b in queues.items()}
+    report["replay"], replayed = replay_comparison(exp, measured, queues)
+    report["replay_frame_time_error"] = report["replay"]["frame_time_error"]
+    report["replay_latency_error"] = report["replay"]["latency_error"]
     report["measured_spread"], report["measured_runs"] = run_spread(measured_dir)
     report["measured_from"] = str(measured_dir)
+    elsewhere = other_machine(exp.profile, run_machine(measured_dir))
+    if elsewhere is not None:
+        report["profile_machine"] = elsewhere
     submissions = read_submissions(measured_dir)
     if submissions is not None:
         report["measured_host_split"] = host_split(measured, submissions, exp.schedule.warmup_frames)
     out.mkdir(parents=True, exist_ok=True)
     write_json(report, out / "summary.json")
     write_table(sim.trace, out / "simulated_trace.parquet")
+    write_table(replayed, out / "replayed_trace.parquet")
     title = f"{exp.schedule.name}, {exp.schedule.gpus} GPU(s), {exp.scene.width}x{exp.scene.height}"
     comparison_png(measured, sim.trace, out / "timelines.png", title, sim_links=sim.links)
     write_text(chrome_trace_json(*frame_window(measured, None), f"measured {title}"),
@@ -62,6 +79,14 @@ def format_report(exp: Experiment, r: dict[str, Any]) -> str:
              f"  {'':12} {'measured':>10} {'simulated':>10} {'error':>8}",
              f"  {'frame (ms)':12} {m['frame_time_ms']:10.3f} {s['frame_time_ms']:10.3f} {r['frame_time_error']:+8.1%}",
              f"  {'latency (ms)':12} {m['latency_ms']:10.3f} {s['latency_ms']:10.3f} {r['latency_error']:+8.1%}"]
+    if "replay" in r:  # the timeline alone: the model on the run's own task durations
+        p = r["replay"]["simulated"]
+        lines += [f"  {'replay frame':12} {m['frame_time_ms']:10.3f} {p['frame_time_ms']:10.3f} "
+                  f"{r['replay_frame_time_error']:+8.1%}",
+                  f"  {'replay lat.':12} {m['latency_ms']:10.3f} {p['latency_ms']:10.3f} "
+                  f"{r['replay_latency_error']:+8.1%}"]
+    for queue, ran_on in r.get("queues_as_run", {}).items():
+        lines.append(f"  modelled as run: {queue}'s tasks on {ran_on} (the runner opens one queue per family)")
     for step, v in r["steps"].items():
         lines.append(f"  {step:12} {v['measured_ms']:10.3f} {v['simulated_ms']:10.3f} {v['error']:+8.1%}")
     waits = [(edge, w) for edge, w in r.get("waits", {}).items()
@@ -76,6 +101,12 @@ def format_report(exp: Experiment, r: dict[str, Any]) -> str:
                 h = split[edge]
                 lines.append(f"      measured: inputs seen after {h['input_seen_ms']:.3f}, submit "
                              f"called {h['submit_call_ms']:.3f} later, started {h['device_start_ms']:.3f} later")
+    elsewhere = r.get("profile_machine")
+    if elsewhere:
+        said = "; ".join(f"{k} {elsewhere['profile'][k]!r}, the run's {elsewhere['run'][k]!r}"
+                         for k in elsewhere["differs"])
+        lines.append(f"  note: the profile was calibrated on another machine ({said}); its accuracy "
+                     "holds there: calibrate one on this machine (bash scripts/main.sh on lavapipe)")
     stalled = r.get("stalls", {}).get("frames", {})
     if stalled:
         shown = ", ".join(f"{f} ({ms:.1f} ms)" for f, ms in list(stalled.items())[:5])

@@ -6,16 +6,22 @@ experiment it is compared with, or the comparison would report the difference as
 """
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
 from mgpusim.model.errors import InputError
+from mgpusim.model.profile import CalibratedOn, HardwareProfile
+from mgpusim.model.tasks import CpuTask, HostCopyTask, QueueRef
 from mgpusim.results.trace import SUBMISSION_COLUMNS
+from mgpusim.schedules.base import FrameProgram
 from mgpusim.schedules.experiment import Experiment
 from mgpusim.validation import run_archive
 from mgpusim.validation.measured_check import (check_physical_gpus, check_recorded_config,
-                                               check_trace, read_json_object, read_table)
+                                               check_trace, machine_of, read_json_object,
+                                               read_table)
 
 TRACE_FILES = ("trace.parquet", "trace.csv")
 SUBMISSION_FILES = ("submissions.parquet", "submissions.csv")
@@ -43,6 +49,50 @@ def read_measured(folder: Path, exp: Experiment) -> pd.DataFrame:
     if run_archive.is_file(machine):
         check_physical_gpus(read_json_object(machine), exp, str(machine))
     return trace
+
+
+def run_machine(folder: Path) -> CalibratedOn | None:
+    """The machine a measured run ran on (its `machine.json`), None where the folder has none."""
+    machine = folder / "machine.json"
+    return machine_of(read_json_object(machine)) if run_archive.is_file(machine) else None
+
+
+def other_machine(profile: HardwareProfile, ran_on: CalibratedOn | None) -> dict[str, Any] | None:
+    """Where the machine that ran a run differs from the one the profile was calibrated on
+    (`{"profile": ..., "run": ..., "differs": [field, ...]}`), None where they agree or either
+    is unknown. Why: a profile's accuracy holds on its own machine; a comparison of another
+    machine's runs with it reads that machine's difference as model error."""
+    mine = profile.calibrated_on
+    if mine is None or ran_on is None:
+        return None
+    diff = mine.differences(ran_on)
+    if not diff:
+        return None
+    return {"profile": dataclasses.asdict(mine), "run": dataclasses.asdict(ran_on), "differs": sorted(diff)}
+
+
+def queues_as_run(trace: pd.DataFrame, program: FrameProgram) -> dict[QueueRef, QueueRef]:
+    """Queues of `program` that the measured run replaced by another queue of the same device:
+    queue -> the queue its tasks ran on. The runner opens one queue per family, so the tasks of
+    a family's second queue run on the first (the run's summary lists them among
+    `queue_fallbacks`). A queue some of whose tasks ran on it is kept."""
+    ran = trace[["task", "device", "engine"]].drop_duplicates()
+    seen: dict[tuple[str, str], set[str]] = {}
+    for task, device, engine in ran.itertuples(index=False):
+        seen.setdefault((str(task), str(device)), set()).add(str(engine))
+    targets: dict[QueueRef, set[str]] = {}
+    for tasks in program.templates:
+        for t in tasks:
+            if not isinstance(t, (HostCopyTask, CpuTask)):
+                engines = seen.get((t.name, t.queue.device_name), set())
+                targets.setdefault(t.queue, set()).update(engines or {t.queue.engine})
+    out = {}
+    for queue, engines in targets.items():
+        if queue.engine not in engines and len(engines) == 1:
+            moved = QueueRef.of(queue.device_name, next(iter(engines)))
+            if moved is not None:
+                out[queue] = moved
+    return out
 
 
 def read_submissions(folder: Path) -> pd.DataFrame | None:

@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from mgpusim.model.errors import InputError
+from mgpusim.model.profile import CalibratedOn
 from mgpusim.results.trace import TRACE_COLUMNS
 from mgpusim.schedules.program import recorded_inputs
 from mgpusim.validation import run_archive
@@ -159,6 +160,18 @@ def _drop_newer_defaults(config: dict[str, Any], inputs: dict[str, Any], schedul
         default = json.loads(json.dumps(option.default, default=list))  # as inputs record it
         if key not in recorded and inputs["schedule"].get(key) == default:
             inputs["schedule"].pop(key, None)
+
+
+def machine_of(record: dict[str, Any]) -> CalibratedOn | None:
+    """The machine a run's `machine.json` describes, in a profile's terms (its CPU model and
+    usable CPUs, its first GPU's device and driver); None for a record without them."""
+    gpus = record.get("gpus")
+    gpu = gpus[0] if isinstance(gpus, list) and gpus and isinstance(gpus[0], dict) else None
+    cpus = record.get("affinity_cpus") or record.get("cpu_count")
+    if gpu is None or not isinstance(record.get("cpu"), str) or not isinstance(cpus, int):
+        return None
+    driver = f"{gpu.get('driver', '')} {gpu.get('driver_info', '')}".strip()
+    return CalibratedOn(record["cpu"], cpus, str(gpu.get("device", "")), driver)
 
 
 def check_physical_gpus(machine: dict[str, Any], exp: Any, file: str) -> None:

@@ -22,7 +22,7 @@ from typing import Any, Literal
 from mgpusim.model.errors import ScheduleError
 from mgpusim.model.tasks import Task
 from mgpusim.real.runner.work import GpuWork, HostWork, Work
-from mgpusim.schedules.base import FrameProgram, waits_for_labels
+from mgpusim.schedules.base import FrameProgram, leads_chain, waits_for_labels
 
 EdgeKind = Literal["order", "semaphore", "host"]
 HOST_STREAM = "host"
@@ -64,6 +64,8 @@ def build_nodes(program: FrameProgram, works: list[dict[str, Work]], frames: int
     """Nodes of frames 0..frames-1 in (frame, position) order, with their classified edges."""
     period = len(program.templates)
     labels = waits_for_labels(program)
+    index = [{t.name: t for t in tasks} for tasks in program.templates]
+    leads = [{t.name: leads_chain(t, index[q]) for t in tasks} for q, tasks in enumerate(program.templates)]
     nodes: list[Node] = []
     by_key: dict[tuple[int, str], Node] = {}
     for f in range(frames):
@@ -82,7 +84,7 @@ def build_nodes(program: FrameProgram, works: list[dict[str, Work]], frames: int
             if (prod.frame, prod.index) >= (node.frame, node.index):
                 raise ScheduleError(f"{node.label} depends on {prod.label}, which comes later in "
                                     f"the frame's submission order: the runner submits in order")
-            kind = _edge(prod.work, node.work, prod.stream == node.stream)
+            kind = _edge(prod.work, node.work, prod.stream == node.stream, leads[node.frame % period][node.task.name])
             node.deps.append((prod, kind))
             if kind == "semaphore":
                 prod.sem_consumers.append(node)
@@ -103,7 +105,15 @@ def earliest_first(dep: tuple[Node, EdgeKind]) -> tuple[int, int]:
     return producer.frame, producer.index
 
 
-def _edge(prod: Work, cons: Work, same_stream: bool) -> EdgeKind:
+def _edge(prod: Work, cons: Work, same_stream: bool, leads_chain: bool = False) -> EdgeKind:
+    """How the consumer waits for the producer: queue order on one stream, a semaphore between
+    queues of one device, else on the host. A chain's leader always waits on the host: it
+    decides at its submit time whether the work before it is still running, as the model does
+    when its inputs have ended; ordered behind them on the device instead, its submit thread
+    ran frames ahead and found the previous instance still queued (1-GPU particle runs skipped
+    97-99 % of their updates where the model skips none or every other one)."""
+    if leads_chain:
+        return "host"
     if same_stream:
         return "order" if isinstance(prod, GpuWork) else "host"
     if isinstance(prod, GpuWork) and isinstance(cons, GpuWork) and prod.device == cons.device:

@@ -595,17 +595,21 @@ def markdown(cr: CaseResult) -> str:
 
 #: The predicted table in a docs page sits between these lines (docs/cases/refresh.py fills it).
 BLOCK_START, BLOCK_END = "<!-- predictions:start -->", "<!-- predictions:end -->"
+#: The comparison with the published figures sits between these.
+COMPARISON = ("<!-- comparison:start -->", "<!-- comparison:end -->")
 
 
-def docs_block(page: str) -> str:
-    """The text between the prediction markers of a docs page ('' when it has none)."""
-    if BLOCK_START not in page or BLOCK_END not in page:
+def docs_block(page: str, markers: tuple[str, str] = (BLOCK_START, BLOCK_END)) -> str:
+    """The text between a docs page's markers ('' when it has none)."""
+    start, end = markers
+    if start not in page or end not in page:
         return ""
-    return page.split(BLOCK_START, 1)[1].split(BLOCK_END, 1)[0].strip("\n") + "\n"
+    return page.split(start, 1)[1].split(end, 1)[0].strip("\n") + "\n"
 
 
-def with_docs_block(page: str, block: str) -> str:
-    """The page with its prediction block replaced by `block`."""
-    head, rest = page.split(BLOCK_START, 1)
-    tail = rest.split(BLOCK_END, 1)[1]
-    return f"{head}{BLOCK_START}\n{block.rstrip()}\n{BLOCK_END}{tail}"
+def with_docs_block(page: str, block: str, markers: tuple[str, str] = (BLOCK_START, BLOCK_END)) -> str:
+    """The page with the block between its markers replaced by `block`."""
+    start, end = markers
+    head, rest = page.split(start, 1)
+    tail = rest.split(end, 1)[1]
+    return f"{head}{start}\n{block.rstrip()}\n{end}{tail}"

@@ -299,7 +299,7 @@ def _build(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, pixels: 
                                buffers, host_copy, geometry)
     if cfg.opt("host_work") == "as_built":
         _check_as_built(cfg)
-        tasks = as_built(tasks, n, last_render)
+        tasks = as_built(tasks, n, last_render, depth=composite.kind == "composite_sort_last")
         record.update(host_work="as_built")
     if unsupported:
         tasks = [replace(t, params=MappingProxyType({**t.params, "unsupported": unsupported}))

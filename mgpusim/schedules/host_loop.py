@@ -4,7 +4,7 @@ The reference renderer (docs/sources.md, "The five-step pipeline": the `bpMulti`
 the thesis's library and the `bpQt` window loop) does per frame, on the application's threads:
 
 1. the main thread starts one thread per GPU that renders and one per secondary that copies
-   (`std::async`: started and joined every frame);
+   (one more for a secondary's depth; `std::async`: started and joined every frame);
 2. each GPU's thread records its render, submits it and waits for its queue to be idle
    (`vkQueueWaitIdle`); a secondary's thread then records the download of its contribution
    to a staging buffer on its transfer queue, submits it and waits idle again;
@@ -45,16 +45,18 @@ def gpu_thread(gpu: int) -> str:
     return f"gpu{gpu}"
 
 
-def as_built(tasks: Sequence[Task], gpus: int, renders: Sequence[str]) -> list[Task]:
+def as_built(tasks: Sequence[Task], gpus: int, renders: Sequence[str], depth: bool = False) -> list[Task]:
     """The five-step `tasks` (renders, d2h{i}, host_copy{i}, h2d{i}, composite, present;
-    `renders[i]`: GPU i's last render) run by the reference code's frame loop (module doc)."""
+    `renders[i]`: GPU i's last render) run by the reference code's frame loop (module doc);
+    `depth`: the contributions carry depth, whose host copy has a thread of its own."""
     by_name = {t.name: t for t in tasks}
     if gpus == 1:  # one GPU renders straight to the window: record, submit, wait idle, present
         record = CpuTask("cpu.record0", STEP, MAIN_THREAD, command_buffers=1,
                          deps=(Dep("present", -1),))
         return [record] + [_after(t, "cpu.record0") if _first_render(t, 0) else t for t in tasks]
     secondaries = range(1, gpus)
-    launch = CpuTask("cpu.launch", STEP, MAIN_THREAD, threads=2 * gpus - 1, deps=(Dep("present", -1),))
+    threads = 2 * gpus - 1 + (gpus - 1 if depth else 0)  # renders, copies, depth copies
+    launch = CpuTask("cpu.launch", STEP, MAIN_THREAD, threads=threads, deps=(Dep("present", -1),))
     out: list[Task] = [launch]
     for i in range(gpus):
         out.append(CpuTask(f"cpu.record{i}", STEP, gpu_thread(i), command_buffers=1,

@@ -30,6 +30,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Sequence
 
+from types import MappingProxyType
+
 from mgpusim.model.tasks import CopyTask, CpuTask, Dep, HostCopyTask, PassTask, Task
 from mgpusim.schedules.base import MAIN_THREAD
 
@@ -38,6 +40,9 @@ from mgpusim.schedules.base import MAIN_THREAD
 PARALLEL_COPY_MIN_BYTES = 1024
 #: The steps of the host loop's CPU tasks (the trace's `step` column).
 STEP = "host_loop"
+#: The Vulkan runner runs these CPU tasks (it starts and joins their threads on an application
+#: thread of their own and waits for their inputs' fences): mgpusim/real/runner/work.py.
+RUNNABLE = MappingProxyType({"runner": STEP})
 
 
 def gpu_thread(gpu: int) -> str:
@@ -52,22 +57,23 @@ def as_built(tasks: Sequence[Task], gpus: int, renders: Sequence[str], depth: bo
     by_name = {t.name: t for t in tasks}
     if gpus == 1:  # one GPU renders straight to the window: record, submit, wait idle, present
         record = CpuTask("cpu.record0", STEP, MAIN_THREAD, command_buffers=1,
-                         deps=(Dep("present", -1),))
+                         deps=(Dep("present", -1),), params=RUNNABLE)
         return [record] + [_after(t, "cpu.record0") if _first_render(t, 0) else t for t in tasks]
     secondaries = range(1, gpus)
     threads = 2 * gpus - 1 + (gpus - 1 if depth else 0)  # renders, copies, depth copies
-    launch = CpuTask("cpu.launch", STEP, MAIN_THREAD, threads=threads, deps=(Dep("present", -1),))
+    launch = CpuTask("cpu.launch", STEP, MAIN_THREAD, threads=threads, deps=(Dep("present", -1),),
+                     params=RUNNABLE)
     out: list[Task] = [launch]
     for i in range(gpus):
         out.append(CpuTask(f"cpu.record{i}", STEP, gpu_thread(i), command_buffers=1,
-                           deps=(Dep(launch.name),)))
+                           deps=(Dep(launch.name),), params=RUNNABLE))
     for t in tasks:
         if isinstance(t, PassTask) and t.step == "render":
             gpu = t.queue.device
             out.append(_after(t, f"cpu.record{gpu}") if _first_render(t, gpu) else t)
     for i in secondaries:
         out.append(CpuTask(f"cpu.record_d2h{i}", STEP, gpu_thread(i), command_buffers=1,
-                           deps=(Dep(renders[i]),)))
+                           deps=(Dep(renders[i]),), params=RUNNABLE))
         d2h = by_name[f"d2h{i}"]
         out.append(dataclasses.replace(d2h, deps=(Dep(f"cpu.record_d2h{i}"),) + d2h.deps[1:]))
     staged = []
@@ -79,12 +85,14 @@ def as_built(tasks: Sequence[Task], gpus: int, renders: Sequence[str], depth: bo
             staged.append(Dep(hc.name))
         else:
             staged += [Dep(f"d2h{i}", -1), Dep(launch.name)]
-    out.append(CpuTask("cpu.record_upload", STEP, MAIN_THREAD, command_buffers=1, deps=tuple(staged)))
+    out.append(CpuTask("cpu.record_upload", STEP, MAIN_THREAD, command_buffers=1, deps=tuple(staged),
+                       params=RUNNABLE))
     for i in secondaries:
         h2d = by_name[f"h2d{i}"]
         out.append(dataclasses.replace(h2d, deps=(Dep("cpu.record_upload"),) + h2d.deps[1:]))
     joins = [Dep(f"h2d{i}") for i in secondaries] + [Dep(renders[0])] + [Dep(f"d2h{i}") for i in secondaries]
-    out.append(CpuTask("cpu.record_composite", STEP, MAIN_THREAD, command_buffers=1, deps=tuple(joins)))
+    out.append(CpuTask("cpu.record_composite", STEP, MAIN_THREAD, command_buffers=1, deps=tuple(joins),
+                       params=RUNNABLE))
     out.append(dataclasses.replace(by_name["composite"], deps=(Dep("cpu.record_composite"),)))
     out.append(by_name["present"])
     return out

@@ -21,7 +21,7 @@ from typing import Any, Literal
 
 from mgpusim.model.errors import ScheduleError
 from mgpusim.model.tasks import Task
-from mgpusim.real.runner.work import GpuWork, HostWork, Work
+from mgpusim.real.runner.work import CpuWork, GpuWork, HostWork, Work
 from mgpusim.schedules.base import FrameProgram, waits_for_labels
 
 EdgeKind = Literal["order", "semaphore", "host"]
@@ -54,9 +54,15 @@ class Node:
         return f"frame {self.frame} {self.task.name}"
 
 
+#: Streams of CPU tasks: `cpu/<thread>`, one application thread each.
+CPU_STREAM = "cpu/"
+
+
 def stream_of(work: Work) -> str:
     if isinstance(work, HostWork):
         return HOST_STREAM
+    if isinstance(work, CpuWork):
+        return CPU_STREAM + work.thread
     return f"gpu{work.device}/{work.queue.family.index}"
 
 

@@ -148,3 +148,14 @@ def test_copy_granularity_on_a_copy_engine_exact():
     r = simulate(make_experiment(prof, gpus=2, frames=3, iterations=10))
     assert rows(r, "d2h1", 0)[0][1] - rows(r, "d2h1", 0)[0][0] == 148
     assert "copy_engine_caps" in r.summary["modelled_effects"]
+
+
+def test_fast_forward_of_the_as_built_loop_is_exact():
+    """The loop's CPU threads are part of the state the fast-forward compares: 2000 frames
+    skipped ahead equal 2000 frames simulated one by one."""
+    exp = make_experiment(_host(dispatch_ns=5, thread_start_ns=3, record_ns=2, uncached_read_gbps=0.5),
+                          gpus=2, frames=2000, iterations=10, host_work="as_built")
+    fast = simulate(exp, record_trace=False)
+    slow = simulate(exp, record_trace=False, fast_forward=False)
+    assert fast.summary["fast_forward"]["used"] is True
+    assert fast.frames.present_ns.tolist() == slow.frames.present_ns.tolist()

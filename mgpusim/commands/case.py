@@ -1,8 +1,11 @@
 """`mgpusim case NAME [--out DIR] [--frames N]` and `mgpusim case --list`: a case study in one command.
 
 Simulates every run of a shipped case (`experiments/cases/<name>/case.toml`) and writes the
-predicted table (`predictions.md`, `predictions.csv`) and a timeline picture per run the case
-names (`timeline_<run>.png`) into the output folder.
+predicted table (`predictions.md`, `predictions.csv`), the source's published figures beside
+their predictions (`comparison.csv`: quantity, published, predicted, error) and a timeline
+picture per run the case names (`timeline_<run>.png`) into the output folder. `--calibrate`
+instead finds the values the published figures set (the case's calibration rules) and prints
+them beside the case file's.
 """
 from __future__ import annotations
 
@@ -25,13 +28,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, default=None, help="output folder (default: out/cases/<name>)")
     p.add_argument("--frames", type=int, default=None, metavar="N",
                    help="simulate N frames per run (a fifth of them warm-up) instead of each experiment's own")
+    p.add_argument("--calibrate", action="store_true",
+                   help="find the parameter values the published figures set and print them (writes nothing)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from mgpusim.io.output import write_table, write_text  # noqa: PLC0415
-    from mgpusim.studies.cases import (case_names, load_case, markdown, run_case,  # noqa: PLC0415
-                                       table)
+    from mgpusim.studies.cases import (case_names, comparison, comparison_markdown,  # noqa: PLC0415
+                                       load_case, markdown, run_case, table)
     if args.list:
         for name in case_names():
             case = load_case(name)
@@ -42,15 +47,35 @@ def run(args: argparse.Namespace) -> int:
     if args.frames is not None and args.frames < 2:
         raise InputError(f"must be >= 2, got {args.frames}", field="--frames")
     case = load_case(args.name)
+    if args.calibrate:
+        return print_calibration(case, args.frames)
     out = args.out or Path("out") / "cases" / case.name
     check_out_dir(out)
     result = run_case(case, args.frames)
     out.mkdir(parents=True, exist_ok=True)
     text = f"# {case.title}\n\n{case.description}\n\n{markdown(result)}"
+    if case.published:
+        text += f"\n## Compared with the published figures\n\n{comparison_markdown(result)}"
     files = [write_text(text, out / "predictions.md"), write_table(table(result), out / "predictions.csv")]
+    if case.published:
+        files.append(write_table(comparison(result), out / "comparison.csv"))
     files += write_timelines(result, out, "timeline_")
     print(text, end="")
     print(f"\nwrote {', '.join(str(f) for f in files)}")
+    return 0
+
+
+def print_calibration(case, frames: int | None) -> int:
+    """The values the case's published figures set, beside the case file's."""
+    from mgpusim.studies.cases import calibrate  # noqa: PLC0415
+    found = calibrate(case, frames)
+    print(f"{case.name}: parameters set by published figures (calibration rules of {case.file})")
+    for fig in case.published:
+        if fig.sets:
+            par = case.parameter(fig.sets)
+            how = "searched" if par.bounds else "a rule's value (not searched)"
+            print(f"  {par.name}: {found[par.name]:.6g} (case file: {par.value:.6g}; {how}) "
+                  f"<- {fig.label} = {fig.value:g}")
     return 0
 
 

@@ -12,6 +12,7 @@ from typing import Mapping
 from mgpusim.model import limits as L
 from mgpusim.model.errors import InputError, TimeBoundError
 from mgpusim.model.profile import HardwareProfile
+from mgpusim.model.tasks import CpuTask, HostCopyTask
 from mgpusim.model.work_terms import PLACED_TERMS
 
 
@@ -132,6 +133,25 @@ class CostModel:
 
     def memcpy_thread_cap(self) -> Fraction:
         return gbps_fraction(self.profile.host.memcpy_thread_gbps)
+
+    def host_copy_cap(self, task: HostCopyTask, uncached: bool = True) -> Fraction:
+        """One part's speed on its memcpy thread: the thread's, or where the copy reads
+        uncached memory (and `uncached`, the uncached_reads effect, is on) the slower
+        `host.uncached_read_gbps`."""
+        cap = self.memcpy_thread_cap()
+        slow = self.profile.host.uncached_read_gbps
+        if uncached and task.uncached and slow:
+            cap = min(cap, gbps_fraction(slow))
+        return cap
+
+    def cpu_task_ns(self, task: CpuTask, frame_work: bool = True) -> int:
+        """A CPU task's time: its own cost, plus (`frame_work`, the host_frame_work effect)
+        `host.thread_start_ns` per thread it starts and `host.record_ns` per command buffer
+        it records, rounded half up once."""
+        host = self.profile.host
+        extra = (task.threads * host.thread_start_ns + task.command_buffers * host.record_ns
+                 if frame_work else 0)
+        return ns(task.cost_ns + extra)
 
 
 def overlap_efficiency(alone_a: float, alone_b: float, together: float) -> float:

@@ -87,6 +87,18 @@ class HostProfile:
     busy_wake_share: float = 0.0
     busy_wake_ns: int = 0
     busy_wake_window_ns: int = BUSY_WAKE_WINDOW_NS
+    #: Host time to start (and later join) one application thread: an engine that starts its
+    #: worker threads every frame (std::async) pays it on the thread that starts them (the
+    #: host_frame_work effect; CPU tasks say how many threads they start).
+    thread_start_ns: int = 0
+    #: Host time to record and submit one command buffer on an application thread (the
+    #: host_frame_work effect; CPU tasks say how many they record).
+    record_ns: int = 0
+    #: One memcpy thread's speed when it reads host-visible memory that is not cached (a
+    #: write-combined, HOST_COHERENT staging buffer mapped for the CPU: every load goes to
+    #: memory; the uncached_reads effect, for host copies whose source is such memory).
+    #: 0: such reads are as fast as cached ones.
+    uncached_read_gbps: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -379,6 +391,9 @@ def _parse_host(t: Table) -> HostProfile:
         busy_wake_share=t.get("busy_wake_share", float, 0.0, minimum=0, maximum=1),
         busy_wake_ns=_ns(t, "busy_wake_ns", 0),
         busy_wake_window_ns=_ns(t, "busy_wake_window_ns", BUSY_WAKE_WINDOW_NS),
+        thread_start_ns=_ns(t, "thread_start_ns", 0),
+        record_ns=_ns(t, "record_ns", 0),
+        uncached_read_gbps=_gbps(t, "uncached_read_gbps", 0.0) if t.has("uncached_read_gbps") else 0.0,
     )
     _check_host(t, host)
     t.finish()

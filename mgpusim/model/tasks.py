@@ -124,6 +124,9 @@ class HostCopyTask:
     deps: tuple[Dep, ...] = ()
     chunk_min_bytes: int = 512 * 1024
     skip_if_busy: bool = False
+    #: The source is host-visible memory the CPU does not cache (a write-combined staging
+    #: buffer): its parts read at `host.uncached_read_gbps` (the uncached_reads effect).
+    uncached: bool = False
 
     #: Host-visible buffers copied from and to (the Vulkan runner's binding).
     src: str | None = None
@@ -142,6 +145,9 @@ class CpuTask:
 
     Its cost is its own linear model, `fixed_ns + ns_per_item * items` (integer ns, rounded
     half up once): the schedule that places it says what an item is (a particle, a byte).
+    Where the engine's host work is modelled (the host_frame_work effect) it also costs
+    `host.thread_start_ns` for each of the `threads` it starts (and joins) and `host.record_ns`
+    for each of the `command_buffers` it records and submits.
     Tasks of one thread run in submission order, one at a time; a CPU task fed by a GPU or
     the memcpy threads starts `host.dispatch_ns` after that input (the thread wakes on a fence).
     Only the simulator runs it: the Vulkan runner refuses a program that has one."""
@@ -156,6 +162,8 @@ class CpuTask:
     skip_if_busy: bool = False
     params: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType(
         {"unsupported": "CPU tasks are simulated only: the Vulkan runner runs GPU work and copies"}))
+    threads: int = 0
+    command_buffers: int = 0
 
     @property
     def cost_ns(self) -> float:

@@ -65,18 +65,20 @@ def use_peer(profile: HardwareProfile, src: int, dst: int, route: Route) -> bool
 
 def cross(prefix: str, profile: HardwareProfile, src: int, dst: int, nbytes: int,
           deps: tuple[Dep, ...], route: Route, *, dst_deps: tuple[Dep, ...] = (),
-          pull: bool = False, skip: bool = False) -> list[Task]:
+          pull: bool = False, skip: bool = False, through_host: bool = False) -> list[Task]:
     """Tasks moving `nbytes` from `src` to `dst`; the last task's end means "arrived".
 
     `deps` gate the first task (the data is ready, the source buffer may be read); `dst_deps`
     gate the task that writes the destination (its buffer is free). A peer copy is recorded
     on the destination's queue when `pull` (it reads peer memory) else on the source's.
     `skip` marks the tasks as followers of a skippable task (see PassTask.skip_if_busy).
+    `through_host`: a buffer that stays on one GPU still goes down to host memory and back up
+    (an engine that moves it through the CPU on one GPU as it does between two).
     """
-    if src == dst:
+    if src == dst and not through_host:
         q = copy_queue(profile, src, route.copy_queue)
         return [CopyTask(f"{prefix}.d2d", "d2d", q, "d2d", nbytes, deps + dst_deps, skip_if_busy=skip)]
-    if route.path == "group" or use_peer(profile, src, dst, route):
+    if src != dst and (route.path == "group" or use_peer(profile, src, dst, route)):
         dev, peer = (dst, src) if pull else (src, dst)
         q = copy_queue(profile, dev, route.copy_queue)
         path = "group" if route.path == "group" else "p2p"

@@ -25,10 +25,13 @@ from mgpusim.model.work_terms import PLACED_TERMS, pass_work
 from mgpusim.schedules.base import (Footprint, FrameProgram, chain_passes, present_task,
                                     present_work, queue_or_graphics)
 from mgpusim.schedules.five_step_io import bind_io
+from mgpusim.schedules.host_loop import as_built
 from mgpusim.schedules.registry import Option, ScheduleConfig, register
 
 #: `pipelining` modes, from most to least overlap (see OPTIONS).
 PIPELINING = ("full", "secondary_wait", "lockstep")
+#: `host_work` modes (see OPTIONS).
+HOST_WORK = ("overlapped", "as_built")
 
 OPTIONS = {
     "host_copy": Option(bool, True, "step 3: copy between the two staging buffers on host "
@@ -41,6 +44,13 @@ OPTIONS = {
                          "download ended: the reference code's waitIdle), 'lockstep' (no GPU "
                          "starts a frame before the previous one was presented)",
                          choices=PIPELINING),
+    "host_work": Option(str, "overlapped", "the host's part of each frame: 'overlapped' (the "
+                        "host only copies; every step is submitted as soon as its inputs are "
+                        "ready) or 'as_built' (the thesis's reference code: threads started and "
+                        "joined every frame, each submit followed by a wait for the queue to be "
+                        "idle, the host copy read from uncached staging memory on every hardware "
+                        "thread, every contribution composited, a barrier per frame; "
+                        "mgpusim/schedules/host_loop.py)", choices=HOST_WORK),
 }
 SORT_FIRST_OPTIONS = {
     **OPTIONS,
@@ -75,7 +85,8 @@ def build_sort_first(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile
     rows = _sort_first_rows(cfg, scene, profile)
     pixels = [scene.width * r for r in rows]
     contribution = [p * scene.color_bytes_per_pixel for p in pixels]
-    composite = _composite("composite_sort_first", cfg.gpus - 1, sum(pixels[1:]))
+    composite = (_composite("composite_sort_first", cfg.gpus, sum(pixels)) if _composites_all(cfg)
+                 else _composite("composite_sort_first", cfg.gpus - 1, sum(pixels[1:])))
     frame = (scene.width, scene.height)
     places = [Placement(frame, (0, sum(rows[:i]), scene.width, r)) for i, r in enumerate(rows)]
     return _build(cfg, scene, profile, pixels, [1.0] * cfg.gpus, contribution, composite,
@@ -198,7 +209,8 @@ def balanced_rows(scene: Scene, profile: HardwareProfile, n: int) -> list[int]:
 def build_sort_last(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile) -> FrameProgram:
     n = cfg.gpus
     per_gpu = scene.color_bytes + scene.depth_bytes
-    composite = _composite("composite_sort_last", n - 1, (n - 1) * scene.pixels)
+    layers = n if _composites_all(cfg) else n - 1
+    composite = _composite("composite_sort_last", layers, layers * scene.pixels)
     frame = (scene.width, scene.height)
     counts = object_counts(cfg, scene)
     if counts is None:
@@ -230,6 +242,13 @@ def object_counts(cfg: ScheduleConfig, scene: Scene) -> list[int] | None:
         raise InputError(f"expected {n} non-negative integers summing to scene.objects = "
                          f"{scene.objects}, got {given!r}", field="schedule.object_counts")
     return given
+
+
+def _composites_all(cfg: ScheduleConfig) -> bool:
+    """The reference code renders the primary's part offscreen too and composites every
+    GPU's contribution (as built); otherwise the primary renders into the frame and the
+    composite draws only the secondaries'."""
+    return cfg.opt("host_work") == "as_built" and cfg.gpus > 1
 
 
 def _composite(kind: str, inputs: int, pixels: int) -> PassSpec:
@@ -278,6 +297,10 @@ def _build(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, pixels: 
                   contribution_bytes_per_frame=sum(contribution[1:]))
     tasks, resources = bind_io(tasks, scene, n, composite.kind, record.get("tile_rows"),
                                buffers, host_copy, geometry)
+    if cfg.opt("host_work") == "as_built":
+        _check_as_built(cfg)
+        tasks = as_built(tasks, n, last_render, depth=composite.kind == "composite_sort_last")
+        record.update(host_work="as_built")
     if unsupported:
         tasks = [replace(t, params=MappingProxyType({**t.params, "unsupported": unsupported}))
                  if isinstance(t, PassTask) and t.step == "render" else t for t in tasks]
@@ -285,6 +308,17 @@ def _build(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, pixels: 
                         record=MappingProxyType(record), resources=resources,
                         footprints=_footprints(scene, pixels, shares, contribution, buffers,
                                                geometry))
+
+
+def _check_as_built(cfg: ScheduleConfig) -> None:
+    """The reference code's loop has its own overlap (a barrier per frame) and one tile per GPU."""
+    if cfg.opt("pipelining") != "full":
+        raise InputError(f"host_work = 'as_built' runs the reference code's own frame loop (a "
+                         f"barrier per frame); it cannot be combined with pipelining = "
+                         f"{cfg.opt('pipelining')!r}", field="schedule.pipelining")
+    if cfg.options.get("tiles") not in (None, 0, cfg.gpus):
+        raise InputError("host_work = 'as_built' renders one tile per GPU, as the reference code "
+                         "does; it cannot be combined with interleaved strips", field="schedule.tiles")
 
 
 def _footprints(scene: Scene, pixels: list[int], shares: list[float], contribution: list[int],

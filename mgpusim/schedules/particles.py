@@ -50,6 +50,11 @@ OPTIONS = {
     "update_queue": Option(str, "compute", "queue of the particle GPU that runs the update: "
                            "'compute' (its graphics queue where it has none) or 'graphics'",
                            choices=("compute", "graphics")),
+    "one_gpu_path": Option(str, "local", "with particle_gpu = 0: 'local' (the draw reads the "
+                           "buffer the update wrote) or 'through_host' (the vertex buffer still "
+                           "goes down to the host, through the CPU copy and back up, as from a "
+                           "secondary: the particle thesis's one-GPU data path)",
+                           choices=("local", "through_host")),
     "cpu_copy": Option(bool, False, "the main thread itself waits for the vertex download and "
                        "copies the readback buffer into the upload buffer (a CPU task at one "
                        "memcpy thread's speed) before it submits the upload; false: the copy "
@@ -69,17 +74,18 @@ def build_particles(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile)
                       "particle_update", MappingProxyType({"particle": float(n)}),
                       _frame_gate(cfg), skip_if_busy=new_wait)
     chain: list[Task] = [update]
-    if pg != 0:
+    through = pg == 0 and cfg.opt("one_gpu_path") == "through_host"
+    if pg != 0 or through:
         cpu_copy = cfg.opt("cpu_copy")
         chain += cross("particles", profile, pg, 0, nbytes, (Dep(update.name),),
                        Route("transfer", "host", cfg.opt("host_copy") and not cpu_copy),
-                       dst_deps=(Dep("particle_render", -2),), skip=new_wait)
+                       dst_deps=(Dep("particle_render", -2),), skip=new_wait, through_host=through)
         if cpu_copy:
             chain = _copy_on_main_thread(chain, profile, nbytes, new_wait)
     draw_deps = () if new_wait else (Dep(chain[-1].name),)
     tasks = chain + _engine(cfg, scene, n, draw_deps)
     record = {"particles": n, "particle_gpu": pg, "policy": cfg.opt("policy"),
-              "vertex_bytes_per_frame": nbytes if pg != 0 else 0}
+              "vertex_bytes_per_frame": nbytes if pg != 0 or through else 0}
     tasks, resources = _bind(tasks, cfg, scene, n, pg, new_wait)
     return FrameProgram(cfg.name, cfg.gpus, cfg.frames, cfg.warmup_frames, (tuple(tasks),),
                         record=MappingProxyType(record), rate_tasks=("particle_update",),
@@ -123,7 +129,9 @@ def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, n: int, pg: int,
     vertices = b.buffer(f"gpu{pg}.particles.vertices", pg, max(n, 1) * VERTEX_BYTES, buffers=2)
     shown = b.buffer("gpu0.particles.vertices", 0, max(n, 1) * VERTEX_BYTES, buffers=2)
     why = None
-    if cfg.opt("vertex_bytes_per_particle") != VERTEX_BYTES:
+    if pg == 0 and cfg.opt("one_gpu_path") == "through_host":
+        why = "the particles' one-GPU path through the host is simulated only"
+    elif cfg.opt("vertex_bytes_per_particle") != VERTEX_BYTES:
         why = (f"the runner's particle vertex buffer holds {VERTEX_BYTES} B per particle, not "
                f"schedule.vertex_bytes_per_particle = {cfg.opt('vertex_bytes_per_particle')}")
     crossing = [t for t in tasks if t.name.startswith("particles.")]

@@ -53,7 +53,7 @@ class _Node:
     deps: tuple[tuple[str, int, bool], ...]
     fixed: int  # pass time, or copy setup (+ latency), or a host-copy part's fixed time
     nbytes: int
-    rate: Fraction | None  # a copy's fixed link rate
+    rate: Fraction | None  # a copy's fixed link rate; a host copy's part rate
     gap: int
     parts: tuple[int, ...]  # host copy: the part sizes
     device: str
@@ -90,9 +90,7 @@ class Analytic:
         self.threads = host.memcpy_threads
         #: per frame phase, task name -> its task (a name may sit on other devices in other phases)
         self.task_of = [{t.name: t for t in tasks} for tasks in program.templates]
-        thread_cap = costs.memcpy_thread_cap()
-        mem = costs.host_memory_bandwidth()
-        self.part_rate = thread_cap if thread_cap < mem else mem
+        self.host_memory = costs.host_memory_bandwidth()
         self.phases = [self._order([self._node(op, phase) for op in ops])
                        for phase, ops in enumerate(probe.all_ops())]
         self.lag = max([1] + [-d[1] for ph in self.phases for n in ph for d in n.deps])
@@ -107,7 +105,8 @@ class Analytic:
                      for d in task.deps)
         if isinstance(task, HostCopyTask):
             parts = tuple(even_split(task.bytes, task.parts(self.threads)))
-            return _Node(task.name, task, "host", deps, op.duration, task.bytes, None, 0, parts,
+            rate = op.cap if op.cap < self.host_memory else self.host_memory  # a part alone
+            return _Node(task.name, task, "host", deps, op.duration, task.bytes, rate, 0, parts,
                          "host", "memcpy", op.waits_for)
         if isinstance(task, CpuTask):
             return _Node(task.name, task, f"host.{task.thread}", deps, op.duration, 0, None, 0, (),
@@ -265,7 +264,7 @@ class _Recurrence:
         for size in node.parts:
             tid = _thread(self.threads, t)
             s = max(t, self.threads[tid])
-            e = s + node.fixed + _round_div(size, self.m.part_rate)
+            e = s + node.fixed + _round_div(size, node.rate)  # type: ignore[arg-type]
             self.threads[tid] = e
             end = max(end, e)
             self._started(s)
@@ -461,7 +460,7 @@ def sweep(program: FrameProgram, costs: CostModel, pass_scale: np.ndarray, link_
     for phase in model.phases:
         for node in phase:
             if node.stream == "host":
-                sizes = [np.floor(size / float(model.part_rate) * link_scale + 0.5).astype(np.int64)
+                sizes = [np.floor(size / float(node.rate) * link_scale + 0.5).astype(np.int64)
                          for size in node.parts]
                 dur[node.name] = (node.fixed, sizes)
             elif isinstance(node.task, PassTask):

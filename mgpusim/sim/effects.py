@@ -84,6 +84,21 @@ def _copy_caps_bind(program: FrameProgram, profile: HardwareProfile) -> bool:
     return False
 
 
+def _frame_work(program: FrameProgram, profile: HardwareProfile) -> bool:
+    """A CPU task starts threads or records command buffers that cost host time."""
+    host = profile.host
+    return any(isinstance(t, CpuTask) and (t.threads and host.thread_start_ns
+                                            or t.command_buffers and host.record_ns)
+               for t in _all_tasks(program))
+
+
+def _uncached(program: FrameProgram, profile: HardwareProfile) -> bool:
+    """A host copy reads uncached memory, more slowly than a memcpy thread copies."""
+    slow = profile.host.uncached_read_gbps
+    return bool(slow) and slow < profile.host.memcpy_thread_gbps and any(
+        isinstance(t, HostCopyTask) and t.uncached for t in _all_tasks(program))
+
+
 def _gaps(program: FrameProgram, profile: HardwareProfile) -> bool:
     return any(not isinstance(t, (HostCopyTask, CpuTask)) and profile.gpus[t.queue.device].task_gap_ns
                for t in _all_tasks(program))
@@ -133,6 +148,19 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            "and host.busy_wake_ns are non-zero",
            lambda p, prof: bool(prof.host.gpus_share_cpu and prof.host.busy_wake_share
                                 and prof.host.busy_wake_ns and p.gpus > 1)),
+    Effect("host_frame_work",
+           "the application's per-frame host work: a CPU task that starts (and joins) threads "
+           "costs host.thread_start_ns each, one that records and submits command buffers "
+           "host.record_ns each; off: they cost only their own time",
+           "a CPU task starts threads or records command buffers and host.thread_start_ns or "
+           "host.record_ns is non-zero",
+           _frame_work),
+    Effect("uncached_reads",
+           "a host copy whose source is uncached (write-combined) host memory reads it at "
+           "host.uncached_read_gbps per memcpy thread; off: at host.memcpy_thread_gbps",
+           "a host copy reads uncached memory and host.uncached_read_gbps is set below "
+           "host.memcpy_thread_gbps",
+           _uncached),
     Effect("task_gaps",
            "a GPU's idle time between two tasks on a queue (task_gap_ns); off: none",
            "a GPU the schedule uses has task_gap_ns > 0",

@@ -23,7 +23,7 @@ from typing import Callable, Iterable, Mapping
 import numpy as np
 import simpy
 
-from mgpusim.model.costs import CostModel, gbps_fraction, ns, round_half_up
+from mgpusim.model.costs import CostModel, gbps_fraction, round_half_up
 from mgpusim.model.errors import InputError, ScheduleError
 from mgpusim.model.geometry import even_split
 from mgpusim.model.limits import INT64_MAX
@@ -213,14 +213,15 @@ class Engine:
             self._threads_all = [f"thread{i}" for i in range(host.memcpy_threads)]
             self._free_threads = list(range(host.memcpy_threads))
             self._part_queue: deque = deque()
-            cap = self.costs.memcpy_thread_cap()
             kind = Channel if "host_memory_sharing" in self.effects else FixedRateChannel
             memory = self.channels["host.memory"] = kind(self.env, "host.memory",
                                                          self.costs.host_memory_bandwidth())
+            # a part runs at its copy's cap (its op's): a memcpy thread's speed, or slower
+            # where it reads uncached memory (the uncached_reads effect)
             if host_ex.copies_on_cores:  # a memcpy thread is one core's work
-                self._part_event = lambda size: host_ex.work(-(-size * cap.denominator // cap.numerator))
+                self._part_event = lambda size, cap: host_ex.work(-(-size * cap.denominator // cap.numerator))
             else:
-                self._part_event = lambda size: memory.transfer(size, cap)
+                self._part_event = lambda size, cap: memory.transfer(size, cap)
             self._start_stream(host_ops, host=True)
 
     def _start_stream(self, plan: list[list[_Op]], host: bool) -> None:
@@ -237,9 +238,11 @@ class Engine:
         duration = self._duration(task)
         gap, gap_run = 0, None
         if isinstance(task, HostCopyTask):
-            self.costs.check_transfer(task.name, task.bytes, self.costs.memcpy_thread_cap(), duration,
-                                      "host.memcpy_thread_gbps")
-            return _Op(task, duration, None, None, 0, "host", "memcpy", self._waits_for[phase][task.name],
+            cap = self.costs.host_copy_cap(task, "uncached_reads" in self.effects)
+            self.costs.check_transfer(task.name, task.bytes, cap, duration,
+                                      "host.uncached_read_gbps" if cap < self.costs.memcpy_thread_cap()
+                                      else "host.memcpy_thread_gbps")
+            return _Op(task, duration, None, cap, 0, "host", "memcpy", self._waits_for[phase][task.name],
                        task.name == self.program.present_task)
         if isinstance(task, CpuTask):  # one host thread's time (a core's, on emulated GPUs)
             run, amount = self.executors["host"].runner(duration, 1)
@@ -365,7 +368,7 @@ class Engine:
         if isinstance(task, CopyTask):
             return self.costs.copy_setup_ns(task.queue.device, task.queue.family, task.path, task.peer)
         if isinstance(task, CpuTask):
-            return ns(task.cost_ns)
+            return self.costs.cpu_task_ns(task, "host_frame_work" in self.effects)
         return self.costs.profile.host.host_copy_fixed_ns
 
     def _channel_name(self, task: CopyTask) -> str:
@@ -580,7 +583,7 @@ class Engine:
             self._part_copy(tid, part, start)
 
     def _part_copy(self, tid: int, part: tuple, start: int) -> None:
-        ev = self._part_event(part[2])
+        ev = self._part_event(part[2], part[1].cap)
         ev.callbacks.append(_PartStep((self, "done", tid, part, start)))
 
     def _part_done(self, tid: int, part: tuple, start: int) -> None:

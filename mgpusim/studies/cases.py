@@ -24,6 +24,13 @@ Column kinds (one value per run):
 Derived kinds (one value per entry): `ratio` (metric of `runs[0]` over `runs[1]`, e.g. the
 frame-rate gain) and `difference` (metric of `runs[0]` minus `runs[1]`, e.g. latency a chunked
 copy hides); the metric is `fps`, `frame_time_ms` or `latency_ms`, or a column's name.
+
+Published figures (`[[published]]`) are the source's own results beside the quantity that
+predicts each (a derived quantity's name, or `run:metric`); a figure either tests the model or
+sets one `[[parameters]]` entry (`sets`), never more than one: the calibration rule, stated in
+the case file before any comparison. A parameter is a value applied as overrides to the runs it
+names; :func:`calibrate` finds, figure by figure, the value that makes its prediction equal the
+figure (the committed value is what the case file holds).
 """
 from __future__ import annotations
 
@@ -32,7 +39,8 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from types import MappingProxyType
+from typing import Any, Mapping
 
 import pandas as pd
 
@@ -59,9 +67,17 @@ class Run:
     experiment: Path
     sets: tuple[str, ...] = ()
     simulate: bool = True  # False: memory columns only (the data set may not fit)
+    #: `sections = {count, name, geometry_bytes, texture_bytes}`: equal scene sections
+    sections: Mapping[str, Any] | None = None
 
     def load(self, extra: dict[str, Any] | None = None) -> Experiment:
-        return load_experiment(self.experiment, {**parse_overrides(list(self.sets)), **(extra or {})})
+        """The experiment with the run's overrides and `extra` (a `sections.<field>` key of
+        `extra` replaces that field of the run's sections)."""
+        extra = dict(extra or {})
+        section = {**(self.sections or {}), **{k.removeprefix("sections."): extra.pop(k)
+                                               for k in list(extra) if k.startswith("sections.")}}
+        sets = list(self.sets) + ([_sections_override(section)] if section else [])
+        return load_experiment(self.experiment, {**parse_overrides(sets), **extra})
 
 
 @dataclass(frozen=True)
@@ -97,6 +113,41 @@ class Derived:
 
 
 @dataclass(frozen=True)
+class Parameter:
+    """A value the source did not state, applied as overrides (`keys`: key -> factor, each key
+    set to value x factor, rounded when `integer`) to the runs whose names match `runs`."""
+
+    name: str
+    label: str
+    value: float
+    keys: Mapping[str, float]
+    source: str
+    runs: tuple[str, ...] = ("*",)
+    #: the interval :func:`calibrate` searches (None: not searched, the value is a rule's)
+    bounds: tuple[float, float] | None = None
+    integer: bool = False
+
+    def applies(self, run: str) -> bool:
+        return any(fnmatch.fnmatchcase(run, g) for g in self.runs)
+
+    def overrides(self, value: float) -> dict[str, Any]:
+        return {k: (int(round(value * f)) if self.integer else value * f) for k, f in self.keys.items()}
+
+
+@dataclass(frozen=True)
+class Published:
+    """A source's own figure and the quantity that predicts it; `sets`: the parameter this
+    figure calibrates ("" = a test of the model)."""
+
+    name: str
+    label: str
+    value: float
+    quantity: str
+    source: str
+    sets: str = ""
+
+
+@dataclass(frozen=True)
 class Case:
     """One source system's runs, and what to report about them."""
 
@@ -110,9 +161,14 @@ class Case:
     timelines: tuple[str, ...] = ()
     timeline_frames: int = 3  # the last this many frames of each timeline run are drawn
     source: str = ""  # the public source the case restates, in words
+    parameters: tuple[Parameter, ...] = ()
+    published: tuple[Published, ...] = ()
 
     def run(self, name: str) -> Run:
         return next(r for r in self.runs if r.name == name)
+
+    def parameter(self, name: str) -> Parameter:
+        return next(p for p in self.parameters if p.name == name)
 
 
 @dataclass
@@ -168,13 +224,59 @@ def load_case(ref: str | Path) -> Case:
     for t in timelines:
         if t not in simulated:
             raise top.error("timelines", f"{t!r} is not a simulated run of this case")
+    parameters = tuple(_parameter(t, names) for t in _list(top, "parameters"))
+    _unique([p.name for p in parameters], top, "parameters")
+    quantities = {d.name for d in derived}
+    memory = {c.name for c in columns if c.memory_only}
+    published = tuple(_published(t, quantities, simulated, set(names), metrics, memory,
+                                 {p.name for p in parameters}) for t in _list(top, "published"))
+    _unique([p.name for p in published], top, "published")
+    setters = [p.sets for p in published if p.sets]
+    _unique(setters, top, "published")  # a parameter is set by one figure at most
     case = Case(name=top.get("name", str, path.parent.name), file=path, title=top.get("title", str),
                 description=top.get("description", str, ""), runs=runs, columns=columns,
                 derived=derived, timelines=timelines,
                 timeline_frames=top.get("timeline_frames", int, 3, minimum=1, maximum=50),
-                source=top.get("source", str, ""))
+                source=top.get("source", str, ""), parameters=parameters, published=published)
     top.finish()
     return case
+
+
+def _parameter(t: Table, runs: list[str]) -> Parameter:
+    keys_t = t.table("keys")
+    keys = {k: keys_t.get(k, float) for k in keys_t.data}
+    keys_t.finish()
+    if not keys:
+        raise t.error("keys", "a parameter sets at least one override key")
+    bounds = t.get("bounds", list, [])
+    if bounds and (len(bounds) != 2 or not all(isinstance(b, (int, float)) for b in bounds)
+                   or not bounds[0] < bounds[1]):
+        raise t.error("bounds", f"expected [low, high] with low < high, got {bounds!r}")
+    p = Parameter(name=t.get("name", str), label=t.get("label", str), value=t.get("value", float),
+                  keys=MappingProxyType(keys), source=t.get("source", str),
+                  runs=tuple(t.get("runs", list, ["*"])),
+                  bounds=(float(bounds[0]), float(bounds[1])) if bounds else None,
+                  integer=t.get("integer", bool, False))
+    t.finish()
+    if not any(p.applies(r) for r in runs):
+        raise t.error("runs", f"{list(p.runs)!r} matches no run of this case")
+    return p
+
+
+def _published(t: Table, derived: set[str], simulated: set[str], runs: set[str], metrics: set[str],
+               memory: set[str], parameters: set[str]) -> Published:
+    p = Published(name=t.get("name", str), label=t.get("label", str), value=t.get("value", float),
+                  quantity=t.get("quantity", str), source=t.get("source", str),
+                  sets=t.get("sets", str, ""))
+    t.finish()
+    run, _, name = p.quantity.partition(":")
+    per_run = name in metrics and (run in simulated or (run in runs and name in memory))
+    if not (p.quantity in derived or per_run):
+        raise t.error("quantity", f"{p.quantity!r} is neither a derived quantity of this case nor "
+                      "run:metric with a simulated run and a metric or column")
+    if p.sets and p.sets not in parameters:
+        raise t.error("sets", f"{p.sets!r} is not a [[parameters]] entry of this case")
+    return p
 
 
 def _list(top: Table, key: str) -> list[Table]:
@@ -193,7 +295,8 @@ def _runs(t: Table, base: Path) -> list[Run]:
     exp = base / t.get("experiment", str)
     if not exp.is_file():
         raise t.error("experiment", f"{str(exp)!r} does not exist")
-    sets = tuple(t.get("set", list, [])) + _sections_set(t.table("sections", {}))
+    sets = tuple(t.get("set", list, []))
+    sections = _sections(t.table("sections", {}))
     simulated = t.get("simulate", bool, True)
     each = t.table("each", {})
     keys = list(each.data)
@@ -205,24 +308,30 @@ def _runs(t: Table, base: Path) -> list[Run]:
     each.finish()
     t.finish()
     if not keys:
-        return [Run(name, label, exp, sets, simulated)]
+        return [Run(name, label, exp, sets, simulated, sections)]
     key = keys[0]
-    return [Run(f"{name}_{v}", f"{label}, {key.rsplit('.', 1)[-1]} {v}", exp, sets + (f"{key}={v}",), simulated)
-            for v in values]
+    return [Run(f"{name}_{v}", f"{label}, {key.rsplit('.', 1)[-1]} {v}", exp, sets + (f"{key}={v}",),
+                simulated, sections) for v in values]
 
 
-def _sections_set(t: Table) -> tuple[str, ...]:
-    """`sections = { count, name, geometry_bytes, texture_bytes }`: that many equal sections as
-    a `scene.sections` override (empty table: none)."""
+def _sections(t: Table) -> Mapping[str, Any] | None:
+    """`sections = { count, name, geometry_bytes, texture_bytes }`, checked (empty: none)."""
     if not t.data:
-        return ()
-    count = t.get("count", int, minimum=1, maximum=1024)
-    name = t.get("name", str, "section")
-    geometry, texture = t.get("geometry_bytes", int, minimum=0), t.get("texture_bytes", int, 0, minimum=0)
+        return None
+    out = {"count": t.get("count", int, minimum=1, maximum=1024), "name": t.get("name", str, "section"),
+           "geometry_bytes": t.get("geometry_bytes", int, minimum=0),
+           "texture_bytes": t.get("texture_bytes", int, 0, minimum=0)}
     t.finish()
-    items = ", ".join(f"{{name = {json.dumps(f'{name}_{i:02d}')}, geometry_bytes = {geometry}, "
-                      f"texture_bytes = {texture}}}" for i in range(count))
-    return (f"scene.sections=[{items}]",)
+    return MappingProxyType(out)
+
+
+def _sections_override(s: Mapping[str, Any]) -> str:
+    """That many equal sections as a `scene.sections` override."""
+    geometry, texture = int(round(s["geometry_bytes"])), int(round(s.get("texture_bytes", 0)))
+    prefix = s.get("name", "section")
+    items = ", ".join(f"{{name = {json.dumps(f'{prefix}_{i:02d}')}, geometry_bytes = {geometry}, "
+                      f"texture_bytes = {texture}}}" for i in range(int(s["count"])))
+    return f"scene.sections=[{items}]"
 
 
 def _column(t: Table, runs: dict[str, Run]) -> Column:
@@ -251,19 +360,32 @@ def _derived(t: Table, runs: set[str], metrics: set[str]) -> Derived:
     return d
 
 
-def run_case(case: Case, frames: int | None = None) -> CaseResult:
+def run_case(case: Case, frames: int | None = None, values: Mapping[str, float] | None = None,
+             only: set[str] | None = None) -> CaseResult:
     """Simulate every run (with `frames` frames each when given, a fifth of them warm-up)
-    and compute the columns and the derived quantities."""
+    and compute the columns and the derived quantities. `values`: parameter values instead of
+    the case file's; `only`: simulate just these runs (quantities of other runs are left out)."""
     extra = {} if frames is None else {"schedule.frames": frames, "schedule.warmup_frames": max(1, frames // 5)}
-    exps = {r.name: _load(case, r, extra) for r in case.runs}
-    results = {r.name: simulate(exps[r.name]) for r in case.runs if r.simulate}
+    runs = [r for r in case.runs if only is None or r.name in only]
+    exps = {r.name: _load(case, r, {**extra, **parameter_overrides(case, r.name, values)}) for r in runs}
+    results = {r.name: simulate(exps[r.name]) for r in runs if r.simulate}
     out = CaseResult(case, results, exps)
-    for run in case.runs:
+    for run in runs:
         out.columns[run.name] = {c.name: column_value(c, results.get(run.name), exps[run.name])
                                  for c in case.columns if c.applies(run)}
     for d in case.derived:
-        a, b = (metric(out, r, d.metric) for r in d.runs)
-        out.derived[d.name] = a / b if d.kind == "ratio" else a - b
+        if all(r in results for r in d.runs):
+            a, b = (metric(out, r, d.metric) for r in d.runs)
+            out.derived[d.name] = a / b if d.kind == "ratio" else a - b
+    return out
+
+
+def parameter_overrides(case: Case, run: str, values: Mapping[str, float] | None = None) -> dict[str, Any]:
+    """The overrides the case's parameters put on one run (`values` replacing their values)."""
+    out: dict[str, Any] = {}
+    for p in case.parameters:
+        if p.applies(run):
+            out.update(p.overrides((values or {}).get(p.name, p.value)))
     return out
 
 
@@ -273,6 +395,83 @@ def _load(case: Case, run: Run, extra: dict[str, Any]) -> Experiment:
         return run.load(extra)
     except InputError as exc:
         raise InputError(f"{exc} (run {run.name!r} of {case.file})") from None
+
+
+def predicted(cr: CaseResult, quantity: str) -> float:
+    """A published figure's prediction: a derived quantity, or `run:metric`."""
+    if quantity in cr.derived:
+        return cr.derived[quantity]
+    run, _, name = quantity.partition(":")
+    return metric(cr, run, name)
+
+
+def quantity_runs(case: Case, quantity: str) -> set[str]:
+    """The runs a quantity needs simulated."""
+    for d in case.derived:
+        if d.name == quantity:
+            return set(d.runs)
+    return {quantity.partition(":")[0]}
+
+
+def comparison(cr: CaseResult) -> pd.DataFrame:
+    """Each published figure beside its prediction: quantity, published, predicted, error
+    (predicted / published - 1)."""
+    rows = []
+    for p in cr.case.published:
+        value = predicted(cr, p.quantity)
+        rows.append({"quantity": p.name, "published": p.value, "predicted": value,
+                     "error": value / p.value - 1 if p.value else math.nan})
+    return pd.DataFrame(rows, columns=["quantity", "published", "predicted", "error"])
+
+
+def comparison_markdown(cr: CaseResult) -> str:
+    """The comparison as markdown: figure, source, published, predicted, error, and what the
+    figure sets (its parameter's value) or 'test'."""
+    df = comparison(cr)
+    lines = ["| published figure | published | predicted | error | role |", "|---|---|---|---|---|"]
+    for p, row in zip(cr.case.published, df.itertuples(index=False)):
+        if p.sets:
+            par = cr.case.parameter(p.sets)
+            role = f"sets {par.label} = {_fmt(float(par.value))}"
+        else:
+            role = "test (predicted)"
+        lines.append(f"| {p.label} | {_fmt(float(p.value))} | {_fmt(float(row.predicted))} | "
+                     f"{row.error:+.1%} | {role} |")
+    return "\n".join(lines) + "\n"
+
+
+def calibrate(case: Case, frames: int | None = None, rounds: int = 3, tol: float = 1e-4,
+              steps: int = 40) -> dict[str, float]:
+    """The parameter values the published figures set: for each figure with `sets`, the value
+    within the parameter's bounds at which the prediction equals the figure (bisection; the
+    prediction must move one way with the parameter), the other parameters held; `rounds`
+    passes, since a parameter may move another figure's prediction."""
+    values = {p.name: p.value for p in case.parameters}
+    setters = [p for p in case.published if p.sets]
+    for _ in range(rounds):
+        for fig in setters:
+            par = case.parameter(fig.sets)
+            if par.bounds is None:
+                continue
+            only = set().union(*(quantity_runs(case, f.quantity) for f in setters
+                                 if f.sets == par.name))
+
+            def miss(v: float) -> float:
+                cr = run_case(case, frames, {**values, par.name: v}, only)
+                return predicted(cr, fig.quantity) - fig.value
+            lo, hi = par.bounds
+            f_lo, f_hi = miss(lo), miss(hi)
+            if f_lo * f_hi > 0:  # out of reach: the end nearer the figure
+                values[par.name] = lo if abs(f_lo) < abs(f_hi) else hi
+                continue
+            for _ in range(steps):
+                mid = (lo + hi) / 2
+                f_mid = miss(mid)
+                if abs(f_mid) <= tol * abs(fig.value) or hi - lo <= tol * max(abs(lo), abs(hi), 1e-12):
+                    break
+                lo, hi, f_lo = (mid, hi, f_mid) if f_mid * f_lo > 0 else (lo, mid, f_lo)
+            values[par.name] = round((lo + hi) / 2) if par.integer else (lo + hi) / 2
+    return values
 
 
 def metric(cr: CaseResult, run: str, name: str) -> float:
@@ -396,17 +595,21 @@ def markdown(cr: CaseResult) -> str:
 
 #: The predicted table in a docs page sits between these lines (docs/cases/refresh.py fills it).
 BLOCK_START, BLOCK_END = "<!-- predictions:start -->", "<!-- predictions:end -->"
+#: The comparison with the published figures sits between these.
+COMPARISON = ("<!-- comparison:start -->", "<!-- comparison:end -->")
 
 
-def docs_block(page: str) -> str:
-    """The text between the prediction markers of a docs page ('' when it has none)."""
-    if BLOCK_START not in page or BLOCK_END not in page:
+def docs_block(page: str, markers: tuple[str, str] = (BLOCK_START, BLOCK_END)) -> str:
+    """The text between a docs page's markers ('' when it has none)."""
+    start, end = markers
+    if start not in page or end not in page:
         return ""
-    return page.split(BLOCK_START, 1)[1].split(BLOCK_END, 1)[0].strip("\n") + "\n"
+    return page.split(start, 1)[1].split(end, 1)[0].strip("\n") + "\n"
 
 
-def with_docs_block(page: str, block: str) -> str:
-    """The page with its prediction block replaced by `block`."""
-    head, rest = page.split(BLOCK_START, 1)
-    tail = rest.split(BLOCK_END, 1)[1]
-    return f"{head}{BLOCK_START}\n{block.rstrip()}\n{BLOCK_END}{tail}"
+def with_docs_block(page: str, block: str, markers: tuple[str, str] = (BLOCK_START, BLOCK_END)) -> str:
+    """The page with the block between its markers replaced by `block`."""
+    start, end = markers
+    head, rest = page.split(start, 1)
+    tail = rest.split(end, 1)[1]
+    return f"{head}{start}\n{block.rstrip()}\n{end}{tail}"

@@ -22,8 +22,8 @@ from typing import Any, Callable
 import numpy as np
 
 from mgpusim.model.errors import InputError, ScheduleError
-from mgpusim.real.runner.plan import HOST_STREAM, Node
-from mgpusim.real.runner.work import GpuWork, HostWork
+from mgpusim.real.runner.plan import CPU_STREAM, HOST_STREAM, Node
+from mgpusim.real.runner.work import CpuWork, GpuWork, HostWork
 from mgpusim.real.vulkan import host_priority
 from mgpusim.real.vulkan.device import Gpu
 from mgpusim.schedules.base import FrameProgram
@@ -53,6 +53,10 @@ def switch_interval() -> float:
     if not value > 0:
         raise InputError(f"MGPUSIM_SWITCH_INTERVAL_S must be > 0, got {raw!r}", field="MGPUSIM_SWITCH_INTERVAL_S")
     return value
+
+
+def _nothing() -> None:
+    """What a started-and-joined thread of the as-built host loop does: its start is the cost."""
 
 
 class _Abort(Exception):
@@ -183,7 +187,7 @@ class Executor:
     def _finish(self, node: Node, waiter: Node) -> None:
         """Block until `node` completed: the end of its GPU work, or of a host copy. Several
         threads may wait for one node."""
-        if isinstance(node.work, HostWork):
+        if not isinstance(node.work, GpuWork):  # a host copy or a CPU task
             self._wait(node.completed, waiter, f"{node.label} to finish")
             return
         self._wait(node.submitted, waiter, f"{node.label} to be submitted")
@@ -303,6 +307,28 @@ class Executor:
         for _ in range(self.host_threads):
             self._parts.put(None)
 
+    def _cpu_stream(self, nodes: list[Node]) -> None:
+        """An application thread running its CPU tasks in order: each waits for its inputs
+        (a GPU input: its fence, as vkQueueWaitIdle), then starts and joins its threads."""
+        for node in nodes:
+            for prod, _kind in node.deps:
+                self._finish(prod, node)
+            work = node.work
+            assert isinstance(work, CpuWork)
+            start = time.monotonic_ns()
+            started = [threading.Thread(target=_nothing, name=f"{work.thread}-task{i}")
+                       for i in range(work.threads)]
+            for t in started:
+                t.start()
+            for t in started:
+                t.join()
+            end = time.monotonic_ns()
+            with self._rows_lock:
+                self.rows.append((node.frame, "host", work.thread, node.task.step, node.task.name,
+                                  start, end, 0, node.waits_for))
+            node.submitted.set()
+            self._done(node)
+
     def _host_worker(self, k: int) -> None:
         while True:
             try:
@@ -332,7 +358,10 @@ class Executor:
             streams[node.stream].append(node)
         threads = []
         for name, nodes in streams.items():
-            if name == HOST_STREAM:
+            if name.startswith(CPU_STREAM):
+                threads.append(threading.Thread(target=self._guard, args=(self._cpu_stream, nodes),
+                                                name=name))
+            elif name == HOST_STREAM:
                 threads.append(threading.Thread(target=self._guard, args=(self._host_dispatch, nodes),
                                                 name="host-dispatch"))
                 threads += [threading.Thread(target=self._guard, args=(self._host_worker, k),

@@ -21,7 +21,7 @@ from typing import Any, Literal
 
 from mgpusim.model.errors import ScheduleError
 from mgpusim.model.tasks import Task
-from mgpusim.real.runner.work import GpuWork, HostWork, Work
+from mgpusim.real.runner.work import CpuWork, GpuWork, HostWork, Work
 from mgpusim.schedules.base import FrameProgram, leads_chain, waits_for_labels
 
 EdgeKind = Literal["order", "semaphore", "host"]
@@ -54,9 +54,15 @@ class Node:
         return f"frame {self.frame} {self.task.name}"
 
 
+#: Streams of CPU tasks: `cpu/<thread>`, one application thread each.
+CPU_STREAM = "cpu/"
+
+
 def stream_of(work: Work) -> str:
     if isinstance(work, HostWork):
         return HOST_STREAM
+    if isinstance(work, CpuWork):
+        return CPU_STREAM + work.thread
     return f"gpu{work.device}/{work.queue.family.index}"
 
 
@@ -84,7 +90,8 @@ def build_nodes(program: FrameProgram, works: list[dict[str, Work]], frames: int
             if (prod.frame, prod.index) >= (node.frame, node.index):
                 raise ScheduleError(f"{node.label} depends on {prod.label}, which comes later in "
                                     f"the frame's submission order: the runner submits in order")
-            kind = _edge(prod.work, node.work, prod.stream == node.stream, leads[node.frame % period][node.task.name])
+            kind = _edge(prod.work, node.work, prod.stream == node.stream,
+                         leads[node.frame % period][node.task.name])
             node.deps.append((prod, kind))
             if kind == "semaphore":
                 prod.sem_consumers.append(node)
@@ -105,14 +112,14 @@ def earliest_first(dep: tuple[Node, EdgeKind]) -> tuple[int, int]:
     return producer.frame, producer.index
 
 
-def _edge(prod: Work, cons: Work, same_stream: bool, leads_chain: bool = False) -> EdgeKind:
+def _edge(prod: Work, cons: Work, same_stream: bool, leads: bool = False) -> EdgeKind:
     """How the consumer waits for the producer: queue order on one stream, a semaphore between
     queues of one device, else on the host. A chain's leader always waits on the host: it
     decides at its submit time whether the work before it is still running, as the model does
     when its inputs have ended; ordered behind them on the device instead, its submit thread
     ran frames ahead and found the previous instance still queued (1-GPU particle runs skipped
     97-99 % of their updates where the model skips none or every other one)."""
-    if leads_chain:
+    if leads:
         return "host"
     if same_stream:
         return "order" if isinstance(prod, GpuWork) else "host"

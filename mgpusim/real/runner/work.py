@@ -12,7 +12,11 @@ The mapping, kind by kind:
 - present -> an image copy of the frame into the displayed image; handoffs -> barriers only;
 - copies -> image <-> buffer, image -> image, buffer -> buffer (colour first, then depth; a
   chunk is a range of rows, `params["dst_offset"]` places the picture in a larger image);
-- host copies -> numpy copies of byte ranges, one part per memcpy thread (>= chunk_min_bytes).
+- host copies -> numpy copies of byte ranges, one part per memcpy thread (>= chunk_min_bytes);
+- the five-step schedule's as-built host loop (CPU tasks the runner can run: `params["runner"]`
+  is "host_loop") -> on an application thread of their own, start and join their `threads`
+  threads, wait for their inputs (a fence: the reference code's vkQueueWaitIdle) and hand on;
+  the command recording they stand for is the submit threads' own.
 """
 from __future__ import annotations
 
@@ -25,7 +29,7 @@ import numpy as np
 from mgpusim.model.errors import ScheduleError
 from mgpusim.model.geometry import even_split
 from mgpusim.model.particle_layout import UPDATE_DT
-from mgpusim.model.tasks import CopyTask, HostCopyTask, PassTask, Task
+from mgpusim.model.tasks import CopyTask, CpuTask, HostCopyTask, PassTask, Task
 from mgpusim.real.runner.resources import COLOR_BPP, DEPTH_BPP, Resources
 from mgpusim.real.vulkan.copies import (copy_buffer, copy_buffer_to_rect, copy_rect,
                                         copy_rect_to_buffer)
@@ -80,7 +84,19 @@ class HostWork:
         return [(dst[a:b], src[a:b]) for a, b in zip(bounds, bounds[1:])]
 
 
-Work = GpuWork | HostWork
+@dataclass
+class CpuWork:
+    """A CPU task of the application's thread `thread`: start and join `threads` threads."""
+
+    task: CpuTask
+    thread: str
+    threads: int
+
+
+#: `CpuTask.params["runner"]` of the CPU tasks the runner runs (mgpusim/schedules/host_loop.py).
+HOST_LOOP = "host_loop"
+
+Work = GpuWork | HostWork | CpuWork
 
 
 def build_work(task: Task, gpus: list[Gpu], res: Resources, host_threads: int,
@@ -90,8 +106,11 @@ def build_work(task: Task, gpus: list[Gpu], res: Resources, host_threads: int,
         if task.src is None or task.dst is None:
             raise ScheduleError(f"host copy {task.name!r} names no src/dst buffers")
         return HostWork(task, res, host_threads)
+    if isinstance(task, CpuTask) and task.params.get("runner") == HOST_LOOP:
+        return CpuWork(task, task.thread, task.threads)
     if "unsupported" in task.params:
         raise ScheduleError(f"task {task.name!r}: {task.params['unsupported']}")
+    assert not isinstance(task, CpuTask), "CPU tasks are refused above unless the runner runs them"
     q = task.queue
     if not 0 <= q.device < len(gpus):
         raise ScheduleError(f"task {task.name!r} runs on gpu{q.device}; the run has {len(gpus)}")

@@ -1,0 +1,161 @@
+"""The effects the source systems lost time to, each on a small hand-computed timeline: the
+thesis's per-frame host loop (threads started and joined, a wait for the queue after every
+submit, command recording, a barrier per frame), host copies of uncached memory, the particle
+thesis's one-GPU path through the host, graphics and compute sharing one GPU, and copy
+granularity on a copy engine."""
+from __future__ import annotations
+
+import pytest
+
+from mgpusim import InputError, simulate
+from mgpusim.schedules.program import build_program
+from mgpusim.sim.effects import EFFECTS, choose_effects
+from tests.conftest import make_experiment, profile_dict
+from tests.schedule_helpers import experiment, profile, rows, timed
+
+
+def _host(gpus: int = 2, **host):
+    prof = profile_dict(gpus=gpus)
+    prof["host"].update(host)
+    return prof
+
+
+def test_as_built_loop_exact_timeline():
+    """8x4 sort-first on 2 GPUs (render 16 px x 10 it = 160 ns; 64 B copies at 1 B/ns; the
+    composite draws both 16 px tiles = 32 ns; present 10), hand-off 5 ns, a thread start 3 ns,
+    a recording 2 ns. Frame 0: the main thread starts 3 threads (0-9); each GPU's thread wakes
+    at 14 and records (14-16), its render is submitted 5 ns later (21-181); the host copy of
+    the previous loop's contribution starts at 14 (14-78), the upload is recorded at 83-85 and
+    runs 90-154; secondary 1 wakes at 186, records its download (186-188), which runs 193-257;
+    the main thread, woken at 262, records the composite (262-264), which runs 269-301, then
+    present 301-311. The next loop starts 5 ns after the present: 316."""
+    exp = make_experiment(_host(dispatch_ns=5, thread_start_ns=3, record_ns=2), gpus=2, frames=4,
+                          iterations=10, host_work="as_built")
+    r = simulate(exp)
+    want = {"cpu.launch": (0, 9), "cpu.record0": (14, 16), "cpu.record1": (14, 16), "render0": (21, 181),
+            "render1": (21, 181), "host_copy1": (14, 78), "cpu.record_upload": (83, 85), "h2d1": (90, 154),
+            "cpu.record_d2h1": (186, 188), "d2h1": (193, 257), "cpu.record_composite": (262, 264),
+            "composite": (269, 301), "present": (301, 311)}
+    assert {task: rows(r, task, 0)[0] for task in want} == want
+    assert rows(r, "cpu.launch", 1) == [(316, 325)]
+    assert r.frames.present_ns.tolist() == [311, 627, 943, 1259]
+    threads = r.trace[r.trace.step == "host_loop"].groupby("task").engine.first().to_dict()
+    assert threads["cpu.launch"] == "main" and threads["cpu.record_d2h1"] == "gpu1"
+    assert simulate(exp, fidelity="analytic").frames.present_ns.tolist() == [311, 627, 943, 1259]
+
+
+def test_as_built_one_gpu_records_waits_and_presents():
+    """One GPU renders straight to the window: record (2), submit (+5), render 320, present 10,
+    wake (+5) before the next recording: a 342 ns loop."""
+    r = simulate(make_experiment(_host(dispatch_ns=5, record_ns=2), gpus=1, frames=3, iterations=10,
+                                 host_work="as_built"))
+    assert rows(r, "cpu.record0") == [(0, 2), (342, 344), (684, 686)]
+    assert rows(r, "render0", 0) == [(7, 327)] and rows(r, "present", 0) == [(327, 337)]
+
+
+def test_thread_starts_and_recordings_are_the_host_frame_work_effect():
+    """Three GPUs: the main thread starts 5 threads (one per GPU, one per secondary's copy).
+    Without costs the effect is not needed; forced off, the CPU tasks take no time."""
+    exp = make_experiment(_host(3, thread_start_ns=7, record_ns=4), gpus=3, frames=3, iterations=10,
+                          host_work="as_built")
+    r = simulate(exp)
+    assert rows(r, "cpu.launch", 0) == [(0, 35)] and rows(r, "cpu.record2", 0) == [(35, 39)]
+    assert "host_frame_work" in r.summary["modelled_effects"]
+    off = simulate(exp, effects={"host_frame_work": False})
+    assert rows(off, "cpu.launch", 0) == [(0, 0)] and rows(off, "cpu.record2", 0) == [(0, 0)]
+    plain = make_experiment(_host(3), gpus=3, frames=3, iterations=10, host_work="as_built")
+    assert not EFFECTS["host_frame_work"].needed(build_program(plain), plain.profile)
+
+
+def test_as_built_composites_every_contribution():
+    """The reference code renders the primary's part offscreen too: the composite draws all
+    N contributions (sort-first: the whole frame; sort-last: N full frames)."""
+    sf = build_program(make_experiment(_host(3), gpus=3, host_work="as_built"))
+    comp = next(t for t in sf.templates[0] if t.name == "composite")
+    assert (comp.work["input"], comp.work["pixel"]) == (3, 32)
+    sl = build_program(make_experiment(schedule="sort_last", gpus=2, host_work="as_built"))
+    comp = next(t for t in sl.templates[0] if t.name == "composite")
+    assert (comp.work["input"], comp.work["pixel"]) == (2, 64)
+
+
+def test_as_built_refuses_other_pipelining_levels():
+    with pytest.raises(InputError, match="schedule.pipelining"):
+        build_program(make_experiment(gpus=2, host_work="as_built", pipelining="lockstep"))
+
+
+def test_uncached_reads_exact():
+    """The as-built host copy reads the secondary's uncached staging buffer: 64 B at 0.5 B/ns
+    = 128 ns instead of 64; the overlapped schedule's host copy (cached) keeps 64 ns. The effect
+    is needed only where the uncached rate is below a memcpy thread's."""
+    slow = make_experiment(_host(uncached_read_gbps=0.5), gpus=2, frames=3, iterations=10,
+                           host_work="as_built")
+    r = simulate(slow)
+    assert rows(r, "host_copy1", 0) == [(0, 128)]
+    assert "uncached_reads" in r.summary["modelled_effects"]
+    assert rows(simulate(slow, effects={"uncached_reads": False}), "host_copy1", 0) == [(0, 64)]
+    cached = make_experiment(_host(uncached_read_gbps=0.5), gpus=2, frames=3, iterations=10)
+    assert rows(simulate(cached), "host_copy1", 0)[0][1] - rows(simulate(cached), "host_copy1", 0)[0][0] == 64
+    fast = make_experiment(_host(uncached_read_gbps=2.0), gpus=2, frames=3, iterations=10,
+                           host_work="as_built")
+    assert "uncached_reads" not in choose_effects(build_program(fast), fast.profile)
+    assert simulate(slow, fidelity="analytic").frames.present_ns.tolist() == r.frames.present_ns.tolist()
+
+
+ENGINE = [timed("shadow", 100), timed("geometry", 200), timed("lighting", 300)]
+
+
+def test_particles_one_gpu_path_through_the_host_exact():
+    """One GPU, update on its compute queue (500 particles, 500 ns), the 500 B vertex buffer
+    down (500-1000 on the transfer queue), through the main thread's copy (1 B/ns: 1000-1500)
+    and up (1500-2000); the draw waits for it (2000-2005), then lighting and present."""
+    exp = experiment(profile(), "particles", ENGINE, gpus=1, frames=2, warmup=1, particles=500,
+                     vertex_bytes_per_particle=1, particle_gpu=0, policy="wait", cpu_copy=True,
+                     one_gpu_path="through_host")
+    r = simulate(exp)
+    assert rows(r, "particle_update", 0) == [(0, 500)]
+    assert rows(r, "particles.d2h", 0) == [(500, 1000)] and rows(r, "cpu.particles", 0) == [(1000, 1500)]
+    assert rows(r, "particles.h2d", 0) == [(1500, 2000)] and rows(r, "particle_render", 0) == [(2000, 2005)]
+    assert rows(r, "present", 0) == [(2305, 2315)]
+    t = r.trace.set_index(["frame", "task"])
+    assert (t.loc[(0, "particles.d2h"), "device"], t.loc[(0, "particles.h2d"), "engine"]) == ("gpu0", "transfer")
+    local = simulate(experiment(profile(), "particles", ENGINE, gpus=1, frames=2, warmup=1, particles=500,
+                                vertex_bytes_per_particle=1, particle_gpu=0, policy="wait"))
+    assert not (local.trace.step == "d2h").any()
+
+
+def test_graphics_and_compute_not_concurrent_share_the_gpu():
+    """One GPU whose graphics and compute queues do not run at once (overlap 1.0): the update
+    (500 ns) runs at half speed beside the shadow pass (100 ns: 0-200) and the geometry pass
+    (200 ns: 200-600), 300 ns of its work done; the draw waits for it, so it finishes alone:
+    0-800 (with overlap 2.0 it would take 0-500)."""
+    prof = profile(gpus=[dict(__import__("tests.schedule_helpers", fromlist=["gpu"]).gpu(count=1),
+                              queue_overlap={"graphics_compute": 1.0})])
+    r = simulate(experiment(prof, "particles", ENGINE, gpus=1, frames=2, warmup=1, particles=500,
+                            vertex_bytes_per_particle=1, particle_gpu=0, policy="wait"))
+    assert rows(r, "render.shadow", 0) == [(0, 200)] and rows(r, "particle_update", 0) == [(0, 800)]
+    assert "shared_gpu" in r.summary["modelled_effects"]
+
+
+def test_copy_granularity_on_a_copy_engine_exact():
+    """Chunking a copy pays the copy engine's fixed cost per chunk: one 64 B download with a
+    20 ns launch takes 20 + 64 ns; a copy engine capped at 0.5 B/ns takes 20 + 128 ns (the
+    copy_engine_caps effect)."""
+    prof = profile_dict()
+    prof["gpus"][0]["copy"] = {"transfer": {"fixed_ns": 20}}
+    r = simulate(make_experiment(prof, gpus=2, frames=3, iterations=10))
+    assert rows(r, "d2h1", 0)[0][1] - rows(r, "d2h1", 0)[0][0] == 84
+    prof["gpus"][0]["copy"] = {"transfer": {"fixed_ns": 20, "d2h_gbps": 0.5}}
+    r = simulate(make_experiment(prof, gpus=2, frames=3, iterations=10))
+    assert rows(r, "d2h1", 0)[0][1] - rows(r, "d2h1", 0)[0][0] == 148
+    assert "copy_engine_caps" in r.summary["modelled_effects"]
+
+
+def test_fast_forward_of_the_as_built_loop_is_exact():
+    """The loop's CPU threads are part of the state the fast-forward compares: 2000 frames
+    skipped ahead equal 2000 frames simulated one by one."""
+    exp = make_experiment(_host(dispatch_ns=5, thread_start_ns=3, record_ns=2, uncached_read_gbps=0.5),
+                          gpus=2, frames=2000, iterations=10, host_work="as_built")
+    fast = simulate(exp, record_trace=False)
+    slow = simulate(exp, record_trace=False, fast_forward=False)
+    assert fast.summary["fast_forward"]["used"] is True
+    assert fast.frames.present_ns.tolist() == slow.frames.present_ns.tolist()

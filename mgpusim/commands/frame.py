@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     text = experiment_text(frame, profile, args.out)
     exp = check_experiment(text, args.out)
     write_text(text, args.out)
-    print(f"{args.capture}: {len(frame.passes)} passes over {frame.frames} frame(s), "
+    print(f"{args.capture}: {len(frame.passes)} pass(es) over {frame.frames} frame(s), "
           f"{frame.gpu_ms:.3f} ms of GPU time per frame"
           + (f" per eye ({frame.views} views)" if frame.views == 2 else "")
           + (f", {frame.cpu_ms:.3f} ms CPU" if frame.cpu_ms else "") + f", {width}x{height}")

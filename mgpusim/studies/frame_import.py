@@ -9,7 +9,7 @@ so `mgpusim simulate`, `sweep` and `advise` take it like any other experiment.
 How a pass's output is found: a pass reads resources (names); the last pass before it in the
 frame that writes a resource is its producer. A resource written only at or after the reader
 is the previous frame's (a temporal input, which alternate-frame rendering must carry between
-GPUs). A name that no pass writes but that is a pass's name means that pass's output; other
+GPUs). A name that no pass writes but that is a pass's name means all that pass writes; other
 names (textures loaded once, buffers from the CPU) are no pass's. A pass's `output_bytes` is the
 size of what it writes that another pass reads (where the capture gives no size: a colour
 target of the frame, which the import notes), and the last pass's image is presented.
@@ -158,8 +158,8 @@ def _producers(keys: list[str], io: dict[str, tuple[tuple[str, ...], dict[str, i
             writer = next((keys[j] for j in range(i - 1, -1, -1) if res in io[keys[j]][1]), None)
             if writer is None:  # the previous frame's, from the last writer of the frame
                 writer = next((keys[j] for j in range(len(keys) - 1, i - 1, -1) if res in io[keys[j]][1]), None)
-            if writer is None and res in reads and not io[res][1]:
-                writer, res = res, ""  # the name of a pass that names no resources: its output
+            if writer is None and res in reads:
+                writer, res = res, "*"  # a pass's name: all it writes
             if writer is None:
                 continue
             if writer not in reads[key]:
@@ -168,9 +168,10 @@ def _producers(keys: list[str], io: dict[str, tuple[tuple[str, ...], dict[str, i
     sizes, unknown = {}, []
     for key in keys:
         written = io[key][1]
-        used = set(written) if key == keys[-1] else {r for r in read_from[key] if r in written}
-        if "" in read_from[key] or (key == keys[-1] and not written):
-            used.add("")
+        whole = key == keys[-1] or "*" in read_from[key]  # presented, or read by its name
+        used = set(written) if whole else {r for r in read_from[key] if r in written}
+        if whole and not written:
+            used.add("")  # an output the capture does not name
         total = 0
         for res in used:
             size = written.get(res) if res else None

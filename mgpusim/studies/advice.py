@@ -48,7 +48,7 @@ CHUNKS = tuple(range(1, 9))
 COMMON_KEYS = ("frames", "warmup_frames", "frames_in_flight", "refresh_hz", "cpu_frame_us")
 #: Options confirmed at full fidelity by default, besides the analytic Pareto front.
 CONFIRM = 24
-#: Differences smaller than this share count as ties on the Pareto front.
+#: Differences smaller than this share do not keep an option on the Pareto front.
 PARETO_TOLERANCE = 0.01
 
 
@@ -96,8 +96,10 @@ class Option:
 
     @property
     def label(self) -> str:
+        if self.gpus == 1:
+            return self.family
         return f"{self.family} x{self.gpus}" + (f", {self.settings}" if self.settings else "") + \
-            (f", {self.link}" if self.gpus > 1 else "")
+            f", {self.link}"
 
 
 @dataclass
@@ -326,6 +328,10 @@ def search(path: str | Path, overrides: Mapping[str, Any] | None = None, *, max_
     full = pd.DataFrame(_run(path, base, [items[i] for i in chosen], "full", workers, band)).set_index("option")
     t2 = time.perf_counter()
     table = _merge_full(table, full)
+    if not table["confirmed"].any():
+        first = table["error"].dropna()
+        raise InputError("no option of this frame could run, not even on one GPU"
+                         + (f" (the first error: {first.iloc[0]})" if len(first) else ""), file=path)
     open_ = _open(table) if bound else -1
     baseline = table.loc[0, ["frame_time_ms", "latency_ms"]].to_dict()
     table["speedup"] = baseline["frame_time_ms"] / table["frame_time_ms"]
@@ -379,18 +385,18 @@ def _open(table: pd.DataFrame) -> int:
 
 
 def pareto(df: pd.DataFrame, cols: Iterable[str], tolerance: float = PARETO_TOLERANCE) -> list[int]:
-    """Rows no other row beats: one beats another when it is better by more than `tolerance`
-    (a share) in one column and no worse beyond it in any (lower is better). Why a tolerance:
-    a latency 0.01 % shorter is no reason to keep an option 3x slower on the front."""
+    """The rows on the front, lower being better in every column: taken in order of the columns,
+    a row joins unless one already on it is better in some column and no worse beyond
+    `tolerance` (a share) in any. Why a tolerance: a latency 0.01 % shorter is no reason to
+    keep an option 3x slower on the front, nor one of eight links that all give the same."""
     cols = list(cols)
-    values = df[cols].to_numpy(dtype=float)
-    keep = []
+    ordered = df.sort_values(cols, kind="stable")
+    values = ordered[cols].to_numpy(dtype=float)
+    kept: list[int] = []
     for i, row in enumerate(values):
-        no_worse = (values <= row * (1 + tolerance)).all(axis=1)
-        better = (values < row * (1 - tolerance)).any(axis=1)
-        if not (no_worse & better).any():
-            keep.append(df.index[i])
-    return keep
+        if not any((values[k] <= row * (1 + tolerance)).all() and (values[k] < row).any() for k in kept):
+            kept.append(i)
+    return sorted(ordered.index[k] for k in kept)
 
 
 def option_command(experiment: str, overrides: Mapping[str, Any]) -> str:

@@ -80,6 +80,7 @@ def test_the_search_confirms_its_best_and_the_bound_proves_it(advice):
     assert (unconfirmed["fast_frame_time_ms"] >= best["frame_time_ms"]).all()
     assert table.loc[0, "speedup"] == 1.0 and best["speedup"] > 1.5
     assert set(done["gpus"]) == {1, 2, 3}  # the best of each GPU count is confirmed
+    assert set(done["family"]) == set(table["family"])  # and of each schedule
 
 
 def test_the_pareto_front_holds_no_beaten_option():

@@ -9,13 +9,13 @@ views; on 2 to 8 GPUs, over PCIe 3/4/5 x8/x16 and NVLink. Each option is a set o
 the experiment (`mgpusim simulate EXPERIMENT --set ...` reproduces it).
 
 Every option runs first at the `analytic` level (no event simulation; milliseconds each). The
-best of them by frame time, the best of each GPU count and those on the analytic Pareto front
-of frame time and latency are confirmed at `full` fidelity; the ranking (frame time, then
-latency, then GPUs) and the Pareto front (frame time against latency) are over the confirmed
-results. Where the analytic level is an optimistic bound (every approximation it makes only
-speeds the model up: docs/fidelity.md), an option whose analytic frame time is above the best
-confirmed frame time cannot beat it: :attr:`Advice.open` counts the options below it that were
-not confirmed, so "the best" is proven when it is 0.
+best of them by frame time, the best of each GPU count and of each schedule, and those on the
+analytic Pareto front of frame time and latency are confirmed at `full` fidelity; the ranking
+(frame time, then latency, then GPUs) and the Pareto front (frame time against latency) are
+over the confirmed results. Where the analytic level is an optimistic bound (every
+approximation it makes only speeds the model up: docs/fidelity.md), an option whose analytic
+frame time is above the best confirmed frame time cannot beat it: :attr:`Advice.open` counts
+the options below it that were not confirmed, so "the best" is proven when it is 0.
 
 Pure: no file is written here (the command writes the report).
 """
@@ -353,10 +353,12 @@ def _table(opts: list[Option], first: pd.DataFrame) -> pd.DataFrame:
 
 def _to_confirm(table: pd.DataFrame, confirm: int) -> list[int]:
     """The baseline, the `confirm` best by the fast level's frame time, the best of each GPU
-    count and the fast level's Pareto front of frame time and latency."""
+    count and of each schedule family, and the fast level's Pareto front of frame time and
+    latency."""
     ok = table[table["error"].isna()]
     best = ok.sort_values(["fast_frame_time_ms", "fast_latency_ms", "gpus"], kind="stable")
-    chosen = {0, *best.index[:confirm], *best.groupby("gpus").head(1).index}
+    chosen = {0, *best.index[:confirm], *best.groupby("gpus").head(1).index,
+              *best.groupby("family").head(1).index}
     chosen |= set(pareto(ok, ("fast_frame_time_ms", "fast_latency_ms")))
     return sorted(chosen)
 

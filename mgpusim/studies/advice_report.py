@@ -107,7 +107,8 @@ def sections(advice: Advice, table: pd.DataFrame, shown: list[dict[str, Any]],
     text += advice.notes
     cols = ["rank", "label", "gpus", "frame_time_ms", "latency_ms", "speedup"]
     band = [c for c in ("frame_time_ms_lo", "frame_time_ms_hi") if c in table and table[c].notna().any()]
-    per_gpus = ranked.sort_values("rank").groupby("gpus", sort=True).head(1).sort_values("gpus")
+    per_gpus = ranked.groupby("gpus", sort=True).head(1).sort_values("gpus")
+    per_family = ranked.groupby("family", sort=False).head(1)
     out = [Section("Answer", text=text),
            Section("Pareto front: frame time against latency", tables=[(
                "No other confirmed option has both a shorter frame time and a shorter latency; "
@@ -117,7 +118,9 @@ def sections(advice: Advice, table: pd.DataFrame, shown: list[dict[str, Any]],
                                       "confirmed at full fidelity")]),
            Section("Ranking", tables=[("Confirmed options, best first (frame time, then latency, "
                                        "then GPUs); the first 25.", ranked[cols + band].head(25))]),
-           Section("Best per GPU count", tables=[("", per_gpus[cols])])]
+           Section("Best of each schedule and each GPU count", tables=[
+               ("By schedule (its best confirmed option):", per_family[cols + ["family"]]),
+               ("By GPU count:", per_gpus[cols])])]
     timeline = Section("Timelines", text=["The one-GPU baseline and the best options, simulated at "
                                           "full fidelity (their last four frames). The Perfetto "
                                           "traces open in https://ui.perfetto.dev (Open trace file)."])

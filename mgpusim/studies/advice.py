@@ -280,9 +280,6 @@ def evaluate(path: str, base: Mapping[str, Any], items: Sequence[tuple[int, Mapp
             if band and "frame_time_ms_lo" in s:
                 row.update({k: s[k] for k in ("frame_time_ms_lo", "frame_time_ms_hi",
                                               "latency_ms_lo", "latency_ms_hi")})
-            if fidelity == "analytic":
-                row["bound"] = not any("not a bound" in a for a in
-                                       s.get("effects", {}).get("analytic_approximations", ()))
         except MgpusimError as exc:
             row.update(frame_time_ms=math.nan, latency_ms=math.nan, error=str(exc))
         row["wall_s"] = time.perf_counter() - t0
@@ -308,6 +305,34 @@ def search(path: str | Path, overrides: Mapping[str, Any] | None = None, *, max_
            band: bool = True) -> Advice:
     """Search every option of the experiment at `path` (see the module doc)."""
     path, base = str(path), dict(overrides or {})
+    exp = _start(path, base, max_gpus)
+    workers = workers or os.cpu_count() or 1
+    opts = options(exp, max_gpus, links)
+    items = [(i, o.overrides) for i, o in enumerate(opts)]
+    fast = "queues" if exp.schedule.refresh_hz else "analytic"  # the analytic level has no vsync
+    t0 = time.perf_counter()
+    table = _table(opts, pd.DataFrame(_run(path, base, items, fast, workers)).set_index("option"))
+    t1 = time.perf_counter()
+    full = _run(path, base, [items[i] for i in _to_confirm(table, confirm)], "full", workers, band)
+    table = _merge_full(table, pd.DataFrame(full).set_index("option"))
+    t2 = time.perf_counter()
+    if not table["confirmed"].any():
+        errors = table["error"].dropna()
+        raise InputError("no option of this frame could run, not even on one GPU"
+                         + (f" (the first error: {errors.iloc[0]})" if len(errors) else ""), file=path)
+    bound = fast_level_is_bound(exp)
+    baseline = table.loc[0, ["frame_time_ms", "latency_ms"]].to_dict()
+    table["speedup"] = baseline["frame_time_ms"] / table["frame_time_ms"]
+    notes = [] if bound else [f"the {fast} level is not a bound on this profile (its GPUs share the "
+                              "CPU, which it leaves out): options outside the confirmed ones may do better"]
+    counts = {"options": len(opts), "failed": int(table["error"].notna().sum()),
+              "confirmed": int(table["confirmed"].sum()), "workers": workers}
+    return Advice(path, opts, table, baseline, bound, _open(table) if bound else -1,
+                  {f"{fast}_s": t1 - t0, "full_s": t2 - t1}, counts, notes, base)
+
+
+def _start(path: str, base: Mapping[str, Any], max_gpus: int) -> Experiment:
+    """The experiment, checked: one GPU (the frame as captured), a GPU count in range."""
     exp = load_experiment(path, base)
     if exp.schedule.gpus != 1:
         raise InputError(f"advise starts from the frame on one GPU; this experiment runs "
@@ -315,32 +340,14 @@ def search(path: str | Path, overrides: Mapping[str, Any] | None = None, *, max_
                          file=path, field="schedule.gpus")
     if not 1 <= max_gpus <= 64:
         raise InputError(f"must be 1..64, got {max_gpus}", field="--max-gpus")
-    workers = workers or os.cpu_count() or 1
-    opts = options(exp, max_gpus, links)
-    items = [(i, o.overrides) for i, o in enumerate(opts)]
-    fast = "queues" if exp.schedule.refresh_hz else "analytic"
-    t0 = time.perf_counter()
-    first = pd.DataFrame(_run(path, base, items, fast, workers)).set_index("option")
-    t1 = time.perf_counter()
-    table = _table(opts, first)
-    bound = bool(table["bound"].fillna(True).all()) if "bound" in table else False
-    chosen = _to_confirm(table, confirm)
-    full = pd.DataFrame(_run(path, base, [items[i] for i in chosen], "full", workers, band)).set_index("option")
-    t2 = time.perf_counter()
-    table = _merge_full(table, full)
-    if not table["confirmed"].any():
-        first = table["error"].dropna()
-        raise InputError("no option of this frame could run, not even on one GPU"
-                         + (f" (the first error: {first.iloc[0]})" if len(first) else ""), file=path)
-    open_ = _open(table) if bound else -1
-    baseline = table.loc[0, ["frame_time_ms", "latency_ms"]].to_dict()
-    table["speedup"] = baseline["frame_time_ms"] / table["frame_time_ms"]
-    notes = [] if bound else [f"the {fast} level is not a bound on this profile (its approximations: "
-                              "shared CPU cores, or vsync): options outside the confirmed ones may do better"]
-    counts = {"options": len(opts), "failed": int(table["error"].notna().sum()),
-              "confirmed": int(table["confirmed"].sum()), "workers": workers}
-    return Advice(path, opts, table, baseline, bound, open_, {f"{fast}_s": t1 - t0, "full_s": t2 - t1},
-                  counts, notes, base)
+    return exp
+
+
+def fast_level_is_bound(exp: Experiment) -> bool:
+    """Whether the fast levels never make an option slower than `full` does: true unless the
+    profile's GPUs share the host CPU (then they take the GPUs as independent devices, which is
+    no bound: mgpusim.sim.analytic); every other approximation of theirs leaves out a slowdown."""
+    return not exp.profile.host.gpus_share_cpu
 
 
 def _table(opts: list[Option], first: pd.DataFrame) -> pd.DataFrame:

@@ -18,7 +18,7 @@ VULKAN_PACKAGES = ("vulkan", "cffi")
 
 #: Command modules, in the order `mgpusim --help` lists them.
 COMMANDS = ("simulate", "sweep", "examples", "case", "run", "bench", "fidelity", "devices", "measure", "calibrate",
-            "validate", "study", "main_job")
+            "validate", "study", "main_job", "frame", "advise")
 
 
 class _Parser(argparse.ArgumentParser):

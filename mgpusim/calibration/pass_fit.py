@@ -21,13 +21,13 @@ from mgpusim.calibration.overlap_fit import fit_overlap
 from mgpusim.model.errors import InputError
 from mgpusim.model.geometry import MESH_PLACE, mesh_placement
 from mgpusim.model.scene import PassSpec
-from mgpusim.model.work_terms import WORK_TERMS
+from mgpusim.model.work_terms import REFERENCE_KINDS, WORK_TERMS
 from mgpusim.model.work_terms import pass_work as pass_work_placed
 from mgpusim.validation.measured_check import read_json_object, read_table
 
-#: Every pass kind of the cost model that is measured and fitted: all but "timed" (a pass known
-#: only by a reference time).
-PASS_KINDS = tuple(kind for kind in WORK_TERMS if kind != "timed")
+#: Every pass kind of the cost model that is measured and fitted: all but those known only by a
+#: reference time ("timed", "captured").
+PASS_KINDS = tuple(kind for kind in WORK_TERMS if kind not in REFERENCE_KINDS)
 COPY_PASSES = {"copy_d2h": "d2h", "copy_h2d": "h2d", "copy_d2d": "d2d"}
 
 

@@ -208,3 +208,39 @@ def _lines(ax, df: pd.DataFrame, keys: Sequence[str], metric: str) -> None:
     if others:
         ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1), borderaxespad=0)
     ax.set_title(f"{metric} by {', '.join(keys)}", fontsize=10)
+
+
+#: Marker colours of schedule families in a Pareto plot, in the order they are first seen.
+_FAMILY_COLOURS = ("#4c72b0", "#dd8452", "#55a868", "#c44e52", "#8172b3", "#937860", "#da8bc3")
+
+
+def pareto_png(table: pd.DataFrame, path: str | Path, title: str = "") -> Path:
+    """Frame time against latency of a search's options: every option the fast level ran
+    (grey), those confirmed at full fidelity coloured by `family`, the Pareto front joined by a
+    line, the one-GPU baseline (`gpus` 1) ringed. Columns: fast_frame_time_ms, fast_latency_ms,
+    frame_time_ms, latency_ms, family, gpus, confirmed, pareto."""
+    fig = Figure(figsize=(8, 5.2))
+    ax = fig.subplots()
+    fast = table[table["fast_frame_time_ms"].notna()]
+    ax.scatter(fast["fast_frame_time_ms"], fast["fast_latency_ms"], s=6, color="#c8c8c8",
+               label="analytic level (not confirmed)", zorder=1)
+    done = table[table["confirmed"]]
+    for i, (family, group) in enumerate(done.groupby("family", sort=False)):
+        ax.scatter(group["frame_time_ms"], group["latency_ms"], s=22 + 6 * group["gpus"],
+                   color=_FAMILY_COLOURS[i % len(_FAMILY_COLOURS)], edgecolor="black",
+                   linewidth=0.4, label=f"{family} (full)", zorder=3)
+    front = done[done["pareto"]].sort_values("frame_time_ms")
+    if len(front):
+        ax.step(front["frame_time_ms"], front["latency_ms"], where="post", color="black",
+                linewidth=0.8, zorder=2, label="Pareto front")
+    base = done[done["gpus"] == 1]
+    if len(base):
+        ax.scatter(base["frame_time_ms"], base["latency_ms"], s=160, facecolor="none",
+                   edgecolor="red", linewidth=1.2, zorder=4, label="one GPU (baseline)")
+    ax.set_xlabel("frame time (ms)")
+    ax.set_ylabel("latency (ms)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1), borderaxespad=0)
+    ax.set_title(title or "options: frame time against latency (marker size: GPUs)", fontsize=10)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    return Path(path)

@@ -83,17 +83,17 @@ class Table:
         value = self.data[key]
         value = _coerce(value, kind)
         if value is None:
-            raise self.error(key, f"expected {_TYPE_NAMES[kind]}, got {_show(self.data[key])}")
+            raise self.error(key, f"expected {_TYPE_NAMES[kind]}, got {show_value(self.data[key])}")
         if kind is float and not math.isfinite(value):
-            raise self.error(key, f"must be a finite number, got {_show(self.data[key])}")
+            raise self.error(key, f"must be a finite number, got {show_value(self.data[key])}")
         if minimum is not None and value < minimum:
-            raise self.error(key, f"must be >= {minimum}, got {_show(value)}")
+            raise self.error(key, f"must be >= {minimum}, got {show_value(value)}")
         if above is not None and value <= above:
-            raise self.error(key, f"must be > {above}, got {_show(value)}")
+            raise self.error(key, f"must be > {above}, got {show_value(value)}")
         if maximum is not None and value > maximum:
-            raise self.error(key, f"must be <= {maximum:g}{f' ({why})' if why else ''}, got {_show(value)}")
+            raise self.error(key, f"must be <= {maximum:g}{f' ({why})' if why else ''}, got {show_value(value)}")
         if choices is not None and value not in tuple(choices):
-            raise self.error(key, f"must be one of {sorted(choices)}, got {_show(value)}"
+            raise self.error(key, f"must be one of {sorted(choices)}, got {show_value(value)}"
                              + (did_you_mean(value, choices) if isinstance(value, str) else ""))
         return value
 
@@ -134,7 +134,7 @@ def int_list(text: str | None, field: str) -> list[int] | None:
         raise InputError(f"expected comma-separated integers, got {text!r}", field=field) from None
 
 
-def _show(value: Any, limit: int = 60) -> str:
+def show_value(value: Any, limit: int = 60) -> str:
     """A value for a message, cut short: a fuzzed 10 MB string must not become the message."""
     text = repr(value)
     return text if len(text) <= limit else text[:limit] + "..."

@@ -13,7 +13,7 @@ from mgpusim.model import limits as L
 from mgpusim.model.errors import InputError, TimeBoundError
 from mgpusim.model.profile import HardwareProfile
 from mgpusim.model.tasks import CpuTask, HostCopyTask
-from mgpusim.model.work_terms import PLACED_TERMS
+from mgpusim.model.work_terms import PLACED_TERMS, REFERENCE_KINDS
 
 
 def ns(value: float) -> int:
@@ -48,7 +48,7 @@ class CostModel:
         cost = gpu.costs.get(kind)
         where = f"gpus[{device}].costs.{kind}"
         if cost is None:
-            if kind == "timed":
+            if kind in REFERENCE_KINDS:
                 return work.get("reference_ns", 0.0) / gpu.speed
             raise InputError(f"no cost coefficients for pass kind {kind!r} on {gpu.name}",
                              file=self.profile.source, field=where)
@@ -60,7 +60,7 @@ class CostModel:
             if coef is None:
                 if term in PLACED_TERMS.get(kind, ()):
                     continue
-                if kind == "timed" and term == "reference_ns":
+                if kind in REFERENCE_KINDS and term == "reference_ns":
                     coef = 1.0
                 else:
                     raise InputError(f"missing coefficient for work term {term!r}",

@@ -11,7 +11,7 @@ from types import MappingProxyType
 from typing import Mapping
 
 from mgpusim.model import limits as L
-from mgpusim.model.config import Table, did_you_mean
+from mgpusim.model.config import Table, did_you_mean, show_value
 from mgpusim.model.geometry import Placement
 
 
@@ -20,6 +20,10 @@ class PassSpec:
     name: str
     kind: str
     params: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
+    #: The scene passes whose outputs this pass reads: earlier passes in this frame, or itself or
+    #: a later pass (their output of the previous frame: a temporal input). Schedules that move
+    #: outputs between GPUs wait only for what is read (pipelining's consumer_waits = "reads").
+    reads: tuple[str, ...] = ()
 
     def param(self, key: str, default: float = 0.0) -> float:
         return float(self.params.get(key, default))
@@ -74,31 +78,38 @@ class Scene:
 
 def parse_scene(t: Table, pass_params: Mapping[str, tuple[str, ...]],
                 common_params: tuple[str, ...] = (),
-                required: Mapping[str, tuple[str, ...]] | None = None) -> Scene:
+                required: Mapping[str, tuple[str, ...]] | None = None,
+                bounds: Mapping[tuple[str, str], tuple[float, float]] | None = None) -> Scene:
     """The [scene] table; `pass_params` maps each pass kind to the parameters it reads (a
     parameter it does not read is a typo: refused with the closest name), `required` to those
-    it must be given."""
+    it must be given, `bounds` (kind, parameter) to a narrower range than any work amount's.
+    Every pass may list the passes it `reads`."""
     passes = []
     names: set[str] = set()
-    for pt in t.tables("passes"):
+    tables = t.tables("passes")
+    every = [pt.data.get("name") for pt in tables]
+    for pt in tables:
         name = pt.get("name", str)
         if name in names:
             raise pt.error("name", f"duplicate pass name {name!r}")
         names.add(name)
         kind = pt.get("kind", str, choices=pass_params.keys())
+        reads = _reads(pt, every)
         known = (*pass_params[kind], *common_params)
         params = {}
         for key in pt.rest():
             if key not in known:
                 raise pt.error(key, f"unknown parameter of a {kind} pass{did_you_mean(key, known)} "
                                     f"(it takes {', '.join(known)})")
-            params[key] = pt.get(key, float, minimum=0, maximum=L.MAX_WORK, why=L.WHY_WORK)
+            low, high = (bounds or {}).get((kind, key), (0, L.MAX_WORK))
+            params[key] = pt.get(key, float, minimum=low, maximum=high,
+                                 why="" if (kind, key) in (bounds or {}) else L.WHY_WORK)
         missing = [key for key in (required or {}).get(kind, ()) if key not in params]
         if missing:
             raise pt.error(missing[0], f"missing: a {kind} pass needs {' and '.join(missing)} "
                                        f"(its work is 0 without)")
         pt.finish()
-        passes.append(PassSpec(name, kind, MappingProxyType(params)))
+        passes.append(PassSpec(name, kind, MappingProxyType(params), reads))
     sections = _sections(t) if t.has("sections") else ()
     side = {"minimum": 1, "maximum": L.MAX_SIDE, "why": L.WHY_IMAGE}
     per_pixel = {"maximum": L.MAX_BYTES_PER_PIXEL, "why": L.WHY_IMAGE}
@@ -116,6 +127,26 @@ def parse_scene(t: Table, pass_params: Mapping[str, tuple[str, ...]],
     if sections:
         scene = _with_sections(scene, t)
     return scene
+
+
+def _reads(pt: Table, names: list) -> tuple[str, ...]:
+    """A pass's `reads`: a list of the scene's pass names (each once)."""
+    reads = pt.get("reads", list, [])
+    for item in reads:
+        if not isinstance(item, str) or item not in names:
+            hint = did_you_mean(item, map(str, names)) if isinstance(item, str) else ""
+            raise pt.error("reads", f"expected names of this scene's passes, got {show_value(item)}{hint}")
+    if len(set(reads)) != len(reads):
+        raise pt.error("reads", f"a pass is named twice in {reads!r}")
+    return tuple(reads)
+
+
+def temporal_reads(scene: Scene) -> list[tuple[str, str]]:
+    """(pass, the pass whose previous-frame output it reads) for every read of a pass at or
+    after the reader in the scene's order: what alternate-frame rendering must carry between
+    GPUs."""
+    order = {p.name: i for i, p in enumerate(scene.passes)}
+    return [(p.name, r) for p in scene.passes for r in p.reads if order[r] >= order[p.name]]
 
 
 def _sections(t: Table) -> tuple[Section, ...]:

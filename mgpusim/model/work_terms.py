@@ -28,7 +28,18 @@ WORK_TERMS: dict[str, WorkFn] = {
     # A pass known only by a measured or estimated time on a reference GPU (e.g. the DX12 case
     # study's passes); the GPU's ns_per_reference_ns scales it (1 if the profile has no entry).
     "timed": lambda s, px, g: {"reference_ns": s.param("duration_ms") * 1e6 * g},
+    # A pass measured in a profiler capture (`mgpusim frame import`): `gpu_ms` on the capture's
+    # GPU when it drew `pixels` pixels and all of the geometry. Its `pixel_share` of that time
+    # scales with the pixels a schedule gives it (a sort-first tile, a half-eye view), the rest
+    # with its geometry share (a sort-last share): a pass that shades pixels splits by tiles, one
+    # that transforms geometry by objects.
+    "captured": lambda s, px, g: {"reference_ns": s.param("gpu_ms") * 1e6 * (
+        (1.0 - s.param("pixel_share")) * g + s.param("pixel_share") * px / max(s.param("pixels"), 1.0))},
 }
+
+#: Pass kinds known by a stated time on a reference GPU rather than measured work: a profile
+#: without their costs runs them at `reference_ns` / speed, and calibration never fits them.
+REFERENCE_KINDS = ("timed", "captured")
 
 
 #: The parameters each pass kind reads (scene.passes entries); any kind may also carry
@@ -43,8 +54,15 @@ PASS_PARAMS: dict[str, tuple[str, ...]] = {
     "particle_update": ("particles",),
     "particle_render": ("particles",),
     "timed": ("duration_ms",),
+    "captured": ("gpu_ms", "pixels", "pixel_share"),
 }
 COMMON_PARAMS = ("output_bytes",)
+
+#: Bounds of parameters narrower than any work amount's: (kind, parameter) -> (min, max).
+PARAM_BOUNDS: dict[tuple[str, str], tuple[float, float]] = {
+    ("captured", "pixel_share"): (0.0, 1.0),
+    ("captured", "pixels"): (1.0, float(2 ** 32)),
+}
 
 #: The parameters a scene's pass of each kind must give: without them its work would silently be
 #: 0 (a mesh with no triangles). The schedules' own passes (composites, present) set theirs.
@@ -55,6 +73,7 @@ REQUIRED_PARAMS: dict[str, tuple[str, ...]] = {
     "particle_update": ("particles",),
     "particle_render": ("particles",),
     "timed": ("duration_ms",),
+    "captured": ("gpu_ms", "pixels", "pixel_share"),
 }
 
 #: Terms a pass kind adds where the schedule says where the pass draws (a :class:`Placement`):

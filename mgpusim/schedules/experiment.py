@@ -17,7 +17,8 @@ from mgpusim.model.errors import InputError
 from mgpusim.model.overrides import parse_overrides, parse_value, set_dotted, split_profile
 from mgpusim.model.profile import HardwareProfile, load_profile, require_gpus
 from mgpusim.model.scene import Scene, parse_scene
-from mgpusim.model.work_terms import COMMON_PARAMS, PASS_PARAMS, REQUIRED_PARAMS
+from mgpusim.model.work_terms import (COMMON_PARAMS, PARAM_BOUNDS, PASS_PARAMS,
+                                      REQUIRED_PARAMS)
 from mgpusim.schedules.registry import ScheduleConfig, parse_schedule_config
 
 
@@ -62,7 +63,8 @@ def parse_experiment(data: dict, file: str, base: Path = Path("."),
     else:
         prof = load_profile(_resolve(Path(profile) if profile else Path(profile_ref), base, file),
                             profile_overrides)
-    scene = parse_scene(top.table("scene"), PASS_PARAMS, COMMON_PARAMS, REQUIRED_PARAMS)
+    scene = parse_scene(top.table("scene"), PASS_PARAMS, COMMON_PARAMS, REQUIRED_PARAMS,
+                        PARAM_BOUNDS)
     sched = parse_schedule_config(top.table("schedule"))
     top.finish()
     require_gpus(prof, sched.gpus, file)

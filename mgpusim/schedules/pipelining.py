@@ -283,7 +283,7 @@ def _readers(cfg: ScheduleConfig, scene: Scene,
              split: int) -> dict[str, tuple[str, ...]] | None:
     """With consumer_waits = 'reads': every GPU 0 pass (in order) -> the copy groups whose
     arrival it waits for; None with 'all' or one GPU. A pass reads the GPU 1 outputs `reads` lists,
-    a filter without an entry its `inputs` passes that ran on GPU 1."""
+    else the scene passes its `reads` names, else (a filter) its `inputs` passes that ran on GPU 1."""
     given = cfg.opt("reads")
     if cfg.opt("consumer_waits") == "all":
         if given:
@@ -305,7 +305,9 @@ def _readers(cfg: ScheduleConfig, scene: Scene,
     out: dict[str, tuple[str, ...]] = {}
     for index, spec in enumerate(scene.passes[split:], start=split):
         sources = given.get(spec.name)
-        if sources is None and spec.kind == "filter":
+        if sources is None and spec.reads:  # the scene's own reads: those that ran on GPU 1
+            sources = [s for s in spec.reads if s in first]
+        elif sources is None and spec.kind == "filter":
             found = filter_sources(scene.passes, index)
             sources = [s for s in found if s in first] if not isinstance(found, str) else []
         sources = [s for s in sources or () if _output_bytes(_spec(scene, s)) or frame_copy]

@@ -1,0 +1,71 @@
+"""`mgpusim advise EXPERIMENT [--out DIR]`: the best multi-GPU schedule, GPU count and link
+for a frame (usually one from `mgpusim frame import`).
+
+Searches sort-first (balanced tiles), sort-last, AFR, frame pipelining (every split point, 1-8
+chunks) and XR (a frame with two views) on 1-8 GPUs over PCIe 3/4/5 x8/x16 and NVLink, at the
+analytic level first, then confirms the best at full fidelity. Writes DIR/report.html (tables,
+the Pareto plot, timelines, Perfetto traces), advice.csv, advice.json and pareto.png.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from mgpusim.io.outpath import check_out_dir
+from mgpusim.io.shipped import resolve_experiment
+from mgpusim.model.errors import InputError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("advise", help="search schedules, GPU counts and links for a frame; an HTML report",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("experiment", help="experiment TOML file on one GPU (e.g. from `mgpusim frame import`)")
+    p.add_argument("--out", type=Path, default=None, help="output folder (default: out/<experiment>-advice)")
+    p.add_argument("--set", dest="overrides", action="append", metavar="KEY=VALUE",
+                   help="an override applied to every option, as for `simulate` (e.g. profile.gpus.*.speed=2)")
+    p.add_argument("--max-gpus", type=int, default=8, metavar="N", help="GPU counts 1..N (default 8)")
+    p.add_argument("--confirm", type=int, default=24, metavar="K",
+                   help="options confirmed at full fidelity besides the analytic Pareto front (default 24)")
+    p.add_argument("--timelines", type=int, default=3, metavar="N",
+                   help="timelines and Perfetto traces of the N best options (default 3)")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="processes evaluating options (default: one per CPU)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import time  # noqa: PLC0415
+
+    from mgpusim.schedules.experiment import parse_overrides  # noqa: PLC0415
+    from mgpusim.studies.advice import search  # noqa: PLC0415
+    from mgpusim.studies.advice_report import write_advice  # noqa: PLC0415
+    for name, value, low in (("--confirm", args.confirm, 1), ("--timelines", args.timelines, 0),
+                             ("--workers", args.workers, 1)):
+        if value is not None and value < low:
+            raise InputError(f"must be >= {low}, got {value}", field=name)
+    path = resolve_experiment(args.experiment)
+    out = args.out or Path("out") / f"{path.stem}-advice"
+    check_out_dir(out)
+    t0 = time.perf_counter()
+    advice = search(path, parse_overrides(args.overrides), max_gpus=args.max_gpus,
+                    confirm=args.confirm, workers=args.workers)
+    searched = time.perf_counter() - t0
+    files = write_advice(advice, out, str(args.experiment), args.timelines)
+    ranked = advice.ranked
+    best, base = ranked.iloc[0], advice.baseline
+    print(f"{path.stem}: {advice.counts['options']} options in {searched:.1f} s "
+          f"({', '.join(f'{k} {v:.1f}' for k, v in advice.timings.items())}; "
+          f"{advice.counts['confirmed']} confirmed at full fidelity, {advice.counts['workers']} worker(s))")
+    print(f"  one GPU: frame time {base['frame_time_ms']:.3f} ms, latency {base['latency_ms']:.3f} ms")
+    print(f"  best: {best['label']}: frame time {best['frame_time_ms']:.3f} ms "
+          f"({best['speedup']:.2f}x), latency {best['latency_ms']:.3f} ms")
+    front = ranked[ranked["pareto"]]
+    print(f"  Pareto front (frame time against latency): {len(front)} option(s)")
+    for _, row in front.head(8).iterrows():
+        print(f"    {row['frame_time_ms']:8.3f} ms  latency {row['latency_ms']:8.3f} ms  {row['label']}")
+    if advice.analytic_bound and advice.open:
+        print(f"  {advice.open} option(s) not confirmed could be faster: raise --confirm")
+    for note in advice.notes:
+        print(f"  note: {note}")
+    print(f"  wrote {files['report']} (and {out / 'advice.csv'}, {out / 'advice.json'}, {out / 'pareto.png'})")
+    return 0

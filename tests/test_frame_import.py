@@ -1,0 +1,213 @@
+"""`mgpusim frame import`: captures in three formats become experiments of `captured` passes
+that every schedule runs; bad captures are one line naming the file and the field."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from mgpusim import load_experiment, simulate
+from mgpusim.cli import main
+from mgpusim.model.errors import InputError
+from mgpusim.model.scene import PassSpec, temporal_reads
+from mgpusim.model.work_terms import pass_work
+from mgpusim.studies.capture_formats import read_chrome, read_csv, read_run
+from mgpusim.studies.frame_import import frame_from_slices
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = ROOT / "examples" / "frames"
+RUN = ROOT / "data/lavapipe/main_job_2026-11-25/runs/pipe_1gpu/steady"
+PROFILE = ROOT / "hardware_profiles/pcie4_pair.toml"
+
+
+def _import(capture: Path, out: Path, *extra: str) -> int:
+    return main(["frame", "import", str(capture), "--out", str(out), "--profile", str(PROFILE), *extra])
+
+
+def _passes(path: Path) -> dict[str, PassSpec]:
+    return {p.name: p for p in load_experiment(path).scene.passes}
+
+
+# ----- the captured pass ----------------------------------------------------------------------
+def test_a_captured_pass_splits_its_pixel_share_by_pixels_and_the_rest_by_geometry():
+    spec = PassSpec("p", "captured", {"gpu_ms": 4.0, "pixels": 1000, "pixel_share": 0.75})
+    assert pass_work(spec, 1000)["reference_ns"] == pytest.approx(4e6)
+    assert pass_work(spec, 500)["reference_ns"] == pytest.approx(4e6 * (0.25 + 0.75 / 2))  # a half tile
+    assert pass_work(spec, 1000, 0.5)["reference_ns"] == pytest.approx(4e6 * (0.125 + 0.75))  # half the geometry
+
+
+def test_sort_first_halves_a_pixel_bound_captured_frame(tmp_path):
+    csv = tmp_path / "f.csv"
+    csv.write_text("pass,queue,gpu_ms,pixel_share\nshade,graphics,10,1\n")
+    out = tmp_path / "f.toml"
+    assert _import(csv, out, "--size", "64x64") == 0
+    one = simulate(load_experiment(out)).summary
+    two = simulate(load_experiment(out, {"schedule": {"name": "sort_first", "gpus": 2}})).trace
+    renders = two[two["step"] == "render"]
+    assert renders["end_ns"].sub(renders["start_ns"]).max() == 5_000_000  # half the rows, half the time
+    assert one["frame_time_ms"] > 10
+
+
+# ----- CSV ------------------------------------------------------------------------------------
+def test_csv_reads_resolve_to_producers_and_the_cpu_row_is_cpu_work(tmp_path):
+    csv = tmp_path / "deferred.csv"
+    csv.write_text("pass,queue,gpu_ms,reads,writes,bytes\n"
+                   "game,cpu,4.5,,,\n"
+                   "shadow,graphics,1.0,,shadowmap,4194304\n"
+                   "gbuffer,graphics,2.0,,albedo;normal,8294400;8294400\n"
+                   "ssao,compute,0.5,normal,ao,2073600\n"
+                   "light,graphics,1.5,albedo;normal;ao;shadowmap;history,hdr,16588800\n"
+                   "taa,graphics,0.4,hdr;history,history,8294400\n"
+                   "upload,transfer,0.3,,,\n")
+    out = tmp_path / "deferred.toml"
+    assert _import(csv, out, "--size", "1920x1080") == 0
+    passes = _passes(out)
+    assert list(passes) == ["shadow", "gbuffer", "ssao", "light", "taa"]  # transfer work left out
+    assert passes["light"].reads == ("gbuffer", "ssao", "shadow", "taa")  # history: taa's, last frame
+    assert passes["gbuffer"].params["output_bytes"] == 2 * 8294400
+    assert passes["taa"].params["output_bytes"] == 8294400  # read by light (next frame) and presented
+    assert passes["ssao"].params["gpu_ms"] == 0.5
+    exp = load_experiment(out)
+    assert exp.schedule.cpu_frame_us == 4500
+    assert temporal_reads(exp.scene) == [("light", "taa"), ("taa", "taa")]
+    text = out.read_text()
+    assert "ran on the compute queue" in text and "transfer-queue work left out" in text
+
+
+def test_csv_frames_give_medians(tmp_path):
+    csv = tmp_path / "f.csv"
+    csv.write_text("frame,pass,queue,gpu_ms\n" + "".join(f"{f},a,graphics,{ms}\n{f},b,graphics,1\n"
+                                                         for f, ms in enumerate([1.0, 3.0, 2.0])))
+    slices, _ = read_csv(csv)
+    frame = frame_from_slices(slices, name="f", source=str(csv), width=8, height=8)
+    assert [(p.name, p.gpu_ms, p.frames) for p in frame.passes] == [("a", 2.0, 3), ("b", 1.0, 3)]
+
+
+def test_a_stereo_csv_becomes_xr_with_one_eye_per_pass(tmp_path):
+    out = tmp_path / "xr.toml"
+    assert _import(EXAMPLES / "xr_two_views_lavapipe.csv", out, "--size", "192x192") == 0
+    exp = load_experiment(out)
+    assert (exp.schedule.name, exp.schedule.gpus, exp.schedule.opt("views")) == ("xr", 1, 2)
+    assert [p.name for p in exp.scene.passes] == ["tori"]
+    assert exp.scene.passes[0].param("pixel_share") == 0  # a mesh: its time goes with triangles
+
+
+# ----- Chrome trace-event JSON ----------------------------------------------------------------
+def test_our_own_perfetto_export_imports_as_the_run_it_came_from(tmp_path):
+    """examples/frames: mgpusim's export of four frames of a committed run; the imported pass
+    times are those frames' medians, the schedule's present left out."""
+    slices, meta = read_chrome(EXAMPLES / "pipelining_lavapipe.perfetto.json")
+    frame = frame_from_slices(slices, name="x", source="x", width=256, height=192,
+                              left_out=meta["left_out"])
+    trace = pd.read_parquet(RUN.parents[1] / "runs.parquet")
+    trace = trace[trace["run"] == "pipe_1gpu/steady"]
+    trace = trace[(trace["frame"] < trace["frame"].min() + 4) & (trace["step"] == "render")]
+    want = ((trace["end_ns"] - trace["start_ns"]) / 1e6).groupby(trace["task"]).median()
+    assert {p.name: round(p.gpu_ms, 6) for p in frame.passes} == {k: round(v, 6) for k, v in want.items()}
+    assert any("present" in n for n in frame.notes)
+
+
+def _chrome(path: Path, events: list) -> Path:
+    path.write_text(json.dumps({"traceEvents": events}))
+    return path
+
+
+def _meta(pid: int, tid: int, process: str, thread: str) -> list[dict]:
+    return [{"ph": "M", "name": "process_name", "pid": pid, "tid": 0, "args": {"name": process}},
+            {"ph": "M", "name": "thread_name", "pid": pid, "tid": tid, "args": {"name": thread}}]
+
+
+def test_chrome_groups_number_frames_and_args_carry_resources(tmp_path):
+    events = _meta(1, 1, "GPU", "Direct queue") + _meta(2, 7, "Game", "main")
+    for f in range(3):
+        t0 = f * 20_000
+        events += [{"ph": "X", "name": f"Frame {f}", "pid": 1, "tid": 1, "ts": t0, "dur": 12_000},
+                   {"ph": "X", "name": "depth", "pid": 1, "tid": 1, "ts": t0, "dur": 4000,
+                    "args": {"writes": ["depth"], "bytes": 8294400}},
+                   {"ph": "B", "name": "light", "pid": 1, "tid": 1, "ts": t0 + 5000,
+                    "args": {"reads": "depth", "writes": "hdr", "bytes": [16588800]}},
+                   {"ph": "E", "pid": 1, "tid": 1, "ts": t0 + 11_000},
+                   {"ph": "X", "name": "update", "pid": 2, "tid": 7, "ts": t0, "dur": 3000}]
+    slices, _ = read_chrome(_chrome(tmp_path / "t.json", events))
+    frame = frame_from_slices(slices, name="t", source="t", width=1920, height=1080)
+    assert frame.frames == 3
+    assert [(p.name, p.gpu_ms, p.reads, p.output_bytes) for p in frame.passes] == [
+        ("depth", 4.0, (), 8294400), ("light", 6.0, ("depth",), 16588800)]
+    assert frame.cpu_ms == 3.0
+
+
+def test_a_run_folder_imports_its_scene_reads(tmp_path):
+    slices, meta = read_run(RUN)
+    assert (meta["width"], meta["height"]) == (256, 192)
+    frame = frame_from_slices(slices, name="r", source=str(RUN), width=256, height=192)
+    assert [p.reads for p in frame.passes] == [(), ("a",), ("a", "b"), ("a", "b", "c")]
+    assert all(p.pixel_share == 1.0 for p in frame.passes)  # fragment loop and filters
+
+
+# ----- bad captures ---------------------------------------------------------------------------
+BAD = {
+    "json syntax": ("t.json", '{"traceEvents": [', ["t.json", "not valid JSON"]),
+    "negative dur": ("t.json", json.dumps({"traceEvents": _meta(1, 1, "gpu0", "graphics") + [
+        {"ph": "X", "name": "a", "pid": 1, "tid": 1, "ts": 0, "dur": -3}]}), ["traceEvents[2].dur"]),
+    "no gpu track": ("t.json", json.dumps({"traceEvents": [{"ph": "X", "name": "a", "pid": 1, "tid": 1,
+                                                            "ts": 0, "dur": 3}]}), ["no GPU work"]),
+    "unended begin": ("t.json", json.dumps({"traceEvents": _meta(1, 1, "gpu0", "graphics") + [
+        {"ph": "B", "name": "a", "pid": 1, "tid": 1, "ts": 0}]}), ["traceEvents[2]", "never ended"]),
+    "csv column": ("t.csv", "pass,gpu_ms\na,1\n", ["t.csv", "missing column(s) queue"]),
+    "csv queue": ("t.csv", "pass,queue,gpu_ms\na,graphix,1\n", ["queue", "row 0"]),
+    "csv time": ("t.csv", "pass,queue,gpu_ms\na,graphics,-1\n", ["gpu_ms", "row 0"]),
+    "csv bytes": ("t.csv", "pass,queue,gpu_ms,writes,bytes\na,graphics,1,x;y,5\n", ["bytes (row 0)", "one per write"]),
+    "csv share": ("t.csv", "pass,queue,gpu_ms,pixel_share\na,graphics,1,2\n", ["pixel_share (row 0)"]),
+    "csv view missing": ("t.csv", "pass,queue,gpu_ms,view\na,graphics,1,0\nb,graphics,1,\n", ["pass 'b' has none"]),
+    "empty csv": ("t.csv", "", ["t.csv", "empty"]),
+}
+
+
+@pytest.mark.parametrize("case", BAD, ids=list(BAD))
+def test_a_bad_capture_is_one_line_and_writes_nothing(case, tmp_path, capsys):
+    name, text, expect = BAD[case]
+    (tmp_path / name).write_text(text)
+    out = tmp_path / "out.toml"
+    capsys.readouterr()
+    assert _import(tmp_path / name, out, "--size", "64x64") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    for words in expect:
+        assert words in err[0], (words, err[0])
+    assert not out.exists()
+
+
+def test_a_multi_gpu_run_and_a_missing_size_are_refused(tmp_path, capsys):
+    run = RUN.parents[0].parent / "pipe_2gpu" / "steady"
+    assert _import(run, tmp_path / "x.toml") == 2
+    assert "one-GPU run" in capsys.readouterr().err
+    csv = tmp_path / "f.csv"
+    csv.write_text("pass,queue,gpu_ms\na,graphics,1\n")
+    assert _import(csv, tmp_path / "x.toml") == 2
+    assert "--size" in capsys.readouterr().err
+
+
+def test_scene_reads_must_name_scene_passes(tmp_path):
+    out = tmp_path / "f.toml"
+    csv = tmp_path / "f.csv"
+    csv.write_text("pass,queue,gpu_ms\nalpha,graphics,1\nbeta,graphics,1\n")
+    assert _import(csv, out, "--size", "8x8") == 0
+    with pytest.raises(InputError, match=r"scene.passes\[1\].reads: .*'alpah'.*did you mean 'alpha'"):
+        load_experiment(out, {"scene.passes.1.reads": ["alpah"]})
+
+
+def test_pipelining_waits_only_for_what_a_pass_reads(tmp_path):
+    """Split after two passes: GPU 0's first pass reads only pass a, so it starts when a's copy
+    arrived, not b's."""
+    csv = tmp_path / "f.csv"
+    csv.write_text("pass,queue,gpu_ms,reads,writes,bytes\na,graphics,1,,A,1000000\n"
+                   "b,graphics,4,,B,1000000\nc,graphics,1,a,C,100\nd,graphics,1,b;c,D,100\n")
+    out = tmp_path / "f.toml"
+    assert _import(csv, out, "--size", "64x64") == 0
+    trace = simulate(load_experiment(out, {"schedule.gpus": 2, "schedule.split_at": 2})).trace
+    frame = trace[trace["frame"] == 5].set_index("task")
+    assert frame.loc["render.c", "start_ns"] < frame.loc["render.b", "end_ns"]
+    assert frame.loc["render.d", "start_ns"] >= frame.loc["out.b.h2d", "end_ns"]
+    assert frame.loc["out.a.d2h", "bytes"] == 1_000_000  # a's output, named by the pass's name

@@ -14,9 +14,8 @@ the replay leaves them out; on CPU-emulated GPUs the host's cores stay, occupied
 work, so that the host threads' own work (waking, submitting) competes with it as it did. A
 skippable task (the particle update under "new wait") is skipped where the run skipped it, and
 only there. Every part of a host copy takes the copy's duration (the run's longest part).
-Another task the
-run did not measure in some frame takes its median over the run's other frames; one it never
-measured is costed by the model.
+Another task the run did not measure in some frame takes its median over the run's other
+frames; one it never measured is costed by the model.
 """
 from __future__ import annotations
 

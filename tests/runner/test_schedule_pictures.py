@@ -244,7 +244,11 @@ def test_particles_match_numpy(gpus, options):
     assert read == [max(g for g in vertices if g <= f) for f in range(FRAMES)]
     assert result.summary["skipped_tasks"]["particle_update"] == len(skipped)
     rates = result.summary["task_rates_hz"]
-    assert rates["particle_update"] < rates["frames"]
+    # the steady-state rate: on one GPU the leader decides once the present two frames back has
+    # ended, and a light frame's update may be done by then in every steady frame
+    assert rates["particle_update"] <= rates["frames"]
+    if gpus == 2:
+        assert rates["particle_update"] < rates["frames"]
 
 
 def test_new_wait_keeps_updating_while_the_primary_stays_busy():

@@ -29,8 +29,13 @@ class _Parser(argparse.ArgumentParser):
 
 
 def one_line(text: str) -> str:
-    """A message on one line: newlines from a file's key or value are shown escaped."""
-    return text.replace("\r", "\\r").replace("\n", "\\n")
+    """A message on one line: newlines, NULs and other control characters from a file's key or
+    value (or a name given on the command line) are shown escaped."""
+    return text.translate(_ESCAPES)
+
+
+#: Control characters as Python writes them in a string (\n, \x00, ...), except the tab.
+_ESCAPES = {c: repr(chr(c))[1:-1] for c in (*range(32), 127) if c != 9}
 
 
 def build_parser() -> argparse.ArgumentParser:

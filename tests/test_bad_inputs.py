@@ -10,6 +10,7 @@ measure (only their checks that come before any Vulkan device is opened).
 from __future__ import annotations
 
 import json
+import os
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -675,7 +676,7 @@ for _id, _make, _words in CALIBRATE_CASES:
 def _study(edit: Callable[[str], str]) -> Callable[[Path], list[str]]:
     def make(tmp: Path) -> list[str]:
         text = (ROOT / "experiments" / "h100" / "study.toml").read_text()
-        text = text.replace('"../../', f'"{ROOT}/')
+        text = text.replace('"../../', f'"{os.path.relpath(ROOT, tmp)}/')  # paths stay relative
         (tmp / "s.toml").write_text(edit(text))
         return ["study", "calibrate", str(tmp / "s.toml"), "--out", str(tmp / "out")]
     return make
@@ -689,6 +690,156 @@ STUDY_CASES = [
 ]
 for _id, _make, _words in STUDY_CASES:
     CASES.append(Case(f"study-{_id}", _make, ("s.toml", *_words)))
+
+
+# ----- study files: a small study whose every part is set, then one part broken ------------
+def mini_study(tmp: Path) -> dict[str, Any]:
+    """A study with every section (tables, a host copy table, a recipe, both halves), its paths
+    relative to `tmp` where it is written; it loads (see the positive control below)."""
+    r = os.path.relpath(ROOT, tmp)
+    exp = f"{r}/experiments/sort_first_tc1.toml"
+    return {"name": "mini", "description": "a study", "profile": f"{r}/hardware_profiles/tc1.toml",
+            "microbenchmarks": {"tables": f"{r}/data/lavapipe", "files": ["fragment_loop.csv", "mesh.csv"],
+                                "sweeps": {"mesh": {"width": [128], "triangles": [1000, 2000]}}},
+            "runs": {"repeats": 1, "max_frames": 100},
+            "calibration": {"host_copy_table": "host_copy.csv", "run_fitted": ["fragment_loop"],
+                            "run_fit_terms": ["pixel"], "run_fit_gpus": 1,
+                            "copy_from": {"profile": f"{r}/hardware_profiles/h200_x2.toml",
+                                          "costs": ["present"], "host": ["dispatch_ns"]},
+                            "host_grid": {"dispatch_ns": [0, 1000]},
+                            "config": [{"name": "a", "experiment": exp, "set": ["schedule.gpus=2"]}]},
+            "held_out": {"config": [{"name": "b", "experiment": exp, "set": []}]}}
+
+
+def _mini(mutate: Callable[[dict], None], step: str = "validate") -> Callable[[Path], list[str]]:
+    def make(tmp: Path) -> list[str]:
+        data = mini_study(tmp)
+        mutate(data)
+        write_toml(tmp / "s.toml", data)
+        return ["study", step, str(tmp / "s.toml"), "--out", str(tmp / "out")]
+    return make
+
+
+def _abs(path: str) -> Callable[[dict], None]:
+    """Set `path` to the absolute form of the (relative) path it holds."""
+    def mutate(data: dict) -> None:
+        *parents, last = path.split(".")
+        node: Any = data
+        for p in parents:
+            node = node[int(p)] if isinstance(node, list) else node[p]
+        node[last] = str((ROOT / "tests" / node[last]).resolve())  # any absolute path
+    return mutate
+
+
+CFG = "calibration.config.0"
+MINI_STUDY_CASES: list[tuple[str, Callable[[dict], None], tuple[str, ...]]] = [
+    ("name-parent", _put("name", "../x"), ("name", "separator")),
+    ("name-absolute", _put("name", "/tmp/x"), ("name", "separator")),
+    ("name-dotdot", _put("name", ".."), ("name", "'..'")),
+    ("name-nul", _put("name", "a\0b"), ("name", "NUL")),
+    ("name-number", _put("name", 5), ("name", "string")),
+    ("name-blank", _put("name", "  "), ("name", "empty")),
+    ("config-name-parent", _put(f"{CFG}.name", "../../escape"), ("calibration.config[0].name", "separator")),
+    ("config-name-absolute", _put(f"{CFG}.name", "/tmp/escape"), ("calibration.config[0].name", "separator")),
+    ("config-name-dotdot", _put(f"{CFG}.name", ".."), ("calibration.config[0].name",)),
+    ("config-name-dot", _put(f"{CFG}.name", "."), ("calibration.config[0].name",)),
+    ("config-name-backslash", _put(f"{CFG}.name", "a\\b"), ("calibration.config[0].name", "separator")),
+    ("config-name-nul", _put(f"{CFG}.name", "a\0"), ("calibration.config[0].name", "NUL")),
+    ("config-name-newline", _put(f"{CFG}.name", "a\nb"), ("calibration.config[0].name", "control")),
+    ("config-name-long", _put(f"{CFG}.name", "x" * 300), ("calibration.config[0].name", "255 bytes")),
+    ("config-name-empty", _put(f"{CFG}.name", ""), ("calibration.config[0].name", "empty")),
+    ("config-name-list", _put(f"{CFG}.name", ["a"]), ("calibration.config[0].name", "string")),
+    ("config-name-missing", _drop(f"{CFG}.name"), ("calibration.config[0].name", "missing")),
+    ("held-name-parent", _put("held_out.config.0.name", "../b"), ("held_out.config[0].name", "separator")),
+    ("config-set-string", _put(f"{CFG}.set", "schedule.gpus=2"), ("calibration.config[0].set", "a list")),
+    ("config-set-number", _put(f"{CFG}.set", [3]), ("calibration.config[0].set[0]", "string")),
+    ("config-set-table", _put(f"{CFG}.set", [{"a": 1}]), ("calibration.config[0].set[0]", "string")),
+    ("config-set-nested", _put(f"{CFG}.set", [["schedule.gpus=2"]]), ("calibration.config[0].set[0]",)),
+    ("config-set-no-equals", _put(f"{CFG}.set", ["schedule.gpus"]), ("calibration.config[0].set[0]", "key=value")),
+    ("config-set-no-key", _put(f"{CFG}.set", ["=2"]), ("calibration.config[0].set[0]", "no key")),
+    ("config-set-misspelt", _put(f"{CFG}.set", ["schedule.gpuz=2"]), ("calibration.config[0]", "did you mean 'gpus'")),
+    ("config-set-bad-value", _put(f"{CFG}.set", ["schedule.gpus=9"]), ("calibration.config[0]", "schedule.gpus")),
+    ("config-set-bool", _put(f"{CFG}.set", True), ("calibration.config[0].set", "a list")),
+    ("config-experiment-absolute", _abs(f"{CFG}.experiment"), ("calibration.config[0].experiment", "absolute")),
+    ("config-experiment-missing-file", _put(f"{CFG}.experiment", "nope.toml"), ("experiment", "does not exist")),
+    ("config-experiment-number", _put(f"{CFG}.experiment", 5), ("experiment", "string")),
+    ("config-experiment-absent", _drop(f"{CFG}.experiment"), ("experiment", "missing")),
+    ("config-unknown-key", _put(f"{CFG}.sets", []), ("calibration.config[0].sets", "did you mean 'set'")),
+    ("config-not-a-table", _put("calibration.config", [5]), ("calibration.config[0]", "table")),
+    ("config-empty-array", _put("held_out.config", []), ("held_out.config", "empty")),
+    ("config-duplicate", _put("held_out.config.0.name", "a"), ("unique", "a")),
+    ("profile-absolute", _abs("profile"), ("profile", "absolute")),
+    ("profile-missing", _drop("profile"), ("profile", "missing")),
+    ("profile-blank", _put("profile", " "), ("profile", "relative")),
+    ("profile-nope", _put("profile", "nope.toml"), ("profile", "does not exist")),
+    ("files-string", _put("microbenchmarks.files", "mesh.csv"), ("microbenchmarks.files", "a list")),
+    ("files-empty", _put("microbenchmarks.files", []), ("microbenchmarks.files", "empty list")),
+    ("files-number", _put("microbenchmarks.files", [1]), ("microbenchmarks.files[0]", "string")),
+    ("files-parent", _put("microbenchmarks.files", ["../../../../etc/passwd"]), ("files[0]", "inside")),
+    ("files-absolute", _put("microbenchmarks.files", ["/etc/hostname"]), ("files[0]", "inside")),
+    ("files-nope", _put("microbenchmarks.files", ["nope.csv"]), ("files[0]", "does not exist")),
+    ("files-folder", _put("microbenchmarks.files", ["main_job_2026-11-24"]), ("files[0]", "not a file")),
+    ("files-without-tables", _drop("microbenchmarks.tables"), ("microbenchmarks.files", "go together")),
+    ("tables-without-files", _drop("microbenchmarks.files"), ("microbenchmarks.tables", "go together")),
+    ("tables-absolute", _abs("microbenchmarks.tables"), ("microbenchmarks.tables", "absolute")),
+    ("tables-a-file", lambda d: d["microbenchmarks"].update(tables=d["microbenchmarks"]["tables"] + "/mesh.csv"),
+     ("microbenchmarks.tables", "not a folder")),
+    ("tables-number", _put("microbenchmarks.tables", 3), ("microbenchmarks.tables", "string")),
+    ("sweep-scalar", _put("microbenchmarks.sweeps.mesh.width", 128), ("microbenchmarks.sweeps.mesh.width", "a list")),
+    ("sweep-string", _put("microbenchmarks.sweeps.mesh.width", "128"), ("sweeps.mesh.width", "a list")),
+    ("sweep-empty", _put("microbenchmarks.sweeps.mesh.width", []), ("sweeps.mesh.width", "empty list")),
+    ("sweep-nested", _put("microbenchmarks.sweeps.mesh.width", [[128]]), ("sweeps.mesh.width[0]",)),
+    ("sweep-table-value", _put("microbenchmarks.sweeps.mesh.width", [{"a": 1}]), ("sweeps.mesh.width[0]",)),
+    ("sweep-nan", _put("microbenchmarks.sweeps.mesh.width", [float("nan")]), ("sweeps.mesh.width[0]",)),
+    ("sweep-unknown-pass", _put("microbenchmarks.sweeps.msh", {"width": [1]}), ("sweeps.msh", "did you mean 'mesh'")),
+    ("sweep-no-params", _put("microbenchmarks.sweeps.mesh", {}), ("sweeps.mesh", "empty sweep")),
+    ("sweep-not-a-table", _put("microbenchmarks.sweeps.mesh", 3), ("sweeps.mesh", "table")),
+    ("sweeps-not-a-table", _put("microbenchmarks.sweeps", [1]), ("microbenchmarks.sweeps", "table")),
+    ("pairs-scalar", _put("microbenchmarks.pairs", {"mesh": {"width": 1}}), ("microbenchmarks.pairs.mesh.width", "a list")),
+    ("rounds-zero", _put("microbenchmarks.rounds", 0), ("microbenchmarks.rounds", ">= 1")),
+    ("reps-float", _put("microbenchmarks.reps", 2.5), ("microbenchmarks.reps", "integer")),
+    ("run-fitted-unknown", _put("calibration.run_fitted", ["fragmnt_loop"]), ("calibration.run_fitted", "did you mean 'fragment_loop'")),
+    ("run-fitted-string", _put("calibration.run_fitted", "present"), ("calibration.run_fitted", "a list")),
+    ("run-fitted-empty", _put("calibration.run_fitted", []), ("calibration.run_fitted", "empty list")),
+    ("run-fitted-number", _put("calibration.run_fitted", [5]), ("calibration.run_fitted[0]", "string")),
+    ("run-fit-terms-unknown", _put("calibration.run_fit_terms", ["pixels"]), ("calibration.run_fit_terms", "did you mean 'pixel'")),
+    ("run-fit-terms-empty", _put("calibration.run_fit_terms", []), ("calibration.run_fit_terms", "empty list")),
+    ("run-fit-terms-string", _put("calibration.run_fit_terms", "pixel"), ("calibration.run_fit_terms", "a list")),
+    ("run-fit-terms-kind", _put("calibration.run_fit_terms", ["mesh"]), ("calibration.run_fit_terms", "unknown work term")),
+    ("run-fit-alone-unknown", _put("calibration.run_fit_alone", ["composite"]), ("calibration.run_fit_alone", "unknown pass kind")),
+    ("run-fit-gpus-negative", _put("calibration.run_fit_gpus", -1), ("calibration.run_fit_gpus", ">= 0")),
+    ("run-fit-gpus-huge", _put("calibration.run_fit_gpus", 1000), ("calibration.run_fit_gpus", "<= 64")),
+    ("host-copy-table-nope", _put("calibration.host_copy_table", "nope.csv"), ("calibration.host_copy_table", "does not exist")),
+    ("host-copy-table-parent", _put("calibration.host_copy_table", "../x.csv"), ("calibration.host_copy_table", "inside")),
+    ("host-copy-table-number", _put("calibration.host_copy_table", 5), ("calibration.host_copy_table", "string")),
+    ("copy-from-cost-unknown", _put("calibration.copy_from.costs", ["nope"]), ("calibration.copy_from.costs", "not in")),
+    ("copy-from-host-misspelt", _put("calibration.copy_from.host", ["dispatch"]), ("copy_from.host", "did you mean 'dispatch_ns'")),
+    ("copy-from-costs-string", _put("calibration.copy_from.costs", "present"), ("copy_from.costs", "a list")),
+    ("copy-from-no-profile", _drop("calibration.copy_from.profile"), ("copy_from.costs", "needs copy_from.profile")),
+    ("copy-from-profile-nope", _put("calibration.copy_from.profile", "nope.toml"), ("copy_from.profile", "does not exist")),
+    ("copy-from-unknown-key", _put("calibration.copy_from.cost", []), ("copy_from.cost", "did you mean 'costs'")),
+    ("host-grid-scalar", _put("calibration.host_grid.dispatch_ns", 5), ("calibration.host_grid.dispatch_ns", "a list")),
+    ("host-grid-empty", _put("calibration.host_grid.dispatch_ns", []), ("host_grid.dispatch_ns", "empty list")),
+    ("host-grid-text", _put("calibration.host_grid.dispatch_ns", ["a"]), ("host_grid.dispatch_ns[0]", "numbers")),
+    ("host-grid-bool", _put("calibration.host_grid.dispatch_ns", [True]), ("host_grid.dispatch_ns[0]", "numbers")),
+    ("host-grid-inf", _put("calibration.host_grid.dispatch_ns", [float("inf")]), ("host_grid.dispatch_ns[0]",)),
+    ("host-grid-misspelt", _put("calibration.host_grid.dispatch", [1]), ("host_grid.dispatch", "did you mean 'dispatch_ns'")),
+    ("calibration-runs-nope", _put("calibration.runs", "nope"), ("calibration.runs", "does not exist")),
+    ("calibration-runs-absolute", lambda d: d["calibration"].update(runs=str(ROOT)), ("calibration.runs", "absolute")),
+    ("held-out-runs-number", _put("held_out.runs", 5), ("held_out.runs", "string")),
+    ("held-out-runs-file", lambda d: d["held_out"].update(runs=d["profile"]), ("held_out.runs", "not a folder")),
+    ("runs-repeats-zero", _put("runs.repeats", 0), ("runs.repeats", ">= 1")),
+    ("runs-max-frames-text", _put("runs.max_frames", "x"), ("runs.max_frames", "integer")),
+    ("threads-per-core-huge", _put("lavapipe_threads_per_core", 100), ("lavapipe_threads_per_core", "<= 16")),
+    ("base-unknown", _put("calibration.base", "gpu"), ("calibration.base", "one of")),
+    ("top-unknown-key", _put("descripion", "x"), ("descripion", "did you mean 'description'")),
+    ("calibration-not-a-table", _put("calibration", 5), ("calibration", "table")),
+]
+for _id, _mutate, _words in MINI_STUDY_CASES:
+    CASES.append(Case(f"study-{_id}", _mini(_mutate), ("s.toml", *_words)))
+for _step in ("calibrate", "measure", "run"):  # every step checks the file before its work
+    CASES.append(Case(f"study-{_step}-config-name-parent", _mini(_put(f"{CFG}.name", "../x"), _step),
+                      ("calibration.config[0].name", "separator")))
 
 
 # ----- the test --------------------------------------------------------------------------
@@ -715,6 +866,21 @@ def test_bad_input_is_one_line_exit_2(bad: Case, tmp_path: Path, capsys, monkeyp
         assert words in lines[0], (words, lines[0])
     assert not (tmp_path / "out").exists()  # nothing half-written
     assert not [p for p in tmp_path.rglob("*.tmp")]
+
+
+def test_the_mini_study_loads_and_lists_its_configurations_without_runs(tmp_path: Path, capsys,
+                                                                       monkeypatch):
+    """The positive control of the study cases: the unbroken study validates (exit 0), and its
+    two configurations, which have no measured runs, are listed in the output and the report
+    rather than left out."""
+    monkeypatch.chdir(tmp_path)
+    assert main(_mini(lambda d: None)(tmp_path) + ["--held-out"]) == 0
+    printed = capsys.readouterr().out
+    assert "no measured run (not compared): a" in printed and "no measured run (not compared): b" in printed
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "No measured run, not compared: a." in report and "No measured run, not compared: b." in report
+    errors = json.loads((tmp_path / "out" / "errors.json").read_text())
+    assert [v["without_runs"] for v in errors.values()] == [["a"], ["b"]]
 
 
 def test_a_matching_measured_run_validates(tmp_path: Path, capsys, monkeypatch):

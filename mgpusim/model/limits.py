@@ -54,3 +54,11 @@ WHY_GBPS = "10^12 GB/s, as good as free"
 #: Cost coefficients (ns per unit of work) and speed factors.
 MAX_COEFFICIENT = 1e12
 MAX_SPEED = 1e6
+
+#: An input file (experiment, profile, study, case, measure table, JSON record) is read whole:
+#: the largest shipped one is under 1 MiB; this refuses /dev/zero or a disk image given by mistake.
+MAX_INPUT_FILE_BYTES = 64 << 20
+
+#: A name that becomes one file or folder name (a configuration's, an experiment's): the
+#: longest name common file systems take, in bytes of UTF-8.
+MAX_NAME_BYTES = 255

@@ -842,6 +842,115 @@ for _step in ("calibrate", "measure", "run"):  # every step checks the file befo
                       ("calibration.config[0].name", "separator")))
 
 
+# ----- sweep arguments: refused before any point runs or any folder is made ---------------
+SWEEP = str(ROOT / "experiments" / "sort_first_tc1.toml")
+
+
+def sweep_argv(tmp: Path, *args: str, grid: tuple[str, ...] = ("schedule.gpus=1,2",)) -> list[str]:
+    return ["sweep", SWEEP, *[a for g in grid for a in ("--grid", g)], *args, "--out", str(tmp / "out"),
+            "--workers", "1", "--no-progress"]
+
+
+SWEEP_CASES: list[tuple[str, tuple[str, ...], tuple[str, ...], tuple[str, ...]]] = [
+    # (id, extra arguments, grid, words)
+    ("dask-words", ("--dask", "not an address"), ("schedule.gpus=1,2",), ("--dask", "HOST:PORT")),
+    ("dask-scheme-only", ("--dask", "tcp://"), ("schedule.gpus=1,2",), ("--dask", "'tcp://'")),
+    ("dask-port-text", ("--dask", "tcp://127.0.0.1:notaport"), ("schedule.gpus=1,2",), ("--dask", "HOST:PORT")),
+    ("dask-port-huge", ("--dask", "127.0.0.1:99999"), ("schedule.gpus=1,2",), ("--dask", "1-65535")),
+    ("dask-port-zero", ("--dask", "127.0.0.1:0"), ("schedule.gpus=1,2",), ("--dask", "1-65535")),
+    ("dask-http", ("--dask", "http://127.0.0.1:8786"), ("schedule.gpus=1,2",), ("--dask", "HOST:PORT")),
+    ("dask-no-port", ("--dask", "tcp://127.0.0.1"), ("schedule.gpus=1,2",), ("--dask", "HOST:PORT")),
+    ("dask-no-host", ("--dask", ":8786"), ("schedule.gpus=1,2",), ("--dask", "HOST:PORT")),
+    ("dask-path", ("--dask", "tcp://127.0.0.1:8786/x"), ("schedule.gpus=1,2",), ("--dask", "HOST:PORT")),
+    ("dask-empty", ("--dask", ""), ("schedule.gpus=1,2",), ("--dask", "HOST:PORT")),
+    ("metric-text", ("--metric", "fidelity"), ("schedule.gpus=1,2",), ("--metric", "not a number")),
+    ("metric-list", ("--metric", "modelled_effects"), ("schedule.gpus=1,2",), ("--metric", "not a number")),
+    ("metric-list-item", ("--metric", "modelled_effects.0"), ("schedule.gpus=1,2",), ("--metric", "not a number")),
+    ("metric-bool", ("--metric", "effects.link_model"), ("schedule.gpus=1,2",), ("--metric", "not a number")),
+    ("metric-why", ("--metric", "fast_forward.why"), ("schedule.gpus=1,2",), ("--metric", "not a number")),
+    ("metric-error", ("--metric", "error"), ("schedule.gpus=1,2",), ("--metric", "not a number")),
+    ("metric-misspelt", ("--metric", "frame_tme_ms"), ("schedule.gpus=1,2",), ("--metric", "did you mean 'frame_time_ms'")),
+    ("metric-fsp", ("--metric", "fsp"), ("schedule.gpus=1,2",), ("--metric", "not a summary field")),
+    ("metric-case", ("--metric", "Frame_Time_ms"), ("schedule.gpus=1,2",), ("--metric", "not a summary field")),
+    ("metric-empty", ("--metric", ""), ("schedule.gpus=1,2",), ("--metric", "not a summary field")),
+    ("metric-group", ("--metric", "utilization"), ("schedule.gpus=1,2",), ("--metric", "utilization.<member>")),
+    ("metric-group-dot", ("--metric", "utilization."), ("schedule.gpus=1,2",), ("--metric", "not a summary field")),
+    ("metric-key", ("--metric", "schedule.gpus"), ("schedule.gpus=1,2",), ("--metric", "not a summary field")),
+    ("grid-point", (), ("point=1,2",), ("--grid point", "column")),
+    ("grid-error", (), ("error=1,2",), ("--grid error", "column")),
+    ("grid-wall-s", (), ("wall_s=1,2",), ("--grid wall_s", "column")),
+    ("grid-frame-time", (), ("frame_time_ms=1,2",), ("--grid frame_time_ms", "column")),
+    ("grid-fps", (), ("fps=1,2",), ("--grid fps", "column")),
+    ("grid-utilization", (), ("utilization.gpu0.graphics=1,2",), ("--grid utilization.gpu0.graphics", "column")),
+    ("grid-memory", (), ("memory.gpu0.used_bytes=1",), ("--grid memory.gpu0.used_bytes", "column")),
+    ("grid-fidelity", (), ("fidelity=full",), ("--grid fidelity", "column")),
+    ("grid-effects", (), ("modelled_effects=a",), ("--grid modelled_effects", "column")),
+    ("grid-million", (), (f"scene.width={','.join(map(str, range(1, 1001)))}",
+                          f"scene.height={','.join(map(str, range(1, 1001)))}"), ("--grid", "1,000,000 points", "100,000")),
+    ("grid-one-key-huge", (), (f"scene.passes.0.iterations={','.join(map(str, range(1, 100_002)))}",),
+     ("--grid", "100,001 points")),
+    ("grid-many-keys", (), tuple(f"k{i}=1,2,3,4" for i in range(10)), ("--grid", "1,048,576 points")),
+    ("grid-duplicate-value", (), ("schedule.gpus=1,1",), ("--grid schedule.gpus", "given twice")),
+    ("grid-duplicate-text", (), ('schedule.name="afr","afr"',), ("--grid schedule.name", "given twice")),
+    ("grid-also-set", ("--set", "schedule.gpus=2"), ("schedule.gpus=1,2",), ("--grid schedule.gpus", "--set")),
+    ("grid-no-values", (), ("schedule.gpus=",), ("--grid", "KEY=V1")),
+    ("grid-only-commas", (), ("schedule.gpus=,,",), ("--grid", "KEY=V1")),
+    ("grid-no-key", (), ("=1,2",), ("--grid", "KEY=V1")),
+    ("grid-no-equals", (), ("schedule.gpus",), ("--grid", "KEY=V1")),
+    ("grid-key-twice", (), ("schedule.gpus=1", "schedule.gpus=2"), ("--grid", "given twice")),
+    ("grid-misspelt", (), ("schedule.gpuz=1,2",), ("--grid schedule.gpuz", "did you mean 'gpus'")),
+    ("grid-no-value-loads", (), ("schedule.gpus=0,-1",), ("--grid schedule.gpus", "no value")),
+    ("grid-value-nan", (), ("scene.width=nan",), ("--grid scene.width",)),
+    ("workers-zero", ("--workers", "0"), ("schedule.gpus=1,2",), ("--workers", "1..256")),
+    ("workers-negative", ("--workers=-3",), ("schedule.gpus=1,2",), ("--workers",)),
+    ("workers-huge", ("--workers", "100000"), ("schedule.gpus=1,2",), ("--workers", "1..256")),
+    ("workers-text", ("--workers", "x"), ("schedule.gpus=1,2",), ("--workers", "invalid")),
+    ("fidelity-unknown", ("--fidelity", "fast"), ("schedule.gpus=1,2",), ("--fidelity", "analytic")),
+    ("set-misspelt", ("--set", "schedule.gpuz=2"), ("schedule.gpus=1,2",), ("schedule.gpuz", "did you mean 'gpus'")),
+    ("set-no-key", ("--set", "=3"), ("schedule.gpus=1,2",), ("--set", "no key")),
+    ("set-broken-base", ("--set", "schedule.warmup_frames=1000"), ("schedule.gpus=1,2",), ("warmup_frames",)),
+]
+for _id, _args, _grid, _words in SWEEP_CASES:
+    def _make(tmp: Path, args=_args, grid=_grid) -> list[str]:
+        argv = sweep_argv(tmp, *args, grid=grid)
+        if "--workers" in args or any(a.startswith("--workers=") for a in args):  # the case's own
+            i = len(argv) - 3
+            del argv[i:i + 2]
+        return argv
+    CASES.append(Case(f"sweep-{_id}", _make, _words))
+
+
+@case("sweep-experiment-missing", "nope.toml", "not found")
+def _(tmp: Path) -> list[str]:
+    return ["sweep", str(tmp / "nope.toml"), "--grid", "schedule.gpus=1", "--out", str(tmp / "out")]
+
+
+@case("sweep-experiment-not-toml", "e.toml", "not valid TOML")
+def _(tmp: Path) -> list[str]:
+    (tmp / "e.toml").write_text("name = \n")
+    return ["sweep", str(tmp / "e.toml"), "--grid", "schedule.gpus=1", "--out", str(tmp / "out")]
+
+
+@case("sweep-profile-as-experiment", "tc1.toml", "a hardware profile, not an experiment")
+def _(tmp: Path) -> list[str]:
+    return ["sweep", str(ROOT / "hardware_profiles" / "tc1.toml"), "--grid", "schedule.gpus=1",
+            "--out", str(tmp / "out")]
+
+
+@case("sweep-out-at-a-file", "--out", "not a folder")
+def _(tmp: Path) -> list[str]:
+    argv = sweep_argv(tmp)
+    argv[argv.index("--out") + 1] = str(_file_in_the_way(tmp))
+    return argv
+
+
+@case("sweep-out-under-a-file", "--out", "is a file")
+def _(tmp: Path) -> list[str]:
+    argv = sweep_argv(tmp)
+    argv[argv.index("--out") + 1] = str(_file_in_the_way(tmp) / "sub")
+    return argv
+
+
 # ----- the test --------------------------------------------------------------------------
 def test_there_are_enough_cases():
     assert len(CASES) >= 150
@@ -916,3 +1025,62 @@ def test_simulated_time_past_int64_is_an_input_error():
     engine = Engine(program, Unbounded(parse_profile(profile_dict(), "p.toml")))
     with pytest.raises(InputError, match="int64"):
         engine.run()
+
+
+# ----- a sweep's folder holding a point file this code did not write ----------------------
+POINT_FILES: list[tuple[str, bytes, str]] = [
+    ("list", b"[1, 2]", "JSON list"),
+    ("string", b'"text"', "JSON str"),
+    ("number", b"5", "JSON int"),
+    ("null", b"null", "JSON NoneType"),
+    ("empty-object", b"{}", "'summary'"),
+    ("summary-list", b'{"summary": [], "error": null, "wall_s": 1}', "'summary'"),
+    ("error-number", b'{"summary": {}, "error": 5, "wall_s": 1}', "'error'"),
+    ("wall-text", b'{"summary": {}, "error": null, "wall_s": "1"}', "'wall_s'"),
+    ("wall-bool", b'{"summary": {}, "error": null, "wall_s": true}', "'wall_s'"),
+    ("no-wall", b'{"summary": {}, "error": null}', "'wall_s'"),
+    ("not-json", b"{oops", "not valid JSON"),
+    ("empty", b"", "not valid JSON"),
+    ("binary", b"\xff\xfe\x00", "cannot read"),
+    ("deep", b"[" * 100_000 + b"]" * 100_000, "not valid JSON"),
+]
+
+
+@pytest.fixture(scope="module")
+def finished_sweep(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("sweep") / "out"
+    assert main(sweep_argv(out.parent, "--set", "schedule.frames=20")) == 0
+    return out
+
+
+@pytest.mark.parametrize("name, content, words", POINT_FILES, ids=[p[0] for p in POINT_FILES])
+def test_a_point_file_of_another_shape_is_refused_naming_it(finished_sweep: Path, tmp_path: Path, capsys,
+                                                           name: str, content: bytes, words: str):
+    """Valid JSON of the wrong shape (or not JSON) in points/: one line naming the file and
+    what is wrong, exit 2; the file is left for its owner and the table is not rewritten."""
+    import shutil
+    out = tmp_path / "out"
+    shutil.copytree(finished_sweep, out)
+    point = sorted((out / "points").iterdir())[0]
+    point.write_bytes(content)
+    table = (out / "sweep.parquet").read_bytes()
+    capsys.readouterr()
+    assert main(sweep_argv(tmp_path, "--set", "schedule.frames=20")) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and point.name in lines[0] and words in lines[0], lines
+    assert "delete it" in lines[0] and "Traceback" not in lines[0]
+    assert point.read_bytes() == content and (out / "sweep.parquet").read_bytes() == table
+
+
+def test_a_metric_no_point_has_is_refused_once_the_points_ran_and_they_are_kept(tmp_path: Path, capsys):
+    """utilization.gpu9.graphics can only be looked for in the table: refused (one line, the
+    closest column named) before sweep.parquet is written; the rerun with the right metric
+    runs no point again."""
+    argv = sweep_argv(tmp_path, "--set", "schedule.frames=20")
+    assert main([*argv, "--metric", "utilization.gpu9.graphics"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "did you mean 'utilization.gpu1.graphics'" in lines[0]
+    saved = {p.name: p.stat().st_mtime_ns for p in (tmp_path / "out" / "points").iterdir()}
+    assert len(saved) == 2 and not (tmp_path / "out" / "sweep.parquet").exists()
+    assert main([*argv, "--metric", "utilization.gpu1.graphics"]) == 0
+    assert {p.name: p.stat().st_mtime_ns for p in (tmp_path / "out" / "points").iterdir()} == saved

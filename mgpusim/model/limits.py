@@ -62,3 +62,12 @@ MAX_INPUT_FILE_BYTES = 64 << 20
 #: A name that becomes one file or folder name (a configuration's, an experiment's): the
 #: longest name common file systems take, in bytes of UTF-8.
 MAX_NAME_BYTES = 255
+
+#: Points of one sweep (the product of its grid), checked before the grid is enumerated: at
+#: the fastest (~30 ms a point) 10^5 points take about an hour on one core, and each leaves a
+#: file in the sweep's folder; a larger study is several sweeps.
+MAX_SWEEP_POINTS = 100_000
+WHY_SWEEP = "one file and one simulation each; split a larger grid into several sweeps"
+
+#: Local processes of one sweep: each imports the model (~100 MB).
+MAX_SWEEP_WORKERS = 256

@@ -577,6 +577,43 @@ MEASURED_CASES += [
     ("mismatch-passes", _mismatch({}, 'scene.passes=[{name="a",kind="fragment_loop",iterations=1},'
                                       '{name="b",kind="present"}]'), ("config.inputs.passes", "entries")),
     ("mismatch-output-bytes", _mismatch({}, "scene.passes.0.output_bytes=5"), ("output_bytes",)),
+    # any key both sides record: the scene's byte sizes, the schedule's own record, names
+    ("mismatch-color-bytes", _mismatch({"scene.color_bytes_per_pixel": 8}), ("color_bytes_per_pixel", "another configuration")),
+    ("mismatch-depth-bytes", _mismatch({"scene.depth_bytes_per_pixel": 4}), ("config.inputs.scene.depth_bytes_per_pixel",)),
+    ("mismatch-dataset-bytes", _mismatch({"scene.dataset_bytes": 1000}), ("config.inputs.scene.dataset_bytes",)),
+    ("mismatch-tile-rows", _mismatch({"schedule.tile_rows": [400, 368]}), ("tile_rows",)),
+    ("mismatch-pipelining", _mismatch({"schedule.pipelining": "lockstep"}), ("config.inputs.schedule.pipelining",)),
+    ("mismatch-pass-name", _mismatch({"scene.passes.0.name": "other"}), ("config.inputs.passes[0].name",)),
+    ("mismatch-another-experiment", lambda tmp: validate_argv(tmp, measured_folder(tmp, "sl")),
+     ("config.", "other key(s) differ too", "config.schedule")),
+    ("mismatch-several-named", _mismatch({"scene.width": 512, "scene.passes.0.iterations": 4000}),
+     ("config.width", "other key(s) differ too", "config.inputs.passes[0].iterations",
+      "config.contribution_bytes_per_frame")),
+]
+
+
+def _old_run(sets: dict[str, Any]) -> Callable[[Path], list[str]]:
+    """A run recorded before the inputs were (no config.inputs): its schedule's own record
+    (bytes per frame, tile rows) is still compared."""
+    def make(tmp: Path) -> list[str]:
+        folder = measured_folder(tmp, sets=sets)
+        summary = json.loads((folder / "summary.json").read_text())
+        del summary["config"]["inputs"]
+        (folder / "summary.json").write_text(json.dumps(summary))
+        return validate_argv(tmp, folder)
+    return make
+
+
+def _no_summary(tmp: Path) -> list[str]:
+    folder = measured_folder(tmp)
+    (folder / "summary.json").unlink()
+    return validate_argv(tmp, folder)
+
+
+MEASURED_CASES += [
+    ("old-run-color-bytes", _old_run({"scene.color_bytes_per_pixel": 8}), ("config.contribution_bytes_per_frame",)),
+    ("old-run-tile-rows", _old_run({"schedule.tile_rows": [400, 368]}), ("config.tile_rows",)),
+    ("no-summary", _no_summary, ("measured", "no summary.json")),
 ]
 
 
@@ -949,6 +986,25 @@ def _(tmp: Path) -> list[str]:
     argv = sweep_argv(tmp)
     argv[argv.index("--out") + 1] = str(_file_in_the_way(tmp) / "sub")
     return argv
+
+
+# ----- effects a fidelity level has no mechanism for --------------------------------------
+FIDELITY_CASES = [
+    ("analytic", "+link_sharing", ("link_sharing", "--fidelity analytic")),
+    ("analytic", "+host_memory_sharing", ("host_memory_sharing", "--fidelity analytic")),
+    ("analytic", "+shared_gpu", ("shared_gpu", "--fidelity analytic")),
+    ("analytic", "+busy_wake", ("busy_wake", "--fidelity analytic")),
+    ("analytic", "-task_gaps,+link_sharing", ("link_sharing", "--fidelity analytic")),
+    ("full", "+shared_executor", ("shared_executor", "cannot be forced on")),
+    ("full", "+link_shareing", ("--effects", "did you mean +link_sharing")),
+    ("full", "link_sharing", ("--effects", "+name or -name")),
+    ("fast", "", ("--fidelity", "invalid choice")),
+]
+for _i, (_level, _effects, _words) in enumerate(FIDELITY_CASES):
+    def _make(tmp: Path, level=_level, effects=_effects) -> list[str]:
+        argv = simulate_argv(write_toml(tmp / "e.toml", experiment()), tmp) + ["--fidelity", level]
+        return argv + (["--effects", effects] if effects else [])
+    CASES.append(Case(f"fidelity-{_level}-{_i}", _make, _words))
 
 
 # ----- the test --------------------------------------------------------------------------

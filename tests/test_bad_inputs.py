@@ -1007,6 +1007,189 @@ for _i, (_level, _effects, _words) in enumerate(FIDELITY_CASES):
     CASES.append(Case(f"fidelity-{_level}-{_i}", _make, _words))
 
 
+# ----- command-line parsing: numbers, nesting, endless files, NULs ------------------------
+DEEP_ARRAY = "[" * 5000 + "]" * 5000
+DEEP_TABLE = "{a = " * 3000 + "1" + "}" * 3000
+
+SIMULATE_FRAMES = ["\u00b2:5", "\u0661:\u0665", "0:\uff11\uff10", "0:999999999999999999999999999", "0:10000001",
+                   "5:5", "5:3", "a:b", "5", ":5", "-1:5", "0x1:5", "1e3:5", "0:" + "9" * 100]
+for _i, _frames in enumerate(SIMULATE_FRAMES):
+    def _make(tmp: Path, frames=_frames) -> list[str]:
+        return simulate_argv(write_toml(tmp / "e.toml", experiment()), tmp) + ["--frames", frames]
+    CASES.append(Case(f"cli-simulate-frames-{_i}", _make, ("--frames",)))
+
+CASE_FRAMES = [("99999999999999999999999", "18 digits"), ("\u0661\u0662", "ASCII digits"),
+               ("\uff11\uff12", "ASCII digits"), ("\u00b2", "ASCII digits"), ("1", "2..1e+07"), ("0", "2..1e+07"),
+               ("-5", "2..1e+07"), ("10000001", "2..1e+07"), ("1e3", "invalid int"), ("x", "invalid int"),
+               ("", "invalid int"), (" 12 ", None)]
+for _i, (_frames, _words) in enumerate(CASE_FRAMES):
+    if _words is None:  # the control below: spaces around digits are a number
+        continue
+    def _make(tmp: Path, frames=_frames) -> list[str]:
+        return ["case", "xr_stereo", "--frames", frames, "--out", str(tmp / "out")]
+    CASES.append(Case(f"cli-case-frames-{_i}", _make, ("--frames", _words)))
+
+NUMBER_OPTIONS = [
+    (["sweep", SWEEP, "--grid", "schedule.gpus=1", "--workers", "\u0661"], "--workers"),
+    (["measure", "--pass", "mesh", "--reps", "\u0663"], "--reps"),
+    (["measure", "--pass", "mesh", "--warmup", "\uff12"], "--warmup"),
+    (["simulate", SWEEP, "--trace-frames", "\u0663"], "--trace-frames"),
+    (["simulate", SWEEP, "--trace-frames", "1" * 40], "--trace-frames"),
+    (["validate", SWEEP, "--measured", "m", "--repeats", "\u0661"], "--repeats"),
+    (["validate", SWEEP, "--measured", "m", "--run-seconds", "nan"], "--run-seconds"),
+    (["validate", SWEEP, "--measured", "m", "--run-seconds", "inf"], "--run-seconds"),
+    (["validate", SWEEP, "--measured", "m", "--run-seconds=-infinity"], "--run-seconds"),
+    (["validate", SWEEP, "--measured", "m", "--run-seconds", "\u0661.\u0665"], "--run-seconds"),
+    (["validate", SWEEP, "--measured", "m", "--run-seconds", "1e999"], "--run-seconds"),
+    (["calibrate", "t.csv", "--gpus", "\uff14"], "--gpus"),
+    (["bench", "--frames", "\u0665"], "--frames"),
+    (["study", "validate", "s.toml", "--held-out"], None),  # placeholder removed below
+]
+for _i, (_argv, _option) in enumerate(NUMBER_OPTIONS):
+    if _option is None:
+        continue
+    def _make(tmp: Path, argv=_argv) -> list[str]:
+        return [*argv, "--out", str(tmp / "out")]
+    CASES.append(Case(f"cli-number-{_i}", _make, (_option, "invalid")))
+
+
+def _text_file(name: str, text: str) -> Callable[[Path], Path]:
+    def make(tmp: Path) -> Path:
+        (tmp / name).write_text(text)
+        return tmp / name
+    return make
+
+
+NESTED_CASES: list[tuple[str, Callable[[Path], list[str]], tuple[str, ...]]] = [
+    ("experiment-array", lambda tmp: simulate_argv(_text_file("e.toml", f"a = {DEEP_ARRAY}\n")(tmp), tmp),
+     ("e.toml", "nested too deeply")),
+    ("experiment-table", lambda tmp: simulate_argv(_text_file("e.toml", f"a = {DEEP_TABLE}\n")(tmp), tmp),
+     ("e.toml", "nested too deeply")),
+    ("profile", lambda tmp: simulate_argv(write_toml(tmp / "e.toml", {**experiment(), "profile": str(
+        _text_file("p.toml", f"x = {DEEP_ARRAY}\n")(tmp))}), tmp), ("p.toml", "nested too deeply")),
+    ("study", lambda tmp: ["study", "validate", str(_text_file("s.toml", f"x = {DEEP_TABLE}\n")(tmp)),
+                           "--out", str(tmp / "out")], ("s.toml", "nested too deeply")),
+    ("case", lambda tmp: ["case", str(_text_file("case.toml", f"x = {DEEP_ARRAY}\n")(tmp)),
+                          "--out", str(tmp / "out")], ("case.toml", "nested too deeply")),
+    ("set-value", lambda tmp: simulate_argv(write_toml(tmp / "e.toml", experiment()), tmp,
+                                            f"scene.width={DEEP_ARRAY}"), ("--set", "nested too deeply")),
+    ("grid-value", lambda tmp: sweep_argv(tmp, grid=(f"scene.width={DEEP_ARRAY}",)),
+     ("--grid scene.width", "nested too deeply")),
+    ("calibrate-base", lambda tmp: ["calibrate", str(ROOT / "data/lavapipe/mesh.csv"), "--base",
+                                    str(_text_file("b.toml", f"x = {DEEP_ARRAY}\n")(tmp)),
+                                    "--out", str(tmp / "out" / "p.toml")], ("b.toml", "nested too deeply")),
+]
+for _id, _make, _words in NESTED_CASES:
+    CASES.append(Case(f"cli-nested-{_id}", _make, _words))
+
+DEV_ZERO_CASES: list[tuple[str, Callable[[Path], list[str]], tuple[str, ...]]] = [
+    ("simulate", lambda tmp: ["simulate", "/dev/zero", "--out", str(tmp / "out")], ("/dev/zero", "64 MiB")),
+    ("sweep", lambda tmp: ["sweep", "/dev/zero", "--grid", "schedule.gpus=1", "--out", str(tmp / "out")],
+     ("/dev/zero", "64 MiB")),
+    ("study", lambda tmp: ["study", "validate", "/dev/zero", "--out", str(tmp / "out")], ("/dev/zero", "64 MiB")),
+    ("profile", lambda tmp: simulate_argv(write_toml(tmp / "e.toml", {**experiment(), "profile": "/dev/zero"}), tmp),
+     ("profile", "/dev/zero")),
+    ("calibrate", lambda tmp: ["calibrate", "/dev/zero", "--out", str(tmp / "out" / "p.toml")], ("/dev/zero", "not a file")),
+    ("calibrate-base", lambda tmp: ["calibrate", str(ROOT / "data/lavapipe/mesh.csv"), "--base", "/dev/zero",
+                                    "--out", str(tmp / "out" / "p.toml")], ("/dev/zero", "64 MiB")),
+    ("measured", lambda tmp: ["validate", SWEEP, "--measured", "/dev/zero", "--out", str(tmp / "out")],
+     ("/dev/zero", "not a folder")),
+    ("case", lambda tmp: ["case", "/dev/zero", "--out", str(tmp / "out")], ("/dev/zero", "no case")),
+    ("null-experiment", lambda tmp: ["simulate", "/dev/null", "--out", str(tmp / "out")], ("/dev/null", "empty")),
+]
+for _id, _make, _words in DEV_ZERO_CASES:
+    CASES.append(Case(f"cli-devzero-{_id}", _make, _words))
+
+NUL_CASES: list[tuple[str, Callable[[Path], list[str]], tuple[str, ...]]] = [
+    ("experiment-arg", lambda tmp: ["simulate", "a\0b.toml", "--out", str(tmp / "out")], ("argument 2", "NUL")),
+    ("out-arg", lambda tmp: ["simulate", SWEEP, "--out", str(tmp / "out") + "\0x"], ("argument 4", "NUL")),
+    ("set-arg", lambda tmp: ["simulate", SWEEP, "--set", "scene.wi\0dth=3", "--out", str(tmp / "out")], ("NUL",)),
+    ("grid-arg", lambda tmp: sweep_argv(tmp, grid=("schedule.gpus=1\0",)), ("NUL",)),
+    ("study-arg", lambda tmp: ["study", "validate", "s\0.toml", "--out", str(tmp / "out")], ("NUL",)),
+    ("experiment-name", lambda tmp: ["simulate", str(write_toml(tmp / "e.toml", {**experiment(), "name": "a\0b"}))],
+     ("e.toml", "name", "NUL")),
+    ("experiment-name-parent", lambda tmp: ["simulate", str(write_toml(tmp / "e.toml", {**experiment(), "name": "../x"}))],
+     ("e.toml", "name", "separator")),
+    ("experiment-name-absolute", lambda tmp: ["simulate", str(write_toml(tmp / "e.toml", {**experiment(), "name": "/tmp/x"}))],
+     ("e.toml", "name", "separator")),
+    ("experiment-name-dotdot", lambda tmp: ["simulate", str(write_toml(tmp / "e.toml", {**experiment(), "name": ".."}))],
+     ("e.toml", "name", "'..'")),
+    ("profile-path", lambda tmp: simulate_argv(write_toml(tmp / "e.toml", {**experiment(), "profile": "a\0b.toml"}), tmp),
+     ("profile", "not found")),
+]
+for _id, _make, _words in NUL_CASES:
+    CASES.append(Case(f"cli-nul-{_id}", _make, _words))
+
+
+# ----- case files ------------------------------------------------------------------------
+def _case(body: str = "", top: str = "", *args: str, name: str = "t") -> Callable[[Path], list[str]]:
+    """A one-run case file in the test's folder (as tests/test_cases.py writes them)."""
+    def make(tmp: Path) -> list[str]:
+        exp = (ROOT / "experiments" / "cases" / "xr_stereo" / "quest3_pcie4.toml").as_posix()
+        (tmp / "case.toml").write_text(f'name = "{name}"\ntitle = "t"\n{top}[[runs]]\nname = "a"\n'
+                                       f'label = "a"\nexperiment = "{exp}"\n' + body)
+        return ["case", str(tmp / "case.toml"), "--out", str(tmp / "out"), *args]
+    return make
+
+
+CASE_CASES: list[tuple[str, Callable[[Path], list[str]], tuple[str, ...]]] = [
+    ("name-parent", _case(name="../x"), ("case.toml", "name", "separator")),
+    ("name-absolute", _case(name="/tmp/x"), ("name", "separator")),
+    ("run-name-parent", lambda tmp: _rename_run(tmp, "../r"), ("runs[0].name", "separator")),
+    ("run-name-nul", lambda tmp: _rename_run(tmp, "r\\u0000"), ("runs[0].name", "NUL")),
+    ("run-each-slash", _case('each = { "scene.width" = ["64/2"] }\n'), ("runs[0].each", "separator")),
+    ("set-number", _case("set = [3]\n"), ("runs[0].set[0]", "KEY=VALUE")),
+    ("set-table", _case("set = [{a = 1}]\n"), ("runs[0].set[0]", "KEY=VALUE")),
+    ("set-misspelt", _case('set = ["schedule.gpuz=2"]\n'), ("schedule.gpuz", "did you mean 'gpus'")),
+    ("derived-metric", _case('[[derived]]\nname = "g"\nlabel = "g"\nkind = "ratio"\nmetric = "fsp"\nruns = ["a", "a"]\n'),
+     ("derived[0].metric",)),
+    ("column-kind", _case('[[columns]]\nname = "c"\nlabel = "c"\nkind = "utilisation"\nselect = "gpu*"\n'),
+     ("columns[0].kind",)),
+    ("unknown-top", _case(top="colums = 1\n"), ("colums", "unknown key")),
+    ("frames-one", _case("", "", "--frames", "1"), ("--frames", "2..1e+07")),
+    ("frames-huge", _case("", "", "--frames", "100000000"), ("--frames", "1e+07")),
+    ("no-case", lambda tmp: ["case", "nope", "--out", str(tmp / "out")], ("no case of that name",)),
+]
+
+
+def _rename_run(tmp: Path, name: str) -> list[str]:
+    argv = _case()(tmp)
+    path = tmp / "case.toml"
+    path.write_text(path.read_text().replace('[[runs]]\nname = "a"', f'[[runs]]\nname = "{name}"'))
+    return argv
+
+
+for _id, _make, _words in CASE_CASES:
+    CASES.append(Case(f"case-{_id}", _make, _words))
+
+
+# ----- hardware what-ifs (profile.* overrides) on simulate, sweep and study --------------------
+WHATIF_CASES = [
+    ("profile.gpus.0.speed=0", ("gpus[0].speed", "> 0")),
+    ("profile.gpus.*.speed=-2", ("gpus[0].speed",)),
+    ("profile.gpus.0.physical=99", ("gpus[0].physical",)),
+    ("profile.gpus.*.link.h2d_gbps=0", ("gpus[0].link.h2d_gbps", "> 0")),
+    ("profile.host.memcpy_threads=0", ("host.memcpy_threads", ">= 1")),
+    ("profile.host.dispatch_ns=-1", ("host.dispatch_ns", ">= 0")),
+    ("profile.host.dispatch_ns=1e30", ("host.dispatch_ns",)),
+    ("profile.gpu_count=1000", ("gpu_count", "<= 64")),
+    ("profile.peer_mesh.bandwidth_gbps=-1", ("peer_mesh",)),
+    ("profile.gpus.0.costs.mesh.ns_per_triangle=nan", ("ns_per_triangle", "finite")),
+    ("profile.gpus.0.queues.graphics=0", ("gpus[0].queues.graphics",)),
+    ("profile.hst.dispatch_ns=1", ("did you mean 'host'",)),
+]
+for _i, (_set, _words) in enumerate(WHATIF_CASES):
+    CASES.append(Case(f"whatif-simulate-{_i}", lambda tmp, s=_set: simulate_argv(
+        write_toml(tmp / "e.toml", experiment()), tmp, s), _words))
+for _i, (_set, _words) in enumerate(WHATIF_CASES[:6]):
+    key, _, value = _set.partition("=")
+    CASES.append(Case(f"whatif-sweep-{_i}", lambda tmp, k=key, v=value: sweep_argv(tmp, grid=(f"{k}={v}",)),
+                      (f"--grid {key}", "no value", *_words)))
+for _i, (_set, _words) in enumerate(WHATIF_CASES[:4]):
+    CASES.append(Case(f"whatif-study-{_i}", _mini(lambda d, s=_set: d["calibration"]["config"][0]["set"].append(s)),
+                      ("s.toml", "calibration.config[0]", *_words)))
+
+
 # ----- the test --------------------------------------------------------------------------
 def test_there_are_enough_cases():
     assert len(CASES) >= 150

@@ -72,9 +72,13 @@ def parse_grid(items: Sequence[str] | None) -> dict[str, list[Any]]:
     for item in items or []:
         key, sep, text = item.partition("=")
         key = key.strip()
-        values = [parse_value(v.strip()) for v in text.split(",") if v.strip()]
+        try:
+            values = [parse_value(v.strip()) for v in text.split(",") if v.strip()]
+        except InputError as exc:  # a value nested too deeply
+            raise InputError(exc.detail, field=f"--grid {key}") from None
         if not sep or not key or not values:
-            raise InputError(f"expected KEY=V1,V2,..., got {item!r}", field="--grid")
+            shown = item if len(item) <= 60 else item[:60] + "..."
+            raise InputError(f"expected KEY=V1,V2,..., got {shown!r}", field="--grid")
         if key in grid:
             raise InputError(f"key {key!r} given twice", field="--grid")
         grid[key] = values

@@ -58,11 +58,13 @@ def read_json_object(path: Path) -> dict[str, Any]:
     """A JSON file holding one object (summary.json, machine.json)."""
     file = str(path)
     try:
-        data = json.loads(run_archive.read_text(path))
+        data = json.loads(run_archive.read_text(path).removeprefix("\ufeff"))
     except OSError as exc:
         raise InputError(f"cannot read ({exc.strerror or exc})", file=file) from None
     except (UnicodeDecodeError, ValueError) as exc:  # JSONDecodeError is a ValueError
         raise InputError(f"not valid JSON ({_short(exc)})", file=file) from None
+    except RecursionError:
+        raise InputError("not valid JSON here: nested too deeply", file=file) from None
     if not isinstance(data, dict):
         raise InputError(f"expected a JSON object, got {type(data).__name__}", file=file)
     return data

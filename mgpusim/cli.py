@@ -152,6 +152,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"mgpusim {args.command}: error: {where}{one_line(exc.strerror or str(exc))}",
               file=sys.stderr)
         return 2
+    except MemoryError:  # the run's tables grow with its frames (docs/input_checks.md, bounds)
+        print(f"mgpusim {args.command}: error: out of memory (fewer schedule.frames, or a machine "
+              "with more memory); nothing was left in the output folder", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130

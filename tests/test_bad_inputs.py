@@ -91,7 +91,8 @@ SET_CASES = [
     ("sf", "schedule.gpus=inf", "schedule.gpus"),
     ("sf", "schedule.gpus=4", "profile.gpu_count=4"),
     ("sf", "schedule.gpus=1000", "<= 64"),
-    ("sf", "schedule.frames=100000000", "<= 1e+07"),
+    ("sf", "schedule.frames=100000000", "<= 1e+06"),
+    ("sf", "schedule.frames=1000001", "<= 1e+06"),
     ("sf", "schedule.frames=0", ">= 1"),
     ("sf", "scene.width=nan", "scene.width"),
     ("sf", "scene.width=1e400", "scene.width"),
@@ -200,7 +201,7 @@ EXPERIMENT_CASES: list[tuple[str, Callable[[dict], None], tuple[str, ...]]] = [
     ("sf", _put("schedule.gpus", 0), ("schedule.gpus", ">= 1")),
     ("sf", _put("schedule.gpus", "two"), ("schedule.gpus", "integer")),
     ("sf", _put("schedule.frames", 2.5), ("schedule.frames", "integer")),
-    ("sf", _put("schedule.frames", 10**8), ("schedule.frames", "<= 1e+07")),
+    ("sf", _put("schedule.frames", 10**8), ("schedule.frames", "<= 1e+06")),
     ("sf", _put("schedule.warmup_frames", 60), ("warmup_frames", "< frames")),
     ("sf", _put("schedule.warmup_frames", -1), ("warmup_frames", ">= 0")),
     ("sf", _put("schedule.frames_in_flight", 0), ("frames_in_flight", ">= 1")),
@@ -1019,8 +1020,8 @@ for _i, _frames in enumerate(SIMULATE_FRAMES):
     CASES.append(Case(f"cli-simulate-frames-{_i}", _make, ("--frames",)))
 
 CASE_FRAMES = [("99999999999999999999999", "18 digits"), ("\u0661\u0662", "ASCII digits"),
-               ("\uff11\uff12", "ASCII digits"), ("\u00b2", "ASCII digits"), ("1", "2..1e+07"), ("0", "2..1e+07"),
-               ("-5", "2..1e+07"), ("10000001", "2..1e+07"), ("1e3", "invalid int"), ("x", "invalid int"),
+               ("\uff11\uff12", "ASCII digits"), ("\u00b2", "ASCII digits"), ("1", "2..1e+06"), ("0", "2..1e+06"),
+               ("-5", "2..1e+06"), ("10000001", "2..1e+06"), ("1e3", "invalid int"), ("x", "invalid int"),
                ("", "invalid int"), (" 12 ", None)]
 for _i, (_frames, _words) in enumerate(CASE_FRAMES):
     if _words is None:  # the control below: spaces around digits are a number
@@ -1146,8 +1147,8 @@ CASE_CASES: list[tuple[str, Callable[[Path], list[str]], tuple[str, ...]]] = [
     ("column-kind", _case('[[columns]]\nname = "c"\nlabel = "c"\nkind = "utilisation"\nselect = "gpu*"\n'),
      ("columns[0].kind",)),
     ("unknown-top", _case(top="colums = 1\n"), ("colums", "unknown key")),
-    ("frames-one", _case("", "", "--frames", "1"), ("--frames", "2..1e+07")),
-    ("frames-huge", _case("", "", "--frames", "100000000"), ("--frames", "1e+07")),
+    ("frames-one", _case("", "", "--frames", "1"), ("--frames", "2..1e+06")),
+    ("frames-huge", _case("", "", "--frames", "100000000"), ("--frames", "1e+06")),
     ("no-case", lambda tmp: ["case", "nope", "--out", str(tmp / "out")], ("no case of that name",)),
 ]
 
@@ -1323,3 +1324,36 @@ def test_a_metric_no_point_has_is_refused_once_the_points_ran_and_they_are_kept(
     assert len(saved) == 2 and not (tmp_path / "out" / "sweep.parquet").exists()
     assert main([*argv, "--metric", "utilization.gpu1.graphics"]) == 0
     assert {p.name: p.stat().st_mtime_ns for p in (tmp_path / "out" / "points").iterdir()} == saved
+
+
+# ----- a run that fails while writing leaves no folder -------------------------------------
+@pytest.mark.parametrize("fails", ["write_links", "timeline_png", "write_trace"])
+@pytest.mark.parametrize("error", [MemoryError, OSError, KeyboardInterrupt])
+def test_a_run_failing_while_writing_leaves_no_partial_folder(tmp_path: Path, monkeypatch, capsys,
+                                                            fails: str, error: type):
+    """The folder is written beside --out and moved in at the end: out of memory, a full disk
+    or Ctrl-C in the middle leaves neither --out nor its new parent folders nor a temporary."""
+    from mgpusim.io import output
+
+    def boom(*args, **kwargs):
+        raise error(28, "No space left on device") if error is OSError else error()
+    monkeypatch.setattr(output, fails, boom)
+    code = main(["simulate", SWEEP, "--set", "schedule.frames=20", "--out", str(tmp_path / "new" / "out")])
+    assert code == {MemoryError: 1, OSError: 2, KeyboardInterrupt: 130}[error]
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_rerun_into_an_existing_folder_replaces_its_files_and_keeps_the_others(tmp_path: Path, monkeypatch):
+    from mgpusim.io import output
+    out = tmp_path / "out"
+    assert main(["simulate", SWEEP, "--set", "schedule.frames=20", "--out", str(out)]) == 0
+    (out / "notes.txt").write_text("mine")
+    before = (out / "summary.json").read_text()
+    monkeypatch.setattr(output, "write_links", lambda *a, **k: (_ for _ in ()).throw(MemoryError()))
+    assert main(["simulate", SWEEP, "--set", "schedule.frames=30", "--out", str(out)]) == 1
+    assert (out / "summary.json").read_text() == before  # the failed run changed nothing
+    monkeypatch.undo()
+    assert main(["simulate", SWEEP, "--set", "schedule.frames=30", "--out", str(out)]) == 0
+    assert json.loads((out / "summary.json").read_text())["frames"] == 30
+    assert (out / "notes.txt").read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["out"]

@@ -15,9 +15,13 @@ INT64_MAX = 2 ** 63 - 1
 MAX_TASK_NS = 10 ** 12
 WHY_TIME = "keeps simulated time within int64 ns"
 
-#: Frames of one run: each frame's tasks are simulated one by one (10^6 frames take minutes).
-MAX_FRAMES = 10_000_000
-WHY_FRAMES = "a run simulates every frame; 10^6 frames take minutes"
+#: Frames of one run. Why 10^6: a run whose state never repeats simulates every frame (10^6
+#: take minutes), and a fast-forwarded one still holds a few arrays per frame and writes a
+#: table row per frame, task and link transfer; at 10^6 frames every shipped experiment runs
+#: with its default outputs in at most 415 MiB (`benchmarks/largest_run_memory.py --all`:
+#: lavapipe/particles the largest), where 10^7 took 2-5 GB.
+MAX_FRAMES = 1_000_000
+WHY_FRAMES = "a run holds a few arrays per frame and writes rows per frame; 10^6 fit in 0.4 GiB"
 
 #: GPUs of a profile or a schedule, queues of one family, memcpy threads, CPU cores: the
 #: engine builds one process per queue and thread, schedules build tasks per GPU pair.

@@ -36,8 +36,10 @@ def one_line(text: str) -> str:
     return text.translate(_ESCAPES)
 
 
-#: Control characters as Python writes them in a string (\n, \x00, ...), except the tab.
-_ESCAPES = {c: repr(chr(c))[1:-1] for c in (*range(32), 127) if c != 9}
+#: Control characters as Python writes them in a string (\n, \x00, \x85, ...), except the tab:
+#: every character str.splitlines() breaks at (C0, DEL, C1, the line and paragraph separators).
+_ESCAPES = {c: repr(chr(c))[1:-1] if c < 0x2028 else f"\\u{c:04x}"
+            for c in (*range(32), *range(127, 160), 0x2028, 0x2029) if c != 9}
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import math
+import re
 import sys
 from typing import NoReturn
 
@@ -29,8 +31,15 @@ class _Parser(argparse.ArgumentParser):
 
 
 def one_line(text: str) -> str:
-    """A message on one line: newlines from a file's key or value are shown escaped."""
-    return text.replace("\r", "\\r").replace("\n", "\\n")
+    """A message on one line: newlines, NULs and other control characters from a file's key or
+    value (or a name given on the command line) are shown escaped."""
+    return text.translate(_ESCAPES)
+
+
+#: Control characters as Python writes them in a string (\n, \x00, \x85, ...), except the tab:
+#: every character str.splitlines() breaks at (C0, DEL, C1, the line and paragraph separators).
+_ESCAPES = {c: repr(chr(c))[1:-1] if c < 0x2028 else f"\\u{c:04x}"
+            for c in (*range(32), *range(127, 160), 0x2028, 0x2029) if c != 9}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -53,7 +62,43 @@ def build_parser() -> argparse.ArgumentParser:
             _unavailable(sub, name, "cannot start here", one_line(str(exc)))
             continue
         module.register(sub)
+    _strict_numbers(parser)
     return parser
+
+
+def _strict_numbers(parser: argparse.ArgumentParser) -> None:
+    """Every `type=int` / `type=float` option of every command, read strictly: ASCII digits
+    only (int() also takes '١٢' and '²'-free Unicode digits), integers of at most 18 digits
+    (int64), and finite floats (float() takes 'nan' and 'inf')."""
+    for action in parser._actions:
+        if action.type is int:
+            action.type = whole_number
+        elif action.type is float:
+            action.type = finite_number
+        for sub in (action.choices or {}).values() if isinstance(action.choices, dict) else ():
+            if isinstance(sub, argparse.ArgumentParser):
+                _strict_numbers(sub)
+
+
+_WHOLE = re.compile(r"[+-]?[0-9]{1,18}")
+_DECIMAL = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]{1,3})?")
+
+
+def whole_number(text: str) -> int:
+    """An integer option: ASCII digits, at most 18 of them."""
+    if not _WHOLE.fullmatch(text.strip()):
+        digits = text.strip().lstrip("+-")
+        why = "at most 18 digits" if digits.isascii() and digits.isdigit() else "ASCII digits"
+        raise argparse.ArgumentTypeError(f"invalid int value: {text[:40]!r} (a whole number in {why})")
+    return int(text)
+
+
+def finite_number(text: str) -> float:
+    """A number option: ASCII digits with an optional fraction and exponent, finite."""
+    if not _DECIMAL.fullmatch(text.strip()) or not math.isfinite(float(text)):
+        raise argparse.ArgumentTypeError(f"invalid float value: {text[:40]!r} (a finite "
+                                         "number in ASCII digits)")
+    return float(text)
 
 
 def _unavailable(sub: argparse._SubParsersAction, name: str, why: str, message: str) -> None:
@@ -93,6 +138,11 @@ def join_signed_values(argv: list[str]) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     argv = join_signed_values(sys.argv[1:] if argv is None else list(argv))
+    for i, arg in enumerate(argv):  # no file or key has a NUL in its name (the OS refuses it)
+        if "\0" in arg:
+            print(f"mgpusim: error: argument {i + 1} ({arg[:60]!r}) holds a NUL character",
+                  file=sys.stderr)
+            return 2
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)
@@ -104,6 +154,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"mgpusim {args.command}: error: {where}{one_line(exc.strerror or str(exc))}",
               file=sys.stderr)
         return 2
+    except MemoryError:  # the run's tables grow with its frames (docs/input_checks.md, bounds)
+        print(f"mgpusim {args.command}: error: out of memory (fewer schedule.frames, or a machine "
+              "with more memory); nothing was left in the output folder", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130

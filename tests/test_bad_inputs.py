@@ -10,6 +10,7 @@ measure (only their checks that come before any Vulkan device is opened).
 from __future__ import annotations
 
 import json
+import os
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -90,7 +91,8 @@ SET_CASES = [
     ("sf", "schedule.gpus=inf", "schedule.gpus"),
     ("sf", "schedule.gpus=4", "profile.gpu_count=4"),
     ("sf", "schedule.gpus=1000", "<= 64"),
-    ("sf", "schedule.frames=100000000", "<= 1e+07"),
+    ("sf", "schedule.frames=100000000", "<= 1e+06"),
+    ("sf", "schedule.frames=1000001", "<= 1e+06"),
     ("sf", "schedule.frames=0", ">= 1"),
     ("sf", "scene.width=nan", "scene.width"),
     ("sf", "scene.width=1e400", "scene.width"),
@@ -199,7 +201,7 @@ EXPERIMENT_CASES: list[tuple[str, Callable[[dict], None], tuple[str, ...]]] = [
     ("sf", _put("schedule.gpus", 0), ("schedule.gpus", ">= 1")),
     ("sf", _put("schedule.gpus", "two"), ("schedule.gpus", "integer")),
     ("sf", _put("schedule.frames", 2.5), ("schedule.frames", "integer")),
-    ("sf", _put("schedule.frames", 10**8), ("schedule.frames", "<= 1e+07")),
+    ("sf", _put("schedule.frames", 10**8), ("schedule.frames", "<= 1e+06")),
     ("sf", _put("schedule.warmup_frames", 60), ("warmup_frames", "< frames")),
     ("sf", _put("schedule.warmup_frames", -1), ("warmup_frames", ">= 0")),
     ("sf", _put("schedule.frames_in_flight", 0), ("frames_in_flight", ">= 1")),
@@ -576,6 +578,43 @@ MEASURED_CASES += [
     ("mismatch-passes", _mismatch({}, 'scene.passes=[{name="a",kind="fragment_loop",iterations=1},'
                                       '{name="b",kind="present"}]'), ("config.inputs.passes", "entries")),
     ("mismatch-output-bytes", _mismatch({}, "scene.passes.0.output_bytes=5"), ("output_bytes",)),
+    # any key both sides record: the scene's byte sizes, the schedule's own record, names
+    ("mismatch-color-bytes", _mismatch({"scene.color_bytes_per_pixel": 8}), ("color_bytes_per_pixel", "another configuration")),
+    ("mismatch-depth-bytes", _mismatch({"scene.depth_bytes_per_pixel": 4}), ("config.inputs.scene.depth_bytes_per_pixel",)),
+    ("mismatch-dataset-bytes", _mismatch({"scene.dataset_bytes": 1000}), ("config.inputs.scene.dataset_bytes",)),
+    ("mismatch-tile-rows", _mismatch({"schedule.tile_rows": [400, 368]}), ("tile_rows",)),
+    ("mismatch-pipelining", _mismatch({"schedule.pipelining": "lockstep"}), ("config.inputs.schedule.pipelining",)),
+    ("mismatch-pass-name", _mismatch({"scene.passes.0.name": "other"}), ("config.inputs.passes[0].name",)),
+    ("mismatch-another-experiment", lambda tmp: validate_argv(tmp, measured_folder(tmp, "sl")),
+     ("config.", "other key(s) differ too", "config.schedule")),
+    ("mismatch-several-named", _mismatch({"scene.width": 512, "scene.passes.0.iterations": 4000}),
+     ("config.width", "other key(s) differ too", "config.inputs.passes[0].iterations",
+      "config.contribution_bytes_per_frame")),
+]
+
+
+def _old_run(sets: dict[str, Any]) -> Callable[[Path], list[str]]:
+    """A run recorded before the inputs were (no config.inputs): its schedule's own record
+    (bytes per frame, tile rows) is still compared."""
+    def make(tmp: Path) -> list[str]:
+        folder = measured_folder(tmp, sets=sets)
+        summary = json.loads((folder / "summary.json").read_text())
+        del summary["config"]["inputs"]
+        (folder / "summary.json").write_text(json.dumps(summary))
+        return validate_argv(tmp, folder)
+    return make
+
+
+def _no_summary(tmp: Path) -> list[str]:
+    folder = measured_folder(tmp)
+    (folder / "summary.json").unlink()
+    return validate_argv(tmp, folder)
+
+
+MEASURED_CASES += [
+    ("old-run-color-bytes", _old_run({"scene.color_bytes_per_pixel": 8}), ("config.contribution_bytes_per_frame",)),
+    ("old-run-tile-rows", _old_run({"schedule.tile_rows": [400, 368]}), ("config.tile_rows",)),
+    ("no-summary", _no_summary, ("measured", "no summary.json")),
 ]
 
 
@@ -675,7 +714,7 @@ for _id, _make, _words in CALIBRATE_CASES:
 def _study(edit: Callable[[str], str]) -> Callable[[Path], list[str]]:
     def make(tmp: Path) -> list[str]:
         text = (ROOT / "experiments" / "h100" / "study.toml").read_text()
-        text = text.replace('"../../', f'"{ROOT}/')
+        text = text.replace('"../../', f'"{os.path.relpath(ROOT, tmp)}/')  # paths stay relative
         (tmp / "s.toml").write_text(edit(text))
         return ["study", "calibrate", str(tmp / "s.toml"), "--out", str(tmp / "out")]
     return make
@@ -689,6 +728,467 @@ STUDY_CASES = [
 ]
 for _id, _make, _words in STUDY_CASES:
     CASES.append(Case(f"study-{_id}", _make, ("s.toml", *_words)))
+
+
+# ----- study files: a small study whose every part is set, then one part broken ------------
+def mini_study(tmp: Path) -> dict[str, Any]:
+    """A study with every section (tables, a host copy table, a recipe, both halves), its paths
+    relative to `tmp` where it is written; it loads (see the positive control below)."""
+    r = os.path.relpath(ROOT, tmp)
+    exp = f"{r}/experiments/sort_first_tc1.toml"
+    return {"name": "mini", "description": "a study", "profile": f"{r}/hardware_profiles/tc1.toml",
+            "microbenchmarks": {"tables": f"{r}/data/lavapipe", "files": ["fragment_loop.csv", "mesh.csv"],
+                                "sweeps": {"mesh": {"width": [128], "triangles": [1000, 2000]}}},
+            "runs": {"repeats": 1, "max_frames": 100},
+            "calibration": {"host_copy_table": "host_copy.csv", "run_fitted": ["fragment_loop"],
+                            "run_fit_terms": ["pixel"], "run_fit_gpus": 1,
+                            "copy_from": {"profile": f"{r}/hardware_profiles/h200_x2.toml",
+                                          "costs": ["present"], "host": ["dispatch_ns"]},
+                            "host_grid": {"dispatch_ns": [0, 1000]},
+                            "config": [{"name": "a", "experiment": exp, "set": ["schedule.gpus=2"]}]},
+            "held_out": {"config": [{"name": "b", "experiment": exp, "set": []}]}}
+
+
+def _mini(mutate: Callable[[dict], None], step: str = "validate") -> Callable[[Path], list[str]]:
+    def make(tmp: Path) -> list[str]:
+        data = mini_study(tmp)
+        mutate(data)
+        write_toml(tmp / "s.toml", data)
+        return ["study", step, str(tmp / "s.toml"), "--out", str(tmp / "out")]
+    return make
+
+
+def _abs(path: str) -> Callable[[dict], None]:
+    """Set `path` to the absolute form of the (relative) path it holds."""
+    def mutate(data: dict) -> None:
+        *parents, last = path.split(".")
+        node: Any = data
+        for p in parents:
+            node = node[int(p)] if isinstance(node, list) else node[p]
+        node[last] = str((ROOT / "tests" / node[last]).resolve())  # any absolute path
+    return mutate
+
+
+CFG = "calibration.config.0"
+MINI_STUDY_CASES: list[tuple[str, Callable[[dict], None], tuple[str, ...]]] = [
+    ("name-parent", _put("name", "../x"), ("name", "separator")),
+    ("name-absolute", _put("name", "/tmp/x"), ("name", "separator")),
+    ("name-dotdot", _put("name", ".."), ("name", "'..'")),
+    ("name-nul", _put("name", "a\0b"), ("name", "NUL")),
+    ("name-number", _put("name", 5), ("name", "string")),
+    ("name-blank", _put("name", "  "), ("name", "empty")),
+    ("config-name-parent", _put(f"{CFG}.name", "../../escape"), ("calibration.config[0].name", "separator")),
+    ("config-name-absolute", _put(f"{CFG}.name", "/tmp/escape"), ("calibration.config[0].name", "separator")),
+    ("config-name-dotdot", _put(f"{CFG}.name", ".."), ("calibration.config[0].name",)),
+    ("config-name-dot", _put(f"{CFG}.name", "."), ("calibration.config[0].name",)),
+    ("config-name-backslash", _put(f"{CFG}.name", "a\\b"), ("calibration.config[0].name", "separator")),
+    ("config-name-nul", _put(f"{CFG}.name", "a\0"), ("calibration.config[0].name", "NUL")),
+    ("config-name-newline", _put(f"{CFG}.name", "a\nb"), ("calibration.config[0].name", "control")),
+    ("config-name-long", _put(f"{CFG}.name", "x" * 300), ("calibration.config[0].name", "255 bytes")),
+    ("config-name-empty", _put(f"{CFG}.name", ""), ("calibration.config[0].name", "empty")),
+    ("config-name-list", _put(f"{CFG}.name", ["a"]), ("calibration.config[0].name", "string")),
+    ("config-name-missing", _drop(f"{CFG}.name"), ("calibration.config[0].name", "missing")),
+    ("held-name-parent", _put("held_out.config.0.name", "../b"), ("held_out.config[0].name", "separator")),
+    ("config-set-string", _put(f"{CFG}.set", "schedule.gpus=2"), ("calibration.config[0].set", "a list")),
+    ("config-set-number", _put(f"{CFG}.set", [3]), ("calibration.config[0].set[0]", "string")),
+    ("config-set-table", _put(f"{CFG}.set", [{"a": 1}]), ("calibration.config[0].set[0]", "string")),
+    ("config-set-nested", _put(f"{CFG}.set", [["schedule.gpus=2"]]), ("calibration.config[0].set[0]",)),
+    ("config-set-no-equals", _put(f"{CFG}.set", ["schedule.gpus"]), ("calibration.config[0].set[0]", "key=value")),
+    ("config-set-no-key", _put(f"{CFG}.set", ["=2"]), ("calibration.config[0].set[0]", "no key")),
+    ("config-set-misspelt", _put(f"{CFG}.set", ["schedule.gpuz=2"]), ("calibration.config[0]", "did you mean 'gpus'")),
+    ("config-set-bad-value", _put(f"{CFG}.set", ["schedule.gpus=9"]), ("calibration.config[0]", "schedule.gpus")),
+    ("config-set-bool", _put(f"{CFG}.set", True), ("calibration.config[0].set", "a list")),
+    ("config-experiment-absolute", _abs(f"{CFG}.experiment"), ("calibration.config[0].experiment", "absolute")),
+    ("config-experiment-missing-file", _put(f"{CFG}.experiment", "nope.toml"), ("experiment", "does not exist")),
+    ("config-experiment-number", _put(f"{CFG}.experiment", 5), ("experiment", "string")),
+    ("config-experiment-absent", _drop(f"{CFG}.experiment"), ("experiment", "missing")),
+    ("config-unknown-key", _put(f"{CFG}.sets", []), ("calibration.config[0].sets", "did you mean 'set'")),
+    ("config-not-a-table", _put("calibration.config", [5]), ("calibration.config[0]", "table")),
+    ("config-empty-array", _put("held_out.config", []), ("held_out.config", "empty")),
+    ("config-duplicate", _put("held_out.config.0.name", "a"), ("unique", "a")),
+    ("profile-absolute", _abs("profile"), ("profile", "absolute")),
+    ("profile-missing", _drop("profile"), ("profile", "missing")),
+    ("profile-blank", _put("profile", " "), ("profile", "relative")),
+    ("profile-nope", _put("profile", "nope.toml"), ("profile", "does not exist")),
+    ("files-string", _put("microbenchmarks.files", "mesh.csv"), ("microbenchmarks.files", "a list")),
+    ("files-empty", _put("microbenchmarks.files", []), ("microbenchmarks.files", "empty list")),
+    ("files-number", _put("microbenchmarks.files", [1]), ("microbenchmarks.files[0]", "string")),
+    ("files-parent", _put("microbenchmarks.files", ["../../../../etc/passwd"]), ("files[0]", "inside")),
+    ("files-absolute", _put("microbenchmarks.files", ["/etc/hostname"]), ("files[0]", "inside")),
+    ("files-nope", _put("microbenchmarks.files", ["nope.csv"]), ("files[0]", "does not exist")),
+    ("files-folder", _put("microbenchmarks.files", ["main_job_2026-11-24"]), ("files[0]", "not a file")),
+    ("files-without-tables", _drop("microbenchmarks.tables"), ("microbenchmarks.files", "go together")),
+    ("tables-without-files", _drop("microbenchmarks.files"), ("microbenchmarks.tables", "go together")),
+    ("tables-absolute", _abs("microbenchmarks.tables"), ("microbenchmarks.tables", "absolute")),
+    ("tables-a-file", lambda d: d["microbenchmarks"].update(tables=d["microbenchmarks"]["tables"] + "/mesh.csv"),
+     ("microbenchmarks.tables", "not a folder")),
+    ("tables-number", _put("microbenchmarks.tables", 3), ("microbenchmarks.tables", "string")),
+    ("sweep-scalar", _put("microbenchmarks.sweeps.mesh.width", 128), ("microbenchmarks.sweeps.mesh.width", "a list")),
+    ("sweep-string", _put("microbenchmarks.sweeps.mesh.width", "128"), ("sweeps.mesh.width", "a list")),
+    ("sweep-empty", _put("microbenchmarks.sweeps.mesh.width", []), ("sweeps.mesh.width", "empty list")),
+    ("sweep-nested", _put("microbenchmarks.sweeps.mesh.width", [[128]]), ("sweeps.mesh.width[0]",)),
+    ("sweep-table-value", _put("microbenchmarks.sweeps.mesh.width", [{"a": 1}]), ("sweeps.mesh.width[0]",)),
+    ("sweep-nan", _put("microbenchmarks.sweeps.mesh.width", [float("nan")]), ("sweeps.mesh.width[0]",)),
+    ("sweep-unknown-pass", _put("microbenchmarks.sweeps.msh", {"width": [1]}), ("sweeps.msh", "did you mean 'mesh'")),
+    ("sweep-no-params", _put("microbenchmarks.sweeps.mesh", {}), ("sweeps.mesh", "empty sweep")),
+    ("sweep-not-a-table", _put("microbenchmarks.sweeps.mesh", 3), ("sweeps.mesh", "table")),
+    ("sweeps-not-a-table", _put("microbenchmarks.sweeps", [1]), ("microbenchmarks.sweeps", "table")),
+    ("pairs-scalar", _put("microbenchmarks.pairs", {"mesh": {"width": 1}}), ("microbenchmarks.pairs.mesh.width", "a list")),
+    ("rounds-zero", _put("microbenchmarks.rounds", 0), ("microbenchmarks.rounds", ">= 1")),
+    ("reps-float", _put("microbenchmarks.reps", 2.5), ("microbenchmarks.reps", "integer")),
+    ("run-fitted-unknown", _put("calibration.run_fitted", ["fragmnt_loop"]), ("calibration.run_fitted", "did you mean 'fragment_loop'")),
+    ("run-fitted-string", _put("calibration.run_fitted", "present"), ("calibration.run_fitted", "a list")),
+    ("run-fitted-empty", _put("calibration.run_fitted", []), ("calibration.run_fitted", "empty list")),
+    ("run-fitted-number", _put("calibration.run_fitted", [5]), ("calibration.run_fitted[0]", "string")),
+    ("run-fit-terms-unknown", _put("calibration.run_fit_terms", ["pixels"]), ("calibration.run_fit_terms", "did you mean 'pixel'")),
+    ("run-fit-terms-empty", _put("calibration.run_fit_terms", []), ("calibration.run_fit_terms", "empty list")),
+    ("run-fit-terms-string", _put("calibration.run_fit_terms", "pixel"), ("calibration.run_fit_terms", "a list")),
+    ("run-fit-terms-kind", _put("calibration.run_fit_terms", ["mesh"]), ("calibration.run_fit_terms", "unknown work term")),
+    ("run-fit-alone-unknown", _put("calibration.run_fit_alone", ["composite"]), ("calibration.run_fit_alone", "unknown pass kind")),
+    ("run-fit-gpus-negative", _put("calibration.run_fit_gpus", -1), ("calibration.run_fit_gpus", ">= 0")),
+    ("run-fit-gpus-huge", _put("calibration.run_fit_gpus", 1000), ("calibration.run_fit_gpus", "<= 64")),
+    ("host-copy-table-nope", _put("calibration.host_copy_table", "nope.csv"), ("calibration.host_copy_table", "does not exist")),
+    ("host-copy-table-parent", _put("calibration.host_copy_table", "../x.csv"), ("calibration.host_copy_table", "inside")),
+    ("host-copy-table-number", _put("calibration.host_copy_table", 5), ("calibration.host_copy_table", "string")),
+    ("copy-from-cost-unknown", _put("calibration.copy_from.costs", ["nope"]), ("calibration.copy_from.costs", "not in")),
+    ("copy-from-host-misspelt", _put("calibration.copy_from.host", ["dispatch"]), ("copy_from.host", "did you mean 'dispatch_ns'")),
+    ("copy-from-costs-string", _put("calibration.copy_from.costs", "present"), ("copy_from.costs", "a list")),
+    ("copy-from-no-profile", _drop("calibration.copy_from.profile"), ("copy_from.costs", "needs copy_from.profile")),
+    ("copy-from-profile-nope", _put("calibration.copy_from.profile", "nope.toml"), ("copy_from.profile", "does not exist")),
+    ("copy-from-unknown-key", _put("calibration.copy_from.cost", []), ("copy_from.cost", "did you mean 'costs'")),
+    ("host-grid-scalar", _put("calibration.host_grid.dispatch_ns", 5), ("calibration.host_grid.dispatch_ns", "a list")),
+    ("host-grid-empty", _put("calibration.host_grid.dispatch_ns", []), ("host_grid.dispatch_ns", "empty list")),
+    ("host-grid-text", _put("calibration.host_grid.dispatch_ns", ["a"]), ("host_grid.dispatch_ns[0]", "numbers")),
+    ("host-grid-bool", _put("calibration.host_grid.dispatch_ns", [True]), ("host_grid.dispatch_ns[0]", "numbers")),
+    ("host-grid-inf", _put("calibration.host_grid.dispatch_ns", [float("inf")]), ("host_grid.dispatch_ns[0]",)),
+    ("host-grid-misspelt", _put("calibration.host_grid.dispatch", [1]), ("host_grid.dispatch", "did you mean 'dispatch_ns'")),
+    ("calibration-runs-nope", _put("calibration.runs", "nope"), ("calibration.runs", "does not exist")),
+    ("calibration-runs-absolute", lambda d: d["calibration"].update(runs=str(ROOT)), ("calibration.runs", "absolute")),
+    ("held-out-runs-number", _put("held_out.runs", 5), ("held_out.runs", "string")),
+    ("held-out-runs-file", lambda d: d["held_out"].update(runs=d["profile"]), ("held_out.runs", "not a folder")),
+    ("runs-repeats-zero", _put("runs.repeats", 0), ("runs.repeats", ">= 1")),
+    ("runs-max-frames-text", _put("runs.max_frames", "x"), ("runs.max_frames", "integer")),
+    ("threads-per-core-huge", _put("lavapipe_threads_per_core", 100), ("lavapipe_threads_per_core", "<= 16")),
+    ("base-unknown", _put("calibration.base", "gpu"), ("calibration.base", "one of")),
+    ("top-unknown-key", _put("descripion", "x"), ("descripion", "did you mean 'description'")),
+    ("calibration-not-a-table", _put("calibration", 5), ("calibration", "table")),
+]
+for _id, _mutate, _words in MINI_STUDY_CASES:
+    CASES.append(Case(f"study-{_id}", _mini(_mutate), ("s.toml", *_words)))
+for _step in ("calibrate", "measure", "run"):  # every step checks the file before its work
+    CASES.append(Case(f"study-{_step}-config-name-parent", _mini(_put(f"{CFG}.name", "../x"), _step),
+                      ("calibration.config[0].name", "separator")))
+
+
+# ----- sweep arguments: refused before any point runs or any folder is made ---------------
+SWEEP = str(ROOT / "experiments" / "sort_first_tc1.toml")
+
+
+def sweep_argv(tmp: Path, *args: str, grid: tuple[str, ...] = ("schedule.gpus=1,2",)) -> list[str]:
+    return ["sweep", SWEEP, *[a for g in grid for a in ("--grid", g)], *args, "--out", str(tmp / "out"),
+            "--workers", "1", "--no-progress"]
+
+
+SWEEP_CASES: list[tuple[str, tuple[str, ...], tuple[str, ...], tuple[str, ...]]] = [
+    # (id, extra arguments, grid, words)
+    ("dask-words", ("--dask", "not an address"), ("schedule.gpus=1,2",), ("--dask", "HOST:PORT")),
+    ("dask-scheme-only", ("--dask", "tcp://"), ("schedule.gpus=1,2",), ("--dask", "'tcp://'")),
+    ("dask-port-text", ("--dask", "tcp://127.0.0.1:notaport"), ("schedule.gpus=1,2",), ("--dask", "HOST:PORT")),
+    ("dask-port-huge", ("--dask", "127.0.0.1:99999"), ("schedule.gpus=1,2",), ("--dask", "1-65535")),
+    ("dask-port-zero", ("--dask", "127.0.0.1:0"), ("schedule.gpus=1,2",), ("--dask", "1-65535")),
+    ("dask-http", ("--dask", "http://127.0.0.1:8786"), ("schedule.gpus=1,2",), ("--dask", "HOST:PORT")),
+    ("dask-no-port", ("--dask", "tcp://127.0.0.1"), ("schedule.gpus=1,2",), ("--dask", "HOST:PORT")),
+    ("dask-no-host", ("--dask", ":8786"), ("schedule.gpus=1,2",), ("--dask", "HOST:PORT")),
+    ("dask-path", ("--dask", "tcp://127.0.0.1:8786/x"), ("schedule.gpus=1,2",), ("--dask", "HOST:PORT")),
+    ("dask-empty", ("--dask", ""), ("schedule.gpus=1,2",), ("--dask", "HOST:PORT")),
+    ("metric-text", ("--metric", "fidelity"), ("schedule.gpus=1,2",), ("--metric", "not a number")),
+    ("metric-list", ("--metric", "modelled_effects"), ("schedule.gpus=1,2",), ("--metric", "not a number")),
+    ("metric-list-item", ("--metric", "modelled_effects.0"), ("schedule.gpus=1,2",), ("--metric", "not a number")),
+    ("metric-bool", ("--metric", "effects.link_model"), ("schedule.gpus=1,2",), ("--metric", "not a number")),
+    ("metric-why", ("--metric", "fast_forward.why"), ("schedule.gpus=1,2",), ("--metric", "not a number")),
+    ("metric-error", ("--metric", "error"), ("schedule.gpus=1,2",), ("--metric", "not a number")),
+    ("metric-misspelt", ("--metric", "frame_tme_ms"), ("schedule.gpus=1,2",), ("--metric", "did you mean 'frame_time_ms'")),
+    ("metric-fsp", ("--metric", "fsp"), ("schedule.gpus=1,2",), ("--metric", "not a summary field")),
+    ("metric-case", ("--metric", "Frame_Time_ms"), ("schedule.gpus=1,2",), ("--metric", "not a summary field")),
+    ("metric-empty", ("--metric", ""), ("schedule.gpus=1,2",), ("--metric", "not a summary field")),
+    ("metric-group", ("--metric", "utilization"), ("schedule.gpus=1,2",), ("--metric", "utilization.<member>")),
+    ("metric-group-dot", ("--metric", "utilization."), ("schedule.gpus=1,2",), ("--metric", "not a summary field")),
+    ("metric-key", ("--metric", "schedule.gpus"), ("schedule.gpus=1,2",), ("--metric", "not a summary field")),
+    ("grid-point", (), ("point=1,2",), ("--grid point", "column")),
+    ("grid-error", (), ("error=1,2",), ("--grid error", "column")),
+    ("grid-wall-s", (), ("wall_s=1,2",), ("--grid wall_s", "column")),
+    ("grid-frame-time", (), ("frame_time_ms=1,2",), ("--grid frame_time_ms", "column")),
+    ("grid-fps", (), ("fps=1,2",), ("--grid fps", "column")),
+    ("grid-utilization", (), ("utilization.gpu0.graphics=1,2",), ("--grid utilization.gpu0.graphics", "column")),
+    ("grid-memory", (), ("memory.gpu0.used_bytes=1",), ("--grid memory.gpu0.used_bytes", "column")),
+    ("grid-fidelity", (), ("fidelity=full",), ("--grid fidelity", "column")),
+    ("grid-effects", (), ("modelled_effects=a",), ("--grid modelled_effects", "column")),
+    ("grid-million", (), (f"scene.width={','.join(map(str, range(1, 1001)))}",
+                          f"scene.height={','.join(map(str, range(1, 1001)))}"), ("--grid", "1,000,000 points", "100,000")),
+    ("grid-one-key-huge", (), (f"scene.passes.0.iterations={','.join(map(str, range(1, 100_002)))}",),
+     ("--grid", "100,001 points")),
+    ("grid-many-keys", (), tuple(f"k{i}=1,2,3,4" for i in range(10)), ("--grid", "1,048,576 points")),
+    ("grid-duplicate-value", (), ("schedule.gpus=1,1",), ("--grid schedule.gpus", "given twice")),
+    ("grid-duplicate-text", (), ('schedule.name="afr","afr"',), ("--grid schedule.name", "given twice")),
+    ("grid-also-set", ("--set", "schedule.gpus=2"), ("schedule.gpus=1,2",), ("--grid schedule.gpus", "--set")),
+    ("grid-no-values", (), ("schedule.gpus=",), ("--grid", "KEY=V1")),
+    ("grid-only-commas", (), ("schedule.gpus=,,",), ("--grid", "KEY=V1")),
+    ("grid-no-key", (), ("=1,2",), ("--grid", "KEY=V1")),
+    ("grid-no-equals", (), ("schedule.gpus",), ("--grid", "KEY=V1")),
+    ("grid-key-twice", (), ("schedule.gpus=1", "schedule.gpus=2"), ("--grid", "given twice")),
+    ("grid-misspelt", (), ("schedule.gpuz=1,2",), ("--grid schedule.gpuz", "did you mean 'gpus'")),
+    ("grid-no-value-loads", (), ("schedule.gpus=0,-1",), ("--grid schedule.gpus", "no value")),
+    ("grid-value-nan", (), ("scene.width=nan",), ("--grid scene.width",)),
+    ("workers-zero", ("--workers", "0"), ("schedule.gpus=1,2",), ("--workers", "1..256")),
+    ("workers-negative", ("--workers=-3",), ("schedule.gpus=1,2",), ("--workers",)),
+    ("workers-huge", ("--workers", "100000"), ("schedule.gpus=1,2",), ("--workers", "1..256")),
+    ("workers-text", ("--workers", "x"), ("schedule.gpus=1,2",), ("--workers", "invalid")),
+    ("fidelity-unknown", ("--fidelity", "fast"), ("schedule.gpus=1,2",), ("--fidelity", "analytic")),
+    ("set-misspelt", ("--set", "schedule.gpuz=2"), ("schedule.gpus=1,2",), ("schedule.gpuz", "did you mean 'gpus'")),
+    ("set-no-key", ("--set", "=3"), ("schedule.gpus=1,2",), ("--set", "no key")),
+    ("set-broken-base", ("--set", "schedule.warmup_frames=1000"), ("schedule.gpus=1,2",), ("warmup_frames",)),
+]
+for _id, _args, _grid, _words in SWEEP_CASES:
+    def _make(tmp: Path, args=_args, grid=_grid) -> list[str]:
+        argv = sweep_argv(tmp, *args, grid=grid)
+        if "--workers" in args or any(a.startswith("--workers=") for a in args):  # the case's own
+            i = len(argv) - 3
+            del argv[i:i + 2]
+        return argv
+    CASES.append(Case(f"sweep-{_id}", _make, _words))
+
+
+@case("sweep-experiment-missing", "nope.toml", "not found")
+def _(tmp: Path) -> list[str]:
+    return ["sweep", str(tmp / "nope.toml"), "--grid", "schedule.gpus=1", "--out", str(tmp / "out")]
+
+
+@case("sweep-experiment-not-toml", "e.toml", "not valid TOML")
+def _(tmp: Path) -> list[str]:
+    (tmp / "e.toml").write_text("name = \n")
+    return ["sweep", str(tmp / "e.toml"), "--grid", "schedule.gpus=1", "--out", str(tmp / "out")]
+
+
+@case("sweep-profile-as-experiment", "tc1.toml", "a hardware profile, not an experiment")
+def _(tmp: Path) -> list[str]:
+    return ["sweep", str(ROOT / "hardware_profiles" / "tc1.toml"), "--grid", "schedule.gpus=1",
+            "--out", str(tmp / "out")]
+
+
+@case("sweep-out-at-a-file", "--out", "not a folder")
+def _(tmp: Path) -> list[str]:
+    argv = sweep_argv(tmp)
+    argv[argv.index("--out") + 1] = str(_file_in_the_way(tmp))
+    return argv
+
+
+@case("sweep-out-under-a-file", "--out", "is a file")
+def _(tmp: Path) -> list[str]:
+    argv = sweep_argv(tmp)
+    argv[argv.index("--out") + 1] = str(_file_in_the_way(tmp) / "sub")
+    return argv
+
+
+# ----- effects a fidelity level has no mechanism for --------------------------------------
+FIDELITY_CASES = [
+    ("analytic", "+link_sharing", ("link_sharing", "--fidelity analytic")),
+    ("analytic", "+host_memory_sharing", ("host_memory_sharing", "--fidelity analytic")),
+    ("analytic", "+shared_gpu", ("shared_gpu", "--fidelity analytic")),
+    ("analytic", "+busy_wake", ("busy_wake", "--fidelity analytic")),
+    ("analytic", "-task_gaps,+link_sharing", ("link_sharing", "--fidelity analytic")),
+    ("full", "+shared_executor", ("shared_executor", "cannot be forced on")),
+    ("full", "+link_shareing", ("--effects", "did you mean +link_sharing")),
+    ("full", "link_sharing", ("--effects", "+name or -name")),
+    ("fast", "", ("--fidelity", "invalid choice")),
+]
+for _i, (_level, _effects, _words) in enumerate(FIDELITY_CASES):
+    def _make(tmp: Path, level=_level, effects=_effects) -> list[str]:
+        argv = simulate_argv(write_toml(tmp / "e.toml", experiment()), tmp) + ["--fidelity", level]
+        return argv + (["--effects", effects] if effects else [])
+    CASES.append(Case(f"fidelity-{_level}-{_i}", _make, _words))
+
+
+# ----- command-line parsing: numbers, nesting, endless files, NULs ------------------------
+DEEP_ARRAY = "[" * 5000 + "]" * 5000
+DEEP_TABLE = "{a = " * 3000 + "1" + "}" * 3000
+
+SIMULATE_FRAMES = ["\u00b2:5", "\u0661:\u0665", "0:\uff11\uff10", "0:999999999999999999999999999", "0:10000001",
+                   "5:5", "5:3", "a:b", "5", ":5", "-1:5", "0x1:5", "1e3:5", "0:" + "9" * 100]
+for _i, _frames in enumerate(SIMULATE_FRAMES):
+    def _make(tmp: Path, frames=_frames) -> list[str]:
+        return simulate_argv(write_toml(tmp / "e.toml", experiment()), tmp) + ["--frames", frames]
+    CASES.append(Case(f"cli-simulate-frames-{_i}", _make, ("--frames",)))
+
+CASE_FRAMES = [("99999999999999999999999", "18 digits"), ("\u0661\u0662", "ASCII digits"),
+               ("\uff11\uff12", "ASCII digits"), ("\u00b2", "ASCII digits"), ("1", "2..1e+06"), ("0", "2..1e+06"),
+               ("-5", "2..1e+06"), ("10000001", "2..1e+06"), ("1e3", "invalid int"), ("x", "invalid int"),
+               ("", "invalid int"), (" 12 ", None)]
+for _i, (_frames, _words) in enumerate(CASE_FRAMES):
+    if _words is None:  # the control below: spaces around digits are a number
+        continue
+    def _make(tmp: Path, frames=_frames) -> list[str]:
+        return ["case", "xr_stereo", "--frames", frames, "--out", str(tmp / "out")]
+    CASES.append(Case(f"cli-case-frames-{_i}", _make, ("--frames", _words)))
+
+NUMBER_OPTIONS = [
+    (["sweep", SWEEP, "--grid", "schedule.gpus=1", "--workers", "\u0661"], "--workers"),
+    (["measure", "--pass", "mesh", "--reps", "\u0663"], "--reps"),
+    (["measure", "--pass", "mesh", "--warmup", "\uff12"], "--warmup"),
+    (["simulate", SWEEP, "--trace-frames", "\u0663"], "--trace-frames"),
+    (["simulate", SWEEP, "--trace-frames", "1" * 40], "--trace-frames"),
+    (["validate", SWEEP, "--measured", "m", "--repeats", "\u0661"], "--repeats"),
+    (["validate", SWEEP, "--measured", "m", "--run-seconds", "nan"], "--run-seconds"),
+    (["validate", SWEEP, "--measured", "m", "--run-seconds", "inf"], "--run-seconds"),
+    (["validate", SWEEP, "--measured", "m", "--run-seconds=-infinity"], "--run-seconds"),
+    (["validate", SWEEP, "--measured", "m", "--run-seconds", "\u0661.\u0665"], "--run-seconds"),
+    (["validate", SWEEP, "--measured", "m", "--run-seconds", "1e999"], "--run-seconds"),
+    (["calibrate", "t.csv", "--gpus", "\uff14"], "--gpus"),
+    (["bench", "--frames", "\u0665"], "--frames"),
+    (["study", "validate", "s.toml", "--held-out"], None),  # placeholder removed below
+]
+for _i, (_argv, _option) in enumerate(NUMBER_OPTIONS):
+    if _option is None:
+        continue
+    def _make(tmp: Path, argv=_argv) -> list[str]:
+        return [*argv, "--out", str(tmp / "out")]
+    CASES.append(Case(f"cli-number-{_i}", _make, (_option, "invalid")))
+
+
+def _text_file(name: str, text: str) -> Callable[[Path], Path]:
+    def make(tmp: Path) -> Path:
+        (tmp / name).write_text(text)
+        return tmp / name
+    return make
+
+
+NESTED_CASES: list[tuple[str, Callable[[Path], list[str]], tuple[str, ...]]] = [
+    ("experiment-array", lambda tmp: simulate_argv(_text_file("e.toml", f"a = {DEEP_ARRAY}\n")(tmp), tmp),
+     ("e.toml", "nested too deeply")),
+    ("experiment-table", lambda tmp: simulate_argv(_text_file("e.toml", f"a = {DEEP_TABLE}\n")(tmp), tmp),
+     ("e.toml", "nested too deeply")),
+    ("profile", lambda tmp: simulate_argv(write_toml(tmp / "e.toml", {**experiment(), "profile": str(
+        _text_file("p.toml", f"x = {DEEP_ARRAY}\n")(tmp))}), tmp), ("p.toml", "nested too deeply")),
+    ("study", lambda tmp: ["study", "validate", str(_text_file("s.toml", f"x = {DEEP_TABLE}\n")(tmp)),
+                           "--out", str(tmp / "out")], ("s.toml", "nested too deeply")),
+    ("case", lambda tmp: ["case", str(_text_file("case.toml", f"x = {DEEP_ARRAY}\n")(tmp)),
+                          "--out", str(tmp / "out")], ("case.toml", "nested too deeply")),
+    ("set-value", lambda tmp: simulate_argv(write_toml(tmp / "e.toml", experiment()), tmp,
+                                            f"scene.width={DEEP_ARRAY}"), ("--set", "nested too deeply")),
+    ("grid-value", lambda tmp: sweep_argv(tmp, grid=(f"scene.width={DEEP_ARRAY}",)),
+     ("--grid scene.width", "nested too deeply")),
+    ("calibrate-base", lambda tmp: ["calibrate", str(ROOT / "data/lavapipe/mesh.csv"), "--base",
+                                    str(_text_file("b.toml", f"x = {DEEP_ARRAY}\n")(tmp)),
+                                    "--out", str(tmp / "out" / "p.toml")], ("b.toml", "nested too deeply")),
+]
+for _id, _make, _words in NESTED_CASES:
+    CASES.append(Case(f"cli-nested-{_id}", _make, _words))
+
+DEV_ZERO_CASES: list[tuple[str, Callable[[Path], list[str]], tuple[str, ...]]] = [
+    ("simulate", lambda tmp: ["simulate", "/dev/zero", "--out", str(tmp / "out")], ("/dev/zero", "64 MiB")),
+    ("sweep", lambda tmp: ["sweep", "/dev/zero", "--grid", "schedule.gpus=1", "--out", str(tmp / "out")],
+     ("/dev/zero", "64 MiB")),
+    ("study", lambda tmp: ["study", "validate", "/dev/zero", "--out", str(tmp / "out")], ("/dev/zero", "64 MiB")),
+    ("profile", lambda tmp: simulate_argv(write_toml(tmp / "e.toml", {**experiment(), "profile": "/dev/zero"}), tmp),
+     ("profile", "/dev/zero")),
+    ("calibrate", lambda tmp: ["calibrate", "/dev/zero", "--out", str(tmp / "out" / "p.toml")], ("/dev/zero", "not a file")),
+    ("calibrate-base", lambda tmp: ["calibrate", str(ROOT / "data/lavapipe/mesh.csv"), "--base", "/dev/zero",
+                                    "--out", str(tmp / "out" / "p.toml")], ("/dev/zero", "64 MiB")),
+    ("measured", lambda tmp: ["validate", SWEEP, "--measured", "/dev/zero", "--out", str(tmp / "out")],
+     ("/dev/zero", "not a folder")),
+    ("case", lambda tmp: ["case", "/dev/zero", "--out", str(tmp / "out")], ("/dev/zero", "no case")),
+    ("null-experiment", lambda tmp: ["simulate", "/dev/null", "--out", str(tmp / "out")], ("/dev/null", "empty")),
+]
+for _id, _make, _words in DEV_ZERO_CASES:
+    CASES.append(Case(f"cli-devzero-{_id}", _make, _words))
+
+NUL_CASES: list[tuple[str, Callable[[Path], list[str]], tuple[str, ...]]] = [
+    ("experiment-arg", lambda tmp: ["simulate", "a\0b.toml", "--out", str(tmp / "out")], ("argument 2", "NUL")),
+    ("out-arg", lambda tmp: ["simulate", SWEEP, "--out", str(tmp / "out") + "\0x"], ("argument 4", "NUL")),
+    ("set-arg", lambda tmp: ["simulate", SWEEP, "--set", "scene.wi\0dth=3", "--out", str(tmp / "out")], ("NUL",)),
+    ("grid-arg", lambda tmp: sweep_argv(tmp, grid=("schedule.gpus=1\0",)), ("NUL",)),
+    ("study-arg", lambda tmp: ["study", "validate", "s\0.toml", "--out", str(tmp / "out")], ("NUL",)),
+    ("experiment-name", lambda tmp: ["simulate", str(write_toml(tmp / "e.toml", {**experiment(), "name": "a\0b"}))],
+     ("e.toml", "name", "NUL")),
+    ("experiment-name-parent", lambda tmp: ["simulate", str(write_toml(tmp / "e.toml", {**experiment(), "name": "../x"}))],
+     ("e.toml", "name", "separator")),
+    ("experiment-name-absolute", lambda tmp: ["simulate", str(write_toml(tmp / "e.toml", {**experiment(), "name": "/tmp/x"}))],
+     ("e.toml", "name", "separator")),
+    ("experiment-name-dotdot", lambda tmp: ["simulate", str(write_toml(tmp / "e.toml", {**experiment(), "name": ".."}))],
+     ("e.toml", "name", "'..'")),
+    ("profile-path", lambda tmp: simulate_argv(write_toml(tmp / "e.toml", {**experiment(), "profile": "a\0b.toml"}), tmp),
+     ("profile", "not found")),
+]
+for _id, _make, _words in NUL_CASES:
+    CASES.append(Case(f"cli-nul-{_id}", _make, _words))
+
+
+# ----- case files ------------------------------------------------------------------------
+def _case(body: str = "", top: str = "", *args: str, name: str = "t") -> Callable[[Path], list[str]]:
+    """A one-run case file in the test's folder (as tests/test_cases.py writes them)."""
+    def make(tmp: Path) -> list[str]:
+        exp = (ROOT / "experiments" / "cases" / "xr_stereo" / "quest3_pcie4.toml").as_posix()
+        (tmp / "case.toml").write_text(f'name = "{name}"\ntitle = "t"\n{top}[[runs]]\nname = "a"\n'
+                                       f'label = "a"\nexperiment = "{exp}"\n' + body)
+        return ["case", str(tmp / "case.toml"), "--out", str(tmp / "out"), *args]
+    return make
+
+
+CASE_CASES: list[tuple[str, Callable[[Path], list[str]], tuple[str, ...]]] = [
+    ("name-parent", _case(name="../x"), ("case.toml", "name", "separator")),
+    ("name-absolute", _case(name="/tmp/x"), ("name", "separator")),
+    ("run-name-parent", lambda tmp: _rename_run(tmp, "../r"), ("runs[0].name", "separator")),
+    ("run-name-nul", lambda tmp: _rename_run(tmp, "r\\u0000"), ("runs[0].name", "NUL")),
+    ("run-each-slash", _case('each = { "scene.width" = ["64/2"] }\n'), ("runs[0].each", "separator")),
+    ("set-number", _case("set = [3]\n"), ("runs[0].set[0]", "KEY=VALUE")),
+    ("set-table", _case("set = [{a = 1}]\n"), ("runs[0].set[0]", "KEY=VALUE")),
+    ("set-misspelt", _case('set = ["schedule.gpuz=2"]\n'), ("schedule.gpuz", "did you mean 'gpus'")),
+    ("derived-metric", _case('[[derived]]\nname = "g"\nlabel = "g"\nkind = "ratio"\nmetric = "fsp"\nruns = ["a", "a"]\n'),
+     ("derived[0].metric",)),
+    ("column-kind", _case('[[columns]]\nname = "c"\nlabel = "c"\nkind = "utilisation"\nselect = "gpu*"\n'),
+     ("columns[0].kind",)),
+    ("unknown-top", _case(top="colums = 1\n"), ("colums", "unknown key")),
+    ("frames-one", _case("", "", "--frames", "1"), ("--frames", "2..1e+06")),
+    ("frames-huge", _case("", "", "--frames", "100000000"), ("--frames", "1e+06")),
+    ("no-case", lambda tmp: ["case", "nope", "--out", str(tmp / "out")], ("no case of that name",)),
+]
+
+
+def _rename_run(tmp: Path, name: str) -> list[str]:
+    argv = _case()(tmp)
+    path = tmp / "case.toml"
+    path.write_text(path.read_text().replace('[[runs]]\nname = "a"', f'[[runs]]\nname = "{name}"'))
+    return argv
+
+
+for _id, _make, _words in CASE_CASES:
+    CASES.append(Case(f"case-{_id}", _make, _words))
+
+
+# ----- hardware what-ifs (profile.* overrides) on simulate, sweep and study --------------------
+WHATIF_CASES = [
+    ("profile.gpus.0.speed=0", ("gpus[0].speed", "> 0")),
+    ("profile.gpus.*.speed=-2", ("gpus[0].speed",)),
+    ("profile.gpus.0.physical=99", ("gpus[0].physical",)),
+    ("profile.gpus.*.link.h2d_gbps=0", ("gpus[0].link.h2d_gbps", "> 0")),
+    ("profile.host.memcpy_threads=0", ("host.memcpy_threads", ">= 1")),
+    ("profile.host.dispatch_ns=-1", ("host.dispatch_ns", ">= 0")),
+    ("profile.host.dispatch_ns=1e30", ("host.dispatch_ns",)),
+    ("profile.gpu_count=1000", ("gpu_count", "<= 64")),
+    ("profile.peer_mesh.bandwidth_gbps=-1", ("peer_mesh",)),
+    ("profile.gpus.0.costs.mesh.ns_per_triangle=nan", ("ns_per_triangle", "finite")),
+    ("profile.gpus.0.queues.graphics=0", ("gpus[0].queues.graphics",)),
+    ("profile.hst.dispatch_ns=1", ("did you mean 'host'",)),
+]
+for _i, (_set, _words) in enumerate(WHATIF_CASES):
+    CASES.append(Case(f"whatif-simulate-{_i}", lambda tmp, s=_set: simulate_argv(
+        write_toml(tmp / "e.toml", experiment()), tmp, s), _words))
+for _i, (_set, _words) in enumerate(WHATIF_CASES[:6]):
+    key, _, value = _set.partition("=")
+    CASES.append(Case(f"whatif-sweep-{_i}", lambda tmp, k=key, v=value: sweep_argv(tmp, grid=(f"{k}={v}",)),
+                      (f"--grid {key}", "no value", *_words)))
+for _i, (_set, _words) in enumerate(WHATIF_CASES[:4]):
+    CASES.append(Case(f"whatif-study-{_i}", _mini(lambda d, s=_set: d["calibration"]["config"][0]["set"].append(s)),
+                      ("s.toml", "calibration.config[0]", *_words)))
 
 
 # ----- the test --------------------------------------------------------------------------
@@ -715,6 +1215,21 @@ def test_bad_input_is_one_line_exit_2(bad: Case, tmp_path: Path, capsys, monkeyp
         assert words in lines[0], (words, lines[0])
     assert not (tmp_path / "out").exists()  # nothing half-written
     assert not [p for p in tmp_path.rglob("*.tmp")]
+
+
+def test_the_mini_study_loads_and_lists_its_configurations_without_runs(tmp_path: Path, capsys,
+                                                                       monkeypatch):
+    """The positive control of the study cases: the unbroken study validates (exit 0), and its
+    two configurations, which have no measured runs, are listed in the output and the report
+    rather than left out."""
+    monkeypatch.chdir(tmp_path)
+    assert main(_mini(lambda d: None)(tmp_path) + ["--held-out"]) == 0
+    printed = capsys.readouterr().out
+    assert "no measured run (not compared): a" in printed and "no measured run (not compared): b" in printed
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "No measured run, not compared: a." in report and "No measured run, not compared: b." in report
+    errors = json.loads((tmp_path / "out" / "errors.json").read_text())
+    assert [v["without_runs"] for v in errors.values()] == [["a"], ["b"]]
 
 
 def test_a_matching_measured_run_validates(tmp_path: Path, capsys, monkeypatch):
@@ -750,3 +1265,95 @@ def test_simulated_time_past_int64_is_an_input_error():
     engine = Engine(program, Unbounded(parse_profile(profile_dict(), "p.toml")))
     with pytest.raises(InputError, match="int64"):
         engine.run()
+
+
+# ----- a sweep's folder holding a point file this code did not write ----------------------
+POINT_FILES: list[tuple[str, bytes, str]] = [
+    ("list", b"[1, 2]", "JSON list"),
+    ("string", b'"text"', "JSON str"),
+    ("number", b"5", "JSON int"),
+    ("null", b"null", "JSON NoneType"),
+    ("empty-object", b"{}", "'summary'"),
+    ("summary-list", b'{"summary": [], "error": null, "wall_s": 1}', "'summary'"),
+    ("error-number", b'{"summary": {}, "error": 5, "wall_s": 1}', "'error'"),
+    ("wall-text", b'{"summary": {}, "error": null, "wall_s": "1"}', "'wall_s'"),
+    ("wall-bool", b'{"summary": {}, "error": null, "wall_s": true}', "'wall_s'"),
+    ("no-wall", b'{"summary": {}, "error": null}', "'wall_s'"),
+    ("not-json", b"{oops", "not valid JSON"),
+    ("empty", b"", "not valid JSON"),
+    ("binary", b"\xff\xfe\x00", "cannot read"),
+    ("deep", b"[" * 100_000 + b"]" * 100_000, "not valid JSON"),
+]
+
+
+@pytest.fixture(scope="module")
+def finished_sweep(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("sweep") / "out"
+    assert main(sweep_argv(out.parent, "--set", "schedule.frames=20")) == 0
+    return out
+
+
+@pytest.mark.parametrize("name, content, words", POINT_FILES, ids=[p[0] for p in POINT_FILES])
+def test_a_point_file_of_another_shape_is_refused_naming_it(finished_sweep: Path, tmp_path: Path, capsys,
+                                                           name: str, content: bytes, words: str):
+    """Valid JSON of the wrong shape (or not JSON) in points/: one line naming the file and
+    what is wrong, exit 2; the file is left for its owner and the table is not rewritten."""
+    import shutil
+    out = tmp_path / "out"
+    shutil.copytree(finished_sweep, out)
+    point = sorted((out / "points").iterdir())[0]
+    point.write_bytes(content)
+    table = (out / "sweep.parquet").read_bytes()
+    capsys.readouterr()
+    assert main(sweep_argv(tmp_path, "--set", "schedule.frames=20")) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and point.name in lines[0] and words in lines[0], lines
+    assert "delete it" in lines[0] and "Traceback" not in lines[0]
+    assert point.read_bytes() == content and (out / "sweep.parquet").read_bytes() == table
+
+
+def test_a_metric_no_point_has_is_refused_once_the_points_ran_and_they_are_kept(tmp_path: Path, capsys):
+    """utilization.gpu9.graphics can only be looked for in the table: refused (one line, the
+    closest column named) before sweep.parquet is written; the rerun with the right metric
+    runs no point again."""
+    argv = sweep_argv(tmp_path, "--set", "schedule.frames=20")
+    assert main([*argv, "--metric", "utilization.gpu9.graphics"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "did you mean 'utilization.gpu1.graphics'" in lines[0]
+    saved = {p.name: p.stat().st_mtime_ns for p in (tmp_path / "out" / "points").iterdir()}
+    assert len(saved) == 2 and not (tmp_path / "out" / "sweep.parquet").exists()
+    assert main([*argv, "--metric", "utilization.gpu1.graphics"]) == 0
+    assert {p.name: p.stat().st_mtime_ns for p in (tmp_path / "out" / "points").iterdir()} == saved
+
+
+# ----- a run that fails while writing leaves no folder -------------------------------------
+@pytest.mark.parametrize("fails", ["write_links", "timeline_png", "write_trace"])
+@pytest.mark.parametrize("error", [MemoryError, OSError, KeyboardInterrupt])
+def test_a_run_failing_while_writing_leaves_no_partial_folder(tmp_path: Path, monkeypatch, capsys,
+                                                            fails: str, error: type):
+    """The folder is written beside --out and moved in at the end: out of memory, a full disk
+    or Ctrl-C in the middle leaves neither --out nor its new parent folders nor a temporary."""
+    from mgpusim.io import output
+
+    def boom(*args, **kwargs):
+        raise error(28, "No space left on device") if error is OSError else error()
+    monkeypatch.setattr(output, fails, boom)
+    code = main(["simulate", SWEEP, "--set", "schedule.frames=20", "--out", str(tmp_path / "new" / "out")])
+    assert code == {MemoryError: 1, OSError: 2, KeyboardInterrupt: 130}[error]
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_rerun_into_an_existing_folder_replaces_its_files_and_keeps_the_others(tmp_path: Path, monkeypatch):
+    from mgpusim.io import output
+    out = tmp_path / "out"
+    assert main(["simulate", SWEEP, "--set", "schedule.frames=20", "--out", str(out)]) == 0
+    (out / "notes.txt").write_text("mine")
+    before = (out / "summary.json").read_text()
+    monkeypatch.setattr(output, "write_links", lambda *a, **k: (_ for _ in ()).throw(MemoryError()))
+    assert main(["simulate", SWEEP, "--set", "schedule.frames=30", "--out", str(out)]) == 1
+    assert (out / "summary.json").read_text() == before  # the failed run changed nothing
+    monkeypatch.undo()
+    assert main(["simulate", SWEEP, "--set", "schedule.frames=30", "--out", str(out)]) == 0
+    assert json.loads((out / "summary.json").read_text())["frames"] == 30
+    assert (out / "notes.txt").read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["out"]

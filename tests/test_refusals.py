@@ -67,3 +67,31 @@ def test_a_sweep_whose_points_all_fail_exits_non_zero_and_some_failing_does_not(
     assert "every point failed" in capsys.readouterr().err
     assert (tmp_path / "all" / "sweep.parquet").is_file()
     assert main(["sweep", SORT_FIRST, "--grid", "schedule.gpus=0,1", "--out", str(tmp_path / "some"), *args]) == 0
+
+
+def test_a_utf8_byte_order_mark_is_skipped_in_toml_and_json(tmp_path):
+    """Some editors write a BOM: the file reads as without it (TOML experiments, profiles,
+    studies; JSON records)."""
+    from mgpusim.validation.measured_check import read_json_object
+    text = Path(SORT_FIRST).read_text().replace('"../hardware_profiles/', f'"{ROOT}/hardware_profiles/')
+    (tmp_path / "e.toml").write_bytes(b"\xef\xbb\xbf" + text.encode())
+    assert mgpusim.load_experiment(tmp_path / "e.toml").schedule.name == "sort_first"
+    (tmp_path / "s.json").write_bytes(b"\xef\xbb\xbf" + b'{"config": {}}')
+    assert read_json_object(tmp_path / "s.json") == {"config": {}}
+
+
+def test_numbers_on_the_command_line_are_ascii_finite_and_bounded():
+    import argparse
+
+    from mgpusim.cli import finite_number, whole_number
+    assert whole_number("12") == 12 and whole_number(" -3 ") == -3 and whole_number("9" * 18) == int("9" * 18)
+    assert finite_number("1e-3") == 0.001 and finite_number(".5") == 0.5 and finite_number("-2") == -2
+    for bad in ("\u0661\u0662", "\uff11", "\u00b2", "9" * 19, "1.5", "0x10", "", "1_000"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            whole_number(bad)
+    for bad in ("nan", "inf", "-Infinity", "1e999", "\u0661.5", "1,5", ""):
+        with pytest.raises(argparse.ArgumentTypeError):
+            finite_number(bad)
+    with pytest.raises(SystemExit) as exit_:  # argparse's one line, from every command's options
+        main(["case", "xr_stereo", "--frames", "\u0661\u0662", "--out", "unused"])
+    assert exit_.value.code == 2

@@ -217,3 +217,68 @@ def test_sweep_plot_lines_or_heatmap_by_number_of_keys():
     three = Figure().subplots()
     draw_sweep(three, table, ["a", "b", "c"])
     assert len(three.get_lines()) == 4 and len(three.get_legend().get_texts()) == 4
+
+
+# ----- one folder, two sweeps -------------------------------------------------------------
+def _quick(out: Path) -> list[str]:
+    return ["sweep", str(EXPERIMENT), "--grid", "schedule.gpus=1,2", "--set", "schedule.frames=20",
+            "--workers", "1", "--no-progress", "--out", str(out)]
+
+
+def test_a_sweep_into_a_folder_another_sweep_holds_is_refused_and_touches_nothing(tmp_path, capsys):
+    from mgpusim.io.sweep_store import PointStore
+    out = tmp_path / "sw"
+    with PointStore(out):  # as a running sweep holds it
+        assert main(_quick(out)) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "another sweep" in err[0] and f"process {os.getpid()}" in err[0]
+        assert not list((out / "points").iterdir()) and not (out / "sweep.parquet").exists()
+    assert main(_quick(out)) == 0  # released at the end of the holder's `with`
+    assert len(list((out / "points").iterdir())) == 2
+
+
+def test_the_lock_ends_with_a_sweep_killed_by_sigkill(tmp_path):
+    """A process holding the folder (as a sweep does) is killed with SIGKILL: the system drops
+    its lock, and the next sweep runs; while it lived, a sweep was refused."""
+    out = tmp_path / "sw"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time; from pathlib import Path; "
+         "from mgpusim.io.sweep_store import PointStore; s = PointStore(Path(sys.argv[1])).__enter__(); "
+         "print('held', flush=True); time.sleep(600)", str(out)], env=env, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        refused = subprocess.run([sys.executable, "-m", "mgpusim", *_quick(out)], env=env,
+                                 capture_output=True, text=True, timeout=120)
+        assert refused.returncode == 2 and f"process {holder.pid}" in refused.stderr
+    finally:
+        holder.kill()
+        holder.wait()
+    done = subprocess.run([sys.executable, "-m", "mgpusim", *_quick(out)], env=env, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+
+
+def test_two_sweeps_started_at_once_into_one_folder_never_corrupt_it(tmp_path):
+    """Both start together: each either runs whole or is refused with one line (exit 2); the
+    folder is then complete and consistent, and a third run recomputes nothing."""
+    out = tmp_path / "sw"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    cmd = [sys.executable, "-m", "mgpusim", *_sweep_cmd(out)[3:]]
+    procs = [subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for _ in range(2)]
+    results = [(p.wait(timeout=180), p.stderr.read()) for p in procs]
+    for p in procs:
+        p.stdout.close()
+        p.stderr.close()
+    codes = sorted(code for code, _ in results)
+    assert codes in ([0, 0], [0, 2]), results
+    for code, err in results:
+        if code == 2:
+            assert len(err.strip().splitlines()) == 1 and "another sweep" in err
+    assert len(pd.read_parquet(out / "sweep.parquet")) == 12
+    saved = _saved(out)
+    assert len(saved) == 12 and all(json.loads(data)["error"] is None for _, data in saved.values())
+    assert not list(out.rglob(".*.tmp"))
+    again = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
+    assert again.returncode == 0 and _saved(out) == saved

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 from mgpusim.io.outpath import check_out_dir
 from mgpusim.model.errors import InputError
+from mgpusim.model.limits import MAX_FRAMES, WHY_FRAMES
 
 if TYPE_CHECKING:  # annotations only: loaded when the command runs
     from mgpusim.studies.cases import CaseResult
@@ -44,8 +45,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if not args.name:
         raise InputError("give a case name (`mgpusim case --list` lists them)", field="NAME")
-    if args.frames is not None and args.frames < 2:
-        raise InputError(f"must be >= 2, got {args.frames}", field="--frames")
+    if args.frames is not None and not 2 <= args.frames <= MAX_FRAMES:
+        raise InputError(f"must be in 2..{MAX_FRAMES:g} ({WHY_FRAMES}), got {args.frames}", field="--frames")
     case = load_case(args.name)
     if args.calibrate:
         return print_calibration(case, args.frames)

@@ -33,10 +33,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def parse_frames(text: str) -> range:
-    """``A:B`` -> frames A..B-1 (as a Python slice; both ends needed)."""
-    lo, sep, hi = text.partition(":")
-    if not sep or not lo.strip().isdigit() or not hi.strip().isdigit() or int(hi) <= int(lo):
-        raise InputError(f"expected A:B with whole numbers A < B (frames A to B-1), got {text!r}", field="--frames")
+    """``A:B`` -> frames A..B-1 (as a Python slice; both ends needed), in ASCII digits (str.isdigit
+    takes '²', which int() refuses), each at most MAX_FRAMES (no run has more frames)."""
+    from mgpusim.model.limits import MAX_FRAMES  # noqa: PLC0415
+    lo, sep, hi = (part.strip() for part in text.partition(":"))
+    if not sep or not (lo + hi).isascii() or not lo.isdigit() or not hi.isdigit() or len(lo + hi) > 40:
+        raise InputError(f"expected A:B with whole numbers A < B in ASCII digits (frames A to B-1), "
+                         f"got {text[:40]!r}", field="--frames")
+    if int(hi) > MAX_FRAMES:
+        raise InputError(f"B must be <= {MAX_FRAMES:g} (no run has more frames), got {hi}", field="--frames")
+    if int(hi) <= int(lo):
+        raise InputError(f"expected A < B (frames A to B-1), got {text!r}", field="--frames")
     return range(int(lo), int(hi))
 
 

@@ -134,7 +134,7 @@ def validate(args: argparse.Namespace) -> int:
     study = load_study(resolve_experiment(args.study))
     out, progress = _out(args, study), progress_printer()
     profile = args.profile or study.profile
-    tables = {}
+    tables, missing = {}, {}
     for title, entries, held in ((pipeline.CALIBRATION_TITLE, study.calibration, False),
                                  (pipeline.HELD_OUT_TITLE, study.held_out, True)):
         if held and not args.held_out:
@@ -142,11 +142,14 @@ def validate(args: argparse.Namespace) -> int:
         root = args.runs or pipeline.runs_root(study, held, out)
         tables[title] = pipeline.validate(study, entries, root, profile, out / "validation",
                                           progress, tuple(args.extra))
+        missing[title] = pipeline.without_runs(entries, root)
     probes = pipeline.probes_of(args.runs or pipeline.runs_root(study, False, out))
-    path = pipeline.write_report(out, study, tables, f"profile: {profile}", probes)  # also errors.json
+    path = pipeline.write_report(out, study, tables, f"profile: {profile}", probes, missing)  # also errors.json
     with pd.option_context("display.width", 200, "display.max_columns", 20):
         for title, table in tables.items():
             print(f"{title}\n{table.to_string(index=False)}")
+            if missing[title]:
+                print(f"no measured run (not compared): {', '.join(missing[title])}")
     print((out / "errors.json").read_text())
     print(f"wrote {path}")
     return 0

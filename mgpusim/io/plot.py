@@ -106,10 +106,14 @@ def last_frames(trace: pd.DataFrame, count: int = 4) -> list[int]:
 
 
 def timeline_png(trace: pd.DataFrame, path: str | Path, links: pd.DataFrame | None = None,
-                 title: str = "", frames: Sequence[int] | None = None) -> Path:
-    """Write a timeline PNG of `frames` (default: the last four frames)."""
+                 title: str = "", frames: Sequence[int] | None = None, channels: int | None = None) -> Path:
+    """Write a timeline PNG of `frames` (default: the last four frames). `channels`: the link
+    rows to size the figure for (default: the channels in `links`; a long run passes only the
+    links of the window, and the count of all its channels)."""
     frames = last_frames(trace) if frames is None else frames
-    n_rows = max(3, len(_rows(trace)) + (0 if links is None else links["channel"].nunique()))
+    if channels is None:
+        channels = 0 if links is None else links["channel"].nunique()
+    n_rows = max(3, len(_rows(trace)) + channels)
     fig = Figure(figsize=(13, 1.6 + 0.3 * n_rows))
     ax = fig.subplots()
     draw_timeline(ax, trace, links, title, frames)

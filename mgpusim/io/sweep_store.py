@@ -6,8 +6,14 @@ killed with SIGKILL at any instant leaves only complete points and, at worst, a 
 temporary file that the next run removes. The table (`sweep.parquet`), plot (`sweep.png`) and
 description (`sweep.json`) are replaced the same way, so a reader never sees half of one.
 
+One sweep at a time writes into a folder: the store holds an exclusive lock (`flock` on
+`DIR/.sweep.lock`, released by the system when the process ends, even by SIGKILL) from before
+it reads the folder until the table is written. A second sweep into the same folder is refused
+with one line instead of removing the first one's temporary files or interleaving its points.
+
 Layout::
 
+    DIR/.sweep.lock        the lock (holds the process id of the sweep that has it)
     DIR/points/<id>.json   {"keys": {...}, "summary": {...}, "error": null, "wall_s": 0.03}
     DIR/sweep.parquet      one row per point of the current grid
     DIR/sweep.png          the metric against the keys (lines, or a heatmap for two keys)
@@ -18,31 +24,59 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from types import TracebackType
 from typing import Any, Callable, Iterable
 
 import pandas as pd
 
+from mgpusim.model.errors import InputError
+
+try:
+    import fcntl
+except ImportError:  # not a POSIX system: no lock (temporary names still differ per process)
+    fcntl = None  # type: ignore[assignment]
+
+#: The lock file in a sweep's folder.
+LOCK_NAME = ".sweep.lock"
+
 
 class PointStore:
+    """A sweep's folder, locked while open: ``with PointStore(out) as store: ...``."""
+
     def __init__(self, out: Path):
         self.out = out
         self.points = out / "points"
-        self.points.mkdir(parents=True, exist_ok=True)
+        self.lock_fd: int | None = None
+
+    def __enter__(self) -> "PointStore":
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.lock_fd = _lock(self.out / LOCK_NAME)
+        self.points.mkdir(exist_ok=True)
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        if self.lock_fd is not None:
+            os.close(self.lock_fd)  # releases the lock; the file stays (another may have it open)
+            self.lock_fd = None
 
     def load(self, wanted: Iterable[str]) -> dict[str, dict[str, Any]]:
         """The saved records of the points in `wanted` (others, from an earlier grid, stay on
-        disk unused); leftover temporary files of a killed run are removed."""
+        disk unused); leftover temporary files of a killed run are removed (safe: the lock
+        says no other sweep is writing here). A point file this code did not write (not JSON,
+        or JSON of another shape) is refused, naming it: it is not deleted behind its owner."""
         for stray in [*self.points.glob(".*.tmp"), *self.out.glob(".*.tmp")]:
             stray.unlink(missing_ok=True)
         out = {}
         for pid in wanted:
             path = self.points / f"{pid}.json"
             try:
-                out[pid] = json.loads(path.read_text())
+                text = path.read_text()
             except FileNotFoundError:
                 continue
-            except (ValueError, OSError):  # not written by this code: run the point again
-                path.unlink(missing_ok=True)
+            except (OSError, UnicodeDecodeError) as exc:
+                raise _foreign(path, f"cannot read it ({getattr(exc, 'strerror', None) or exc})") from None
+            out[pid] = check_record(text, path)
         return out
 
     def save(self, pid: str, record: dict[str, Any]) -> None:
@@ -60,6 +94,45 @@ class PointStore:
         desc = json.dumps({**spec, "failed": failed, "metric": metric}, indent=2, sort_keys=True, default=str)
         files["description"] = atomic_write(self.out / "sweep.json", lambda tmp: tmp.write_text(desc + "\n"))
         return files
+
+
+def check_record(text: str, path: Path) -> dict[str, Any]:
+    """A saved point: a JSON object with `summary` (an object), `error` (text or null) and
+    `wall_s` (a number), as :meth:`PointStore.save` writes it."""
+    try:
+        record = json.loads(text)
+    except (ValueError, RecursionError):
+        raise _foreign(path, "not valid JSON") from None
+    if not isinstance(record, dict):
+        raise _foreign(path, f"a JSON {type(record).__name__}, expected an object")
+    shape = {"summary": (dict,), "error": (str, type(None)), "wall_s": (int, float)}
+    for key, kinds in shape.items():
+        if not isinstance(record.get(key), kinds) or isinstance(record.get(key), bool):
+            raise _foreign(path, f"no {key!r} of the right type (a point record has summary, error, wall_s)")
+    return record
+
+
+def _foreign(path: Path, why: str) -> InputError:
+    return InputError(f"{why}: not a point this sweep saved; delete it to run the point again",
+                      file=str(path))
+
+
+def _lock(path: Path) -> int | None:
+    """An exclusive lock on `path` (created if absent), held by the returned descriptor; a
+    lock another process holds is one InputError naming it."""
+    if fcntl is None:
+        return None
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        holder = os.pread(fd, 32, 0).decode("ascii", "replace").strip() or "?"
+        os.close(fd)
+        raise InputError(f"another sweep (process {holder}) is writing into this folder: wait for "
+                         "it to finish, or give another --out", field=f"--out {path.parent}") from None
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+    return fd
 
 
 def atomic_write(path: Path, write: Callable[[Path], Any]) -> Path:

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from mgpusim.model.errors import InputError
+from mgpusim.model.limits import MAX_INPUT_FILE_BYTES, MAX_NAME_BYTES
 
 _MISSING = object()
 _TYPE_NAMES = {int: "an integer", float: "a number", str: "a string", bool: "true or false",
@@ -19,29 +20,64 @@ _TYPE_NAMES = {int: "an integer", float: "a number", str: "a string", bool: "tru
 
 
 def read_toml(path: Path) -> dict[str, Any]:
-    """Parse a TOML file; a missing, unreadable, empty, binary or malformed file is one
-    InputError naming it."""
+    """Parse a TOML file; a missing, unreadable, empty, binary, oversized, too deeply nested
+    or malformed file is one InputError naming it. A UTF-8 byte-order mark (which some
+    editors write) is skipped."""
     file = str(path)
-    try:
-        raw = Path(path).read_bytes()
-    except FileNotFoundError:
-        raise InputError("file not found", file=file) from None
-    except IsADirectoryError:
-        raise InputError("is a folder, expected a TOML file", file=file) from None
-    except OSError as exc:
-        raise InputError(f"cannot read the file ({exc.strerror or exc})", file=file) from None
+    raw = read_input_bytes(Path(path), "a TOML file")
     if not raw.strip():
         raise InputError("the file is empty, expected TOML", file=file)
     if b"\0" in raw:
         raise InputError("a binary file, expected TOML text", file=file)
     try:
-        text = raw.decode("utf-8")
+        text = raw.decode("utf-8").removeprefix("\ufeff")
     except UnicodeDecodeError as exc:
         raise InputError(f"not UTF-8 text (byte {exc.start}), expected TOML", file=file) from None
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"not valid TOML ({exc})", file=file) from None
+    except RecursionError:  # tomllib recurses once per level of nested arrays and tables
+        raise InputError("not valid TOML here: arrays or tables nested too deeply", file=file) from None
+
+
+def read_input_bytes(path: Path, expected: str) -> bytes:
+    """The bytes of an input file, read up to MAX_INPUT_FILE_BYTES: a missing file, a folder,
+    an unreadable one, or an endless or huge one (/dev/zero, a disk image) is one InputError."""
+    file = str(path)
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_INPUT_FILE_BYTES + 1)
+    except FileNotFoundError:
+        raise InputError("file not found", file=file) from None
+    except IsADirectoryError:
+        raise InputError(f"is a folder, expected {expected}", file=file) from None
+    except (OSError, ValueError) as exc:  # ValueError: a NUL in the name
+        raise InputError(f"cannot read the file ({getattr(exc, 'strerror', None) or exc})",
+                         file=file) from None
+    if len(raw) > MAX_INPUT_FILE_BYTES:
+        raise InputError(f"larger than {MAX_INPUT_FILE_BYTES >> 20} MiB (or endless), expected "
+                         f"{expected} of a few KB", file=file)
+    return raw
+
+
+def name_problem(name: str) -> str | None:
+    """Why `name` cannot be one file or folder name inside an output folder, or None. Why:
+    configuration, experiment and study names become folder names (`runs/<name>`,
+    `out/<name>`); a name with a separator, `..` or a NUL would write elsewhere or fail late."""
+    if not name.strip():
+        return "is empty"
+    if "\0" in name:
+        return "holds a NUL character"
+    if "/" in name or "\\" in name:
+        return "holds a path separator ('/' or '\\')"
+    if name in (".", ".."):
+        return f"is {name!r}"
+    if any(ord(c) < 32 or ord(c) == 127 for c in name):
+        return "holds a control character"
+    if len(name.encode("utf-8", "surrogatepass")) > MAX_NAME_BYTES:
+        return f"is longer than {MAX_NAME_BYTES} bytes"
+    return None
 
 
 def did_you_mean(word: str, known: Iterable[str]) -> str:
@@ -95,6 +131,15 @@ class Table:
         if choices is not None and value not in tuple(choices):
             raise self.error(key, f"must be one of {sorted(choices)}, got {show_value(value)}"
                              + (did_you_mean(value, choices) if isinstance(value, str) else ""))
+        return value
+
+    def name(self, key: str, default: Any = _MISSING) -> Any:
+        """A string that must serve as one file or folder name (see :func:`name_problem`)."""
+        value = self.get(key, str, default)
+        problem = name_problem(value) if isinstance(value, str) else None
+        if problem:
+            raise self.error(key, f"must be a plain file name (it names a folder of the output), "
+                                  f"but {_show(value)} {problem}")
         return value
 
     def table(self, key: str, default: Any = _MISSING) -> "Table":

@@ -15,9 +15,13 @@ INT64_MAX = 2 ** 63 - 1
 MAX_TASK_NS = 10 ** 12
 WHY_TIME = "keeps simulated time within int64 ns"
 
-#: Frames of one run: each frame's tasks are simulated one by one (10^6 frames take minutes).
-MAX_FRAMES = 10_000_000
-WHY_FRAMES = "a run simulates every frame; 10^6 frames take minutes"
+#: Frames of one run. Why 10^6: a run whose state never repeats simulates every frame (10^6
+#: take minutes), and a fast-forwarded one still holds a few arrays per frame and writes a
+#: table row per frame, task and link transfer; at 10^6 frames every shipped experiment runs
+#: with its default outputs in at most 415 MiB (`benchmarks/largest_run_memory.py --all`:
+#: lavapipe/particles the largest), where 10^7 took 2-5 GB.
+MAX_FRAMES = 1_000_000
+WHY_FRAMES = "a run holds a few arrays per frame and writes rows per frame; 10^6 fit in 0.4 GiB"
 
 #: GPUs of a profile or a schedule, queues of one family, memcpy threads, CPU cores: the
 #: engine builds one process per queue and thread, schedules build tasks per GPU pair.
@@ -54,3 +58,20 @@ WHY_GBPS = "10^12 GB/s, as good as free"
 #: Cost coefficients (ns per unit of work) and speed factors.
 MAX_COEFFICIENT = 1e12
 MAX_SPEED = 1e6
+
+#: An input file (experiment, profile, study, case, measure table, JSON record) is read whole:
+#: the largest shipped one is under 1 MiB; this refuses /dev/zero or a disk image given by mistake.
+MAX_INPUT_FILE_BYTES = 64 << 20
+
+#: A name that becomes one file or folder name (a configuration's, an experiment's): the
+#: longest name common file systems take, in bytes of UTF-8.
+MAX_NAME_BYTES = 255
+
+#: Points of one sweep (the product of its grid), checked before the grid is enumerated: at
+#: the fastest (~30 ms a point) 10^5 points take about an hour on one core, and each leaves a
+#: file in the sweep's folder; a larger study is several sweeps.
+MAX_SWEEP_POINTS = 100_000
+WHY_SWEEP = "one file and one simulation each; split a larger grid into several sweeps"
+
+#: Local processes of one sweep: each imports the model (~100 MB).
+MAX_SWEEP_WORKERS = 256

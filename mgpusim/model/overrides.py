@@ -23,6 +23,8 @@ def parse_value(text: str) -> Any:
         return tomllib.loads(f"v = {text}")["v"]
     except tomllib.TOMLDecodeError:
         return text
+    except RecursionError:  # tomllib recurses once per level of nested arrays and tables
+        raise InputError(f"the value {text[:40]!r}... is nested too deeply", field="--set") from None
 
 
 def parse_overrides(items: list[str] | None) -> dict[str, Any]:

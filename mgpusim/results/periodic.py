@@ -274,9 +274,35 @@ class RepeatedIntervals:
         return len(self.prefix) + (self.shift.copies + 1) * len(self.block) + len(self.rest)
 
     def array(self) -> np.ndarray:
-        steps = self.shift.ns * np.arange(self.shift.copies + 1, dtype=np.int64)
-        blocks = (self.block[None, :, :] + steps[:, None, None]).reshape(-1, 2)
-        return np.concatenate([self.prefix, blocks, self.rest])
+        return np.concatenate(list(self.array_chunks(len(self) + 1)) or [self.prefix])
+
+    def array_chunks(self, rows_per_chunk: int = 1_000_000) -> Iterator[np.ndarray]:
+        """The log in order (prefix, each step of the block, rest), about `rows_per_chunk`
+        intervals at a time: a 10^6-frame run's links never held whole."""
+        yield self.prefix
+        if len(self.block):
+            per = max(1, rows_per_chunk // len(self.block))
+            for j in range(0, self.shift.copies + 1, per):
+                steps = self.shift.ns * np.arange(j, min(j + per, self.shift.copies + 1), dtype=np.int64)
+                yield (self.block[None, :, :] + steps[:, None, None]).reshape(-1, 2)
+        yield self.rest
+
+    def overlapping(self, lo: int, hi: int) -> np.ndarray:
+        """The intervals (in log order) with end > lo and start < hi, from the steps of the
+        block that can reach [lo, hi) only."""
+        parts = [_overlap(self.prefix, lo, hi)]
+        if len(self.block):
+            ns, copies = self.shift.ns, self.shift.copies
+            if ns > 0:
+                j0 = max(0, (lo - int(self.block[:, 1].max())) // ns)
+                j1 = min(copies, (hi - int(self.block[:, 0].min())) // ns + 1)
+            else:
+                j0, j1 = 0, min(copies, 0)
+            if j0 <= j1:
+                steps = ns * np.arange(j0, j1 + 1, dtype=np.int64)
+                parts.append(_overlap((self.block[None, :, :] + steps[:, None, None]).reshape(-1, 2), lo, hi))
+        parts.append(_overlap(self.rest, lo, hi))
+        return np.concatenate(parts)
 
     def busy(self, lo: int, hi: int) -> int:
         total = int((np.clip(self.prefix[:, 1], lo, hi) - np.clip(self.prefix[:, 0], lo, hi)).sum())
@@ -284,6 +310,10 @@ class RepeatedIntervals:
         for s, e in self.block.tolist():
             total += shifted_overlap(s, e, self.shift.ns, self.shift.copies, lo, hi)
         return total
+
+
+def _overlap(arr: np.ndarray, lo: int, hi: int) -> np.ndarray:
+    return arr[(arr[:, 1] > lo) & (arr[:, 0] < hi)]
 
 
 def repeated_list(values: list[int], split: tuple[int, int], shift: Shift) -> np.ndarray:

@@ -27,11 +27,13 @@ class Result:
 
     def __init__(self, summary: dict[str, Any], trace: LazyTable, frames: pd.DataFrame,
                  links: LazyTable | None = None, config: dict[str, Any] | None = None,
-                 repeated: RepeatedRows | None = None):
+                 repeated: RepeatedRows | None = None, compact_links: "CompactLinks | None" = None):
         self.summary, self.frames, self.config = summary, frames, config if config is not None else {}
         self._trace, self._links = trace, links if links is not None else pd.DataFrame()
         #: the compact trace of a fast-forwarded run (None: `.trace` is the whole table)
         self.repeated = repeated
+        #: its compact links (None: `.links` is the whole table)
+        self.compact_links = compact_links
         #: seconds the model itself took (engine or recurrence), set by simulate()
         self.model_wall_s: float | None = None
 
@@ -69,6 +71,29 @@ class Result:
         for lo in range(0, max(len(trace), 1), rows_per_chunk):
             yield trace.iloc[lo:lo + rows_per_chunk]
 
+    def links_chunks(self, rows_per_chunk: int = 1_000_000) -> Iterator[pd.DataFrame]:
+        """The links table in chunks, without building it whole when it is kept compact."""
+        if self.compact_links is not None and callable(self._links):
+            yield from self.compact_links.chunks(rows_per_chunk)
+            return
+        yield self.links
+
+    def links_window(self, lo: int, hi: int) -> pd.DataFrame:
+        """The link busy intervals that overlap [lo, hi) (all channels, in the table's order)."""
+        if self.compact_links is not None and callable(self._links):
+            return self.compact_links.window(lo, hi)
+        links = self.links
+        if not len(links):
+            return links
+        return links[(links["end_ns"] > lo) & (links["start_ns"] < hi)]
+
+    @property
+    def link_channels(self) -> int:
+        """How many channels the links table has (rows a timeline leaves for them)."""
+        if self.compact_links is not None and callable(self._links):
+            return sum(1 for log in self.compact_links.logs.values() if len(log))
+        return int(self.links["channel"].nunique()) if len(self.links) else 0
+
     def trace_window(self, first: int, last: int) -> pd.DataFrame:
         """The trace rows of frames first..last-1 (sorted as the whole trace), without
         building the whole trace of a long fast-forwarded run."""
@@ -79,11 +104,13 @@ class Result:
 
 
 def frames_table(frame_start: np.ndarray, present_end: np.ndarray) -> pd.DataFrame:
-    frames = np.arange(len(present_end), dtype=np.int64)
-    return pd.DataFrame({"frame": frames, "start_ns": frame_start.astype(np.int64),
-                         "present_ns": present_end.astype(np.int64),
-                         "latency_ns": (present_end - frame_start).astype(np.int64)},
-                        columns=list(FRAME_COLUMNS))
+    """One row per frame; the arrays are taken as they are (no copy: a 10^6-frame run's table
+    is built once)."""
+    start = np.asarray(frame_start, dtype=np.int64)
+    present = np.asarray(present_end, dtype=np.int64)
+    return pd.DataFrame({"frame": np.arange(len(present), dtype=np.int64), "start_ns": start,
+                         "present_ns": present, "latency_ns": present - start},
+                        columns=list(FRAME_COLUMNS), copy=False)
 
 
 def frames_from_trace(trace: pd.DataFrame, present_step: str = "present") -> pd.DataFrame:
@@ -104,25 +131,27 @@ def summarize(frames: pd.DataFrame, trace: pd.DataFrame | None, warmup_frames: i
     (or, with no warm-up, from its own start). Utilization comes from `busy(lo, hi)` (busy ns
     per resource in the window) when given, else from the trace and links tables. `leave_out`:
     frames whose period and latency the figures skip (a measured run's stalls)."""
-    steady = frames[frames["frame"] >= warmup_frames]
-    if steady.empty:
+    number = frames["frame"].to_numpy()
+    in_steady = number >= warmup_frames  # column by column: no copy of the whole table
+    if not in_steady.any():
         raise InputError(f"no frame presents after the {warmup_frames} warm-up frames "
                          f"(the run has {len(frames)})", field="schedule.warmup_frames")
-    presents = steady["present_ns"].to_numpy(dtype=np.int64)
+    presents = frames["present_ns"].to_numpy(dtype=np.int64)[in_steady]
     if len(presents) == 1:
-        before = frames.loc[frames["frame"] < warmup_frames, "present_ns"].to_numpy(dtype=np.int64)
-        origin = int(before[-1]) if len(before) else int(steady["start_ns"].iloc[0])
+        before = frames["present_ns"].to_numpy(dtype=np.int64)[~in_steady]
+        origin = int(before[-1]) if len(before) else int(frames["start_ns"].to_numpy()[in_steady][0])
         presents = np.array([origin, presents[0]], dtype=np.int64)
     periods = np.diff(presents)
     window = (int(presents[0]), int(presents[-1]))
+    latency = frames["latency_ns"].to_numpy()[in_steady]
     if leave_out:
-        periods = periods[~np.isin(steady["frame"].to_numpy()[1:], list(leave_out))]
-        steady = steady[~steady["frame"].isin(list(leave_out))]
+        kept = ~np.isin(number[in_steady], list(leave_out))
+        periods, latency = periods[kept[1:]], latency[kept]
     frame_time = float(periods.mean())
     out: dict[str, Any] = {
         "frame_time_ms": frame_time / 1e6,
         "fps": 1e9 / frame_time if frame_time > 0 else float("inf"),
-        "latency_ms": float(steady["latency_ns"].mean()) / 1e6,
+        "latency_ms": float(pd.Series(latency).mean()) / 1e6,
         "frame_time_jitter_ms": float(periods.std()) / 1e6,
         "frame_time_min_ms": float(periods.min()) / 1e6,
         "frame_time_max_ms": float(periods.max()) / 1e6,
@@ -209,11 +238,7 @@ def _build_repeated(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
         out.update({name: log.busy(lo, hi) for name, log in links.items() if len(log)})
         return out
 
-    def links_frame() -> pd.DataFrame:
-        arrays = {name: log.array() for name, log in links.items()}
-        parts = [pd.DataFrame({"channel": name, "start_ns": a[:, 0], "end_ns": a[:, 1]}) for name, a in arrays.items()]
-        df = pd.concat(parts, ignore_index=True) if parts else _NO_LINKS.copy()
-        return df.astype(LINK_DTYPES)
+    compact_links = CompactLinks(links)
 
     summary = summarize(frames, None, warmup_frames, busy=busy if len(rows) and raw.recorded else None)
     summary["effects"] = raw.effects
@@ -223,8 +248,45 @@ def _build_repeated(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
                               for name, f in raw.skipped_frames.items()}
         summary["skipped_tasks"] = {name: len(f) for name, f in raw.skipped_frames.items()}
     if not raw.recorded:
-        return Result(summary, make_trace([]), frames, links_frame, config)
-    return Result(summary, rows.frame, frames, links_frame, config, repeated=rows)
+        return Result(summary, make_trace([]), frames, compact_links.frame, config, compact_links=compact_links)
+    return Result(summary, rows.frame, frames, compact_links.frame, config, repeated=rows,
+                  compact_links=compact_links)
+
+
+class CompactLinks:
+    """The links table of a fast-forwarded run, kept as each channel's repeated log: written
+    in chunks, read by time window, built whole only when asked for (`.links`). Rows are in
+    the whole table's order (channel by channel, each in time order)."""
+
+    def __init__(self, logs: Mapping[str, RepeatedIntervals]):
+        self.logs = dict(logs)
+
+    def __len__(self) -> int:
+        return sum(len(log) for log in self.logs.values())
+
+    def chunks(self, rows_per_chunk: int = 1_000_000) -> Iterator[pd.DataFrame]:
+        empty = True
+        for name, log in self.logs.items():
+            for arr in log.array_chunks(rows_per_chunk):
+                if len(arr):
+                    empty = False
+                    yield _links_frame(name, arr)
+        if empty:
+            yield _NO_LINKS.copy()
+
+    def window(self, lo: int, hi: int) -> pd.DataFrame:
+        """The intervals that overlap [lo, hi)."""
+        parts = [_links_frame(name, log.overlapping(lo, hi)) for name, log in self.logs.items()]
+        return pd.concat(parts, ignore_index=True).astype(LINK_DTYPES) if parts else _NO_LINKS.copy()
+
+    def frame(self) -> pd.DataFrame:
+        parts = [_links_frame(name, log.array()) for name, log in self.logs.items()]
+        return pd.concat(parts, ignore_index=True).astype(LINK_DTYPES) if parts else _NO_LINKS.copy()
+
+
+def _links_frame(name: str, arr: np.ndarray) -> pd.DataFrame:
+    return pd.DataFrame({"channel": pd.array([name] * len(arr), dtype="string"),
+                         "start_ns": arr[:, 0], "end_ns": arr[:, 1]})
 
 
 def task_rates(program: FrameProgram, skipped_frames: Mapping[str, Sequence[int]],

@@ -51,7 +51,10 @@ def parse_experiment(data: dict, file: str, base: Path = Path("."),
                      profile: HardwareProfile | str | Path | None = None,
                      profile_overrides: Mapping[str, Any] | None = None) -> Experiment:
     top = Table(data, file)
-    name = top.get("name", str, Path(file).stem)
+    if {"gpus", "host"} <= set(data) and not {"scene", "schedule"} & set(data):
+        raise InputError("a hardware profile, not an experiment: an experiment has [scene] and "
+                         "[schedule] and names its profile (profile = \"...toml\")", file=file)
+    name = top.name("name", Path(file).stem)  # the default output folder: out/<name>
     top.get("description", str, "")
     # A profile given by the caller (--profile, what-ifs) replaces the file's reference.
     profile_ref = top.get("profile", str) if profile is None else top.get("profile", str, None)

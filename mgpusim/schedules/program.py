@@ -75,4 +75,9 @@ def recorded_inputs(exp: Experiment) -> dict[str, Any]:
     schedule = {"frames_in_flight": exp.schedule.frames_in_flight, **dict(exp.schedule.options),
                 **{key: getattr(exp.schedule, key) for key in ("refresh_hz", "cpu_frame_us")
                    if getattr(exp.schedule, key)}}
-    return json.loads(json.dumps({"passes": passes, "schedule": schedule}, default=list))
+    scene = {key: getattr(exp.scene, key) for key in RECORDED_SCENE_KEYS}
+    return json.loads(json.dumps({"passes": passes, "schedule": schedule, "scene": scene}, default=list))
+
+
+#: The scene's fields beyond its size that a run records (bytes copied and held per frame).
+RECORDED_SCENE_KEYS = ("color_bytes_per_pixel", "depth_bytes_per_pixel", "dataset_bytes", "objects")

@@ -174,6 +174,9 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
 #: Effects the `queues` level leaves out.
 QUEUES_OMITS = frozenset({"link_sharing", "host_memory_sharing", "shared_executor", "shared_gpu",
                           "busy_wake"})
+#: Effects the `analytic` level has no mechanism for (:mod:`mgpusim.sim.analytic` takes them as
+#: unshared and lists them as approximations): they cannot be forced on there.
+ANALYTIC_OMITS = QUEUES_OMITS
 
 
 def parse_effects(text: str | None, option: str = "--effects") -> dict[str, bool]:
@@ -206,6 +209,10 @@ def choose_effects(program: FrameProgram, profile: HardwareProfile, fidelity: st
     for name, on in (force or {}).items():
         if name not in EFFECTS:
             raise InputError(f"unknown effect {name!r} (known: {', '.join(EFFECTS)})", field="effects")
+        if on and fidelity == "analytic" and name in ANALYTIC_OMITS:
+            raise InputError(f"effect {name!r} cannot be forced on at --fidelity analytic, which has "
+                             f"no mechanism for it (nor for {', '.join(sorted(ANALYTIC_OMITS - {name}))}): "
+                             "use --fidelity queues or full", field="effects")
         if on and not EFFECTS[name].forceable and not EFFECTS[name].needed(program, profile):
             raise InputError(f"effect {name!r} cannot be forced on: {EFFECTS[name].when} is not "
                              "the case here", field="effects")

@@ -45,7 +45,7 @@ from typing import Any, Mapping
 import pandas as pd
 
 from mgpusim.io.shipped import shipped_dir
-from mgpusim.model.config import Table, did_you_mean, read_toml
+from mgpusim.model.config import Table, did_you_mean, name_problem, read_toml
 from mgpusim.model.errors import InputError
 from mgpusim.results.summary import Result
 from mgpusim.schedules.experiment import Experiment, load_experiment, parse_overrides
@@ -233,7 +233,7 @@ def load_case(ref: str | Path) -> Case:
     _unique([p.name for p in published], top, "published")
     setters = [p.sets for p in published if p.sets]
     _unique(setters, top, "published")  # a parameter is set by one figure at most
-    case = Case(name=top.get("name", str, path.parent.name), file=path, title=top.get("title", str),
+    case = Case(name=top.name("name", path.parent.name), file=path, title=top.get("title", str),
                 description=top.get("description", str, ""), runs=runs, columns=columns,
                 derived=derived, timelines=timelines,
                 timeline_frames=top.get("timeline_frames", int, 3, minimum=1, maximum=50),
@@ -291,11 +291,15 @@ def _unique(names: list[str], top: Table, key: str) -> None:
 
 def _runs(t: Table, base: Path) -> list[Run]:
     """One run, or one per value of `each` (a one-key table: key -> list of values)."""
-    name, label = t.get("name", str), t.get("label", str)
+    name, label = t.name("name"), t.get("label", str)
     exp = base / t.get("experiment", str)
     if not exp.is_file():
         raise t.error("experiment", f"{str(exp)!r} does not exist")
-    sets = tuple(t.get("set", list, []))
+    sets = t.get("set", list, [])
+    for i, item in enumerate(sets):
+        if not isinstance(item, str):
+            raise t.error(f"set[{i}]", f"expected a KEY=VALUE string, got {item!r}")
+    sets = tuple(sets)
     sections = _sections(t.table("sections", {}))
     simulated = t.get("simulate", bool, True)
     each = t.table("each", {})
@@ -310,6 +314,10 @@ def _runs(t: Table, base: Path) -> list[Run]:
     if not keys:
         return [Run(name, label, exp, sets, simulated, sections)]
     key = keys[0]
+    for v in values:  # each run's name names its timeline picture
+        problem = name_problem(f"{name}_{v}")
+        if problem:
+            raise each.error(key, f"the run name {f'{name}_{v}'!r} {problem}")
     return [Run(f"{name}_{v}", f"{label}, {key.rsplit('.', 1)[-1]} {v}", exp, sets + (f"{key}={v}",),
                 simulated, sections) for v in values]
 

@@ -43,11 +43,11 @@ t2 = time.perf_counter()
 out = {"simulate_s": t2 - t1, "process_s": t2 - t0, "frames": len(result.frames),
        "frame_time_ms": result.summary["frame_time_ms"], "fast_forward": result.summary["fast_forward"],
        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
-from mgpusim.io.output import write_table, write_trace  # after the peak above: it loads matplotlib
+from mgpusim.io.output import write_links, write_table, write_trace  # after the peak above: it loads matplotlib
 with tempfile.TemporaryDirectory() as tmp:
     write_trace(result, Path(tmp) / "trace.parquet")
     write_table(result.frames, Path(tmp) / "frames.parquet")
-    write_table(result.links, Path(tmp) / "links.parquet")
+    write_links(result, Path(tmp) / "links.parquet")
     out["trace_mb"] = (Path(tmp) / "trace.parquet").stat().st_size / 2**20
 out.update(write_s=time.perf_counter() - t2, rows=len(result.repeated) if result.compact else len(result.trace),
            peak_rss_with_tables_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)

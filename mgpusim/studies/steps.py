@@ -32,6 +32,12 @@ def runs_root(study: Study, held_out: bool, out: Path) -> Path:
     return committed if committed is not None else out / "runs"
 
 
+def without_runs(entries: tuple[Entry, ...], root: Path) -> list[str]:
+    """The names of the entries that have no measured run under `root`: listed in the fit
+    report, the validation output and report.md, never left out silently."""
+    return [e.name for e in entries if not run_archive.is_folder(measured_folder(root, e.name))]
+
+
 def load_runs(study: Study, entries: tuple[Entry, ...], root: Path,
               profile: Path | None = None) -> list[tuple[Any, pd.DataFrame]]:
     """(experiment, measured trace) of every entry whose run lies under `root`."""
@@ -61,6 +67,10 @@ def fit_on_runs(study: Study, data: dict[str, Any], lines: list[str], root: Path
     built on `profile`, default the study's); write `out/profile.toml` with the fit report."""
     runs = load_runs(study, study.calibration, root, profile)
     data, more = refine_on_runs(study.recipe, data, runs)
+    missing = without_runs(study.calibration, root)
+    if missing:
+        more = more + [f"{len(missing)} calibration configuration(s) without a measured run under "
+                       f"{root} (not in the fit): {', '.join(missing)}"]
     return write_profile(data, out / "profile.toml", lines + more), "\n".join(lines + more)
 
 
@@ -80,9 +90,12 @@ def validate(study: Study, entries: tuple[Entry, ...], root: Path, profile: Path
     """Compare each entry's measured run under `root` with the model on `profile` (no device
     needed); one row per entry with a run; `run_to_run_spread` where repeats were kept."""
     rows = []
+    missing = without_runs(entries, root)
+    if missing:
+        progress(f"no measured run under {root} for {len(missing)} configuration(s): {', '.join(missing)}")
     for e in entries:
         folder = measured_folder(root, e.name)
-        if not run_archive.is_folder(folder):
+        if e.name in missing:
             continue
         exp = e.load(profile, extra)
         report = validate_experiment(exp, out / e.name, folder)
@@ -130,10 +143,12 @@ def run(study: Study, out: Path, progress: Progress, held_out: bool = True,
     profile, fit_text = fit_on_runs(study, data, lines, out / "runs", out, base)
     tables_out = {CALIBRATION_TITLE: validate(study, study.calibration, out / "runs", profile,
                                               out / "validation", progress)}
+    missing = {CALIBRATION_TITLE: without_runs(study.calibration, out / "runs")}
     if held_out and study.held_out:
         tables_out[HELD_OUT_TITLE] = validate(study, study.held_out, out / "runs", profile,
                                               out / "validation", progress)
-    return write_report(out, study, tables_out, fit_text, probes_of(out / "runs"))
+        missing[HELD_OUT_TITLE] = without_runs(study.held_out, out / "runs")
+    return write_report(out, study, tables_out, fit_text, probes_of(out / "runs"), missing)
 
 
 def probes_of(runs: Path) -> pd.DataFrame:
@@ -142,10 +157,12 @@ def probes_of(runs: Path) -> pd.DataFrame:
 
 
 def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_text: str,
-                 probes: pd.DataFrame | None = None) -> Path:
-    """report.md: the machine's speed during the job (its probes, when measured); per half, per
-    schedule the error table, its statistics and the stacked measured/simulated timelines;
-    errors.json (per half) and errors_by_schedule.json; errors_*.csv."""
+                 probes: pd.DataFrame | None = None,
+                 missing: dict[str, list[str]] | None = None) -> Path:
+    """report.md: the machine's speed during the job (its probes, when measured); per half, the
+    configurations without a measured run (`missing`), and per schedule the error table, its
+    statistics and the stacked measured/simulated timelines; errors.json (per half, with the
+    configurations without runs) and errors_by_schedule.json; errors_*.csv."""
     lines = [f"# mgpusim study {study.name}: measured vs simulated", "",
              "Errors are simulated / measured - 1, at two levels: the *prediction* (the calibrated "
              "cost model) and the *replay* (the model's timeline with every task taking the "
@@ -160,10 +177,14 @@ def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_t
     stats: dict[str, Any] = {}
     by_schedule: dict[str, dict[str, Any]] = {}
     for title, table in tables.items():
+        absent = (missing or {}).get(title, [])
+        if absent:
+            stats.setdefault(title, {})["without_runs"] = absent
+            lines += [f"## {title}", "", f"No measured run, not compared: {', '.join(absent)}.", ""]
         if table.empty:
             continue
-        stats[title] = error_stats(table)
-        lines += [f"## {title}", "", _stats_line(stats[title]), ""]
+        stats[title] = {**error_stats(table), **stats.get(title, {})}
+        lines += ([] if absent else [f"## {title}", ""]) + [_stats_line(stats[title]), ""]
         groups = table.groupby("schedule", sort=False) if "schedule" in table else [("", table)]
         for schedule, part in groups:
             st = by_schedule.setdefault(title, {})[schedule] = error_stats(part)
@@ -171,6 +192,7 @@ def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_t
             lines += [f"![{c}](validation/{c}/timelines.png)" for c in part["config"]] + [""]
         table.to_csv(out / f"errors_{title.split()[0].lower()}.csv", index=False)
     lines += ["## Calibration", "", "```", fit_text, "```", ""]
+    out.mkdir(parents=True, exist_ok=True)
     path = out / "report.md"
     path.write_text("\n".join(lines))
     write_json(stats, out / "errors.json")

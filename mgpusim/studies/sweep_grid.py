@@ -14,10 +14,13 @@ is not noticed (use a fresh folder).
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import itertools
 import json
+import math
 import os
+import re
 import threading
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -28,7 +31,9 @@ from typing import Any, Iterable, Iterator, Mapping, Sequence
 import pandas as pd
 
 from mgpusim.io.shipped import resolve_experiment
+from mgpusim.model.config import did_you_mean
 from mgpusim.model.errors import InputError, MgpusimError
+from mgpusim.model.limits import MAX_SWEEP_POINTS, MAX_SWEEP_WORKERS, WHY_SWEEP
 from mgpusim.schedules.experiment import load_experiment, parse_value
 from mgpusim.sim.effects import FIDELITIES
 from mgpusim.sim.simulation import simulate
@@ -38,6 +43,18 @@ DASK_CONNECT_TIMEOUT = "10s"
 
 #: What a point's record holds besides its summary.
 META_COLUMNS = ("point", "error", "wall_s")
+
+#: Summary fields that are one number at every point (what `--metric` names most often).
+SCALAR_METRICS = ("frame_time_ms", "fps", "latency_ms", "frame_time_jitter_ms", "frame_time_min_ms",
+                  "frame_time_max_ms", "frames", "warmup_frames")
+#: Summary fields holding numbers per GPU, queue or task (`utilization.gpu0.graphics`): which
+#: members a point has depends on its experiment, so a metric under them is checked on the table.
+METRIC_GROUPS = ("utilization", "memory", "task_rates_hz", "skipped_tasks", "window_ns", "fast_forward")
+#: Summary fields that are not numbers: no metric, and, like every output column, no grid key.
+TEXT_FIELDS = ("fidelity", "modelled_effects", "effects", "fast_forward.used", "fast_forward.why")
+#: A Dask scheduler address: [scheme://]host:port (or a scheduler in this process: inproc://).
+DASK_ADDRESS = re.compile(r"(?:(tcp|tls|ws|wss|ucx)://)?(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):([0-9]{1,5})")
+DASK_INPROC = re.compile(r"inproc://[A-Za-z0-9_.:\[\]-]+/[0-9]+/[0-9]+")
 
 
 @dataclass(frozen=True)
@@ -55,9 +72,13 @@ def parse_grid(items: Sequence[str] | None) -> dict[str, list[Any]]:
     for item in items or []:
         key, sep, text = item.partition("=")
         key = key.strip()
-        values = [parse_value(v.strip()) for v in text.split(",") if v.strip()]
+        try:
+            values = [parse_value(v.strip()) for v in text.split(",") if v.strip()]
+        except InputError as exc:  # a value nested too deeply
+            raise InputError(exc.detail, field=f"--grid {key}") from None
         if not sep or not key or not values:
-            raise InputError(f"expected KEY=V1,V2,..., got {item!r}", field="--grid")
+            shown = item if len(item) <= 60 else item[:60] + "..."
+            raise InputError(f"expected KEY=V1,V2,..., got {shown!r}", field="--grid")
         if key in grid:
             raise InputError(f"key {key!r} given twice", field="--grid")
         grid[key] = values
@@ -93,6 +114,78 @@ def flatten(value: Any, prefix: str = "") -> dict[str, Any]:
     return out
 
 
+def check_grid(grid: Mapping[str, Sequence[Any]], overrides: Mapping[str, Any]) -> None:
+    """Before the grid is enumerated: its size within MAX_SWEEP_POINTS, no key named like a
+    column of the table (`point`, `error`, `wall_s`, a summary field), none also given to
+    --set (the grid's value would silently win), no value given twice in one key."""
+    size = math.prod(len(v) for v in grid.values())
+    if size > MAX_SWEEP_POINTS:
+        counts = " x ".join(str(len(v)) for v in grid.values())
+        raise InputError(f"{counts} = {size:,} points; at most {MAX_SWEEP_POINTS:,} ({WHY_SWEEP})",
+                         field="--grid")
+    for key, values in grid.items():
+        if _output_column(key):
+            raise InputError(f"{key!r} names a column of the sweep's table (point, error, wall_s "
+                             "and the summary's fields); a grid key is an experiment key such as "
+                             "schedule.gpus", field=f"--grid {key}")
+        if key in overrides:
+            raise InputError("also given to --set: give it to one of them", field=f"--grid {key}")
+        seen = [json.dumps(v, sort_keys=True, default=str) + type(v).__name__ for v in values]
+        twice = next((v for v, k in zip(values, seen) if seen.count(k) > 1), None)
+        if twice is not None:
+            raise InputError(f"the value {twice!r} is given twice", field=f"--grid {key}")
+
+
+def _output_column(key: str) -> bool:
+    head = key.split(".")[0]
+    return key in META_COLUMNS or key in SCALAR_METRICS or head in METRIC_GROUPS \
+        or head in TEXT_FIELDS or key in TEXT_FIELDS
+
+
+def check_metric(metric: str) -> None:
+    """`--metric` before any work: a numeric summary field (or `wall_s`), or a member of a
+    group of them (`utilization.gpu0.graphics`, checked again once the table exists)."""
+    head = metric.split(".")[0]
+    if metric in SCALAR_METRICS or metric == "wall_s":
+        return
+    if metric in TEXT_FIELDS or head in TEXT_FIELDS or head in ("point", "error"):
+        raise InputError(f"{metric!r} is not a number; give a numeric summary field such as "
+                         f"{', '.join(SCALAR_METRICS[:3])}", field="--metric")
+    if head in METRIC_GROUPS and metric != head and all(metric.split(".")):
+        return
+    known = [*SCALAR_METRICS, "wall_s", *(f"{g}.<member>" for g in METRIC_GROUPS)]
+    raise InputError(f"{metric!r} is not a summary field{did_you_mean(metric, known)}; the numeric "
+                     f"ones: {', '.join(known)}", field="--metric")
+
+
+def check_metric_column(df: pd.DataFrame, metric: str) -> None:
+    """Once the points ran, before the table is written: some point that ran has `metric` as a
+    number (a group member such as utilization.gpu3.graphics exists only where the
+    experiment has it). The points stay saved, so the corrected command reruns nothing."""
+    ok = df[df["error"].isna()]
+    if ok.empty:
+        return  # every point failed: the command reports that instead
+    if metric in df and pd.api.types.is_numeric_dtype(df[metric]) \
+            and not pd.api.types.is_bool_dtype(df[metric]) and ok[metric].notna().any():
+        return
+    numeric = [c for c in df.columns if c not in ("point", "error") and pd.api.types.is_numeric_dtype(df[c])
+               and not pd.api.types.is_bool_dtype(df[c]) and c.split(".")[0] in METRIC_GROUPS]
+    numeric.sort(key=lambda c: c.split(".")[0] != metric.split(".")[0])  # its own group first
+    raise InputError(f"no point has a number {metric!r}{did_you_mean(metric, numeric)} (the points "
+                     f"are saved: run again with another --metric, e.g. {', '.join(numeric[:4]) or 'fps'})",
+                     field="--metric")
+
+
+def check_dask_address(address: str) -> None:
+    """A Dask scheduler address as `[scheme://]host:port`, checked before anything connects."""
+    if DASK_INPROC.fullmatch(address):
+        return
+    m = DASK_ADDRESS.fullmatch(address)
+    if m is None or not 1 <= int(m.group(3)) <= 65535:
+        raise InputError(f"expected a scheduler address as [tcp://]HOST:PORT (port 1-65535), "
+                         f"got {address!r}", field="--dask")
+
+
 def simulate_options(fidelity: str) -> dict[str, Any]:
     """Keyword arguments for :func:`simulate` at `fidelity`, checked once before any point
     runs (a misspelt level is one error, not a failed row per point)."""
@@ -119,38 +212,81 @@ def sweep(experiment: str | Path, grid: Mapping[str, Sequence[Any]], out: str | 
     """Run `experiment` at every point of `grid` and return the table (one row per point).
 
     `out`: a folder for the saved points, `sweep.parquet`, `sweep.png` and `sweep.json`;
-    resumable. `workers`: local processes (1 runs in this process). `dask`: a Dask
-    scheduler address or a `distributed.Client` to run the points on instead.
+    resumable, and locked while the sweep runs. `workers`: local processes (1 runs in this
+    process). `dask`: a Dask scheduler address or a `distributed.Client` to run the points on
+    instead. Every argument is checked, and the base experiment and each grid key loaded,
+    before any point runs or any file is written.
     """
     path = resolve_experiment(experiment)
-    if workers is not None and workers < 1:
-        raise InputError(f"must be >= 1, got {workers}", field="--workers")
+    if workers is not None and not 1 <= workers <= MAX_SWEEP_WORKERS:
+        raise InputError(f"must be in 1..{MAX_SWEEP_WORKERS}, got {workers}", field="--workers")
     grid = {k: list(v) for k, v in grid.items()}
     if not grid or any(not v for v in grid.values()):
         raise InputError("the grid needs at least one key with at least one value", field="--grid")
     base = dict(overrides or {})
+    check_grid(grid, base)
+    check_metric(metric)
+    if isinstance(dask, str):
+        check_dask_address(dask)
     options = simulate_options(fidelity)
+    if out is not None:
+        from mgpusim.io.outpath import check_out_dir  # noqa: PLC0415 - files stay at the edge
+        check_out_dir(Path(out))
     check_inputs(path, grid, base)
     identity = {"experiment": hashlib.sha256(path.read_bytes()).hexdigest(), "overrides": base,
                 "fidelity": fidelity}
     points = grid_points(grid, identity)
-    store = None
-    if out is not None:
-        from mgpusim.io.sweep_store import PointStore  # noqa: PLC0415 - files stay at the edge
-
-        store = PointStore(Path(out))
-    records = store.load({p.id for p in points}) if store else {}
-    todo = [p for p in points if p.id not in records]
-    for point, record in _progress(_run(path, base, options, todo, workers, dask), len(points),
-                                   len(points) - len(todo), progress):
-        records[point.id] = record
+    with _dask_client(dask) as client, _store(out) as store:
+        records = store.load({p.id for p in points}) if store else {}
+        todo = [p for p in points if p.id not in records]
+        for point, record in _progress(_run(path, base, options, todo, workers, client, store),
+                                       len(points), len(points) - len(todo), progress):
+            records[point.id] = record
+            if store:
+                store.save(point.id, {"keys": point.keys, **record})
+        df = table(points, records)
+        check_metric_column(df, metric)
         if store:
-            store.save(point.id, {"keys": point.keys, **record})
-    df = table(points, records)
-    if store:
-        store.finish(df, list(grid), metric, {"experiment": str(path), "grid": grid, "overrides": base,
-                                              "fidelity": fidelity, "points": len(points)})
+            store.finish(df, list(grid), metric, {"experiment": str(path), "grid": grid, "overrides": base,
+                                                  "fidelity": fidelity, "points": len(points)})
     return df
+
+
+@contextlib.contextmanager
+def _store(out: str | Path | None) -> Iterator[Any]:
+    """The sweep's locked folder (None without one)."""
+    if out is None:
+        yield None
+        return
+    from mgpusim.io.sweep_store import PointStore  # noqa: PLC0415 - files stay at the edge
+
+    with PointStore(Path(out)) as store:
+        yield store
+
+
+@contextlib.contextmanager
+def _dask_client(dask: Any) -> Iterator[Any]:
+    """A connected Dask client for `dask` (an address, or a client of the caller's, kept
+    open), or None; an unreachable scheduler is one error, before any file is written."""
+    if dask is None:
+        yield None
+        return
+    try:
+        from distributed import Client  # noqa: PLC0415
+    except ModuleNotFoundError:
+        raise InputError("needs the Python package 'distributed' (pip install 'mgpusim[dask]')",
+                         field="--dask") from None
+    if isinstance(dask, Client):
+        yield dask
+        return
+    try:
+        client = Client(dask, timeout=DASK_CONNECT_TIMEOUT)
+    except (OSError, ValueError, TypeError) as exc:
+        raise InputError(f"cannot reach the Dask scheduler {dask!r} ({exc})", field="--dask") from None
+    try:
+        yield client
+    finally:
+        client.close()
 
 
 def check_inputs(path: Path, grid: Mapping[str, Sequence[Any]], overrides: Mapping[str, Any]) -> None:
@@ -194,21 +330,26 @@ def table(points: Sequence[Point], records: Mapping[str, Mapping[str, Any]]) -> 
 
 
 def _run(path: Path, base: Mapping[str, Any], options: Mapping[str, Any], todo: list[Point],
-         workers: int | None, dask: Any) -> Iterator[tuple[Point, dict[str, Any]]]:
+         workers: int | None, client: Any, store: Any) -> Iterator[tuple[Point, dict[str, Any]]]:
     """(point, record) as each point finishes, on Dask, a process pool, or here."""
     if not todo:
         return
-    where = str(path.resolve()) if dask is not None else str(path)  # Dask workers have their own cwd
+    where = str(path.resolve()) if client is not None else str(path)  # Dask workers have their own cwd
     args = [(where, {**base, **p.keys}, dict(options)) for p in todo]
-    if dask is not None:
-        yield from _run_dask(todo, args, dask)
+    if client is not None:
+        futures = {client.submit(run_point, *a, pure=False): p for p, a in zip(todo, args)}
+        from distributed import as_completed as dask_completed  # noqa: PLC0415
+        for fut in dask_completed(futures):
+            yield futures[fut], fut.result()
         return
     workers = min(workers or os.cpu_count() or 1, len(todo))
     if workers == 1:
         for point, a in zip(todo, args):
             yield point, run_point(*a)
         return
-    with ProcessPoolExecutor(max_workers=workers, initializer=_exit_with_parent, initargs=(os.getpid(),)) as pool:
+    lock = _lock_identity(store)
+    with ProcessPoolExecutor(max_workers=workers, initializer=_exit_with_parent,
+                             initargs=(os.getpid(), lock)) as pool:
         futures = {pool.submit(run_point, *a): p for p, a in zip(todo, args)}
         try:
             for fut in as_completed(futures):
@@ -218,36 +359,32 @@ def _run(path: Path, base: Mapping[str, Any], options: Mapping[str, Any], todo: 
             raise
 
 
-def _exit_with_parent(parent: int) -> None:
-    """In a pool worker: exit when the sweep's process is gone (killed with SIGKILL, its
-    workers would otherwise wait on their queue forever)."""
+def _lock_identity(store: Any) -> tuple[int, int, int] | None:
+    """(descriptor, device, inode) of the folder's lock, for the pool workers to close."""
+    if store is None or store.lock_fd is None:
+        return None
+    st = os.fstat(store.lock_fd)
+    return store.lock_fd, st.st_dev, st.st_ino
+
+
+def _exit_with_parent(parent: int, lock: tuple[int, int, int] | None = None) -> None:
+    """In a pool worker: close its inherited copy of the folder's lock descriptor (so that the
+    lock ends with the sweep itself, even with SIGKILL, not with its last worker; closed only
+    if that descriptor is the lock file, as it is where workers are forked), and exit when the
+    sweep's process is gone (killed with SIGKILL, its workers would otherwise wait on their
+    queue forever)."""
+    if lock is not None:
+        fd, dev, ino = lock
+        with contextlib.suppress(OSError):
+            st = os.fstat(fd)
+            if (st.st_dev, st.st_ino) == (dev, ino):
+                os.close(fd)
+
     def watch() -> None:
         while os.getppid() == parent:
             time.sleep(0.5)
         os._exit(1)
     threading.Thread(target=watch, daemon=True, name="exit-with-parent").start()
-
-
-def _run_dask(todo: list[Point], args: list[tuple], dask: Any) -> Iterator[tuple[Point, dict[str, Any]]]:
-    try:
-        from distributed import Client
-        from distributed import as_completed as dask_completed  # noqa: PLC0415
-    except ModuleNotFoundError:
-        raise InputError("needs the Python package 'distributed' (pip install 'mgpusim[dask]')",
-                         field="--dask") from None
-    client = dask if isinstance(dask, Client) else None
-    try:
-        if client is None:
-            try:
-                client = Client(dask, timeout=DASK_CONNECT_TIMEOUT)
-            except OSError as exc:
-                raise InputError(f"cannot reach the Dask scheduler {dask!r} ({exc})", field="--dask") from None
-        futures = {client.submit(run_point, *a, pure=False): p for p, a in zip(todo, args)}
-        for fut in dask_completed(futures):
-            yield futures[fut], fut.result()
-    finally:
-        if client is not None and client is not dask:
-            client.close()
 
 
 def _progress(items: Iterator, total: int, done: int, enabled: bool) -> Iterator:

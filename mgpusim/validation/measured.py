@@ -29,7 +29,8 @@ SUBMISSION_FILES = ("submissions.parquet", "submissions.csv")
 
 def read_measured(folder: Path, exp: Experiment) -> pd.DataFrame:
     """A saved measured trace, checked (columns, whole times, end >= start); its recorded
-    configuration must match the experiment's (:mod:`mgpusim.validation.measured_check`)."""
+    configuration (summary.json, required) must match the experiment's in every key both
+    record (:mod:`mgpusim.validation.measured_check`)."""
     if not run_archive.is_folder(folder):
         raise InputError("not a folder (expected a measured run from `mgpusim run`)", file=str(folder))
     for name in TRACE_FILES:
@@ -40,11 +41,13 @@ def read_measured(folder: Path, exp: Experiment) -> pd.DataFrame:
     else:
         raise InputError("no trace.parquet or trace.csv in the measured folder", file=str(folder))
     summary = folder / "summary.json"
-    if run_archive.is_file(summary):
-        config = read_json_object(summary).get("config", {})
-        if not isinstance(config, dict):
-            raise InputError("expected an object", file=str(summary), field="config")
-        check_recorded_config(config, exp, str(summary))
+    if not run_archive.is_file(summary):  # without it the run cannot be matched to the experiment
+        raise InputError("no summary.json in the measured folder: its recorded configuration is "
+                         "what shows the run is of this experiment", file=str(folder))
+    config = read_json_object(summary).get("config", {})
+    if not isinstance(config, dict):
+        raise InputError("expected an object", file=str(summary), field="config")
+    check_recorded_config(config, exp, str(summary))
     machine = folder / "machine.json"
     if run_archive.is_file(machine):
         check_physical_gpus(read_json_object(machine), exp, str(machine))

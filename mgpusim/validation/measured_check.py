@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Mapping
 
 import numpy as np
 import pandas as pd
@@ -18,16 +18,19 @@ import pandas as pd
 from mgpusim.model.errors import InputError
 from mgpusim.model.profile import CalibratedOn
 from mgpusim.results.trace import TRACE_COLUMNS
-from mgpusim.schedules.program import recorded_inputs
+from mgpusim.schedules.program import build_program, run_config
 from mgpusim.validation import run_archive
 
 #: How a key missing on one side shows in a mismatch message.
 _ABSENT = "no value"
 #: Integer columns of a measured trace.
 TRACE_INT_COLUMNS = ("frame", "start_ns", "end_ns", "bytes")
-#: Recorded-configuration keys every run has had: compared even on runs recorded before the
-#: full inputs were (those lack "inputs").
-BASIC_CONFIG_KEYS = ("schedule", "gpus", "width", "height", "host_copy")
+#: Recorded keys a measured run may differ in from its experiment: its name, file and
+#: profile's name (a study validates a run with other files and a calibrated profile), the
+#: runner's mark, and the model's what-ifs (a measured run ran on the machine it ran on).
+UNCOMPARED_KEYS = ("experiment", "file", "profile", "measured", "profile_overrides")
+#: The keys whose difference a message names first (what a reader recognises a run by).
+FIRST_KEYS = ("schedule", "gpus", "width", "height", "host_copy", "inputs")
 
 
 def read_table(path: Path) -> pd.DataFrame:
@@ -56,11 +59,13 @@ def read_json_object(path: Path) -> dict[str, Any]:
     """A JSON file holding one object (summary.json, machine.json)."""
     file = str(path)
     try:
-        data = json.loads(run_archive.read_text(path))
+        data = json.loads(run_archive.read_text(path).removeprefix("\ufeff"))
     except OSError as exc:
         raise InputError(f"cannot read ({exc.strerror or exc})", file=file) from None
     except (UnicodeDecodeError, ValueError) as exc:  # JSONDecodeError is a ValueError
         raise InputError(f"not valid JSON ({_short(exc)})", file=file) from None
+    except RecursionError:
+        raise InputError("not valid JSON here: nested too deeply", file=file) from None
     if not isinstance(data, dict):
         raise InputError(f"expected a JSON object, got {type(data).__name__}", file=file)
     return data
@@ -128,22 +133,28 @@ def number_column(col: pd.Series, file: str, name: str, *, minimum: float | None
 
 
 def check_recorded_config(config: dict[str, Any], exp: Any, file: str) -> None:
-    """Refuse a measured run whose recorded configuration differs from the experiment's (one
-    line, naming the first difference). Runs recorded before the inputs were are compared on
-    the basic keys only."""
-    want = {"schedule": exp.schedule.name, "gpus": exp.schedule.gpus, "width": exp.scene.width,
-            "height": exp.scene.height, "inputs": recorded_inputs(exp)}
-    if "host_copy" in exp.schedule.options:
-        want["host_copy"] = exp.schedule.options["host_copy"]
-    _drop_newer_defaults(config, want["inputs"], exp.schedule.name)
-    for key in (*BASIC_CONFIG_KEYS, "inputs"):
-        if key in config and key in want:
-            where = first_difference(config[key], want[key], f"config.{key}")
-            if where is not None:
-                path, got, expected = where
-                raise InputError(f"the measured run has {_short(got)} but the experiment has "
-                                 f"{_short(expected)}: measure it again or --set the experiment "
-                                 "to match", file=file, field=path)
+    """Refuse a measured run whose recorded configuration differs from the experiment's in any
+    key both record (one line: the first difference in full, the other differing keys named).
+    What may differ: names and paths (`UNCOMPARED_KEYS`), frame counts (not recorded here), and
+    what only one side records (runs saved before a key was recorded, runner-only facts such
+    as host_threads); schedule options a run predates are compared only off their default."""
+    want = json.loads(json.dumps(run_config(exp, build_program(exp)), default=_as_json))  # as recorded
+    recorded = config.get("inputs")
+    if isinstance(recorded, dict) and isinstance(want.get("inputs"), dict):
+        _drop_newer_defaults(config, want["inputs"], exp.schedule.name)
+        for part in set(want["inputs"]) - set(recorded):  # a part recorded only by newer runs
+            want["inputs"].pop(part)
+    keys = sorted(set(config) & set(want) - set(UNCOMPARED_KEYS),
+                  key=lambda k: (FIRST_KEYS.index(k) if k in FIRST_KEYS else len(FIRST_KEYS), k))
+    found = [d for key in keys for d in differences(config[key], want[key], f"config.{key}")]
+    if found:
+        path, got, expected = found[0]
+        others = [p for p, _, _ in found[1:]]
+        more = (f"; {len(others)} other key(s) differ too: {', '.join(others[:6])}"
+                f"{', ...' if len(others) > 6 else ''}") if others else ""
+        raise InputError(f"the measured run has {_short(got)} but the experiment has "
+                         f"{_short(expected)}{more}: this run is of another configuration; "
+                         "measure it again or --set the experiment to match", file=file, field=path)
 
 
 def _drop_newer_defaults(config: dict[str, Any], inputs: dict[str, Any], schedule: str) -> None:
@@ -199,25 +210,30 @@ def check_physical_gpus(machine: dict[str, Any], exp: Any, file: str) -> None:
                                  "profile.gpu_count)", file=file, field=f"gpus[{j}].physical")
 
 
-def first_difference(got: Any, want: Any, path: str) -> tuple[str, Any, Any] | None:
-    """(dotted path, got, want) of the first place two JSON-shaped values differ, or None."""
+def differences(got: Any, want: Any, path: str, limit: int = 1000) -> list[tuple[str, Any, Any]]:
+    """(dotted path, got, want) of every place (up to `limit`) two JSON-shaped values differ:
+    a key on one side only, a list of another length, a value unlike the other."""
     if isinstance(got, dict) and isinstance(want, dict):
-        for key in sorted(set(got) | set(want)):
-            diff = first_difference(got.get(key, _ABSENT), want.get(key, _ABSENT), f"{path}.{key}")
-            if diff:
-                return diff
-        return None
+        out: list[tuple[str, Any, Any]] = []
+        for key in sorted(set(got) | set(want), key=str):
+            out += differences(got.get(key, _ABSENT), want.get(key, _ABSENT), f"{path}.{key}", limit - len(out))
+            if len(out) >= limit:
+                break
+        return out
     if isinstance(got, list) and isinstance(want, list):
         if len(got) != len(want):
-            return (path, f"{len(got)} entries", f"{len(want)}")
+            return [(path, f"{len(got)} entries", f"{len(want)}")]
+        out = []
         for i, (g, w) in enumerate(zip(got, want)):
-            diff = first_difference(g, w, f"{path}[{i}]")
-            if diff:
-                return diff
-        return None
-    if _same(got, want):
-        return None
-    return (path, got, want)
+            out += differences(g, w, f"{path}[{i}]", limit - len(out))
+            if len(out) >= limit:
+                break
+        return out
+    return [] if _same(got, want) else [(path, got, want)]
+
+
+def _as_json(value: Any) -> Any:
+    return dict(value) if isinstance(value, Mapping) else list(value)
 
 
 def _same(a: Any, b: Any) -> bool:

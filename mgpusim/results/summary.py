@@ -27,11 +27,14 @@ class Result:
 
     def __init__(self, summary: dict[str, Any], trace: LazyTable, frames: pd.DataFrame,
                  links: LazyTable | None = None, config: dict[str, Any] | None = None,
-                 repeated: RepeatedRows | None = None):
+                 repeated: RepeatedRows | None = None,
+                 link_logs: dict[str, RepeatedIntervals] | None = None):
         self.summary, self.frames, self.config = summary, frames, config if config is not None else {}
         self._trace, self._links = trace, links if links is not None else pd.DataFrame()
         #: the compact trace of a fast-forwarded run (None: `.trace` is the whole table)
         self.repeated = repeated
+        #: the compact link logs of a fast-forwarded run, per channel (None: `.links` is whole)
+        self.link_logs = link_logs
         #: seconds the model itself took (engine or recurrence), set by simulate()
         self.model_wall_s: float | None = None
 
@@ -68,6 +71,25 @@ class Result:
         trace = self.trace
         for lo in range(0, max(len(trace), 1), rows_per_chunk):
             yield trace.iloc[lo:lo + rows_per_chunk]
+
+    def links_window(self, lo: int, hi: int) -> pd.DataFrame:
+        """The link busy intervals with end > lo and start < hi, in the links table's order,
+        without building a fast-forwarded run's whole table."""
+        if self.link_logs is None or not callable(self._links):
+            links = self.links
+            return links[(links["end_ns"] > lo) & (links["start_ns"] < hi)] if len(links) else links
+        return links_frame({name: log.between(lo, hi) for name, log in self.link_logs.items()})
+
+    def links_chunks(self, before: int | None = None, rows: int = 1_000_000) -> Iterator[pd.DataFrame]:
+        """The links table (only intervals starting before `before`, when given) in chunks."""
+        if self.link_logs is None or not callable(self._links):
+            links = self.links
+            yield links if before is None or not len(links) else links[links["start_ns"] < before]
+            return
+        for name, log in self.link_logs.items():
+            for piece in log.pieces(before, rows):
+                if len(piece):
+                    yield links_frame({name: piece})
 
     def trace_window(self, first: int, last: int) -> pd.DataFrame:
         """The trace rows of frames first..last-1 (sorted as the whole trace), without
@@ -180,10 +202,18 @@ def links_table(channels: dict) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=list(LINK_DTYPES)).astype(LINK_DTYPES)
 
 
+def links_frame(arrays: dict[str, np.ndarray]) -> pd.DataFrame:
+    """A links table from (start, end) arrays per channel, channel after channel."""
+    parts = [pd.DataFrame({"channel": name, "start_ns": a[:, 0], "end_ns": a[:, 1]}) for name, a in arrays.items()]
+    df = pd.concat(parts, ignore_index=True) if parts else _NO_LINKS.copy()
+    return df.astype(LINK_DTYPES)
+
+
 def build_result(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
     if getattr(raw, "repeat", None) is not None:
         return _build_repeated(raw, warmup_frames, config)
-    trace = make_trace(raw.rows)
+    labels = _labels(raw)
+    trace = make_trace(raw.rows, labels() if labels is not None else None)
     frames = frames_table(raw.frame_start, raw.present_end)
     links = links_table(raw.channels)
     summary = summarize(frames, trace if len(trace) else None, warmup_frames, links)
@@ -193,11 +223,18 @@ def build_result(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
     return Result(summary, trace, frames, links, config)
 
 
+def _labels(raw) -> Callable[[], Sequence[str]] | None:
+    """The `waits_for` text of each task id the rows log, built when called (None: the rows
+    log the text itself)."""
+    inputs = getattr(raw, "inputs", None)
+    return None if inputs is None else (lambda: inputs.labels)
+
+
 def _build_repeated(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
     """The result of a fast-forwarded run: tables from its compact logs (mgpusim.results.periodic)."""
     r = raw.repeat
     shift = Shift(r.frames, r.ns, r.copies)
-    rows = RepeatedRows(raw.rows, r.rows, shift)
+    rows = RepeatedRows(raw.rows, r.rows, shift, _labels(raw))
     start, present = rows.frame_arrays(len(raw.frame_start), raw.present_task)
     frames = frames_table(start, present)
     links = {name: RepeatedIntervals(ch.busy, r.busy.get(name, (len(ch.busy), len(ch.busy))), shift,
@@ -209,11 +246,8 @@ def _build_repeated(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
         out.update({name: log.busy(lo, hi) for name, log in links.items() if len(log)})
         return out
 
-    def links_frame() -> pd.DataFrame:
-        arrays = {name: log.array() for name, log in links.items()}
-        parts = [pd.DataFrame({"channel": name, "start_ns": a[:, 0], "end_ns": a[:, 1]}) for name, a in arrays.items()]
-        df = pd.concat(parts, ignore_index=True) if parts else _NO_LINKS.copy()
-        return df.astype(LINK_DTYPES)
+    def whole_links() -> pd.DataFrame:
+        return links_frame({name: log.array() for name, log in links.items()})
 
     summary = summarize(frames, None, warmup_frames, busy=busy if len(rows) and raw.recorded else None)
     summary["effects"] = raw.effects
@@ -223,8 +257,8 @@ def _build_repeated(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
                               for name, f in raw.skipped_frames.items()}
         summary["skipped_tasks"] = {name: len(f) for name, f in raw.skipped_frames.items()}
     if not raw.recorded:
-        return Result(summary, make_trace([]), frames, links_frame, config)
-    return Result(summary, rows.frame, frames, links_frame, config, repeated=rows)
+        return Result(summary, make_trace([]), frames, whole_links, config, link_logs=links)
+    return Result(summary, rows.frame, frames, whole_links, config, repeated=rows, link_logs=links)
 
 
 def task_rates(program: FrameProgram, skipped_frames: Mapping[str, Sequence[int]],

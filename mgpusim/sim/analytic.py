@@ -58,7 +58,7 @@ class _Node:
     parts: tuple[int, ...]  # host copy: the part sizes
     device: str
     engine: str
-    waits_for: str
+    waits_for: int  # the task's id in the program's TaskInputs
     #: a CPU task: its thread wakes after an input from elsewhere, with no submit cost
     cpu: bool = False
 
@@ -87,6 +87,7 @@ class Analytic:
         probe = Engine(program, costs, record_trace=False,
                        effects=effects - {"shared_executor", "shared_gpu", "link_sharing",
                                           "host_memory_sharing", "busy_wake"})
+        self.inputs = probe.inputs  # the ids the rows log, and what each lists
         self.threads = host.memcpy_threads
         #: per frame phase, task name -> its task (a name may sit on other devices in other phases)
         self.task_of = [{t.name: t for t in tasks} for tasks in program.templates]
@@ -420,7 +421,7 @@ def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str
     rows, start, present, repeat = model.run(record=record_trace)
     skipped = {n: len(v) for n, v in model.skipped_frames.items()}
     raw = RawResult(rows, start, present, {}, skipped, {}, dict(model.skipped_frames),
-                    present_task=program.present_task)
+                    present_task=program.present_task, inputs=model.inputs)
     raw.recorded = record_trace
     raw.repeat = repeat
     found = model.found

@@ -28,8 +28,9 @@ from mgpusim.model.errors import InputError, ScheduleError
 from mgpusim.model.geometry import even_split
 from mgpusim.model.limits import INT64_MAX
 from mgpusim.model.tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
-from mgpusim.schedules.base import FrameProgram, waits_for_labels, wakes_host
+from mgpusim.schedules.base import FrameProgram, wakes_host
 from mgpusim.schedules.skipping import SkipChains
+from mgpusim.schedules.task_inputs import TaskInputs, task_inputs
 from mgpusim.sim.busy_wake import BusyWake
 from mgpusim.sim.channel import Channel, FixedRateChannel
 from mgpusim.sim.effects import choose_effects
@@ -48,7 +49,8 @@ class _Op:
     nbytes: int
     device: str
     engine: str
-    waits_for: str
+    #: the task's id in the program's TaskInputs (its listed inputs), logged with every row
+    waits_for: int
     is_present: bool
     #: What the executor makes of the task's work: `run(amount)` is the event to wait for
     #: (None: no work to wait for).
@@ -97,6 +99,8 @@ class RawResult:
     #: frames in which each skippable task was skipped (for update rates in steady state)
     skipped_frames: dict[str, list[int]] = field(default_factory=dict)
     present_task: str = "present"
+    #: the ids in the rows' last column, and the inputs each lists (None: the rows carry text)
+    inputs: TaskInputs | None = None
     #: whether `rows` holds the trace the caller asked for (else it is empty or internal)
     recorded: bool = True
     #: set by a fast-forward: how the logs repeat (mgpusim.sim.fastforward.Repeat)
@@ -139,7 +143,9 @@ class Engine:
         self._busy_wake = (BusyWake(host.busy_wake_share, host.busy_wake_ns,
                                     host.busy_wake_window_ns, host.cpu_cores)
                            if "busy_wake" in effects else None)
-        self._waits_for = waits_for_labels(program)
+        #: every task's id and the inputs its trace row lists; rows log the id
+        self.inputs = task_inputs(program)
+        self._waits_for = self.inputs.ids
         self.channels: dict[str, Channel | FixedRateChannel] = {}
         self._unfinished = self._tasks_in(0, program.frames)
         self._make_executors = executors or (
@@ -663,7 +669,8 @@ class Engine:
             effects["gpu_contention"] = any(c.max_concurrent > 1 for c in gpus)
         return RawResult(self.rows, self.frame_start, self.present_end, self.channels,
                          {n: len(f) for n, f in self._chains.skipped_frames.items()}, effects,
-                         dict(self._chains.skipped_frames), present_task=self.program.present_task)
+                         dict(self._chains.skipped_frames), present_task=self.program.present_task,
+                         inputs=self.inputs)
 
     def _blocked_message(self) -> str:
         blocked = sorted(self._waiters)[:8]

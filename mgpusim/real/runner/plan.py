@@ -22,7 +22,8 @@ from typing import Any, Literal
 from mgpusim.model.errors import ScheduleError
 from mgpusim.model.tasks import Task
 from mgpusim.real.runner.work import GpuWork, HostWork, Work
-from mgpusim.schedules.base import FrameProgram, waits_for_labels
+from mgpusim.schedules.base import FrameProgram
+from mgpusim.schedules.task_inputs import waits_for_labels
 
 EdgeKind = Literal["order", "semaphore", "host"]
 HOST_STREAM = "host"

@@ -36,19 +36,11 @@ class Shift:
     copies: int
 
 
-def _columns(rows: list[tuple]) -> dict[str, np.ndarray]:
-    cols = list(zip(*rows)) if rows else [()] * len(TRACE_COLUMNS)
-    out: dict[str, np.ndarray] = {}
-    for name, values in zip(TRACE_COLUMNS, cols):
-        out[name] = np.array(values, dtype=np.int64 if name in _INT else object)
-    return out
-
-
 def _shifted(cols: dict[str, np.ndarray], frames: int, ns: int) -> dict[str, np.ndarray]:
     out = dict(cols)
-    out["frame"] = cols["frame"] + frames
-    out["start_ns"] = cols["start_ns"] + ns
-    out["end_ns"] = cols["end_ns"] + ns
+    for name, by in (("frame", frames), ("start_ns", ns), ("end_ns", ns)):
+        if name in cols:
+            out[name] = cols[name] + by
     return out
 
 
@@ -64,89 +56,125 @@ def _encode(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 class RepeatedRows:
-    """The trace rows of a fast-forwarded run (see the module doc). String columns are kept as
-    codes into one sorted dictionary per column (code order is string order); `waits_for` as
-    the task ids the engine logged, with `labels()` giving each id's text when a table is
-    built (None: the rows carry the text, which is then coded like the others)."""
+    """The trace rows of a fast-forwarded run (see the module doc); a run without a repeat is
+    the same with an empty block. What the summary reads (per-frame starts and presents, busy
+    time per queue) comes from the numbers and one code per queue; the text columns are coded
+    only when a table is built: into one sorted dictionary per column (code order is string
+    order), `waits_for` as the task ids the engine logged, with `labels()` giving each id's
+    text (None: the rows carry the text, which is then coded like the others)."""
 
     def __init__(self, rows: list[tuple], split: tuple[int, int], shift: Shift,
                  labels: Callable[[], Sequence[str]] | None = None):
-        parts = [_columns(rows[:split[0]]), _columns(rows[split[0]:split[1]]), _columns(rows[split[1]:])]
-        sizes = np.cumsum([0] + [len(p["frame"]) for p in parts])
-        self.dictionary: dict[str, np.ndarray] = {}
-        coded = _STR if labels is not None else _STR + (_WAITS,)
-        for c in coded:
-            codes, self.dictionary[c] = _encode(np.concatenate([p[c] for p in parts]))
-            for i, p in enumerate(parts):
-                p[c] = codes[sizes[i]:sizes[i + 1]]
-        if labels is not None:
-            for p in parts:
-                p[_WAITS] = p[_WAITS].astype(np.int64)
-            self._labels = labels
+        self._rows, self._split, self.shift, self._given_labels = rows, split, shift, labels
+        cols = list(zip(*rows)) if rows else [()] * len(TRACE_COLUMNS)
+        self._text = dict(zip(TRACE_COLUMNS, cols))
+        self._numbers = {c: np.array(self._text[c], dtype=np.int64) for c in _INT}
+
+    def _parts(self, cols: dict[str, np.ndarray]) -> tuple[dict, dict, dict]:
+        """Prefix, block and rest (shifted by the skipped steps) of whole-log columns."""
+        a, b = self._split
+        prefix = {c: v[:a] for c, v in cols.items()}
+        block = {c: v[a:b] for c, v in cols.items()}
+        rest = _shifted({c: v[b:] for c, v in cols.items()}, self.shift.copies * self.shift.frames,
+                        self.shift.copies * self.shift.ns)
+        return prefix, block, rest
+
+    @functools.cached_property
+    def _coded(self) -> tuple[tuple[dict, dict, dict], dict[str, np.ndarray], Callable[[], Sequence[str]]]:
+        """The parts with every column as numbers, the dictionaries, the labels of `waits_for`."""
+        cols = dict(self._numbers)
+        dictionary: dict[str, np.ndarray] = {}
+        for c in _STR:
+            cols[c], dictionary[c] = _encode(np.array(self._text[c], dtype=object))
+        if self._given_labels is not None:
+            cols[_WAITS] = np.array(self._text[_WAITS], dtype=np.int64)
+            labels = self._given_labels
         else:
-            names = self.dictionary.pop(_WAITS)
-            self._labels = lambda: names
-        self.prefix, self.block = parts[0], parts[1]
-        self.rest = _shifted(parts[2], shift.copies * shift.frames, shift.copies * shift.ns)
-        self.shift = shift
-        self._host = _code(self.dictionary["device"], "host")
+            cols[_WAITS], names = _encode(np.array(self._text[_WAITS], dtype=object))
+            labels = lambda: names  # noqa: E731
+        return self._parts(cols), dictionary, labels
+
+    @property
+    def prefix(self) -> dict[str, np.ndarray]:
+        return self._coded[0][0]
+
+    @property
+    def block(self) -> dict[str, np.ndarray]:
+        return self._coded[0][1]
+
+    @property
+    def rest(self) -> dict[str, np.ndarray]:
+        return self._coded[0][2]
+
+    @property
+    def dictionary(self) -> dict[str, np.ndarray]:
+        return self._coded[1]
 
     @functools.cached_property
     def waits_for(self) -> tuple[np.ndarray, Any]:
         """(category code of each task id, the distinct `waits_for` labels)."""
-        return waits_for_categories(self._labels())
+        return waits_for_categories(self._coded[2]())
 
     def __len__(self) -> int:
-        return len(self.prefix["frame"]) + (self.shift.copies + 1) * len(self.block["frame"]) + \
-            len(self.rest["frame"])
+        a, b = self._split
+        return len(self._rows) + self.shift.copies * (b - a)
 
     # ----- per frame ---------------------------------------------------------------------
     def frame_arrays(self, frames: int, present_task: str) -> tuple[np.ndarray, np.ndarray]:
-        """(first task start, present end) per frame, as the engine records them."""
-        present_code = _code(self.dictionary["task"], present_task)
+        """(first task start, present end) per frame, as the engine records them (a frame's
+        present is its present task's end on a GPU queue)."""
+        is_present = np.array([t == present_task and d != "host" for t, d in
+                               zip(self._text["task"], self._text["device"])], dtype=bool)
+        prefix, b, rest = self._parts({**self._numbers, "present": is_present})
         start = np.full(frames, np.iinfo(np.int64).max, dtype=np.int64)
         present = np.full(frames, -1, dtype=np.int64)
-        for part in (self.prefix, self.rest):
+        for part in (prefix, rest):
             np.minimum.at(start, part["frame"], part["start_ns"])
-            mask = _present(part, present_code, self._host)
+            mask = part["present"]
             np.maximum.at(present, part["frame"][mask], part["end_ns"][mask])
         steps = np.arange(self.shift.copies + 1, dtype=np.int64)
-        b = self.block
-        mask = _present(b, present_code, self._host)
         for frame in np.unique(b["frame"]):
             idx = frame + self.shift.frames * steps
             in_frame = b["frame"] == frame
             first = b["start_ns"][in_frame].min()
             start[idx] = np.minimum(start[idx], first + self.shift.ns * steps)
-            ends = b["end_ns"][in_frame & mask]
+            ends = b["end_ns"][in_frame & b["present"]]
             if len(ends):
                 present[idx] = np.maximum(present[idx], ends.max() + self.shift.ns * steps)
         return start, present
 
     def rows_per_frame(self, frames: int) -> np.ndarray:
         """How many rows each of frames 0..frames-1 has (the block's counts added per copy)."""
+        prefix, block, rest = self._parts({"frame": self._numbers["frame"]})
         counts = np.zeros(frames, dtype=np.int64)
-        for part in (self.prefix, self.rest):
+        for part in (prefix, rest):
             np.add.at(counts, part["frame"], 1)
         step, copies = self.shift.frames, self.shift.copies
-        for frame, count in zip(*np.unique(self.block["frame"], return_counts=True)):
+        for frame, count in zip(*np.unique(block["frame"], return_counts=True)):
             counts[int(frame):int(frame) + (copies + 1) * step:step] += int(count)
         return counts
 
     # ----- busy time ---------------------------------------------------------------------
+    @functools.cached_property
+    def _queues(self) -> tuple[np.ndarray, list[str]]:
+        """(code per row, names): each row's queue or host thread, `device.engine`."""
+        dev, devices = pd.factorize(np.array(self._text["device"], dtype=object))
+        eng, engines = pd.factorize(np.array(self._text["engine"], dtype=object))
+        keys, codes = np.unique(dev.astype(np.int64) * len(engines) + eng, return_inverse=True)
+        n = max(len(engines), 1)
+        return codes.astype(np.int64), [f"{devices[k // n]}.{engines[k % n]}" for k in keys.tolist()]
+
     def busy(self, lo: int, hi: int) -> dict[str, int]:
         """Busy ns of every queue and host thread (`device.engine`) inside [lo, hi]."""
-        out: dict[str, int] = {}
-        for part in (self.prefix, self.rest):
-            _add_clipped(out, self._resource(part), part["start_ns"], part["end_ns"], lo, hi)
-        b = self.block
-        for name, s, e in zip(self._resource(b), b["start_ns"].tolist(), b["end_ns"].tolist()):
-            out[name] = out.get(name, 0) + shifted_overlap(s, e, self.shift.ns, self.shift.copies, lo, hi)
-        return out
-
-    def _resource(self, part: dict[str, np.ndarray]) -> list[str]:
-        dev, eng = self.dictionary["device"][part["device"]], self.dictionary["engine"][part["engine"]]
-        return [f"{d}.{e}" for d, e in zip(dev.tolist(), eng.tolist())]
+        codes, names = self._queues
+        prefix, b, rest = self._parts({**self._numbers, "queue": codes})
+        total = np.zeros(len(names), dtype=np.int64)
+        for part in (prefix, rest):
+            dur = np.minimum(np.maximum(part["end_ns"], lo), hi) - np.minimum(np.maximum(part["start_ns"], lo), hi)
+            np.add.at(total, part["queue"], dur)
+        for q, s, e in zip(b["queue"].tolist(), b["start_ns"].tolist(), b["end_ns"].tolist()):
+            total[q] += shifted_overlap(s, e, self.shift.ns, self.shift.copies, lo, hi)
+        return {name: int(t) for name, t in zip(names, total.tolist())}
 
     # ----- the trace ---------------------------------------------------------------------
     def chunks(self, rows_per_chunk: int = 1_000_000, frames: int | None = None) -> Iterator[pd.DataFrame]:
@@ -322,15 +350,6 @@ class _SteadyOrder:
         return out
 
 
-def _code(dictionary: np.ndarray, value: str) -> int:
-    i = int(np.searchsorted(dictionary, value))
-    return i if i < len(dictionary) and dictionary[i] == value else -1
-
-
-def _present(part: dict[str, np.ndarray], present_code: int, host_code: int) -> np.ndarray:
-    return (part["task"] == present_code) & (part["device"] != host_code)
-
-
 def _tiled(block: dict[str, np.ndarray], j0: int, j1: int, shift: Shift, a: int, b: int) -> dict[str, np.ndarray]:
     """Copies j0..j1 of the block, in order, keeping rows that start in [a, b)."""
     n = j1 - j0 + 1
@@ -353,12 +372,6 @@ def _sort(cols: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         return cols
     order = np.lexsort((cols["engine"], cols["device"], cols["end_ns"], cols["start_ns"]))
     return {c: v[order] for c, v in cols.items()}
-
-
-def _add_clipped(out: dict[str, int], names: list[str], s: np.ndarray, e: np.ndarray, lo: int, hi: int) -> None:
-    dur = np.clip(e, lo, hi) - np.clip(s, lo, hi)
-    for name, d in zip(names, dur.tolist()):
-        out[name] = out.get(name, 0) + int(d)
 
 
 def shifted_overlap(s: int, e: int, t: int, copies: int, lo: int, hi: int) -> int:

@@ -22,14 +22,16 @@ LazyTable = pd.DataFrame | Callable[[], pd.DataFrame]
 class Result:
     """One run: `.trace` (per task), `.frames` (per frame), `.summary` (dict), `.links`.
 
-    `.trace` and `.links` may be built on first use: a fast-forwarded long run keeps them in
-    compact form (:mod:`mgpusim.results.periodic`) and :meth:`trace_chunks` streams them."""
+    The summary is computed from arrays when the run ends; `.trace`, `.frames` and `.links`
+    are tables built on first read (a simulated run keeps its logs in compact form,
+    :mod:`mgpusim.results.periodic`, and :meth:`trace_chunks` streams them), so a call that
+    only wants the summary (a sweep point, a search) never builds a DataFrame."""
 
-    def __init__(self, summary: dict[str, Any], trace: LazyTable, frames: pd.DataFrame,
+    def __init__(self, summary: dict[str, Any], trace: LazyTable, frames: LazyTable,
                  links: LazyTable | None = None, config: dict[str, Any] | None = None,
                  repeated: RepeatedRows | None = None,
                  link_logs: dict[str, RepeatedIntervals] | None = None):
-        self.summary, self.frames, self.config = summary, frames, config if config is not None else {}
+        self.summary, self._frames, self.config = summary, frames, config if config is not None else {}
         self._trace, self._links = trace, links if links is not None else pd.DataFrame()
         #: the compact trace of a fast-forwarded run (None: `.trace` is the whole table)
         self.repeated = repeated
@@ -47,6 +49,16 @@ class Result:
     @trace.setter
     def trace(self, value: pd.DataFrame) -> None:
         self._trace = value
+
+    @property
+    def frames(self) -> pd.DataFrame:
+        if callable(self._frames):
+            self._frames = self._frames()
+        return self._frames
+
+    @frames.setter
+    def frames(self, value: pd.DataFrame) -> None:
+        self._frames = value
 
     @property
     def links(self) -> pd.DataFrame:
@@ -121,42 +133,55 @@ def summarize(frames: pd.DataFrame, trace: pd.DataFrame | None, warmup_frames: i
               links: pd.DataFrame | None = None,
               busy: Callable[[int, int], dict[str, int]] | None = None,
               leave_out: Collection[int] = ()) -> dict[str, Any]:
-    """Steady-state figures after `warmup_frames`: frame time = mean period between presents.
-    With a single steady frame its period is measured from the last warm-up frame's present
-    (or, with no warm-up, from its own start). Utilization comes from `busy(lo, hi)` (busy ns
-    per resource in the window) when given, else from the trace and links tables. `leave_out`:
-    frames whose period and latency the figures skip (a measured run's stalls)."""
-    steady = frames[frames["frame"] >= warmup_frames]
-    if steady.empty:
+    """:func:`summarize_arrays` of a frames table. Utilization comes from `busy(lo, hi)`
+    (busy ns per resource in the window) when given, else from the trace and links tables."""
+    if busy is None and trace is not None and len(trace):
+        def busy(lo: int, hi: int) -> dict[str, int]:
+            return table_busy(trace, links, lo, hi)
+    return summarize_arrays(frames["frame"].to_numpy(np.int64), frames["start_ns"].to_numpy(np.int64),
+                            frames["present_ns"].to_numpy(np.int64), warmup_frames, busy, leave_out)
+
+
+def summarize_arrays(frame: np.ndarray, start: np.ndarray, present: np.ndarray, warmup_frames: int,
+                     busy: Callable[[int, int], dict[str, int]] | None = None,
+                     leave_out: Collection[int] = ()) -> dict[str, Any]:
+    """Steady-state figures after `warmup_frames`, from per-frame arrays (frame number, first
+    start, present): frame time = mean period between presents. With a single steady frame its
+    period is measured from the last warm-up frame's present (or, with no warm-up, from its
+    own start). Utilization: `busy(lo, hi)` over the window, when given. `leave_out`: frames
+    whose period and latency the figures skip (a measured run's stalls). Arrays, no tables:
+    a run's summary costs microseconds."""
+    steady = frame >= warmup_frames
+    if not steady.any():
         raise InputError(f"no frame presents after the {warmup_frames} warm-up frames "
-                         f"(the run has {len(frames)})", field="schedule.warmup_frames")
-    presents = steady["present_ns"].to_numpy(dtype=np.int64)
+                         f"(the run has {len(frame)})", field="schedule.warmup_frames")
+    presents = present[steady].astype(np.int64, copy=False)
+    latency = (present - start)[steady]
     if len(presents) == 1:
-        before = frames.loc[frames["frame"] < warmup_frames, "present_ns"].to_numpy(dtype=np.int64)
-        origin = int(before[-1]) if len(before) else int(steady["start_ns"].iloc[0])
+        before = present[frame < warmup_frames]
+        origin = int(before[-1]) if len(before) else int(start[steady][0])
         presents = np.array([origin, presents[0]], dtype=np.int64)
     periods = np.diff(presents)
     window = (int(presents[0]), int(presents[-1]))
     if leave_out:
-        periods = periods[~np.isin(steady["frame"].to_numpy()[1:], list(leave_out))]
-        steady = steady[~steady["frame"].isin(list(leave_out))]
+        out_of = np.isin(frame[steady], list(leave_out))
+        periods = periods[~out_of[1:]]
+        latency = latency[~out_of]
     frame_time = float(periods.mean())
     out: dict[str, Any] = {
         "frame_time_ms": frame_time / 1e6,
         "fps": 1e9 / frame_time if frame_time > 0 else float("inf"),
-        "latency_ms": float(steady["latency_ns"].mean()) / 1e6,
+        "latency_ms": float(latency.mean()) / 1e6,
         "frame_time_jitter_ms": float(periods.std()) / 1e6,
         "frame_time_min_ms": float(periods.min()) / 1e6,
         "frame_time_max_ms": float(periods.max()) / 1e6,
-        "frames": int(len(frames)),
+        "frames": int(len(frame)),
         "warmup_frames": int(warmup_frames),
         "window_ns": list(window),
     }
     if busy is not None:
         span = max(window[1] - window[0], 1)
         out["utilization"] = {name: round(b / span, 6) for name, b in sorted(busy(*window).items())}
-    elif trace is not None and len(trace):
-        out["utilization"] = utilization(trace, links, window)
     return out
 
 
@@ -164,10 +189,15 @@ def utilization(trace: pd.DataFrame, links: pd.DataFrame | None, window: tuple[i
     """Busy fraction of every queue, host thread and link over the steady-state window."""
     lo, hi = window
     span = max(hi - lo, 1)
-    busy = _busy(trace.assign(resource=trace["device"] + "." + trace["engine"]), lo, hi)
+    return {name: round(b / span, 6) for name, b in sorted(table_busy(trace, links, lo, hi).items())}
+
+
+def table_busy(trace: pd.DataFrame, links: pd.DataFrame | None, lo: int, hi: int) -> dict[str, int]:
+    """Busy ns of every queue and host thread (`device.engine`) and link inside [lo, hi]."""
+    busy = _busy(trace.assign(resource=trace["device"].astype(str) + "." + trace["engine"].astype(str)), lo, hi)
     if links is not None and len(links):
         busy.update(_busy(links.rename(columns={"channel": "resource"}), lo, hi))
-    return {name: round(b / span, 6) for name, b in sorted(busy.items())}
+    return busy
 
 
 def _busy(df: pd.DataFrame, lo: int, hi: int) -> dict[str, int]:
@@ -195,32 +225,11 @@ LINK_DTYPES = {"channel": "string", "start_ns": "int64", "end_ns": "int64"}
 _NO_LINKS = pd.DataFrame([], columns=list(LINK_DTYPES)).astype(LINK_DTYPES)
 
 
-def links_table(channels: dict) -> pd.DataFrame:
-    rows = [(name, s, e) for name, ch in channels.items() for s, e in ch.busy]
-    if not rows:  # common (one GPU, the analytic level): no table to build
-        return _NO_LINKS.copy()
-    return pd.DataFrame(rows, columns=list(LINK_DTYPES)).astype(LINK_DTYPES)
-
-
 def links_frame(arrays: dict[str, np.ndarray]) -> pd.DataFrame:
     """A links table from (start, end) arrays per channel, channel after channel."""
     parts = [pd.DataFrame({"channel": name, "start_ns": a[:, 0], "end_ns": a[:, 1]}) for name, a in arrays.items()]
     df = pd.concat(parts, ignore_index=True) if parts else _NO_LINKS.copy()
     return df.astype(LINK_DTYPES)
-
-
-def build_result(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
-    if getattr(raw, "repeat", None) is not None:
-        return _build_repeated(raw, warmup_frames, config)
-    labels = _labels(raw)
-    trace = make_trace(raw.rows, labels() if labels is not None else None)
-    frames = frames_table(raw.frame_start, raw.present_end)
-    links = links_table(raw.channels)
-    summary = summarize(frames, trace if len(trace) else None, warmup_frames, links)
-    summary["effects"] = raw.effects
-    if raw.skipped:
-        summary["skipped_tasks"] = raw.skipped
-    return Result(summary, trace, frames, links, config)
 
 
 def _labels(raw) -> Callable[[], Sequence[str]] | None:
@@ -230,15 +239,21 @@ def _labels(raw) -> Callable[[], Sequence[str]] | None:
     return None if inputs is None else (lambda: inputs.labels)
 
 
-def _build_repeated(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
-    """The result of a fast-forwarded run: tables from its compact logs (mgpusim.results.periodic)."""
+def build_result(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
+    """A run's Result from what the engine (or the analytic level) observed: the summary from
+    arrays at once; the trace, frames and links tables built only when read. A fast-forwarded
+    run's logs are kept compact (:mod:`mgpusim.results.periodic`); a run without a repeat is
+    the same form with nothing repeated."""
     r = raw.repeat
-    shift = Shift(r.frames, r.ns, r.copies)
-    rows = RepeatedRows(raw.rows, r.rows, shift, _labels(raw))
-    start, present = rows.frame_arrays(len(raw.frame_start), raw.present_task)
-    frames = frames_table(start, present)
-    links = {name: RepeatedIntervals(ch.busy, r.busy.get(name, (len(ch.busy), len(ch.busy))), shift,
-                                     r.held_open.get(name))
+    shift = Shift(r.frames, r.ns, r.copies) if r is not None else Shift(1, 0, 0)
+    rows = RepeatedRows(raw.rows, r.rows if r is not None else (len(raw.rows),) * 2, shift, _labels(raw))
+    if r is not None:
+        start, present = rows.frame_arrays(len(raw.frame_start), raw.present_task)
+    else:
+        start, present = raw.frame_start, raw.present_end
+    links = {name: RepeatedIntervals(ch.busy, r.busy.get(name, (len(ch.busy),) * 2) if r is not None
+                                     else (len(ch.busy),) * 2, shift,
+                                     r.held_open.get(name) if r is not None else None)
              for name, ch in raw.channels.items()}
 
     def busy(lo: int, hi: int) -> dict[str, int]:
@@ -249,13 +264,19 @@ def _build_repeated(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
     def whole_links() -> pd.DataFrame:
         return links_frame({name: log.array() for name, log in links.items()})
 
-    summary = summarize(frames, None, warmup_frames, busy=busy if len(rows) and raw.recorded else None)
+    def frames() -> pd.DataFrame:
+        return frames_table(start, present)
+
+    summary = summarize_arrays(np.arange(len(start), dtype=np.int64), start, present, warmup_frames,
+                               busy=busy if len(rows) and raw.recorded else None)
     summary["effects"] = raw.effects
     if raw.skipped:
-        # a task first skipped after the repeat was found has all its skips in the rest
-        raw.skipped_frames = {name: repeated_list(f, r.skipped.get(name, (0, 0)), shift)
-                              for name, f in raw.skipped_frames.items()}
-        summary["skipped_tasks"] = {name: len(f) for name, f in raw.skipped_frames.items()}
+        if r is not None:  # a task first skipped after the repeat was found has all its skips in the rest
+            raw.skipped_frames = {name: repeated_list(f, r.skipped.get(name, (0, 0)), shift)
+                                  for name, f in raw.skipped_frames.items()}
+            summary["skipped_tasks"] = {name: len(f) for name, f in raw.skipped_frames.items()}
+        else:
+            summary["skipped_tasks"] = raw.skipped
     if not raw.recorded:
         return Result(summary, make_trace([]), frames, whole_links, config, link_logs=links)
     return Result(summary, rows.frame, frames, whole_links, config, repeated=rows, link_logs=links)

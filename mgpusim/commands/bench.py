@@ -26,6 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(wall, peak memory); analytic: configurations/s; effects: time saved by leaving "
                         "unneeded effects out (default: all)")
     p.add_argument("--long-frames", type=int, default=1_000_000, help="frames of the long run")
+    p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar on stderr")
     p.set_defaults(func=run)
 
 
@@ -34,17 +35,28 @@ def run(args: argparse.Namespace) -> int:
                                              effects_saving, long_run, run_bench)
     if args.frames < 2 or args.repeats < 1:
         raise InputError(f"need --frames >= 2 and --repeats >= 1, got {args.frames} and {args.repeats}")
+    from mgpusim.io.progress import bar  # noqa: PLC0415
     experiment = resolve_experiment(args.experiment)
+    wanted = {w: args.what in ("all", w) for w in ("simpy", "long", "analytic", "effects")}
+    steps = (2 * args.repeats + 2) * wanted["simpy"] + wanted["long"] + wanted["analytic"] + 2 * wanted["effects"]
     out: dict = {}
-    if args.what in ("all", "simpy"):
-        out["simpy"] = run_bench(experiment, args.frames, args.repeats)
-    if args.what in ("all", "long"):
-        out["long"] = long_run(experiment, args.long_frames)
-    if args.what in ("all", "analytic"):
-        out["analytic"] = analytic_speed(experiment)
-    if args.what in ("all", "effects"):
-        out["effects"] = effects_saving(experiment, repeats=args.repeats)
-        out["effect_costs"] = effect_costs(repeats=args.repeats)
+    with bar(steps, "bench", "step", args.progress) as shown:
+        def step(name: str) -> None:
+            shown.set_postfix_str(name, refresh=False)
+            shown.update(1)
+        if wanted["simpy"]:
+            out["simpy"] = run_bench(experiment, args.frames, args.repeats, lambda s: step(f"simpy: {s}"))
+        if wanted["long"]:
+            step(f"long run: {args.long_frames:,} frames")
+            out["long"] = long_run(experiment, args.long_frames)
+        if wanted["analytic"]:
+            step("analytic sweep")
+            out["analytic"] = analytic_speed(experiment)
+        if wanted["effects"]:
+            step("effects left out")
+            out["effects"] = effects_saving(experiment, repeats=args.repeats)
+            step("each needed effect")
+            out["effect_costs"] = effect_costs(repeats=args.repeats)
     if args.json:
         print(json.dumps(out, sort_keys=True))
         return 0

@@ -30,6 +30,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--trace-frames", type=int, default=None, metavar="N",
                    help=f"the last N frames go into trace.perfetto.json (default: {TRACE_FRAMES}, "
                         f"fewer where they hold over {PERFETTO_SLICES:,} tasks; 0: all)")
+    p.add_argument("--no-progress", dest="progress", action="store_false",
+                   help="no progress bar on stderr (it appears only for runs that take over a second)")
     p.add_argument("--trace-rows", type=int, default=TRACE_ROWS, metavar="N",
                    help=f"the trace table holds the whole run up to N rows, else its first frames "
                         f"that fit (default: {TRACE_ROWS:,}; 0: always the whole run)")
@@ -60,11 +62,19 @@ def run(args: argparse.Namespace) -> int:
                          field="--frames")
     out = args.out or Path("out") / exp.name
     check_out_dir(out)
-    result = simulate(exp, fidelity=args.fidelity, effects=parse_effects(args.effects),
-                      fast_forward=args.fast_forward, band=True)
-    files = write_result(result, out, args.format, title=f"{exp.name}: {exp.schedule.name}, "
-                         f"{exp.schedule.gpus} GPU(s), {exp.scene.width}x{exp.scene.height}",
-                         frames=frames, trace_frames=args.trace_frames, trace_rows=args.trace_rows)
+    from mgpusim.io.progress import bar, reporter  # noqa: PLC0415
+    forced = parse_effects(args.effects)
+    with bar(exp.schedule.frames, "simulate", "frame", args.progress) as shown:
+        result = simulate(exp, fidelity=args.fidelity, effects=forced,
+                          fast_forward=args.fast_forward, band=True, progress=reporter(shown))
+    with bar(6, "write", "file", args.progress) as shown:
+        def writing(name: str) -> None:
+            shown.set_postfix_str(name, refresh=False)
+            shown.update(1)
+        files = write_result(result, out, args.format, title=f"{exp.name}: {exp.schedule.name}, "
+                             f"{exp.schedule.gpus} GPU(s), {exp.scene.width}x{exp.scene.height}",
+                             frames=frames, trace_frames=args.trace_frames, trace_rows=args.trace_rows,
+                             progress=writing)
     s = result.summary
     print(f"{exp.name}: {exp.schedule.name} on {exp.schedule.gpus} GPU(s) of {exp.profile.name}, "
           f"{exp.scene.width}x{exp.scene.height}")
@@ -82,9 +92,24 @@ def run(args: argparse.Namespace) -> int:
     busiest = sorted(s.get("utilization", {}).items(), key=lambda kv: -kv[1])[:4]
     print("  busiest: " + ", ".join(f"{k} {v:.0%}" for k, v in busiest))
     print(f"  wrote {', '.join(str(p) for p in files.values())}")
-    for note in window_notes(result, args):
+    for note in window_notes(result, args) + effects_notes(exp, result.summary, forced):
         print(f"  note: {note}")
     return 0
+
+
+def effects_notes(exp, summary: dict, forced: dict[str, bool] | None) -> list[str]:
+    """One line when the fidelity level left out effects that this scene needs (those `full`
+    would model), so that a figure is not read as the full model's."""
+    from mgpusim.sim.effects import choose_effects  # noqa: PLC0415
+    from mgpusim.sim.simulation import build_program  # noqa: PLC0415
+    if summary["fidelity"] == "full":
+        return []
+    needed = choose_effects(build_program(exp), exp.profile)
+    left = sorted(needed - set(summary["modelled_effects"]) - {n for n, on in (forced or {}).items() if not on})
+    if not left:
+        return []
+    return [f"--fidelity {summary['fidelity']} left out {', '.join(left)}, which this scene needs: "
+            "figures may differ from full's (docs/fidelity.md)"]
 
 
 def window_notes(result, args: argparse.Namespace) -> list[str]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 import numpy as np
 import pandas as pd
@@ -166,25 +166,32 @@ def write_text(text: str, path: Path) -> Path:
 
 def write_result(result: Result, out: Path, trace_format: str = "parquet", title: str = "",
                  frames: range | None = None, trace_frames: int | None = None,
-                 trace_rows: int = TRACE_ROWS) -> dict[str, Path]:
+                 trace_rows: int = TRACE_ROWS,
+                 progress: Callable[[str], None] | None = None) -> dict[str, Path]:
     """summary.json, the trace table (its first frames within `trace_rows` rows, see
     :func:`table_frames`) and the links table over the same time, the frames table (whole
     run), timeline.png of `frames` (default: the last four) and trace.perfetto.json of the
     last frames (:func:`perfetto_frames` of `trace_frames`). Nothing is built whole that the
-    files do not hold: a fast-forwarded run's windows come from its compact logs."""
+    files do not hold: a fast-forwarded run's windows come from its compact logs.
+    `progress(name)`: called before each file is written."""
+    say = progress or (lambda _name: None)
     out.mkdir(parents=True, exist_ok=True)
     n, kept = len(result.frames), table_frames(result, trace_rows)
     until = None if kept >= n else int(result.frames["present_ns"].iloc[:kept].max()) + 1
-    files = {
-        "summary": write_json({**result.summary, "config": result.config}, out / "summary.json"),
-        "trace": write_trace(result, out / f"trace.{trace_format}", frames=kept if kept < n else None),
-        "frames": write_table(result.frames, out / f"frames.{trace_format}"),
-        "links": write_links(result, out / f"links.{trace_format}", until),
-    }
+    say("summary.json")
+    files = {"summary": write_json({**result.summary, "config": result.config}, out / "summary.json")}
+    say(f"trace.{trace_format}")
+    files["trace"] = write_trace(result, out / f"trace.{trace_format}", frames=kept if kept < n else None)
+    say(f"frames.{trace_format}")
+    files["frames"] = write_table(result.frames, out / f"frames.{trace_format}")
+    say(f"links.{trace_format}")
+    files["links"] = write_links(result, out / f"links.{trace_format}", until)
     if result.compact or len(result.trace):
+        say("timeline.png")
         shown = frames if frames is not None else range(max(0, n - 4), n)
         rows = result.trace_window(shown.start, shown.stop)
         files["timeline"] = timeline_png(rows, out / "timeline.png", links_over(result, rows), title, list(shown))
+        say("trace.perfetto.json")
         rows = result.trace_window(n - perfetto_frames(result, trace_frames), n)
         files["perfetto"] = write_text(chrome_trace_json(rows, links_over(result, rows), title),
                                        out / "trace.perfetto.json")

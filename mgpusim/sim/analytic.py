@@ -26,7 +26,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from fractions import Fraction
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -171,14 +171,18 @@ class Analytic:
         return out
 
     # ----- one configuration ---------------------------------------------------------------
-    def run(self, record: bool = True) -> tuple[list[tuple], np.ndarray, np.ndarray, Repeat | None]:
+    def run(self, record: bool = True, progress: Callable[[int, int], None] | None = None
+            ) -> tuple[list[tuple], np.ndarray, np.ndarray, Repeat | None]:
         """Rows, frame starts, presents, and the repeat (None: every frame computed, or the
         arrays already extended when no rows were asked for). Sets `found` (the repeat's
         period and first frame, or None), `skipped_frames` and `ties`."""
         rec = _Recurrence(self, record)
         frames = self.program.frames
         horizon, repeat, f = frames, None, 0
+        step = max(1, frames // 200)
         while f < horizon:
+            if progress is not None and f % step == 0:
+                progress(f, horizon)
             rec.frame(f)
             if repeat is None and f >= self.lag:
                 repeat = rec.look_for_repeat(f)
@@ -186,6 +190,8 @@ class Analytic:
                     horizon = frames - repeat.copies * repeat.frames
             rec.forget_before(f - self.lag)
             f += 1
+        if progress is not None:
+            progress(horizon, horizon)
         self.found, self.ties, self.skipped_frames = rec.found, rec.skips.ties, rec.skips.frames
         if repeat is not None and not record:  # no rows to compose: extend the arrays instead
             _extend(rec.start, horizon, repeat)
@@ -436,10 +442,12 @@ def _thread(free: list[int], t: int) -> int:
     return min(range(len(free)), key=lambda i: (free[i], i))
 
 
-def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str], record_trace: bool = True):
-    """A RawResult from the recurrence, for :func:`mgpusim.results.summary.build_result`."""
+def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str], record_trace: bool = True,
+                 progress: Callable[[int, int], None] | None = None):
+    """A RawResult from the recurrence, for :func:`mgpusim.results.summary.build_result`.
+    `progress(done, total)`: frames computed and frames to compute, now and then."""
     model = Analytic(program, costs, effects)
-    rows, start, present, repeat = model.run(record=record_trace)
+    rows, start, present, repeat = model.run(record=record_trace, progress=progress)
     skipped = {n: len(v) for n, v in model.skipped_frames.items()}
     raw = RawResult(rows, start, present, {}, skipped, {}, dict(model.skipped_frames),
                     present_task=program.present_task, inputs=model.inputs)

@@ -32,7 +32,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import pandas as pd
 
@@ -251,12 +251,19 @@ def _derived(t: Table, runs: set[str], metrics: set[str]) -> Derived:
     return d
 
 
-def run_case(case: Case, frames: int | None = None) -> CaseResult:
+def run_case(case: Case, frames: int | None = None,
+             progress: Callable[[str], None] | None = None) -> CaseResult:
     """Simulate every run (with `frames` frames each when given, a fifth of them warm-up)
-    and compute the columns and the derived quantities."""
+    and compute the columns and the derived quantities. `progress(run)`: called before each
+    simulated run."""
     extra = {} if frames is None else {"schedule.frames": frames, "schedule.warmup_frames": max(1, frames // 5)}
     exps = {r.name: _load(case, r, extra) for r in case.runs}
-    results = {r.name: simulate(exps[r.name]) for r in case.runs if r.simulate}
+    results = {}
+    for r in case.runs:
+        if r.simulate:
+            if progress is not None:
+                progress(r.name)
+            results[r.name] = simulate(exps[r.name])
     out = CaseResult(case, results, exps)
     for run in case.runs:
         out.columns[run.name] = {c.name: column_value(c, results.get(run.name), exps[run.name])

@@ -23,7 +23,7 @@ import time
 from dataclasses import replace
 from fractions import Fraction
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import simpy
 
@@ -258,14 +258,18 @@ def model_speed(experiment: Path, gpus: int, frames: int) -> dict[str, float]:
             "task_uses_per_s": frames * task_uses / wall, "hand_written_frames_per_s": frames / hand}
 
 
-def run_bench(experiment: Path = DEFAULT_EXPERIMENT, frames: int = 5000, repeats: int = 3) -> dict[str, Any]:
+def run_bench(experiment: Path = DEFAULT_EXPERIMENT, frames: int = 5000, repeats: int = 3,
+              progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Best of `repeats` interleaved runs of each figure, so that a busy machine (other
-    processes on the same cores) distorts the ratio as little as possible."""
+    processes on the same cores) distorts the ratio as little as possible. `progress(step)`:
+    called before each of the 2 x `repeats` + 2 steps."""
+    say = progress or (lambda _step: None)
     raw = 0.0
     best: dict[int, dict[str, float]] = {}
-    for _ in range(repeats):
+    for rep in range(repeats):
         raw = max(raw, raw_simpy_uses_per_s())
         for gpus in (2, 4):
+            say(f"{gpus} GPUs, run {rep + 1} of {repeats}")
             speed = model_speed(experiment, gpus, frames)
             if gpus not in best or speed["uses_per_s"] > best[gpus]["uses_per_s"]:
                 best[gpus] = speed
@@ -277,6 +281,7 @@ def run_bench(experiment: Path = DEFAULT_EXPERIMENT, frames: int = 5000, repeats
     for gpus, speed in best.items():
         speed["cost_ratio_vs_raw_simpy"] = raw / speed["uses_per_s"]
         speed["cost_ratio_per_task_vs_raw_simpy"] = raw / speed["task_uses_per_s"]
+        say(f"{gpus} GPUs, events counted")
         events = events_per_frame(sort_first_experiment(experiment, gpus, frames), min(frames, 1000))
         speed["events_per_frame"] = events["model"]
         speed["hand_written_events_per_frame"] = events["hand_written"]

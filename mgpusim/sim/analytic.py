@@ -24,7 +24,7 @@ program at once with numpy (one array lane per configuration).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from fractions import Fraction
 from typing import Any, Callable
 
@@ -99,7 +99,7 @@ class Analytic:
         thread_cap = costs.memcpy_thread_cap()
         mem = costs.host_memory_bandwidth()
         self.part_rate = thread_cap if thread_cap < mem else mem
-        self.phases = [self._order([self._timed(self._node(op, phase)) for op in ops])
+        self.phases = [self._order([self._node(op, phase) for op in ops])
                        for phase, ops in enumerate(probe.all_ops())]
         self.lag = max([1] + [-d[1] for ph in self.phases for n in ph for d in n.deps])
         #: per phase, skippable task -> (its chain's leader, its same-frame skippable inputs)
@@ -114,24 +114,18 @@ class Analytic:
         if isinstance(task, HostCopyTask):
             parts = tuple(even_split(task.bytes, task.parts(self.threads)))
             return _Node(task.name, task, "host", deps, op.duration, task.bytes, None, 0, parts,
-                         "host", "memcpy", op.waits_for)
+                         "host", "memcpy", op.waits_for,
+                         part_times=tuple((size, op.duration + _round_div(size, self.part_rate)) for size in parts))
         if isinstance(task, CpuTask):
             return _Node(task.name, task, f"host.{task.thread}", deps, op.duration, 0, None, 0, (),
-                         "host", task.thread, op.waits_for, cpu=True)
+                         "host", task.thread, op.waits_for, cpu=True, time=op.duration)
         rate = None
         if op.channel is not None:
             bw = op.channel.bandwidth
             rate = bw if op.cap is None or op.cap >= bw else op.cap
+        moved = _round_div(op.nbytes, rate) if rate is not None and op.nbytes else 0
         return _Node(task.name, task, str(task.queue), deps, op.duration, op.nbytes, rate, op.gap, (),
-                     op.device, op.engine, op.waits_for)
-
-    def _timed(self, node: _Node) -> _Node:
-        """The node with its times computed once (they do not change from frame to frame)."""
-        if node.parts:
-            return replace(node, part_times=tuple((size, node.fixed + _round_div(size, self.part_rate))
-                                                  for size in node.parts))
-        moved = _round_div(node.nbytes, node.rate) if node.rate is not None and node.nbytes else 0
-        return replace(node, time=node.fixed + moved)
+                     op.device, op.engine, op.waits_for, time=op.duration + moved)
 
     def _crosses(self, task: Task, dep: str, dep_phase: int) -> bool:
         """Whether a host thread must wake to act on this input (as the engine decides): the

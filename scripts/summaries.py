@@ -2,7 +2,10 @@
 file, so that two checkouts can be compared: results must not change when the engine does.
 
     PYTHONPATH=CHECKOUT python scripts/summaries.py OUT.json [--root CHECKOUT]
+        [--fidelity analytic|queues|full] [--no-fast-forward]
     python scripts/summaries.py --compare A.json B.json
+
+An experiment a level refuses (vsync at `analytic`) records the error line instead.
 """
 from __future__ import annotations
 
@@ -19,11 +22,16 @@ def shipped_experiments(root: Path) -> list[Path]:
     return [p for p in paths if "[schedule]" in p.read_text()]
 
 
-def collect(root: Path) -> dict:
+def collect(root: Path, fidelity: str = "full", fast_forward: bool = True) -> dict:
     from mgpusim import load_experiment, simulate  # the public API: the same in every layout
     out = {}
     for path in shipped_experiments(root):
-        result = simulate(load_experiment(path))
+        try:
+            result = simulate(load_experiment(path), fidelity=fidelity, fast_forward=fast_forward)
+        except Exception as exc:  # noqa: BLE001 (a level an experiment refuses: recorded as such)
+            out[str(path.relative_to(root))] = {"summary": {"error": str(exc)}, "trace_sha256": "",
+                                                "frames_sha256": ""}
+            continue
         trace = result.trace.to_csv(index=False).encode()
         out[str(path.relative_to(root))] = {
             "summary": json.loads(json.dumps(result.summary, default=str)),
@@ -59,10 +67,13 @@ def main() -> int:
     p.add_argument("out", nargs="?", type=Path)
     p.add_argument("--root", type=Path, default=Path.cwd())
     p.add_argument("--compare", nargs=2, type=Path, metavar=("A", "B"))
+    p.add_argument("--fidelity", default="full", choices=("analytic", "queues", "full"))
+    p.add_argument("--no-fast-forward", dest="fast_forward", action="store_false")
     args = p.parse_args()
     if args.compare:
         return compare(*(json.loads(x.read_text()) for x in args.compare))
-    args.out.write_text(json.dumps(collect(args.root.resolve()), indent=1, sort_keys=True))
+    found = collect(args.root.resolve(), args.fidelity, args.fast_forward)
+    args.out.write_text(json.dumps(found, indent=1, sort_keys=True))
     return 0
 
 

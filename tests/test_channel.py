@@ -143,3 +143,48 @@ def test_occupants_share_the_channel_and_leave_nothing_behind():
     env.run()
     assert ends == [(500, 650), (1000, 1100)]
     assert env.now == 1100  # no planned end of an occupant left in the queue
+
+
+class _SolverOnly(Channel):
+    """The channel with its fast path for several capped transfers turned off."""
+
+    shares_caps_freely = False
+
+
+def _ends_and_busy(kind: type, bandwidth: Fraction, flows: list[tuple[int, int, Fraction | None]]):
+    env = simpy.Environment()
+    ch = kind(env, "link", bandwidth)
+    ends: list[int] = [0] * len(flows)
+
+    def one(i: int, start: int, nbytes: int, cap):
+        yield env.timeout(start)
+        yield ch.transfer(nbytes, cap)
+        ends[i] = env.now
+
+    for i, (start, nbytes, cap) in enumerate(flows):
+        env.process(one(i, start, nbytes, cap))
+    env.run()
+    return ends, ch.busy, ch.max_concurrent
+
+
+@settings(max_examples=300, deadline=None)
+@given(flows=st.lists(st.tuples(st.integers(0, 60), st.integers(1, 400),
+                                st.sampled_from([None, Fraction(1), Fraction(3, 2), Fraction(2), Fraction(5, 3)])),
+                      min_size=1, max_size=7),
+       bw=st.sampled_from([Fraction(4), Fraction(7, 2), Fraction(10)]))
+def test_capped_transfers_that_fit_take_the_fast_path_with_the_solvers_answers(flows, bw):
+    """While the caps of the running transfers add up to no more than the bandwidth, each
+    crosses at its cap without the solver; ends, busy intervals and the crowd are the solver's."""
+    assert _ends_and_busy(Channel, bw, flows) == _ends_and_busy(_SolverOnly, bw, flows)
+
+
+def test_three_capped_copies_that_fit_never_start_the_solver():
+    env = simpy.Environment()
+    ch = Channel(env, "host.memory", Fraction(30))
+    for _ in range(3):
+        ch.transfer(524288, Fraction(8))
+    assert all(f.solo_rate == 8 for f in ch.flows) and len(ch.flows) == 3
+    ch.transfer(524288, Fraction(8))  # 32 > 30: the solver takes every flow over
+    assert not any(f.solo_rate for f in ch.flows)
+    env.run()
+    assert ch.busy and ch.max_concurrent == 4

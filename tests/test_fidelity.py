@@ -247,9 +247,15 @@ def test_streamed_trace_file_is_the_whole_trace(tmp_path: Path):
     assert on.compact  # the window did not build the whole trace
     for fmt in ("parquet", "csv"):
         write_trace(on, tmp_path / f"a.{fmt}", rows_per_group=700)
-        write_table(off.trace, tmp_path / f"b.{fmt}")
+        write_trace(off, tmp_path / f"b.{fmt}")
+        write_table(off.trace, tmp_path / f"c.{fmt}")
         read = pd.read_parquet if fmt == "parquet" else pd.read_csv
         pd.testing.assert_frame_equal(read(tmp_path / f"a.{fmt}"), read(tmp_path / f"b.{fmt}"))
+        # the same values as the table pandas writes (the file's text columns are plain strings)
+        a, c = read(tmp_path / f"a.{fmt}"), read(tmp_path / f"c.{fmt}")
+        assert list(a.columns) == list(c.columns) and len(a) == len(c)
+        for col in a.columns:
+            assert (a[col].fillna("").astype(str) == c[col].fillna("").astype(str)).all(), col
 
 
 @pytest.mark.parametrize("name", ["sort_first_tc1.toml", "afr_tc1.toml", "h200/sort_last.toml",

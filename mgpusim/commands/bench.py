@@ -1,4 +1,6 @@
-"""`mgpusim bench [--frames N] [--json]`: model speed against raw SimPy on this machine."""
+"""`mgpusim bench [--frames N] [--json]`: model speed against SimPy on this machine: per
+simulated frame against a hand-written SimPy model of the same frame, per event and per
+resource use against raw SimPy."""
 from __future__ import annotations
 
 import argparse
@@ -10,7 +12,8 @@ from mgpusim.model.errors import InputError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("bench", help="simulated frames per second, and cost per resource use vs raw SimPy")
+    p = sub.add_parser("bench", help="simulated frames per second against a hand-written SimPy model of the "
+                                     "same frame, cost per event and per resource use vs raw SimPy")
     p.add_argument("--experiment", type=Path, default=Path("sort_first_tc1"),
                    help="a sort-first experiment file or shipped name (its profile's last GPU is repeated "
                         "if it has fewer than 4)")
@@ -18,10 +21,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--repeats", type=int, default=3, help="best of this many interleaved runs")
     p.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     p.add_argument("--what", choices=("all", "simpy", "long", "analytic", "effects"), default="all",
-                   help="simpy: cost per resource use vs raw SimPy; long: a 10^6-frame run with fast-forward "
+                   help="simpy: per simulated frame against a hand-written SimPy model, per event and per "
+                        "resource use vs raw SimPy; long: a 10^6-frame run with fast-forward "
                         "(wall, peak memory); analytic: configurations/s; effects: time saved by leaving "
                         "unneeded effects out (default: all)")
     p.add_argument("--long-frames", type=int, default=1_000_000, help="frames of the long run")
+    p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar on stderr")
     p.set_defaults(func=run)
 
 
@@ -30,17 +35,28 @@ def run(args: argparse.Namespace) -> int:
                                              effects_saving, long_run, run_bench)
     if args.frames < 2 or args.repeats < 1:
         raise InputError(f"need --frames >= 2 and --repeats >= 1, got {args.frames} and {args.repeats}")
+    from mgpusim.io.progress import bar  # noqa: PLC0415
     experiment = resolve_experiment(args.experiment)
+    wanted = {w: args.what in ("all", w) for w in ("simpy", "long", "analytic", "effects")}
+    steps = (2 * args.repeats + 2) * wanted["simpy"] + wanted["long"] + wanted["analytic"] + 2 * wanted["effects"]
     out: dict = {}
-    if args.what in ("all", "simpy"):
-        out["simpy"] = run_bench(experiment, args.frames, args.repeats)
-    if args.what in ("all", "long"):
-        out["long"] = long_run(experiment, args.long_frames)
-    if args.what in ("all", "analytic"):
-        out["analytic"] = analytic_speed(experiment)
-    if args.what in ("all", "effects"):
-        out["effects"] = effects_saving(experiment, repeats=args.repeats)
-        out["effect_costs"] = effect_costs(repeats=args.repeats)
+    with bar(steps, "bench", "step", args.progress) as shown:
+        def step(name: str) -> None:
+            shown.set_postfix_str(name, refresh=False)
+            shown.update(1)
+        if wanted["simpy"]:
+            out["simpy"] = run_bench(experiment, args.frames, args.repeats, lambda s: step(f"simpy: {s}"))
+        if wanted["long"]:
+            step(f"long run: {args.long_frames:,} frames")
+            out["long"] = long_run(experiment, args.long_frames)
+        if wanted["analytic"]:
+            step("analytic sweep")
+            out["analytic"] = analytic_speed(experiment)
+        if wanted["effects"]:
+            step("effects left out")
+            out["effects"] = effects_saving(experiment, repeats=args.repeats)
+            step("each needed effect")
+            out["effect_costs"] = effect_costs(repeats=args.repeats)
     if args.json:
         print(json.dumps(out, sort_keys=True))
         return 0
@@ -70,11 +86,19 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _print_simpy(out: dict) -> None:
-    print(f"raw SimPy (request/timeout/release on a Resource): {out['raw_simpy_uses_per_s']:,.0f} uses/s")
+    print(f"fast-forward off, {out['frames']:,} frames, best of {out['repeats']}; raw SimPy "
+          f"(request/timeout/release on a Resource): {out['raw_simpy_uses_per_s']:,.0f} uses/s")
     for key in ("sort_first_2gpu", "sort_first_4gpu"):
         fig = out[key]
-        print(f"{key}: {fig['frames_per_s']:,.0f} simulated frames/s, {fig['uses_per_s']:,.0f} resource uses/s "
-              f"({fig['uses_per_frame']} per frame: {fig['task_uses_per_frame']} on queues/threads, "
-              f"{fig['link_uses_per_frame']} on links)")
-        print(f"  cost per resource use {fig['cost_ratio_vs_raw_simpy']:.2f}x raw SimPy "
-              f"(per task, copies counted once: {fig['cost_ratio_per_task_vs_raw_simpy']:.2f}x)")
+        print(f"{key}: {fig['frames_per_s']:,.0f} simulated frames/s; a hand-written SimPy model of the same "
+              f"frame (same presents) {fig['hand_written_frames_per_s']:,.0f}/s: the model is "
+              f"{fig['speedup_per_frame_vs_hand_written']:.2f}x faster per simulated frame")
+        print(f"  per event: {fig['events_per_frame']:.1f} SimPy events per frame to the hand-written "
+              f"{fig['hand_written_events_per_frame']:.1f}; {fig['events_per_s']:,.0f} events/s to "
+              f"{fig['hand_written_events_per_s']:,.0f}/s: an event costs the model "
+              f"{fig['event_cost_vs_hand_written']:.2f}x what it costs the hand-written model, "
+              f"{fig['event_cost_vs_raw_simpy']:.2f}x raw SimPy's ({out['raw_simpy_events_per_s']:,.0f} events/s)")
+        print(f"  per resource use ({fig['uses_per_frame']} per frame: {fig['task_uses_per_frame']} on queues/threads, "
+              f"{fig['link_uses_per_frame']} on links): {fig['uses_per_s']:,.0f}/s, "
+              f"{fig['cost_ratio_vs_raw_simpy']:.2f}x raw SimPy's cost (per task, copies counted once: "
+              f"{fig['cost_ratio_per_task_vs_raw_simpy']:.2f}x)")

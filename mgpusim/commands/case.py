@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 from mgpusim.io.outpath import check_out_dir
 from mgpusim.model.errors import InputError
@@ -31,6 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="simulate N frames per run (a fifth of them warm-up) instead of each experiment's own")
     p.add_argument("--calibrate", action="store_true",
                    help="find the parameter values the published figures set and print them (writes nothing)")
+    p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar on stderr")
     p.set_defaults(func=run)
 
 
@@ -52,15 +53,21 @@ def run(args: argparse.Namespace) -> int:
         return print_calibration(case, args.frames)
     out = args.out or Path("out") / "cases" / case.name
     check_out_dir(out)
-    result = run_case(case, args.frames)
-    out.mkdir(parents=True, exist_ok=True)
-    text = f"# {case.title}\n\n{case.description}\n\n{markdown(result)}"
-    if case.published:
-        text += f"\n## Compared with the published figures\n\n{comparison_markdown(result)}"
-    files = [write_text(text, out / "predictions.md"), write_table(table(result), out / "predictions.csv")]
-    if case.published:
-        files.append(write_table(comparison(result), out / "comparison.csv"))
-    files += write_timelines(result, out, "timeline_")
+    from mgpusim.io.progress import bar  # noqa: PLC0415
+    steps = sum(1 for r in case.runs if r.simulate) + len(case.timelines)
+    with bar(steps, "case", "step", args.progress) as shown:
+        def step(name: str) -> None:
+            shown.set_postfix_str(name, refresh=False)
+            shown.update(1)
+        result = run_case(case, args.frames, progress=step)
+        out.mkdir(parents=True, exist_ok=True)
+        text = f"# {case.title}\n\n{case.description}\n\n{markdown(result)}"
+        if case.published:
+            text += f"\n## Compared with the published figures\n\n{comparison_markdown(result)}"
+        files = [write_text(text, out / "predictions.md"), write_table(table(result), out / "predictions.csv")]
+        if case.published:
+            files.append(write_table(comparison(result), out / "comparison.csv"))
+        files += write_timelines(result, out, "timeline_", lambda name: step(f"timeline {name}"))
     print(text, end="")
     print(f"\nwrote {', '.join(str(f) for f in files)}")
     return 0
@@ -80,11 +87,15 @@ def print_calibration(case, frames: int | None) -> int:
     return 0
 
 
-def write_timelines(result: CaseResult, folder: Path, prefix: str) -> list[Path]:
-    """A timeline picture of the last frames of every run the case names: `<prefix><run>.png`."""
+def write_timelines(result: CaseResult, folder: Path, prefix: str,
+                    progress: Callable[[str], None] | None = None) -> list[Path]:
+    """A timeline picture of the last frames of every run the case names: `<prefix><run>.png`.
+    `progress(run)`: called before each picture."""
     from mgpusim.io.plot import last_frames, timeline_png  # noqa: PLC0415
     case, files = result.case, []
     for name in case.timelines:
+        if progress is not None:
+            progress(name)
         res, run_ = result.results[name], case.run(name)
         frames = last_frames(res.trace, case.timeline_frames)
         files.append(timeline_png(res.trace, folder / f"{prefix}{name}.png", res.links,

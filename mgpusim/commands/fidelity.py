@@ -22,6 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, default=Path("out") / "fidelity",
                    help="folder for per_config.csv, levels.csv, fidelity.md and fidelity_pareto.png")
     p.add_argument("--repeats", type=int, default=3, help="best of this many timed runs per configuration")
+    p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar on stderr")
     p.add_argument("--docs", action="store_true",
                    help="also write the table into docs/fidelity.md and the plot to docs/img/fidelity_pareto.png")
     p.set_defaults(func=run)
@@ -36,13 +37,21 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"needs a checkout with {DOCS / 'fidelity.md'}", field="--docs")
     sources = committed_sources(args.data)
     check_out_dir(args.out)  # before any work
+    from mgpusim.io.progress import bar  # noqa: PLC0415
+    from mgpusim.io.shipped import examples  # noqa: PLC0415
+    from mgpusim.studies.accuracy_cost import VARIANTS  # noqa: PLC0415
     configs = configurations(sources)
-    table = run_levels(configs, repeats=max(1, args.repeats))
+    with bar((len(configs) + len(examples())) * len(VARIANTS), "fidelity", "run", args.progress) as shown:
+        def step(name: str) -> None:
+            shown.set_postfix_str(name, refresh=False)
+            shown.update(1)
+        table = run_levels(configs, repeats=max(1, args.repeats), progress=step)
+        runs = deviations(repeats=max(1, args.repeats), progress=step)
     levels = summarize_levels(table)
     args.out.mkdir(parents=True, exist_ok=True)
     write_table(table, args.out / "per_config.csv")
     write_table(levels, args.out / "levels.csv")
-    dev = summarize_deviations(deviations(repeats=max(1, args.repeats)))
+    dev = summarize_deviations(runs)
     write_table(dev, args.out / "deviations.csv")
     text = markdown(levels)
     dev_text = deviations_markdown(dev)

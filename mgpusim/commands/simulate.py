@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mgpusim.io.defaults import TRACE_FRAMES
+from mgpusim.io.defaults import PERFETTO_SLICES, TRACE_FRAMES, TRACE_ROWS
 from mgpusim.io.outpath import check_out_dir
 from mgpusim.io.shipped import resolve_experiment
 from mgpusim.model.errors import InputError
@@ -27,8 +27,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="simulate every frame even once the model's state repeats (same results, slower)")
     p.add_argument("--frames", metavar="A:B", default=None,
                    help="frames A to B-1 drawn in timeline.png (default: the last four)")
-    p.add_argument("--trace-frames", type=int, default=TRACE_FRAMES, metavar="N",
-                   help=f"the last N frames go into trace.perfetto.json (default: {TRACE_FRAMES}; 0: all)")
+    p.add_argument("--trace-frames", type=int, default=None, metavar="N",
+                   help=f"the last N frames go into trace.perfetto.json (default: {TRACE_FRAMES}, "
+                        f"fewer where they hold over {PERFETTO_SLICES:,} tasks; 0: all)")
+    p.add_argument("--no-progress", dest="progress", action="store_false",
+                   help="no progress bar on stderr (it appears only for runs that take over a second)")
+    p.add_argument("--trace-rows", type=int, default=TRACE_ROWS, metavar="N",
+                   help=f"the trace table holds the whole run up to N rows, else its first frames "
+                        f"that fit (default: {TRACE_ROWS:,}; 0: always the whole run)")
     p.set_defaults(func=run)
 
 
@@ -53,19 +59,29 @@ def run(args: argparse.Namespace) -> int:
     from mgpusim.sim.effects import parse_effects  # noqa: PLC0415
     from mgpusim.sim.simulation import simulate  # noqa: PLC0415
     frames = parse_frames(args.frames) if args.frames else None
-    if args.trace_frames < 0:
-        raise InputError(f"must be >= 0, got {args.trace_frames}", field="--trace-frames")
+    for name in ("trace_frames", "trace_rows"):
+        value = getattr(args, name)
+        if value is not None and value < 0:
+            raise InputError(f"must be >= 0, got {value}", field="--" + name.replace("_", "-"))
     exp = load_experiment(resolve_experiment(args.experiment), parse_overrides(args.overrides))
     if frames is not None and frames.start >= exp.schedule.frames:
         raise InputError(f"frames {frames.start}:{frames.stop} lie past the run's {exp.schedule.frames} frames",
                          field="--frames")
     out = args.out or Path("out") / exp.name
     check_out_dir(out)
-    result = simulate(exp, fidelity=args.fidelity, effects=parse_effects(args.effects),
-                      fast_forward=args.fast_forward, band=True)
-    files = write_result(result, out, args.format, title=f"{exp.name}: {exp.schedule.name}, "
-                         f"{exp.schedule.gpus} GPU(s), {exp.scene.width}x{exp.scene.height}",
-                         frames=frames, trace_frames=args.trace_frames)
+    from mgpusim.io.progress import bar, reporter  # noqa: PLC0415
+    forced = parse_effects(args.effects)
+    with bar(exp.schedule.frames, "simulate", "frame", args.progress) as shown:
+        result = simulate(exp, fidelity=args.fidelity, effects=forced,
+                          fast_forward=args.fast_forward, band=True, progress=reporter(shown))
+    with bar(6, "write", "file", args.progress) as shown:
+        def writing(name: str) -> None:
+            shown.set_postfix_str(name, refresh=False)
+            shown.update(1)
+        files = write_result(result, out, args.format, title=f"{exp.name}: {exp.schedule.name}, "
+                             f"{exp.schedule.gpus} GPU(s), {exp.scene.width}x{exp.scene.height}",
+                             frames=frames, trace_frames=args.trace_frames, trace_rows=args.trace_rows,
+                             progress=writing)
     s = result.summary
     print(f"{exp.name}: {exp.schedule.name} on {exp.schedule.gpus} GPU(s) of {exp.profile.name}, "
           f"{exp.scene.width}x{exp.scene.height}")
@@ -83,4 +99,36 @@ def run(args: argparse.Namespace) -> int:
     busiest = sorted(s.get("utilization", {}).items(), key=lambda kv: -kv[1])[:4]
     print("  busiest: " + ", ".join(f"{k} {v:.0%}" for k, v in busiest))
     print(f"  wrote {', '.join(str(p) for p in files.values())}")
+    for note in window_notes(result, args) + effects_notes(exp, result.summary, forced):
+        print(f"  note: {note}")
     return 0
+
+
+def effects_notes(exp, summary: dict, forced: dict[str, bool] | None) -> list[str]:
+    """One line when the fidelity level left out effects that this scene needs (those `full`
+    would model), so that a figure is not read as the full model's."""
+    from mgpusim.sim.effects import choose_effects  # noqa: PLC0415
+    from mgpusim.sim.simulation import build_program  # noqa: PLC0415
+    if summary["fidelity"] == "full":
+        return []
+    needed = choose_effects(build_program(exp), exp.profile)
+    left = sorted(needed - set(summary["modelled_effects"]) - {n for n, on in (forced or {}).items() if not on})
+    if not left:
+        return []
+    return [f"--fidelity {summary['fidelity']} left out {', '.join(left)}, which this scene needs: "
+            "figures may differ from full's (docs/fidelity.md)"]
+
+
+def window_notes(result, args: argparse.Namespace) -> list[str]:
+    """What the files leave out of a run too large to hold whole, and how to get it."""
+    from mgpusim.io.output import perfetto_frames, table_frames  # noqa: PLC0415
+    n, notes = len(result.frames), []
+    kept = table_frames(result, args.trace_rows)
+    if kept < n:
+        notes.append(f"the trace table holds frames 0-{kept - 1} of {n} (over {args.trace_rows:,} "
+                     "rows; --trace-rows 0 writes all)")
+    shown = perfetto_frames(result, args.trace_frames)
+    if args.trace_frames is None and shown < min(TRACE_FRAMES, n):
+        notes.append(f"trace.perfetto.json holds the last {shown} frames (at most {PERFETTO_SLICES:,} "
+                     "tasks; --trace-frames N to choose)")
+    return notes

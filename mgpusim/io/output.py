@@ -8,18 +8,16 @@ import shutil
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterable, Iterator
 
+import numpy as np
 import pandas as pd
 
-from mgpusim.io.defaults import TRACE_FRAMES
+from mgpusim.io.defaults import PERFETTO_SLICES, TRACE_FRAMES, TRACE_ROWS
 from mgpusim.io.perfetto import chrome_trace_json
 from mgpusim.io.plot import timeline_png
 from mgpusim.results.summary import Result
-from mgpusim.results.trace import make_trace
-
-#: Frames the Perfetto trace covers by default (the last ones): enough to see steady state,
-#: small enough that the UI opens it at once whatever the run's length.
+from mgpusim.results.trace import TRACE_COLUMNS, TRACE_DTYPES
 
 
 def write_table(df: pd.DataFrame, path: Path) -> Path:
@@ -31,35 +29,78 @@ def write_table(df: pd.DataFrame, path: Path) -> Path:
     return path
 
 
-def write_trace(result: Result, path: Path, rows_per_group: int = 250_000) -> Path:
-    """The whole trace, streamed in sorted row groups when the run kept it compact (a long
-    fast-forwarded run never holds it whole); CSV or Parquet by the file's extension."""
+def write_trace(result: Result, path: Path, rows_per_group: int = 250_000,
+                frames: int | None = None) -> Path:
+    """The trace (of the first `frames` frames; None: the whole run), streamed in sorted row
+    groups when the run kept it compact (a long fast-forwarded run never holds it whole); CSV
+    or Parquet by the file's extension. Parquet stores the text columns dictionary-encoded
+    (each distinct value once per row group; a reader gets plain strings) and the numbers
+    delta-encoded: `waits_for` goes from the run's codes to the file without a string per row."""
+    import pyarrow as pa  # noqa: PLC0415
+    csv = path.suffix != ".parquet"
+    schema = trace_file_schema(text=csv)
     if not result.compact:
-        return write_table(result.trace, path)
+        trace = result.trace if frames is None else result.trace[result.trace["frame"] < frames]
+        if csv:
+            return write_table(trace, path)
+        table = pa.Table.from_pandas(trace, preserve_index=False).replace_schema_metadata(None)
+        return _write_arrow([table.cast(schema)], schema, path)
+    return _write_arrow(result.repeated.arrow_chunks(schema, rows_per_group, frames), schema, path)
+
+
+def rows_per_frame(result: Result) -> np.ndarray:
+    """How many trace rows each frame has (without building a compact trace)."""
+    if result.compact:
+        return result.repeated.rows_per_frame(len(result.frames))
+    return np.bincount(result.trace["frame"].to_numpy(np.int64), minlength=len(result.frames))
+
+
+def table_frames(result: Result, max_rows: int = TRACE_ROWS) -> int:
+    """How many first frames the trace table holds: all of them when the run has at most
+    `max_rows` rows (0: no bound), else as many whole frames as fit (at least one)."""
+    n = len(result.frames)
+    if max_rows <= 0:
+        return n
+    total = np.cumsum(rows_per_frame(result))
+    return n if not len(total) or total[-1] <= max_rows else max(1, int(np.searchsorted(total, max_rows, "right")))
+
+
+def perfetto_frames(result: Result, trace_frames: int | None = None) -> int:
+    """How many last frames the Perfetto trace holds: `trace_frames` (0: all); by default
+    TRACE_FRAMES, or fewer where those hold more than PERFETTO_SLICES task slices."""
+    n = len(result.frames)
+    if trace_frames is not None:
+        return n if trace_frames <= 0 else min(trace_frames, n)
+    counts = rows_per_frame(result)[::-1]
+    fit = int(np.searchsorted(np.cumsum(counts), PERFETTO_SLICES, "right"))
+    return max(1, min(TRACE_FRAMES, n, fit))
+
+
+def trace_file_schema(text: bool = False) -> Any:
+    """The Arrow schema trace files are written with: int64 numbers; text columns as
+    dictionaries (`text`: as plain strings, for CSV)."""
     import pyarrow as pa  # noqa: PLC0415
-    schema = pa.Schema.from_pandas(make_trace([]), preserve_index=False)
-    return _stream(result.repeated.arrow_chunks(schema, rows_per_group), schema, path)
+    kind = pa.large_string() if text else pa.dictionary(pa.int32(), pa.large_string())
+    return pa.schema([(c, pa.int64() if TRACE_DTYPES[c] == "int64" else kind) for c in TRACE_COLUMNS])
 
 
-def write_links(result: Result, path: Path, rows_per_group: int = 1_000_000) -> Path:
-    """The links table, streamed channel by channel when the run kept it compact (a long
-    fast-forwarded run's links, 10+ intervals a frame, are never held whole)."""
-    if result.compact_links is None or not callable(result._links):
-        return write_table(result.links, path)
+def _write_arrow(tables: Iterable[Any], schema: Any, path: Path) -> Path:
+    """Arrow tables to one Parquet or CSV file, written whole or not at all."""
     import pyarrow as pa  # noqa: PLC0415
-    schema = pa.Schema.from_pandas(next(result.links_chunks()).iloc[:0], preserve_index=False)
-    tables = (pa.Table.from_pandas(df, schema=schema, preserve_index=False)
-              for df in result.links_chunks(rows_per_group))
-    return _stream(tables, schema, path)
-
-
-def _stream(tables: Iterator[Any], schema: Any, path: Path) -> Path:
-    """Arrow tables into one Parquet or CSV file (by extension), whole or not at all."""
     import pyarrow.csv as pcsv  # noqa: PLC0415
     import pyarrow.parquet as pq  # noqa: PLC0415
     tmp = path.with_name(path.name + ".tmp")
-    writer_class = pq.ParquetWriter if path.suffix == ".parquet" else pcsv.CSVWriter
-    with writer_class(tmp, schema) as writer:
+    if path.suffix == ".parquet":
+        numbers = [f.name for f in schema if f.type == pa.int64()]
+        text = [f.name for f in schema if f.name not in numbers]
+        # numbers delta-encoded (sorted times, frames: a tenth of the size, written faster),
+        # statistics only where a reader filters (numbers; not 100 kB input lists)
+        writer = pq.ParquetWriter(tmp, schema, store_schema=False, use_dictionary=text,
+                                  column_encoding={c: "DELTA_BINARY_PACKED" for c in numbers},
+                                  write_statistics=numbers)
+    else:
+        writer = pcsv.CSVWriter(tmp, schema)
+    with writer:
         for table in tables:
             writer.write_table(table)
     tmp.replace(path)
@@ -128,49 +169,63 @@ def write_text(text: str, path: Path) -> Path:
 
 
 def write_result(result: Result, out: Path, trace_format: str = "parquet", title: str = "",
-                 frames: range | None = None, trace_frames: int = TRACE_FRAMES) -> dict[str, Path]:
-    """summary.json, trace + frames + links tables (whole run), timeline.png of `frames`
-    (default: the last four) and trace.perfetto.json of the last `trace_frames` frames (0 = all).
+                 frames: range | None = None, trace_frames: int | None = None,
+                 trace_rows: int = TRACE_ROWS,
+                 progress: Callable[[str], None] | None = None) -> dict[str, Path]:
+    """summary.json, the trace table (its first frames within `trace_rows` rows, see
+    :func:`table_frames`) and the links table over the same time, the frames table (whole
+    run), timeline.png of `frames` (default: the last four) and trace.perfetto.json of the
+    last frames (:func:`perfetto_frames` of `trace_frames`). Nothing is built whole that the
+    files do not hold: a fast-forwarded run's windows come from its compact logs.
+    `progress(name)`: called before each file is written.
 
     Written into a temporary folder beside `out` and moved in at the end: a run that fails
     while writing (out of memory, disk full, interrupted) leaves no partial folder."""
     with staged_folder(out) as folder:
-        files = _write_files(result, folder, trace_format, title, frames, trace_frames)
+        files = _write_files(result, folder, trace_format, title, frames, trace_frames, trace_rows,
+                             progress or (lambda _name: None))
     return {key: out / path.name for key, path in files.items()}
 
 
 def _write_files(result: Result, out: Path, trace_format: str, title: str, frames: range | None,
-                 trace_frames: int) -> dict[str, Path]:
-    files = {
-        "summary": write_json({**result.summary, "config": result.config}, out / "summary.json"),
-        "trace": write_trace(result, out / f"trace.{trace_format}"),
-        "frames": write_table(result.frames, out / f"frames.{trace_format}"),
-        "links": write_links(result, out / f"links.{trace_format}"),
-    }
-    if result.compact:  # a long fast-forwarded run: take the windows without the whole trace
-        n = len(result.frames)
+                 trace_frames: int | None, trace_rows: int, say: Callable[[str], None]) -> dict[str, Path]:
+    n, kept = len(result.frames), table_frames(result, trace_rows)
+    until = None if kept >= n else int(result.frames["present_ns"].iloc[:kept].max()) + 1
+    say("summary.json")
+    files = {"summary": write_json({**result.summary, "config": result.config}, out / "summary.json")}
+    say(f"trace.{trace_format}")
+    files["trace"] = write_trace(result, out / f"trace.{trace_format}", frames=kept if kept < n else None)
+    say(f"frames.{trace_format}")
+    files["frames"] = write_table(result.frames, out / f"frames.{trace_format}")
+    say(f"links.{trace_format}")
+    files["links"] = write_links(result, out / f"links.{trace_format}", until)
+    if result.compact or len(result.trace):
+        say("timeline.png")
         shown = frames if frames is not None else range(max(0, n - 4), n)
-        window = result.trace_window(shown.start, shown.stop)
-        files["timeline"] = timeline_png(window, out / "timeline.png", _links_over(result, window), title,
-                                         list(shown), channels=result.link_channels)
-        first = max(0, n - trace_frames) if trace_frames > 0 else 0
-        window = result.trace_window(first, n)
-        trace, links = frame_window(window, _links_over(result, window), last=trace_frames)
-        files["perfetto"] = write_text(chrome_trace_json(trace, links, title), out / "trace.perfetto.json")
-    elif len(result.trace):
-        files["timeline"] = timeline_png(result.trace, out / "timeline.png", result.links, title,
-                                         list(frames) if frames is not None else None)
-        trace, links = frame_window(result.trace, result.links, last=trace_frames)
-        files["perfetto"] = write_text(chrome_trace_json(trace, links, title), out / "trace.perfetto.json")
+        rows = result.trace_window(shown.start, shown.stop)
+        files["timeline"] = timeline_png(rows, out / "timeline.png", links_over(result, rows), title, list(shown))
+        say("trace.perfetto.json")
+        rows = result.trace_window(n - perfetto_frames(result, trace_frames), n)
+        files["perfetto"] = write_text(chrome_trace_json(rows, links_over(result, rows), title),
+                                       out / "trace.perfetto.json")
     return files
 
 
-def _links_over(result: Result, trace: pd.DataFrame) -> pd.DataFrame:
-    """The link intervals over the time `trace` spans (what its timeline or Perfetto window
-    can show), from a long run's compact links."""
-    if not len(trace):
+def links_over(result: Result, rows: pd.DataFrame) -> pd.DataFrame:
+    """The link busy intervals that overlap the time span of `rows` (trace rows)."""
+    if not len(rows):
         return result.links_window(0, 0)
-    return result.links_window(int(trace["start_ns"].min()), int(trace["end_ns"].max()))
+    return result.links_window(int(rows["start_ns"].min()), int(rows["end_ns"].max()))
+
+
+def write_links(result: Result, path: Path, before: int | None = None) -> Path:
+    """The links table (only intervals starting before `before`, when given), streamed from a
+    fast-forwarded run's compact logs."""
+    import pyarrow as pa  # noqa: PLC0415
+    schema = pa.schema([("channel", pa.large_string()), ("start_ns", pa.int64()), ("end_ns", pa.int64())])
+    tables = (pa.Table.from_pandas(df, preserve_index=False).replace_schema_metadata(None).cast(schema)
+              for df in result.links_chunks(before))
+    return _write_arrow(tables, schema, path)
 
 
 @contextmanager

@@ -20,12 +20,14 @@ of a few hundred frames exports in well under a second.
 from __future__ import annotations
 
 import json
+import math
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from mgpusim.results.summary import link_track
+from mgpusim.results.waits import input_edges
 
 #: Copy steps whose name is also the path they cross (mgpusim.model.tasks.CopyTask.path).
 _PATH_STEPS = ("d2h", "h2d", "d2d")
@@ -42,39 +44,66 @@ def chrome_trace_json(trace: pd.DataFrame, links: pd.DataFrame | None = None, ti
     links = links if links is not None and len(links) else None
     slices = _slices(trace, links)
     pids = _pids(slices)
-    slices["pid"] = slices["device"].map(pids).astype("int64")
+    slices["pid"] = _lookup(slices[["device"]], {(d,): pid for d, pid in pids.items()})
     slices["lane"] = _assign_lanes(slices)
     slices["thread"] = slices["track"].where(slices["lane"] == 0,
                                              slices["track"] + " (" + (slices["lane"] + 1).astype(str) + ")")
     tids = _tids(slices)
-    slices["tid"] = pd.MultiIndex.from_frame(slices[["device", "thread"]]).map(tids).astype("int64")
-    lines = [_metadata(pids, tids), *_slice_events(slices), *_flows(slices), *_counters(trace, links, pids, slices)]
+    slices["tid"] = _lookup(slices[["device", "thread"]], tids)
+    flows = _flows(slices, trace["waits_for"])
+    lines = [_metadata(pids, tids), *_slice_events(slices), *flows, *_counters(trace, links, pids, slices)]
     events = ",\n".join(",\n".join(part) for part in lines if len(part))
     other = json.dumps({"title": title})
     return f'{{"traceEvents":[\n{events}\n],"displayTimeUnit":"ns","otherData":{other}}}\n'
 
 
 def _json_lines(events: pd.DataFrame, args: pd.DataFrame | None = None) -> list[str]:
-    """Each row as one JSON object, with the matching row of `args` nested as its "args"."""
+    """Each row as one JSON object, with the matching row of `args` nested as its "args".
+    Built column by column in Arrow (no Python object per field): each distinct string is
+    JSON-encoded once, numbers are written by Arrow (floats rounded to 4 decimals first)."""
     if events.empty:
         return []
-    text = pd.Series(events.to_json(orient="records", lines=True, double_precision=4).splitlines(), dtype=object)
-    if args is not None:
-        inner = pd.Series(args.to_json(orient="records", lines=True, double_precision=4).splitlines(), dtype=object)
-        text = text.str[:-1] + ',"args":' + inner + "}"
-    return text.tolist()
+    import pyarrow.compute as pc  # noqa: PLC0415
+    pieces: list[Any] = []
+    for opening, table in (("{", events), (',"args":{', args)):
+        if table is None:
+            continue
+        for i, name in enumerate(table.columns):
+            pieces.append((opening if i == 0 else ",") + json.dumps(str(name)) + ":")
+            pieces.append(_json_column(table[name]))
+        if table is args:
+            pieces.append("}")
+    pieces.append("}")
+    return pc.binary_join_element_wise(*pieces, "").to_pylist()
+
+
+def _json_column(col: pd.Series) -> Any:
+    """A column as an Arrow array of JSON texts."""
+    import pyarrow as pa  # noqa: PLC0415
+    import pyarrow.compute as pc  # noqa: PLC0415
+    if pd.api.types.is_integer_dtype(col.dtype):
+        return pa.array(col.to_numpy(np.int64)).cast(pa.string())
+    if pd.api.types.is_float_dtype(col.dtype):
+        numbers = pa.array(np.round(col.to_numpy(np.float64), 4))
+        return pc.if_else(pc.is_finite(numbers), numbers.cast(pa.string()), "null")  # JSON has no NaN
+    codes, uniques = pd.factorize(col, use_na_sentinel=False)
+    encoded = pa.array([json.dumps(None if _missing(u) else str(u)) for u in uniques], type=pa.string())
+    return encoded.take(pa.array(codes))
+
+
+def _missing(value: Any) -> bool:
+    return value is None or value is pd.NA or (isinstance(value, float) and math.isnan(value))
 
 
 # ----- tracks --------------------------------------------------------------------------------
 def _slices(trace: pd.DataFrame, links: pd.DataFrame | None) -> pd.DataFrame:
     """Trace rows and link busy intervals in one table, numbered 0..n-1 (a window of a trace
-    keeps its row labels; lanes are set by position)."""
+    keeps its row labels; lanes are set by position): the trace's rows first, in its order."""
     trace = trace.reset_index(drop=True)
     df = pd.DataFrame({"frame": trace["frame"].to_numpy(np.int64), "device": trace["device"].astype(str),
                        "track": trace["engine"].astype(str), "step": trace["step"].astype(str),
                        "task": trace["task"].astype(str), "start_ns": trace["start_ns"].to_numpy(np.int64),
-                       "end_ns": trace["end_ns"].to_numpy(np.int64), "bytes": trace["bytes"].to_numpy(np.int64),
-                       "waits_for": trace["waits_for"].fillna("").astype(str)})
+                       "end_ns": trace["end_ns"].to_numpy(np.int64), "bytes": trace["bytes"].to_numpy(np.int64)})
     if links is None:
         return df
     ch = links["channel"].astype(str)
@@ -82,12 +111,19 @@ def _slices(trace: pd.DataFrame, links: pd.DataFrame | None) -> pd.DataFrame:
     busy = pd.DataFrame({"frame": -1, "device": ch.map(where["device"]).to_numpy(),
                          "track": ch.map(where["track"]).to_numpy(), "step": "link", "task": ch.to_numpy(),
                          "start_ns": links["start_ns"].to_numpy(np.int64),
-                         "end_ns": links["end_ns"].to_numpy(np.int64), "bytes": 0, "waits_for": ""})
+                         "end_ns": links["end_ns"].to_numpy(np.int64), "bytes": 0})
     return pd.concat([df, busy], ignore_index=True)
 
 
+def _lookup(keys: pd.DataFrame, table: dict[tuple, int]) -> np.ndarray:
+    """`table[row]` for every row of `keys`, looked up once per distinct row."""
+    codes = keys.groupby(list(keys.columns), sort=False).ngroup().to_numpy()
+    values = [table[tuple(k)] for k in keys.drop_duplicates().itertuples(index=False)]
+    return np.asarray(values, dtype=np.int64)[codes]
+
+
 def _pids(slices: pd.DataFrame) -> dict[str, int]:
-    devices = set(slices["device"])
+    devices = set(slices["device"].unique().tolist())
     ordered = sorted(d for d in devices if d != "host") + (["host"] if "host" in devices else [])
     return {d: i + 1 for i, d in enumerate(ordered)}
 
@@ -144,31 +180,34 @@ def _slice_events(slices: pd.DataFrame) -> list[list[str]]:
 
 
 # ----- flow arrows ---------------------------------------------------------------------------
-def _flows(slices: pd.DataFrame) -> list[list[str]]:
+def _flows(slices: pd.DataFrame, waits_for: pd.Series) -> list[list[str]]:
     """One arrow per (source task, waiting task) pair, from the source's last-ending slice to
-    the waiter's first-starting one; endpoints at the slices' middle nanosecond."""
+    the waiter's first-starting one; endpoints at the slices' middle nanosecond. `waits_for`:
+    the trace's column (its rows are the first slices); each distinct list is parsed once, and
+    instances are matched on integer keys (frame, task code)."""
     tasks = slices[(slices["frame"] >= 0) & (slices["end_ns"] - slices["start_ns"] >= 2)]
     if tasks.empty:
         return []
-    src_of = tasks.sort_values("end_ns", kind="stable").drop_duplicates(["frame", "task"], keep="last")
-    dst_of = tasks.sort_values("start_ns", kind="stable").drop_duplicates(["frame", "task"], keep="first")
-    waits = dst_of.loc[dst_of["waits_for"] != "", ["frame", "task", "waits_for"]]
-    deps = waits.assign(label=waits["waits_for"].str.split(";")).explode("label")
-    parts = deps["label"].str.partition(":")
-    deps = pd.DataFrame({"dst_frame": deps["frame"], "dst_task": deps["task"],
-                         "src_frame": deps["frame"] + pd.to_numeric(parts[0]).astype("int64"),
-                         "src_task": parts[2]}).drop_duplicates()
-    cols = ["frame", "task", "pid", "tid", "start_ns", "end_ns"]
-    pairs = (deps.merge(src_of[cols].add_prefix("src_"), on=["src_frame", "src_task"])
-             .merge(dst_of[cols].add_prefix("dst_"), on=["dst_frame", "dst_task"]))
-    if pairs.empty:
+    names = pd.Index(tasks["task"].unique())
+    tasks = tasks.assign(key=tasks["frame"].to_numpy(np.int64) * len(names) + names.get_indexer(tasks["task"]))
+    src_of = tasks.sort_values("end_ns", kind="stable").drop_duplicates("key", keep="last").set_index("key")
+    dst_of = tasks.sort_values("start_ns", kind="stable").drop_duplicates("key", keep="first")
+    rows, offset, name = input_edges(waits_for.iloc[dst_of.index.to_numpy()])
+    source = names.get_indexer(name)
+    frame = dst_of["frame"].to_numpy(np.int64)[rows] + offset
+    deps = pd.DataFrame({"dst": dst_of["key"].to_numpy(np.int64)[rows],
+                         "src": frame * len(names) + source})[source >= 0].drop_duplicates()
+    dst_of = dst_of.set_index("key")
+    deps = deps[deps["src"].isin(src_of.index) & deps["dst"].isin(dst_of.index)]
+    if deps.empty:
         return []
-    ids = np.arange(1, len(pairs) + 1)
+    src, dst = src_of.loc[deps["src"]], dst_of.loc[deps["dst"]]
+    ids = np.arange(1, len(deps) + 1)
     common = {"name": "dep", "cat": "dep", "id": ids}
-    starts = pd.DataFrame({"ph": "s", **common, "pid": pairs["src_pid"], "tid": pairs["src_tid"],
-                           "ts": _middle(pairs["src_start_ns"], pairs["src_end_ns"])})
-    ends = pd.DataFrame({"ph": "f", "bp": "e", **common, "pid": pairs["dst_pid"], "tid": pairs["dst_tid"],
-                         "ts": _middle(pairs["dst_start_ns"], pairs["dst_end_ns"])})
+    starts = pd.DataFrame({"ph": "s", **common, "pid": src["pid"].to_numpy(), "tid": src["tid"].to_numpy(),
+                           "ts": _middle(src["start_ns"], src["end_ns"])})
+    ends = pd.DataFrame({"ph": "f", "bp": "e", **common, "pid": dst["pid"].to_numpy(), "tid": dst["tid"].to_numpy(),
+                         "ts": _middle(dst["start_ns"], dst["end_ns"])})
     return [_json_lines(starts), _json_lines(ends)]
 
 

@@ -5,6 +5,7 @@ computed in floating point and rounded once (half up) to integer ns where they e
 """
 from __future__ import annotations
 
+import functools
 import math
 from fractions import Fraction
 from typing import Mapping
@@ -25,8 +26,10 @@ def round_half_up(x: Fraction) -> int:
     return math.floor(x + Fraction(1, 2))
 
 
+@functools.lru_cache(maxsize=4096)
 def gbps_fraction(gbps: float) -> Fraction:
-    """Bytes per ns as an exact fraction of the decimal the user wrote."""
+    """Bytes per ns as an exact fraction of the decimal the user wrote. (Cached: parsing a
+    decimal into a Fraction costs more than a small run's model; a Fraction is immutable.)"""
     return Fraction(repr(float(gbps)))
 
 

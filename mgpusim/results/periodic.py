@@ -10,16 +10,20 @@ sorts (by start, end, device, engine; ties in logging order).
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 import pandas as pd
 
-from mgpusim.results.trace import TRACE_COLUMNS, TRACE_DTYPES
+from mgpusim.results.trace import TRACE_COLUMNS, TRACE_DTYPES, waits_for_categories
 
 _INT = ("frame", "start_ns", "end_ns", "bytes")
-_STR = ("device", "engine", "step", "task", "waits_for")
+#: text columns kept as codes into one sorted dictionary each (code order is string order)
+_STR = ("device", "engine", "step", "task")
+#: the inputs column: task ids, whose labels are built only when a table is
+_WAITS = "waits_for"
 
 
 @dataclass(frozen=True)
@@ -32,96 +36,169 @@ class Shift:
     copies: int
 
 
-def _columns(rows: list[tuple]) -> dict[str, np.ndarray]:
-    cols = list(zip(*rows)) if rows else [()] * len(TRACE_COLUMNS)
-    out: dict[str, np.ndarray] = {}
-    for name, values in zip(TRACE_COLUMNS, cols):
-        out[name] = np.array(values, dtype=np.int64 if name in _INT else object)
-    return out
-
-
 def _shifted(cols: dict[str, np.ndarray], frames: int, ns: int) -> dict[str, np.ndarray]:
     out = dict(cols)
-    out["frame"] = cols["frame"] + frames
-    out["start_ns"] = cols["start_ns"] + ns
-    out["end_ns"] = cols["end_ns"] + ns
+    for name, by in (("frame", frames), ("start_ns", ns), ("end_ns", ns)):
+        if name in cols:
+            out[name] = cols[name] + by
     return out
+
+
+def _encode(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(codes, sorted distinct strings) of an object array of strings: hashed, not sorted
+    row by row, so a long log of a few names costs one pass."""
+    codes, uniques = pd.factorize(values)
+    names = np.asarray(uniques, dtype=object).astype(str)
+    order = np.argsort(names, kind="stable")
+    rank = np.empty(len(order), dtype=np.int32)
+    rank[order] = np.arange(len(order), dtype=np.int32)
+    return rank[codes], names[order]
 
 
 class RepeatedRows:
-    """The trace rows of a fast-forwarded run (see the module doc). String columns are kept as
-    codes into one sorted dictionary per column (code order is string order)."""
+    """The trace rows of a fast-forwarded run (see the module doc); a run without a repeat is
+    the same with an empty block. What the summary reads (per-frame starts and presents, busy
+    time per queue) comes from the numbers and one code per queue; the text columns are coded
+    only when a table is built: into one sorted dictionary per column (code order is string
+    order), `waits_for` as the task ids the engine logged, with `labels()` giving each id's
+    text (None: the rows carry the text, which is then coded like the others)."""
 
-    def __init__(self, rows: list[tuple], split: tuple[int, int], shift: Shift):
-        parts = [_columns(rows[:split[0]]), _columns(rows[split[0]:split[1]]), _columns(rows[split[1]:])]
-        self.dictionary = {c: np.unique(np.concatenate([p[c] for p in parts]).astype(str)) for c in _STR}
-        for p in parts:
-            for c in _STR:
-                p[c] = np.searchsorted(self.dictionary[c], p[c].astype(str)).astype(np.int32)
-        self.prefix, self.block = parts[0], parts[1]
-        self.rest = _shifted(parts[2], shift.copies * shift.frames, shift.copies * shift.ns)
-        self.shift = shift
-        self._host = _code(self.dictionary["device"], "host")
+    def __init__(self, rows: list[tuple], split: tuple[int, int], shift: Shift,
+                 labels: Callable[[], Sequence[str]] | None = None):
+        self._rows, self._split, self.shift, self._given_labels = rows, split, shift, labels
+        cols = list(zip(*rows)) if rows else [()] * len(TRACE_COLUMNS)
+        self._text = dict(zip(TRACE_COLUMNS, cols))
+        self._numbers = {c: np.array(self._text[c], dtype=np.int64) for c in _INT}
+
+    def _parts(self, cols: dict[str, np.ndarray]) -> tuple[dict, dict, dict]:
+        """Prefix, block and rest (shifted by the skipped steps) of whole-log columns."""
+        a, b = self._split
+        prefix = {c: v[:a] for c, v in cols.items()}
+        block = {c: v[a:b] for c, v in cols.items()}
+        rest = _shifted({c: v[b:] for c, v in cols.items()}, self.shift.copies * self.shift.frames,
+                        self.shift.copies * self.shift.ns)
+        return prefix, block, rest
+
+    @functools.cached_property
+    def _coded(self) -> tuple[tuple[dict, dict, dict], dict[str, np.ndarray], Callable[[], Sequence[str]]]:
+        """The parts with every column as numbers, the dictionaries, the labels of `waits_for`."""
+        cols = dict(self._numbers)
+        dictionary: dict[str, np.ndarray] = {}
+        for c in _STR:
+            cols[c], dictionary[c] = _encode(np.array(self._text[c], dtype=object))
+        if self._given_labels is not None:
+            cols[_WAITS] = np.array(self._text[_WAITS], dtype=np.int64)
+            labels = self._given_labels
+        else:
+            cols[_WAITS], names = _encode(np.array(self._text[_WAITS], dtype=object))
+            labels = lambda: names  # noqa: E731
+        return self._parts(cols), dictionary, labels
+
+    @property
+    def prefix(self) -> dict[str, np.ndarray]:
+        return self._coded[0][0]
+
+    @property
+    def block(self) -> dict[str, np.ndarray]:
+        return self._coded[0][1]
+
+    @property
+    def rest(self) -> dict[str, np.ndarray]:
+        return self._coded[0][2]
+
+    @property
+    def dictionary(self) -> dict[str, np.ndarray]:
+        return self._coded[1]
+
+    @functools.cached_property
+    def waits_for(self) -> tuple[np.ndarray, Any]:
+        """(category code of each task id, the distinct `waits_for` labels)."""
+        return waits_for_categories(self._coded[2]())
 
     def __len__(self) -> int:
-        return len(self.prefix["frame"]) + (self.shift.copies + 1) * len(self.block["frame"]) + \
-            len(self.rest["frame"])
+        a, b = self._split
+        return len(self._rows) + self.shift.copies * (b - a)
 
     # ----- per frame ---------------------------------------------------------------------
     def frame_arrays(self, frames: int, present_task: str) -> tuple[np.ndarray, np.ndarray]:
-        """(first task start, present end) per frame, as the engine records them."""
-        present_code = _code(self.dictionary["task"], present_task)
+        """(first task start, present end) per frame, as the engine records them (a frame's
+        present is its present task's end on a GPU queue)."""
+        is_present = np.array([t == present_task and d != "host" for t, d in
+                               zip(self._text["task"], self._text["device"])], dtype=bool)
+        prefix, b, rest = self._parts({**self._numbers, "present": is_present})
         start = np.full(frames, np.iinfo(np.int64).max, dtype=np.int64)
         present = np.full(frames, -1, dtype=np.int64)
-        for part in (self.prefix, self.rest):
+        for part in (prefix, rest):
             np.minimum.at(start, part["frame"], part["start_ns"])
-            mask = _present(part, present_code, self._host)
+            mask = part["present"]
             np.maximum.at(present, part["frame"][mask], part["end_ns"][mask])
         steps = np.arange(self.shift.copies + 1, dtype=np.int64)
-        b = self.block
-        mask = _present(b, present_code, self._host)
         for frame in np.unique(b["frame"]):
             idx = frame + self.shift.frames * steps
             in_frame = b["frame"] == frame
             first = b["start_ns"][in_frame].min()
             start[idx] = np.minimum(start[idx], first + self.shift.ns * steps)
-            ends = b["end_ns"][in_frame & mask]
+            ends = b["end_ns"][in_frame & b["present"]]
             if len(ends):
                 present[idx] = np.maximum(present[idx], ends.max() + self.shift.ns * steps)
         return start, present
 
+    def rows_per_frame(self, frames: int) -> np.ndarray:
+        """How many rows each of frames 0..frames-1 has (the block's counts added per copy)."""
+        prefix, block, rest = self._parts({"frame": self._numbers["frame"]})
+        counts = np.zeros(frames, dtype=np.int64)
+        for part in (prefix, rest):
+            np.add.at(counts, part["frame"], 1)
+        step, copies = self.shift.frames, self.shift.copies
+        for frame, count in zip(*np.unique(block["frame"], return_counts=True)):
+            counts[int(frame):int(frame) + (copies + 1) * step:step] += int(count)
+        return counts
+
     # ----- busy time ---------------------------------------------------------------------
+    @functools.cached_property
+    def _queues(self) -> tuple[np.ndarray, list[str]]:
+        """(code per row, names): each row's queue or host thread, `device.engine`."""
+        dev, devices = pd.factorize(np.array(self._text["device"], dtype=object))
+        eng, engines = pd.factorize(np.array(self._text["engine"], dtype=object))
+        keys, codes = np.unique(dev.astype(np.int64) * len(engines) + eng, return_inverse=True)
+        n = max(len(engines), 1)
+        return codes.astype(np.int64), [f"{devices[k // n]}.{engines[k % n]}" for k in keys.tolist()]
+
     def busy(self, lo: int, hi: int) -> dict[str, int]:
         """Busy ns of every queue and host thread (`device.engine`) inside [lo, hi]."""
-        out: dict[str, int] = {}
-        for part in (self.prefix, self.rest):
-            _add_clipped(out, self._resource(part), part["start_ns"], part["end_ns"], lo, hi)
-        b = self.block
-        for name, s, e in zip(self._resource(b), b["start_ns"].tolist(), b["end_ns"].tolist()):
-            out[name] = out.get(name, 0) + shifted_overlap(s, e, self.shift.ns, self.shift.copies, lo, hi)
-        return out
-
-    def _resource(self, part: dict[str, np.ndarray]) -> list[str]:
-        dev, eng = self.dictionary["device"][part["device"]], self.dictionary["engine"][part["engine"]]
-        return [f"{d}.{e}" for d, e in zip(dev.tolist(), eng.tolist())]
+        codes, names = self._queues
+        prefix, b, rest = self._parts({**self._numbers, "queue": codes})
+        total = np.zeros(len(names), dtype=np.int64)
+        for part in (prefix, rest):
+            dur = np.minimum(np.maximum(part["end_ns"], lo), hi) - np.minimum(np.maximum(part["start_ns"], lo), hi)
+            np.add.at(total, part["queue"], dur)
+        for q, s, e in zip(b["queue"].tolist(), b["start_ns"].tolist(), b["end_ns"].tolist()):
+            total[q] += shifted_overlap(s, e, self.shift.ns, self.shift.copies, lo, hi)
+        return {name: int(t) for name, t in zip(names, total.tolist())}
 
     # ----- the trace ---------------------------------------------------------------------
-    def chunks(self, rows_per_chunk: int = 1_000_000) -> Iterator[pd.DataFrame]:
-        """The whole trace, sorted as make_trace sorts it, in chunks of about `rows_per_chunk`
-        rows (by start time: every row of one start time is in one chunk)."""
-        for cols in self._sorted_chunks(rows_per_chunk):
+    def chunks(self, rows_per_chunk: int = 1_000_000, frames: int | None = None) -> Iterator[pd.DataFrame]:
+        """The whole trace (or its rows of frames below `frames`), sorted as make_trace sorts
+        it, in chunks of about `rows_per_chunk` rows (by start time: every row of one start
+        time is in one chunk)."""
+        for cols in self._sorted_chunks(rows_per_chunk, frames):
             yield self._frame(cols)
 
-    def arrow_chunks(self, schema: Any, rows_per_chunk: int = 1_000_000) -> Iterator[Any]:
-        """The same chunks as pyarrow Tables of `schema` (strings built in Arrow, not Python)."""
+    def arrow_chunks(self, schema: Any, rows_per_chunk: int = 1_000_000,
+                     frames: int | None = None) -> Iterator[Any]:
+        """The same chunks as pyarrow Tables of `schema` (strings built in Arrow, not Python;
+        a dictionary-typed field gets the codes and dictionary as they are)."""
         import pyarrow as pa  # noqa: PLC0415 (only the streaming writer needs it)
-        dicts = {c: pa.array(self.dictionary[c].tolist(), type=pa.string()) for c in _STR}
-        for cols in self._sorted_chunks(rows_per_chunk):
+        codes, uniques = self.waits_for
+        dicts = {c: pa.array(self.dictionary[c].tolist(), type=pa.large_string()) for c in _STR}
+        dicts[_WAITS] = pa.array(list(uniques), type=pa.large_string())
+        for cols in self._sorted_chunks(rows_per_chunk, frames):
             arrays = []
             for field in schema:
-                if field.name in _STR:
-                    codes = pa.array(cols[field.name], type=pa.int32())
-                    arrays.append(pa.DictionaryArray.from_arrays(codes, dicts[field.name]).cast(field.type))
+                if field.name in dicts:
+                    values = codes[cols[_WAITS]] if field.name == _WAITS else cols[field.name]
+                    array = pa.DictionaryArray.from_arrays(pa.array(values.astype(np.int32)), dicts[field.name])
+                    arrays.append(array if array.type == field.type else array.cast(field.type))
                 else:
                     arrays.append(pa.array(cols[field.name], type=field.type))
             yield pa.Table.from_arrays(arrays, schema=schema)
@@ -139,21 +216,50 @@ class RepeatedRows:
         parts.append(_frames_in(self.rest, first, last))
         return self._frame(_sort({c: np.concatenate([x[c] for x in parts]) for c in TRACE_COLUMNS}))
 
-    def _sorted_chunks(self, rows_per_chunk: int) -> Iterator[dict[str, np.ndarray]]:
+    def _sorted_chunks(self, rows_per_chunk: int, frames: int | None = None) -> Iterator[dict[str, np.ndarray]]:
+        """The rows (of frames below `frames`, when given) in sorted chunks of about
+        `rows_per_chunk` rows, each chunk the rows that start in one span of time. Where the
+        block's copies alone fill a span (the steady middle of the run), every period of it
+        holds the same rows in the same order, shifted: those spans are tiled from one sorted
+        period (:class:`_SteadyOrder`), not sorted again."""
         starts = [p["start_ns"] for p in (self.prefix, self.block, self.rest) if len(p["start_ns"])]
         if not starts:
             yield {c: self.prefix[c] for c in TRACE_COLUMNS}
             return
         lo = min(int(s.min()) for s in starts)
         hi = max(int(s.max()) for s in starts) + self.shift.copies * self.shift.ns + 1
+        if frames is not None:
+            hi = min(hi, self._last_start(frames) + 1)
         per_step = max(1, len(self.block["frame"]))
         steps = max(1, rows_per_chunk // per_step)
         width = steps * self.shift.ns if self.shift.ns else hi - lo
+        steady = _SteadyOrder.of(self)
         a = lo
         while a < hi:
-            b = min(hi, a + width)
-            yield self._between(a, b)
+            if steady is not None and steady.first <= a < steady.end:
+                b = min(steady.end, a + width)  # whole periods (past hi: the frame filter drops them)
+                cols = steady.rows(a, b)
+            else:
+                b = min(hi, a + width, steady.first if steady is not None and a < steady.first else hi)
+                cols = self._between(a, b)
+            if frames is not None:
+                keep = cols["frame"] < frames
+                cols = {c: v[keep] for c, v in cols.items()}
+            yield cols
             a = b
+
+    def _last_start(self, frames: int) -> int:
+        """A bound on the start of any row of a frame below `frames`."""
+        out = -1
+        for part in (self.prefix, self.rest):
+            mask = part["frame"] < frames
+            if mask.any():
+                out = max(out, int(part["start_ns"][mask].max()))
+        b = self.block
+        if len(b["frame"]):
+            copies = min(self.shift.copies, max(0, (frames - int(b["frame"].min())) // max(self.shift.frames, 1)))
+            out = max(out, int(b["start_ns"].max()) + copies * self.shift.ns)
+        return out
 
     def frame(self) -> pd.DataFrame:
         """The whole trace as one DataFrame (what make_trace would build from every row)."""
@@ -177,7 +283,7 @@ class RepeatedRows:
 
     def _frame(self, cols: dict[str, np.ndarray]) -> pd.DataFrame:
         """A DataFrame with make_trace's dtypes; strings are built in Arrow from the codes
-        (no Python string per row)."""
+        (no Python string per row), `waits_for` as a categorical of the task ids' labels."""
         import pyarrow as pa  # noqa: PLC0415
         data: dict[str, Any] = {}
         for c in TRACE_COLUMNS:
@@ -186,18 +292,62 @@ class RepeatedRows:
                 strings = pa.DictionaryArray.from_arrays(codes, pa.array(self.dictionary[c].tolist(),
                                                                          type=pa.string()))
                 data[c] = pd.array(strings.cast(pa.large_string()), dtype=TRACE_DTYPES[c])
+            elif c == _WAITS:
+                codes, uniques = self.waits_for
+                data[c] = pd.Categorical.from_codes(codes[cols[c]], categories=uniques)
             else:
                 data[c] = cols[c].astype(TRACE_DTYPES[c])
         return pd.DataFrame(data, columns=list(TRACE_COLUMNS))
 
 
-def _code(dictionary: np.ndarray, value: str) -> int:
-    i = int(np.searchsorted(dictionary, value))
-    return i if i < len(dictionary) and dictionary[i] == value else -1
+class _SteadyOrder:
+    """The steady middle of a fast-forwarded trace, sorted once and tiled.
 
+    Cut time into periods [first + k T, first + (k + 1) T). A block row starting at s lies,
+    in copy j, in period k = j + d with d = (s - first) // T: so every period k with all of
+    its rows' copies in range (d_max <= k <= copies) and no prefix or rest row starting in
+    it holds exactly one copy of every block row (copy k - d), in the same order: by start,
+    end, device, engine, then logging order (earlier copy, then row). That order is found
+    once; a span of such periods is the block in that order, tiled, shifted by k."""
 
-def _present(part: dict[str, np.ndarray], present_code: int, host_code: int) -> np.ndarray:
-    return (part["task"] == present_code) & (part["device"] != host_code)
+    def __init__(self, rows: RepeatedRows, first: int, k_first: int, k_last: int):
+        b, t = rows.block, rows.shift.ns
+        d = (b["start_ns"] - first) // t
+        order = np.lexsort((np.arange(len(d)), -d, b["engine"], b["device"], b["end_ns"] - d * t,
+                            b["start_ns"] - d * t))
+        self.base = {c: v[order] for c, v in b.items()}
+        self.copy = -d[order]  # copy index minus k, per sorted row
+        self.shift, self.origin = rows.shift, first
+        self.k_first = k_first
+        self.first, self.end = first + k_first * t, first + (k_last + 1) * t
+
+    @classmethod
+    def of(cls, rows: RepeatedRows) -> "_SteadyOrder | None":
+        """The steady span of `rows`, or None where there is none (no block, no time shift,
+        or a prefix and rest that leave no whole period to the block alone)."""
+        b, t = rows.block, rows.shift.ns
+        if not len(b["frame"]) or t <= 0:
+            return None
+        first = int(b["start_ns"].min())
+        k_first = int((b["start_ns"].max() - first) // t)
+        if len(rows.prefix["start_ns"]):
+            k_first = max(k_first, (int(rows.prefix["start_ns"].max()) - first) // t + 1)
+        k_last = rows.shift.copies
+        if len(rows.rest["start_ns"]):
+            k_last = min(k_last, (int(rows.rest["start_ns"].min()) - first) // t - 1)
+        return cls(rows, first, k_first, k_last) if k_first <= k_last else None
+
+    def rows(self, a: int, b: int) -> dict[str, np.ndarray]:
+        """The sorted rows starting in [a, b), both on period edges inside the span."""
+        t = self.shift.ns
+        k0, k1 = (a - self.origin) // t, (b - self.origin) // t
+        n = len(self.copy)
+        j = np.repeat(np.arange(k0, k1, dtype=np.int64), n) + np.tile(self.copy, k1 - k0)
+        out = {c: np.tile(v, k1 - k0) for c, v in self.base.items()}
+        out["frame"] += j * self.shift.frames
+        out["start_ns"] += j * t
+        out["end_ns"] += j * t
+        return out
 
 
 def _tiled(block: dict[str, np.ndarray], j0: int, j1: int, shift: Shift, a: int, b: int) -> dict[str, np.ndarray]:
@@ -222,12 +372,6 @@ def _sort(cols: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         return cols
     order = np.lexsort((cols["engine"], cols["device"], cols["end_ns"], cols["start_ns"]))
     return {c: v[order] for c, v in cols.items()}
-
-
-def _add_clipped(out: dict[str, int], names: list[str], s: np.ndarray, e: np.ndarray, lo: int, hi: int) -> None:
-    dur = np.clip(e, lo, hi) - np.clip(s, lo, hi)
-    for name, d in zip(names, dur.tolist()):
-        out[name] = out.get(name, 0) + int(d)
 
 
 def shifted_overlap(s: int, e: int, t: int, copies: int, lo: int, hi: int) -> int:
@@ -303,6 +447,40 @@ class RepeatedIntervals:
                 parts.append(_overlap((self.block[None, :, :] + steps[:, None, None]).reshape(-1, 2), lo, hi))
         parts.append(_overlap(self.rest, lo, hi))
         return np.concatenate(parts)
+
+    def _copies(self, lo: int | None, hi: int | None) -> tuple[int, int]:
+        """A range of block copies j0..j1 that holds every copy with an interval overlapping
+        (lo, hi) (None: unbounded); exact filtering is the caller's."""
+        t, copies = self.shift.ns, self.shift.copies
+        if not len(self.block) or t <= 0:
+            return 0, copies
+        j0 = 0 if lo is None else max(0, (lo - int(self.block[:, 1].max())) // t)
+        j1 = copies if hi is None else min(copies, (hi - int(self.block[:, 0].min())) // t + 1)
+        return j0, j1
+
+    def _tiled(self, j0: int, j1: int) -> np.ndarray:
+        steps = self.shift.ns * np.arange(j0, j1 + 1, dtype=np.int64)
+        return (self.block[None, :, :] + steps[:, None, None]).reshape(-1, 2)
+
+    def between(self, lo: int, hi: int) -> np.ndarray:
+        """The intervals with end > lo and start < hi, in log order (what filtering
+        :meth:`array` would keep), tiling only the copies that can overlap."""
+        j0, j1 = self._copies(lo, hi)
+        parts = [self.prefix, self._tiled(j0, j1) if j1 >= j0 else self.block[:0], self.rest]
+        arr = np.concatenate(parts)
+        return arr[(arr[:, 1] > lo) & (arr[:, 0] < hi)]
+
+    def pieces(self, before: int | None = None, rows: int = 1_000_000) -> Iterator[np.ndarray]:
+        """The log in order (only intervals starting before `before`, when given), in pieces of
+        about `rows` intervals."""
+        def keep(arr: np.ndarray) -> np.ndarray:
+            return arr if before is None else arr[arr[:, 0] < before]
+        yield keep(self.prefix)
+        j0, j1 = self._copies(None, before)
+        step = max(1, rows // max(1, len(self.block)))
+        for j in range(j0, j1 + 1, step):
+            yield keep(self._tiled(j, min(j1, j + step - 1)))
+        yield keep(self.rest)
 
     def busy(self, lo: int, hi: int) -> int:
         total = int((np.clip(self.prefix[:, 1], lo, hi) - np.clip(self.prefix[:, 0], lo, hi)).sum())

@@ -22,18 +22,21 @@ LazyTable = pd.DataFrame | Callable[[], pd.DataFrame]
 class Result:
     """One run: `.trace` (per task), `.frames` (per frame), `.summary` (dict), `.links`.
 
-    `.trace` and `.links` may be built on first use: a fast-forwarded long run keeps them in
-    compact form (:mod:`mgpusim.results.periodic`) and :meth:`trace_chunks` streams them."""
+    The summary is computed from arrays when the run ends; `.trace`, `.frames` and `.links`
+    are tables built on first read (a simulated run keeps its logs in compact form,
+    :mod:`mgpusim.results.periodic`, and :meth:`trace_chunks` streams them), so a call that
+    only wants the summary (a sweep point, a search) never builds a DataFrame."""
 
-    def __init__(self, summary: dict[str, Any], trace: LazyTable, frames: pd.DataFrame,
+    def __init__(self, summary: dict[str, Any], trace: LazyTable, frames: LazyTable,
                  links: LazyTable | None = None, config: dict[str, Any] | None = None,
-                 repeated: RepeatedRows | None = None, compact_links: "CompactLinks | None" = None):
-        self.summary, self.frames, self.config = summary, frames, config if config is not None else {}
+                 repeated: RepeatedRows | None = None,
+                 link_logs: dict[str, RepeatedIntervals] | None = None):
+        self.summary, self._frames, self.config = summary, frames, config if config is not None else {}
         self._trace, self._links = trace, links if links is not None else pd.DataFrame()
         #: the compact trace of a fast-forwarded run (None: `.trace` is the whole table)
         self.repeated = repeated
-        #: its compact links (None: `.links` is the whole table)
-        self.compact_links = compact_links
+        #: the compact link logs of a fast-forwarded run, per channel (None: `.links` is whole)
+        self.link_logs = link_logs
         #: seconds the model itself took (engine or recurrence), set by simulate()
         self.model_wall_s: float | None = None
 
@@ -46,6 +49,16 @@ class Result:
     @trace.setter
     def trace(self, value: pd.DataFrame) -> None:
         self._trace = value
+
+    @property
+    def frames(self) -> pd.DataFrame:
+        if callable(self._frames):
+            self._frames = self._frames()
+        return self._frames
+
+    @frames.setter
+    def frames(self, value: pd.DataFrame) -> None:
+        self._frames = value
 
     @property
     def links(self) -> pd.DataFrame:
@@ -71,28 +84,24 @@ class Result:
         for lo in range(0, max(len(trace), 1), rows_per_chunk):
             yield trace.iloc[lo:lo + rows_per_chunk]
 
-    def links_chunks(self, rows_per_chunk: int = 1_000_000) -> Iterator[pd.DataFrame]:
-        """The links table in chunks, without building it whole when it is kept compact."""
-        if self.compact_links is not None and callable(self._links):
-            yield from self.compact_links.chunks(rows_per_chunk)
-            return
-        yield self.links
-
     def links_window(self, lo: int, hi: int) -> pd.DataFrame:
-        """The link busy intervals that overlap [lo, hi) (all channels, in the table's order)."""
-        if self.compact_links is not None and callable(self._links):
-            return self.compact_links.window(lo, hi)
-        links = self.links
-        if not len(links):
-            return links
-        return links[(links["end_ns"] > lo) & (links["start_ns"] < hi)]
+        """The link busy intervals with end > lo and start < hi, in the links table's order,
+        without building a fast-forwarded run's whole table."""
+        if self.link_logs is None or not callable(self._links):
+            links = self.links
+            return links[(links["end_ns"] > lo) & (links["start_ns"] < hi)] if len(links) else links
+        return links_frame({name: log.between(lo, hi) for name, log in self.link_logs.items()})
 
-    @property
-    def link_channels(self) -> int:
-        """How many channels the links table has (rows a timeline leaves for them)."""
-        if self.compact_links is not None and callable(self._links):
-            return sum(1 for log in self.compact_links.logs.values() if len(log))
-        return int(self.links["channel"].nunique()) if len(self.links) else 0
+    def links_chunks(self, before: int | None = None, rows: int = 1_000_000) -> Iterator[pd.DataFrame]:
+        """The links table (only intervals starting before `before`, when given) in chunks."""
+        if self.link_logs is None or not callable(self._links):
+            links = self.links
+            yield links if before is None or not len(links) else links[links["start_ns"] < before]
+            return
+        for name, log in self.link_logs.items():
+            for piece in log.pieces(before, rows):
+                if len(piece):
+                    yield links_frame({name: piece})
 
     def trace_window(self, first: int, last: int) -> pd.DataFrame:
         """The trace rows of frames first..last-1 (sorted as the whole trace), without
@@ -104,13 +113,11 @@ class Result:
 
 
 def frames_table(frame_start: np.ndarray, present_end: np.ndarray) -> pd.DataFrame:
-    """One row per frame; the arrays are taken as they are (no copy: a 10^6-frame run's table
-    is built once)."""
-    start = np.asarray(frame_start, dtype=np.int64)
-    present = np.asarray(present_end, dtype=np.int64)
-    return pd.DataFrame({"frame": np.arange(len(present), dtype=np.int64), "start_ns": start,
-                         "present_ns": present, "latency_ns": present - start},
-                        columns=list(FRAME_COLUMNS), copy=False)
+    frames = np.arange(len(present_end), dtype=np.int64)
+    return pd.DataFrame({"frame": frames, "start_ns": frame_start.astype(np.int64),
+                         "present_ns": present_end.astype(np.int64),
+                         "latency_ns": (present_end - frame_start).astype(np.int64)},
+                        columns=list(FRAME_COLUMNS))
 
 
 def frames_from_trace(trace: pd.DataFrame, present_step: str = "present") -> pd.DataFrame:
@@ -126,44 +133,55 @@ def summarize(frames: pd.DataFrame, trace: pd.DataFrame | None, warmup_frames: i
               links: pd.DataFrame | None = None,
               busy: Callable[[int, int], dict[str, int]] | None = None,
               leave_out: Collection[int] = ()) -> dict[str, Any]:
-    """Steady-state figures after `warmup_frames`: frame time = mean period between presents.
-    With a single steady frame its period is measured from the last warm-up frame's present
-    (or, with no warm-up, from its own start). Utilization comes from `busy(lo, hi)` (busy ns
-    per resource in the window) when given, else from the trace and links tables. `leave_out`:
-    frames whose period and latency the figures skip (a measured run's stalls)."""
-    number = frames["frame"].to_numpy()
-    in_steady = number >= warmup_frames  # column by column: no copy of the whole table
-    if not in_steady.any():
+    """:func:`summarize_arrays` of a frames table. Utilization comes from `busy(lo, hi)`
+    (busy ns per resource in the window) when given, else from the trace and links tables."""
+    if busy is None and trace is not None and len(trace):
+        def busy(lo: int, hi: int) -> dict[str, int]:
+            return table_busy(trace, links, lo, hi)
+    return summarize_arrays(frames["frame"].to_numpy(np.int64), frames["start_ns"].to_numpy(np.int64),
+                            frames["present_ns"].to_numpy(np.int64), warmup_frames, busy, leave_out)
+
+
+def summarize_arrays(frame: np.ndarray, start: np.ndarray, present: np.ndarray, warmup_frames: int,
+                     busy: Callable[[int, int], dict[str, int]] | None = None,
+                     leave_out: Collection[int] = ()) -> dict[str, Any]:
+    """Steady-state figures after `warmup_frames`, from per-frame arrays (frame number, first
+    start, present): frame time = mean period between presents. With a single steady frame its
+    period is measured from the last warm-up frame's present (or, with no warm-up, from its
+    own start). Utilization: `busy(lo, hi)` over the window, when given. `leave_out`: frames
+    whose period and latency the figures skip (a measured run's stalls). Arrays, no tables:
+    a run's summary costs microseconds."""
+    steady = frame >= warmup_frames
+    if not steady.any():
         raise InputError(f"no frame presents after the {warmup_frames} warm-up frames "
-                         f"(the run has {len(frames)})", field="schedule.warmup_frames")
-    presents = frames["present_ns"].to_numpy(dtype=np.int64)[in_steady]
+                         f"(the run has {len(frame)})", field="schedule.warmup_frames")
+    presents = present[steady].astype(np.int64, copy=False)
+    latency = (present - start)[steady]
     if len(presents) == 1:
-        before = frames["present_ns"].to_numpy(dtype=np.int64)[~in_steady]
-        origin = int(before[-1]) if len(before) else int(frames["start_ns"].to_numpy()[in_steady][0])
+        before = present[frame < warmup_frames]
+        origin = int(before[-1]) if len(before) else int(start[steady][0])
         presents = np.array([origin, presents[0]], dtype=np.int64)
     periods = np.diff(presents)
     window = (int(presents[0]), int(presents[-1]))
-    latency = frames["latency_ns"].to_numpy()[in_steady]
     if leave_out:
-        kept = ~np.isin(number[in_steady], list(leave_out))
-        periods, latency = periods[kept[1:]], latency[kept]
+        out_of = np.isin(frame[steady], list(leave_out))
+        periods = periods[~out_of[1:]]
+        latency = latency[~out_of]
     frame_time = float(periods.mean())
     out: dict[str, Any] = {
         "frame_time_ms": frame_time / 1e6,
         "fps": 1e9 / frame_time if frame_time > 0 else float("inf"),
-        "latency_ms": float(pd.Series(latency).mean()) / 1e6,
+        "latency_ms": float(latency.mean()) / 1e6,
         "frame_time_jitter_ms": float(periods.std()) / 1e6,
         "frame_time_min_ms": float(periods.min()) / 1e6,
         "frame_time_max_ms": float(periods.max()) / 1e6,
-        "frames": int(len(frames)),
+        "frames": int(len(frame)),
         "warmup_frames": int(warmup_frames),
         "window_ns": list(window),
     }
     if busy is not None:
         span = max(window[1] - window[0], 1)
         out["utilization"] = {name: round(b / span, 6) for name, b in sorted(busy(*window).items())}
-    elif trace is not None and len(trace):
-        out["utilization"] = utilization(trace, links, window)
     return out
 
 
@@ -171,10 +189,15 @@ def utilization(trace: pd.DataFrame, links: pd.DataFrame | None, window: tuple[i
     """Busy fraction of every queue, host thread and link over the steady-state window."""
     lo, hi = window
     span = max(hi - lo, 1)
-    busy = _busy(trace.assign(resource=trace["device"] + "." + trace["engine"]), lo, hi)
+    return {name: round(b / span, 6) for name, b in sorted(table_busy(trace, links, lo, hi).items())}
+
+
+def table_busy(trace: pd.DataFrame, links: pd.DataFrame | None, lo: int, hi: int) -> dict[str, int]:
+    """Busy ns of every queue and host thread (`device.engine`) and link inside [lo, hi]."""
+    busy = _busy(trace.assign(resource=trace["device"].astype(str) + "." + trace["engine"].astype(str)), lo, hi)
     if links is not None and len(links):
         busy.update(_busy(links.rename(columns={"channel": "resource"}), lo, hi))
-    return {name: round(b / span, 6) for name, b in sorted(busy.items())}
+    return busy
 
 
 def _busy(df: pd.DataFrame, lo: int, hi: int) -> dict[str, int]:
@@ -202,35 +225,35 @@ LINK_DTYPES = {"channel": "string", "start_ns": "int64", "end_ns": "int64"}
 _NO_LINKS = pd.DataFrame([], columns=list(LINK_DTYPES)).astype(LINK_DTYPES)
 
 
-def links_table(channels: dict) -> pd.DataFrame:
-    rows = [(name, s, e) for name, ch in channels.items() for s, e in ch.busy]
-    if not rows:  # common (one GPU, the analytic level): no table to build
-        return _NO_LINKS.copy()
-    return pd.DataFrame(rows, columns=list(LINK_DTYPES)).astype(LINK_DTYPES)
+def links_frame(arrays: dict[str, np.ndarray]) -> pd.DataFrame:
+    """A links table from (start, end) arrays per channel, channel after channel."""
+    parts = [pd.DataFrame({"channel": name, "start_ns": a[:, 0], "end_ns": a[:, 1]}) for name, a in arrays.items()]
+    df = pd.concat(parts, ignore_index=True) if parts else _NO_LINKS.copy()
+    return df.astype(LINK_DTYPES)
+
+
+def _labels(raw) -> Callable[[], Sequence[str]] | None:
+    """The `waits_for` text of each task id the rows log, built when called (None: the rows
+    log the text itself)."""
+    inputs = getattr(raw, "inputs", None)
+    return None if inputs is None else (lambda: inputs.labels)
 
 
 def build_result(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
-    if getattr(raw, "repeat", None) is not None:
-        return _build_repeated(raw, warmup_frames, config)
-    trace = make_trace(raw.rows)
-    frames = frames_table(raw.frame_start, raw.present_end)
-    links = links_table(raw.channels)
-    summary = summarize(frames, trace if len(trace) else None, warmup_frames, links)
-    summary["effects"] = raw.effects
-    if raw.skipped:
-        summary["skipped_tasks"] = raw.skipped
-    return Result(summary, trace, frames, links, config)
-
-
-def _build_repeated(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
-    """The result of a fast-forwarded run: tables from its compact logs (mgpusim.results.periodic)."""
+    """A run's Result from what the engine (or the analytic level) observed: the summary from
+    arrays at once; the trace, frames and links tables built only when read. A fast-forwarded
+    run's logs are kept compact (:mod:`mgpusim.results.periodic`); a run without a repeat is
+    the same form with nothing repeated."""
     r = raw.repeat
-    shift = Shift(r.frames, r.ns, r.copies)
-    rows = RepeatedRows(raw.rows, r.rows, shift)
-    start, present = rows.frame_arrays(len(raw.frame_start), raw.present_task)
-    frames = frames_table(start, present)
-    links = {name: RepeatedIntervals(ch.busy, r.busy.get(name, (len(ch.busy), len(ch.busy))), shift,
-                                     r.held_open.get(name))
+    shift = Shift(r.frames, r.ns, r.copies) if r is not None else Shift(1, 0, 0)
+    rows = RepeatedRows(raw.rows, r.rows if r is not None else (len(raw.rows),) * 2, shift, _labels(raw))
+    if r is not None:
+        start, present = rows.frame_arrays(len(raw.frame_start), raw.present_task)
+    else:
+        start, present = raw.frame_start, raw.present_end
+    links = {name: RepeatedIntervals(ch.busy, r.busy.get(name, (len(ch.busy),) * 2) if r is not None
+                                     else (len(ch.busy),) * 2, shift,
+                                     r.held_open.get(name) if r is not None else None)
              for name, ch in raw.channels.items()}
 
     def busy(lo: int, hi: int) -> dict[str, int]:
@@ -238,55 +261,25 @@ def _build_repeated(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
         out.update({name: log.busy(lo, hi) for name, log in links.items() if len(log)})
         return out
 
-    compact_links = CompactLinks(links)
+    def whole_links() -> pd.DataFrame:
+        return links_frame({name: log.array() for name, log in links.items()})
 
-    summary = summarize(frames, None, warmup_frames, busy=busy if len(rows) and raw.recorded else None)
+    def frames() -> pd.DataFrame:
+        return frames_table(start, present)
+
+    summary = summarize_arrays(np.arange(len(start), dtype=np.int64), start, present, warmup_frames,
+                               busy=busy if len(rows) and raw.recorded else None)
     summary["effects"] = raw.effects
     if raw.skipped:
-        # a task first skipped after the repeat was found has all its skips in the rest
-        raw.skipped_frames = {name: repeated_list(f, r.skipped.get(name, (0, 0)), shift)
-                              for name, f in raw.skipped_frames.items()}
-        summary["skipped_tasks"] = {name: len(f) for name, f in raw.skipped_frames.items()}
+        if r is not None:  # a task first skipped after the repeat was found has all its skips in the rest
+            raw.skipped_frames = {name: repeated_list(f, r.skipped.get(name, (0, 0)), shift)
+                                  for name, f in raw.skipped_frames.items()}
+            summary["skipped_tasks"] = {name: len(f) for name, f in raw.skipped_frames.items()}
+        else:
+            summary["skipped_tasks"] = raw.skipped
     if not raw.recorded:
-        return Result(summary, make_trace([]), frames, compact_links.frame, config, compact_links=compact_links)
-    return Result(summary, rows.frame, frames, compact_links.frame, config, repeated=rows,
-                  compact_links=compact_links)
-
-
-class CompactLinks:
-    """The links table of a fast-forwarded run, kept as each channel's repeated log: written
-    in chunks, read by time window, built whole only when asked for (`.links`). Rows are in
-    the whole table's order (channel by channel, each in time order)."""
-
-    def __init__(self, logs: Mapping[str, RepeatedIntervals]):
-        self.logs = dict(logs)
-
-    def __len__(self) -> int:
-        return sum(len(log) for log in self.logs.values())
-
-    def chunks(self, rows_per_chunk: int = 1_000_000) -> Iterator[pd.DataFrame]:
-        empty = True
-        for name, log in self.logs.items():
-            for arr in log.array_chunks(rows_per_chunk):
-                if len(arr):
-                    empty = False
-                    yield _links_frame(name, arr)
-        if empty:
-            yield _NO_LINKS.copy()
-
-    def window(self, lo: int, hi: int) -> pd.DataFrame:
-        """The intervals that overlap [lo, hi)."""
-        parts = [_links_frame(name, log.overlapping(lo, hi)) for name, log in self.logs.items()]
-        return pd.concat(parts, ignore_index=True).astype(LINK_DTYPES) if parts else _NO_LINKS.copy()
-
-    def frame(self) -> pd.DataFrame:
-        parts = [_links_frame(name, log.array()) for name, log in self.logs.items()]
-        return pd.concat(parts, ignore_index=True).astype(LINK_DTYPES) if parts else _NO_LINKS.copy()
-
-
-def _links_frame(name: str, arr: np.ndarray) -> pd.DataFrame:
-    return pd.DataFrame({"channel": pd.array([name] * len(arr), dtype="string"),
-                         "start_ns": arr[:, 0], "end_ns": arr[:, 1]})
+        return Result(summary, make_trace([]), frames, whole_links, config, link_logs=links)
+    return Result(summary, rows.frame, frames, whole_links, config, repeated=rows, link_logs=links)
 
 
 def task_rates(program: FrameProgram, skipped_frames: Mapping[str, Sequence[int]],

@@ -54,14 +54,15 @@ def ready_times(trace: pd.DataFrame) -> pd.DataFrame:
     n = len(trace)
     ready, binding = np.full(n, np.nan), np.full(n, "", dtype=object)
     order = np.full(n, -1, dtype=np.int64)
-    walk = trace.assign(_pos=np.arange(n)).sort_values(["start_ns", "end_ns"], kind="stable")
+    codes, parsed = waits_for_codes(trace["waits_for"])
+    walk = trace.assign(_pos=np.arange(n), _inputs=codes).sort_values(["start_ns", "end_ns"], kind="stable")
     step = 0
     for _, queue in walk.groupby(["device", "engine"], sort=False):
         previous_end = None
-        for pos, frame, inputs, end in zip(queue["_pos"], queue["frame"], queue["waits_for"],
+        for pos, frame, inputs, end in zip(queue["_pos"], queue["frame"], queue["_inputs"],
                                            queue["end_ns"]):
             at, bound = previous_end, "queue"
-            for offset, name in parse_waits_for(inputs):
+            for offset, name in parsed[inputs]:
                 input_end = ends.get((int(frame) + offset, name))
                 if input_end is not None and (at is None or input_end > at):
                     at, bound = input_end, f"{offset}:{name}"
@@ -70,6 +71,31 @@ def ready_times(trace: pd.DataFrame) -> pd.DataFrame:
             if at is not None:
                 ready[pos], binding[pos] = at, bound
     return pd.DataFrame({"ready_ns": ready, "binding": binding, "order": order}, index=trace.index)
+
+
+def waits_for_codes(waits_for: pd.Series) -> tuple[np.ndarray, list[list[tuple[int, str]]]]:
+    """(code per row, the (offset, task) pairs of each code): every distinct `waits_for` list
+    parsed once (a categorical's categories, else the distinct texts), however many rows
+    share it; rows without inputs get the code of an empty list."""
+    cat = waits_for if isinstance(waits_for.dtype, pd.CategoricalDtype) else waits_for.astype("category")
+    parsed = [parse_waits_for(label) for label in cat.cat.categories] + [[]]
+    codes = cat.cat.codes.to_numpy(np.int64)
+    return np.where(codes < 0, len(parsed) - 1, codes), parsed
+
+
+def input_edges(waits_for: pd.Series) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every input the rows list, as arrays: (row position, frame offset, input task name).
+    Linear in rows plus distinct lists (no text handled per row)."""
+    codes, parsed = waits_for_codes(waits_for)
+    counts = np.array([len(p) for p in parsed], dtype=np.int64)
+    offsets = np.array([o for p in parsed for o, _ in p], dtype=np.int64)
+    names = np.array([t for p in parsed for _, t in p], dtype=object)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    per_row = counts[codes]
+    rows = np.repeat(np.arange(len(codes)), per_row)
+    within = np.arange(len(rows)) - np.repeat(np.cumsum(per_row) - per_row, per_row)
+    flat = first[codes[rows]] + within
+    return rows, offsets[flat], names[flat]
 
 
 def parse_waits_for(waits_for: Any) -> list[tuple[int, str]]:

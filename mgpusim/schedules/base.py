@@ -151,20 +151,6 @@ def leads_chain(task: Task, frame_tasks: Mapping[str, Task]) -> bool:
                                          for d in task.deps)
 
 
-def waits_for_labels(program: FrameProgram) -> list[dict[str, str]]:
-    """Per phase and task, its dependencies on other frames or devices as 'offset:task' labels
-    (the trace's `waits_for` column, written alike by the simulator and the runner)."""
-    period = len(program.templates)
-    index = [{t.name: t for t in tasks} for tasks in program.templates]
-    labels: list[dict[str, str]] = []
-    for phase, tasks in enumerate(program.templates):
-        labels.append({t.name: ";".join(
-            f"{d.offset}:{d.task}" for d in t.deps
-            if d.offset or task_device(index[(phase + d.offset) % period][d.task]) != task_device(t))
-            for t in tasks})
-    return labels
-
-
 def present_work(pixels: float) -> Mapping[str, float]:
     """The work terms of presenting a frame of `pixels` (a full-frame copy)."""
     return MappingProxyType(pass_work(PassSpec("present", "present"), pixels))

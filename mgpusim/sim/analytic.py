@@ -26,7 +26,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from fractions import Fraction
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -58,9 +58,13 @@ class _Node:
     parts: tuple[int, ...]  # host copy: the part sizes
     device: str
     engine: str
-    waits_for: str
+    waits_for: int  # the task's id in the program's TaskInputs
     #: a CPU task: its thread wakes after an input from elsewhere, with no submit cost
     cpu: bool = False
+    #: precomputed for the recurrence: a queue task's whole time (fixed + bytes at its rate);
+    #: a host copy's parts as (size, time) at the memcpy threads' rate
+    time: int = 0
+    part_times: tuple[tuple[int, int], ...] = ()
 
 
 def _round_div(nbytes: int, rate: Fraction) -> int:
@@ -87,7 +91,9 @@ class Analytic:
         probe = Engine(program, costs, record_trace=False,
                        effects=effects - {"shared_executor", "shared_gpu", "link_sharing",
                                           "host_memory_sharing", "busy_wake"})
+        self.inputs = probe.inputs  # the ids the rows log, and what each lists
         self.threads = host.memcpy_threads
+        self.thread_names = [f"thread{i}" for i in range(self.threads)]
         #: per frame phase, task name -> its task (a name may sit on other devices in other phases)
         self.task_of = [{t.name: t for t in tasks} for tasks in program.templates]
         self.host_memory = costs.host_memory_bandwidth()
@@ -107,16 +113,18 @@ class Analytic:
             parts = tuple(even_split(task.bytes, task.parts(self.threads)))
             rate = op.cap if op.cap < self.host_memory else self.host_memory  # a part alone
             return _Node(task.name, task, "host", deps, op.duration, task.bytes, rate, 0, parts,
-                         "host", "memcpy", op.waits_for)
+                         "host", "memcpy", op.waits_for,
+                         part_times=tuple((size, op.duration + _round_div(size, rate)) for size in parts))
         if isinstance(task, CpuTask):
             return _Node(task.name, task, f"host.{task.thread}", deps, op.duration, 0, None, 0, (),
-                         "host", task.thread, op.waits_for, cpu=True)
+                         "host", task.thread, op.waits_for, cpu=True, time=op.duration)
         rate = None
         if op.channel is not None:
             bw = op.channel.bandwidth
             rate = bw if op.cap is None or op.cap >= bw else op.cap
+        moved = _round_div(op.nbytes, rate) if rate is not None and op.nbytes else 0
         return _Node(task.name, task, str(task.queue), deps, op.duration, op.nbytes, rate, op.gap, (),
-                     op.device, op.engine, op.waits_for)
+                     op.device, op.engine, op.waits_for, time=op.duration + moved)
 
     def _crosses(self, task: Task, dep: str, dep_phase: int, phase: int) -> bool:
         """Whether a host thread must wake to act on this input (as the engine decides): the
@@ -157,14 +165,18 @@ class Analytic:
         return out
 
     # ----- one configuration ---------------------------------------------------------------
-    def run(self, record: bool = True) -> tuple[list[tuple], np.ndarray, np.ndarray, Repeat | None]:
+    def run(self, record: bool = True, progress: Callable[[int, int], None] | None = None
+            ) -> tuple[list[tuple], np.ndarray, np.ndarray, Repeat | None]:
         """Rows, frame starts, presents, and the repeat (None: every frame computed, or the
         arrays already extended when no rows were asked for). Sets `found` (the repeat's
         period and first frame, or None), `skipped_frames` and `ties`."""
         rec = _Recurrence(self, record)
         frames = self.program.frames
         horizon, repeat, f = frames, None, 0
+        step = max(1, frames // 200)
         while f < horizon:
+            if progress is not None and f % step == 0:
+                progress(f, horizon)
             rec.frame(f)
             if repeat is None and f >= self.lag:
                 repeat = rec.look_for_repeat(f)
@@ -172,6 +184,8 @@ class Analytic:
                     horizon = frames - repeat.copies * repeat.frames
             rec.forget_before(f - self.lag)
             f += 1
+        if progress is not None:
+            progress(horizon, horizon)
         self.found, self.ties, self.skipped_frames = rec.found, rec.skips.ties, rec.skips.frames
         if repeat is not None and not record:  # no rows to compose: extend the arrays instead
             _extend(rec.start, horizon, repeat)
@@ -203,14 +217,29 @@ class _Recurrence:
 
     # ----- one frame ---------------------------------------------------------------------
     def frame(self, f: int) -> None:
+        """Every task of frame f, in the phase's order. (The hot loop: inputs read inline.)"""
         phase = f % len(self.m.phases)
         here: dict[str, int] = {}
-        self.ends.append(here)
-        self.first: int | None = None
+        ends = self.ends
+        ends.append(here)
+        self.first = None
         skipped_here: set[str] = set()
+        chains = self.m.chains[phase]
         for node in self.m.phases[phase]:
-            ready, cross, has_deps = self._inputs(node, f, here)
-            chain = self.m.chains[phase].get(node.name)
+            ready, cross, has_deps = NEG, NEG, False
+            for dep, off, crosses in node.deps:
+                if off:
+                    if f + off < 0:
+                        continue
+                    e = ends[f + off][dep]
+                else:
+                    e = here[dep]
+                has_deps = True
+                if e > ready:
+                    ready = e
+                if crosses and e > cross:
+                    cross = e
+            chain = chains.get(node.name) if chains else None
             if chain is not None and self._skip(node, f, chain, skipped_here, here, ready, has_deps):
                 continue
             if node.stream == "host":
@@ -223,20 +252,6 @@ class _Recurrence:
         if self.first is not None:
             self.start[f] = self.first
         self.present[f] = here[self.m.program.present_task]
-
-    def _inputs(self, node: _Node, f: int, here: dict[str, int]) -> tuple[int, int, bool]:
-        """When the last input ended, the last from another device, and whether any exists."""
-        ready, cross, has_deps = NEG, NEG, False
-        for dep, off, crosses in node.deps:
-            if f + off < 0:
-                continue
-            has_deps = True
-            e = self.ends[f + off][dep] if off else here[dep]
-            if e > ready:
-                ready = e
-            if crosses and e > cross:
-                cross = e
-        return ready, cross, has_deps
 
     def _skip(self, node: _Node, f: int, chain: tuple[str, tuple[str, ...] | None], skipped_here: set[str],
               here: dict[str, int], ready: int, has_deps: bool) -> bool:
@@ -260,45 +275,49 @@ class _Recurrence:
         if self.m.timeline and cross > NEG:
             t = max(t, cross + self.m.copy_wake + self.m.dispatch)
         self.host_prev = t
-        end = NEG
-        for size in node.parts:
-            tid = _thread(self.threads, t)
-            s = max(t, self.threads[tid])
-            e = s + node.fixed + _round_div(size, node.rate)  # type: ignore[arg-type]
-            self.threads[tid] = e
-            end = max(end, e)
-            self._started(s)
+        end, threads = NEG, self.threads
+        for size, took in node.part_times:
+            tid = _thread(threads, t)
+            s = threads[tid]
+            if s < t:
+                s = t
+            e = threads[tid] = s + took
+            if e > end:
+                end = e
+            if self.first is None or s < self.first:
+                self.first = s
             if self.record:
-                self.rows.append((f, "host", f"thread{tid}", node.task.step, node.name, s, e, size,
-                                  node.waits_for))
+                self.rows.append((f, "host", self.m.thread_names[tid], node.task.step, node.name, s, e,
+                                  size, node.waits_for))
         return end
 
     def _queue_task(self, node: _Node, f: int, ready: int, cross: int) -> int:
         """After its inputs, the task before it on its queue and its submit clock; then its gap,
         its pass or copy time, and its bytes at the link's fixed rate."""
-        s = max(ready, self.queue_end.get(node.stream, 0))
-        if self.m.timeline and node.cpu:  # the thread wakes on its input; nothing to submit
-            if cross > NEG:
-                s = max(s, cross + self.m.dispatch)
-        elif self.m.timeline:
-            clock = self.sub.get(node.stream, 0)
-            if cross > NEG:
-                clock = max(clock, cross + self.m.dispatch)
-            clock += self.m.submit
-            self.sub[node.stream] = clock
-            s = max(s, clock)
+        m, stream = self.m, node.stream
+        s = self.queue_end.get(stream, 0)
+        if ready > s:
+            s = ready
+        if m.timeline:
+            if node.cpu:  # the thread wakes on its input; nothing to submit
+                if cross > NEG and cross + m.dispatch > s:
+                    s = cross + m.dispatch
+            else:
+                clock = self.sub.get(stream, 0)
+                if cross > NEG and cross + m.dispatch > clock:
+                    clock = cross + m.dispatch
+                clock += m.submit
+                self.sub[stream] = clock
+                if clock > s:
+                    s = clock
         s += node.gap
-        moved = _round_div(node.nbytes, node.rate) if node.rate is not None and node.nbytes else 0
-        e = s + node.fixed + moved
-        self.queue_end[node.stream] = e
-        self._started(s)
+        e = self.queue_end[stream] = s + node.time
+        if self.first is None or s < self.first:
+            self.first = s
         if self.record:
             self.rows.append((f, node.device, node.engine, node.task.step, node.name, s, e, node.nbytes,
                               node.waits_for))
         return e
-
-    def _started(self, s: int) -> None:
-        self.first = s if self.first is None else min(self.first, s)
 
     def forget_before(self, f: int) -> None:
         if f > 0:
@@ -328,16 +347,19 @@ class _Recurrence:
         """What the frames after `f` read, relative to frame f's present. A thread idle since
         before the last dispatch and a submit clock (without submit cost) behind its queue are
         the same state whatever their exact value, so they are written as those bounds."""
-        def rel(x: int) -> int:
-            return x - ref if x > NEG else NEG
-        m = self.m
-        recent = tuple(tuple(sorted((k, rel(v)) for k, v in self.ends[g].items()))
-                       for g in range(max(0, f - m.lag + 1), f + 1))
-        clocks = tuple(sorted((q, rel(max(c, self.queue_end.get(q, 0)) if not m.submit else c))
-                              for q, c in self.sub.items()))
+        m, minus, queue_end = self.m, ref.__rsub__, self.queue_end  # minus(x) = x - ref
+        # Ends and clocks are never NEG. A frame's ends are in its phase's task order (the phase
+        # is in the state), the clocks in the order the streams first ran: values alone, in
+        # order, with the streams' names once.
+        recent = tuple(tuple(map(minus, self.ends[g].values())) for g in range(max(0, f - m.lag + 1), f + 1))
+        if m.submit:
+            clocks = tuple(map(minus, self.sub.values()))
+        else:
+            clocks = tuple(max(c, queue_end.get(q, 0)) - ref for q, c in self.sub.items())
         idle = max(self.host_prev, 0)
-        return (f % len(m.phases), recent, tuple(sorted((q, rel(v)) for q, v in self.queue_end.items())),
-                clocks, tuple(rel(t) if t > idle else None for t in self.threads), rel(self.host_prev))
+        return (f % len(m.phases), recent, tuple(queue_end), tuple(map(minus, queue_end.values())),
+                tuple(self.sub), clocks, tuple(t - ref if t > idle else None for t in self.threads),
+                self.host_prev - ref if self.host_prev > NEG else NEG)
 
 
 class _Skips:
@@ -414,13 +436,15 @@ def _thread(free: list[int], t: int) -> int:
     return min(range(len(free)), key=lambda i: (free[i], i))
 
 
-def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str], record_trace: bool = True):
-    """A RawResult from the recurrence, for :func:`mgpusim.results.summary.build_result`."""
+def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str], record_trace: bool = True,
+                 progress: Callable[[int, int], None] | None = None):
+    """A RawResult from the recurrence, for :func:`mgpusim.results.summary.build_result`.
+    `progress(done, total)`: frames computed and frames to compute, now and then."""
     model = Analytic(program, costs, effects)
-    rows, start, present, repeat = model.run(record=record_trace)
+    rows, start, present, repeat = model.run(record=record_trace, progress=progress)
     skipped = {n: len(v) for n, v in model.skipped_frames.items()}
     raw = RawResult(rows, start, present, {}, skipped, {}, dict(model.skipped_frames),
-                    present_task=program.present_task)
+                    present_task=program.present_task, inputs=model.inputs)
     raw.recorded = record_trace
     raw.repeat = repeat
     found = model.found

@@ -12,9 +12,11 @@ fair share, every cap and every byte count is then an integer, so remaining byte
 nothing drifts, and Python's integers keep it fast. S grows (and remainders are rescaled)
 when a new cap or a larger crowd of flows appears.
 
-A transfer that has the channel to itself takes the fast path: its end is computed once and
-no solver runs. Arrivals in the same nanosecond are settled together, so a burst of N
-transfers costs one rate computation, not N.
+Transfers take the fast path while nothing is shared: one alone on the channel, or several
+whose caps add up to no more than the bandwidth (each then crosses at its cap, as the solver
+would give it). Each one's end is computed once and no solver runs; the first transfer that
+would have to share turns the running ones into flows of the solver. Arrivals in the same
+nanosecond are settled together, so a burst of N transfers costs one rate computation, not N.
 """
 from __future__ import annotations
 
@@ -51,11 +53,15 @@ class _Flow:
         self.remaining = 0  # in 1/S bytes, set when the solver takes over
         self.rate = 0  # in 1/S bytes per ns
         self.cap_s: int | None = None
-        self.solo_rate: Fraction = _ZERO  # non-zero while the flow runs alone
+        self.solo_rate: Fraction = _ZERO  # non-zero while the flow runs on the fast path
 
 
 class Channel:
     """One direction of one link; `busy` records the intervals with at least one transfer."""
+
+    #: whether several capped transfers that fit in the bandwidth may take the fast path (not
+    #: where the capacity depends on who shares the channel)
+    shares_caps_freely = True
 
     def __init__(self, env: simpy.Environment, name: str, bandwidth: Fraction,
                  oversubscribed: Fraction | None = None):
@@ -74,7 +80,8 @@ class Channel:
         self._gen = 0
         self._busy_since = 0
         self._settle_pending = False
-        self._solo: dict[Fraction | None, tuple[Fraction, int, int]] = {}
+        self._solo: dict[int, tuple[Fraction | None, Fraction, int, int]] = {}
+        self._epoch = 0  # fast-path ends planned before the last switch to the solver are stale
         self._crowd = 4  # flows the scale can split among exactly
         self._denoms = self.bandwidth.denominator
         if self.oversubscribed is not None:
@@ -89,11 +96,13 @@ class Channel:
             return done.succeed()
         now = self.env.now
         flow = _Flow(nbytes, cap, done, now, tag)
-        if not self.flows:
+        if not self.flows or self._fits(flow):
             self._start_solo(flow, now)
             return done
-        if len(self.flows) == 1 and self.flows[0].solo_rate:
-            self._to_fluid(self.flows[0], now)
+        if self.flows[0].solo_rate:  # the fast path ends here: the solver takes every flow
+            self._epoch += 1
+            for running in self.flows:
+                self._to_fluid(running, now)
         self._advance()
         self.flows.append(flow)
         self._fit_scale(flow)
@@ -115,10 +124,10 @@ class Channel:
     def release(self, flow: object) -> None:
         """The occupant `flow` (from :meth:`occupy`) leaves; the others share anew."""
         assert isinstance(flow, _Flow)
-        if flow.solo_rate:  # alone: its planned end (far away) is dropped
+        if flow.solo_rate:  # on the fast path: it has no planned end to drop
             self.flows.remove(flow)
-            self._gen += 1
-            self.busy.append((self._busy_since, self.env.now))
+            if not self.flows:
+                self.busy.append((self._busy_since, self.env.now))
             return
         self._advance()
         self.flows.remove(flow)
@@ -131,27 +140,42 @@ class Channel:
             self._gen += 1
             self.env.timeout(0).callbacks.append(_Settle((self,)))
 
-    # ----- one transfer alone -------------------------------------------------------------
+    # ----- the fast path: nothing shared -----------------------------------------------------
+    def _fits(self, flow: _Flow) -> bool:
+        """Whether `flow` joins the running transfers on the fast path: they are on it, all
+        capped, and their caps with its own add up to no more than the bandwidth (max-min
+        fairness then gives each its cap)."""
+        if not self.shares_caps_freely or flow.cap is None or not self.flows[0].solo_rate:
+            return False
+        total = (flow.cap.numerator, flow.cap.denominator)
+        for running in self.flows:
+            if running.cap is None:
+                return False
+            total = _add(total, running.cap)
+        return total[0] * self.bandwidth.denominator <= self.bandwidth.numerator * total[1]
+
     def _start_solo(self, flow: _Flow, now: int) -> None:
-        parts = self._solo.get(flow.cap)
-        if parts is None:
+        parts = self._solo.get(id(flow.cap))  # by identity: hashing a Fraction costs a modular inverse
+        if parts is None or parts[0] is not flow.cap:
             rate = self.bandwidth if flow.cap is None or flow.cap >= self.bandwidth else flow.cap
-            parts = self._solo[flow.cap] = (rate, rate.numerator, rate.denominator)
-        flow.solo_rate, num, den = parts
+            parts = self._solo[id(flow.cap)] = (flow.cap, rate, rate.numerator, rate.denominator)
+        _cap, flow.solo_rate, num, den = parts
+        if not self.flows:
+            self._busy_since = now
         self.flows.append(flow)
-        self.max_concurrent = max(self.max_concurrent, 1)
-        self._busy_since = now
-        self._gen += 1
+        if len(self.flows) > self.max_concurrent:
+            self.max_concurrent = len(self.flows)
         if flow.nbytes == OCCUPANT:
             return  # it ends when released
         end = now + (2 * flow.nbytes * den + num) // (2 * num)  # round half up of bytes / rate
-        self.env.timeout(end - now).callbacks.append(_SoloDone((self, self._gen)))
+        self.env.timeout(end - now).callbacks.append(_SoloDone((self, flow, self._epoch)))
 
-    def _solo_done(self, gen: int) -> None:
-        if gen != self._gen:
+    def _solo_done(self, flow: _Flow, epoch: int) -> None:
+        if epoch != self._epoch:
             return
-        flow = self.flows.pop()
-        self.busy.append((self._busy_since, self.env.now))
+        self.flows.remove(flow)
+        if not self.flows:
+            self.busy.append((self._busy_since, self.env.now))
         flow.done.succeed()
 
     def _to_fluid(self, flow: _Flow, now: int) -> None:
@@ -244,7 +268,7 @@ class Channel:
         """Complete the flows due now, share the bandwidth anew and plan the next wake-up."""
         self._settle_pending = False
         if not self.flows or self.flows[0].solo_rate:
-            return  # released empty (an occupant), maybe one flow alone since: nothing to share
+            return  # released empty (an occupant), maybe on the fast path since: nothing to share
         self._advance()
         self._reshare()
         finished = [f for f in self.flows if 2 * f.remaining < f.rate]
@@ -302,16 +326,17 @@ class _Settle(Callback, tuple):
 
 
 class _SoloDone(Callback, tuple):
-    """(channel, generation): a transfer alone on the channel ends, unless the channel moved
-    on to a newer generation."""
+    """(channel, flow, epoch): a transfer on the fast path ends, unless the solver took the
+    channel's flows over since (a newer epoch)."""
 
     __slots__ = ()
 
     def __call__(self, _event: simpy.Event) -> None:
-        self[0]._solo_done(self[1])
+        self[0]._solo_done(self[1], self[2])
 
     def state(self, rel: Relative) -> tuple:
-        return ("solo done", self[0].name, self[1] == self[0]._gen)
+        current = self[2] == self[0]._epoch
+        return ("solo done", self[0].name, rel.event(self[1].done) if current else None, current)
 
 
 class _Wake(Callback, tuple):
@@ -336,6 +361,8 @@ class GpuChannel(Channel):
     `capacity_of(tags)` in all (the tags of the flows running: their queues), shared equally;
     `capacity_of` must stay within [0, n] for n flows, so that none runs faster than alone."""
 
+    shares_caps_freely = False  # the capacity depends on whose work shares the GPU
+
     def __init__(self, env: simpy.Environment, name: str,
                  capacity_of: Callable[[tuple], Fraction]):
         super().__init__(env, name, Fraction(1))
@@ -349,6 +376,18 @@ class GpuChannel(Channel):
             found = self._capacities[tags] = self._capacity_of(tags)
         self._grow_scale(found.denominator)  # shares of it stay exact integers
         return found
+
+
+def _add(total: tuple[int, int], value: Fraction) -> tuple[int, int]:
+    """`total` (numerator, denominator) plus `value`, in integers (Fraction arithmetic would
+    cost more than the rest of a transfer)."""
+    num, den = total
+    vn, vd = value.numerator, value.denominator
+    if vd == den:
+        return num + vn, den
+    num, den = num * vd + vn * den, den * vd
+    g = math.gcd(num, den)
+    return num // g, den // g
 
 
 def _cap_key(flow: _Flow) -> tuple[int, int]:
@@ -368,29 +407,32 @@ class FixedRateChannel:
         self.max_concurrent = 0
         self.active = 0
         self._busy_since = 0
-        self._rates: dict[Fraction | None, tuple[int, int]] = {}
+        self._rates: dict[int, tuple[Fraction | None, int, int]] = {}
 
     def transfer(self, nbytes: int, cap: Fraction | None = None) -> simpy.Event:
-        done = self.env.event()
+        """The transfer's own timeout: the channel's bookkeeping is its first callback, so a
+        process that waits on it resumes once the channel has let the transfer go (one event
+        per transfer, not two)."""
         if nbytes <= 0:
-            return done.succeed()
-        parts = self._rates.get(cap)
-        if parts is None:
+            return self.env.event().succeed()
+        parts = self._rates.get(id(cap))  # by identity, as Channel's fast path
+        if parts is None or parts[0] is not cap:
             rate = self.bandwidth if cap is None or cap >= self.bandwidth else cap
-            parts = self._rates[cap] = (rate.numerator, rate.denominator)
-        num, den = parts
+            parts = self._rates[id(cap)] = (cap, rate.numerator, rate.denominator)
+        _cap, num, den = parts
         if not self.active:
             self._busy_since = self.env.now
         self.active += 1
-        self.max_concurrent = max(self.max_concurrent, self.active)
-        self.env.timeout((2 * nbytes * den + num) // (2 * num)).callbacks.append(_Deliver((self, done)))
+        if self.active > self.max_concurrent:
+            self.max_concurrent = self.active
+        done = self.env.timeout((2 * nbytes * den + num) // (2 * num))
+        done.callbacks.append(_Deliver((self,)))
         return done
 
-    def _done(self, done: simpy.Event) -> None:
+    def _done(self) -> None:
         self.active -= 1
         if not self.active:
             self.busy.append((self._busy_since, self.env.now))
-        done.succeed()
 
     @property
     def open_since(self) -> int | None:
@@ -406,16 +448,12 @@ class FixedRateChannel:
 
 
 class _Deliver(Callback, tuple):
-    """(channel, done): a fixed-rate transfer ends and its `done` event fires."""
+    """(channel,): a fixed-rate transfer ends (the first callback of its timeout)."""
 
     __slots__ = ()
 
-    @property
-    def done(self) -> simpy.Event:
-        return self[1]
-
     def __call__(self, _event: simpy.Event) -> None:
-        self[0]._done(self[1])
+        self[0]._done()
 
     def state(self, rel: Relative) -> tuple:
-        return ("deliver", self[0].name, rel.event(self[1]))
+        return ("deliver", self[0].name)

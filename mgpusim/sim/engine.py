@@ -15,6 +15,7 @@ Dependencies are counted, not stored as events per task, so memory stays flat ov
 from __future__ import annotations
 
 import heapq
+from array import array
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 from fractions import Fraction
@@ -28,8 +29,9 @@ from mgpusim.model.errors import InputError, ScheduleError
 from mgpusim.model.geometry import even_split
 from mgpusim.model.limits import INT64_MAX
 from mgpusim.model.tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
-from mgpusim.schedules.base import FrameProgram, leads_chain, waits_for_labels, wakes_host
+from mgpusim.schedules.base import FrameProgram, leads_chain, wakes_host
 from mgpusim.schedules.skipping import SkipChains
+from mgpusim.schedules.task_inputs import TaskInputs, task_inputs
 from mgpusim.sim.busy_wake import BusyWake
 from mgpusim.sim.channel import Channel, FixedRateChannel
 from mgpusim.sim.effects import choose_effects
@@ -48,7 +50,8 @@ class _Op:
     nbytes: int
     device: str
     engine: str
-    waits_for: str
+    #: the task's id in the program's TaskInputs (its listed inputs), logged with every row
+    waits_for: int
     is_present: bool
     #: What the executor makes of the task's work: `run(amount)` is the event to wait for
     #: (None: no work to wait for).
@@ -100,6 +103,8 @@ class RawResult:
     #: frames in which each skippable task was skipped (for update rates in steady state)
     skipped_frames: dict[str, list[int]] = field(default_factory=dict)
     present_task: str = "present"
+    #: the ids in the rows' last column, and the inputs each lists (None: the rows carry text)
+    inputs: TaskInputs | None = None
     #: whether `rows` holds the trace the caller asked for (else it is empty or internal)
     recorded: bool = True
     #: set by a fast-forward: how the logs repeat (mgpusim.sim.fastforward.Repeat)
@@ -129,8 +134,9 @@ class Engine:
         self.horizon = program.frames
         self.rows: list[tuple] = []
         self.period = len(program.templates)
-        self.frame_start = np.full(program.frames, np.iinfo(np.int64).max, dtype=np.int64)
-        self.present_end = np.full(program.frames, -1, dtype=np.int64)
+        # int64 arrays the hot path reads as Python ints (a numpy scalar costs more than the rest)
+        self.frame_start = array("q", [INT64_MAX]) * program.frames
+        self.present_end = array("q", [-1]) * program.frames
         self._pending: dict[Key, int] = {}
         self._waiters: dict[Key, simpy.Event] = {}
         self._ready: set[Key] = set()
@@ -149,7 +155,9 @@ class Engine:
         self._busy_wake = (BusyWake(host.busy_wake_share, host.busy_wake_ns,
                                     host.busy_wake_window_ns, host.cpu_cores)
                            if "busy_wake" in effects else None)
-        self._waits_for = waits_for_labels(program)
+        #: every task's id and the inputs its trace row lists; rows log the id
+        self.inputs = task_inputs(program)
+        self._waits_for = self.inputs.ids
         self.channels: dict[str, Channel | FixedRateChannel] = {}
         self._unfinished = self._tasks_in(0, program.frames)
         self._make_executors = executors or (
@@ -211,6 +219,7 @@ class Engine:
         if any(host_ops):
             host = self.costs.profile.host
             self._threads_all = [f"thread{i}" for i in range(host.memcpy_threads)]
+            self._part_sizes: dict[_Op, list[int]] = {}  # a host copy's part sizes, per task
             self._free_threads = list(range(host.memcpy_threads))
             self._part_queue: deque = deque()
             kind = Channel if "host_memory_sharing" in self.effects else FixedRateChannel
@@ -416,13 +425,13 @@ class Engine:
         self._unfinished -= 1
         if not skipped and task.skip_if_busy:
             self._chains.finished(frame, task)
-        frames, pending = self.horizon, self._pending
+        frames, pending, timeline = self.horizon, self._pending, self._host_timeline
         for name, k, dtask, ndeps, lag, cross in self._dependents[frame % self.period].get(task.name, ()):
             g = frame + k
             if g >= frames:
                 continue
             key = (g, name)
-            if cross and self._host_timeline:
+            if cross and timeline:
                 self._cross_done[key] = self.env.now
             left = pending.get(key)
             if left is None:
@@ -448,6 +457,8 @@ class Engine:
         to the memcpy threads. Before each wait it writes in `st` where it stands. (One loop
         for both, inlined: this is the hot path.)"""
         env, period, skip, ready, host = self.env, self.period, self._skip, self._ready, st.host
+        cross_done, copy_wake, timeline = self._cross_done, self._copy_wake_ns, self._host_timeline
+        busy_wake, finish = self._busy_wake, self._finish
         submitted = 0  # the queue's host submit thread: when it submitted the last task
         frame = 0
         while frame < self.horizon:
@@ -469,13 +480,13 @@ class Engine:
                 # submit thread before it submits (its own work on the host's executor: on
                 # CPU-emulated GPUs it competes for the cores with the GPUs' passes)
                 wait = 0
-                if host and self._copy_wake_ns and self._cross_done:
+                if host and copy_wake and cross_done:
                     wait = self._copy_wake(key) - env.now
                     if wait > 0:  # the host-copy thread's wake latency (not CPU work)
                         st.at = COPY_WAKE
                         yield env.timeout(wait)
                     wait = 0
-                if self._cross_done and (host or self._host_timeline):
+                if cross_done and (host or timeline):
                     wait = self._dispatch_wait(key, keep=not host)
                 if wait:
                     st.wait = wait
@@ -489,7 +500,7 @@ class Engine:
                 if host:
                     self._dispatch_host_copy(frame, op)
                     continue
-                if self._host_timeline:
+                if timeline:
                     # the queue's submit thread submits ahead of the queue, one task after
                     # another; a CPU task's thread itself wakes on its input and submits nothing
                     if op.cpu:
@@ -504,23 +515,23 @@ class Engine:
                 if op.gap:
                     st.at = GAP
                     yield op.gap_run(op.gap)
-                if self._busy_wake is not None and isinstance(op.task, CopyTask):
-                    wait = self._busy_wake.copy_wait(op.device, env.now)
+                if busy_wake is not None and isinstance(op.task, CopyTask):
+                    wait = busy_wake.copy_wait(op.device, env.now)
                     if wait:  # the copy's thread waits behind the pass; a core idles meanwhile
                         st.at = BUSY_WAKE
                         yield self._host_work(wait)
                 start = st.start = env.now
                 if op.fill_cores is not None:
-                    self._busy_wake.pass_started(op.device, start, op.fill_cores, op.duration)
+                    busy_wake.pass_started(op.device, start, op.fill_cores, op.duration)
                 if op.run is not None:
                     st.at = RUN
                     yield op.run(op.amount)
                 if op.fill_cores is not None:
-                    self._busy_wake.pass_ended(op.device)
+                    busy_wake.pass_ended(op.device)
                 if op.channel is not None:
                     st.at = TRANSFER
                     yield op.channel.transfer(op.nbytes, op.cap)
-                self._finish(frame, op, op.engine, start, op.nbytes)
+                finish(frame, op, op.engine, start, op.nbytes)
             frame += 1
 
     def _skip_task(self, key: Key, task: Task) -> None:
@@ -561,8 +572,10 @@ class Engine:
 
     def _dispatch_host_copy(self, frame: int, op: _Op) -> None:
         """Split into parts of >= chunk_min_bytes, at most one per memcpy thread."""
-        task: HostCopyTask = op.task  # type: ignore[assignment]
-        sizes = even_split(task.bytes, task.parts(len(self._threads_all)))
+        sizes = self._part_sizes.get(op)
+        if sizes is None:
+            task: HostCopyTask = op.task  # type: ignore[assignment]
+            sizes = self._part_sizes[op] = even_split(task.bytes, task.parts(len(self._threads_all)))
         state = [len(sizes)]
         for size in sizes:
             part = (frame, op, size, state)
@@ -706,9 +719,11 @@ class Engine:
         gpus = [c for n, c in ch.items() if n.endswith(".exec")]
         if gpus:  # only reported where queues of one physical GPU share it (shared_gpu)
             effects["gpu_contention"] = any(c.max_concurrent > 1 for c in gpus)
-        return RawResult(self.rows, self.frame_start, self.present_end, self.channels,
+        return RawResult(self.rows, np.frombuffer(self.frame_start, dtype=np.int64),
+                         np.frombuffer(self.present_end, dtype=np.int64), self.channels,
                          {n: len(f) for n, f in self._chains.skipped_frames.items()}, effects,
-                         dict(self._chains.skipped_frames), present_task=self.program.present_task)
+                         dict(self._chains.skipped_frames), present_task=self.program.present_task,
+                         inputs=self.inputs)
 
     def _blocked_message(self) -> str:
         blocked = sorted(self._waiters)[:8]

@@ -28,7 +28,7 @@ and the summary says why; it never guesses.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 import simpy
 
@@ -181,14 +181,27 @@ class FastForward:
         return out
 
 
-def run(engine: Engine, enabled: bool = True, record_trace: bool = True) -> Any:
+def run(engine: Engine, enabled: bool = True, record_trace: bool = True,
+        progress: Callable[[int, int], None] | None = None) -> Any:
     """Run `engine` (built with record_trace=True when `enabled`), fast-forwarding if its state
-    repeats; the RawResult carries the repeat and what the fast-forward did."""
+    repeats; the RawResult carries the repeat and what the fast-forward did. `progress(done,
+    total)`: called as frames present (about 200 times in a run), with the frames presented
+    and the frames the run will simulate (fewer once a repeat is found)."""
     ff = FastForward(engine, keep_rows=record_trace) if enabled else None
+    hooks = []
     if ff is not None and ff.active:
-        engine.on_present = ff.on_present
+        hooks.append(ff.on_present)
     else:
         engine.env.stop_tracking()
+    if progress is not None:
+        hooks.append(_reporter(engine, progress))
+    if len(hooks) == 1:
+        engine.on_present = hooks[0]
+    elif hooks:
+        def both(frame: int) -> None:
+            for hook in hooks:
+                hook(frame)
+        engine.on_present = both
     raw = engine.run()
     raw.recorded = record_trace
     if not record_trace and (ff is None or ff.repeat is None):
@@ -199,6 +212,18 @@ def run(engine: Engine, enabled: bool = True, record_trace: bool = True) -> Any:
     else:
         raw.fast_forward = {"used": False, "why": "off"}
     return raw
+
+
+def _reporter(engine: Engine, progress: Callable[[int, int], None]) -> Callable[[int], None]:
+    """A present hook that reports every ~0.5 % of the run's frames, and at its end."""
+    step = max(1, engine.program.frames // 200)
+    done = [0]
+
+    def report(frame: int) -> None:
+        done[0] = max(done[0], frame + 1)
+        if done[0] % step == 0 or done[0] >= engine.horizon:
+            progress(min(done[0], engine.horizon), engine.horizon)
+    return report
 
 
 def _open_since(engine: Engine) -> dict[str, int]:

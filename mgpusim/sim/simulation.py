@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
-from typing import Mapping
+from typing import Callable, Mapping
 
 from mgpusim.model.costs import CostModel
 from mgpusim.model.errors import TimeBoundError
@@ -23,7 +23,8 @@ __all__ = ["build_program", "run_config", "simulate"]
 
 def simulate(exp: Experiment, record_trace: bool = True, fidelity: str = "full",
              effects: dict[str, bool] | None = None, fast_forward: bool = True,
-             band: bool = False, queues: Mapping[QueueRef, QueueRef] | None = None) -> Result:
+             band: bool = False, queues: Mapping[QueueRef, QueueRef] | None = None,
+             progress: Callable[[int, int], None] | None = None) -> Result:
     """Run `exp` in the model. Same experiment, same result, bit for bit.
 
     `fidelity`: "full", "queues" or "analytic" (mgpusim.sim.effects); `effects`: effects forced
@@ -34,13 +35,15 @@ def simulate(exp: Experiment, record_trace: bool = True, fidelity: str = "full",
     Off by default: it costs two more simulations, which internal callers (calibration
     searches, run lengths, timings) would throw away; `mgpusim simulate` asks for it.
     `queues`: queues whose tasks run on another queue (where a measured run ran them, see
-    :func:`mgpusim.schedules.program.on_queues`)."""
+    :func:`mgpusim.schedules.program.on_queues`). `progress(done, total)`: called now and then
+    with the frames simulated so far and the frames the run will simulate (a fast-forward
+    shortens it), for a command's progress bar."""
     program = on_queues(build_program(exp), queues or {})
     chosen = choose_effects(program, exp.profile, fidelity, effects)
     if "memory_capacity" in chosen:
         check_memory(program, exp)  # overflow is an input error, reported before time 0
     t0 = time.perf_counter()
-    raw = _run_model(exp, program, chosen, fidelity, record_trace, fast_forward)
+    raw = _run_model(exp, program, chosen, fidelity, record_trace, fast_forward, progress)
     model_s = time.perf_counter() - t0
     result = build_result(raw, program.warmup_frames, run_config(exp, program))
     if "memory_capacity" in chosen:
@@ -70,16 +73,17 @@ def _band(exp: Experiment, program: FrameProgram, chosen: frozenset[str], fideli
 
 
 def _run_model(exp: Experiment, program: FrameProgram, chosen: frozenset[str], fidelity: str,
-               record_trace: bool, fast_forward: bool):
+               record_trace: bool, fast_forward: bool,
+               progress: Callable[[int, int], None] | None = None):
     """The engine (with its fast-forward) or the analytic recurrence: the RawResult."""
     costs = CostModel(exp.profile)
     try:
         if fidelity == "analytic":
             from mgpusim.sim.analytic import (  # noqa: PLC0415 (only this level needs it)
                 analytic_raw)
-            return analytic_raw(program, costs, chosen, record_trace)
+            return analytic_raw(program, costs, chosen, record_trace, progress)
         engine = Engine(program, costs, record_trace=record_trace or fast_forward, effects=chosen)
     except TimeBoundError as exc:  # the profile's rates times the experiment's work
         raise TimeBoundError(f"{exc.detail} (with the work of {exp.file})", file=exc.file,
                              field=exc.field) from None
-    return fastforward.run(engine, fast_forward, record_trace)
+    return fastforward.run(engine, fast_forward, record_trace, progress)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import pandas as pd
@@ -101,13 +101,15 @@ VARIANTS: dict[str, dict[str, Any]] = {
 
 
 def run_levels(configs: list[Configuration], variants: dict[str, dict[str, Any]] | None = None,
-               repeats: int = 3) -> pd.DataFrame:
+               repeats: int = 3, progress: Callable[[str], None] | None = None) -> pd.DataFrame:
     """One row per (configuration, level): errors against the measured run and wall time
-    (best of `repeats`)."""
+    (best of `repeats`). `progress(name)`: called before each (configuration, level)."""
     rows = []
     for c in configs:
         measured = measured_summary(c)
         for level, kwargs in (variants or VARIANTS).items():
+            if progress is not None:
+                progress(f"{c.name} at {level}")
             wall, model, result = float("inf"), float("inf"), None
             for _ in range(repeats):
                 t0 = time.perf_counter()
@@ -156,13 +158,17 @@ def markdown(summary: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
-def deviations(variants: dict[str, dict[str, Any]] | None = None, repeats: int = 3) -> pd.DataFrame:
+def deviations(variants: dict[str, dict[str, Any]] | None = None, repeats: int = 3,
+               progress: Callable[[str], None] | None = None) -> pd.DataFrame:
     """Where there is no measurement: each level's frame time against `full` on the shipped
-    experiments, and the model's time (best of `repeats`)."""
+    experiments, and the model's time (best of `repeats`). `progress(name)`: called before
+    each (experiment, level)."""
     rows = []
     for example in examples():
         exp = load_experiment(example.path)
         for level, kwargs in (variants or VARIANTS).items():
+            if progress is not None:
+                progress(f"{example.name} at {level}")
             model, result = float("inf"), None
             for _ in range(repeats):
                 result = simulate(exp, record_trace=False, **kwargs)

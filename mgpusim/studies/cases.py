@@ -40,7 +40,7 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import pandas as pd
 
@@ -369,14 +369,20 @@ def _derived(t: Table, runs: set[str], metrics: set[str]) -> Derived:
 
 
 def run_case(case: Case, frames: int | None = None, values: Mapping[str, float] | None = None,
-             only: set[str] | None = None) -> CaseResult:
+             only: set[str] | None = None, progress: Callable[[str], None] | None = None) -> CaseResult:
     """Simulate every run (with `frames` frames each when given, a fifth of them warm-up)
     and compute the columns and the derived quantities. `values`: parameter values instead of
-    the case file's; `only`: simulate just these runs (quantities of other runs are left out)."""
+    the case file's; `only`: simulate just these runs (quantities of other runs are left out);
+    `progress(run)`: called before each simulated run."""
     extra = {} if frames is None else {"schedule.frames": frames, "schedule.warmup_frames": max(1, frames // 5)}
     runs = [r for r in case.runs if only is None or r.name in only]
     exps = {r.name: _load(case, r, {**extra, **parameter_overrides(case, r.name, values)}) for r in runs}
-    results = {r.name: simulate(exps[r.name]) for r in runs if r.simulate}
+    results = {}
+    for r in runs:
+        if r.simulate:
+            if progress is not None:
+                progress(r.name)
+            results[r.name] = simulate(exps[r.name])
     out = CaseResult(case, results, exps)
     for run in runs:
         out.columns[run.name] = {c.name: column_value(c, results.get(run.name), exps[run.name])

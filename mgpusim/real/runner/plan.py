@@ -22,7 +22,8 @@ from typing import Any, Literal
 from mgpusim.model.errors import ScheduleError
 from mgpusim.model.tasks import Task
 from mgpusim.real.runner.work import CpuWork, GpuWork, HostWork, Work
-from mgpusim.schedules.base import FrameProgram, leads_chain, waits_for_labels
+from mgpusim.schedules.base import FrameProgram, leads_chain
+from mgpusim.schedules.task_inputs import waits_for_labels
 
 EdgeKind = Literal["order", "semaphore", "host"]
 HOST_STREAM = "host"

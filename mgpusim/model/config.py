@@ -139,7 +139,7 @@ class Table:
         problem = name_problem(value) if isinstance(value, str) else None
         if problem:
             raise self.error(key, f"must be a plain file name (it names a folder of the output), "
-                                  f"but {_show(value)} {problem}")
+                                  f"but {show_value(value)} {problem}")
         return value
 
     def table(self, key: str, default: Any = _MISSING) -> "Table":

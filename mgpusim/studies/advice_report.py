@@ -99,7 +99,7 @@ def sections(advice: Advice, table: pd.DataFrame, shown: list[dict[str, Any]],
             f"Fewest GPUs within {NEAR_BEST:.0%} of that frame time: {fewest['label']}: "
             f"{fewest['frame_time_ms']:.3f} ms, latency {fewest['latency_ms']:.3f} ms."]
     if advice.analytic_bound:
-        text.append(f"The analytic level is an optimistic bound on this profile: "
+        text.append("The analytic level is an optimistic bound on this profile: "
                     + ("every option it puts below the best confirmed frame time was confirmed, so "
                        "none of the others is faster." if advice.open == 0 else
                        f"{advice.open} option(s) it puts below the best confirmed frame time were not "

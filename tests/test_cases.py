@@ -15,8 +15,8 @@ from mgpusim.model.geometry import mesh_placement
 from mgpusim.sim.simulation import simulate
 from mgpusim.studies.cases import (COMPARISON, Case, CaseResult, calibrate, case_names, comparison,
                                    comparison_markdown, copy_limited_fps, docs_block, load_case,
-                                   markdown, metric, parameter_overrides, run_case, sections_rendered,
-                                   span_ms, steady, table, with_docs_block)
+                                   markdown, metric, parameter_overrides, run_case,
+                                   sections_rendered, span_ms, steady, table, with_docs_block)
 from mgpusim.studies.spec import load_study
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -22,6 +22,7 @@ from mgpusim.studies import sweep_grid as sweeps
 from mgpusim.studies.spec import load_study
 from tests.test_bad_inputs import SWEEP, mini_study
 
+
 def fuzz(examples: int) -> settings:
     """Bounded, reproducible examples (FUZZ_EXAMPLES in the environment runs more)."""
     return settings(max_examples=int(os.environ.get("FUZZ_EXAMPLES", examples)), deadline=None,

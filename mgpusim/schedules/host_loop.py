@@ -28,9 +28,8 @@ trace's frame latency says).
 from __future__ import annotations
 
 import dataclasses
-from typing import Sequence
-
 from types import MappingProxyType
+from typing import Sequence
 
 from mgpusim.model.tasks import CopyTask, CpuTask, Dep, HostCopyTask, PassTask, Task
 from mgpusim.schedules.base import MAIN_THREAD

@@ -23,7 +23,6 @@ from mgpusim.model.profile import HardwareProfile, HostProfile
 from mgpusim.model.work_terms import WORK_TERMS, work_terms
 from mgpusim.schedules.experiment import Experiment, load_experiment, parse_overrides
 
-
 #: A key with no default: its absence is an error.
 _REQUIRED = object()
 

@@ -14,18 +14,21 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
+
 from mgpusim.io.output import frame_window, write_json, write_table, write_text
 from mgpusim.io.perfetto import chrome_trace_json
 from mgpusim.io.plot import comparison_png
+from mgpusim.results.summary import Result
 from mgpusim.results.waits import LONG_WAIT_NS, host_split
 from mgpusim.schedules.experiment import Experiment
+from mgpusim.schedules.program import build_program
 from mgpusim.sim.simulation import simulate
 from mgpusim.validation.compare import compare
-from mgpusim.schedules.program import build_program
 from mgpusim.validation.measured import (other_machine, queues_as_run, read_measured,
                                          read_submissions, run_machine)
-from mgpusim.validation.replayed import replay_comparison
 from mgpusim.validation.repeated_runs import measure_repeated, run_spread
+from mgpusim.validation.replayed import replay_comparison
 
 #: The report lists the hand-offs whose mean wait differs by at least this much (ms), at most
 #: this many: the ones that explain a frame-time error, not every task.
@@ -43,14 +46,7 @@ def validate_experiment(exp: Experiment, out: Path, measured_dir: Path | None = 
     if measured_dir is None:
         measured_dir = measure_repeated(exp, out / "measured", repeats, run_seconds)
     measured = read_measured(measured_dir, exp)
-    queues = queues_as_run(measured, build_program(exp))
-    sim = simulate(exp, queues=queues)
-    report = compare(measured, sim.trace, exp.schedule.warmup_frames)
-    report["config"] = {**sim.config, "overrides_from": exp.file}  # simulate's own run_config
-    report["queues_as_run"] = {str(a): str(b) for a, b in queues.items()}
-    report["replay"], replayed = replay_comparison(exp, measured, queues)
-    report["replay_frame_time_error"] = report["replay"]["frame_time_error"]
-    report["replay_latency_error"] = report["replay"]["latency_error"]
+    report, sim, replayed = both_levels(exp, measured)
     report["measured_spread"], report["measured_runs"] = run_spread(measured_dir)
     report["measured_from"] = str(measured_dir)
     elsewhere = other_machine(exp.profile, run_machine(measured_dir))
@@ -70,6 +66,20 @@ def validate_experiment(exp: Experiment, out: Path, measured_dir: Path | None = 
     write_text(chrome_trace_json(*frame_window(sim.trace, sim.links), f"simulated {title}"),
                out / "simulated.perfetto.json")
     return report
+
+
+def both_levels(exp: Experiment, measured: pd.DataFrame) -> tuple[dict[str, Any], Result, pd.DataFrame]:
+    """The prediction's comparison with the replay's beside it, both on the schedule as the
+    run ran it (`queues_as_run`); the simulated result and the replayed trace."""
+    queues = queues_as_run(measured, build_program(exp))
+    sim = simulate(exp, queues=queues)
+    report = compare(measured, sim.trace, exp.schedule.warmup_frames)
+    report["config"] = {**sim.config, "overrides_from": exp.file}  # simulate's own run_config
+    report["queues_as_run"] = {str(a): str(b) for a, b in queues.items()}
+    report["replay"], replayed = replay_comparison(exp, measured, queues)
+    report["replay_frame_time_error"] = report["replay"]["frame_time_error"]
+    report["replay_latency_error"] = report["replay"]["latency_error"]
+    return report, sim, replayed
 
 
 def format_report(exp: Experiment, r: dict[str, Any]) -> str:

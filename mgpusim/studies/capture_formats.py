@@ -1,6 +1,6 @@
 """Reading a frame capture into one table of slices, whatever format it came in.
 
-Three formats (docs/formats.md, "Frame captures"): Chrome trace-event JSON (what Perfetto, the
+Three formats (docs/frame_captures.md): Chrome trace-event JSON (what Perfetto, the
 browsers and several engines' profilers export, and mgpusim's own `trace.perfetto.json`), a
 plain CSV (one row per pass), and a measured run of the Vulkan runner (a folder with
 `trace.parquet` or `trace.csv` and `summary.json`, packed or not). Each becomes a
@@ -218,7 +218,7 @@ def _chrome_rows(spans: dict[tuple[int, int], list[dict[str, Any]]], procs: dict
                          "imported from a one-GPU capture", file=file)
     if not any(r["queue"] in ("graphics", "compute") for r in rows):
         raise InputError("no GPU work found: no track's thread or process name says graphics, "
-                         "compute, gpu or queue (docs/formats.md, Frame captures)", file=file)
+                         "compute, gpu or queue (docs/frame_captures.md)", file=file)
     return rows, left_out
 
 

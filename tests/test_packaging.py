@@ -88,6 +88,30 @@ def test_an_installed_wheel_runs_the_readme_commands_from_another_folder(tmp_pat
     assert "data/nvidia/h200x2" in study.stderr and not (work / "sv").exists()
     fidelity = cmd("fidelity", "--out", "f")
     assert fidelity.returncode == 2 and "pass a checkout's data/ folder" in fidelity.stderr
+    _calibration_notebook_runs_from(work, site)
+
+
+def _calibration_notebook_runs_from(work: Path, site: Path) -> None:
+    """The calibration notebook, copied next to an installed wheel (no checkout, no data/):
+    it measures its tables on this machine's lavapipe and fits them, every cell without error."""
+    nbclient = pytest.importorskip("nbclient")
+    nbformat = pytest.importorskip("nbformat")
+    pytest.importorskip("ipykernel")
+    path = work / "calibrating_a_machine.ipynb"
+    shutil.copy(ROOT / "notebooks" / path.name, path)
+    book = nbformat.read(path, as_version=4)
+    old = os.environ.get("PYTHONPATH")
+    os.environ["PYTHONPATH"] = str(site)  # the kernel imports the installed copy
+    try:
+        nbclient.NotebookClient(book, timeout=300, kernel_name="python3",
+                                resources={"metadata": {"path": str(work)}}).execute()
+    finally:
+        if old is None:
+            del os.environ["PYTHONPATH"]
+        else:
+            os.environ["PYTHONPATH"] = old
+    shown = "".join(o.get("text", "") for c in book.cells for o in c.get("outputs", []))
+    assert "tables from this machine, just measured" in shown
 
 
 def test_examples_list_and_names_resolve(capsys):

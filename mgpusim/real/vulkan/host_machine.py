@@ -7,6 +7,7 @@ one real GPU when there are fewer real ones, as the XR sample's simulate mode do
 """
 from __future__ import annotations
 
+import atexit
 import datetime as _dt
 import os
 import platform
@@ -17,7 +18,39 @@ from mgpusim.model.errors import InputError
 from mgpusim.real.vulkan import host_priority
 from mgpusim.real.vulkan.device import Gpu
 from mgpusim.real.vulkan.hostheap import keep_heap
-from mgpusim.real.vulkan.instance import Instance
+from mgpusim.real.vulkan.instance import Instance, validation_wanted
+
+
+#: The VkInstance of real (not CPU-emulated) GPUs, one per validation setting, kept for the
+#: process. Why: the NVIDIA driver (580.159) refuses a new instance once about 30 have been
+#: created and destroyed in one process (VkErrorIncompatibleDriver at a study's 31st run, with
+#: no file, thread or mapping left behind), so runs share one. Lavapipe GPUs keep an instance
+#: each: each sizes its own rasterizer pool (LP_NUM_THREADS) when it is made.
+_REAL_INSTANCES: dict[bool, Instance] = {}
+
+
+def _instance(validation: bool | None, lp_num_threads: int | None) -> Instance:
+    """The kept instance of real GPUs where there is one, else a new instance (kept if its
+    devices are real)."""
+    kept = _REAL_INSTANCES.get(validation_wanted(validation))
+    if kept is not None:
+        return kept
+    inst = Instance(validation=validation, lp_num_threads=lp_num_threads)
+    if inst.devices and not any(d.is_lavapipe for d in inst.devices):
+        if not _REAL_INSTANCES:
+            atexit.register(_close_kept)
+        _REAL_INSTANCES[inst.validation] = inst
+    return inst
+
+
+def _close_kept() -> None:
+    for inst in _REAL_INSTANCES.values():
+        inst.close()
+    _REAL_INSTANCES.clear()
+
+
+def _kept(inst: Instance) -> bool:
+    return any(k is inst for k in _REAL_INSTANCES.values())
 
 
 def make_gpus(n: int, *, lp_threads: Sequence[int | None] | None = None,
@@ -31,10 +64,11 @@ def make_gpus(n: int, *, lp_threads: Sequence[int | None] | None = None,
         threads *= n
     if len(threads) != n:
         raise InputError(f"{len(threads)} thread counts for {n} GPUs", field="lp_threads")
-    first = Instance(validation=validation, lp_num_threads=threads[0])
+    first = _instance(validation, threads[0])
     pick = physical if physical is not None else 0
     if not 0 <= pick < len(first.devices):
-        first.close()
+        if not _kept(first):
+            first.close()
         raise InputError(f"no physical device {pick}; found {len(first.devices)}",
                          field="device")
     gpus: list[Gpu] = []
@@ -55,14 +89,15 @@ def make_gpus(n: int, *, lp_threads: Sequence[int | None] | None = None,
         return gpus
     except BaseException:
         close_gpus(gpus)
-        if not any(g.instance is first for g in gpus):
+        if not any(g.instance is first for g in gpus) and not _kept(first):
             first.close()
         raise
 
 
 def close_gpus(gpus: Sequence[Gpu]) -> None:
-    """Close every GPU, then the shared instance (if the GPUs did not own theirs)."""
-    shared = {id(g.instance): g.instance for g in gpus if not g.owns_instance}
+    """Close every GPU, then the shared instance (if the GPUs did not own theirs and it is
+    not the one real GPUs keep for the process)."""
+    shared = {id(g.instance): g.instance for g in gpus if not g.owns_instance and not _kept(g.instance)}
     for gpu in gpus:
         gpu.close()
     for inst in shared.values():

@@ -132,7 +132,7 @@ def _describe(index: int, handle: Any) -> PhysicalDeviceInfo:
         extensions=frozenset(e.extensionName for e in exts))
 
 
-def _validation_wanted(validation: bool | None) -> bool:
+def validation_wanted(validation: bool | None) -> bool:
     if validation is not None:
         return validation
     return os.environ.get("MGPUSIM_VK_VALIDATION", "") not in ("", "0")
@@ -148,7 +148,7 @@ class Instance:
     def __init__(self, *, validation: bool | None = None, lp_num_threads: int | None = None):
         v = vk()
         keep_heap()  # before the driver allocates: see hostheap
-        self.validation = _validation_wanted(validation)
+        self.validation = validation_wanted(validation)
         self.lp_num_threads = lp_num_threads
         layers: list[str] = []
         extensions: list[str] = []

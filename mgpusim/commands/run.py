@@ -45,8 +45,8 @@ def run(args: argparse.Namespace) -> int:
           f"{s['latency_ms']:.3f} ms, jitter {s['frame_time_jitter_ms']:.3f} ms")
     print("  mean step (ms): " + ", ".join(f"{k} {v:.3f}" for k, v in s["step_mean_ms"].items()))
     for line in s.get("queue_fallbacks", []):
-        print(f"  note: {line} (the runner opens one queue per family, and this device has no "
-              "dedicated one of that family; `validate` compares the run on the queue it used)")
+        print(f"  note: {line} (the runner opens one queue of each family the device has and "
+              "runs the rest on graphics; `validate` compares the run on the queue it used)")
     print(f"  wrote {out}")
     return 0
 

@@ -278,7 +278,7 @@ def build_result(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
         else:
             summary["skipped_tasks"] = raw.skipped
     if not raw.recorded:
-        return Result(summary, make_trace([]), frames, whole_links, config, link_logs=links)
+        return Result(summary, lambda: make_trace([]), frames, whole_links, config, link_logs=links)
     return Result(summary, rows.frame, frames, whole_links, config, repeated=rows, link_logs=links)
 
 

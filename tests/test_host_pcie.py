@@ -122,3 +122,19 @@ def test_forced_off_gives_each_link_its_own():
 def test_a_bad_capacity_is_an_input_error_naming_the_key():
     with pytest.raises(InputError, match="pcie_d2h_gbps"):
         h100_like(-1.0)
+
+
+def test_the_calibration_sums_the_rates_of_the_gpus_copying_at_once():
+    import pandas as pd
+
+    from mgpusim.calibration.recipe import _host_pcie
+    rows = [("copy_d2h", 1, "gpu0", "graphics", 1000, 10)]  # alone: not the host side
+    for gpu, ns in (("gpu0", 40), ("gpu1", 50)):  # 2 GPUs at once, the largest size counts
+        rows += [("copy_d2h", 2, gpu, "graphics", 1000, ns), ("copy_d2h", 2, gpu, "transfer", 1000, ns * 2),
+                 ("copy_d2h", 2, gpu, "graphics", 100, 1)]
+    df = pd.DataFrame(rows, columns=["pass", "gpus", "gpu", "queue", "bytes", "duration_ns"])
+    data: dict = {"host": {}}
+    line = _host_pcie(data, df)
+    assert data["host"] == {"pcie_d2h_gbps": 45.0}  # 1000/40 + 1000/50 B/ns
+    assert "2 GPUs copying at once" in line and "host_pcie" in data["sources"]
+    assert "unset" in _host_pcie({"host": {}}, df[df.gpus == 1])

@@ -138,3 +138,11 @@ def test_the_calibration_sums_the_rates_of_the_gpus_copying_at_once():
     assert data["host"] == {"pcie_d2h_gbps": 45.0}  # 1000/40 + 1000/50 B/ns
     assert "2 GPUs copying at once" in line and "host_pcie" in data["sources"]
     assert "unset" in _host_pcie({"host": {}}, df[df.gpus == 1])
+
+
+def test_the_fast_forward_keeps_the_shared_host_side_exact():
+    exp = experiment(h100_like(2.0), "sort_first", [timed("fragment_loop", 1000)], gpus=4, frames=200,
+                     width=8, height=4, warmup=0)
+    fast, slow = simulate(exp, fast_forward=True), simulate(exp, fast_forward=False)
+    assert fast.summary["fast_forward"]["used"] and "host_pcie" in fast.summary["modelled_effects"]
+    assert fast.trace.equals(slow.trace)

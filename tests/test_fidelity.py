@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = [p for p in sorted(ROOT.glob("experiments/*.toml")) + sorted(ROOT.glob("experiments/*/*.toml"))
            if "[schedule]" in p.read_text()]
 IDS = [str(p.relative_to(ROOT / "experiments")) for p in SHIPPED]
-SHARING = {"link_sharing", "host_memory_sharing", "shared_executor"}
+SHARING = {"link_sharing", "host_pcie", "host_memory_sharing", "shared_executor"}
 
 
 def _summary(result) -> str:

@@ -4,7 +4,8 @@ The one place that says how a profile is fitted for a machine. The steps a study
 (:class:`mgpusim.studies.spec.Recipe`) switches on, in order:
 1. the pass, copy and host-copy tables (`mgpusim measure` output) fitted onto a base profile:
    a lavapipe skeleton made from the tables' machine record, or the study profile's own
-   structure (queues, links, memory) for real GPUs;
+   structure (queues, links, memory) for real GPUs; where the recipe asks (`host_pcie`), the
+   host side of PCIe per direction from the copy rows with the most GPUs copying at once;
 2. host copy on the host's memcpy threads as fixed + bytes / bandwidth, from a table measured
    with that many threads;
 3. cost kinds and host keys copied from another profile (a machine with no multi-GPU runs of
@@ -26,7 +27,7 @@ import pandas as pd
 
 from mgpusim.calibration.busy_wake_fit import fit_busy_wake
 from mgpusim.calibration.fit import fit_nonnegative
-from mgpusim.calibration.pass_fit import calibrate, read_measurements
+from mgpusim.calibration.pass_fit import COPY_PASSES, calibrate, read_measurements
 from mgpusim.calibration.profile_out import apply, lavapipe_base, report
 from mgpusim.calibration.run_fit import (Run, copy_wake_after_dispatch, fit_alone_scales,
                                          fit_copy_setup, fit_host_copy_wake, fit_host_effects,
@@ -45,6 +46,8 @@ def profile_from_tables(recipe: Any, tables: Sequence[Path], profile: Path,
     base = lavapipe_base(machine) if recipe.base == "machine" else read_toml(profile)
     data = apply(cal, base, command)
     lines = [command, report(cal)]
+    if getattr(recipe, "host_pcie", False):
+        lines.append(_host_pcie(data, df))
     if recipe.host_copy_table:
         name = recipe.host_copy_table
         rows = (df[df["source"] == name] if name in {t.name for t in tables}  # loaded above
@@ -53,6 +56,35 @@ def profile_from_tables(recipe: Any, tables: Sequence[Path], profile: Path,
     if recipe.copy_from is not None:
         lines.append(_copy_from(data, recipe))
     return data, lines
+
+
+def _host_pcie(data: dict[str, Any], df: pd.DataFrame) -> str:
+    """The host side of PCIe per direction into `data`'s host: with the most GPUs the tables
+    have copying at once, each GPU's rate at the largest size (bytes over the median time, its
+    fastest queue family), summed over the GPUs: what the host took from all the links. The
+    largest copies, not a fit over the sizes: small copies of several GPUs overlap only in
+    part (they start a little apart), so they cross faster than the shared capacity allows."""
+    found: dict[str, tuple[float, int, list[float]]] = {}
+    for name, path in COPY_PASSES.items():
+        rows = df[df["pass"] == name] if "gpus" in df.columns else df.iloc[0:0]
+        most = int(rows["gpus"].max()) if rows["gpus"].notna().any() else 1
+        if path == "d2d" or most < 2:
+            continue
+        rows = rows[rows["gpus"] == most]
+        rows = rows[rows["bytes"] == rows["bytes"].max()]
+        times = rows.groupby(["gpu", "queue"])["duration_ns"].median()
+        rates = [float(rows["bytes"].iloc[0]) / float(t.min()) for _, t in times.groupby(level="gpu")]
+        found[path] = (sum(rates), most, rates)
+        data["host"][f"pcie_{path}_gbps"] = round(sum(rates), 4)
+    if not found:
+        return "host side of PCIe: no copy rows with several GPUs copying at once; unset"
+    parts = "; ".join(f"{path} {total:.4g} GB/s = " + " + ".join(f"{r:.3g}" for r in rates)
+                      + f" ({most} GPUs copying at once)" for path, (total, most, rates) in found.items())
+    data.setdefault("sources", {})["host_pcie"] = (
+        "host.pcie_*_gbps: the sum of the per-GPU copy rates (bytes over the median time of the "
+        "largest copy, fastest queue family) with every GPU of the copy tables copying at once, "
+        "written by the study's calibration (`host_pcie = true`)")
+    return f"host side of PCIe: {parts}"
 
 
 def refine_on_runs(recipe: Any, data: dict[str, Any], runs: Sequence[Run]) -> tuple[dict[str, Any], list[str]]:

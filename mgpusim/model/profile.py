@@ -99,6 +99,16 @@ class HostProfile:
     #: memory; the uncached_reads effect, for host copies whose source is such memory).
     #: 0: such reads are as fast as cached ones.
     uncached_read_gbps: float = 0.0
+    #: What the host side of PCIe (root complex, host memory) takes in one direction from all
+    #: the GPUs' links at once, GB/s (the host_pcie effect: every device-to-host or
+    #: host-to-device copy then crosses its GPU's link and this shared channel). None: each
+    #: GPU's link is its own, however many copy at once.
+    pcie_d2h_gbps: float | None = None
+    pcie_h2d_gbps: float | None = None
+
+    def pcie_gbps(self, path: str) -> float | None:
+        """The host capacity of a PCIe direction ("d2h" or "h2d"; None for any other path)."""
+        return {"d2h": self.pcie_d2h_gbps, "h2d": self.pcie_h2d_gbps}.get(path)
 
 
 @dataclass(frozen=True)
@@ -394,6 +404,8 @@ def _parse_host(t: Table) -> HostProfile:
         thread_start_ns=_ns(t, "thread_start_ns", 0),
         record_ns=_ns(t, "record_ns", 0),
         uncached_read_gbps=_gbps(t, "uncached_read_gbps", 0.0) if t.has("uncached_read_gbps") else 0.0,
+        pcie_d2h_gbps=_gbps(t, "pcie_d2h_gbps", None),
+        pcie_h2d_gbps=_gbps(t, "pcie_h2d_gbps", None),
     )
     _check_host(t, host)
     t.finish()

@@ -90,7 +90,7 @@ class Analytic:
         # the engine's own rules for durations, channels and labels, without running it
         probe = Engine(program, costs, record_trace=False,
                        effects=effects - {"shared_executor", "shared_gpu", "link_sharing",
-                                          "host_memory_sharing", "busy_wake"})
+                                          "host_pcie", "host_memory_sharing", "busy_wake"})
         self.inputs = probe.inputs  # the ids the rows log, and what each lists
         self.threads = host.memcpy_threads
         self.thread_names = [f"thread{i}" for i in range(self.threads)]
@@ -155,7 +155,7 @@ class Analytic:
     def _approximations(self) -> list[str]:
         needed = choose_effects(self.program, self.costs.profile)
         out = [f"{name}: taken as unshared (an optimistic bound)"
-               for name in ("link_sharing", "host_memory_sharing") if name in needed]
+               for name in ("link_sharing", "host_pcie", "host_memory_sharing") if name in needed]
         if "shared_gpu" in needed:
             out.append("shared_gpu: the queues of each GPU taken as independent (an optimistic bound)")
         if "shared_executor" in needed:

@@ -61,6 +61,16 @@ def _link_channels_shared(program: FrameProgram, profile: HardwareProfile) -> bo
     return any(len(q) > 1 for q in users.values())
 
 
+def _host_pcie_shared(program: FrameProgram, profile: HardwareProfile) -> bool:
+    """A PCIe direction with a host capacity (host.pcie_d2h_gbps / pcie_h2d_gbps) is crossed by
+    copies of two or more GPUs."""
+    users: dict[str, set[int]] = {}
+    for t in _all_tasks(program):
+        if isinstance(t, CopyTask) and profile.host.pcie_gbps(t.path):
+            users.setdefault(t.path, set()).add(t.queue.device)
+    return any(len(gpus) > 1 for gpus in users.values())
+
+
 def _host_copies(program: FrameProgram) -> bool:
     return any(isinstance(t, HostCopyTask) for t in _all_tasks(program))
 
@@ -110,6 +120,14 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            "crosses at its own fixed rate",
            "a link direction is used by copies of more than one queue",
            _link_channels_shared),
+    Effect("host_pcie",
+           "every device-to-host (host-to-device) copy crosses its GPU's link and the host side "
+           "of PCIe (host.pcie_d2h_gbps / host.pcie_h2d_gbps), shared by all the GPUs' copies of "
+           "that direction max-min fairly across both (progressive filling); off: each GPU's link "
+           "is its own",
+           "host.pcie_d2h_gbps or host.pcie_h2d_gbps is set and copies of two or more GPUs cross "
+           "that direction",
+           _host_pcie_shared),
     Effect("copy_engine_caps",
            "a queue family's own copy rate limits its copies; off: only the link limits them",
            "a copy queue's rate cap is below the bandwidth of a path it copies over",
@@ -172,7 +190,7 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
 )}
 
 #: Effects the `queues` level leaves out.
-QUEUES_OMITS = frozenset({"link_sharing", "host_memory_sharing", "shared_executor", "shared_gpu",
+QUEUES_OMITS = frozenset({"link_sharing", "host_pcie", "host_memory_sharing", "shared_executor", "shared_gpu",
                           "busy_wake"})
 #: Effects the `analytic` level has no mechanism for (:mod:`mgpusim.sim.analytic` takes them as
 #: unshared and lists them as approximations): they cannot be forced on there.

@@ -34,6 +34,7 @@ from mgpusim.schedules.skipping import SkipChains
 from mgpusim.schedules.task_inputs import TaskInputs, task_inputs
 from mgpusim.sim.busy_wake import BusyWake
 from mgpusim.sim.channel import Channel, FixedRateChannel
+from mgpusim.sim.hostlink import HostLinkChannel, LinkPort
 from mgpusim.sim.effects import choose_effects
 from mgpusim.sim.executors import Executor, Runner, make_executors
 from mgpusim.sim.state import Callback, Environment, Relative
@@ -396,7 +397,15 @@ class Engine:
             return self.costs.group_bandwidth(*task.ends())
         return self.costs.link_bandwidth(dev, task.path)
 
-    def _channel_for(self, task: CopyTask) -> Channel | FixedRateChannel:
+    def _channel_for(self, task: CopyTask) -> Channel | FixedRateChannel | LinkPort:
+        host_gbps = self.costs.profile.host.pcie_gbps(task.path) if "host_pcie" in self.effects else None
+        if host_gbps:  # the GPU's link and the host side of PCIe, shared by every GPU's copies
+            shared = f"pcie.{task.path}"
+            if shared not in self.channels:
+                self.channels[shared] = HostLinkChannel(self.env, shared, gbps_fraction(host_gbps))
+            host = self.channels[shared]
+            assert isinstance(host, HostLinkChannel)
+            return host.port(self._channel_name(task), self._path_bandwidth(task))
         name = self._channel_name(task)
         if name not in self.channels:
             kind = Channel if "link_sharing" in self.effects else FixedRateChannel

@@ -90,7 +90,8 @@ class Recipe:
     their instances that ran alone on the cores; the copies' fixed cost from the runs' copies
     alone on the cores (`copy_setup`); the queues' idle gap (`task_gap`); the host-copy
     thread's wake latency (`host_copy_wake`); the copies left behind a young core-filling pass
-    of another GPU (`busy_wake`); a grid search of host effects."""
+    of another GPU (`busy_wake`); a grid search of host effects. `host_pcie`: the host side of
+    PCIe from the copy tables' rows with several GPUs copying at once (step 1)."""
 
     base: str = "profile"
     host_copy_table: str | None = None
@@ -105,6 +106,9 @@ class Recipe:
     host_copy_wake: bool = False
     busy_wake: bool = False
     copy_setup: bool = False
+    #: the host side of PCIe per direction (host.pcie_d2h_gbps / pcie_h2d_gbps) from the copy
+    #: tables' rows with the most GPUs copying at once: the sum of their rates
+    host_pcie: bool = False
     host_grid: Mapping[str, tuple[Any, ...]] = field(default_factory=lambda: MappingProxyType({}))
     #: what the grid search scores: the prediction's frame-time error, or the replay's (the
     #: timeline on the runs' own durations, so that cost errors cannot set host effects)
@@ -317,6 +321,7 @@ def _recipe(t: Table, base: Path) -> Recipe:
         host_copy_wake=t.get("host_copy_wake", bool, False),
         busy_wake=t.get("busy_wake", bool, False),
         copy_setup=t.get("copy_setup", bool, False),
+        host_pcie=t.get("host_pcie", bool, False),
         host_grid=MappingProxyType({k: _values(grid_t, _host_key(grid_t, k), (int, float))
                                     for k in list(grid_t.data)}),
         host_grid_level=t.get("host_grid_level", str, "prediction", choices=("prediction", "replay")))

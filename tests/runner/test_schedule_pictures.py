@@ -239,10 +239,11 @@ def test_particles_match_numpy(gpus, options):
     if options["policy"] == "wait":
         assert skipped == [] and "read_frames" not in result.summary
         return
-    assert skipped, "the chain outlasts a frame here: some updates must be skipped"
+    if gpus == 2:  # on one GPU a light frame's update may be done before the next decides
+        assert skipped, "the chain outlasts a frame here: some updates must be skipped"
     read = result.summary["read_frames"]["particle_render"]
     assert read == [max(g for g in vertices if g <= f) for f in range(FRAMES)]
-    assert result.summary["skipped_tasks"]["particle_update"] == len(skipped)
+    assert result.summary.get("skipped_tasks", {}).get("particle_update", 0) == len(skipped)
     rates = result.summary["task_rates_hz"]
     # the steady-state rate: on one GPU the leader decides once the present two frames back has
     # ended, and a light frame's update may be done by then in every steady frame

@@ -9,7 +9,7 @@ was skipped. The engine asks when an instance becomes ready and tells when one f
 from __future__ import annotations
 
 from collections import defaultdict
-from typing import Callable
+from typing import Callable, Iterable
 
 from mgpusim.model.errors import ScheduleError
 from mgpusim.model.tasks import Task
@@ -98,3 +98,25 @@ class SkipChains:
         self.skipped_frames[name].append(key[0])
         if self._readers[phase].get(name):
             self._skipped_keys[key] = self._readers[phase][name]
+
+
+class GivenSkips:
+    """Skips decided beforehand, not by the rule: the instances in `keys` are skipped, every
+    other runs. The replay level's: a measured run's skips are facts to follow, and its
+    skippable tasks keep everything else they are (a chain's leader still waits on the host for
+    its inputs). The same interface as :class:`SkipChains`."""
+
+    def __init__(self, keys: Iterable[Key]):
+        self.skip: set[Key] = set(keys)
+        self.skipped_frames: dict[str, list[int]] = defaultdict(list)
+        for frame, name in sorted(self.skip):
+            self.skipped_frames[name].append(frame)
+
+    def ready(self, key: Key, task: Task) -> None:
+        """Nothing to decide: the skips are given."""
+
+    def finished(self, frame: int, task: Task) -> None:
+        """Nothing to count."""
+
+    def state(self, key: Callable[[Key], Key]) -> tuple:
+        return (tuple(sorted(key(k) for k in self.skip)),)

@@ -30,7 +30,7 @@ from mgpusim.model.geometry import even_split
 from mgpusim.model.limits import INT64_MAX
 from mgpusim.model.tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
 from mgpusim.schedules.base import FrameProgram, leads_chain, wakes_host
-from mgpusim.schedules.skipping import SkipChains
+from mgpusim.schedules.skipping import GivenSkips, SkipChains
 from mgpusim.schedules.task_inputs import TaskInputs, task_inputs
 from mgpusim.sim.busy_wake import BusyWake
 from mgpusim.sim.channel import Channel, FixedRateChannel
@@ -117,14 +117,14 @@ class Engine:
     def __init__(self, program: FrameProgram, costs: CostModel, record_trace: bool = True,
                  effects: frozenset[str] | None = None,
                  executors: Callable[[simpy.Environment], dict[str, Executor]] | None = None,
-                 durations: Mapping[Key, int] | None = None, skips: Iterable[Key] = ()):
+                 durations: Mapping[Key, int] | None = None, skips: Iterable[Key] | None = None):
         """`effects`: the effects to instantiate (default: those the scene needs, see
         :func:`.effects.choose_effects`). `executors`: builds the executor of every device and
         the host (default: shared host cores where the shared_executor effect is on).
         `durations`: (phase, task name) -> ns the task takes there instead of its cost (the
         replay level, :mod:`.replay`: measured durations; a copy then crosses no channel, a
-        host copy's every part takes the given time). `skips`: (frame, task) instances skipped
-        whatever the skip rule says (the replay: those a measured run skipped)."""
+        host copy's every part takes the given time). `skips`: the (frame, task) instances to
+        skip instead of the skip rule's decisions (the replay: those a measured run skipped)."""
         self.program, self.costs, self.record = program, costs, record_trace
         self._durations = durations or {}
         if effects is None:
@@ -142,9 +142,9 @@ class Engine:
         self._waiters: dict[Key, simpy.Event] = {}
         self._ready: set[Key] = set()
         self._index = [{t.name: t for t in tasks} for tasks in program.templates]
-        self._chains = SkipChains(program, self._index)
+        self._chains: SkipChains | GivenSkips = (SkipChains(program, self._index) if skips is None
+                                                 else GivenSkips(skips))
         self._skip = self._chains.skip  # instances marked to be skipped, read in the hot loop
-        self._skip.update(skips)
         self._dependents = self._reverse_deps()
         host = costs.profile.host
         submission = "host_submission" in effects

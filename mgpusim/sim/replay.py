@@ -63,7 +63,6 @@ def replay(exp: Experiment, durations: Durations, frames: int,
         raise InputError("the measured run has no frames to replay", field="frames")
     program = unrolled(on_queues(build_program(exp), queues or {}), frames)
     skipped = skipped_in_run(program, durations)
-    program = without_skip_rule(program)
     effects = choose_effects(program, exp.profile) - DURATION_EFFECTS
     costs = CostModel(exp.profile)
     pool = (lambda env: measured_executors(env, costs)) if exp.profile.host.gpus_share_cpu else None
@@ -80,13 +79,6 @@ def skipped_in_run(program: FrameProgram, durations: Durations) -> set[tuple[int
     exactly these, where the run's skip rule decided."""
     return {(f, t.name) for f in range(program.frames) for t in program.tasks(f)
             if t.skip_if_busy and (f, t.name) not in durations}
-
-
-def without_skip_rule(program: FrameProgram) -> FrameProgram:
-    """`program` whose tasks are never skipped by the rule (the replay decides from the run)."""
-    templates = tuple(tuple(replace(t, skip_if_busy=False) if t.skip_if_busy else t for t in tasks)
-                      for tasks in program.templates)
-    return replace(program, templates=templates)
 
 
 def filled(program: FrameProgram, durations: Durations) -> dict[tuple[int, str], int]:

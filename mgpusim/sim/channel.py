@@ -111,7 +111,7 @@ class Channel:
         if not self._settle_pending:
             self._settle_pending = True
             self._gen += 1  # any planned wake-up is stale now
-            self.env.timeout(0).callbacks.append(_Settle((self,)))
+            self.env.timeout(0).callbacks.append(Settle((self,)))
         return done
 
     def occupy(self, cap: Fraction, tag: object = None) -> object:
@@ -138,7 +138,7 @@ class Channel:
         if not self._settle_pending:
             self._settle_pending = True
             self._gen += 1
-            self.env.timeout(0).callbacks.append(_Settle((self,)))
+            self.env.timeout(0).callbacks.append(Settle((self,)))
 
     # ----- the fast path: nothing shared -----------------------------------------------------
     def _fits(self, flow: _Flow) -> bool:
@@ -290,7 +290,7 @@ class Channel:
             return  # only occupants: nothing ends until one is released
         wake = min(self._t + (2 * f.remaining + f.rate) // (2 * f.rate) for f in due)
         wake = max(wake, self.env.now)
-        self.env.timeout(wake - self.env.now).callbacks.append(_Wake((self, self._gen)))
+        self.env.timeout(wake - self.env.now).callbacks.append(Wake((self, self._gen)))
 
     # ----- state (for the fast-forward) -----------------------------------------------------
     @property
@@ -312,9 +312,10 @@ class Channel:
         return [f.done for f in self.flows]
 
 
-class _Settle(Callback, tuple):
+class Settle(Callback, tuple):
     """Settle the channel now: flows that arrived in this nanosecond share it from here.
-    (The callbacks are tuples: made at C speed, a new one for every transfer.)"""
+    (The callbacks are tuples: made at C speed, a new one for every transfer.) Any channel
+    with a `_settle()` and a `name` uses it (the host side of PCIe too)."""
 
     __slots__ = ()
 
@@ -339,7 +340,7 @@ class _SoloDone(Callback, tuple):
         return ("solo done", self[0].name, rel.event(self[1].done) if current else None, current)
 
 
-class _Wake(Callback, tuple):
+class Wake(Callback, tuple):
     """(channel, generation): the solver's planned wake-up for the next flow due (stale once
     the generation moved on)."""
 

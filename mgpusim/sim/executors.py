@@ -134,7 +134,8 @@ class MeasuredCores(SharedCores):
     takes exactly its time and meanwhile occupies the cores it keeps busy, so that the host
     threads' own work (waking on an input, submitting) is slowed by it as on the real machine;
     that work alone is costed by the pool. Why: on CPU-emulated GPUs a submit thread wakes
-    behind the GPUs' threads, which a replay on idle cores would miss."""
+    behind the GPUs' threads, which a replay on idle cores would miss. A pass's driver
+    overhead (`cpu_overhead_ns`) still goes on the pool beside it (the inherited task_runner)."""
 
     def runner(self, ns: int, cores: Fraction | int = 1, tag: object = None) -> tuple[Runner | None, int]:
         if not ns:
@@ -147,20 +148,6 @@ class MeasuredCores(SharedCores):
             done.callbacks.append(lambda _event: channel.release(held))
             return done
         return run, ns
-
-    def task_runner(self, task: Task, ns: int) -> tuple[Runner | None, int]:
-        """The task's time, its cores occupied; a pass with a `cpu_overhead_ns` also puts that
-        much of one core's work on the pool when it starts (the driver's, beside the pass)."""
-        run, amount = self.runner(ns, self.cores(task), self._tag(task))
-        overhead = self._overhead(task)
-        if not overhead or run is None:
-            return run, amount
-        transfer, main = self.channel.transfer, run
-
-        def with_overhead(amount: int) -> simpy.Event:
-            transfer(overhead, 1)
-            return main(amount)
-        return with_overhead, amount
 
 
 class SharedGpu(Dedicated):

@@ -19,7 +19,8 @@ from fractions import Fraction
 
 import simpy
 
-from mgpusim.sim.state import Callback, Relative
+from mgpusim.sim.channel import Settle, Wake
+from mgpusim.sim.state import Relative
 
 
 class _Flow:
@@ -72,7 +73,7 @@ class HostLinkChannel:
         if not self._settle_pending:
             self._settle_pending = True
             self._gen += 1  # any planned wake-up is stale now
-            self.env.timeout(0).callbacks.append(_Settle((self,)))
+            self.env.timeout(0).callbacks.append(Settle((self,)))
         return done
 
     # ----- the solver -------------------------------------------------------------------
@@ -106,7 +107,7 @@ class HostLinkChannel:
         self._gen += 1
         wake = min(self._t + int(f.remaining / f.rate + Fraction(1, 2)) for f in self.flows)
         wake = max(wake, self.env.now)
-        self.env.timeout(wake - self.env.now).callbacks.append(_Wake((self, self._gen)))
+        self.env.timeout(wake - self.env.now).callbacks.append(Wake((self, self._gen)))
 
     # ----- state (for the fast-forward) -------------------------------------------------
     @property
@@ -165,29 +166,3 @@ class LinkPort:
 
     def transfer(self, nbytes: int, cap: Fraction | None = None) -> simpy.Event:
         return self.channel.transfer(self.link, nbytes, cap)
-
-
-class _Settle(Callback, tuple):
-    """Settle the channel now: flows that arrived in this nanosecond share it from here."""
-
-    __slots__ = ()
-
-    def __call__(self, _event: simpy.Event) -> None:
-        self[0]._settle()
-
-    def state(self, rel: Relative) -> tuple:
-        return ("settle", self[0].name)
-
-
-class _Wake(Callback, tuple):
-    """(channel, generation): the planned wake-up for the next flow due (stale once the
-    generation moved on)."""
-
-    __slots__ = ()
-
-    def __call__(self, _event: simpy.Event) -> None:
-        if self[1] == self[0]._gen:
-            self[0]._settle()
-
-    def state(self, rel: Relative) -> tuple:
-        return ("wake", self[0].name, self[1] == self[0]._gen)

@@ -5,7 +5,8 @@
 # (carrying .gl, .whl with tomli_w and .spvcache filled here: the machine has no glslc).
 # SWEEPS=1: first the machine (nvidia-smi, topology, lscpu, Vulkan devices and device groups) and
 # the pass tables (`mgpusim measure`, one process per table; copies also with 2 and 4 GPUs
-# copying at once). Then each GROUP (a substring of configuration names) in its own process:
+# copying at once); SWEEPS=mesh: the mesh tables only; SWEEPS=particles: the particle update
+# and draw tables only. Then each GROUP (a substring of configuration names) in its own process:
 # `mgpusim study measure` from a copy of study.toml without the committed tables and runs.
 # One process per group because after about 30 runs in one process the next Vulkan instance
 # fails (VkErrorIncompatibleDriver); a failed group is taken again once. A group already done
@@ -52,6 +53,16 @@ if [ "${SWEEPS:-0}" = 1 ] || [ "${SWEEPS:-0}" = mesh ]; then
   m mesh_xr.csv --pass mesh --warmup 30 --sweep width=2064,2880 --sweep height=2208,2720 \
     --sweep triangles=1000000,3000000,12000000 --sweep "place=whole,eye=left,eye=right;column=1/2"
   echo "mesh sweeps took $((SECONDS - s)) s" >> "$work/logs/sweeps.log"
+  pack
+fi
+
+if [ "${SWEEPS:-0}" = particles ]; then
+  # The particle update and draw, for the particle offload runs on two of the four GPUs.
+  s=$SECONDS
+  m particle_update.csv --pass particle_update --sweep particles=16384,65536,262144
+  m particle_render.csv --pass particle_render --sweep width=1920,3840 --sweep height=1080,2160 \
+    --sweep particles=16384,65536,262144
+  echo "particle sweeps took $((SECONDS - s)) s" >> "$work/logs/sweeps.log"
   pack
 fi
 

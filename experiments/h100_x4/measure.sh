@@ -2,6 +2,7 @@
 # The 4x H100 study's measurements, on the device machine, from the project root:
 #   source .gl/env.sh; export PYTHONPATH=$PWD:$PYTHONPATH; export MGPUSIM_CACHE=$PWD/.spvcache
 #   SWEEPS=1 bash experiments/h100_x4/measure.sh /tmp/work GROUP...
+# (STUDY_DIR=experiments/h200_x4: the same for the study of that folder, on its machine)
 # (carrying .gl, .whl with tomli_w and .spvcache filled here: the machine has no glslc).
 # SWEEPS=1: first the machine (nvidia-smi, topology, lscpu, Vulkan devices and device groups) and
 # the pass tables (`mgpusim measure`, one process per table; copies also with 2 and 4 GPUs
@@ -17,9 +18,10 @@ work=${1:?work folder}; shift
 py=${PYTHON:-python3}
 deadline=${DEADLINE_S:-480}
 devices=${DEVICES:-0,1,2,3}
-here=experiments/h100_x4
+here=${STUDY_DIR:-$(dirname "$0")}
+card=$(basename "$here")
 mkdir -p "$work/measurements/parts" "$work/logs"
-pack() { [ -n "${OUT:-}" ] && tar czf "$OUT/h100_x4_${TAG:-work}.tgz" -C "$work" . ; }
+pack() { [ -n "${OUT:-}" ] && tar czf "$OUT/${card}_${TAG:-work}.tgz" -C "$work" . ; }
 m() { local out=$1; shift; timeout 150 $py -m mgpusim measure --quiet --reps 5 --warmup 2 "$@" \
         --out "$work/measurements/$out" >> "$work/logs/sweeps.log" 2>&1 || echo "FAILED: $out $*" >> "$work/logs/sweeps.log"; }
 
@@ -27,7 +29,7 @@ if [ "${SWEEPS:-0}" = 1 ]; then
   { nvidia-smi --query-gpu=name,driver_version,pci.bus_id,pcie.link.gen.max,pcie.link.width.max,memory.total --format=csv
     nvidia-smi topo -m; nvidia-smi; } > "$work/nvidia-smi.txt" 2>&1
   lscpu > "$work/lscpu.txt" 2>&1
-  { $py -m mgpusim devices; $py $here/device_groups.py; } > "$work/devices.txt" 2>&1
+  { $py -m mgpusim devices; $py "$(dirname "$0")/device_groups.py"; } > "$work/devices.txt" 2>&1
   s=$SECONDS
   m fragment_loop.csv --pass fragment_loop --sweep width=1920,3840 --sweep height=1080,2160 --sweep iterations=250,1000,4000
   m filter.csv --pass filter --sweep width=1920,3840 --sweep height=1080,2160 --sweep iterations=100,500 --sweep inputs=1,2,3
@@ -56,7 +58,7 @@ if [ "${SWEEPS:-0}" = 1 ] || [ "${SWEEPS:-0}" = mesh ]; then
   pack
 fi
 
-if [ "${SWEEPS:-0}" = particles ]; then
+if [ "${SWEEPS:-0}" = 1 ] || [ "${SWEEPS:-0}" = particles ]; then
   # The particle update and draw, for the particle offload runs on two of the four GPUs.
   s=$SECONDS
   m particle_update.csv --pass particle_update --sweep particles=16384,65536,262144
@@ -67,7 +69,7 @@ if [ "${SWEEPS:-0}" = particles ]; then
 fi
 
 study=$here/study_measure.toml  # vanishes with the machine's copy of the tree
-grep -v -e '^runs = ' -e '^tables = ' $here/study.toml > "$study"
+grep -v -e '^runs = ' -e '^tables = ' -e '^files = ' $here/study.toml > "$study"
 for g in "$@"; do
   if grep -q "^$g rc=0" "$work/logs/groups.txt" 2>/dev/null; then continue; fi
   if [ "$SECONDS" -gt "$deadline" ]; then echo "$g skipped at ${SECONDS}s" >> "$work/logs/groups.txt"; continue; fi

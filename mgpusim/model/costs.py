@@ -14,7 +14,7 @@ from mgpusim.model import limits as L
 from mgpusim.model.errors import InputError, TimeBoundError
 from mgpusim.model.profile import HardwareProfile
 from mgpusim.model.tasks import CpuTask, HostCopyTask
-from mgpusim.model.work_terms import PLACED_TERMS, REFERENCE_KINDS
+from mgpusim.model.work_terms import REFERENCE_KINDS, UNPRICED_OK
 
 
 def ns(value: float) -> int:
@@ -61,7 +61,7 @@ class CostModel:
                 continue
             coef = cost.ns_per.get(term)
             if coef is None:
-                if term in PLACED_TERMS.get(kind, ()):
+                if term in UNPRICED_OK.get(kind, ()):
                     continue
                 if kind in REFERENCE_KINDS and term == "reference_ns":
                     coef = 1.0

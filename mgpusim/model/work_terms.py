@@ -24,7 +24,10 @@ WORK_TERMS: dict[str, WorkFn] = {
     "filter": lambda s, px, g: {"pixel": px, "pixel_iteration": px * s.param("iterations"),
                                 "pixel_input": px * s.param("inputs", 1)},
     "particle_update": lambda s, px, g: {"particle": s.param("particles") * g},
-    "particle_render": lambda s, px, g: {"particle": s.param("particles") * g, "pixel": px},
+    # blended billboards of a fixed size in the world: each covers a fixed share of the view, so
+    # the fragments a particle shades grow with the view's pixels (`particle_pixel`)
+    "particle_render": lambda s, px, g: {"particle": s.param("particles") * g, "pixel": px,
+                                         "particle_pixel": s.param("particles") * g * px},
     # A pass known only by a measured or estimated time on a reference GPU (e.g. the DX12 case
     # study's passes); the GPU's ns_per_reference_ns scales it (1 if the profile has no entry).
     "timed": lambda s, px, g: {"reference_ns": s.param("duration_ms") * 1e6 * g},
@@ -83,6 +86,11 @@ REQUIRED_PARAMS: dict[str, tuple[str, ...]] = {
 PLACED_TERMS: dict[str, tuple[str, ...]] = {
     "mesh": ("visible_triangle", "triangle_edge", "fragment"),
 }
+
+#: Terms whose coefficient a profile may lack: a profile calibrated before the term was
+#: modelled keeps its older model (the term costs nothing there). The placed terms, and a
+#: particle draw's fragments (`particle_pixel`).
+UNPRICED_OK: dict[str, tuple[str, ...]] = {**PLACED_TERMS, "particle_render": ("particle_pixel",)}
 
 
 #: Terms a pass kind adds only where the scene gives their parameter, so that profiles and

@@ -161,6 +161,32 @@ def test_filter_pass_is_fitted_with_its_inputs():
     assert got["ns_per_pixel"] == pytest.approx(0.3, rel=1e-6)
 
 
+def _particle_rows(sizes, counts) -> pd.DataFrame:
+    rows = [{"pass": "particle_render", "width": w, "height": h, "particles": n, "repetition": 0,
+             "duration_ns": 3000 + 2.0 * n + 0.1 * w * h + 1e-5 * n * w * h}
+            for w, h in sizes for n in counts]
+    df = pd.DataFrame(rows)
+    df["source"] = "synthetic"
+    return df
+
+
+def test_particle_draws_are_priced_per_particle_and_pixel_where_the_table_sweeps_both():
+    fit = calibrate(_particle_rows([(640, 360), (1280, 720), (2560, 1440)], (1e4, 1e5, 1e6)), {}
+                    ).pass_fits["particle_render"]
+    got = dict(zip(fit.names, fit.coef))
+    assert got["ns_per_particle_pixel"] == pytest.approx(1e-5, rel=1e-6)
+    assert got["ns_per_particle"] == pytest.approx(2.0, rel=1e-6)
+
+
+def test_a_table_of_one_view_size_keeps_the_older_particle_draw_model():
+    """One view size cannot tell particles x pixels from particles: the optional term is left
+    out, with a warning, rather than splitting the time between them arbitrarily."""
+    cal = calibrate(_particle_rows([(1280, 720)], (1e4, 1e5, 1e6)), {})
+    fit = cal.pass_fits["particle_render"]
+    assert "ns_per_particle_pixel" not in fit.names
+    assert any("particle_pixel" in w and "left out" in w for w in cal.warnings)
+
+
 def test_a_fit_that_does_not_converge_is_an_input_error(monkeypatch):
     """scipy's solver raises RuntimeError at its iteration limit: calibrate says so in one line
     naming the fit instead of crashing."""

@@ -21,7 +21,7 @@ from mgpusim.calibration.overlap_fit import fit_overlap
 from mgpusim.model.errors import InputError
 from mgpusim.model.geometry import MESH_PLACE, mesh_placement
 from mgpusim.model.scene import PassSpec
-from mgpusim.model.work_terms import REFERENCE_KINDS, WORK_TERMS
+from mgpusim.model.work_terms import REFERENCE_KINDS, UNPRICED_OK, WORK_TERMS
 from mgpusim.model.work_terms import pass_work as pass_work_placed
 from mgpusim.validation.measured_check import read_json_object, read_table
 
@@ -93,11 +93,30 @@ def fit_passes(df: pd.DataFrame, cal: Calibration) -> None:
         if rows.empty:
             continue
         works = [pass_work(r) for _, r in rows.iterrows()]
-        terms = sorted({t for w in works for t in w})
-        X = np.array([[1.0] + [w.get(t, 0.0) for t in terms] for w in works])
-        fit = fit_nonnegative(X, rows["duration_ns"].to_numpy(), ["fixed_ns"] + [f"ns_per_{t}" for t in terms], kind)
+        fit = _fit_kind(kind, works, rows["duration_ns"].to_numpy())
         cal.pass_fits[kind] = fit
         cal.warnings.extend(fit.warnings)
+
+
+def _fit_kind(kind: str, works: list[dict[str, float]], durations: np.ndarray) -> Fit:
+    """Fit one kind's coefficients. A term that a profile may lack (:data:`UNPRICED_OK`) is
+    left out where the table cannot tell it from the others (one particle count, or one view
+    size): the kind keeps its older model rather than an arbitrary split of the time."""
+    terms = sorted({t for w in works for t in w})
+    fit = _fit_terms(kind, works, durations, terms)
+    optional = [t for t in terms if t in UNPRICED_OK.get(kind, ())]
+    if optional and any("cannot tell" in w for w in fit.warnings):
+        kept = [t for t in terms if t not in optional]
+        reduced = _fit_terms(kind, works, durations, kept)
+        reduced.warnings.append(f"{kind}: the measurements cannot tell {optional} from the other terms; "
+                                "left out (the older model); sweep more sizes to price them")
+        return reduced
+    return fit
+
+
+def _fit_terms(kind: str, works: list[dict[str, float]], durations: np.ndarray, terms: list[str]) -> Fit:
+    X = np.array([[1.0] + [w.get(t, 0.0) for t in terms] for w in works])
+    return fit_nonnegative(X, durations, ["fixed_ns"] + [f"ns_per_{t}" for t in terms], kind)
 
 
 def fit_cores(df: pd.DataFrame, cal: Calibration) -> None:

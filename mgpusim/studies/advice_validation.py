@@ -223,8 +223,8 @@ def _measure_option(setup: Setup, frame: Frame, advice: Advice, index: int, capt
     over = source_overrides(setup, frame, advice.options[index].overrides["schedule"])
     try:
         got = measure(setup, frame.experiment, over)
-    except MgpusimError as exc:
-        return {"error": str(exc)[:160], "wall_s": time.perf_counter() - t0}
+    except Exception as exc:  # noqa: BLE001 - one option the runner cannot run stops no other
+        return {"error": f"{type(exc).__name__}: {exc}"[:160], "wall_s": time.perf_counter() - t0}
     return {"measured_ms": got["frame_time_ms"], "latency_ms": got["latency_ms"],
             "wall_s": time.perf_counter() - t0}
 

@@ -14,12 +14,11 @@ import pytest
 import tomli_w
 
 from mgpusim.cli import main
-from tests.headless_browser import find_browser, open_page
+from tests.headless_browser import NO_BROWSER, find_browser, open_page
 
 ROOT = Path(__file__).resolve().parents[1]
 STUDY = ROOT / "experiments" / "h100_x2" / "study.toml"
 KEEP = {"calibration": ("afr_2gpu_4k_it1000", "xr_weak_quest3_t1M"), "held_out": ("afr_2gpu_1440p_it2000",)}
-NO_BROWSER = "no Chromium here (scripts/setup.sh installs it unless MGPUSIM_BROWSER=0; Debian: apt-get install chromium)"
 
 
 def _mini_study(folder: Path) -> Path:

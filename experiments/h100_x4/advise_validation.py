@@ -33,7 +33,9 @@ SETUP = Setup(
         ("stereo mesh", X4 / "xr.toml", {**ONE, "schedule.mode": "simulated", "schedule.views": 2}),
         ("mesh", X4 / "sort_last.toml", {**ONE, "scene.passes.0.triangles": 5_000_000}),
     )),
-    max_gpus=4, repeats=2, devices=(0, 1, 2, 3), frames_per_run=40)
+    # workers=1: the search runs in this process (a pool would fork a process holding the
+    # driver's VkInstance; on ~50 options the serial search takes seconds)
+    max_gpus=4, repeats=2, devices=(0, 1, 2, 3), frames_per_run=40, workers=1)
 
 if __name__ == "__main__":
     sys.exit(main(SETUP, __doc__.splitlines()[0]))

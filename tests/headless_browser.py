@@ -23,6 +23,11 @@ from typing import Any
 BROWSERS = ("chromium", "chromium-browser", "google-chrome")
 
 
+#: Why a browser test is skipped (the reason pytest reports).
+NO_BROWSER = ("no Chromium here: scripts/setup.sh installs it (Debian `chromium`) unless "
+              "MGPUSIM_BROWSER=0, and warns where apt could not")
+
+
 def find_browser() -> str | None:
     return next((path for name in BROWSERS if (path := shutil.which(name))), None)
 

@@ -12,7 +12,7 @@ from mgpusim import load_experiment
 from mgpusim.cli import main
 from mgpusim.studies.advice import CHUNKS, LINKS, options, pareto, search
 from mgpusim.studies.advice_report import write_advice
-from tests.headless_browser import find_browser, open_page
+from tests.headless_browser import NO_BROWSER, find_browser, open_page
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples" / "frames"
@@ -103,7 +103,7 @@ def test_the_report_folder(advice, tmp_path):
     assert "<script" not in html and "pareto.png" in html and "Pareto front" in html
 
 
-@pytest.mark.skipif(find_browser() is None, reason="no Chromium here (Debian: apt-get install chromium)")
+@pytest.mark.skipif(find_browser() is None, reason=NO_BROWSER)
 def test_the_report_renders_in_a_headless_browser(advice, tmp_path):
     files = write_advice(advice, tmp_path, "f.toml", timelines=1)
     page = open_page(files["report"], find_browser())
@@ -114,7 +114,7 @@ def test_the_report_renders_in_a_headless_browser(advice, tmp_path):
     assert all((tmp_path / href).is_file() for href in page.links), page.links
 
 
-@pytest.mark.skipif(find_browser() is None, reason="no Chromium here (Debian: apt-get install chromium)")
+@pytest.mark.skipif(find_browser() is None, reason=NO_BROWSER)
 def test_the_browser_check_sees_a_broken_page(tmp_path):
     """The positive control: a missing picture and a script error are caught."""
     page = tmp_path / "bad.html"

@@ -248,3 +248,29 @@ def pareto_png(table: pd.DataFrame, path: str | Path, title: str = "") -> Path:
     ax.set_title(title or "options: frame time against latency (marker size: GPUs)", fontsize=10)
     fig.savefig(path, dpi=110, bbox_inches="tight")
     return Path(path)
+
+
+def errors_png(table: pd.DataFrame, path: str | Path, title: str = "") -> Path:
+    """A study's frame-time errors per configuration (simulated / measured - 1, in %): the
+    prediction's bar and, where compared, the replay's beside it. Columns: config,
+    frame_time_error, replay_frame_time_error (optional)."""
+    rows = table.reset_index(drop=True)
+    y = np.arange(len(rows))
+    fig = Figure(figsize=(8, 1.2 + 0.28 * len(rows)))
+    ax = fig.subplots()
+    replay = rows["replay_frame_time_error"] if "replay_frame_time_error" in rows else None
+    height = 0.4 if replay is not None else 0.8
+    ax.barh(y - (height / 2 if replay is not None else 0), 100 * rows["frame_time_error"], height,
+            color="#4c72b0", label="prediction (calibrated costs)")
+    if replay is not None:
+        ax.barh(y + height / 2, 100 * replay.fillna(0.0), height, color="#dd8452",
+                label="replay (measured durations)")
+    ax.axvline(0, color="black", linewidth=0.6)
+    ax.set_yticks(y, rows["config"], fontsize=7)
+    ax.invert_yaxis()
+    ax.set_xlabel("frame-time error (%): simulated / measured - 1")
+    ax.grid(axis="x", alpha=0.3)
+    ax.legend(fontsize=7, loc="lower right")
+    ax.set_title(title, fontsize=10)
+    fig.savefig(path, dpi=100, bbox_inches="tight")
+    return Path(path)

@@ -23,6 +23,7 @@ table { border-collapse: collapse; font-size: 0.85em; margin: 0.5em 0; }
 th, td { border: 1px solid #ccc; padding: 0.2em 0.5em; text-align: right; }
 th { background: #f0f0f0; } td.text, th.text { text-align: left; }
 img { max-width: 100%; border: 1px solid #ddd; }
+div.wide { overflow-x: auto; }
 .note { color: #555; font-size: 0.9em; } code { background: #f4f4f4; padding: 0 0.2em; }
 """
 
@@ -49,7 +50,8 @@ def html_table(df: pd.DataFrame, digits: int = 3) -> str:
         cells = "".join(f"<td class=\"{_align(df[c])}\">{html.escape(_cell(v, digits))}</td>"
                         for c, v in zip(df.columns, values))
         rows.append(f"<tr>{cells}</tr>")
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>"
+    return (f"<div class=\"wide\"><table><thead><tr>{head}</tr></thead><tbody>{''.join(rows)}</tbody>"
+            "</table></div>")
 
 
 def _align(col: pd.Series) -> str:

@@ -17,6 +17,7 @@ from mgpusim.studies import speed_probe as speed
 from mgpusim.studies.measuring import (Progress, measure_microbenchmarks, measure_runs,
                                        measured_folder)
 from mgpusim.studies.spec import Entry, Study
+from mgpusim.studies.study_page import stats_line, write_study_page
 from mgpusim.validation import run_archive
 from mgpusim.validation.compare import error_stats, error_table
 from mgpusim.validation.crossvalidate import format_report, validate_experiment
@@ -162,7 +163,8 @@ def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_t
     """report.md: the machine's speed during the job (its probes, when measured); per half, the
     configurations without a measured run (`missing`), and per schedule the error table, its
     statistics and the stacked measured/simulated timelines; errors.json (per half, with the
-    configurations without runs) and errors_by_schedule.json; errors_*.csv."""
+    configurations without runs) and errors_by_schedule.json; errors_*.csv; report.html, the
+    same as a static page with error plots (mgpusim/studies/study_page.py)."""
     lines = [f"# mgpusim study {study.name}: measured vs simulated", "",
              "Errors are simulated / measured - 1, at two levels: the *prediction* (the calibrated "
              "cost model) and the *replay* (the model's timeline with every task taking the "
@@ -173,7 +175,8 @@ def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_t
              "`spread` is (slowest / fastest - 1) of the whole runs' frame times, the machine's own "
              "noise. Each configuration's folder under validation/ holds `timelines.png` (measured "
              "above simulated) and both Perfetto traces.", ""]
-    lines += speed.report_lines(probes if probes is not None else speed.read_probes([]))
+    speed_lines = speed.report_lines(probes if probes is not None else speed.read_probes([]))
+    lines += speed_lines
     stats: dict[str, Any] = {}
     by_schedule: dict[str, dict[str, Any]] = {}
     for title, table in tables.items():
@@ -184,11 +187,11 @@ def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_t
         if table.empty:
             continue
         stats[title] = {**error_stats(table), **stats.get(title, {})}
-        lines += ([] if absent else [f"## {title}", ""]) + [_stats_line(stats[title]), ""]
+        lines += ([] if absent else [f"## {title}", ""]) + [stats_line(stats[title]), ""]
         groups = table.groupby("schedule", sort=False) if "schedule" in table else [("", table)]
         for schedule, part in groups:
             st = by_schedule.setdefault(title, {})[schedule] = error_stats(part)
-            lines += [f"### {schedule}", "", markdown_table(part), "", _stats_line(st), ""]
+            lines += [f"### {schedule}", "", markdown_table(part), "", stats_line(st), ""]
             lines += [f"![{c}](validation/{c}/timelines.png)" for c in part["config"]] + [""]
         table.to_csv(out / f"errors_{title.split()[0].lower()}.csv", index=False)
     lines += ["## Calibration", "", "```", fit_text, "```", ""]
@@ -197,21 +200,8 @@ def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_t
     path.write_text("\n".join(lines))
     write_json(stats, out / "errors.json")
     write_json(by_schedule, out / "errors_by_schedule.json")
+    write_study_page(out, study.name, tables, stats, fit_text, speed_lines, missing)
     return path
-
-
-def _stats_line(st: dict[str, Any]) -> str:
-    line = (f"Prediction: median |frame-time error| {st['median_abs_frame_time_error']:.1%}, worst "
-            f"{st['worst_abs_frame_time_error']:.1%} over {st['configurations']} configurations; "
-            f"median |latency error| {st['median_abs_latency_error']:.1%}, worst "
-            f"{st['worst_abs_latency_error']:.1%}.")
-    if "replay_median_abs_frame_time_error" in st:
-        line += (f" Replay (the timeline on measured durations): frame time "
-                 f"{st['replay_median_abs_frame_time_error']:.1%} / "
-                 f"{st['replay_worst_abs_frame_time_error']:.1%}, latency "
-                 f"{st['replay_median_abs_latency_error']:.1%} / "
-                 f"{st['replay_worst_abs_latency_error']:.1%} (median / worst).")
-    return line
 
 
 def markdown_table(table: pd.DataFrame) -> str:

@@ -3,7 +3,7 @@
     PYTHONPATH=. python experiments/h100_x4/advise_validation.py --out DIR [--deadline-s 240]
 
 Five frames from the H100 studies' scenes, each captured on one GPU (devices 0-3, the
-h100_x4 profile for all): the five-step study's 4K fragment loop (sort-first's), the AFR
+h100_x4 profile for all, h200_x4 on 4x H200): the five-step study's 4K fragment loop (sort-first's), the AFR
 temporal scene (fragment loop + TAA filter at 1440p), the 2x H100 pipelining chain (four
 passes at 1440p), the XR stereo mesh (Quest 3 eyes, both views on one GPU) and the five-step
 4K mesh (sort-last's, 5M triangles: its 10M took ~7 s per run to build); the slow mesh last, so
@@ -14,6 +14,7 @@ experiments/h100_x4/advise_validation.sh.
 """
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 
@@ -25,7 +26,8 @@ from mgpusim.studies.advice_validation import Setup, frames_of, main  # noqa: E4
 X4, X2 = ROOT / "experiments" / "h100_x4", ROOT / "experiments" / "h100_x2"
 ONE = {"schedule.gpus": 1}
 SETUP = Setup(
-    profile=ROOT / "hardware_profiles" / "h100_x4.toml",
+    # the card's own profile: advise_validation.sh sets ADVISE_PROFILE=h200_x4 on H200s
+    profile=ROOT / "hardware_profiles" / f"{os.environ.get('ADVISE_PROFILE', 'h100_x4')}.toml",
     frames=frames_of((
         ("fragment loop", X4 / "sort_first.toml", ONE),
         ("temporal AA", X4 / "afr_temporal.toml", ONE),

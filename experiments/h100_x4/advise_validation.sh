@@ -18,6 +18,11 @@ deadline=${DEADLINE_S:-230}
 limit=${TIMEOUT_S:-420}
 script=experiments/h100_x4/advise_validation.py
 mkdir -p "$out"
+# one profile per card model: the 4x H200 machine gets its own
+if nvidia-smi --query-gpu=name --format=csv,noheader 2>/dev/null | head -1 | grep -q H200; then
+  export ADVISE_PROFILE=${ADVISE_PROFILE:-h200_x4}
+fi
+echo "profile ${ADVISE_PROFILE:-h100_x4}" >> "$out/log.txt"
 { nvidia-smi --query-gpu=index,name,driver_version,pci.bus_id --format=csv; $py -m mgpusim devices; } \
   > "$out/devices.txt" 2>&1
 for try in 1 2; do

@@ -1,0 +1,345 @@
+"""The analytic recurrence (:mod:`mgpusim.sim.analytic`) over many configurations at once.
+
+Why: a sweep over hardware what-ifs runs one program structure thousands of times with other
+task times. Here every configuration is one numpy *lane*: the task graph, queues, dependencies
+and memcpy threads are those of one :class:`~mgpusim.sim.analytic.Analytic` model, and each
+node's time (pass or copy time, host-copy part times, queue gap) and the host's dispatch,
+submit and wake costs are arrays with one entry per lane. The recurrence is the scalar one
+step for step (max-plus over frames, the memcpy-thread choice per lane), so a lane equals the
+scalar model run with its times.
+
+What a lane gives: the summary's timing fields (frame time and its spread, latency, window,
+utilization of every queue and memcpy thread) and the fast-forward's finding (the first
+repeat of the recurrence's state, found by the scalar model's rule; the state is compared by
+two independent 64-bit hashes per frame). Every frame is computed (no extrapolation), so runs
+longer than :data:`MAX_LANE_FRAMES` are left to the scalar model. Programs with skippable
+tasks are refused: their skips are decisions per configuration, not arrays.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from mgpusim.model.errors import InputError
+from mgpusim.sim.analytic import NEG, Analytic
+
+#: Longest run (frames) computed as lanes: each lane keeps one hash pair per frame and every
+#: frame is compared with the earlier ones, so the cost grows with frames squared.
+MAX_LANE_FRAMES = 1000
+#: Lanes computed together (numpy arrays that fit in cache are faster than larger ones).
+CHUNK_LANES = 8192
+_ABSENT = NEG + 1  # a stream that has not run yet (its key missing from the scalar state)
+_IDLE = NEG + 2  # a memcpy thread idle since before the last dispatch (None in the scalar state)
+_MASKS = (0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F)
+
+
+@dataclass
+class Lanes:
+    """Per-lane inputs, one list per frame phase parallel to the model's nodes: a queue or CPU
+    node's whole time, a host copy's part times (a list of arrays), each node's gap."""
+
+    n: int
+    time: list[list[Any]]
+    gap: list[list[np.ndarray]]
+    dispatch: np.ndarray
+    submit: np.ndarray
+    copy_wake: np.ndarray
+
+    def take(self, idx: slice | np.ndarray) -> "Lanes":
+        """The lanes `idx` only."""
+        def cut(v: Any) -> Any:
+            return [cut(x) for x in v] if isinstance(v, list) else v[idx]
+        sub = cut(self.time)
+        n = len(self.dispatch[idx])
+        return Lanes(n, sub, cut(self.gap), self.dispatch[idx], self.submit[idx], self.copy_wake[idx])
+
+
+def base_lanes(model: Analytic, n: int) -> Lanes:
+    """`n` lanes that each are `model` as it is (its own times)."""
+    def full(v: int) -> np.ndarray:
+        return np.full(n, v, dtype=np.int64)
+    time = [[[full(t) for _, t in node.part_times] if node.stream == "host" else full(node.time)
+             for node in phase] for phase in model.phases]
+    gap = [[full(node.gap) for node in phase] for phase in model.phases]
+    return Lanes(n, time, gap, full(model.dispatch), full(model.submit), full(model.copy_wake))
+
+
+def concat(parts: list[Lanes]) -> Lanes:
+    """Lanes of models of one structure side by side (see :func:`structure`)."""
+    def cat(vals: list[Any]) -> Any:
+        if isinstance(vals[0], list):
+            return [cat([v[i] for v in vals]) for i in range(len(vals[0]))]
+        return np.concatenate(vals)
+    return Lanes(sum(p.n for p in parts), cat([p.time for p in parts]), cat([p.gap for p in parts]),
+                 cat([p.dispatch for p in parts]), cat([p.submit for p in parts]),
+                 cat([p.copy_wake for p in parts]))
+
+
+def structure(model: Analytic) -> tuple:
+    """What lanes of two models must share to run together: every node's name, stream,
+    dependencies and part count, the memcpy threads, frames, warm-up and the present task.
+    (Times, gaps and host costs may differ per lane.)"""
+    program = model.program
+    nodes = tuple(tuple((n.name, n.stream, n.deps, len(n.part_times), n.cpu, n.device, n.engine)
+                        for n in phase) for phase in model.phases)
+    return (nodes, model.threads, model.lag, model.timeline, program.frames, program.warmup_frames,
+            program.present_task)
+
+
+def lanes_refusal(model: Analytic) -> str | None:
+    """Why `model` cannot run as lanes (None: it can)."""
+    if any(n.task.skip_if_busy for phase in model.phases for n in phase):
+        return "skippable tasks (skips are decided per configuration)"
+    if model.program.frames > MAX_LANE_FRAMES:
+        return f"more than {MAX_LANE_FRAMES} frames"
+    return None
+
+
+def run_lanes(model: Analytic, lanes: Lanes) -> dict[str, np.ndarray]:
+    """Per-lane summary arrays (see :func:`_summary`), CHUNK_LANES lanes at a time."""
+    why = lanes_refusal(model)
+    if why is not None:
+        raise InputError(f"schedule {model.program.schedule!r} cannot run as lanes: {why}")
+    out: dict[str, list[np.ndarray]] = {}
+    for lo in range(0, lanes.n, CHUNK_LANES):
+        part = lanes.take(slice(lo, lo + CHUNK_LANES))
+        first = _Pass(model, part, detect=True)
+        first.run()
+        summary = _summary(model, first)
+        second = _Pass(model, part, window=(summary["window_ns.0"], summary["window_ns.1"]))
+        second.run()
+        span = np.maximum(summary["window_ns.1"] - summary["window_ns.0"], 1)
+        for name, (busy, used) in second.busy_by_resource().items():
+            summary[f"utilization.{name}"] = np.where(used, np.round(busy / span, 6), np.nan)
+        for key, value in summary.items():
+            out.setdefault(key, []).append(value)
+    return {k: np.concatenate(v) for k, v in out.items()}
+
+
+def frame_times(model: Analytic, lanes: Lanes) -> dict[str, np.ndarray]:
+    """Frame time and latency (ms) per lane only: the first pass, no utilization."""
+    out: dict[str, list[np.ndarray]] = {"frame_time_ms": [], "latency_ms": []}
+    for lo in range(0, lanes.n, CHUNK_LANES):
+        run = _Pass(model, lanes.take(slice(lo, lo + CHUNK_LANES)))
+        run.run()
+        summary = _summary(model, run)
+        for key in out:
+            out[key].append(summary[key])
+    return {k: np.concatenate(v) for k, v in out.items()}
+
+
+def _summary(model: Analytic, run: "_Pass") -> dict[str, np.ndarray]:
+    """The summary's figures per lane, as :func:`mgpusim.results.summary.summarize_arrays`
+    computes them from one run's arrays."""
+    w, frames = model.program.warmup_frames, model.program.frames
+    if w >= frames:
+        raise InputError(f"no frame presents after the {w} warm-up frames (the run has {frames})",
+                         field="schedule.warmup_frames")
+    presents, latency = run.present[w:], (run.present - run.start)[w:]
+    if len(presents) == 1:
+        origin = run.present[w - 1] if w else run.start[w]
+        presents = np.stack([origin, presents[0]])
+    periods = np.diff(presents, axis=0)
+    frame_time = periods.mean(axis=0)
+    with np.errstate(divide="ignore"):
+        fps = np.where(frame_time > 0, 1e9 / np.where(frame_time > 0, frame_time, 1), np.inf)
+    out = {"frame_time_ms": frame_time / 1e6, "fps": fps, "latency_ms": latency.mean(axis=0) / 1e6,
+           "frame_time_jitter_ms": periods.std(axis=0) / 1e6,
+           "frame_time_min_ms": periods.min(axis=0) / 1e6, "frame_time_max_ms": periods.max(axis=0) / 1e6,
+           "window_ns.0": presents[0].copy(), "window_ns.1": presents[-1].copy()}
+    if run.found is not None:
+        out.update(run.found)
+    return out
+
+
+@dataclass
+class _Pass:
+    """One pass of the recurrence over every frame for a chunk of lanes: the first finds the
+    frame starts, presents and the repeat (`detect`), the second, given the steady window,
+    sums each resource's busy time inside it (the window is known only once the run ends)."""
+
+    model: Analytic
+    lanes: Lanes
+    detect: bool = False
+    window: tuple[np.ndarray, np.ndarray] | None = None
+    found: dict[str, np.ndarray] | None = None
+    busy: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def run(self) -> None:
+        m, n = self.model, self.lanes.n
+        frames = m.program.frames
+        self.neg = np.full(n, NEG, dtype=np.int64)
+        self.zero = np.zeros(n, dtype=np.int64)
+        self.ends: list[dict[str, np.ndarray]] = []
+        self.queue_end: dict[str, np.ndarray] = {}
+        self.sub: dict[str, np.ndarray] = {}
+        self.free = np.zeros((m.threads, n), dtype=np.int64)
+        self.used = np.zeros((m.threads, n), dtype=bool)
+        self.thread_busy = np.zeros((m.threads, n), dtype=np.int64)
+        self.host_prev = self.neg
+        self.idx = np.arange(n)
+        self.start = np.empty((frames, n), dtype=np.int64)
+        self.present = np.empty((frames, n), dtype=np.int64)
+        if self.detect:
+            self._detector = _Repeats(m, n)
+        for f in range(frames):
+            self._frame(f)
+            if self.detect and f >= m.lag:
+                self._detector.look(f, self._state_hash(f), self.present)
+            if f > m.lag:
+                self.ends[f - m.lag - 1] = {}
+        if self.detect:
+            self.found = self._detector.fields()
+
+    def _frame(self, f: int) -> None:
+        m, L = self.model, self.lanes
+        phase = f % len(m.phases)
+        here: dict[str, np.ndarray] = {}
+        self.ends.append(here)
+        first = np.full(self.lanes.n, np.iinfo(np.int64).max, dtype=np.int64)
+        for i, node in enumerate(m.phases[phase]):
+            ready, cross = self.neg, self.neg
+            for dep, off, crosses in node.deps:
+                if off:
+                    if f + off < 0:
+                        continue
+                    e = self.ends[f + off][dep]
+                else:
+                    e = here[dep]
+                ready = np.maximum(ready, e)
+                if crosses:
+                    cross = np.maximum(cross, e)
+            if node.stream == "host":
+                here[node.name], first = self._host_copy(L.time[phase][i], ready, cross, first)
+            else:
+                here[node.name], first = self._queue_task(node, L.time[phase][i], L.gap[phase][i],
+                                                          ready, cross, first)
+        self.start[f], self.present[f] = first, here[m.program.present_task]
+
+    def _host_copy(self, parts: list[np.ndarray], ready: np.ndarray, cross: np.ndarray,
+                   first: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        t = np.maximum(np.maximum(ready, self.host_prev), 0)
+        if self.model.timeline:
+            t = np.where(cross > NEG, np.maximum(t, cross + self.lanes.copy_wake + self.lanes.dispatch), t)
+        self.host_prev = t
+        end, free, idx = self.neg, self.free, self.idx
+        for took in parts:
+            idle = free <= t
+            tid = np.where(idle.any(axis=0), idle.argmax(axis=0), free.argmin(axis=0))
+            s = np.maximum(t, free[tid, idx])
+            e = s + took
+            free[tid, idx] = e
+            end = np.maximum(end, e)
+            first = np.minimum(first, s)
+            self.used[tid, idx] = True
+            if self.window is not None:
+                self.thread_busy[tid, idx] += self._clipped(s, e)
+        return end, first
+
+    def _queue_task(self, node: Any, time: np.ndarray, gap: np.ndarray, ready: np.ndarray,
+                    cross: np.ndarray, first: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        L = self.lanes
+        s = np.maximum(ready, self.queue_end.get(node.stream, self.zero))
+        if self.model.timeline:
+            woke = np.where(cross > NEG, cross + L.dispatch, NEG)
+            if node.cpu:
+                s = np.maximum(s, woke)
+            else:
+                clock = np.maximum(self.sub.get(node.stream, self.zero), woke) + L.submit
+                self.sub[node.stream] = clock
+                s = np.maximum(s, clock)
+        s = s + gap
+        e = self.queue_end[node.stream] = s + time
+        if self.window is not None:
+            name = f"{node.device}.{node.engine}"
+            self.busy[name] = self.busy.get(name, self.zero) + self._clipped(s, e)
+        return e, np.minimum(first, s)
+
+    def _clipped(self, s: np.ndarray, e: np.ndarray) -> np.ndarray:
+        lo, hi = self.window  # type: ignore[misc]
+        return np.minimum(np.maximum(e, lo), hi) - np.minimum(np.maximum(s, lo), hi)
+
+    def busy_by_resource(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Resource -> (busy ns in the window, whether the lane ever used it)."""
+        out = {name: (b, np.ones(self.lanes.n, dtype=bool)) for name, b in self.busy.items()}
+        for k, tname in enumerate(self.model.thread_names):
+            name = f"host.{tname}"
+            if name in out:  # a CPU task's thread of the same name: one resource
+                b, _ = out[name]
+                out[name] = (b + self.thread_busy[k], out[name][1])
+            else:
+                out[name] = (self.thread_busy[k], self.used[k])
+        return out
+
+    def _state_hash(self, f: int) -> np.ndarray:
+        """Two 64-bit hashes per lane of the scalar model's state after frame f
+        (:meth:`mgpusim.sim.analytic._Recurrence._state`): what the frames after it read,
+        relative to frame f's present."""
+        m, ref = self.model, self.present[f]
+        values = [np.full(self.lanes.n, f % len(m.phases), dtype=np.int64)]
+        for g in range(max(0, f - m.lag + 1), f + 1):
+            values.extend(e - ref for e in self.ends[g].values())
+        values.append(np.full(self.lanes.n, len(self.queue_end), dtype=np.int64))
+        values.extend(e - ref for e in self.queue_end.values())
+        if m.timeline:
+            values.append(np.full(self.lanes.n, len(self.sub), dtype=np.int64))
+            for q, c in self.sub.items():
+                behind = np.maximum(c, self.queue_end.get(q, self.zero))
+                values.append(np.where(self.lanes.submit != 0, c, behind) - ref)
+        idle = np.maximum(self.host_prev, 0)
+        values.extend(np.where(t > idle, t - ref, _IDLE) for t in self.free)
+        values.append(np.where(self.host_prev > NEG, self.host_prev - ref, NEG))
+        state = np.stack(values).view(np.uint64)
+        return np.stack([_mix(state, mask) for mask in _MASKS], axis=-1)
+
+
+def _mix(state: np.ndarray, mask: int) -> np.ndarray:
+    """A 64-bit hash per column of `state` (rows: the state's values in order): each value
+    mixed with its position (splitmix64's finaliser), then summed."""
+    with np.errstate(over="ignore"):
+        z = state + (np.arange(1, state.shape[0] + 1, dtype=np.uint64) * np.uint64(mask))[:, None]
+        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        z ^= z >> np.uint64(31)
+        return z.sum(axis=0, dtype=np.uint64)
+
+
+class _Repeats:
+    """The scalar model's search for a repeat, per lane: a frame's state seen before (since
+    the last clear) is a repeat of period f - f1; with whole periods left to skip the search
+    ends, otherwise it starts again from the next frame (the scalar model clears what it saw)."""
+
+    def __init__(self, model: Analytic, n: int):
+        self.frames, self.lag = model.program.frames, model.lag
+        self.hashes = np.empty((max(self.frames - self.lag, 0), n, 2), dtype=np.uint64)
+        self.active = np.ones(n, dtype=bool)
+        self.since = np.full(n, self.lag, dtype=np.int64)
+        self.period = np.full(n, -1, dtype=np.int64)
+        self.ns = np.zeros(n, dtype=np.int64)
+        self.from_frame = np.full(n, -1, dtype=np.int64)
+
+    def look(self, f: int, h: np.ndarray, present: np.ndarray) -> None:
+        self.hashes[f - self.lag] = h
+        act = np.flatnonzero(self.active)
+        if not len(act) or f == self.lag:
+            return
+        earlier = self.hashes[:f - self.lag, act]  # frames lag .. f-1 of the active lanes
+        same = (earlier == h[act]).all(axis=-1)
+        same &= np.arange(self.lag, f)[:, None] >= self.since[act]
+        hit = same.any(axis=0)
+        if not hit.any():
+            return
+        lanes = act[hit]
+        f1 = same[:, hit].argmax(axis=0) + self.lag
+        p = f - f1
+        self.period[lanes], self.from_frame[lanes] = p, f1 + 1
+        self.ns[lanes] = present[f, lanes] - present[f1, lanes]
+        copies = (self.frames - (f + 2)) // p
+        self.active[lanes[copies > 0]] = False
+        self.since[lanes[copies <= 0]] = f + 1
+
+    def fields(self) -> dict[str, np.ndarray]:
+        return {"fast_forward.used": self.period > 0, "fast_forward.period_frames": self.period,
+                "fast_forward.period_ns": self.ns, "fast_forward.from_frame": self.from_frame}

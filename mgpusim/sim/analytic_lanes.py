@@ -10,8 +10,9 @@ scalar model run with its times.
 
 What a lane gives: the summary's timing fields (frame time and its spread, latency, window,
 utilization of every queue and memcpy thread) and the fast-forward's finding (the first
-repeat of the recurrence's state, found by the scalar model's rule; the state is compared by
-two independent 64-bit hashes per frame). Every frame is computed (no extrapolation), so runs
+repeat of the recurrence's state, found by the scalar model's rule; states are compared by a
+64-bit hash, so two different states are taken as one with a chance of about 2^-64 per pair of
+frames: that would only mislabel the fast_forward fields, since every frame is computed). Every frame is computed (no extrapolation), so runs
 longer than :data:`MAX_LANE_FRAMES` are left to the scalar model. Programs with skippable
 tasks are refused: their skips are decisions per configuration, not arrays.
 """
@@ -32,7 +33,7 @@ MAX_LANE_FRAMES = 1000
 CHUNK_LANES = 8192
 _ABSENT = NEG + 1  # a stream that has not run yet (its key missing from the scalar state)
 _IDLE = NEG + 2  # a memcpy thread idle since before the last dispatch (None in the scalar state)
-_MASKS = (0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F)
+_MASK = 0x9E3779B97F4A7C15
 
 
 @dataclass
@@ -180,6 +181,7 @@ class _Pass:
         self.thread_busy = np.zeros((m.threads, n), dtype=np.int64)
         self.host_prev = self.neg
         self.idx = np.arange(n)
+        self.rank = (np.arange(m.threads, dtype=np.int64) - m.threads)[:, None]
         self.start = np.empty((frames, n), dtype=np.int64)
         self.present = np.empty((frames, n), dtype=np.int64)
         if self.detect:
@@ -225,16 +227,17 @@ class _Pass:
             t = np.where(cross > NEG, np.maximum(t, cross + self.lanes.copy_wake + self.lanes.dispatch), t)
         self.host_prev = t
         end, free, idx = self.neg, self.free, self.idx
+        rank = self.rank
         for took in parts:
-            idle = free <= t
-            tid = np.where(idle.any(axis=0), idle.argmax(axis=0), free.argmin(axis=0))
+            # the lowest-numbered idle thread (score < 0), else the first to be idle (> t >= 0)
+            tid = np.where(free <= t, rank, free).argmin(axis=0)
             s = np.maximum(t, free[tid, idx])
             e = s + took
             free[tid, idx] = e
             end = np.maximum(end, e)
             first = np.minimum(first, s)
-            self.used[tid, idx] = True
             if self.window is not None:
+                self.used[tid, idx] = True
                 self.thread_busy[tid, idx] += self._clipped(s, e)
         return end, first
 
@@ -274,7 +277,7 @@ class _Pass:
         return out
 
     def _state_hash(self, f: int) -> np.ndarray:
-        """Two 64-bit hashes per lane of the scalar model's state after frame f
+        """A 64-bit hash per lane of the scalar model's state after frame f
         (:meth:`mgpusim.sim.analytic._Recurrence._state`): what the frames after it read,
         relative to frame f's present."""
         m, ref = self.model, self.present[f]
@@ -291,8 +294,7 @@ class _Pass:
         idle = np.maximum(self.host_prev, 0)
         values.extend(np.where(t > idle, t - ref, _IDLE) for t in self.free)
         values.append(np.where(self.host_prev > NEG, self.host_prev - ref, NEG))
-        state = np.stack(values).view(np.uint64)
-        return np.stack([_mix(state, mask) for mask in _MASKS], axis=-1)
+        return _mix(np.stack(values).view(np.uint64), _MASK)
 
 
 def _mix(state: np.ndarray, mask: int) -> np.ndarray:
@@ -307,39 +309,46 @@ def _mix(state: np.ndarray, mask: int) -> np.ndarray:
 
 
 class _Repeats:
-    """The scalar model's search for a repeat, per lane: a frame's state seen before (since
-    the last clear) is a repeat of period f - f1; with whole periods left to skip the search
-    ends, otherwise it starts again from the next frame (the scalar model clears what it saw)."""
+    """The scalar model's search for a repeat, per lane, over the state hashes of frames lag
+    and later (kept as the run goes, searched once it ends): a frame's state seen before
+    (since the last clear) is a repeat of period f - f1; with whole periods left to skip the
+    search ends, otherwise it starts again after that frame (the scalar model clears what it
+    saw). Each lane's hashes are sorted once: a repeat is a pair of equal neighbours."""
 
     def __init__(self, model: Analytic, n: int):
         self.frames, self.lag = model.program.frames, model.lag
-        self.hashes = np.empty((max(self.frames - self.lag, 0), n, 2), dtype=np.uint64)
-        self.active = np.ones(n, dtype=bool)
-        self.since = np.full(n, self.lag, dtype=np.int64)
-        self.period = np.full(n, -1, dtype=np.int64)
-        self.ns = np.zeros(n, dtype=np.int64)
-        self.from_frame = np.full(n, -1, dtype=np.int64)
+        self.hashes = np.empty((n, max(self.frames - self.lag, 0)), dtype=np.uint64)
 
     def look(self, f: int, h: np.ndarray, present: np.ndarray) -> None:
-        self.hashes[f - self.lag] = h
-        act = np.flatnonzero(self.active)
-        if not len(act) or f == self.lag:
-            return
-        earlier = self.hashes[:f - self.lag, act]  # frames lag .. f-1 of the active lanes
-        same = (earlier == h[act]).all(axis=-1)
-        same &= np.arange(self.lag, f)[:, None] >= self.since[act]
-        hit = same.any(axis=0)
-        if not hit.any():
-            return
-        lanes = act[hit]
-        f1 = same[:, hit].argmax(axis=0) + self.lag
-        p = f - f1
-        self.period[lanes], self.from_frame[lanes] = p, f1 + 1
-        self.ns[lanes] = present[f, lanes] - present[f1, lanes]
-        copies = (self.frames - (f + 2)) // p
-        self.active[lanes[copies > 0]] = False
-        self.since[lanes[copies <= 0]] = f + 1
+        self.hashes[:, f - self.lag] = h
+        self.present = present
 
     def fields(self) -> dict[str, np.ndarray]:
-        return {"fast_forward.used": self.period > 0, "fast_forward.period_frames": self.period,
-                "fast_forward.period_ns": self.ns, "fast_forward.from_frame": self.from_frame}
+        n, width = self.hashes.shape
+        period = np.full(n, -1, dtype=np.int64)
+        from_frame = np.full(n, -1, dtype=np.int64)
+        ns = np.zeros(n, dtype=np.int64)
+        since = np.zeros(n, dtype=np.int64)  # frames before it (relative to lag) are forgotten
+        todo = np.arange(n)
+        while len(todo) and width > 1:
+            h = self.hashes[todo]
+            cols = np.arange(width)
+            forgotten = cols[None, :] < since[todo, None]
+            h = np.where(forgotten, np.uint64(2**64 - 1) - cols.astype(np.uint64), h)
+            order = np.argsort(h, axis=1, kind="stable")
+            sorted_h = np.take_along_axis(h, order, axis=1)
+            pair = (sorted_h[:, 1:] == sorted_h[:, :-1]) & ~np.take_along_axis(forgotten, order[:, 1:], axis=1)
+            second = np.where(pair, order[:, 1:], width)
+            j = second.argmin(axis=1)
+            hit = second[np.arange(len(todo)), j] < width
+            lanes, j = todo[hit], j[hit]
+            f = second[hit, j] + self.lag
+            f1 = order[hit, j] + self.lag
+            p = f - f1
+            period[lanes], from_frame[lanes] = p, f1 + 1
+            ns[lanes] = self.present[f, lanes] - self.present[f1, lanes]
+            again = (self.frames - (f + 2)) // p <= 0
+            since[lanes[again]] = f[again] + 1 - self.lag
+            todo = lanes[again]
+        return {"fast_forward.used": period > 0, "fast_forward.period_frames": period,
+                "fast_forward.period_ns": ns, "fast_forward.from_frame": from_frame}

@@ -11,8 +11,9 @@ scalar model run with its times.
 What a lane gives: the summary's timing fields (frame time and its spread, latency, window,
 utilization of every queue and memcpy thread) and the fast-forward's finding (the first
 repeat of the recurrence's state, found by the scalar model's rule; states are compared by a
-64-bit hash, so two different states are taken as one with a chance of about 2^-64 per pair of
-frames: that would only mislabel the fast_forward fields, since every frame is computed). Every frame is computed (no extrapolation), so runs
+64-bit hash (random odd multipliers, fixed seed), so two different states are taken as one with
+a chance of about 2^-64 per pair of frames: that would only mislabel the fast_forward fields,
+since every frame is computed). Every frame is computed (no extrapolation), so runs
 longer than :data:`MAX_LANE_FRAMES` are left to the scalar model. Programs with skippable
 tasks are refused: their skips are decisions per configuration, not arrays.
 """
@@ -33,7 +34,6 @@ MAX_LANE_FRAMES = 1000
 CHUNK_LANES = 8192
 _ABSENT = NEG + 1  # a stream that has not run yet (its key missing from the scalar state)
 _IDLE = NEG + 2  # a memcpy thread idle since before the last dispatch (None in the scalar state)
-_MASK = 0x9E3779B97F4A7C15
 
 
 @dataclass
@@ -176,12 +176,10 @@ class _Pass:
         self.ends: list[dict[str, np.ndarray]] = []
         self.queue_end: dict[str, np.ndarray] = {}
         self.sub: dict[str, np.ndarray] = {}
-        self.free = np.zeros((m.threads, n), dtype=np.int64)
+        self.free = [np.zeros(n, dtype=np.int64) for _ in range(m.threads)]
         self.used = np.zeros((m.threads, n), dtype=bool)
         self.thread_busy = np.zeros((m.threads, n), dtype=np.int64)
         self.host_prev = self.neg
-        self.idx = np.arange(n)
-        self.rank = (np.arange(m.threads, dtype=np.int64) - m.threads)[:, None]
         self.start = np.empty((frames, n), dtype=np.int64)
         self.present = np.empty((frames, n), dtype=np.int64)
         if self.detect:
@@ -226,19 +224,27 @@ class _Pass:
         if self.model.timeline:
             t = np.where(cross > NEG, np.maximum(t, cross + self.lanes.copy_wake + self.lanes.dispatch), t)
         self.host_prev = t
-        end, free, idx = self.neg, self.free, self.idx
-        rank = self.rank
+        end, free = self.neg, self.free
         for took in parts:
-            # the lowest-numbered idle thread (score < 0), else the first to be idle (> t >= 0)
-            tid = np.where(free <= t, rank, free).argmin(axis=0)
-            s = np.maximum(t, free[tid, idx])
+            # the lowest-numbered idle thread, else the first to be idle (lowest number on ties)
+            tid, at = self.zero, free[0]
+            best = np.where(at <= t, -len(free), at)
+            for k in range(1, len(free)):
+                score = np.where(free[k] <= t, k - len(free), free[k])
+                better = score < best
+                tid, at, best = np.where(better, k, tid), np.where(better, free[k], at), np.minimum(best, score)
+            s = np.maximum(t, at)
             e = s + took
-            free[tid, idx] = e
+            for k in range(len(free)):
+                free[k] = np.where(tid == k, e, free[k])
             end = np.maximum(end, e)
             first = np.minimum(first, s)
             if self.window is not None:
-                self.used[tid, idx] = True
-                self.thread_busy[tid, idx] += self._clipped(s, e)
+                clipped = self._clipped(s, e)
+                for k in range(len(free)):
+                    mine = tid == k
+                    self.used[k] |= mine
+                    self.thread_busy[k] += np.where(mine, clipped, 0)
         return end, first
 
     def _queue_task(self, node: Any, time: np.ndarray, gap: np.ndarray, ready: np.ndarray,
@@ -279,33 +285,39 @@ class _Pass:
     def _state_hash(self, f: int) -> np.ndarray:
         """A 64-bit hash per lane of the scalar model's state after frame f
         (:meth:`mgpusim.sim.analytic._Recurrence._state`): what the frames after it read,
-        relative to frame f's present."""
+        relative to frame f's present, each value times its position's odd multiplier, summed."""
         m, ref = self.model, self.present[f]
-        values = [np.full(self.lanes.n, f % len(m.phases), dtype=np.int64)]
+        values: list[Any] = [f % len(m.phases)]
         for g in range(max(0, f - m.lag + 1), f + 1):
             values.extend(e - ref for e in self.ends[g].values())
-        values.append(np.full(self.lanes.n, len(self.queue_end), dtype=np.int64))
+        values.append(len(self.queue_end))
         values.extend(e - ref for e in self.queue_end.values())
         if m.timeline:
-            values.append(np.full(self.lanes.n, len(self.sub), dtype=np.int64))
+            values.append(len(self.sub))
             for q, c in self.sub.items():
                 behind = np.maximum(c, self.queue_end.get(q, self.zero))
                 values.append(np.where(self.lanes.submit != 0, c, behind) - ref)
         idle = np.maximum(self.host_prev, 0)
         values.extend(np.where(t > idle, t - ref, _IDLE) for t in self.free)
         values.append(np.where(self.host_prev > NEG, self.host_prev - ref, NEG))
-        return _mix(np.stack(values).view(np.uint64), _MASK)
+        mult = _multipliers(len(values))
+        h = np.zeros(self.lanes.n, dtype=np.uint64)
+        with np.errstate(over="ignore"):
+            for v, k in zip(values, mult):
+                h += np.asarray(v, dtype=np.int64).view(np.uint64) * k
+        return h
 
 
-def _mix(state: np.ndarray, mask: int) -> np.ndarray:
-    """A 64-bit hash per column of `state` (rows: the state's values in order): each value
-    mixed with its position (splitmix64's finaliser), then summed."""
-    with np.errstate(over="ignore"):
-        z = state + (np.arange(1, state.shape[0] + 1, dtype=np.uint64) * np.uint64(mask))[:, None]
-        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-        z ^= z >> np.uint64(31)
-        return z.sum(axis=0, dtype=np.uint64)
+def _multipliers(n: int) -> np.ndarray:
+    """`n` odd 64-bit multipliers, the same in every run (a fixed seed)."""
+    if len(_MULT) < n:
+        rng = np.random.default_rng(0x5EED)
+        _MULT[:] = (rng.integers(0, 2**63, size=max(n, 64), dtype=np.uint64) * np.uint64(2)
+                    + np.uint64(1)).tolist()
+    return np.array(_MULT[:n], dtype=np.uint64)
+
+
+_MULT: list[int] = []
 
 
 class _Repeats:

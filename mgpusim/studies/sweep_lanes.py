@@ -157,7 +157,7 @@ class Group:
     first point's summary, and the points' indices into the lane combinations."""
 
     points: list[Any]
-    combos: list[tuple[int, ...]]  # per point, the index of each lane key's value
+    combos: np.ndarray  # per point (row), the index of each lane key's value
     model: Analytic | None = None
     costs: CostModel | None = None
     summary: dict[str, Any] | None = None
@@ -170,18 +170,23 @@ class Group:
 
 
 def groups(plan_: Plan, todo: Sequence[Any], grid: Mapping[str, Sequence[Any]]) -> list[Group]:
-    """The points to run, grouped by their group-key values, in grid order."""
-    by: dict[tuple, Group] = {}
-    index = {k: {_value_key(v): i for i, v in enumerate(grid[k])} for k in plan_.lane_keys}
-    for p in todo:
-        g = by.setdefault(tuple(_value_key(p.keys[k]) for k in plan_.group_keys), Group([], []))
-        g.points.append(p)
-        g.combos.append(tuple(index[k][_value_key(p.keys[k])] for k in plan_.lane_keys))
-    return list(by.values())
-
-
-def _value_key(v: Any) -> str:
-    return f"{type(v).__name__}:{v!r}"
+    """The points to run, grouped by their group-key values, in grid order. (A point's value
+    of each key is a digit of its index in the grid: the product, last key fastest.)"""
+    keys = list(grid)
+    sizes = np.array([len(grid[k]) for k in keys], dtype=np.int64)
+    strides = np.concatenate([np.cumprod(sizes[::-1])[::-1][1:], [1]])
+    index = np.fromiter((p.index for p in todo), dtype=np.int64, count=len(todo))
+    digits = {k: (index // strides[j]) % sizes[j] for j, k in enumerate(keys)}
+    gid = np.zeros(len(todo), dtype=np.int64)
+    for k in plan_.group_keys:
+        gid = gid * len(grid[k]) + digits[k]
+    combos = np.stack([digits[k] for k in plan_.lane_keys], axis=1) if plan_.lane_keys \
+        else np.zeros((len(todo), 0), dtype=np.int64)
+    order = np.argsort(gid, kind="stable")
+    bounds = np.flatnonzero(np.diff(gid[order])) + 1
+    members = np.split(order, bounds) if len(order) else []
+    members.sort(key=lambda m: m[0])
+    return [Group([todo[i] for i in m.tolist()], combos[m]) for m in members]
 
 
 def build(group: Group, path: Path, base: Mapping[str, Any], fidelity: str) -> str | None:
@@ -215,7 +220,7 @@ def group_lanes(group: Group, plan_: Plan) -> tuple[lanes_mod.Lanes, np.ndarray]
     ok = np.ones(n, dtype=bool)
     if not plan_.lane_keys:
         return lanes, ok
-    combos = np.asarray(group.combos, dtype=np.int64).reshape(n, len(plan_.lane_keys))
+    combos = group.combos
     coef: dict[Coef, np.ndarray] = {}
     for j, key in enumerate(plan_.lane_keys):
         for c in _touched(plan_.coefs[key]):

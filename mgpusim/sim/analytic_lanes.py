@@ -30,6 +30,8 @@ from mgpusim.sim.analytic import NEG, Analytic
 #: Longest run (frames) computed as lanes: each lane keeps one hash pair per frame and every
 #: frame is compared with the earlier ones, so the cost grows with frames squared.
 MAX_LANE_FRAMES = 1000
+#: Most memcpy threads: a thread's choice packs (free time + 1) x threads + number in int64.
+MAX_LANE_THREADS = 64
 #: Lanes computed together (numpy arrays that fit in cache are faster than larger ones).
 CHUNK_LANES = 8192
 _ABSENT = NEG + 1  # a stream that has not run yet (its key missing from the scalar state)
@@ -95,6 +97,8 @@ def lanes_refusal(model: Analytic) -> str | None:
         return "skippable tasks (skips are decided per configuration)"
     if model.program.frames > MAX_LANE_FRAMES:
         return f"more than {MAX_LANE_FRAMES} frames"
+    if model.threads > MAX_LANE_THREADS:
+        return f"more than {MAX_LANE_THREADS} memcpy threads"
     return None
 
 
@@ -176,7 +180,8 @@ class _Pass:
         self.ends: list[dict[str, np.ndarray]] = []
         self.queue_end: dict[str, np.ndarray] = {}
         self.sub: dict[str, np.ndarray] = {}
-        self.free = [np.zeros(n, dtype=np.int64) for _ in range(m.threads)]
+        self.free = np.zeros((m.threads, n), dtype=np.int64)
+        self.krow = np.arange(m.threads, dtype=np.int64)[:, None]
         self.used = np.zeros((m.threads, n), dtype=bool)
         self.thread_busy = np.zeros((m.threads, n), dtype=np.int64)
         self.host_prev = self.neg
@@ -224,27 +229,20 @@ class _Pass:
         if self.model.timeline:
             t = np.where(cross > NEG, np.maximum(t, cross + self.lanes.copy_wake + self.lanes.dispatch), t)
         self.host_prev = t
-        end, free = self.neg, self.free
+        end, krow, threads = self.neg, self.krow, self.model.threads
         for took in parts:
-            # the lowest-numbered idle thread, else the first to be idle (lowest number on ties)
-            tid, at = self.zero, free[0]
-            best = np.where(at <= t, -len(free), at)
-            for k in range(1, len(free)):
-                score = np.where(free[k] <= t, k - len(free), free[k])
-                better = score < best
-                tid, at, best = np.where(better, k, tid), np.where(better, free[k], at), np.minimum(best, score)
-            s = np.maximum(t, at)
+            # the lowest-numbered idle thread, else the first to be idle (lowest number on ties):
+            # the least key, an idle thread's number or a busy one's (free time + 1, number)
+            key = np.where(self.free <= t, krow, (self.free + 1) * threads + krow).min(axis=0)
+            s = np.where(key < threads, t, key // threads - 1)
             e = s + took
-            for k in range(len(free)):
-                free[k] = np.where(tid == k, e, free[k])
+            mine = krow == key % threads
+            self.free = np.where(mine, e, self.free)
             end = np.maximum(end, e)
             first = np.minimum(first, s)
             if self.window is not None:
-                clipped = self._clipped(s, e)
-                for k in range(len(free)):
-                    mine = tid == k
-                    self.used[k] |= mine
-                    self.thread_busy[k] += np.where(mine, clipped, 0)
+                self.used |= mine
+                self.thread_busy += np.where(mine, self._clipped(s, e), 0)
         return end, first
 
     def _queue_task(self, node: Any, time: np.ndarray, gap: np.ndarray, ready: np.ndarray,

@@ -34,6 +34,9 @@ MAX_LANE_FRAMES = 1000
 MAX_LANE_THREADS = 64
 #: Lanes computed together (numpy arrays that fit in cache are faster than larger ones).
 CHUNK_LANES = 8192
+#: Most bytes of task starts and ends a chunk keeps for its utilization (fewer lanes a chunk
+#: for long runs).
+LOG_BYTES = 1 << 26
 _ABSENT = NEG + 1  # a stream that has not run yet (its key missing from the scalar state)
 _IDLE = NEG + 2  # a memcpy thread idle since before the last dispatch (None in the scalar state)
 
@@ -108,26 +111,33 @@ def run_lanes(model: Analytic, lanes: Lanes) -> dict[str, np.ndarray]:
     if why is not None:
         raise InputError(f"schedule {model.program.schedule!r} cannot run as lanes: {why}")
     out: dict[str, list[np.ndarray]] = {}
-    for lo in range(0, lanes.n, CHUNK_LANES):
-        part = lanes.take(slice(lo, lo + CHUNK_LANES))
-        first = _Pass(model, part, detect=True)
-        first.run()
-        summary = _summary(model, first)
-        second = _Pass(model, part, window=(summary["window_ns.0"], summary["window_ns.1"]))
-        second.run()
-        span = np.maximum(summary["window_ns.1"] - summary["window_ns.0"], 1)
-        for name, (busy, used) in second.busy_by_resource().items():
+    chunk = _chunk(model)
+    for lo in range(0, lanes.n, chunk):
+        run = _Pass(model, lanes.take(slice(lo, lo + chunk)), detect=True)
+        run.run()
+        summary = _summary(model, run)
+        window = (summary["window_ns.0"], summary["window_ns.1"])
+        span = np.maximum(window[1] - window[0], 1)
+        for name, (busy, used) in run.busy_by_resource(*window).items():
             summary[f"utilization.{name}"] = np.where(used, np.round(busy / span, 6), np.nan)
         for key, value in summary.items():
             out.setdefault(key, []).append(value)
     return {k: np.concatenate(v) for k, v in out.items()}
 
 
+def _chunk(model: Analytic) -> int:
+    """Lanes per chunk: CHUNK_LANES, fewer where the run's logged task starts and ends (for
+    utilization) would pass LOG_BYTES."""
+    per_frame = sum(max(1, len(n.part_times)) for phase in model.phases for n in phase) / len(model.phases)
+    fit = LOG_BYTES // max(1, int(16 * per_frame * model.program.frames))
+    return int(min(CHUNK_LANES, max(256, fit)))
+
+
 def frame_times(model: Analytic, lanes: Lanes) -> dict[str, np.ndarray]:
     """Frame time and latency (ms) per lane only: the first pass, no utilization."""
     out: dict[str, list[np.ndarray]] = {"frame_time_ms": [], "latency_ms": []}
     for lo in range(0, lanes.n, CHUNK_LANES):
-        run = _Pass(model, lanes.take(slice(lo, lo + CHUNK_LANES)))
+        run = _Pass(model, lanes.take(slice(lo, lo + CHUNK_LANES)), log=False)
         run.run()
         summary = _summary(model, run)
         for key in out:
@@ -161,16 +171,15 @@ def _summary(model: Analytic, run: "_Pass") -> dict[str, np.ndarray]:
 
 @dataclass
 class _Pass:
-    """One pass of the recurrence over every frame for a chunk of lanes: the first finds the
-    frame starts, presents and the repeat (`detect`), the second, given the steady window,
-    sums each resource's busy time inside it (the window is known only once the run ends)."""
+    """The recurrence over every frame for a chunk of lanes: frame starts and presents, each
+    task's start and end (`log`: a resource's busy time in the steady window, known only once
+    the run ends), and the repeat (`detect`)."""
 
     model: Analytic
     lanes: Lanes
     detect: bool = False
-    window: tuple[np.ndarray, np.ndarray] | None = None
+    log: bool = True
     found: dict[str, np.ndarray] | None = None
-    busy: dict[str, np.ndarray] = field(default_factory=dict)
 
     def run(self) -> None:
         m, n = self.model, self.lanes.n
@@ -182,8 +191,9 @@ class _Pass:
         self.sub: dict[str, np.ndarray] = {}
         self.free = np.zeros((m.threads, n), dtype=np.int64)
         self.krow = np.arange(m.threads, dtype=np.int64)[:, None]
-        self.used = np.zeros((m.threads, n), dtype=bool)
-        self.thread_busy = np.zeros((m.threads, n), dtype=np.int64)
+        #: resource -> (start, end) of each task on it; each memcpy-thread part (start, end, thread)
+        self.qlog: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
+        self.plog: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self.host_prev = self.neg
         self.start = np.empty((frames, n), dtype=np.int64)
         self.present = np.empty((frames, n), dtype=np.int64)
@@ -230,19 +240,26 @@ class _Pass:
             t = np.where(cross > NEG, np.maximum(t, cross + self.lanes.copy_wake + self.lanes.dispatch), t)
         self.host_prev = t
         end, krow, threads = self.neg, self.krow, self.model.threads
+        if len(parts) <= threads and (self.free <= t).all() and all((took > 0).all() for took in parts):
+            # every thread idle in every lane: part i on thread i, each starting at t
+            for i, took in enumerate(parts):
+                e = self.free[i] = t + took
+                end = np.maximum(end, e)
+                if self.log:
+                    self.plog.append((t, e, np.full(len(t), i, dtype=np.int8)))
+            return end, np.minimum(first, t)
         for took in parts:
             # the lowest-numbered idle thread, else the first to be idle (lowest number on ties):
             # the least key, an idle thread's number or a busy one's (free time + 1, number)
             key = np.where(self.free <= t, krow, (self.free + 1) * threads + krow).min(axis=0)
             s = np.where(key < threads, t, key // threads - 1)
             e = s + took
-            mine = krow == key % threads
-            self.free = np.where(mine, e, self.free)
+            tid = key % threads
+            self.free = np.where(krow == tid, e, self.free)
             end = np.maximum(end, e)
             first = np.minimum(first, s)
-            if self.window is not None:
-                self.used |= mine
-                self.thread_busy += np.where(mine, self._clipped(s, e), 0)
+            if self.log:
+                self.plog.append((s, e, tid.astype(np.int8)))
         return end, first
 
     def _queue_task(self, node: Any, time: np.ndarray, gap: np.ndarray, ready: np.ndarray,
@@ -259,25 +276,30 @@ class _Pass:
                 s = np.maximum(s, clock)
         s = s + gap
         e = self.queue_end[node.stream] = s + time
-        if self.window is not None:
-            name = f"{node.device}.{node.engine}"
-            self.busy[name] = self.busy.get(name, self.zero) + self._clipped(s, e)
+        if self.log:
+            self.qlog.setdefault(f"{node.device}.{node.engine}", []).append((s, e))
         return e, np.minimum(first, s)
 
-    def _clipped(self, s: np.ndarray, e: np.ndarray) -> np.ndarray:
-        lo, hi = self.window  # type: ignore[misc]
-        return np.minimum(np.maximum(e, lo), hi) - np.minimum(np.maximum(s, lo), hi)
-
-    def busy_by_resource(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        """Resource -> (busy ns in the window, whether the lane ever used it)."""
-        out = {name: (b, np.ones(self.lanes.n, dtype=bool)) for name, b in self.busy.items()}
+    def busy_by_resource(self, lo: np.ndarray, hi: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Resource -> (busy ns inside [lo, hi] per lane, whether the lane ever used it)."""
+        def clipped(s: np.ndarray, e: np.ndarray) -> np.ndarray:
+            return np.minimum(np.maximum(e, lo), hi) - np.minimum(np.maximum(s, lo), hi)
+        every = np.ones(self.lanes.n, dtype=bool)
+        out = {name: (clipped(np.stack([a for a, _ in log]), np.stack([b for _, b in log])).sum(axis=0), every)
+               for name, log in self.qlog.items()}
+        if self.plog:
+            busy = clipped(np.stack([s for s, _, _ in self.plog]), np.stack([e for _, e, _ in self.plog]))
+            tid = np.stack([t for _, _, t in self.plog])
         for k, tname in enumerate(self.model.thread_names):
+            if not self.plog:
+                break
+            mine = tid == k
+            b, used = np.where(mine, busy, 0).sum(axis=0), mine.any(axis=0)
             name = f"host.{tname}"
             if name in out:  # a CPU task's thread of the same name: one resource
-                b, _ = out[name]
-                out[name] = (b + self.thread_busy[k], out[name][1])
+                out[name] = (out[name][0] + b, every)
             else:
-                out[name] = (self.thread_busy[k], self.used[k])
+                out[name] = (b, used)
         return out
 
     def _state_hash(self, f: int) -> np.ndarray:

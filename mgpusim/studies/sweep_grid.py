@@ -354,6 +354,9 @@ def table(points: Sequence[Point], records: Mapping[str, Mapping[str, Any]],
     with warnings.catch_warnings():  # all-missing columns of a part: the same dtypes as rows
         warnings.simplefilter("ignore", FutureWarning)
         df = pd.concat(parts, ignore_index=True) if len(parts) > 1 else parts[0].reset_index(drop=True)
+    if len(parts) > 1:  # a column's type as one table of all the rows would infer it
+        for col in [c for c in df.columns if pd.api.types.is_object_dtype(df[c])]:
+            df[col] = pd.Series(df[col].tolist(), index=df.index)
     df = df.drop(columns="id").iloc[np.argsort(np.asarray(order), kind="stable")].reset_index(drop=True)
     keys = list(points[0].keys)
     df.insert(0, "point", np.arange(len(points), dtype=np.int64))

@@ -8,10 +8,10 @@ How the grid is split:
 
 - *Lane keys* change only pass costs: ``profile.gpus.<i|*>.speed`` and
   ``profile.gpus.<i|*>.costs.<kind>.fixed_ns`` / ``.ns_per_<term>`` of a cost the profile
-  already has. Each value is loaded once (checked like any override) and its coefficients
-  read from the loaded profile; a key whose profile differs from the base anywhere else, two
-  keys that set the same coefficient, another ``profile.`` grid key that is not a lane key, or
-  a grid over the experiment's ``profile`` file makes them ordinary keys.
+  already has. Each value is loaded once (checked like any override) and the coefficients it
+  sets read from the loaded profile; a key whose profile differs from the base anywhere else,
+  two keys that set the same coefficient, another ``profile.`` grid key that is not a lane
+  key, or a grid over the experiment's ``profile`` file makes them ordinary keys.
 - Every other key (scene, schedule, other profile keys) is a *group* key: each combination
   of their values is a group, built once with the real code: its first point runs through
   :func:`mgpusim.sim.simulation.simulate`, which gives the fields no pass cost changes
@@ -102,13 +102,16 @@ def plan(path: Path, grid: Mapping[str, Sequence[Any]], base: Mapping[str, Any])
 
 def _lane_coefs(path: Path, base: Mapping[str, Any], key: str, values: Sequence[Any],
                 start: HardwareProfile) -> list[dict[Coef, float]] | str:
-    """Per value, the coefficients `key` sets, or why it is not a lane key."""
+    """Per value, the coefficients `key` sets, or why it is not a lane key. Which GPUs a key
+    reaches is read from the loaded profiles, not from its path (``gpus.0`` names the first
+    ``[[gpus]]`` table, which may stand for several GPUs): the coefficients that differ
+    between the key's values, each of which must then equal the value itself."""
     parts = key.split(".")[1:]
     if not (len(parts) == 3 and parts[0] == "gpus" and parts[2] == "speed"
             or len(parts) == 5 and parts[0] == "gpus" and parts[2] == "costs"
             and (parts[4] == "fixed_ns" or parts[4].startswith("ns_per_"))):
         return "not a pass-cost coefficient"
-    out = []
+    loaded = []
     for value in values:
         try:
             prof = load_experiment(path, {**base, key: value}).profile
@@ -116,8 +119,16 @@ def _lane_coefs(path: Path, base: Mapping[str, Any], key: str, values: Sequence[
             return "a value does not load (its points report why)"
         if _strip(prof) != _strip(start):
             return "changes more than pass costs"
-        out.append(_coefs_of(prof, parts))
-    return out
+        loaded.append(_all_coefs(prof))
+    touched = {c for c in loaded[0] if len({coefs[c] for coefs in loaded}) > 1}
+    if not touched:
+        return "its values set no coefficient to different numbers"
+    try:
+        if any(coefs[c] != float(v) for coefs, v in zip(loaded, values) for c in touched):
+            return "a coefficient it changes is not its value"
+    except (TypeError, ValueError):
+        return "not a number"
+    return [{c: coefs[c] for c in sorted(touched)} for coefs in loaded]
 
 
 def _strip(profile: HardwareProfile) -> HardwareProfile:
@@ -128,21 +139,14 @@ def _strip(profile: HardwareProfile) -> HardwareProfile:
     return replace(profile, gpus=gpus)
 
 
-def _coefs_of(profile: HardwareProfile, parts: list[str]) -> dict[Coef, float]:
-    """The coefficients a key's path names (every GPU for `*`), as the profile has them."""
-    gpus = range(len(profile.gpus)) if parts[1] == "*" else [int(parts[1])]
-    if parts[2] == "speed":
-        return {(i, "speed"): profile.gpus[i].speed for i in gpus}
-    kind, name = parts[3], parts[4]
+def _all_coefs(profile: HardwareProfile) -> dict[Coef, float]:
+    """Every pass-cost coefficient and speed of the profile's GPUs."""
     out: dict[Coef, float] = {}
-    for i in gpus:
-        cost = profile.gpus[i].costs.get(kind)
-        if cost is None:
-            continue
-        if name == "fixed_ns":
+    for i, g in enumerate(profile.gpus):
+        out[(i, "speed")] = g.speed
+        for kind, cost in g.costs.items():
             out[(i, kind, "fixed_ns")] = cost.fixed_ns
-        elif name.removeprefix("ns_per_") in cost.ns_per:
-            out[(i, kind, name.removeprefix("ns_per_"))] = cost.ns_per[name.removeprefix("ns_per_")]
+            out.update({(i, kind, term): v for term, v in cost.ns_per.items()})
     return out
 
 
@@ -199,8 +203,8 @@ def build(group: Group, path: Path, base: Mapping[str, Any], fidelity: str) -> s
     try:
         exp = load_experiment(path, {**base, **first.keys})
         program = build_program(exp)
-        if program.refresh_hz or program.rate_tasks:
-            return "vsync or skippable tasks"
+        if program.refresh_hz:
+            return "vsync"
         costs = CostModel(exp.profile)
         model = Analytic(program, costs, choose_effects(program, exp.profile, fidelity))
         if lanes_mod.lanes_refusal(model) is not None:
@@ -329,11 +333,18 @@ def _records(group: Group, lane: Mapping[str, np.ndarray], ok: np.ndarray) -> pd
     lane_cols = {k: v for k, v in lane_cols.items()
                  if not (k.startswith("utilization.") and np.isnan(v).all())}
     summary = {k: v for k, v in group.summary.items()
-               if not k.startswith(("utilization.", "fast_forward."))}
+               if not k.startswith(("utilization.", "fast_forward.", "task_rates_hz."))}
     for key, value in summary.items():
         cols[key] = lane_cols.pop(key) if key in lane_cols else [value] * n
     cols.update(lane_cols)
     cols.update(_fast_forward(lane, keep))
+    program = group.model.program
+    if program.rate_tasks:  # none skipped (lanes have no skippable tasks): every frame counts
+        span = cols["window_ns.1"] - cols["window_ns.0"]
+        frames = program.frames - (program.warmup_frames + 1)
+        rate = np.where(span > 0, frames * 1e9 / np.where(span > 0, span, 1), 0.0)
+        cols.update({f"task_rates_hz.{name}": rate for name in program.rate_tasks})
+        cols["task_rates_hz.frames"] = cols["fps"]
     return pd.DataFrame(cols)
 
 

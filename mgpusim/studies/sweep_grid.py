@@ -5,7 +5,9 @@ runs six points and returns one row per point: the point's keys, every summary f
 (flattened to dotted columns: ``utilization.gpu0.graphics``) and an ``error`` column, so that
 a point whose override is invalid is a row, not the end of the sweep.
 
-Points run in local processes, or on a Dask cluster. Given an output folder, each finished
+Points run in local processes, or on a Dask cluster; at the analytic level, points that differ
+only in pass costs run together as numpy lanes (:mod:`mgpusim.studies.sweep_lanes`, saved one
+batch at a time), the rest as before. Given an output folder, each finished
 point is saved at once (see :mod:`mgpusim.io.sweep_store`) and a sweep started again over the
 same folder skips it: a sweep killed at any moment loses no finished point and recomputes none.
 A point is known by a hash of the experiment file's bytes, the base overrides, its keys and

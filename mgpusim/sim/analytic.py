@@ -19,8 +19,8 @@ decided from times. The summary lists the approximations made.
 The recurrence's state at a frame boundary (recent task ends, queue clocks, thread free times),
 relative to the frame's present, repeats once it is periodic; from then on frames are
 extrapolated (the same composition as the event model's fast-forward), so a 10^6-frame run costs
-what its first periodic frames cost. :func:`sweep` evaluates many hardware variants of one
-program at once with numpy (one array lane per configuration).
+what its first periodic frames cost. :mod:`mgpusim.sim.analytic_lanes` evaluates many
+configurations of one program at once with numpy (one array lane per configuration).
 """
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ import numpy as np
 from mgpusim.model.costs import CostModel
 from mgpusim.model.errors import InputError, ScheduleError
 from mgpusim.model.geometry import even_split
-from mgpusim.model.tasks import CpuTask, HostCopyTask, PassTask, Task
+from mgpusim.model.tasks import CpuTask, HostCopyTask, Task
 from mgpusim.schedules.base import FrameProgram, leads_chain, wakes_host
 from mgpusim.sim.effects import choose_effects
 from mgpusim.sim.engine import Engine, RawResult
@@ -462,38 +462,3 @@ def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str
     if approximations:
         raw.effects["analytic_approximations"] = approximations
     return raw
-
-
-# ----- many hardware variants at once -------------------------------------------------------
-def sweep(program: FrameProgram, costs: CostModel, pass_scale: np.ndarray, link_scale: np.ndarray,
-          effects: frozenset[str] | None = None) -> dict[str, np.ndarray]:
-    """Frame time and latency (ms, after warm-up) of one program on many hardware variants at
-    once: variant i has every pass `pass_scale[i]` times as long and every link and host-memory
-    transfer `link_scale[i]` times as long (rounded once, half up, like the model's costs).
-    With both scales 1 it is :class:`Analytic` exactly; one numpy lane per variant
-    (:mod:`mgpusim.sim.analytic_lanes`). Programs with skippable tasks are refused (their
-    skips are decided per variant, not as arrays)."""
-    from mgpusim.sim.analytic_lanes import base_lanes, frame_times  # noqa: PLC0415 (imports this)
-
-    if any(t.skip_if_busy for tasks in program.templates for t in tasks):
-        raise InputError(f"schedule {program.schedule!r} has skippable tasks: sweep them one "
-                         "configuration at a time (simulate(..., fidelity='analytic'))")
-    pass_scale = np.asarray(pass_scale, dtype=np.float64)
-    link_scale = np.asarray(link_scale, dtype=np.float64)
-    model = Analytic(program, costs, effects if effects is not None else
-                     choose_effects(program, costs.profile, "analytic"))
-    lanes = base_lanes(model, len(pass_scale))
-
-    def scaled(ns: float, scale: np.ndarray) -> np.ndarray:
-        return np.floor(ns * scale + 0.5).astype(np.int64)
-    for ph, phase in enumerate(model.phases):
-        for i, node in enumerate(phase):
-            if node.stream == "host":
-                lanes.time[ph][i] = [node.fixed + scaled(size / float(node.rate), link_scale)
-                                     for size in node.parts]
-            elif isinstance(node.task, PassTask):
-                raw = costs.pass_cost_ns(node.task.queue.device, node.task.kind, node.task.work)
-                lanes.time[ph][i] = scaled(raw, pass_scale)
-            elif node.rate is not None and node.nbytes:
-                lanes.time[ph][i] = node.fixed + scaled(node.nbytes / float(node.rate), link_scale)
-    return frame_times(model, lanes)

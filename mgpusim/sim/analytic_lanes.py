@@ -19,13 +19,17 @@ tasks are refused: their skips are decisions per configuration, not arrays.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from mgpusim.model.costs import CostModel
 from mgpusim.model.errors import InputError
+from mgpusim.model.tasks import PassTask
+from mgpusim.schedules.base import FrameProgram
 from mgpusim.sim.analytic import NEG, Analytic
+from mgpusim.sim.effects import choose_effects
 
 #: Longest run (frames) computed as lanes: each lane keeps one hash pair per frame and every
 #: frame is compared with the earlier ones, so the cost grows with frames squared.
@@ -384,3 +388,36 @@ class _Repeats:
             todo = lanes[again]
         return {"fast_forward.used": period > 0, "fast_forward.period_frames": period,
                 "fast_forward.period_ns": ns, "fast_forward.from_frame": from_frame}
+
+
+# ----- many hardware variants at once -------------------------------------------------------
+def sweep(program: FrameProgram, costs: CostModel, pass_scale: np.ndarray, link_scale: np.ndarray,
+          effects: frozenset[str] | None = None) -> dict[str, np.ndarray]:
+    """Frame time and latency (ms, after warm-up) of one program on many hardware variants at
+    once: variant i has every pass `pass_scale[i]` times as long and every link and host-memory
+    transfer `link_scale[i]` times as long (rounded once, half up, like the model's costs).
+    With both scales 1 it is :class:`Analytic` exactly; one numpy lane per variant
+    (this module's lanes). Programs with skippable tasks are refused (their
+    skips are decided per variant, not as arrays)."""
+    if any(t.skip_if_busy for tasks in program.templates for t in tasks):
+        raise InputError(f"schedule {program.schedule!r} has skippable tasks: sweep them one "
+                         "configuration at a time (simulate(..., fidelity='analytic'))")
+    pass_scale = np.asarray(pass_scale, dtype=np.float64)
+    link_scale = np.asarray(link_scale, dtype=np.float64)
+    model = Analytic(program, costs, effects if effects is not None else
+                     choose_effects(program, costs.profile, "analytic"))
+    lanes = base_lanes(model, len(pass_scale))
+
+    def scaled(ns: float, scale: np.ndarray) -> np.ndarray:
+        return np.floor(ns * scale + 0.5).astype(np.int64)
+    for ph, phase in enumerate(model.phases):
+        for i, node in enumerate(phase):
+            if node.stream == "host":
+                lanes.time[ph][i] = [node.fixed + scaled(size / float(node.rate), link_scale)
+                                     for size in node.parts]
+            elif isinstance(node.task, PassTask):
+                raw = costs.pass_cost_ns(node.task.queue.device, node.task.kind, node.task.work)
+                lanes.time[ph][i] = scaled(raw, pass_scale)
+            elif node.rate is not None and node.nbytes:
+                lanes.time[ph][i] = node.fixed + scaled(node.nbytes / float(node.rate), link_scale)
+    return frame_times(model, lanes)

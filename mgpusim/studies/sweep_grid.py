@@ -29,7 +29,7 @@ import warnings
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Mapping, Sequence
+from typing import Any, Iterator, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -41,7 +41,7 @@ from mgpusim.model.limits import MAX_SWEEP_POINTS, MAX_SWEEP_WORKERS, WHY_SWEEP
 from mgpusim.schedules.experiment import load_experiment, parse_value
 from mgpusim.sim.effects import FIDELITIES
 from mgpusim.sim.simulation import simulate
-from mgpusim.studies.sweep_lanes import LaneRun
+from mgpusim.studies.sweep_lanes import LaneRun, flatten
 
 #: How long to try reaching a Dask scheduler before giving up.
 DASK_CONNECT_TIMEOUT = "10s"
@@ -117,21 +117,6 @@ def grid_points(grid: Mapping[str, Sequence[Any]], identity: Mapping[str, Any]) 
 
 def _point_id(blob: Mapping[str, Any]) -> str:
     return hashlib.sha256(json.dumps(blob, sort_keys=True, default=str).encode()).hexdigest()[:20]
-
-
-def flatten(value: Any, prefix: str = "") -> dict[str, Any]:
-    """Nested dicts and lists as dotted columns: {"a": {"b": 1}, "w": [2, 3]} ->
-    {"a.b": 1, "w.0": 2, "w.1": 3}."""
-    if isinstance(value, Mapping):
-        items: Iterable[tuple[Any, Any]] = value.items()
-    elif isinstance(value, (list, tuple)):
-        items = enumerate(value)
-    else:
-        return {prefix: value}
-    out: dict[str, Any] = {}
-    for k, v in items:
-        out.update(flatten(v, f"{prefix}.{k}" if prefix else str(k)))
-    return out
 
 
 def check_grid(grid: Mapping[str, Sequence[Any]], overrides: Mapping[str, Any]) -> None:

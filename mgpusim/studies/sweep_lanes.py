@@ -35,7 +35,7 @@ import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Iterator, Mapping, Sequence
+from typing import Any, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -45,7 +45,7 @@ from mgpusim.model.costs import CostModel
 from mgpusim.model.errors import MgpusimError
 from mgpusim.model.profile import HardwareProfile
 from mgpusim.model.tasks import PassTask
-from mgpusim.model.work_terms import PLACED_TERMS, REFERENCE_KINDS
+from mgpusim.model.work_terms import PLACED_TERMS
 from mgpusim.schedules.experiment import load_experiment
 from mgpusim.schedules.program import build_program
 from mgpusim.sim import analytic_lanes as lanes_mod
@@ -154,6 +154,21 @@ def _touched(per_value: list[dict[Coef, float]]) -> set[Coef]:
     return set().union(*per_value) if per_value else set()
 
 
+def flatten(value: Any, prefix: str = "") -> dict[str, Any]:
+    """Nested dicts and lists as dotted columns: {"a": {"b": 1}, "w": [2, 3]} ->
+    {"a.b": 1, "w.0": 2, "w.1": 3}."""
+    if isinstance(value, Mapping):
+        items: Iterable[tuple[Any, Any]] = value.items()
+    elif isinstance(value, (list, tuple)):
+        items = enumerate(value)
+    else:
+        return {prefix: value}
+    out: dict[str, Any] = {}
+    for k, v in items:
+        out.update(flatten(v, f"{prefix}.{k}" if prefix else str(k)))
+    return out
+
+
 # ----- groups ---------------------------------------------------------------------------------
 @dataclass
 class Group:
@@ -196,7 +211,6 @@ def groups(plan_: Plan, todo: Sequence[Any], grid: Mapping[str, Sequence[Any]]) 
 def build(group: Group, path: Path, base: Mapping[str, Any], fidelity: str) -> str | None:
     """Load and run the group's first point with the real code; the model its lanes share.
     Returns why the group must run point by point (None: it can run as lanes)."""
-    from mgpusim.studies.sweep_grid import flatten  # noqa: PLC0415
     from mgpusim.sim.simulation import simulate  # noqa: PLC0415
 
     first = group.points[0]

@@ -31,8 +31,8 @@ from mgpusim.schedules.base import FrameProgram
 from mgpusim.sim.analytic import NEG, Analytic
 from mgpusim.sim.effects import choose_effects
 
-#: Longest run (frames) computed as lanes: each lane keeps one hash pair per frame and every
-#: frame is compared with the earlier ones, so the cost grows with frames squared.
+#: Longest run (frames) computed as lanes: every frame is computed (no extrapolation), and each
+#: lane keeps a state hash and every task's start and end per frame.
 MAX_LANE_FRAMES = 1000
 #: Most memcpy threads: a thread's choice packs (free time + 1) x threads + number in int64.
 MAX_LANE_THREADS = 64
@@ -41,7 +41,6 @@ CHUNK_LANES = 8192
 #: Most bytes of task starts and ends a chunk keeps for its utilization (fewer lanes a chunk
 #: for long runs).
 LOG_BYTES = 1 << 26
-_ABSENT = NEG + 1  # a stream that has not run yet (its key missing from the scalar state)
 _IDLE = NEG + 2  # a memcpy thread idle since before the last dispatch (None in the scalar state)
 
 

@@ -166,8 +166,9 @@ def sweep_png(table: pd.DataFrame, keys: Sequence[str], path: str | Path, metric
 #: Most lines a sweep plot draws (one per combination of the keys after the first); a grid
 #: with more is drawn as a heatmap of its first two keys, the mean over the others.
 MAX_SWEEP_LINES = 12
-#: Most heatmap cells written with their value (more would be unreadable and slow to draw).
-MAX_CELL_LABELS = 144
+#: Most heatmap cells written with their value (more are hard to read, and each label costs
+#: more to draw than the image: 100 labels take about a second).
+MAX_CELL_LABELS = 36
 #: Most tick labels on a heatmap's axis (every n-th value is named beyond it).
 MAX_TICKS = 24
 

@@ -37,7 +37,7 @@ MAX_LANE_FRAMES = 1000
 #: Most memcpy threads: a thread's choice packs (free time + 1) x threads + number in int64.
 MAX_LANE_THREADS = 64
 #: Lanes computed together (numpy arrays that fit in cache are faster than larger ones).
-CHUNK_LANES = 8192
+CHUNK_LANES = 4096
 #: Most bytes of task starts and ends a chunk keeps for its utilization (fewer lanes a chunk
 #: for long runs).
 LOG_BYTES = 1 << 26
@@ -284,25 +284,32 @@ class _Pass:
         return e, np.minimum(first, s)
 
     def busy_by_resource(self, lo: np.ndarray, hi: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        """Resource -> (busy ns inside [lo, hi] per lane, whether the lane ever used it)."""
-        def clipped(s: np.ndarray, e: np.ndarray) -> np.ndarray:
-            return np.minimum(np.maximum(e, lo), hi) - np.minimum(np.maximum(s, lo), hi)
-        every = np.ones(self.lanes.n, dtype=bool)
-        out = {name: (clipped(np.stack([a for a, _ in log]), np.stack([b for _, b in log])).sum(axis=0), every)
-               for name, log in self.qlog.items()}
-        if self.plog:
-            busy = clipped(np.stack([s for s, _, _ in self.plog]), np.stack([e for _, e, _ in self.plog]))
-            tid = np.stack([t for _, _, t in self.plog])
+        """Resource -> (busy ns inside [lo, hi] per lane, whether the lane ever used it). Task
+        by task on arrays of one chunk (stacking them all would cost more than the sums)."""
+        def inside(start: np.ndarray, end: np.ndarray) -> np.ndarray:
+            return np.minimum(np.maximum(end, lo), hi) - np.minimum(np.maximum(start, lo), hi)
+        n, every = self.lanes.n, np.ones(self.lanes.n, dtype=bool)
+        out = {}
+        for name, log in self.qlog.items():
+            busy = np.zeros(n, dtype=np.int64)
+            for start, end in log:
+                busy += inside(start, end)
+            out[name] = (busy, every)
+        if not self.plog:
+            return out
+        threads, lane = self.model.threads, np.arange(n)
+        busy, used = np.zeros(threads * n, dtype=np.int64), np.zeros(threads * n, dtype=bool)
+        for start, end, tid in self.plog:
+            at = tid.astype(np.int64) * n + lane  # one thread per lane: no index twice
+            busy[at] += inside(start, end)
+            used[at] = True
+        busy, used = busy.reshape(threads, n), used.reshape(threads, n)
         for k, tname in enumerate(self.model.thread_names):
-            if not self.plog:
-                break
-            mine = tid == k
-            b, used = np.where(mine, busy, 0).sum(axis=0), mine.any(axis=0)
             name = f"host.{tname}"
             if name in out:  # a CPU task's thread of the same name: one resource
-                out[name] = (out[name][0] + b, every)
+                out[name] = (out[name][0] + busy[k], every)
             else:
-                out[name] = (b, used)
+                out[name] = (busy[k], used[k])
         return out
 
     def _state_hash(self, f: int) -> np.ndarray:
@@ -310,24 +317,25 @@ class _Pass:
         (:meth:`mgpusim.sim.analytic._Recurrence._state`): what the frames after it read,
         relative to frame f's present, each value times its position's odd multiplier, summed."""
         m, ref = self.model, self.present[f]
-        values: list[Any] = [f % len(m.phases)]
-        for g in range(max(0, f - m.lag + 1), f + 1):
-            values.extend(e - ref for e in self.ends[g].values())
-        values.append(len(self.queue_end))
-        values.extend(e - ref for e in self.queue_end.values())
+        values: list[Any] = [f % len(m.phases), len(self.queue_end), len(self.sub)]
+        relative = [e for g in range(max(0, f - m.lag + 1), f + 1) for e in self.ends[g].values()]
+        relative.extend(self.queue_end.values())
         if m.timeline:
-            values.append(len(self.sub))
             for q, c in self.sub.items():
                 behind = np.maximum(c, self.queue_end.get(q, self.zero))
-                values.append(np.where(self.lanes.submit != 0, c, behind) - ref)
+                relative.append(np.where(self.lanes.submit != 0, c, behind))
         idle = np.maximum(self.host_prev, 0)
         values.extend(np.where(t > idle, t - ref, _IDLE) for t in self.free)
         values.append(np.where(self.host_prev > NEG, self.host_prev - ref, NEG))
-        mult = _multipliers(len(values))
+        mult = _multipliers(len(values) + len(relative))
         h = np.zeros(self.lanes.n, dtype=np.uint64)
         with np.errstate(over="ignore"):
             for v, k in zip(values, mult):
                 h += np.asarray(v, dtype=np.int64).view(np.uint64) * k
+            # the values relative to the present: sum(v * k) - present * sum(k)
+            for v, k in zip(relative, mult[len(values):]):
+                h += v.view(np.uint64) * k
+            h -= ref.view(np.uint64) * mult[len(values):].sum(dtype=np.uint64)
         return h
 
 

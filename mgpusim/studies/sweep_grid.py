@@ -103,13 +103,11 @@ def grid_points(grid: Mapping[str, Sequence[Any]], identity: Mapping[str, Any]) 
     # the same text as json.dumps({**identity, "point": point}, sort_keys=True), built from
     # each value's text once (a 100k-point grid would spend seconds serialising)
     by_name = sorted(range(len(keys)), key=lambda j: keys[j])
-    texts = [[json.dumps(v, sort_keys=True, default=str) for v in grid[k]] for k in keys]
-    names = [json.dumps(k) for k in keys]
-    prefix = head[:-1] + ', "point": {'
+    frags = [[f"{json.dumps(k)}: {json.dumps(v, sort_keys=True, default=str)}" for v in grid[k]] for k in keys]
+    prefix, suffix = head[:-1] + ', "point": {', "}}"
     points = []
     for index, choice in enumerate(itertools.product(*(range(len(grid[k])) for k in keys))):
-        body = ", ".join(f"{names[j]}: {texts[j][choice[j]]}" for j in by_name)
-        blob = prefix + body + "}}"
+        blob = prefix + ", ".join([frags[j][choice[j]] for j in by_name]) + suffix
         point = {k: grid[k][c] for k, c in zip(keys, choice)}
         points.append(Point(index, point, hashlib.sha256(blob.encode()).hexdigest()[:20]))
     return points

@@ -19,8 +19,8 @@ decided from times. The summary lists the approximations made.
 The recurrence's state at a frame boundary (recent task ends, queue clocks, thread free times),
 relative to the frame's present, repeats once it is periodic; from then on frames are
 extrapolated (the same composition as the event model's fast-forward), so a 10^6-frame run costs
-what its first periodic frames cost. :func:`sweep` evaluates many hardware variants of one
-program at once with numpy (one array lane per configuration).
+what its first periodic frames cost. :mod:`mgpusim.sim.analytic_lanes` evaluates many
+configurations of one program at once with numpy (one array lane per configuration).
 """
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ import numpy as np
 from mgpusim.model.costs import CostModel
 from mgpusim.model.errors import InputError, ScheduleError
 from mgpusim.model.geometry import even_split
-from mgpusim.model.tasks import CpuTask, HostCopyTask, PassTask, Task
+from mgpusim.model.tasks import CpuTask, HostCopyTask, Task
 from mgpusim.schedules.base import FrameProgram, leads_chain, wakes_host
 from mgpusim.sim.effects import choose_effects
 from mgpusim.sim.engine import Engine, RawResult
@@ -462,104 +462,3 @@ def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str
     if approximations:
         raw.effects["analytic_approximations"] = approximations
     return raw
-
-
-# ----- many hardware variants at once -------------------------------------------------------
-def sweep(program: FrameProgram, costs: CostModel, pass_scale: np.ndarray, link_scale: np.ndarray,
-          effects: frozenset[str] | None = None) -> dict[str, np.ndarray]:
-    """Frame time and latency (ms, after warm-up) of one program on many hardware variants at
-    once: variant i has every pass `pass_scale[i]` times as long and every link and host-memory
-    transfer `link_scale[i]` times as long (rounded once, half up, like the model's costs).
-    With both scales 1 it is :class:`Analytic` exactly; one numpy lane per variant. Programs
-    with skippable tasks are refused (their skips are decided per variant, not as arrays)."""
-    if any(t.skip_if_busy for tasks in program.templates for t in tasks):
-        raise InputError(f"schedule {program.schedule!r} has skippable tasks: sweep them one "
-                         "configuration at a time (simulate(..., fidelity='analytic'))")
-    pass_scale = np.asarray(pass_scale, dtype=np.float64)
-    link_scale = np.asarray(link_scale, dtype=np.float64)
-    model = Analytic(program, costs, effects if effects is not None else
-                     choose_effects(program, costs.profile, "analytic"))
-    n = len(pass_scale)
-    dur = {}
-    for phase in model.phases:
-        for node in phase:
-            if node.stream == "host":
-                sizes = [np.floor(size / float(node.rate) * link_scale + 0.5).astype(np.int64)
-                         for size in node.parts]
-                dur[node.name] = (node.fixed, sizes)
-            elif isinstance(node.task, PassTask):
-                raw = costs.pass_cost_ns(node.task.queue.device, node.task.kind, node.task.work)
-                dur[node.name] = np.floor(raw * pass_scale + 0.5).astype(np.int64)
-            else:
-                move = (np.floor(node.nbytes / float(node.rate) * link_scale + 0.5).astype(np.int64)
-                        if node.rate is not None and node.nbytes else 0)
-                dur[node.name] = node.fixed + move
-    return _vector_run(model, dur, n)
-
-
-def _vector_run(model: Analytic, dur: dict, n: int) -> dict[str, np.ndarray]:
-    program = model.program
-    frames, period = program.frames, len(model.phases)
-    ends: list[dict[str, np.ndarray]] = []
-    zero = np.zeros(n, dtype=np.int64)
-    neg = np.full(n, NEG, dtype=np.int64)
-    queue_end: dict[str, np.ndarray] = {}
-    sub: dict[str, np.ndarray] = {}
-    free = np.zeros((model.threads, n), dtype=np.int64)
-    lanes = np.arange(n)
-    host_prev = neg
-    start = np.empty((frames, n), dtype=np.int64)
-    present = np.empty((frames, n), dtype=np.int64)
-    for f in range(frames):
-        here: dict[str, np.ndarray] = {}
-        ends.append(here)
-        first = np.full(n, np.iinfo(np.int64).max, dtype=np.int64)
-        for node in model.phases[f % period]:
-            ready, cross = neg, neg
-            for dep, off, crosses in node.deps:
-                if f + off < 0:
-                    continue
-                e = ends[f + off][dep] if off else here[dep]
-                ready = np.maximum(ready, e)
-                if crosses:
-                    cross = np.maximum(cross, e)
-            if node.stream == "host":
-                t = np.maximum(np.maximum(ready, host_prev), 0)
-                if model.timeline:
-                    t = np.where(cross > NEG, np.maximum(t, cross + model.copy_wake + model.dispatch), t)
-                host_prev = t
-                fixed, sizes = dur[node.name]
-                end = neg
-                for size in sizes:
-                    idle = free <= t
-                    tid = np.where(idle.any(axis=0), idle.argmax(axis=0), free.argmin(axis=0))
-                    s = np.maximum(t, free[tid, lanes])
-                    e = s + fixed + size
-                    free[tid, lanes] = e
-                    end = np.maximum(end, e)
-                    first = np.minimum(first, s)
-                here[node.name] = end
-                continue
-            s = np.maximum(ready, queue_end.get(node.stream, zero))
-            if model.timeline:
-                clock = sub.get(node.stream, zero)
-                clock = np.where(cross > NEG, np.maximum(clock, cross + model.dispatch), clock) + model.submit
-                sub[node.stream] = clock
-                s = np.maximum(s, clock)
-            s = s + node.gap
-            e = s + dur[node.name]
-            queue_end[node.stream] = e
-            here[node.name] = e
-            first = np.minimum(first, s)
-        start[f], present[f] = first, here[program.present_task]
-        if f > model.lag:
-            ends[f - model.lag - 1] = {}
-    w = program.warmup_frames
-    steady = present[w:]
-    if len(steady) > 1:
-        frame_ns = (steady[-1] - steady[0]) / (len(steady) - 1)
-    else:
-        origin = present[w - 1] if w else start[w]
-        frame_ns = (steady[0] - origin).astype(np.float64)
-    latency = (present[w:] - start[w:]).mean(axis=0)
-    return {"frame_time_ms": frame_ns / 1e6, "latency_ms": latency / 1e6}

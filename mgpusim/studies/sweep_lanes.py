@@ -45,7 +45,7 @@ from mgpusim.model.costs import CostModel
 from mgpusim.model.errors import MgpusimError
 from mgpusim.model.profile import HardwareProfile
 from mgpusim.model.tasks import PassTask
-from mgpusim.model.work_terms import PLACED_TERMS
+from mgpusim.model.work_terms import UNPRICED_OK
 from mgpusim.schedules.experiment import load_experiment
 from mgpusim.schedules.program import build_program
 from mgpusim.sim import analytic_lanes as lanes_mod
@@ -278,7 +278,7 @@ def _pass_ns(profile: HardwareProfile, task: PassTask, coef: Mapping[Coef, np.nd
                 continue
             c = cost.ns_per.get(term)
             if c is None:
-                if term in PLACED_TERMS.get(kind, ()):
+                if term in UNPRICED_OK.get(kind, ()):
                     continue
                 c = 1.0  # a reference kind's reference_ns (others failed in the first point)
             total = total + get((d, kind, term), c) * amount

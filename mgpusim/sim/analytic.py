@@ -170,6 +170,15 @@ class Analytic:
         """Rows, frame starts, presents, and the repeat (None: every frame computed, or the
         arrays already extended when no rows were asked for). Sets `found` (the repeat's
         period and first frame, or None), `skipped_frames` and `ties`."""
+        out = self.evaluate(record, progress)
+        self.found, self.ties, self.skipped_frames = out.found, out.ties, out.skipped_frames
+        return out.rows, out.start, out.present, out.repeat
+
+    def evaluate(self, record: bool = True, progress: Callable[[int, int], None] | None = None
+                 ) -> "_Run":
+        """:meth:`run`, its figures returned instead of set on the model: the model itself is
+        left as it was built, so that one model serves many runs (simulate() keeps it per
+        experiment, :mod:`mgpusim.sim.prepared`)."""
         rec = _Recurrence(self, record)
         frames = self.program.frames
         horizon, repeat, f = frames, None, 0
@@ -186,14 +195,27 @@ class Analytic:
             f += 1
         if progress is not None:
             progress(horizon, horizon)
-        self.found, self.ties, self.skipped_frames = rec.found, rec.skips.ties, rec.skips.frames
+        skipped_frames = rec.skips.frames
         if repeat is not None and not record:  # no rows to compose: extend the arrays instead
             _extend(rec.start, horizon, repeat)
             _extend(rec.present, horizon, repeat)
-            self.skipped_frames = {n: _extend_frames(v, horizon, frames, repeat.frames)
-                                   for n, v in rec.skips.frames.items()}
+            skipped_frames = {n: _extend_frames(v, horizon, frames, repeat.frames)
+                              for n, v in rec.skips.frames.items()}
             repeat = None
-        return rec.rows, rec.start, rec.present, repeat
+        return _Run(rec.rows, rec.start, rec.present, repeat, rec.found, rec.skips.ties, skipped_frames)
+
+
+@dataclass
+class _Run:
+    """One evaluation of the recurrence (see :meth:`Analytic.run`)."""
+
+    rows: list[tuple]
+    start: np.ndarray
+    present: np.ndarray
+    repeat: Repeat | None
+    found: dict[str, int] | None
+    ties: int
+    skipped_frames: dict[str, list[int]]
 
 
 class _Recurrence:
@@ -440,14 +462,20 @@ def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str
                  progress: Callable[[int, int], None] | None = None):
     """A RawResult from the recurrence, for :func:`mgpusim.results.summary.build_result`.
     `progress(done, total)`: frames computed and frames to compute, now and then."""
-    model = Analytic(program, costs, effects)
-    rows, start, present, repeat = model.run(record=record_trace, progress=progress)
-    skipped = {n: len(v) for n, v in model.skipped_frames.items()}
-    raw = RawResult(rows, start, present, {}, skipped, {}, dict(model.skipped_frames),
+    return model_raw(Analytic(program, costs, effects), record_trace, progress)
+
+
+def model_raw(model: Analytic, record_trace: bool = True,
+              progress: Callable[[int, int], None] | None = None):
+    """:func:`analytic_raw` of a model already built (which it leaves as it was)."""
+    out = model.evaluate(record=record_trace, progress=progress)
+    program = model.program
+    skipped = {n: len(v) for n, v in out.skipped_frames.items()}
+    raw = RawResult(out.rows, out.start, out.present, {}, skipped, {}, dict(out.skipped_frames),
                     present_task=program.present_task, inputs=model.inputs)
     raw.recorded = record_trace
-    raw.repeat = repeat
-    found = model.found
+    raw.repeat = out.repeat
+    found = out.found
     raw.fast_forward = {"used": found is not None}
     if found is None:
         raw.fast_forward["why"] = "no repeat found"
@@ -455,8 +483,8 @@ def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str
         raw.fast_forward.update(why=f"state repeats every {found['period_frames']} frame(s), "
                                     f"{found['period_ns']} ns, from frame {found['from_frame']}", **found)
     approximations = list(model.approximations)
-    if model.ties:
-        approximations.append(f"skippable tasks: {model.ties} skip decision(s) tied with a chain's end "
+    if out.ties:
+        approximations.append(f"skippable tasks: {out.ties} skip decision(s) tied with a chain's end "
                               "(taken as finished)")
     raw.effects = {"analytic_exact": not approximations}
     if approximations:

@@ -40,6 +40,7 @@ from mgpusim.sim.engine import Engine, RawResult
 from mgpusim.sim.fastforward import Repeat
 
 NEG = -(1 << 62)  # "no constraint" (before time 0)
+_NO_START = np.iinfo(np.int64).max  # a frame with no task run yet (its start array's fill)
 
 
 @dataclass(frozen=True)
@@ -65,6 +66,10 @@ class _Node:
     #: a host copy's parts as (size, time) at the memcpy threads' rate
     time: int = 0
     part_times: tuple[tuple[int, int], ...] = ()
+    step: str = ""  # the task's step (its trace rows'), read in the hot loop
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "step", self.task.step)
 
 
 def _round_div(nbytes: int, rate: Fraction) -> int:
@@ -239,15 +244,22 @@ class _Recurrence:
 
     # ----- one frame ---------------------------------------------------------------------
     def frame(self, f: int) -> None:
-        """Every task of frame f, in the phase's order. (The hot loop: inputs read inline.)"""
-        phase = f % len(self.m.phases)
+        """Every task of frame f, in the phase's order. (The hot loop: inputs read inline.) A
+        queue task starts after its inputs, the task before it on its queue and (with host
+        submission) its submit clock, then spends its gap, its pass or copy time and its
+        bytes at the link's fixed rate; a CPU task's thread wakes on its input from
+        elsewhere and submits nothing."""
+        m = self.m
+        phase = f % len(m.phases)
         here: dict[str, int] = {}
         ends = self.ends
         ends.append(here)
-        self.first = None
+        first = _NO_START
         skipped_here: set[str] = set()
-        chains = self.m.chains[phase]
-        for node in self.m.phases[phase]:
+        chains = m.chains[phase]
+        queue_end, sub, rows = self.queue_end, self.sub, self.rows if self.record else None
+        timeline, dispatch, submit = m.timeline, m.dispatch, m.submit
+        for node in m.phases[phase]:
             ready, cross, has_deps = NEG, NEG, False
             for dep, off, crosses in node.deps:
                 if off:
@@ -264,16 +276,38 @@ class _Recurrence:
             chain = chains.get(node.name) if chains else None
             if chain is not None and self._skip(node, f, chain, skipped_here, here, ready, has_deps):
                 continue
-            if node.stream == "host":
-                end = self._host_copy(node, f, ready, cross)
-            else:
-                end = self._queue_task(node, f, ready, cross)
-            here[node.name] = end
+            stream = node.stream
+            if stream == "host":
+                e, first = self._host_copy(node, f, ready, cross, first)
+            else:  # _queue_task, inline
+                s = queue_end.get(stream, 0)
+                if ready > s:
+                    s = ready
+                if timeline:
+                    if node.cpu:
+                        if cross > NEG and cross + dispatch > s:
+                            s = cross + dispatch
+                    else:
+                        clock = sub.get(stream, 0)
+                        if cross > NEG and cross + dispatch > clock:
+                            clock = cross + dispatch
+                        clock += submit
+                        sub[stream] = clock
+                        if clock > s:
+                            s = clock
+                s += node.gap
+                e = queue_end[stream] = s + node.time
+                if s < first:
+                    first = s
+                if rows is not None:
+                    rows.append((f, node.device, node.engine, node.step, node.name, s, e, node.nbytes,
+                                 node.waits_for))
+            here[node.name] = e
             if chain is not None:
-                self.skips.ran(chain[0], end)
-        if self.first is not None:
-            self.start[f] = self.first
-        self.present[f] = here[self.m.program.present_task]
+                self.skips.ran(chain[0], e)
+        if first != _NO_START:
+            self.start[f] = first
+        self.present[f] = here[m.program.present_task]
 
     def _skip(self, node: _Node, f: int, chain: tuple[str, tuple[str, ...] | None], skipped_here: set[str],
               here: dict[str, int], ready: int, has_deps: bool) -> bool:
@@ -291,55 +325,32 @@ class _Recurrence:
             self.queue_end[node.stream] = t
         return True
 
-    def _host_copy(self, node: _Node, f: int, ready: int, cross: int) -> int:
-        """Dispatched in order (after the host wakes), split over the memcpy threads."""
+    def _host_copy(self, node: _Node, f: int, ready: int, cross: int, first: int) -> tuple[int, int]:
+        """Dispatched in order (after the host wakes), split over the memcpy threads, each part
+        on the lowest-numbered idle thread, else the first to become idle (the engine's pool).
+        Returns its end and the frame's first start so far."""
         t = max(ready, self.host_prev, 0)
         if self.m.timeline and cross > NEG:
             t = max(t, cross + self.m.copy_wake + self.m.dispatch)
         self.host_prev = t
-        end, threads = NEG, self.threads
+        end, threads, names = NEG, self.threads, self.m.thread_names
+        rows = self.rows if self.record else None
         for size, took in node.part_times:
-            tid = _thread(threads, t)
-            s = threads[tid]
-            if s < t:
-                s = t
+            for tid, s in enumerate(threads):
+                if s <= t:
+                    s = t
+                    break
+            else:  # every thread busy: the first free (lowest-numbered among equals)
+                s = min(threads)
+                tid = threads.index(s)
             e = threads[tid] = s + took
             if e > end:
                 end = e
-            if self.first is None or s < self.first:
-                self.first = s
-            if self.record:
-                self.rows.append((f, "host", self.m.thread_names[tid], node.task.step, node.name, s, e,
-                                  size, node.waits_for))
-        return end
-
-    def _queue_task(self, node: _Node, f: int, ready: int, cross: int) -> int:
-        """After its inputs, the task before it on its queue and its submit clock; then its gap,
-        its pass or copy time, and its bytes at the link's fixed rate."""
-        m, stream = self.m, node.stream
-        s = self.queue_end.get(stream, 0)
-        if ready > s:
-            s = ready
-        if m.timeline:
-            if node.cpu:  # the thread wakes on its input; nothing to submit
-                if cross > NEG and cross + m.dispatch > s:
-                    s = cross + m.dispatch
-            else:
-                clock = self.sub.get(stream, 0)
-                if cross > NEG and cross + m.dispatch > clock:
-                    clock = cross + m.dispatch
-                clock += m.submit
-                self.sub[stream] = clock
-                if clock > s:
-                    s = clock
-        s += node.gap
-        e = self.queue_end[stream] = s + node.time
-        if self.first is None or s < self.first:
-            self.first = s
-        if self.record:
-            self.rows.append((f, node.device, node.engine, node.task.step, node.name, s, e, node.nbytes,
-                              node.waits_for))
-        return e
+            if s < first:
+                first = s
+            if rows is not None:
+                rows.append((f, "host", names[tid], node.step, node.name, s, e, size, node.waits_for))
+        return end, first
 
     def forget_before(self, f: int) -> None:
         if f > 0:
@@ -373,14 +384,15 @@ class _Recurrence:
         # Ends and clocks are never NEG. A frame's ends are in its phase's task order (the phase
         # is in the state), the clocks in the order the streams first ran: values alone, in
         # order, with the streams' names once.
-        recent = tuple(tuple(map(minus, self.ends[g].values())) for g in range(max(0, f - m.lag + 1), f + 1))
+        ends = self.ends
+        recent = tuple([tuple(map(minus, ends[g].values())) for g in range(max(0, f - m.lag + 1), f + 1)])
         if m.submit:
             clocks = tuple(map(minus, self.sub.values()))
         else:
-            clocks = tuple(max(c, queue_end.get(q, 0)) - ref for q, c in self.sub.items())
+            clocks = tuple([max(c, queue_end.get(q, 0)) - ref for q, c in self.sub.items()])
         idle = max(self.host_prev, 0)
         return (f % len(m.phases), recent, tuple(queue_end), tuple(map(minus, queue_end.values())),
-                tuple(self.sub), clocks, tuple(t - ref if t > idle else None for t in self.threads),
+                tuple(self.sub), clocks, tuple([t - ref if t > idle else None for t in self.threads]),
                 self.host_prev - ref if self.host_prev > NEG else NEG)
 
 
@@ -413,6 +425,9 @@ class _Skips:
         self.busy_until[leader] = max(self.busy_until.get(leader, NEG), end)
 
     def state(self, ref: int) -> tuple:
+        if not self.busy_until and not self.last_ready:
+            return ((), ())  # no skippable task has run yet (or the program has none)
+
         def rel(x: int) -> int:
             return x - ref if x > NEG else NEG
         return (tuple(sorted((k, rel(v)) for k, v in self.busy_until.items())),
@@ -429,6 +444,12 @@ def _skip_chains(nodes: list[_Node]) -> dict[str, tuple[str, tuple[str, ...] | N
         ins = tuple(d for d, off, _ in n.deps if off == 0 and d in out)
         out[n.name] = (out[ins[0]][0], ins) if ins else (n.name, None)
     return out
+
+
+def _presents_on_gpu(model: Analytic) -> bool:
+    """Whether the frame's present is a task on a GPU queue, as the rows' per-frame presents
+    count it (a present on the host would leave the rows' present unset)."""
+    return all(n.device != "host" for ph in model.phases for n in ph if n.name == model.program.present_task)
 
 
 def _extend_frames(frames: list[int], computed: int, total: int, period: int) -> list[int]:
@@ -449,15 +470,6 @@ def _extend(values: np.ndarray, computed: int, repeat: Repeat) -> None:
         values[f:f + n] = values[f - p:f - p + n] + t
 
 
-def _thread(free: list[int], t: int) -> int:
-    """The memcpy thread a part dispatched at `t` runs on: the lowest-numbered idle one, else
-    the first to become idle (the engine's pool)."""
-    for tid, at in enumerate(free):
-        if at <= t:
-            return tid
-    return min(range(len(free)), key=lambda i: (free[i], i))
-
-
 def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str], record_trace: bool = True,
                  progress: Callable[[int, int], None] | None = None):
     """A RawResult from the recurrence, for :func:`mgpusim.results.summary.build_result`.
@@ -475,6 +487,13 @@ def model_raw(model: Analytic, record_trace: bool = True,
                     present_task=program.present_task, inputs=model.inputs)
     raw.recorded = record_trace
     raw.repeat = out.repeat
+    if out.repeat is not None and _presents_on_gpu(model):
+        # every frame's start and present, as the rows' repeats would give them: the state
+        # repeats, so each frame past those computed is the one a period earlier, shifted
+        computed = program.frames - out.repeat.copies * out.repeat.frames
+        _extend(out.start, computed, out.repeat)
+        _extend(out.present, computed, out.repeat)
+        raw.frames_whole = True
     found = out.found
     raw.fast_forward = {"used": found is not None}
     if found is None:

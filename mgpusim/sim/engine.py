@@ -111,6 +111,9 @@ class RawResult:
     #: set by a fast-forward: how the logs repeat (mgpusim.sim.fastforward.Repeat)
     repeat: object = None
     fast_forward: dict = field(default_factory=dict)
+    #: `frame_start` and `present_end` already cover every frame of the run, repeats included
+    #: (the analytic level extends them itself; else they are built from the rows)
+    frames_whole: bool = False
 
 
 class Engine:

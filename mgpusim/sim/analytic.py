@@ -239,7 +239,8 @@ class _Recurrence:
         self.start = np.full(frames, np.iinfo(np.int64).max, dtype=np.int64)
         self.present = np.full(frames, -1, dtype=np.int64)
         self.skips = _Skips()
-        self.seen: dict[tuple, tuple[int, int, int, dict[str, int]]] = {}
+        #: (phase, queues' clocks relative to the present) -> [snapshot, its state or None]
+        self.seen: dict[tuple, list[list]] = {}
         self.found: dict[str, int] | None = None
 
     # ----- one frame ---------------------------------------------------------------------
@@ -358,16 +359,33 @@ class _Recurrence:
 
     # ----- the repeat --------------------------------------------------------------------
     def look_for_repeat(self, f: int) -> Repeat | None:
-        """Note frame f's state; at its second sight, the repeat (None if nothing to skip)."""
+        """Note frame f's state; at its second sight, the repeat (None if nothing to skip).
+
+        The state (:meth:`_state`) is written relative to the frame's present only when a
+        part of it, the phase and the queues' clocks, was met before: until then frame f's
+        values are kept as they are (a few tuples, C speed), to be written relative later if
+        needed. Same repeat, found at the same frame, as writing every frame's state."""
         ref = int(self.present[f])
-        key = self._state(f, ref) + self.skips.state(ref)
-        marks = {n: len(v) for n, v in self.skips.frames.items()}
-        earlier = self.seen.get(key)
+        snap = self._snapshot(f, ref)
+        cheap = (f % len(self.m.phases), tuple(map(ref.__rsub__, self.queue_end.values())))
+        candidates = self.seen.get(cheap)
+        if candidates is None:
+            self.seen[cheap] = [[snap, None]]
+            return None
+        key = self._state(snap)
+        earlier = None
+        for entry in candidates:  # their states differ from each other: one at most matches
+            if entry[1] is None:
+                entry[1] = self._state(entry[0])
+            if entry[1] == key:
+                earlier = entry[0]
+                break
         if earlier is None:
-            self.seen[key] = (f, ref, len(self.rows), marks)
+            candidates.append([snap, key])
             return None
         self.seen.clear()
-        f1, t1, r1, m1 = earlier
+        f1, t1, r1, m1 = earlier[:4]
+        marks = snap[3]
         p, shift = f - f1, ref - t1
         self.found = {"period_frames": p, "period_ns": shift, "from_frame": f1 + 1}
         copies = max(0, (self.m.program.frames - (f + 2)) // p)
@@ -376,24 +394,37 @@ class _Recurrence:
         return Repeat(p, shift, copies, f1 + 1, (r1, len(self.rows)),
                       skipped={n: (m1.get(n, 0), k) for n, k in marks.items()})
 
-    def _state(self, f: int, ref: int) -> tuple:
-        """What the frames after `f` read, relative to frame f's present. A thread idle since
-        before the last dispatch and a submit clock (without submit cost) behind its queue are
-        the same state whatever their exact value, so they are written as those bounds."""
-        m, minus, queue_end = self.m, ref.__rsub__, self.queue_end  # minus(x) = x - ref
+    def _snapshot(self, f: int, ref: int) -> tuple:
+        """Frame f's state as it is (absolute times): (frame, its present, rows so far,
+        skipped instances so far per task, the recent frames' ends (their dictionaries, never
+        changed once their frame is done), the queues' clocks, the submit clocks, the
+        threads, the host's last dispatch, the skip chains')."""
+        skips = self.skips
+        return (f, ref, len(self.rows), {n: len(v) for n, v in skips.frames.items()},
+                self.ends[max(0, f - self.m.lag + 1):f + 1], tuple(self.queue_end.items()),
+                tuple(self.sub.items()), tuple(self.threads), self.host_prev,
+                (tuple(skips.busy_until.items()), tuple(skips.last_ready.items())))
+
+    def _state(self, snap: tuple) -> tuple:
+        """What the frames after a snapshot's frame read, relative to its present. A thread
+        idle since before the last dispatch and a submit clock (without submit cost) behind
+        its queue are the same state whatever their exact value, so they are written as those
+        bounds."""
+        f, ref, _rows, _marks, recent_ends, queue_items, sub_items, threads, host_prev, skips = snap
+        m, minus = self.m, ref.__rsub__  # minus(x) = x - ref
         # Ends and clocks are never NEG. A frame's ends are in its phase's task order (the phase
         # is in the state), the clocks in the order the streams first ran: values alone, in
         # order, with the streams' names once.
-        ends = self.ends
-        recent = tuple([tuple(map(minus, ends[g].values())) for g in range(max(0, f - m.lag + 1), f + 1)])
+        recent = tuple([tuple(map(minus, ends.values())) for ends in recent_ends])
+        queue_end = dict(queue_items)
         if m.submit:
-            clocks = tuple(map(minus, self.sub.values()))
+            clocks = tuple([c - ref for _q, c in sub_items])
         else:
-            clocks = tuple([max(c, queue_end.get(q, 0)) - ref for q, c in self.sub.items()])
-        idle = max(self.host_prev, 0)
+            clocks = tuple([max(c, queue_end.get(q, 0)) - ref for q, c in sub_items])
+        idle = max(host_prev, 0)
         return (f % len(m.phases), recent, tuple(queue_end), tuple(map(minus, queue_end.values())),
-                tuple(self.sub), clocks, tuple([t - ref if t > idle else None for t in self.threads]),
-                self.host_prev - ref if self.host_prev > NEG else NEG)
+                tuple([q for q, _c in sub_items]), clocks, tuple([t - ref if t > idle else None for t in threads]),
+                host_prev - ref if host_prev > NEG else NEG) + _Skips.relative(skips, ref)
 
 
 class _Skips:
@@ -424,14 +455,16 @@ class _Skips:
     def ran(self, leader: str, end: int) -> None:
         self.busy_until[leader] = max(self.busy_until.get(leader, NEG), end)
 
-    def state(self, ref: int) -> tuple:
-        if not self.busy_until and not self.last_ready:
+    @staticmethod
+    def relative(items: tuple[tuple, tuple], ref: int) -> tuple:
+        """The chains' state from (busy_until items, last_ready items), relative to `ref`."""
+        busy, last = items
+        if not busy and not last:
             return ((), ())  # no skippable task has run yet (or the program has none)
 
         def rel(x: int) -> int:
             return x - ref if x > NEG else NEG
-        return (tuple(sorted((k, rel(v)) for k, v in self.busy_until.items())),
-                tuple(sorted((k, rel(v)) for k, v in self.last_ready.items())))
+        return (tuple(sorted((k, rel(v)) for k, v in busy)), tuple(sorted((k, rel(v)) for k, v in last)))
 
 
 def _skip_chains(nodes: list[_Node]) -> dict[str, tuple[str, tuple[str, ...] | None]]:
@@ -465,9 +498,9 @@ def _extend_frames(frames: list[int], computed: int, total: int, period: int) ->
 def _extend(values: np.ndarray, computed: int, repeat: Repeat) -> None:
     """Fill frames from `computed` on: each is the one `repeat.frames` earlier plus the shift."""
     p, t = repeat.frames, repeat.ns
-    for f in range(computed, len(values), p):
-        n = min(p, len(values) - f)
-        values[f:f + n] = values[f - p:f - p + n] + t
+    k = np.arange(len(values) - computed, dtype=np.int64)
+    if len(k):  # frame computed + k: the one of the last computed period, k // p + 1 steps on
+        values[computed:] = values[computed - p + k % p] + t * (k // p + 1)
 
 
 def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str], record_trace: bool = True,

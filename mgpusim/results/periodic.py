@@ -405,9 +405,9 @@ def shifted_overlaps(s: np.ndarray, e: np.ndarray, t: int, copies: int, lo: int,
     """:func:`shifted_overlap` of every interval [s[i], e[i]] at once (int64, exact). Over
     the copies j that reach the window, each overlap is e - s (inside), e + jt - lo (across lo),
     hi - s - jt (across hi) or hi - lo (over it): arithmetic series summed in closed form. Where
-    an interval is longer than the step (no log of one queue or thread has such) or the step
-    is 0, each interval is summed one by one, in Python integers."""
-    if t <= 0 or not len(s) or int((e - s).max()) > t:
+    an interval is longer than the step (no log of one queue or thread has such), the step is
+    0 or the intervals are few, each interval is summed one by one, in Python integers."""
+    if len(s) < 32 or t <= 0 or int((e - s).max()) > t:  # (a short block: Python costs less)
         return np.array([shifted_overlap(a, b, t, copies, lo, hi) for a, b in zip(s.tolist(), e.tolist())],
                         dtype=np.int64)
 

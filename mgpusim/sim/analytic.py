@@ -109,6 +109,11 @@ class Analytic:
         self.chains = [_skip_chains(ph) for ph in self.phases]
         self.approximations = self._approximations()
         self.ties = 0
+        #: the present is a task on a GPU queue, as the rows' per-frame presents count it (a
+        #: present on the host would leave the rows' present unset): the recurrence's own
+        #: per-frame presents then stand for the rows'
+        self.presents_on_gpu = all(n.device != "host" for ph in self.phases for n in ph
+                                   if n.name == program.present_task)
 
     def _node(self, op: Any, phase: int) -> _Node:
         task = op.task
@@ -479,12 +484,6 @@ def _skip_chains(nodes: list[_Node]) -> dict[str, tuple[str, tuple[str, ...] | N
     return out
 
 
-def _presents_on_gpu(model: Analytic) -> bool:
-    """Whether the frame's present is a task on a GPU queue, as the rows' per-frame presents
-    count it (a present on the host would leave the rows' present unset)."""
-    return all(n.device != "host" for ph in model.phases for n in ph if n.name == model.program.present_task)
-
-
 def _extend_frames(frames: list[int], computed: int, total: int, period: int) -> list[int]:
     """A task's skipped frames, continued periodically from frame `computed` to `total`."""
     flags = np.zeros(total, dtype=bool)
@@ -520,7 +519,7 @@ def model_raw(model: Analytic, record_trace: bool = True,
                     present_task=program.present_task, inputs=model.inputs)
     raw.recorded = record_trace
     raw.repeat = out.repeat
-    if out.repeat is not None and _presents_on_gpu(model):
+    if out.repeat is not None and model.presents_on_gpu:
         # every frame's start and present, as the rows' repeats would give them: the state
         # repeats, so each frame past those computed is the one a period earlier, shifted
         computed = program.frames - out.repeat.copies * out.repeat.frames

@@ -82,6 +82,9 @@ class Channel:
         self._settle_pending = False
         self._solo: dict[int, tuple[Fraction | None, Fraction, int, int]] = {}
         self._epoch = 0  # fast-path ends planned before the last switch to the solver are stale
+        #: how a fast-path end triggers its flow's event: the model's Environment processes it
+        #: at once where nothing else is due (same order); plain SimPy's schedules it
+        self._succeed: Callable[[simpy.Event], object] = getattr(env, "succeed_now", simpy.Event.succeed)
         self._crowd = 4  # flows the scale can split among exactly
         self._denoms = self.bandwidth.denominator
         if self.oversubscribed is not None:
@@ -176,7 +179,7 @@ class Channel:
         self.flows.remove(flow)
         if not self.flows:
             self.busy.append((self._busy_since, self.env.now))
-        flow.done.succeed()
+        self._succeed(flow.done)  # (the timeout's only callback: at once if nothing else is due now)
 
     def _to_fluid(self, flow: _Flow, now: int) -> None:
         self._fit_scale(flow)

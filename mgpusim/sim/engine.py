@@ -68,6 +68,11 @@ class _Op:
     #: the duration is a measured one (the replay level): a copy or host-copy part spends
     #: exactly `duration`, crossing no channel
     measured: bool = False
+    #: the task's name (read in the hot loop)
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "name", self.task.name)
 
 
 class _Stream:
@@ -179,10 +184,11 @@ class Engine:
         self._setup_resources()
 
     # ----- build -------------------------------------------------------------------------
-    def _reverse_deps(self) -> list[dict[str, list[tuple[str, int, Task, int, int, bool]]]]:
+    def _reverse_deps(self) -> list[dict[str, list[tuple[str, int, Task, int, int, bool, bool]]]]:
         """dependents[phase][name] = [(dependent, frame distance k >= 0, its task, its number
         of dependencies, the frame from which all of them exist, whether the edge crosses
-        devices or the host: a host thread must wake to act on it)]."""
+        devices or the host: a host thread must wake to act on it, whether the dependent is
+        skippable)]."""
         out: list[dict[str, list]] = [defaultdict(list) for _ in range(self.period)]
         for q, tasks in enumerate(self.program.templates):
             for task in tasks:
@@ -192,7 +198,7 @@ class Engine:
                     producer = self._index[(q - k) % self.period][dep.task]
                     cross = wakes_host(producer, task, leads_chain(task, self._index[q]))
                     out[(q - k) % self.period][dep.task].append(
-                        (task.name, k, task, len(task.deps), lag, cross))
+                        (task.name, k, task, len(task.deps), lag, cross, task.skip_if_busy))
         return out
 
     def _setup_resources(self) -> None:
@@ -240,7 +246,10 @@ class Engine:
     def _start_stream(self, plan: list[list[_Op]], host: bool) -> None:
         stream = _Stream(host)
         self.streams.append(stream)
-        self.processes.append(self.env.process(self._stream_proc(plan, stream)))
+        lean = (not host and not self._host_timeline and self._busy_wake is None
+                and not any(op.gap or op.fill_cores is not None for ops in plan for op in ops))
+        proc = self._lean_stream_proc(plan, stream) if lean else self._stream_proc(plan, stream)
+        self.processes.append(self.env.process(proc))
 
     def _op(self, phase: int, task: Task) -> _Op:
         """Everything the hot loop needs about one task, computed once."""
@@ -434,26 +443,35 @@ class Engine:
         return False
 
     def _complete(self, frame: int, task: Task, skipped: bool = False) -> None:
+        """An instance is done: count it off its dependents' inputs; those with none left are
+        ready (their waiting stream resumes, or finds them ready when it gets there)."""
         self._unfinished -= 1
         if not skipped and task.skip_if_busy:
             self._chains.finished(frame, task)
-        frames, pending, timeline = self.horizon, self._pending, self._host_timeline
-        for name, k, dtask, ndeps, lag, cross in self._dependents[frame % self.period].get(task.name, ()):
+        dependents = self._dependents[frame % self.period].get(task.name)
+        if not dependents:
+            return
+        frames, pending = self.horizon, self._pending
+        cross_done = self._cross_done if self._host_timeline else None
+        for name, k, dtask, ndeps, lag, cross, skippable in dependents:
             g = frame + k
             if g >= frames:
                 continue
             key = (g, name)
-            if cross and timeline:
-                self._cross_done[key] = self.env.now
-            left = pending.get(key)
-            if left is None:
-                left = ndeps if g >= lag else self._initial(g, dtask)
-            left -= 1
-            if left:
-                pending[key] = left
-                continue
-            pending.pop(key, None)
-            if dtask.skip_if_busy:
+            if cross and cross_done is not None:
+                cross_done[key] = self.env.now
+            if ndeps == 1 and g >= lag:  # its one input: ready now
+                pending.pop(key, None)
+            else:
+                left = pending.get(key)
+                if left is None:
+                    left = ndeps if g >= lag else self._initial(g, dtask)
+                left -= 1
+                if left:
+                    pending[key] = left
+                    continue
+                pending.pop(key, None)
+            if skippable:
                 self._chains.ready(key, dtask)
             waiter = self._waiters.pop(key, None)
             if waiter is not None:
@@ -540,6 +558,37 @@ class Engine:
                     yield op.run(op.amount)
                 if op.fill_cores is not None:
                     busy_wake.pass_ended(op.device)
+                if op.channel is not None:
+                    st.at = TRANSFER
+                    yield op.channel.transfer(op.nbytes, op.cap)
+                finish(frame, op, op.engine, start, op.nbytes)
+            frame += 1
+
+    def _lean_stream_proc(self, plan: list[list[_Op]], st: _Stream):
+        """:meth:`_stream_proc` for a queue with nothing between its task's inputs and its
+        work: no host timeline (dispatch, submit), no idle gaps, no busy_wake. The same steps
+        in the same order, without the tests for what it lacks (the hot path of most runs)."""
+        env, period, skip, ready, finish = self.env, self.period, self._skip, self._ready, self._finish
+        waiters, check_ready = self._waiters, self._check_ready
+        frame = 0
+        while frame < self.horizon:
+            st.frame = frame
+            for op in plan[frame % period]:
+                st.op = op
+                key = (frame, op.name)
+                if key in ready:  # the common case: dependencies already met
+                    ready.discard(key)
+                elif not check_ready(key, op.task):
+                    ev = waiters[key] = env.event()
+                    st.at = DEPS
+                    yield ev
+                if skip and key in skip:
+                    self._skip_task(key, op.task)
+                    continue
+                start = st.start = env.now
+                if op.run is not None:
+                    st.at = RUN
+                    yield op.run(op.amount)
                 if op.channel is not None:
                     st.at = TRANSFER
                     yield op.channel.transfer(op.nbytes, op.cap)

@@ -74,6 +74,19 @@ class Environment(simpy.Environment):
             self._seq += 1
             self._scheduled.append((self.now + delay, priority, self._seq, event))
 
+    def succeed_now(self, event: simpy.Event) -> None:
+        """Trigger `event` from the last callback of the event being processed; when no other
+        event is due at this instant, process it at once: the next step would pop it, so it
+        runs in the same order, without a trip through the queue. (Only from a callback that
+        is its event's last: anything the callback left would run after it in SimPy.)"""
+        if self.peek() <= self.now:
+            event.succeed()
+            return
+        event._ok, event._value = True, None
+        callbacks, event.callbacks = event.callbacks, None
+        for callback in callbacks:
+            callback(event)
+
     def stop_tracking(self) -> None:
         """Keep no more events (after the last look at what is pending): SimPy's own
         `schedule` serves from now on, at no cost."""

@@ -460,17 +460,14 @@ class Engine:
             key = (g, name)
             if cross and cross_done is not None:
                 cross_done[key] = self.env.now
-            if ndeps == 1 and g >= lag:  # its one input: ready now
-                pending.pop(key, None)
+            if g >= lag:  # all its inputs exist: count them down from ndeps (one lookup)
+                left = pending.pop(key, ndeps) - 1
             else:
-                left = pending.get(key)
-                if left is None:
-                    left = ndeps if g >= lag else self._initial(g, dtask)
-                left -= 1
-                if left:
-                    pending[key] = left
-                    continue
-                pending.pop(key, None)
+                left = pending.pop(key, None)
+                left = (self._initial(g, dtask) if left is None else left) - 1
+            if left:
+                pending[key] = left
+                continue
             if skippable:
                 self._chains.ready(key, dtask)
             waiter = self._waiters.pop(key, None)
@@ -568,8 +565,9 @@ class Engine:
         """:meth:`_stream_proc` for a queue with nothing between its task's inputs and its
         work: no host timeline (dispatch, submit), no idle gaps, no busy_wake. The same steps
         in the same order, without the tests for what it lacks (the hot path of most runs)."""
-        env, period, skip, ready, finish = self.env, self.period, self._skip, self._ready, self._finish
-        waiters, check_ready = self._waiters, self._check_ready
+        env, period, skip, ready = self.env, self.period, self._skip, self._ready
+        waiters, check_ready, complete = self._waiters, self._check_ready, self._complete
+        frame_start, rows = self.frame_start, self.rows
         frame = 0
         while frame < self.horizon:
             st.frame = frame
@@ -592,7 +590,16 @@ class Engine:
                 if op.channel is not None:
                     st.at = TRANSFER
                     yield op.channel.transfer(op.nbytes, op.cap)
-                finish(frame, op, op.engine, start, op.nbytes)
+                # _finish, inline
+                if start < frame_start[frame]:
+                    frame_start[frame] = start
+                if self.record:
+                    rows.append((frame, op.device, op.engine, op.task.step, op.name, start, env.now,
+                                 op.nbytes, op.waits_for))
+                if op.is_present:
+                    self._finish_present(frame, op)
+                else:
+                    complete(frame, op.task)
             frame += 1
 
     def _skip_task(self, key: Key, task: Task) -> None:
@@ -609,11 +616,18 @@ class Engine:
                               op.waits_for))
         if not op.is_present:
             self._complete(frame, op.task)
-        elif self.refresh_period is None:
+        else:
+            self._finish_present(frame, op)
+
+    def _finish_present(self, frame: int, op: _Op) -> None:
+        """The present task ended now: the frame presents, or (vsync) is shown, and its
+        present completes, at the next free refresh."""
+        if self.refresh_period is None:
             self._presented(frame, op)
-        else:  # vsync: the frame is shown (and its present complete) at the next free refresh
-            flip = self._next_vblank(end)
-            self.env.timeout(flip - end).callbacks.append(_Presented(self, frame, op))
+            return
+        end = self.env.now
+        flip = self._next_vblank(end)
+        self.env.timeout(flip - end).callbacks.append(_Presented(self, frame, op))
 
     def _presented(self, frame: int, op: _Op) -> None:
         self.present_end[frame] = self.env.now

@@ -240,7 +240,7 @@ class Engine:
             if host_ex.copies_on_cores:  # a memcpy thread is one core's work
                 self._part_event = lambda size, cap: host_ex.work(-(-size * cap.denominator // cap.numerator))
             else:
-                self._part_event = lambda size, cap: memory.transfer(size, cap)
+                self._part_event = memory.transfer
             self._start_stream(host_ops, host=True)
 
     def _start_stream(self, plan: list[list[_Op]], host: bool) -> None:
@@ -472,7 +472,7 @@ class Engine:
                 self._chains.ready(key, dtask)
             waiter = self._waiters.pop(key, None)
             if waiter is not None:
-                waiter.succeed()
+                self.env.trigger(waiter)
             else:
                 self._ready.add(key)
 

@@ -77,6 +77,7 @@ class Environment(simpy.Environment):
             if type(obj) is simpy.core.BoundClass:
                 setattr(self, name, getattr(self, name))
         self.timeout = self._timeout  # type: ignore[method-assign]
+        self._plain = self._schedule  # `schedule` once it keeps nothing (see stop_tracking)
         self._scheduled: list[tuple[int, int, int, simpy.Event]] = []
         self._seq = 0
         self.tracking = True
@@ -101,8 +102,21 @@ class Environment(simpy.Environment):
             raise ValueError(f"Negative delay {delay}")
         event = _new_timeout(simpy.Timeout)
         event.env, event.callbacks, event._value, event._delay, event._ok = self, [], value, delay, True
-        self.schedule(event, NORMAL, delay)
+        if self.schedule is not self._plain:  # tracked (or counted): through `schedule`
+            self.schedule(event, NORMAL, delay)
+        elif delay:
+            heapq.heappush(self._queue, (self._now + delay, NORMAL, next(self._eid), event))
+        else:
+            self._now_list.append(event)
         return event
+
+    def trigger(self, event: simpy.Event) -> None:
+        """`event.succeed()` for an event the model made and nobody else triggers."""
+        event._ok, event._value = True, None
+        if self.schedule is not self._plain:
+            self.schedule(event)
+        else:
+            self._now_list.append(event)
 
     def peek(self) -> Any:
         if self._now_list:
@@ -175,7 +189,7 @@ class Environment(simpy.Environment):
         `schedule` serves from now on, at no cost."""
         self.tracking = False
         self._scheduled = []
-        self.schedule = self._schedule  # type: ignore[method-assign]
+        self.schedule = self._plain  # type: ignore[method-assign]
 
     def pending(self) -> list[tuple[int, int, simpy.Event]]:
         """(time, priority, event) of every scheduled event not processed yet, in the order

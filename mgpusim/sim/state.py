@@ -58,9 +58,8 @@ class Callback:
 
 
 class Environment(simpy.Environment):
-    """SimPy's environment that also keeps a list of the events it schedules (through the
-    public `schedule`), so that what is pending can be read without SimPy's private queue.
-    Keeping it costs a little per event: the fast-forward stops it once it is done.
+    """SimPy's environment, with the queue of scheduled events its own, so that what is
+    pending can be read (:meth:`pending`) without SimPy's private state, at no cost per event.
 
     It processes events in SimPy's order (time, then priority, then scheduling order) with a
     cheaper queue for the commonest kind: an event triggered for now at normal priority (a
@@ -77,9 +76,10 @@ class Environment(simpy.Environment):
             if type(obj) is simpy.core.BoundClass:
                 setattr(self, name, getattr(self, name))
         self.timeout = self._timeout  # type: ignore[method-assign]
-        self._plain = self._schedule  # `schedule` once it keeps nothing (see stop_tracking)
-        self._scheduled: list[tuple[int, int, int, simpy.Event]] = []
-        self._seq = 0
+        #: the plain `schedule`: timeouts and triggers schedule inline while it is the one
+        #: (a caller may wrap `schedule`, e.g. to count events: they then go through it)
+        self._plain = self._schedule
+        self.schedule = self._plain  # type: ignore[method-assign]
         self.tracking = True
         self._now_list: deque[simpy.Event] = deque()
 
@@ -90,19 +90,13 @@ class Environment(simpy.Environment):
         else:
             self._now_list.append(event)
 
-    def schedule(self, event: simpy.Event, priority: int = NORMAL, delay: int = 0) -> None:
-        self._schedule(event, priority, delay)
-        if self.tracking:
-            self._seq += 1
-            self._scheduled.append((self.now + delay, priority, self._seq, event))
-
     def _timeout(self, delay: int, value: Any = None) -> simpy.Timeout:
         """SimPy's Timeout, made without its constructor's call chain."""
         if delay < 0:
             raise ValueError(f"Negative delay {delay}")
         event = _new_timeout(simpy.Timeout)
         event.env, event.callbacks, event._value, event._delay, event._ok = self, [], value, delay, True
-        if self.schedule is not self._plain:  # tracked (or counted): through `schedule`
+        if self.schedule is not self._plain:  # wrapped (e.g. counted): through `schedule`
             self.schedule(event, NORMAL, delay)
         elif delay:
             heapq.heappush(self._queue, (self._now + delay, NORMAL, next(self._eid), event))
@@ -185,16 +179,17 @@ class Environment(simpy.Environment):
             callback(event)
 
     def stop_tracking(self) -> None:
-        """Keep no more events (after the last look at what is pending): SimPy's own
-        `schedule` serves from now on, at no cost."""
+        """No more looks at what is pending (the fast-forward is done): :meth:`pending`
+        refuses from now on."""
         self.tracking = False
-        self._scheduled = []
-        self.schedule = self._plain  # type: ignore[method-assign]
 
     def pending(self) -> list[tuple[int, int, simpy.Event]]:
         """(time, priority, event) of every scheduled event not processed yet, in the order
-        SimPy will process them (time, then priority, then scheduling order)."""
+        SimPy will process them (time, then priority, then scheduling order): the heap's
+        events due now, the list of events for now, then the heap's later ones."""
         if not self.tracking:
             raise Unsupported("the environment stopped keeping its events")
-        self._scheduled = [entry for entry in self._scheduled if not entry[3].processed]
-        return [(t, p, ev) for t, p, _seq, ev in sorted(self._scheduled, key=lambda e: e[:3])]
+        now = self._now
+        heap = [(t, p, ev) for t, p, _eid, ev in sorted(self._queue)]
+        due = [entry for entry in heap if entry[0] <= now]
+        return due + [(now, NORMAL, ev) for ev in self._now_list] + heap[len(due):]

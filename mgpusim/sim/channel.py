@@ -227,7 +227,7 @@ class Channel:
         for f in self.flows:
             if f.cap is not None and f.cap_s is None:
                 f.cap_s = f.cap.numerator * (scale // f.cap.denominator)
-        flows = sorted(self.flows, key=_cap_key)
+        flows = self.flows if len(self.flows) == 1 else sorted(self.flows, key=_cap_key)
         n = len(flows)
         for k, flow in enumerate(flows):
             fair = left // (n - k)  # exact: see the module docstring
@@ -288,11 +288,15 @@ class Channel:
 
     def _plan(self) -> None:
         self._gen += 1
-        due = [f for f in self.flows if f.nbytes != OCCUPANT]
-        if not due:
+        wake = None
+        for f in self.flows:
+            if f.nbytes != OCCUPANT:
+                at = (2 * f.remaining + f.rate) // (2 * f.rate)
+                if wake is None or at < wake:
+                    wake = at
+        if wake is None:
             return  # only occupants: nothing ends until one is released
-        wake = min(self._t + (2 * f.remaining + f.rate) // (2 * f.rate) for f in due)
-        wake = max(wake, self.env.now)
+        wake = max(self._t + wake, self.env.now)
         self.env.timeout(wake - self.env.now).callbacks.append(Wake((self, self._gen)))
 
     # ----- state (for the fast-forward) -----------------------------------------------------

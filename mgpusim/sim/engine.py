@@ -70,6 +70,8 @@ class _Op:
     measured: bool = False
     #: the task's name (read in the hot loop)
     name: str = ""
+    #: its entry of the engine's dependents table (set once the op is built)
+    dependents: list = field(default_factory=list)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "name", self.task.name)
@@ -218,6 +220,7 @@ class Engine:
             self._ops.append([])
             for task in tasks:
                 op = self._op(phase, task)
+                object.__setattr__(op, "dependents", self._dependents[phase].get(task.name, []))
                 self._ops[-1].append(op)
                 if isinstance(task, HostCopyTask):
                     host_ops[phase].append(op)
@@ -442,16 +445,19 @@ class Engine:
         self._pending[key] = count
         return False
 
-    def _complete(self, frame: int, task: Task, skipped: bool = False) -> None:
+    def _complete(self, frame: int, task: Task, skipped: bool = False,
+                  dependents: list | None = None) -> None:
         """An instance is done: count it off its dependents' inputs; those with none left are
-        ready (their waiting stream resumes, or finds them ready when it gets there)."""
+        ready (their waiting stream resumes, or finds them ready when it gets there).
+        `dependents`: the task's entry of the dependents table, where the caller has it."""
         self._unfinished -= 1
         if not skipped and task.skip_if_busy:
             self._chains.finished(frame, task)
-        dependents = self._dependents[frame % self.period].get(task.name)
+        if dependents is None:
+            dependents = self._dependents[frame % self.period].get(task.name)
         if not dependents:
             return
-        frames, pending = self.horizon, self._pending
+        frames, pending, waiters = self.horizon, self._pending, self._waiters
         cross_done = self._cross_done if self._host_timeline else None
         for name, k, dtask, ndeps, lag, cross, skippable in dependents:
             g = frame + k
@@ -470,7 +476,7 @@ class Engine:
                 continue
             if skippable:
                 self._chains.ready(key, dtask)
-            waiter = self._waiters.pop(key, None)
+            waiter = waiters.pop(key, None)
             if waiter is not None:
                 self.env.trigger(waiter)
             else:
@@ -599,7 +605,7 @@ class Engine:
                 if op.is_present:
                     self._finish_present(frame, op)
                 else:
-                    complete(frame, op.task)
+                    complete(frame, op.task, False, op.dependents)
             frame += 1
 
     def _skip_task(self, key: Key, task: Task) -> None:
@@ -615,7 +621,7 @@ class Engine:
             self.rows.append((frame, op.device, engine, op.task.step, op.task.name, start, end, nbytes,
                               op.waits_for))
         if not op.is_present:
-            self._complete(frame, op.task)
+            self._complete(frame, op.task, False, op.dependents)
         else:
             self._finish_present(frame, op)
 
@@ -633,7 +639,7 @@ class Engine:
         self.present_end[frame] = self.env.now
         if self.on_present is not None:
             self.on_present(frame)
-        self._complete(frame, op.task)
+        self._complete(frame, op.task, False, op.dependents)
 
     def _next_vblank(self, t: int) -> int:
         """The first refresh at or after `t` and after the last flip (FIFO: one image per
@@ -687,7 +693,7 @@ class Engine:
             self.rows.append((frame, "host", self._threads_all[tid], op.task.step, op.task.name, start,
                               self.env.now, size, op.waits_for))
         if state[0] == 0:
-            self._complete(frame, op.task)
+            self._complete(frame, op.task, False, op.dependents)
 
     # ----- state (for the fast-forward) ------------------------------------------------------
     @property

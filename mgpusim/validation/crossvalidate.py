@@ -29,6 +29,7 @@ from mgpusim.validation.measured import (other_machine, queues_as_run, read_meas
                                          read_submissions, run_machine)
 from mgpusim.validation.repeated_runs import measure_repeated, run_spread
 from mgpusim.validation.replayed import replay_comparison
+from mgpusim.validation.speed_norm import RunSpeed, normalized
 
 #: The report lists the hand-offs whose mean wait differs by at least this much (ms), at most
 #: this many: the ones that explain a frame-time error, not every task.
@@ -37,16 +38,21 @@ SHOWN_WAITS = 3
 
 
 def validate_experiment(exp: Experiment, out: Path, measured_dir: Path | None = None,
-                        repeats: int = 3, run_seconds: float = 1.0) -> dict[str, Any]:
+                        repeats: int = 3, run_seconds: float = 1.0,
+                        speed: RunSpeed | None = None) -> dict[str, Any]:
     """Measure (or load) and simulate `exp`; write the comparison to `out`; return its summary.
 
     Measuring runs the experiment `repeats` times, each about `run_seconds` long, under
     `out/measured/` and compares their steady window (:mod:`mgpusim.periodic_runs`); the
-    report's `measured_spread` is how far the whole runs differed."""
+    report's `measured_spread` is how far the whole runs differed. With the compared run's
+    `speed` (a lavapipe study's probes) the report also has the prediction at that run's own
+    machine speed under `speed` (:mod:`mgpusim.validation.speed_norm`)."""
     if measured_dir is None:
         measured_dir = measure_repeated(exp, out / "measured", repeats, run_seconds)
     measured = read_measured(measured_dir, exp)
     report, sim, replayed = both_levels(exp, measured)
+    if speed is not None:
+        report["speed"] = normalized(exp, measured, speed)
     report["measured_spread"], report["measured_runs"] = run_spread(measured_dir)
     report["measured_from"] = str(measured_dir)
     elsewhere = other_machine(exp.profile, run_machine(measured_dir))
@@ -117,6 +123,11 @@ def format_report(exp: Experiment, r: dict[str, Any]) -> str:
                          for k in elsewhere["differs"])
         lines.append(f"  note: the profile was calibrated on another machine ({said}); its accuracy "
                      "holds there: calibrate one on this machine (bash scripts/main.sh on lavapipe)")
+    sp = r.get("speed")
+    if sp:  # the prediction at the run's own machine speed
+        lines.append(f"  normalized at probe ratio {sp['probe_ratio']:.2f}: frame "
+                     f"{sp['simulated_frame_ms']:.3f} ms {sp['frame_time_error']:+.1%}, latency "
+                     f"{sp['latency_error']:+.1%}" + (f" (flagged: {sp['flag']})" if sp["flag"] else ""))
     stalled = r.get("stalls", {}).get("frames", {})
     if stalled:
         shown = ", ".join(f"{f} ({ms:.1f} ms)" for f, ms in list(stalled.items())[:5])

@@ -1,5 +1,7 @@
 """`mgpusim main [--out DIR] [--held-out] [--repeats R] [--run-seconds S] [--steady-check F]`:
-the lavapipe study (measure, calibrate, validate, report), the README's main command."""
+the lavapipe study (measure, calibrate, validate, report), the README's main command. Exits 3
+with one `refused:` line (report written) when the speed rule refuses a half's verdict: too
+many runs measured while the machine changed speed or was loaded (:mod:`mgpusim.validation.speed_norm`)."""
 from __future__ import annotations
 
 import argparse

@@ -8,6 +8,7 @@ by it and flags the runs it cannot trust); a probe per round of runs is minutes 
 """
 from __future__ import annotations
 
+import io
 import json
 import os
 import time
@@ -15,6 +16,8 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import pandas as pd
+
+from mgpusim.validation import run_archive
 
 FILE = "run_speed.csv"
 #: before_ms / after_ms: the fragment-loop probe (the one normalization uses); *_mesh_ms: the
@@ -48,17 +51,17 @@ def append(path: Path, row: dict[str, Any]) -> None:
 
 def read(path: Path) -> pd.DataFrame:
     """The table at `path` (empty, with its columns, where there is none)."""
-    if not path.is_file():
+    if not run_archive.is_file(path):
         return pd.DataFrame(columns=COLUMNS)
-    return pd.read_csv(path)
+    return pd.read_csv(io.StringIO(run_archive.read_text(path)))
 
 
 def compared_run(root: Path, name: str) -> str:
     """Which of configuration `name`'s runs under `root` its comparison used: the run its steady
     window came from (`runs.json`), else the first."""
     choice = root / name / "runs.json"
-    if choice.is_file():
-        return str(json.loads(choice.read_text()).get("run", "run0"))
+    if run_archive.is_file(choice):  # on disk, or in the folder's packed archive
+        return str(json.loads(run_archive.read_text(choice)).get("run", "run0"))
     return "run0"
 
 

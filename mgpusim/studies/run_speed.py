@@ -18,6 +18,7 @@ from typing import Any, Sequence
 import pandas as pd
 
 from mgpusim.validation import run_archive
+from mgpusim.validation import speed_norm as sn
 
 FILE = "run_speed.csv"
 #: before_ms / after_ms: the fragment-loop probe (the one normalization uses); *_mesh_ms: the
@@ -68,7 +69,6 @@ def compared_run(root: Path, name: str) -> str:
 def report_lines(table: pd.DataFrame) -> list[str]:
     """The report's account of the per-run probes (nothing without any): how far the machine's
     speed and load moved from run to run, and the rule the normalized columns follow."""
-    from mgpusim.validation import speed_norm as sn  # noqa: PLC0415
     if table.empty:
         return []
     probe = (table["before_ms"] * table["after_ms"]) ** 0.5

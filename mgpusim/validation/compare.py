@@ -17,6 +17,7 @@ import pandas as pd
 
 from mgpusim.results.summary import frames_from_trace, summarize
 from mgpusim.results.waits import compare_waits
+from mgpusim.validation.speed_norm import verdict
 
 
 def step_means_ns(trace: pd.DataFrame, first_frame: int) -> dict[str, float]:
@@ -130,7 +131,6 @@ def error_stats(table: pd.DataFrame) -> dict[str, float]:
 def _normalized_stats(table: pd.DataFrame) -> dict[str, Any]:
     """The speed-normalized errors' median and worst over every run with a probe, and the
     verdict over the runs the refusal rule trusts (:func:`speed_norm.verdict`)."""
-    from mgpusim.validation.speed_norm import verdict  # noqa: PLC0415 - it imports this module
     if "normalized_frame_time_error" not in table:
         return {}
     probed = table[table["normalized_frame_time_error"].notna()]

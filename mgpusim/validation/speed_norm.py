@@ -6,7 +6,8 @@ The scale of a run is its probe over the probe at calibration: the fragment-loop
 after the run, over the median of the same over the calibration runs the comparison uses (the
 runs whose passes the profile's costs were refitted on; those the rule below trusts). The profile is scaled by it
 (:func:`mgpusim.model.speed_scale.at_speed`: passes, copies and the host's CPU work) and the run
-is simulated again; the raw error stays beside the normalized one.
+is simulated again (:func:`mgpusim.validation.crossvalidate.normalized`); the raw error stays
+beside the normalized one.
 
 The refusal rule (the thresholds' reasons are at the constants): a run is flagged, and left out
 of the verdict, when
@@ -20,18 +21,11 @@ the report says why in one line, and `mgpusim main` exits with that line.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, Iterable, Sequence
 
 import numpy as np
 import pandas as pd
-
-from mgpusim.model.speed_scale import at_speed
-from mgpusim.schedules.experiment import Experiment
-from mgpusim.schedules.program import build_program
-from mgpusim.sim.simulation import simulate
-from mgpusim.validation.compare import compare
-from mgpusim.validation.measured import queues_as_run
 
 #: Why 10 %: on a quiet machine two fragment-loop probes a run apart differ by a median 1.6 %
 #: (90th percentile 3 %), so 10 % is a real change of speed, not the probe's noise; and a run
@@ -104,22 +98,6 @@ def speed_row(table: pd.DataFrame, config: str, run: str, reference: float) -> R
     r = rows.iloc[-1]
     return RunSpeed(config, run, float(r["before_ms"]), float(r["after_ms"]), reference,
                     float(r["other_cores"]), float(r["steal_cores"]))
-
-
-def normalized(exp: Experiment, measured: pd.DataFrame, speed: RunSpeed) -> dict[str, Any]:
-    """The prediction at the run's own speed, compared with the run, and the run's speed record:
-    what summary.json keeps under `speed`."""
-    scaled = replace(exp, profile=at_speed(exp.profile, speed.ratio))
-    sim = simulate(scaled, queues=queues_as_run(measured, build_program(scaled)))
-    report = compare(measured, sim.trace, exp.schedule.warmup_frames)
-    return {"run": speed.run, "probe_before_ms": speed.before_ms, "probe_after_ms": speed.after_ms,
-            "reference_ms": speed.reference_ms, "probe_ratio": speed.ratio,
-            "probe_disagreement": speed.disagreement, "other_cores": speed.other_cores,
-            "steal_cores": speed.steal_cores, "flag": speed.flag(),
-            "simulated_frame_ms": report["simulated"]["frame_time_ms"],
-            "frame_time_error": report["frame_time_error"],
-            "simulated_latency_ms": report["simulated"]["latency_ms"],
-            "latency_error": report["latency_error"]}
 
 
 def verdict(flags: Sequence[str], errors: Sequence[float]) -> dict[str, Any]:

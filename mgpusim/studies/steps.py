@@ -18,10 +18,9 @@ from mgpusim.studies import speed_probe as speed
 from mgpusim.studies.measuring import (Progress, measure_microbenchmarks, measure_runs,
                                        measured_folder)
 from mgpusim.studies.spec import Entry, Study
-from mgpusim.validation import run_archive
+from mgpusim.validation import run_archive, speed_norm
 from mgpusim.validation.compare import error_stats, error_table
 from mgpusim.validation.crossvalidate import format_report, validate_experiment
-from mgpusim.validation import speed_norm
 from mgpusim.validation.measured import read_measured
 from mgpusim.validation.speed_norm import RunSpeed
 

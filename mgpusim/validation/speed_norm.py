@@ -27,10 +27,12 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 import pandas as pd
 
-#: Why 10 %: on a quiet machine two fragment-loop probes a run apart differ by a median 1.6 %
-#: (90th percentile 3 %), so 10 % is a real change of speed, not the probe's noise; and a run
-#: whose speed moved by d is known only to within +-d/2 of the probes' mean, which at 10 % is
-#: +-5 %: the size of the errors the verdict is about (held-out medians of 3-6 %).
+#: Why 10 %: two fragment-loop probes back to back differ by a median 1.6 % (90th percentile
+#: 3 %), so 10 % is a real change of speed, not the probe's noise; and a run whose speed moved by
+#: d is known only to within +-d/2 of the probes' mean, which at 10 % is +-5 %: the size of the
+#: errors the verdict is about (held-out medians of 3-6 %). Measured since: a run apart, in a
+#: quiet job, ~30 % of the probes moved more (the machine's 0.25-2 s phases), so a quiet job has
+#: that share flagged and a half can come out refused (docs/journal/2026-11-26_speed_normalized.md).
 DISAGREEMENT_LIMIT = 0.10
 #: Why 0.25 cores: an idle machine shows 0.01-0.02 cores of other work (the kernel's own); at a
 #: quarter core others hold an eighth of the two cores, enough to slow a pass filling both cores

@@ -162,3 +162,6 @@ def test_the_table_report_and_verdict_come_from_the_probes(probed_runs, tmp_path
     assert "1 of 2 runs" in stats["verdict"]["refused"] and "**Refused: 1 of 2 runs" in text
     assert stats["normalized_median_abs_frame_time_error"] == pytest.approx(
         table["normalized_frame_time_error"].abs().median())
+    page = (tmp_path / "report.html").read_text()  # the page states the same as report.md
+    assert "Speed-normalized" in page and "Refused: 1 of 2 runs" in page
+    assert "probe ratio (run / calibration)" in page and "speed moved 50%" in page

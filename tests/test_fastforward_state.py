@@ -46,14 +46,39 @@ def test_pending_lists_events_in_the_order_simpy_processes_them():
     assert all(ev.processed for ev in listed) and env.pending() == []
 
 
-def test_stop_tracking_keeps_nothing_more_and_hands_schedule_back_to_simpy():
+def test_after_stop_tracking_pending_is_refused_and_the_run_goes_on():
     env = Environment()
     env.timeout(1)
     env.stop_tracking()
     env.timeout(2)
-    assert env.schedule.__func__ is simpy.Environment.schedule and env._scheduled == []
+    with pytest.raises(Unsupported):
+        env.pending()
     env.run()
     assert env.now == 2
+
+
+def test_events_for_now_run_after_those_due_now_from_before_in_simpy_order():
+    """The list of events for now: the same order as SimPy's own environment."""
+    def trace(env: simpy.Environment) -> list[tuple[int, str]]:
+        order: list[tuple[int, str]] = []
+
+        def note(name: str):
+            return lambda _e: order.append((env.now, name))
+
+        def proc(name: str, delays: tuple[int, ...]):
+            for d in delays:
+                yield env.timeout(d)
+                order.append((env.now, name))
+                env.event().succeed().callbacks.append(note(name + " now"))
+        for i, delays in enumerate(((0, 2, 0, 1), (2, 0, 1, 0), (1, 1, 0, 2))):
+            env.process(proc(f"p{i}", delays))
+        env.timeout(2).callbacks.append(note("t2"))
+        return order
+    plain, ours = simpy.Environment(), Environment()
+    expected, got = trace(plain), trace(ours)
+    plain.run()
+    ours.run()
+    assert got == expected and len(got) > 20
 
 
 def test_a_stream_says_where_it_waits_and_the_engine_state_has_every_stream():

@@ -263,7 +263,7 @@ def test_streamed_trace_file_is_the_whole_trace(tmp_path: Path):
 def test_sweep_lane_equals_analytic(name: str):
     import numpy as np
 
-    from mgpusim.sim.analytic import sweep
+    from mgpusim.sim.analytic_lanes import sweep
     exp = load_experiment(ROOT / "experiments" / name)
     out = sweep(build_program(exp), CostModel(exp.profile), np.array([1.0, 2.0]), np.array([1.0, 1.0]))
     s = simulate(exp, fidelity="analytic").summary
@@ -276,7 +276,7 @@ def test_sweep_honours_the_gpus_speed_factor():
     """A sweep lane of a profile whose GPUs are 2x faster equals that profile simulated."""
     import numpy as np
 
-    from mgpusim.sim.analytic import sweep
+    from mgpusim.sim.analytic_lanes import sweep
     exp = load_experiment(ROOT / "experiments" / "sort_first_tc1.toml", {"profile.gpus.*.speed": 2.0})
     out = sweep(build_program(exp), CostModel(exp.profile), np.array([1.0]), np.array([1.0]))
     assert out["frame_time_ms"][0] == pytest.approx(simulate(exp, fidelity="analytic").summary["frame_time_ms"],
@@ -430,7 +430,7 @@ def test_without_a_trace_the_summary_does_not_depend_on_the_fast_forward(name: s
 def test_sweep_refuses_skippable_schedules():
     import numpy as np
 
-    from mgpusim.sim.analytic import sweep
+    from mgpusim.sim.analytic_lanes import sweep
     exp = load_experiment(ROOT / "experiments" / "particles_machine.toml")
     with pytest.raises(InputError, match="skippable"):
         sweep(build_program(exp), CostModel(exp.profile), np.ones(2), np.ones(2))

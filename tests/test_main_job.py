@@ -10,7 +10,7 @@ import tomli_w
 
 from mgpusim import load_profile
 from mgpusim.cli import main
-from mgpusim.commands.main_job import LAVAPIPE_STUDY
+from mgpusim.commands.main_job import LAVAPIPE_STUDY, REFUSED
 from mgpusim.model.config import read_toml
 from mgpusim.studies import load_study
 
@@ -33,8 +33,10 @@ def short_study():
 @pytest.mark.vulkan
 def test_main_job_measures_calibrates_validates_and_reports(tmp_path, short_study):
     out = tmp_path / "main"
-    assert main(["main", "--out", str(out), "--repeats", "1", "--run-seconds", "0.1",
-                 "--study", str(short_study)]) == 0
+    status = main(["main", "--out", str(out), "--repeats", "1", "--run-seconds", "0.1",
+                   "--study", str(short_study)])
+    # 3: the speed rule refused the verdict (a loaded or moving machine), with the report written
+    assert status in (0, REFUSED)
     profile = load_profile(out / "profile.toml")
     assert profile.host.gpus_share_cpu and profile.gpus[0].task_gap_ns > 0
     threads = load_study(LAVAPIPE_STUDY).lavapipe_threads()
@@ -56,3 +58,12 @@ def test_main_job_measures_calibrates_validates_and_reports(tmp_path, short_stud
         "after the microbenchmarks"] * 2 + ["runs, round 1 of 1"] * 2 + ["after the runs"] * 2
     assert (probes["median_ms"] > 0).all()
     assert "## The machine's speed during the job" in report
+    # and before and after every run: each run predicted at its own speed
+    runs = pd.read_csv(out / "runs" / "run_speed.csv")
+    assert sorted(runs["config"]) == sorted(KEEP) and (runs[["before_ms", "after_ms"]] > 0).all().all()
+    assert (runs["after_ms"].iloc[:-1].to_numpy() == runs["before_ms"].iloc[1:].to_numpy()).all()
+    summary = json.loads((out / "validation" / "afr_2gpu" / "summary.json").read_text())
+    row = runs.set_index("config").loc["afr_2gpu"]
+    assert summary["speed"]["probe_before_ms"] == pytest.approx(row["before_ms"])
+    assert summary["speed"]["probe_ratio"] > 0 and "normalized error" in report
+    assert status == 0 or "**Refused:" in report

@@ -1,8 +1,11 @@
 """`mgpusim main [--out DIR] [--held-out] [--repeats R] [--run-seconds S] [--steady-check F]`:
-the lavapipe study (measure, calibrate, validate, report), the README's main command."""
+the lavapipe study (measure, calibrate, validate, report), the README's main command. Exits 3
+with one `refused:` line (report written) when the speed rule refuses a half's verdict: too
+many runs measured while the machine changed speed or was loaded (:mod:`mgpusim.validation.speed_norm`)."""
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -11,6 +14,9 @@ from mgpusim.commands.study import add_steady_check, progress_printer, steady_ch
 from mgpusim.io.outpath import check_out_dir
 from mgpusim.io.shipped import shipped_dir
 
+#: The exit status of a job whose verdict the speed rule refused (report written, no verdict):
+#: too many runs were measured while the machine changed speed or was loaded.
+REFUSED = 3
 #: The lavapipe study, shipped beside the package's experiments.
 LAVAPIPE_STUDY = shipped_dir("experiments") / "lavapipe" / "study.toml"
 
@@ -46,6 +52,10 @@ def run(args: argparse.Namespace) -> int:
     print(path.read_text())
     warning = speed.drift_warning(pipeline.probes_of(args.out / "runs"))
     if warning is not None:
-        print(f"warning: {warning}: the errors include it; see the report's first section",
-              file=sys.stderr)
+        print(f"warning: {warning}: the raw errors include it, the speed-normalized ones scale "
+              f"it out; see the report's first sections", file=sys.stderr)
+    refused = pipeline.refusals(json.loads((args.out / "errors.json").read_text()))
+    if refused:
+        print(f"refused: {' | '.join(refused)}; see {path}", file=sys.stderr)
+        return REFUSED
     return 0

@@ -143,8 +143,10 @@ def validate(args: argparse.Namespace) -> int:
         tables[title] = pipeline.validate(study, entries, root, profile, out / "validation",
                                           progress, tuple(args.extra))
         missing[title] = pipeline.without_runs(entries, root)
-    probes = pipeline.probes_of(args.runs or pipeline.runs_root(study, False, out))
-    path = pipeline.write_report(out, study, tables, f"profile: {profile}", probes, missing)  # also errors.json
+    calibration_root = args.runs or pipeline.runs_root(study, False, out)
+    path = pipeline.write_report(out, study, tables, f"profile: {profile}",  # also errors.json
+                                 pipeline.probes_of(calibration_root), missing,
+                                 pipeline.run_speed.read(calibration_root / pipeline.run_speed.FILE))
     with pd.option_context("display.width", 200, "display.max_columns", 20):
         for title, table in tables.items():
             print(f"{title}\n{table.to_string(index=False)}")

@@ -3,6 +3,10 @@
 Writes DIR/sweep.parquet (one row per point: its keys, every summary field, an error column),
 DIR/sweep.png and DIR/sweep.json; finished points are kept in DIR/points/, so the same command
 run again after an interruption (even SIGKILL) only runs the points still missing.
+
+With --fidelity analytic, keys that change only pass costs (profile.gpus.<i|*>.speed,
+profile.gpus.<i|*>.costs.<kind>.fixed_ns / .ns_per_<term>) run as numpy lanes, thousands of
+points at once (one file per batch in DIR/points/); other keys and schedules run point by point.
 """
 from __future__ import annotations
 

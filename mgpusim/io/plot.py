@@ -163,35 +163,75 @@ def sweep_png(table: pd.DataFrame, keys: Sequence[str], path: str | Path, metric
     return Path(path)
 
 
+#: Most lines a sweep plot draws (one per combination of the keys after the first); a grid
+#: with more is drawn as a heatmap of its first two keys, the mean over the others.
+MAX_SWEEP_LINES = 12
+#: Most heatmap cells written with their value (more are hard to read, and each label costs
+#: more to draw than the image: 100 labels take about a second).
+MAX_CELL_LABELS = 36
+#: Most tick labels on a heatmap's axis (every n-th value is named beyond it).
+MAX_TICKS = 24
+
+
 def draw_sweep(ax, table: pd.DataFrame, keys: Sequence[str], metric: str = "frame_time_ms") -> None:
     """A sweep's `metric` against its keys on `ax`: a line for one key, a heatmap for two
     (failed cells say so), and for more a line over the first key for each combination of
-    the others. Failed points are left out of lines (their rows carry the error)."""
+    the others, or, beyond MAX_SWEEP_LINES of them, a heatmap of the first two keys averaged
+    over the others (one image whatever the grid's size). Failed points are left out of lines
+    and averages (their rows carry the error)."""
     ok = table[table["error"].isna()] if "error" in table else table
     if metric not in ok or ok[metric].isna().all():
         ax.text(0.5, 0.5, f"no point has a {metric}", ha="center", va="center", transform=ax.transAxes)
         ax.set_axis_off()
-    elif len(keys) == 2:  # every cell of the grid shown, the failed ones blank
+    elif len(keys) == 2 or len(keys) > 2 and _combinations(table, keys[1:]) > MAX_SWEEP_LINES:
         failed = table["error"].notna() if "error" in table else False
         _heatmap(ax.figure, ax, table.assign(**{metric: table[metric].mask(failed)}), keys, metric)
     else:
         _lines(ax, ok, keys, metric)
 
 
+def _combinations(table: pd.DataFrame, keys: Sequence[str]) -> int:
+    return int(np.prod([table[k].nunique(dropna=False) for k in keys]))
+
+
 def _heatmap(fig, ax, df: pd.DataFrame, keys: Sequence[str], metric: str) -> None:
-    grid = df.pivot_table(index=keys[0], columns=keys[1], values=metric, aggfunc="mean", sort=True,
-                          dropna=False)
-    image = ax.imshow(grid.to_numpy(dtype=float), aspect="auto", cmap="viridis_r", origin="lower")
-    ax.set_xticks(range(grid.shape[1]), [str(c) for c in grid.columns])
-    ax.set_yticks(range(grid.shape[0]), [str(i) for i in grid.index])
+    """The mean of `metric` per (first key, second key) cell, with numpy (cheap at any size);
+    a cell whose points all failed is blank and, where cells are labelled, says so."""
+    rows, row_values = _codes(df[keys[0]])
+    cols, col_values = _codes(df[keys[1]])
+    values = df[metric].to_numpy(dtype=float)
+    good = ~np.isnan(values)
+    cell = rows * len(col_values) + cols
+    size = len(row_values) * len(col_values)
+    total = np.bincount(cell[good], values[good], minlength=size)
+    count = np.bincount(cell[good], minlength=size)
+    with np.errstate(invalid="ignore"):
+        grid = (total / count).reshape(len(row_values), len(col_values))
+    image = ax.imshow(grid, aspect="auto", cmap="viridis_r", origin="lower", interpolation="nearest")
+    _ticks(ax.set_xticks, col_values)
+    _ticks(ax.set_yticks, row_values)
     ax.set_xlabel(keys[1])
     ax.set_ylabel(keys[0])
-    outline = [patheffects.withStroke(linewidth=2, foreground="white")]
-    for (i, j), value in np.ndenumerate(grid.to_numpy(dtype=float)):
-        ax.text(j, i, f"{value:.3g}" if value == value else "failed", ha="center", va="center",
-                fontsize=8, color="black", path_effects=outline)
+    if grid.size <= MAX_CELL_LABELS:
+        outline = [patheffects.withStroke(linewidth=2, foreground="white")]
+        for (i, j), value in np.ndenumerate(grid):
+            ax.text(j, i, f"{value:.3g}" if value == value else "failed", ha="center", va="center",
+                    fontsize=8, color="black", path_effects=outline)
     fig.colorbar(image, ax=ax, label=metric)
-    ax.set_title(f"{metric} by {keys[0]} and {keys[1]}", fontsize=10)
+    over = f", mean over {', '.join(keys[2:])}" if len(keys) > 2 else ""
+    ax.set_title(f"{metric} by {keys[0]} and {keys[1]}{over}", fontsize=10, wrap=True)
+
+
+def _codes(column: pd.Series) -> tuple[np.ndarray, list]:
+    """Each row's position among the column's sorted distinct values, and those values."""
+    codes, uniques = pd.factorize(column, sort=True)
+    return codes, list(uniques)
+
+
+def _ticks(set_ticks, values: list) -> None:
+    step = max(1, -(-len(values) // MAX_TICKS))
+    at = list(range(0, len(values), step))
+    set_ticks(at, [str(values[i]) for i in at])
 
 
 def _lines(ax, df: pd.DataFrame, keys: Sequence[str], metric: str) -> None:

@@ -15,12 +15,15 @@ Layout::
 
     DIR/.sweep.lock        the lock (holds the process id of the sweep that has it)
     DIR/points/<id>.json   {"keys": {...}, "summary": {...}, "error": null, "wall_s": 0.03}
+    DIR/points/batch-<hash>.parquet   points run together as lanes (analytic level): one row
+                           per point, column `id` then error, wall_s and the summary's columns
     DIR/sweep.parquet      one row per point of the current grid
     DIR/sweep.png          the metric against the keys (lines, or a heatmap for two keys)
     DIR/sweep.json         experiment, grid, overrides, fidelity, points, failed
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -68,7 +71,8 @@ class PointStore:
         for stray in [*self.points.glob(".*.tmp"), *self.out.glob(".*.tmp")]:
             stray.unlink(missing_ok=True)
         out = {}
-        for pid in wanted:
+        saved = {name[:-5] for name in os.listdir(self.points) if name.endswith(".json")}
+        for pid in saved & set(wanted):
             path = self.points / f"{pid}.json"
             try:
                 text = path.read_text()
@@ -82,6 +86,28 @@ class PointStore:
     def save(self, pid: str, record: dict[str, Any]) -> None:
         text = json.dumps(record, sort_keys=True, default=str)
         atomic_write(self.points / f"{pid}.json", lambda tmp: tmp.write_text(text))
+
+    def save_batch(self, df: pd.DataFrame) -> Path:
+        """Points run together (a table with column `id`): one file, saved whole or not at all,
+        named by a hash of its points."""
+        digest = hashlib.sha256("\n".join(sorted(df["id"])).encode()).hexdigest()[:20]
+        return atomic_write(self.points / f"batch-{digest}.parquet", lambda tmp: df.to_parquet(tmp, index=False))
+
+    def load_batches(self, wanted: set[str]) -> list[pd.DataFrame]:
+        """The saved batches' rows of the points in `wanted` (a batch file this code did not
+        write is refused, naming it)."""
+        out = []
+        for path in sorted(self.points.glob("batch-*.parquet")):
+            try:
+                df = pd.read_parquet(path)
+            except (OSError, ValueError) as exc:
+                raise _foreign(path, f"cannot read it as Parquet ({exc})") from None
+            if not {"id", "error", "wall_s"} <= set(df.columns):
+                raise _foreign(path, "no id, error and wall_s columns (a batch has them)")
+            df = df[df["id"].isin(wanted)]
+            if len(df):
+                out.append(df.reset_index(drop=True))
+        return out
 
     def finish(self, df: pd.DataFrame, keys: list[str], metric: str, spec: dict[str, Any]) -> dict[str, Path]:
         """Write the table, the plot and the description, each atomically."""

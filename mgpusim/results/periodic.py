@@ -157,24 +157,30 @@ class RepeatedRows:
     # ----- busy time ---------------------------------------------------------------------
     @functools.cached_property
     def _queues(self) -> tuple[np.ndarray, list[str]]:
-        """(code per row, names): each row's queue or host thread, `device.engine`."""
-        dev, devices = pd.factorize(np.array(self._text["device"], dtype=object))
-        eng, engines = pd.factorize(np.array(self._text["engine"], dtype=object))
-        keys, codes = np.unique(dev.astype(np.int64) * len(engines) + eng, return_inverse=True)
-        n = max(len(engines), 1)
-        return codes.astype(np.int64), [f"{devices[k // n]}.{engines[k % n]}" for k in keys.tolist()]
+        """(code per row, names): each row's queue or host thread, `device.engine`, coded in
+        order of first appearance. (A dictionary pass: a run's log names a few dozen queues,
+        and hashing pairs of the same few strings costs less than sorting codes in numpy.)"""
+        pairs = list(zip(self._text["device"], self._text["engine"]))
+        index = {k: i for i, k in enumerate(dict.fromkeys(pairs))}
+        codes = np.array(list(map(index.__getitem__, pairs)), dtype=np.int64)
+        return codes, [f"{device}.{engine}" for device, engine in index]
 
     def busy(self, lo: int, hi: int) -> dict[str, int]:
         """Busy ns of every queue and host thread (`device.engine`) inside [lo, hi]."""
         codes, names = self._queues
-        prefix, b, rest = self._parts({**self._numbers, "queue": codes})
+        a, b = self._split
+        start, end = self._numbers["start_ns"], self._numbers["end_ns"]
         total = np.zeros(len(names), dtype=np.int64)
-        for part in (prefix, rest):
-            dur = np.minimum(np.maximum(part["end_ns"], lo), hi) - np.minimum(np.maximum(part["start_ns"], lo), hi)
-            np.add.at(total, part["queue"], dur)
-        for q, s, e in zip(b["queue"].tolist(), b["start_ns"].tolist(), b["end_ns"].tolist()):
-            total[q] += shifted_overlap(s, e, self.shift.ns, self.shift.copies, lo, hi)
-        return {name: int(t) for name, t in zip(names, total.tolist())}
+        moved = self.shift.copies * self.shift.ns  # the rest's shift
+        for sl, by in ((slice(0, a), 0), (slice(b, None), moved)):
+            s, e = start[sl], end[sl]
+            if len(s):
+                dur = np.clip(e, lo - by, hi - by) - np.clip(s, lo - by, hi - by)
+                np.add.at(total, codes[sl], dur)
+        if b > a:
+            np.add.at(total, codes[a:b], shifted_overlaps(start[a:b], end[a:b], self.shift.ns,
+                                                          self.shift.copies, lo, hi))
+        return {name: int(v) for name, v in zip(names, total.tolist())}
 
     # ----- the trace ---------------------------------------------------------------------
     def chunks(self, rows_per_chunk: int = 1_000_000, frames: int | None = None) -> Iterator[pd.DataFrame]:
@@ -395,6 +401,32 @@ def shifted_overlap(s: int, e: int, t: int, copies: int, lo: int, hi: int) -> in
     return total + sum(overlap(j) for j in edges)
 
 
+def shifted_overlaps(s: np.ndarray, e: np.ndarray, t: int, copies: int, lo: int, hi: int) -> np.ndarray:
+    """:func:`shifted_overlap` of every interval [s[i], e[i]] at once (int64, exact). Over
+    the copies j that reach the window, each overlap is e - s (inside), e + jt - lo (across lo),
+    hi - s - jt (across hi) or hi - lo (over it): arithmetic series summed in closed form. Where
+    an interval is longer than the step (no log of one queue or thread has such), the step is
+    0 or the intervals are few, each interval is summed one by one, in Python integers."""
+    if len(s) < 32 or t <= 0 or int((e - s).max()) > t:  # (a short block: Python costs less)
+        return np.array([shifted_overlap(a, b, t, copies, lo, hi) for a, b in zip(s.tolist(), e.tolist())],
+                        dtype=np.int64)
+
+    def count(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return np.maximum(0, b - a + 1)
+    first = np.maximum(0, (lo - e) // t + 1)      # first j whose interval ends after lo
+    last = np.minimum(copies, -((s - hi) // t) - 1)  # last j whose interval starts before hi
+    starts_in = -((s - lo) // t)                  # first j with s + jt >= lo
+    ends_in = (hi - e) // t                       # last j with e + jt <= hi
+    inside = count(np.maximum(first, starts_in), np.minimum(last, ends_in))
+    n_lo = count(first, np.minimum(np.minimum(last, ends_in), starts_in - 1))
+    across_lo = n_lo * (e - lo + first * t) + t * (n_lo * (n_lo - 1) // 2)
+    hi_from = np.maximum(np.maximum(first, starts_in), ends_in + 1)
+    n_hi = count(hi_from, last)
+    across_hi = n_hi * (hi - s - hi_from * t) - t * (n_hi * (n_hi - 1) // 2)
+    over = count(np.maximum(first, ends_in + 1), np.minimum(last, starts_in - 1))
+    return inside * (e - s) + across_lo + across_hi + over * (hi - lo)
+
+
 def _take(part: dict[str, np.ndarray], a: int, b: int) -> dict[str, np.ndarray]:
     mask = (part["start_ns"] >= a) & (part["start_ns"] < b)
     return {c: v[mask] for c, v in part.items()}
@@ -485,8 +517,9 @@ class RepeatedIntervals:
     def busy(self, lo: int, hi: int) -> int:
         total = int((np.clip(self.prefix[:, 1], lo, hi) - np.clip(self.prefix[:, 0], lo, hi)).sum())
         total += int((np.clip(self.rest[:, 1], lo, hi) - np.clip(self.rest[:, 0], lo, hi)).sum())
-        for s, e in self.block.tolist():
-            total += shifted_overlap(s, e, self.shift.ns, self.shift.copies, lo, hi)
+        if len(self.block):
+            total += int(shifted_overlaps(self.block[:, 0], self.block[:, 1], self.shift.ns,
+                                          self.shift.copies, lo, hi).sum())
         return total
 
 

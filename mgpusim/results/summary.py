@@ -247,7 +247,7 @@ def build_result(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
     r = raw.repeat
     shift = Shift(r.frames, r.ns, r.copies) if r is not None else Shift(1, 0, 0)
     rows = RepeatedRows(raw.rows, r.rows if r is not None else (len(raw.rows),) * 2, shift, _labels(raw))
-    if r is not None:
+    if r is not None and not raw.frames_whole:
         start, present = rows.frame_arrays(len(raw.frame_start), raw.present_task)
     else:
         start, present = raw.frame_start, raw.present_end

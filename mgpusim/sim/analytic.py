@@ -19,8 +19,8 @@ decided from times. The summary lists the approximations made.
 The recurrence's state at a frame boundary (recent task ends, queue clocks, thread free times),
 relative to the frame's present, repeats once it is periodic; from then on frames are
 extrapolated (the same composition as the event model's fast-forward), so a 10^6-frame run costs
-what its first periodic frames cost. :func:`sweep` evaluates many hardware variants of one
-program at once with numpy (one array lane per configuration).
+what its first periodic frames cost. :mod:`mgpusim.sim.analytic_lanes` evaluates many
+configurations of one program at once with numpy (one array lane per configuration).
 """
 from __future__ import annotations
 
@@ -33,13 +33,14 @@ import numpy as np
 from mgpusim.model.costs import CostModel
 from mgpusim.model.errors import InputError, ScheduleError
 from mgpusim.model.geometry import even_split
-from mgpusim.model.tasks import CpuTask, HostCopyTask, PassTask, Task
+from mgpusim.model.tasks import CpuTask, HostCopyTask, Task
 from mgpusim.schedules.base import FrameProgram, leads_chain, wakes_host
 from mgpusim.sim.effects import choose_effects
 from mgpusim.sim.engine import Engine, RawResult
 from mgpusim.sim.fastforward import Repeat
 
 NEG = -(1 << 62)  # "no constraint" (before time 0)
+_NO_START = np.iinfo(np.int64).max  # a frame with no task run yet (its start array's fill)
 
 
 @dataclass(frozen=True)
@@ -65,6 +66,10 @@ class _Node:
     #: a host copy's parts as (size, time) at the memcpy threads' rate
     time: int = 0
     part_times: tuple[tuple[int, int], ...] = ()
+    step: str = ""  # the task's step (its trace rows'), read in the hot loop
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "step", self.task.step)
 
 
 def _round_div(nbytes: int, rate: Fraction) -> int:
@@ -104,6 +109,11 @@ class Analytic:
         self.chains = [_skip_chains(ph) for ph in self.phases]
         self.approximations = self._approximations()
         self.ties = 0
+        #: the present is a task on a GPU queue, as the rows' per-frame presents count it (a
+        #: present on the host would leave the rows' present unset): the recurrence's own
+        #: per-frame presents then stand for the rows'
+        self.presents_on_gpu = all(n.device != "host" for ph in self.phases for n in ph
+                                   if n.name == program.present_task)
 
     def _node(self, op: Any, phase: int) -> _Node:
         task = op.task
@@ -170,6 +180,15 @@ class Analytic:
         """Rows, frame starts, presents, and the repeat (None: every frame computed, or the
         arrays already extended when no rows were asked for). Sets `found` (the repeat's
         period and first frame, or None), `skipped_frames` and `ties`."""
+        out = self.evaluate(record, progress)
+        self.found, self.ties, self.skipped_frames = out.found, out.ties, out.skipped_frames
+        return out.rows, out.start, out.present, out.repeat
+
+    def evaluate(self, record: bool = True, progress: Callable[[int, int], None] | None = None
+                 ) -> "_Run":
+        """:meth:`run`, its figures returned instead of set on the model: the model itself is
+        left as it was built, so that one model serves many runs (simulate() keeps it per
+        experiment, :mod:`mgpusim.sim.prepared`)."""
         rec = _Recurrence(self, record)
         frames = self.program.frames
         horizon, repeat, f = frames, None, 0
@@ -186,14 +205,27 @@ class Analytic:
             f += 1
         if progress is not None:
             progress(horizon, horizon)
-        self.found, self.ties, self.skipped_frames = rec.found, rec.skips.ties, rec.skips.frames
+        skipped_frames = rec.skips.frames
         if repeat is not None and not record:  # no rows to compose: extend the arrays instead
             _extend(rec.start, horizon, repeat)
             _extend(rec.present, horizon, repeat)
-            self.skipped_frames = {n: _extend_frames(v, horizon, frames, repeat.frames)
-                                   for n, v in rec.skips.frames.items()}
+            skipped_frames = {n: _extend_frames(v, horizon, frames, repeat.frames)
+                              for n, v in rec.skips.frames.items()}
             repeat = None
-        return rec.rows, rec.start, rec.present, repeat
+        return _Run(rec.rows, rec.start, rec.present, repeat, rec.found, rec.skips.ties, skipped_frames)
+
+
+@dataclass
+class _Run:
+    """One evaluation of the recurrence (see :meth:`Analytic.run`)."""
+
+    rows: list[tuple]
+    start: np.ndarray
+    present: np.ndarray
+    repeat: Repeat | None
+    found: dict[str, int] | None
+    ties: int
+    skipped_frames: dict[str, list[int]]
 
 
 class _Recurrence:
@@ -212,20 +244,28 @@ class _Recurrence:
         self.start = np.full(frames, np.iinfo(np.int64).max, dtype=np.int64)
         self.present = np.full(frames, -1, dtype=np.int64)
         self.skips = _Skips()
-        self.seen: dict[tuple, tuple[int, int, int, dict[str, int]]] = {}
+        #: (phase, queues' clocks relative to the present) -> [snapshot, its state or None]
+        self.seen: dict[tuple, list[list]] = {}
         self.found: dict[str, int] | None = None
 
     # ----- one frame ---------------------------------------------------------------------
     def frame(self, f: int) -> None:
-        """Every task of frame f, in the phase's order. (The hot loop: inputs read inline.)"""
-        phase = f % len(self.m.phases)
+        """Every task of frame f, in the phase's order. (The hot loop: inputs read inline.) A
+        queue task starts after its inputs, the task before it on its queue and (with host
+        submission) its submit clock, then spends its gap, its pass or copy time and its
+        bytes at the link's fixed rate; a CPU task's thread wakes on its input from
+        elsewhere and submits nothing."""
+        m = self.m
+        phase = f % len(m.phases)
         here: dict[str, int] = {}
         ends = self.ends
         ends.append(here)
-        self.first = None
+        first = _NO_START
         skipped_here: set[str] = set()
-        chains = self.m.chains[phase]
-        for node in self.m.phases[phase]:
+        chains = m.chains[phase]
+        queue_end, sub, rows = self.queue_end, self.sub, self.rows if self.record else None
+        timeline, dispatch, submit = m.timeline, m.dispatch, m.submit
+        for node in m.phases[phase]:
             ready, cross, has_deps = NEG, NEG, False
             for dep, off, crosses in node.deps:
                 if off:
@@ -242,16 +282,38 @@ class _Recurrence:
             chain = chains.get(node.name) if chains else None
             if chain is not None and self._skip(node, f, chain, skipped_here, here, ready, has_deps):
                 continue
-            if node.stream == "host":
-                end = self._host_copy(node, f, ready, cross)
-            else:
-                end = self._queue_task(node, f, ready, cross)
-            here[node.name] = end
+            stream = node.stream
+            if stream == "host":
+                e, first = self._host_copy(node, f, ready, cross, first)
+            else:  # _queue_task, inline
+                s = queue_end.get(stream, 0)
+                if ready > s:
+                    s = ready
+                if timeline:
+                    if node.cpu:
+                        if cross > NEG and cross + dispatch > s:
+                            s = cross + dispatch
+                    else:
+                        clock = sub.get(stream, 0)
+                        if cross > NEG and cross + dispatch > clock:
+                            clock = cross + dispatch
+                        clock += submit
+                        sub[stream] = clock
+                        if clock > s:
+                            s = clock
+                s += node.gap
+                e = queue_end[stream] = s + node.time
+                if s < first:
+                    first = s
+                if rows is not None:
+                    rows.append((f, node.device, node.engine, node.step, node.name, s, e, node.nbytes,
+                                 node.waits_for))
+            here[node.name] = e
             if chain is not None:
-                self.skips.ran(chain[0], end)
-        if self.first is not None:
-            self.start[f] = self.first
-        self.present[f] = here[self.m.program.present_task]
+                self.skips.ran(chain[0], e)
+        if first != _NO_START:
+            self.start[f] = first
+        self.present[f] = here[m.program.present_task]
 
     def _skip(self, node: _Node, f: int, chain: tuple[str, tuple[str, ...] | None], skipped_here: set[str],
               here: dict[str, int], ready: int, has_deps: bool) -> bool:
@@ -269,55 +331,32 @@ class _Recurrence:
             self.queue_end[node.stream] = t
         return True
 
-    def _host_copy(self, node: _Node, f: int, ready: int, cross: int) -> int:
-        """Dispatched in order (after the host wakes), split over the memcpy threads."""
+    def _host_copy(self, node: _Node, f: int, ready: int, cross: int, first: int) -> tuple[int, int]:
+        """Dispatched in order (after the host wakes), split over the memcpy threads, each part
+        on the lowest-numbered idle thread, else the first to become idle (the engine's pool).
+        Returns its end and the frame's first start so far."""
         t = max(ready, self.host_prev, 0)
         if self.m.timeline and cross > NEG:
             t = max(t, cross + self.m.copy_wake + self.m.dispatch)
         self.host_prev = t
-        end, threads = NEG, self.threads
+        end, threads, names = NEG, self.threads, self.m.thread_names
+        rows = self.rows if self.record else None
         for size, took in node.part_times:
-            tid = _thread(threads, t)
-            s = threads[tid]
-            if s < t:
-                s = t
+            for tid, s in enumerate(threads):
+                if s <= t:
+                    s = t
+                    break
+            else:  # every thread busy: the first free (lowest-numbered among equals)
+                s = min(threads)
+                tid = threads.index(s)
             e = threads[tid] = s + took
             if e > end:
                 end = e
-            if self.first is None or s < self.first:
-                self.first = s
-            if self.record:
-                self.rows.append((f, "host", self.m.thread_names[tid], node.task.step, node.name, s, e,
-                                  size, node.waits_for))
-        return end
-
-    def _queue_task(self, node: _Node, f: int, ready: int, cross: int) -> int:
-        """After its inputs, the task before it on its queue and its submit clock; then its gap,
-        its pass or copy time, and its bytes at the link's fixed rate."""
-        m, stream = self.m, node.stream
-        s = self.queue_end.get(stream, 0)
-        if ready > s:
-            s = ready
-        if m.timeline:
-            if node.cpu:  # the thread wakes on its input; nothing to submit
-                if cross > NEG and cross + m.dispatch > s:
-                    s = cross + m.dispatch
-            else:
-                clock = self.sub.get(stream, 0)
-                if cross > NEG and cross + m.dispatch > clock:
-                    clock = cross + m.dispatch
-                clock += m.submit
-                self.sub[stream] = clock
-                if clock > s:
-                    s = clock
-        s += node.gap
-        e = self.queue_end[stream] = s + node.time
-        if self.first is None or s < self.first:
-            self.first = s
-        if self.record:
-            self.rows.append((f, node.device, node.engine, node.task.step, node.name, s, e, node.nbytes,
-                              node.waits_for))
-        return e
+            if s < first:
+                first = s
+            if rows is not None:
+                rows.append((f, "host", names[tid], node.step, node.name, s, e, size, node.waits_for))
+        return end, first
 
     def forget_before(self, f: int) -> None:
         if f > 0:
@@ -325,16 +364,33 @@ class _Recurrence:
 
     # ----- the repeat --------------------------------------------------------------------
     def look_for_repeat(self, f: int) -> Repeat | None:
-        """Note frame f's state; at its second sight, the repeat (None if nothing to skip)."""
+        """Note frame f's state; at its second sight, the repeat (None if nothing to skip).
+
+        The state (:meth:`_state`) is written relative to the frame's present only when a
+        part of it, the phase and the queues' clocks, was met before: until then frame f's
+        values are kept as they are (a few tuples, C speed), to be written relative later if
+        needed. Same repeat, found at the same frame, as writing every frame's state."""
         ref = int(self.present[f])
-        key = self._state(f, ref) + self.skips.state(ref)
-        marks = {n: len(v) for n, v in self.skips.frames.items()}
-        earlier = self.seen.get(key)
+        snap = self._snapshot(f, ref)
+        cheap = (f % len(self.m.phases), tuple(map(ref.__rsub__, self.queue_end.values())))
+        candidates = self.seen.get(cheap)
+        if candidates is None:
+            self.seen[cheap] = [[snap, None]]
+            return None
+        key = self._state(snap)
+        earlier = None
+        for entry in candidates:  # their states differ from each other: one at most matches
+            if entry[1] is None:
+                entry[1] = self._state(entry[0])
+            if entry[1] == key:
+                earlier = entry[0]
+                break
         if earlier is None:
-            self.seen[key] = (f, ref, len(self.rows), marks)
+            candidates.append([snap, key])
             return None
         self.seen.clear()
-        f1, t1, r1, m1 = earlier
+        f1, t1, r1, m1 = earlier[:4]
+        marks = snap[3]
         p, shift = f - f1, ref - t1
         self.found = {"period_frames": p, "period_ns": shift, "from_frame": f1 + 1}
         copies = max(0, (self.m.program.frames - (f + 2)) // p)
@@ -343,23 +399,37 @@ class _Recurrence:
         return Repeat(p, shift, copies, f1 + 1, (r1, len(self.rows)),
                       skipped={n: (m1.get(n, 0), k) for n, k in marks.items()})
 
-    def _state(self, f: int, ref: int) -> tuple:
-        """What the frames after `f` read, relative to frame f's present. A thread idle since
-        before the last dispatch and a submit clock (without submit cost) behind its queue are
-        the same state whatever their exact value, so they are written as those bounds."""
-        m, minus, queue_end = self.m, ref.__rsub__, self.queue_end  # minus(x) = x - ref
+    def _snapshot(self, f: int, ref: int) -> tuple:
+        """Frame f's state as it is (absolute times): (frame, its present, rows so far,
+        skipped instances so far per task, the recent frames' ends (their dictionaries, never
+        changed once their frame is done), the queues' clocks, the submit clocks, the
+        threads, the host's last dispatch, the skip chains')."""
+        skips = self.skips
+        return (f, ref, len(self.rows), {n: len(v) for n, v in skips.frames.items()},
+                self.ends[max(0, f - self.m.lag + 1):f + 1], tuple(self.queue_end.items()),
+                tuple(self.sub.items()), tuple(self.threads), self.host_prev,
+                (tuple(skips.busy_until.items()), tuple(skips.last_ready.items())))
+
+    def _state(self, snap: tuple) -> tuple:
+        """What the frames after a snapshot's frame read, relative to its present. A thread
+        idle since before the last dispatch and a submit clock (without submit cost) behind
+        its queue are the same state whatever their exact value, so they are written as those
+        bounds."""
+        f, ref, _rows, _marks, recent_ends, queue_items, sub_items, threads, host_prev, skips = snap
+        m, minus = self.m, ref.__rsub__  # minus(x) = x - ref
         # Ends and clocks are never NEG. A frame's ends are in its phase's task order (the phase
         # is in the state), the clocks in the order the streams first ran: values alone, in
         # order, with the streams' names once.
-        recent = tuple(tuple(map(minus, self.ends[g].values())) for g in range(max(0, f - m.lag + 1), f + 1))
+        recent = tuple([tuple(map(minus, ends.values())) for ends in recent_ends])
+        queue_end = dict(queue_items)
         if m.submit:
-            clocks = tuple(map(minus, self.sub.values()))
+            clocks = tuple([c - ref for _q, c in sub_items])
         else:
-            clocks = tuple(max(c, queue_end.get(q, 0)) - ref for q, c in self.sub.items())
-        idle = max(self.host_prev, 0)
+            clocks = tuple([max(c, queue_end.get(q, 0)) - ref for q, c in sub_items])
+        idle = max(host_prev, 0)
         return (f % len(m.phases), recent, tuple(queue_end), tuple(map(minus, queue_end.values())),
-                tuple(self.sub), clocks, tuple(t - ref if t > idle else None for t in self.threads),
-                self.host_prev - ref if self.host_prev > NEG else NEG)
+                tuple([q for q, _c in sub_items]), clocks, tuple([t - ref if t > idle else None for t in threads]),
+                host_prev - ref if host_prev > NEG else NEG) + _Skips.relative(skips, ref)
 
 
 class _Skips:
@@ -390,11 +460,16 @@ class _Skips:
     def ran(self, leader: str, end: int) -> None:
         self.busy_until[leader] = max(self.busy_until.get(leader, NEG), end)
 
-    def state(self, ref: int) -> tuple:
+    @staticmethod
+    def relative(items: tuple[tuple, tuple], ref: int) -> tuple:
+        """The chains' state from (busy_until items, last_ready items), relative to `ref`."""
+        busy, last = items
+        if not busy and not last:
+            return ((), ())  # no skippable task has run yet (or the program has none)
+
         def rel(x: int) -> int:
             return x - ref if x > NEG else NEG
-        return (tuple(sorted((k, rel(v)) for k, v in self.busy_until.items())),
-                tuple(sorted((k, rel(v)) for k, v in self.last_ready.items())))
+        return (tuple(sorted((k, rel(v)) for k, v in busy)), tuple(sorted((k, rel(v)) for k, v in last)))
 
 
 def _skip_chains(nodes: list[_Node]) -> dict[str, tuple[str, tuple[str, ...] | None]]:
@@ -422,32 +497,36 @@ def _extend_frames(frames: list[int], computed: int, total: int, period: int) ->
 def _extend(values: np.ndarray, computed: int, repeat: Repeat) -> None:
     """Fill frames from `computed` on: each is the one `repeat.frames` earlier plus the shift."""
     p, t = repeat.frames, repeat.ns
-    for f in range(computed, len(values), p):
-        n = min(p, len(values) - f)
-        values[f:f + n] = values[f - p:f - p + n] + t
-
-
-def _thread(free: list[int], t: int) -> int:
-    """The memcpy thread a part dispatched at `t` runs on: the lowest-numbered idle one, else
-    the first to become idle (the engine's pool)."""
-    for tid, at in enumerate(free):
-        if at <= t:
-            return tid
-    return min(range(len(free)), key=lambda i: (free[i], i))
+    k = np.arange(len(values) - computed, dtype=np.int64)
+    if len(k):  # frame computed + k: the one of the last computed period, k // p + 1 steps on
+        values[computed:] = values[computed - p + k % p] + t * (k // p + 1)
 
 
 def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str], record_trace: bool = True,
                  progress: Callable[[int, int], None] | None = None):
     """A RawResult from the recurrence, for :func:`mgpusim.results.summary.build_result`.
     `progress(done, total)`: frames computed and frames to compute, now and then."""
-    model = Analytic(program, costs, effects)
-    rows, start, present, repeat = model.run(record=record_trace, progress=progress)
-    skipped = {n: len(v) for n, v in model.skipped_frames.items()}
-    raw = RawResult(rows, start, present, {}, skipped, {}, dict(model.skipped_frames),
+    return model_raw(Analytic(program, costs, effects), record_trace, progress)
+
+
+def model_raw(model: Analytic, record_trace: bool = True,
+              progress: Callable[[int, int], None] | None = None):
+    """:func:`analytic_raw` of a model already built (which it leaves as it was)."""
+    out = model.evaluate(record=record_trace, progress=progress)
+    program = model.program
+    skipped = {n: len(v) for n, v in out.skipped_frames.items()}
+    raw = RawResult(out.rows, out.start, out.present, {}, skipped, {}, dict(out.skipped_frames),
                     present_task=program.present_task, inputs=model.inputs)
     raw.recorded = record_trace
-    raw.repeat = repeat
-    found = model.found
+    raw.repeat = out.repeat
+    if out.repeat is not None and model.presents_on_gpu:
+        # every frame's start and present, as the rows' repeats would give them: the state
+        # repeats, so each frame past those computed is the one a period earlier, shifted
+        computed = program.frames - out.repeat.copies * out.repeat.frames
+        _extend(out.start, computed, out.repeat)
+        _extend(out.present, computed, out.repeat)
+        raw.frames_whole = True
+    found = out.found
     raw.fast_forward = {"used": found is not None}
     if found is None:
         raw.fast_forward["why"] = "no repeat found"
@@ -455,111 +534,10 @@ def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str
         raw.fast_forward.update(why=f"state repeats every {found['period_frames']} frame(s), "
                                     f"{found['period_ns']} ns, from frame {found['from_frame']}", **found)
     approximations = list(model.approximations)
-    if model.ties:
-        approximations.append(f"skippable tasks: {model.ties} skip decision(s) tied with a chain's end "
+    if out.ties:
+        approximations.append(f"skippable tasks: {out.ties} skip decision(s) tied with a chain's end "
                               "(taken as finished)")
     raw.effects = {"analytic_exact": not approximations}
     if approximations:
         raw.effects["analytic_approximations"] = approximations
     return raw
-
-
-# ----- many hardware variants at once -------------------------------------------------------
-def sweep(program: FrameProgram, costs: CostModel, pass_scale: np.ndarray, link_scale: np.ndarray,
-          effects: frozenset[str] | None = None) -> dict[str, np.ndarray]:
-    """Frame time and latency (ms, after warm-up) of one program on many hardware variants at
-    once: variant i has every pass `pass_scale[i]` times as long and every link and host-memory
-    transfer `link_scale[i]` times as long (rounded once, half up, like the model's costs).
-    With both scales 1 it is :class:`Analytic` exactly; one numpy lane per variant. Programs
-    with skippable tasks are refused (their skips are decided per variant, not as arrays)."""
-    if any(t.skip_if_busy for tasks in program.templates for t in tasks):
-        raise InputError(f"schedule {program.schedule!r} has skippable tasks: sweep them one "
-                         "configuration at a time (simulate(..., fidelity='analytic'))")
-    pass_scale = np.asarray(pass_scale, dtype=np.float64)
-    link_scale = np.asarray(link_scale, dtype=np.float64)
-    model = Analytic(program, costs, effects if effects is not None else
-                     choose_effects(program, costs.profile, "analytic"))
-    n = len(pass_scale)
-    dur = {}
-    for phase in model.phases:
-        for node in phase:
-            if node.stream == "host":
-                sizes = [np.floor(size / float(node.rate) * link_scale + 0.5).astype(np.int64)
-                         for size in node.parts]
-                dur[node.name] = (node.fixed, sizes)
-            elif isinstance(node.task, PassTask):
-                raw = costs.pass_cost_ns(node.task.queue.device, node.task.kind, node.task.work)
-                dur[node.name] = np.floor(raw * pass_scale + 0.5).astype(np.int64)
-            else:
-                move = (np.floor(node.nbytes / float(node.rate) * link_scale + 0.5).astype(np.int64)
-                        if node.rate is not None and node.nbytes else 0)
-                dur[node.name] = node.fixed + move
-    return _vector_run(model, dur, n)
-
-
-def _vector_run(model: Analytic, dur: dict, n: int) -> dict[str, np.ndarray]:
-    program = model.program
-    frames, period = program.frames, len(model.phases)
-    ends: list[dict[str, np.ndarray]] = []
-    zero = np.zeros(n, dtype=np.int64)
-    neg = np.full(n, NEG, dtype=np.int64)
-    queue_end: dict[str, np.ndarray] = {}
-    sub: dict[str, np.ndarray] = {}
-    free = np.zeros((model.threads, n), dtype=np.int64)
-    lanes = np.arange(n)
-    host_prev = neg
-    start = np.empty((frames, n), dtype=np.int64)
-    present = np.empty((frames, n), dtype=np.int64)
-    for f in range(frames):
-        here: dict[str, np.ndarray] = {}
-        ends.append(here)
-        first = np.full(n, np.iinfo(np.int64).max, dtype=np.int64)
-        for node in model.phases[f % period]:
-            ready, cross = neg, neg
-            for dep, off, crosses in node.deps:
-                if f + off < 0:
-                    continue
-                e = ends[f + off][dep] if off else here[dep]
-                ready = np.maximum(ready, e)
-                if crosses:
-                    cross = np.maximum(cross, e)
-            if node.stream == "host":
-                t = np.maximum(np.maximum(ready, host_prev), 0)
-                if model.timeline:
-                    t = np.where(cross > NEG, np.maximum(t, cross + model.copy_wake + model.dispatch), t)
-                host_prev = t
-                fixed, sizes = dur[node.name]
-                end = neg
-                for size in sizes:
-                    idle = free <= t
-                    tid = np.where(idle.any(axis=0), idle.argmax(axis=0), free.argmin(axis=0))
-                    s = np.maximum(t, free[tid, lanes])
-                    e = s + fixed + size
-                    free[tid, lanes] = e
-                    end = np.maximum(end, e)
-                    first = np.minimum(first, s)
-                here[node.name] = end
-                continue
-            s = np.maximum(ready, queue_end.get(node.stream, zero))
-            if model.timeline:
-                clock = sub.get(node.stream, zero)
-                clock = np.where(cross > NEG, np.maximum(clock, cross + model.dispatch), clock) + model.submit
-                sub[node.stream] = clock
-                s = np.maximum(s, clock)
-            s = s + node.gap
-            e = s + dur[node.name]
-            queue_end[node.stream] = e
-            here[node.name] = e
-            first = np.minimum(first, s)
-        start[f], present[f] = first, here[program.present_task]
-        if f > model.lag:
-            ends[f - model.lag - 1] = {}
-    w = program.warmup_frames
-    steady = present[w:]
-    if len(steady) > 1:
-        frame_ns = (steady[-1] - steady[0]) / (len(steady) - 1)
-    else:
-        origin = present[w - 1] if w else start[w]
-        frame_ns = (steady[0] - origin).astype(np.float64)
-    latency = (present[w:] - start[w:]).mean(axis=0)
-    return {"frame_time_ms": frame_ns / 1e6, "latency_ms": latency / 1e6}

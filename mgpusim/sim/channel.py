@@ -82,6 +82,9 @@ class Channel:
         self._settle_pending = False
         self._solo: dict[int, tuple[Fraction | None, Fraction, int, int]] = {}
         self._epoch = 0  # fast-path ends planned before the last switch to the solver are stale
+        #: how a fast-path end triggers its flow's event: the model's Environment processes it
+        #: at once where nothing else is due (same order); plain SimPy's schedules it
+        self._succeed: Callable[[simpy.Event], object] = getattr(env, "succeed_now", simpy.Event.succeed)
         self._crowd = 4  # flows the scale can split among exactly
         self._denoms = self.bandwidth.denominator
         if self.oversubscribed is not None:
@@ -176,7 +179,7 @@ class Channel:
         self.flows.remove(flow)
         if not self.flows:
             self.busy.append((self._busy_since, self.env.now))
-        flow.done.succeed()
+        self._succeed(flow.done)  # (the timeout's only callback: at once if nothing else is due now)
 
     def _to_fluid(self, flow: _Flow, now: int) -> None:
         self._fit_scale(flow)
@@ -224,7 +227,7 @@ class Channel:
         for f in self.flows:
             if f.cap is not None and f.cap_s is None:
                 f.cap_s = f.cap.numerator * (scale // f.cap.denominator)
-        flows = sorted(self.flows, key=_cap_key)
+        flows = self.flows if len(self.flows) == 1 else sorted(self.flows, key=_cap_key)
         n = len(flows)
         for k, flow in enumerate(flows):
             fair = left // (n - k)  # exact: see the module docstring
@@ -285,11 +288,15 @@ class Channel:
 
     def _plan(self) -> None:
         self._gen += 1
-        due = [f for f in self.flows if f.nbytes != OCCUPANT]
-        if not due:
+        wake = None
+        for f in self.flows:
+            if f.nbytes != OCCUPANT:
+                at = (2 * f.remaining + f.rate) // (2 * f.rate)
+                if wake is None or at < wake:
+                    wake = at
+        if wake is None:
             return  # only occupants: nothing ends until one is released
-        wake = min(self._t + (2 * f.remaining + f.rate) // (2 * f.rate) for f in due)
-        wake = max(wake, self.env.now)
+        wake = max(self._t + wake, self.env.now)
         self.env.timeout(wake - self.env.now).callbacks.append(Wake((self, self._gen)))
 
     # ----- state (for the fast-forward) -----------------------------------------------------

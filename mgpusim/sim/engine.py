@@ -68,6 +68,13 @@ class _Op:
     #: the duration is a measured one (the replay level): a copy or host-copy part spends
     #: exactly `duration`, crossing no channel
     measured: bool = False
+    #: the task's name (read in the hot loop)
+    name: str = ""
+    #: its entry of the engine's dependents table (set once the op is built)
+    dependents: list = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "name", self.task.name)
 
 
 class _Stream:
@@ -111,6 +118,9 @@ class RawResult:
     #: set by a fast-forward: how the logs repeat (mgpusim.sim.fastforward.Repeat)
     repeat: object = None
     fast_forward: dict = field(default_factory=dict)
+    #: `frame_start` and `present_end` already cover every frame of the run, repeats included
+    #: (the analytic level extends them itself; else they are built from the rows)
+    frames_whole: bool = False
 
 
 class Engine:
@@ -176,10 +186,11 @@ class Engine:
         self._setup_resources()
 
     # ----- build -------------------------------------------------------------------------
-    def _reverse_deps(self) -> list[dict[str, list[tuple[str, int, Task, int, int, bool]]]]:
+    def _reverse_deps(self) -> list[dict[str, list[tuple[str, int, Task, int, int, bool, bool]]]]:
         """dependents[phase][name] = [(dependent, frame distance k >= 0, its task, its number
         of dependencies, the frame from which all of them exist, whether the edge crosses
-        devices or the host: a host thread must wake to act on it)]."""
+        devices or the host: a host thread must wake to act on it, whether the dependent is
+        skippable)]."""
         out: list[dict[str, list]] = [defaultdict(list) for _ in range(self.period)]
         for q, tasks in enumerate(self.program.templates):
             for task in tasks:
@@ -189,7 +200,7 @@ class Engine:
                     producer = self._index[(q - k) % self.period][dep.task]
                     cross = wakes_host(producer, task, leads_chain(task, self._index[q]))
                     out[(q - k) % self.period][dep.task].append(
-                        (task.name, k, task, len(task.deps), lag, cross))
+                        (task.name, k, task, len(task.deps), lag, cross, task.skip_if_busy))
         return out
 
     def _setup_resources(self) -> None:
@@ -209,6 +220,7 @@ class Engine:
             self._ops.append([])
             for task in tasks:
                 op = self._op(phase, task)
+                object.__setattr__(op, "dependents", self._dependents[phase].get(task.name, []))
                 self._ops[-1].append(op)
                 if isinstance(task, HostCopyTask):
                     host_ops[phase].append(op)
@@ -231,13 +243,16 @@ class Engine:
             if host_ex.copies_on_cores:  # a memcpy thread is one core's work
                 self._part_event = lambda size, cap: host_ex.work(-(-size * cap.denominator // cap.numerator))
             else:
-                self._part_event = lambda size, cap: memory.transfer(size, cap)
+                self._part_event = memory.transfer
             self._start_stream(host_ops, host=True)
 
     def _start_stream(self, plan: list[list[_Op]], host: bool) -> None:
         stream = _Stream(host)
         self.streams.append(stream)
-        self.processes.append(self.env.process(self._stream_proc(plan, stream)))
+        lean = (not host and not self._host_timeline and self._busy_wake is None
+                and not any(op.gap or op.fill_cores is not None for ops in plan for op in ops))
+        proc = self._lean_stream_proc(plan, stream) if lean else self._stream_proc(plan, stream)
+        self.processes.append(self.env.process(proc))
 
     def _op(self, phase: int, task: Task) -> _Op:
         """Everything the hot loop needs about one task, computed once."""
@@ -430,31 +445,40 @@ class Engine:
         self._pending[key] = count
         return False
 
-    def _complete(self, frame: int, task: Task, skipped: bool = False) -> None:
+    def _complete(self, frame: int, task: Task, skipped: bool = False,
+                  dependents: list | None = None) -> None:
+        """An instance is done: count it off its dependents' inputs; those with none left are
+        ready (their waiting stream resumes, or finds them ready when it gets there).
+        `dependents`: the task's entry of the dependents table, where the caller has it."""
         self._unfinished -= 1
         if not skipped and task.skip_if_busy:
             self._chains.finished(frame, task)
-        frames, pending, timeline = self.horizon, self._pending, self._host_timeline
-        for name, k, dtask, ndeps, lag, cross in self._dependents[frame % self.period].get(task.name, ()):
+        if dependents is None:
+            dependents = self._dependents[frame % self.period].get(task.name)
+        if not dependents:
+            return
+        frames, pending, waiters = self.horizon, self._pending, self._waiters
+        cross_done = self._cross_done if self._host_timeline else None
+        for name, k, dtask, ndeps, lag, cross, skippable in dependents:
             g = frame + k
             if g >= frames:
                 continue
             key = (g, name)
-            if cross and timeline:
-                self._cross_done[key] = self.env.now
-            left = pending.get(key)
-            if left is None:
-                left = ndeps if g >= lag else self._initial(g, dtask)
-            left -= 1
+            if cross and cross_done is not None:
+                cross_done[key] = self.env.now
+            if g >= lag:  # all its inputs exist: count them down from ndeps (one lookup)
+                left = pending.pop(key, ndeps) - 1
+            else:
+                left = pending.pop(key, None)
+                left = (self._initial(g, dtask) if left is None else left) - 1
             if left:
                 pending[key] = left
                 continue
-            pending.pop(key, None)
-            if dtask.skip_if_busy:
+            if skippable:
                 self._chains.ready(key, dtask)
-            waiter = self._waiters.pop(key, None)
+            waiter = waiters.pop(key, None)
             if waiter is not None:
-                waiter.succeed()
+                self.env.trigger(waiter)
             else:
                 self._ready.add(key)
 
@@ -543,6 +567,47 @@ class Engine:
                 finish(frame, op, op.engine, start, op.nbytes)
             frame += 1
 
+    def _lean_stream_proc(self, plan: list[list[_Op]], st: _Stream):
+        """:meth:`_stream_proc` for a queue with nothing between its task's inputs and its
+        work: no host timeline (dispatch, submit), no idle gaps, no busy_wake. The same steps
+        in the same order, without the tests for what it lacks (the hot path of most runs)."""
+        env, period, skip, ready = self.env, self.period, self._skip, self._ready
+        waiters, check_ready, complete = self._waiters, self._check_ready, self._complete
+        frame_start, rows = self.frame_start, self.rows
+        frame = 0
+        while frame < self.horizon:
+            st.frame = frame
+            for op in plan[frame % period]:
+                st.op = op
+                key = (frame, op.name)
+                if key in ready:  # the common case: dependencies already met
+                    ready.discard(key)
+                elif not check_ready(key, op.task):
+                    ev = waiters[key] = env.event()
+                    st.at = DEPS
+                    yield ev
+                if skip and key in skip:
+                    self._skip_task(key, op.task)
+                    continue
+                start = st.start = env.now
+                if op.run is not None:
+                    st.at = RUN
+                    yield op.run(op.amount)
+                if op.channel is not None:
+                    st.at = TRANSFER
+                    yield op.channel.transfer(op.nbytes, op.cap)
+                # _finish, inline
+                if start < frame_start[frame]:
+                    frame_start[frame] = start
+                if self.record:
+                    rows.append((frame, op.device, op.engine, op.task.step, op.name, start, env.now,
+                                 op.nbytes, op.waits_for))
+                if op.is_present:
+                    self._finish_present(frame, op)
+                else:
+                    complete(frame, op.task, False, op.dependents)
+            frame += 1
+
     def _skip_task(self, key: Key, task: Task) -> None:
         self._skip.discard(key)
         self._cross_done.pop(key, None)
@@ -556,18 +621,25 @@ class Engine:
             self.rows.append((frame, op.device, engine, op.task.step, op.task.name, start, end, nbytes,
                               op.waits_for))
         if not op.is_present:
-            self._complete(frame, op.task)
-        elif self.refresh_period is None:
+            self._complete(frame, op.task, False, op.dependents)
+        else:
+            self._finish_present(frame, op)
+
+    def _finish_present(self, frame: int, op: _Op) -> None:
+        """The present task ended now: the frame presents, or (vsync) is shown, and its
+        present completes, at the next free refresh."""
+        if self.refresh_period is None:
             self._presented(frame, op)
-        else:  # vsync: the frame is shown (and its present complete) at the next free refresh
-            flip = self._next_vblank(end)
-            self.env.timeout(flip - end).callbacks.append(_Presented(self, frame, op))
+            return
+        end = self.env.now
+        flip = self._next_vblank(end)
+        self.env.timeout(flip - end).callbacks.append(_Presented(self, frame, op))
 
     def _presented(self, frame: int, op: _Op) -> None:
         self.present_end[frame] = self.env.now
         if self.on_present is not None:
             self.on_present(frame)
-        self._complete(frame, op.task)
+        self._complete(frame, op.task, False, op.dependents)
 
     def _next_vblank(self, t: int) -> int:
         """The first refresh at or after `t` and after the last flip (FIFO: one image per
@@ -621,7 +693,7 @@ class Engine:
             self.rows.append((frame, "host", self._threads_all[tid], op.task.step, op.task.name, start,
                               self.env.now, size, op.waits_for))
         if state[0] == 0:
-            self._complete(frame, op.task)
+            self._complete(frame, op.task, False, op.dependents)
 
     # ----- state (for the fast-forward) ------------------------------------------------------
     @property

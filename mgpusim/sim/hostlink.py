@@ -130,6 +130,11 @@ def share(flows: list[_Flow], links: dict[str, Fraction], capacity: Fraction) ->
     """Max-min fair rates for `flows`, each crossing its link and the host channel of
     `capacity`, each at most its cap: raise all unfrozen rates together to the lowest level at
     which a resource fills or a cap is reached, freeze the flows held there, repeat."""
+    if len(flows) == 1:  # alone: the least of the host's capacity, its link and its cap
+        f = flows[0]
+        level = min(capacity, links[f.link])
+        f.rate = level if f.cap is None or f.cap > level else f.cap
+        return
     for f in flows:
         f.rate = Fraction(0)
     free = list(flows)

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
-from typing import Callable, Mapping
+from typing import Any, Callable, Mapping
 
 from mgpusim.model.costs import CostModel
 from mgpusim.model.errors import TimeBoundError
@@ -17,6 +17,7 @@ from mgpusim.schedules.program import build_program, on_queues, run_config
 from mgpusim.sim import fastforward
 from mgpusim.sim.effects import choose_effects
 from mgpusim.sim.engine import Engine
+from mgpusim.sim.prepared import cached
 
 __all__ = ["build_program", "run_config", "simulate"]
 
@@ -38,12 +39,11 @@ def simulate(exp: Experiment, record_trace: bool = True, fidelity: str = "full",
     :func:`mgpusim.schedules.program.on_queues`). `progress(done, total)`: called now and then
     with the frames simulated so far and the frames the run will simulate (a fast-forward
     shortens it), for a command's progress bar."""
-    program = on_queues(build_program(exp), queues or {})
-    chosen = choose_effects(program, exp.profile, fidelity, effects)
+    program, chosen, analytic = _prepare(exp, queues, fidelity, effects)
     if "memory_capacity" in chosen:
         check_memory(program, exp)  # overflow is an input error, reported before time 0
     t0 = time.perf_counter()
-    raw = _run_model(exp, program, chosen, fidelity, record_trace, fast_forward, progress)
+    raw = _run_model(exp, program, chosen, fidelity, record_trace, fast_forward, progress, analytic)
     model_s = time.perf_counter() - t0
     result = build_result(raw, program.warmup_frames, run_config(exp, program))
     if "memory_capacity" in chosen:
@@ -56,6 +56,28 @@ def simulate(exp: Experiment, record_trace: bool = True, fidelity: str = "full",
     if band and has_cost_stderr(exp.profile):
         result.summary.update(_band(exp, program, chosen, fidelity))
     return result
+
+
+def _prepare(exp: Experiment, queues: Mapping[QueueRef, QueueRef] | None, fidelity: str,
+             effects: dict[str, bool] | None) -> tuple[FrameProgram, frozenset[str], Callable[[], Any] | None]:
+    """The program, the effects chosen and (analytic level) a builder of the recurrence's
+    model: kept per experiment object (:mod:`mgpusim.sim.prepared`) when the program is the
+    experiment's own (no `queues` moved)."""
+    if queues:
+        program = on_queues(build_program(exp), queues)
+        chosen = choose_effects(program, exp.profile, fidelity, effects)
+        return program, chosen, None
+    program = cached(exp, "program", lambda: build_program(exp))
+    force = tuple(sorted(effects.items())) if effects else ()
+    chosen = cached(exp, ("effects", fidelity, force), lambda: choose_effects(program, exp.profile, fidelity, effects))
+    if fidelity != "analytic" or program.refresh_hz:  # (the analytic level refuses vsync itself)
+        return program, chosen, None
+    return program, chosen, lambda: cached(exp, ("analytic", chosen), lambda: _analytic_model(exp, program, chosen))
+
+
+def _analytic_model(exp: Experiment, program: FrameProgram, chosen: frozenset[str]) -> Any:
+    from mgpusim.sim.analytic import Analytic  # noqa: PLC0415 (only this level needs it)
+    return Analytic(program, CostModel(exp.profile), chosen)
 
 
 def _band(exp: Experiment, program: FrameProgram, chosen: frozenset[str], fidelity: str) -> dict[str, float]:
@@ -74,14 +96,17 @@ def _band(exp: Experiment, program: FrameProgram, chosen: frozenset[str], fideli
 
 def _run_model(exp: Experiment, program: FrameProgram, chosen: frozenset[str], fidelity: str,
                record_trace: bool, fast_forward: bool,
-               progress: Callable[[int, int], None] | None = None):
-    """The engine (with its fast-forward) or the analytic recurrence: the RawResult."""
+               progress: Callable[[int, int], None] | None = None,
+               analytic: Callable[[], Any] | None = None):
+    """The engine (with its fast-forward) or the analytic recurrence: the RawResult.
+    `analytic`: gives the recurrence's model already built (else it is built here)."""
     costs = CostModel(exp.profile)
     try:
         if fidelity == "analytic":
             from mgpusim.sim.analytic import (  # noqa: PLC0415 (only this level needs it)
-                analytic_raw)
-            return analytic_raw(program, costs, chosen, record_trace, progress)
+                Analytic, model_raw)
+            model = analytic() if analytic is not None else Analytic(program, costs, chosen)
+            return model_raw(model, record_trace, progress)
         engine = Engine(program, costs, record_trace=record_trace or fast_forward, effects=chosen)
     except TimeBoundError as exc:  # the profile's rates times the experiment's work
         raise TimeBoundError(f"{exc.detail} (with the work of {exp.file})", file=exc.file,

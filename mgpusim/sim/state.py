@@ -10,9 +10,14 @@ an event is a :class:`Callback` that says what it will do.
 """
 from __future__ import annotations
 
+import heapq
+from collections import deque
 from typing import Any, Protocol
 
 import simpy
+from simpy.events import NORMAL
+
+_new_timeout = object.__new__
 
 
 class Unsupported(Exception):
@@ -53,9 +58,15 @@ class Callback:
 
 
 class Environment(simpy.Environment):
-    """SimPy's environment that also keeps a list of the events it schedules (through the
-    public `schedule`), so that what is pending can be read without SimPy's private queue.
-    Keeping it costs a little per event: the fast-forward stops it once it is done."""
+    """SimPy's environment, with the queue of scheduled events its own, so that what is
+    pending can be read (:meth:`pending`) without SimPy's private state, at no cost per event.
+
+    It processes events in SimPy's order (time, then priority, then scheduling order) with a
+    cheaper queue for the commonest kind: an event triggered for now at normal priority (a
+    stream's inputs met, a transfer done) goes to a first-in first-out list, not the heap.
+    Every such event was scheduled after every heap event due at the same time with normal
+    priority (those were scheduled at an earlier time), and urgent ones go first anyway: so
+    the heap's events due now run first, then the list in order, then time moves on."""
 
     def __init__(self) -> None:
         super().__init__()
@@ -64,27 +75,121 @@ class Environment(simpy.Environment):
         for name, obj in vars(simpy.Environment).items():
             if type(obj) is simpy.core.BoundClass:
                 setattr(self, name, getattr(self, name))
-        self._scheduled: list[tuple[int, int, int, simpy.Event]] = []
-        self._seq = 0
+        self.timeout = self._timeout  # type: ignore[method-assign]
+        #: the plain `schedule`: timeouts and triggers schedule inline while it is the one
+        #: (a caller may wrap `schedule`, e.g. to count events: they then go through it)
+        self._plain = self._schedule
+        self.schedule = self._plain  # type: ignore[method-assign]
         self.tracking = True
+        self._now_list: deque[simpy.Event] = deque()
 
-    def schedule(self, event: simpy.Event, priority: int = simpy.events.NORMAL, delay: int = 0) -> None:
-        super().schedule(event, priority, delay)
-        if self.tracking:
-            self._seq += 1
-            self._scheduled.append((self.now + delay, priority, self._seq, event))
+    def _schedule(self, event: simpy.Event, priority: int = NORMAL, delay: int = 0) -> None:
+        """SimPy's schedule, events for now at normal priority on the list."""
+        if delay or priority != NORMAL:
+            heapq.heappush(self._queue, (self._now + delay, priority, next(self._eid), event))
+        else:
+            self._now_list.append(event)
+
+    def _timeout(self, delay: int, value: Any = None) -> simpy.Timeout:
+        """SimPy's Timeout, made without its constructor's call chain."""
+        if delay < 0:
+            raise ValueError(f"Negative delay {delay}")
+        event = _new_timeout(simpy.Timeout)
+        event.env, event.callbacks, event._value, event._delay, event._ok = self, [], value, delay, True
+        if self.schedule is not self._plain:  # wrapped (e.g. counted): through `schedule`
+            self.schedule(event, NORMAL, delay)
+        elif delay:
+            heapq.heappush(self._queue, (self._now + delay, NORMAL, next(self._eid), event))
+        else:
+            self._now_list.append(event)
+        return event
+
+    def trigger(self, event: simpy.Event) -> None:
+        """`event.succeed()` for an event the model made and nobody else triggers."""
+        event._ok, event._value = True, None
+        if self.schedule is not self._plain:
+            self.schedule(event)
+        else:
+            self._now_list.append(event)
+
+    def peek(self) -> Any:
+        if self._now_list:
+            return self._now
+        return self._queue[0][0] if self._queue else simpy.core.Infinity
+
+    def _next(self) -> simpy.Event:
+        """The next event in SimPy's order (see the class doc); IndexError when none is left."""
+        queue, now_list = self._queue, self._now_list
+        if now_list and not (queue and queue[0][0] <= self._now):
+            return now_list.popleft()
+        self._now, _, _, event = heapq.heappop(queue)
+        return event
+
+    def step(self) -> None:
+        try:
+            event = self._next()
+        except IndexError:
+            raise simpy.core.EmptySchedule from None
+        callbacks, event.callbacks = event.callbacks, None
+        try:
+            for callback in callbacks:
+                callback(event)
+        except simpy.core.StopSimulation:
+            event.callbacks = callbacks[callbacks.index(callback) + 1:]
+            self.schedule(event, -1)  # (as SimPy's step: before anything else now)
+            raise
+        if not event._ok and not hasattr(event, "_defused"):
+            exc = type(event._value)(*event._value.args)
+            exc.__cause__ = event._value
+            raise exc
+
+    def run(self, until: Any = None) -> Any:
+        """SimPy's run, with its step inlined when it runs to the end (`until` None, the
+        engine's case): the same events in the same order, each callback called the same way,
+        a failed event not defused raised the same way; one method call less per event."""
+        if until is not None:
+            return super().run(until)
+        queue, now_list, pop, popleft = self._queue, self._now_list, heapq.heappop, self._now_list.popleft
+        while True:
+            if now_list and not (queue and queue[0][0] <= self._now):
+                event = popleft()
+            elif queue:
+                self._now, _, _, event = pop(queue)
+            else:
+                return None
+            callbacks, event.callbacks = event.callbacks, None
+            for callback in callbacks:
+                callback(event)
+            if not event._ok and not hasattr(event, "_defused"):
+                exc = type(event._value)(*event._value.args)
+                exc.__cause__ = event._value
+                raise exc
+
+    def succeed_now(self, event: simpy.Event) -> None:
+        """Trigger `event` from the last callback of the event being processed; when no other
+        event is due at this instant, process it at once: the next step would pop it, so it
+        runs in the same order, without a trip through the queue. (Only from a callback that
+        is its event's last: anything the callback left would run after it in SimPy.)"""
+        if self.peek() <= self.now:
+            event.succeed()
+            return
+        event._ok, event._value = True, None
+        callbacks, event.callbacks = event.callbacks, None
+        for callback in callbacks:
+            callback(event)
 
     def stop_tracking(self) -> None:
-        """Keep no more events (after the last look at what is pending): SimPy's own
-        `schedule` serves from now on, at no cost."""
+        """No more looks at what is pending (the fast-forward is done): :meth:`pending`
+        refuses from now on."""
         self.tracking = False
-        self._scheduled = []
-        self.schedule = simpy.Environment.schedule.__get__(self)  # type: ignore[method-assign]
 
     def pending(self) -> list[tuple[int, int, simpy.Event]]:
         """(time, priority, event) of every scheduled event not processed yet, in the order
-        SimPy will process them (time, then priority, then scheduling order)."""
+        SimPy will process them (time, then priority, then scheduling order): the heap's
+        events due now, the list of events for now, then the heap's later ones."""
         if not self.tracking:
             raise Unsupported("the environment stopped keeping its events")
-        self._scheduled = [entry for entry in self._scheduled if not entry[3].processed]
-        return [(t, p, ev) for t, p, _seq, ev in sorted(self._scheduled, key=lambda e: e[:3])]
+        now = self._now
+        heap = [(t, p, ev) for t, p, _eid, ev in sorted(self._queue)]
+        due = [entry for entry in heap if entry[0] <= now]
+        return due + [(now, NORMAL, ev) for ev in self._now_list] + heap[len(due):]

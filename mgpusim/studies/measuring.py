@@ -3,16 +3,21 @@
 Runs of the configurations are interleaved over the repeats, so that a slow phase of a noisy
 machine hits different configurations each round; with `steady_window` the compared run is
 the steady window of the repeats (:mod:`mgpusim.validation.steady_window`), written as a measured folder
-`runs/<config>/steady`. Every run is kept under `runs/<config>/run<k>`.
+`runs/<config>/steady`. Every run is kept under `runs/<config>/run<k>`. On lavapipe the speed
+probe is timed before the first run of a round and after every run, and each run's probes and
+the other processes' load during it go to `runs/run_speed.csv` (:mod:`.run_speed`): what the
+speed-normalized prediction and its refusal rule read.
 """
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 from typing import Any, Callable
 
 import pandas as pd
 
 from mgpusim.io.output import write_json, write_measured
+from mgpusim.studies import host_load, run_speed
 from mgpusim.studies import speed_probe as speed
 from mgpusim.studies.spec import Entry, Study
 from mgpusim.validation import run_archive
@@ -73,6 +78,23 @@ def _probe(out: Path, point: str, threads: int | None, progress: Progress) -> No
     speed.append_probe(out / speed.FILE, speed.measure_probe(point, threads))
 
 
+def _run_prober(threads: int | None) -> Any:
+    """The probe kept open over the runs (lavapipe studies; a no-op context on real GPUs)."""
+    return speed.Prober(threads) if threads is not None else contextlib.nullcontext()
+
+
+def _round_probe(out: Path, point: str, prober: speed.Prober | None,
+                 progress: Progress) -> list[dict[str, Any]]:
+    """The probe at the start of a round of runs, added to `out`'s probe table: the first run's
+    probe before it ([] on real GPUs)."""
+    if prober is None:
+        return []
+    progress(f"speed probe ({point})")
+    rows = prober.probe(point)
+    speed.append_probe(out / speed.FILE, rows)
+    return rows
+
+
 def _sweep_of(sweeps: tuple, name: str) -> dict[str, list[Any]]:
     """Pass `name`'s sweep among `sweeps` as plain lists ({} if it has none)."""
     return {k: list(v) for n, sweep in sweeps if n == name for k, v in sweep.items()}
@@ -90,18 +112,28 @@ def measure_runs(study: Study, entries: tuple[Entry, ...], profile: Path, out: P
     exps = {e.name: with_run_length(e.load(profile), rs.run_seconds, rs.max_frames) for e in entries}
     runs: dict[str, list[tuple[str, Any]]] = {e.name: [] for e in entries}
     out.mkdir(parents=True, exist_ok=True)
-    for rep in range(rs.repeats):
-        _probe(out, f"runs, round {rep + 1} of {rs.repeats}", threads, progress)
-        for e in entries:
-            progress(f"run {e.name} ({rep + 1}/{rs.repeats})")
-            gpus = exps[e.name].schedule.gpus
-            result = run_experiment(exps[e.name], devices=devices[:gpus] if devices else None,
-                                    lp_threads=None if threads is None else [threads] * gpus,
-                                    prewarm_frames=rs.prewarm_frames)
-            folder = out / e.name / f"run{rep}" if rs.repeats > 1 or rs.steady_window else out / e.name
-            write_measured(result, folder)
-            runs[e.name].append((f"run{rep}", result))
-    _probe(out, "after the runs", threads, progress)
+    with _run_prober(threads) as prober:
+        before: list[dict[str, Any]] = []
+        for rep in range(rs.repeats):
+            before = _round_probe(out, f"runs, round {rep + 1} of {rs.repeats}", prober, progress)
+            for e in entries:
+                progress(f"run {e.name} ({rep + 1}/{rs.repeats})")
+                gpus = exps[e.name].schedule.gpus
+                load = host_load.sample()
+                result = run_experiment(exps[e.name], devices=devices[:gpus] if devices else None,
+                                        lp_threads=None if threads is None else [threads] * gpus,
+                                        prewarm_frames=rs.prewarm_frames)
+                loaded = host_load.load_between(load, host_load.sample())
+                folder = out / e.name / f"run{rep}" if rs.repeats > 1 or rs.steady_window else out / e.name
+                write_measured(result, folder)
+                runs[e.name].append((f"run{rep}", result))
+                if prober is not None:  # the probe after this run is the one before the next
+                    after = prober.probe(f"after {e.name} run{rep}")
+                    run_speed.append(out / run_speed.FILE,
+                                     run_speed.record(e.name, f"run{rep}", before, after, loaded))
+                    before = after
+        if before:
+            speed.append_probe(out / speed.FILE, [{**r, "point": "after the runs"} for r in before])
     if rs.steady_window:
         for e in entries:
             write_steady_window(exps[e.name], runs[e.name], out / e.name)

@@ -33,7 +33,7 @@ from mgpusim.model.geometry import even_split
 from mgpusim.model.tasks import CopyTask, HostCopyTask, PassTask
 from mgpusim.schedules.experiment import load_experiment
 from mgpusim.schedules.program import build_program
-from mgpusim.sim.analytic import sweep
+from mgpusim.sim.analytic_lanes import sweep
 from mgpusim.sim.effects import EFFECTS, choose_effects
 from mgpusim.sim.engine import Engine
 from mgpusim.sim.simulation import simulate

@@ -13,15 +13,17 @@ import tomli_w
 
 from mgpusim.calibration.recipe import profile_from_tables, refine_on_runs
 from mgpusim.io.output import write_json
+from mgpusim.studies import run_speed
 from mgpusim.studies import speed_probe as speed
 from mgpusim.studies.measuring import (Progress, measure_microbenchmarks, measure_runs,
                                        measured_folder)
 from mgpusim.studies.spec import Entry, Study
 from mgpusim.studies.study_page import stats_line, write_study_page
-from mgpusim.validation import run_archive
+from mgpusim.validation import run_archive, speed_norm
 from mgpusim.validation.compare import error_stats, error_table
 from mgpusim.validation.crossvalidate import format_report, validate_experiment
 from mgpusim.validation.measured import read_measured
+from mgpusim.validation.speed_norm import RunSpeed
 
 CALIBRATION_TITLE = "Calibration runs (seen by the fit)"
 HELD_OUT_TITLE = "Held-out runs (never seen by the fit)"
@@ -94,12 +96,13 @@ def validate(study: Study, entries: tuple[Entry, ...], root: Path, profile: Path
     missing = without_runs(entries, root)
     if missing:
         progress(f"no measured run under {root} for {len(missing)} configuration(s): {', '.join(missing)}")
+    speeds = run_speeds(study, entries, root)
     for e in entries:
         folder = measured_folder(root, e.name)
         if e.name in missing:
             continue
         exp = e.load(profile, extra)
-        report = validate_experiment(exp, out / e.name, folder)
+        report = validate_experiment(exp, out / e.name, folder, speed=speeds.get(e.name))
         report["config"] = e.name
         progress(format_report(exp, report))
         rows.append((exp.schedule.name, report))
@@ -109,6 +112,22 @@ def validate(study: Study, entries: tuple[Entry, ...], root: Path, profile: Path
         table["run_to_run_spread"] = [r["measured_spread"] for _, r in rows]
         table = table.join(pd.DataFrame([most_off(r) for _, r in rows], index=table.index))
     return table
+
+
+def run_speeds(study: Study, entries: tuple[Entry, ...], root: Path) -> dict[str, RunSpeed]:
+    """Per entry with a speed record under `root` (a lavapipe job's `runs/run_speed.csv`), its
+    compared run's speed against the probe at calibration: the median over the study's
+    calibration runs under the same root ({} where there are no records)."""
+    table = run_speed.read(root / run_speed.FILE)
+    if table.empty:
+        return {}
+    ref = speed_norm.reference_ms(table, [(e.name, run_speed.compared_run(root, e.name))
+                                          for e in study.calibration])
+    if ref is None:
+        return {}
+    speeds = {e.name: speed_norm.speed_row(table, e.name, run_speed.compared_run(root, e.name), ref)
+              for e in entries}
+    return {name: sp for name, sp in speeds.items() if sp is not None}
 
 
 def most_off(report: dict[str, Any]) -> dict[str, Any]:
@@ -149,7 +168,8 @@ def run(study: Study, out: Path, progress: Progress, held_out: bool = True,
         tables_out[HELD_OUT_TITLE] = validate(study, study.held_out, out / "runs", profile,
                                               out / "validation", progress)
         missing[HELD_OUT_TITLE] = without_runs(study.held_out, out / "runs")
-    return write_report(out, study, tables_out, fit_text, probes_of(out / "runs"), missing)
+    return write_report(out, study, tables_out, fit_text, probes_of(out / "runs"), missing,
+                        run_speed.read(out / "runs" / run_speed.FILE))
 
 
 def probes_of(runs: Path) -> pd.DataFrame:
@@ -159,8 +179,10 @@ def probes_of(runs: Path) -> pd.DataFrame:
 
 def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_text: str,
                  probes: pd.DataFrame | None = None,
-                 missing: dict[str, list[str]] | None = None) -> Path:
-    """report.md: the machine's speed during the job (its probes, when measured); per half, the
+                 missing: dict[str, list[str]] | None = None,
+                 run_speeds: pd.DataFrame | None = None) -> Path:
+    """report.md: the machine's speed during the job (its probes, when measured, and each run's
+    from `run_speeds`, runs/run_speed.csv); per half, the
     configurations without a measured run (`missing`), and per schedule the error table, its
     statistics and the stacked measured/simulated timelines; errors.json (per half, with the
     configurations without runs) and errors_by_schedule.json; errors_*.csv; report.html, the
@@ -176,6 +198,7 @@ def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_t
              "noise. Each configuration's folder under validation/ holds `timelines.png` (measured "
              "above simulated) and both Perfetto traces.", ""]
     speed_lines = speed.report_lines(probes if probes is not None else speed.read_probes([]))
+    speed_lines += run_speed.report_lines(run_speeds if run_speeds is not None else pd.DataFrame())
     lines += speed_lines
     stats: dict[str, Any] = {}
     by_schedule: dict[str, dict[str, Any]] = {}
@@ -204,11 +227,21 @@ def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_t
     return path
 
 
+def refusals(stats: dict[str, Any]) -> list[str]:
+    """One line per half of a job whose verdict the speed rule refused (errors.json's stats)."""
+    return [f"{title}: {st['verdict']['refused']}" for title, st in stats.items()
+            if isinstance(st, dict) and "refused" in st.get("verdict", {})]
+
+
 def markdown_table(table: pd.DataFrame) -> str:
     head = ("| config | measured frame (ms) | simulated | error | replay error | spread | stalls left out | "
             "measured latency (ms) | simulated | error | replay error | step most off (simulated - measured) | "
             "hand-off most off (measured - simulated) |")
     rows = [head, "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    probed = "probe_ratio" in table
+    if probed:  # a lavapipe job's runs: the prediction at each run's own machine speed
+        rows = [head + " probe ratio (run / calibration) | normalized error | speed flag |",
+                rows[1] + "---|---|---|"]
     for r in table.itertuples():
         spread = getattr(r, "run_to_run_spread", float("nan"))
         stalls = getattr(r, "stalled_frames", 0)
@@ -217,8 +250,18 @@ def markdown_table(table: pd.DataFrame) -> str:
         rows.append(f"| {r.config} | {r.measured_frame_ms:.2f} | {r.simulated_frame_ms:.2f} | "
                     f"{r.frame_time_error:+.1%} | {rep:+.1%} | {spread:.0%} | {stalls or ''} | "
                     f"{r.measured_latency_ms:.2f} | {r.simulated_latency_ms:.2f} | {r.latency_error:+.1%} | "
-                    f"{rep_lat:+.1%} | {_step_cell(r)} | {_wait_cell(r)} |")
+                    f"{rep_lat:+.1%} | {_step_cell(r)} | {_wait_cell(r)} |"
+                    + (_speed_cells(r) if probed else ""))
     return "\n".join(rows)
+
+
+def _speed_cells(r: Any) -> str:
+    """Probe ratio, normalized frame-time error and flag (blank where the run has no probe)."""
+    if pd.isna(r.probe_ratio):
+        return " | | |"
+    flag = r.speed_flag if isinstance(r.speed_flag, str) and r.speed_flag else ""
+    return (f" {r.probe_ratio:.2f} | {r.normalized_frame_time_error:+.1%} | "
+            f"{'**flagged**: ' + flag if flag else ''} |")
 
 
 def _step_ms(step: dict[str, float]) -> float:

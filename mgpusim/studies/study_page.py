@@ -29,7 +29,9 @@ _COLUMNS = (("config", "config", 1), ("measured_frame_ms", "measured frame (ms)"
             ("simulated_latency_ms", "simulated latency (ms)", 1), ("latency_error", "latency error %", 100),
             ("replay_latency_error", "replay latency error %", 100),
             ("step_most_off", "step most off", 1), ("step_difference_ms", "its difference (ms)", 1),
-            ("wait_most_off", "hand-off most off", 1), ("wait_difference_ms", "its wait difference (ms)", 1))
+            ("wait_most_off", "hand-off most off", 1), ("wait_difference_ms", "its wait difference (ms)", 1),
+            ("probe_ratio", "probe ratio (run / calibration)", 1),
+            ("normalized_frame_time_error", "normalized error %", 100), ("speed_flag", "speed flag", 1))
 INTRO = ("Errors are simulated / measured - 1, at two levels: the prediction (the calibrated cost "
          "model) and the replay (the model's timeline with every task taking the duration the run "
          "measured for it: what is left is the timeline's own error). `spread` is the run-to-run "
@@ -49,6 +51,8 @@ def stats_line(st: Mapping[str, Any]) -> str:
             f"{st['worst_abs_frame_time_error']:.1%} over {st['configurations']} configurations; "
             f"median |latency error| {st['median_abs_latency_error']:.1%}, worst "
             f"{st['worst_abs_latency_error']:.1%}.")
+    if "normalized_median_abs_frame_time_error" in st:
+        line += " " + normalized_line(st)
     if "replay_median_abs_frame_time_error" in st:
         line += (f" Replay (the timeline on measured durations): frame time "
                  f"{st['replay_median_abs_frame_time_error']:.1%} / "
@@ -56,6 +60,19 @@ def stats_line(st: Mapping[str, Any]) -> str:
                  f"{st['replay_median_abs_latency_error']:.1%} / "
                  f"{st['replay_worst_abs_latency_error']:.1%} (median / worst).")
     return line
+
+
+def normalized_line(st: Mapping[str, Any]) -> str:
+    """The speed-normalized errors and the verdict (or its refusal) of one group of runs."""
+    v = st["verdict"]
+    line = (f"Speed-normalized (each run at its own probe ratio, median "
+            f"{st['median_probe_ratio']:.2f}): median |frame-time error| "
+            f"{st['normalized_median_abs_frame_time_error']:.1%}, worst "
+            f"{st['normalized_worst_abs_frame_time_error']:.1%}.")
+    if "refused" in v:
+        return line + f" **Refused: {v['refused']}.**"
+    return (line + f" Verdict over the {v['trusted_runs']} of {v['runs']} runs the speed rule "
+            f"trusts: median |frame-time error| {v['median_abs_frame_time_error']:.1%}.")
 
 
 def write_study_page(out: Path, name: str, tables: Mapping[str, pd.DataFrame], stats: Mapping[str, Any],

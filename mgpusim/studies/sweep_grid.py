@@ -5,7 +5,9 @@ runs six points and returns one row per point: the point's keys, every summary f
 (flattened to dotted columns: ``utilization.gpu0.graphics``) and an ``error`` column, so that
 a point whose override is invalid is a row, not the end of the sweep.
 
-Points run in local processes, or on a Dask cluster. Given an output folder, each finished
+Points run in local processes, or on a Dask cluster; at the analytic level, points that differ
+only in pass costs run together as numpy lanes (:mod:`mgpusim.studies.sweep_lanes`, saved one
+batch at a time), the rest as before. Given an output folder, each finished
 point is saved at once (see :mod:`mgpusim.io.sweep_store`) and a sweep started again over the
 same folder skips it: a sweep killed at any moment loses no finished point and recomputes none.
 A point is known by a hash of the experiment file's bytes, the base overrides, its keys and
@@ -23,11 +25,13 @@ import os
 import re
 import threading
 import time
+import warnings
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Mapping, Sequence
+from typing import Any, Iterator, Mapping, Sequence
 
+import numpy as np
 import pandas as pd
 
 from mgpusim.io.shipped import resolve_experiment
@@ -37,6 +41,7 @@ from mgpusim.model.limits import MAX_SWEEP_POINTS, MAX_SWEEP_WORKERS, WHY_SWEEP
 from mgpusim.schedules.experiment import load_experiment, parse_value
 from mgpusim.sim.effects import FIDELITIES
 from mgpusim.sim.simulation import simulate
+from mgpusim.studies.sweep_lanes import LaneRun, flatten
 
 #: How long to try reaching a Dask scheduler before giving up.
 DASK_CONNECT_TIMEOUT = "10s"
@@ -91,27 +96,25 @@ def grid_points(grid: Mapping[str, Sequence[Any]], identity: Mapping[str, Any]) 
     """The product of the grid (last key fastest); `identity` is what else makes a point's
     result (experiment bytes, base overrides, fidelity), hashed into every id."""
     keys = list(grid)
+    head = json.dumps(identity, sort_keys=True, default=str)
+    if not identity or any(k >= "point" for k in identity):  # "point" is not the last key
+        return [Point(i, dict(zip(keys, values)), _point_id({**identity, "point": dict(zip(keys, values))}))
+                for i, values in enumerate(itertools.product(*(grid[k] for k in keys)))]
+    # the same text as json.dumps({**identity, "point": point}, sort_keys=True), built from
+    # each value's text once (a 100k-point grid would spend seconds serialising)
+    by_name = sorted(range(len(keys)), key=lambda j: keys[j])
+    frags = [[f"{json.dumps(k)}: {json.dumps(v, sort_keys=True, default=str)}" for v in grid[k]] for k in keys]
+    prefix, suffix = head[:-1] + ', "point": {', "}}"
     points = []
-    for index, values in enumerate(itertools.product(*(grid[k] for k in keys))):
-        point = dict(zip(keys, values))
-        blob = json.dumps({**identity, "point": point}, sort_keys=True, default=str)
+    for index, choice in enumerate(itertools.product(*(range(len(grid[k])) for k in keys))):
+        blob = prefix + ", ".join([frags[j][choice[j]] for j in by_name]) + suffix
+        point = {k: grid[k][c] for k, c in zip(keys, choice)}
         points.append(Point(index, point, hashlib.sha256(blob.encode()).hexdigest()[:20]))
     return points
 
 
-def flatten(value: Any, prefix: str = "") -> dict[str, Any]:
-    """Nested dicts and lists as dotted columns: {"a": {"b": 1}, "w": [2, 3]} ->
-    {"a.b": 1, "w.0": 2, "w.1": 3}."""
-    if isinstance(value, Mapping):
-        items: Iterable[tuple[Any, Any]] = value.items()
-    elif isinstance(value, (list, tuple)):
-        items = enumerate(value)
-    else:
-        return {prefix: value}
-    out: dict[str, Any] = {}
-    for k, v in items:
-        out.update(flatten(v, f"{prefix}.{k}" if prefix else str(k)))
-    return out
+def _point_id(blob: Mapping[str, Any]) -> str:
+    return hashlib.sha256(json.dumps(blob, sort_keys=True, default=str).encode()).hexdigest()[:20]
 
 
 def check_grid(grid: Mapping[str, Sequence[Any]], overrides: Mapping[str, Any]) -> None:
@@ -237,14 +240,25 @@ def sweep(experiment: str | Path, grid: Mapping[str, Sequence[Any]], out: str | 
                 "fidelity": fidelity}
     points = grid_points(grid, identity)
     with _dask_client(dask) as client, _store(out) as store:
-        records = store.load({p.id for p in points}) if store else {}
-        todo = [p for p in points if p.id not in records]
-        for point, record in _progress(_run(path, base, options, todo, workers, client, store),
-                                       len(points), len(points) - len(todo), progress):
-            records[point.id] = record
-            if store:
-                store.save(point.id, {"keys": point.keys, **record})
-        df = table(points, records)
+        wanted = {p.id for p in points}
+        records = store.load(wanted) if store else {}
+        batches = store.load_batches(wanted) if store else []
+        done = set(records).union(*(b["id"] for b in batches))
+        todo = [p for p in points if p.id not in done]
+        with _bar(len(points), len(points) - len(todo), progress) as bar:
+            lanes = LaneRun(path, base, grid, todo if client is None else [], fidelity)
+            for batch in lanes:  # the analytic level over many points at once, saved per batch
+                if store:
+                    store.save_batch(batch)
+                batches.append(batch)
+                bar.update(len(batch))
+            rest = lanes.fallback if client is None else todo
+            for point, record in _run(path, base, options, rest, workers, client, store):
+                records[point.id] = record
+                if store:
+                    store.save(point.id, {"keys": point.keys, **record})
+                bar.update(1)
+        df = table(points, records, batches)
         check_metric_column(df, metric)
         if store:
             store.finish(df, list(grid), metric, {"experiment": str(path), "grid": grid, "overrides": base,
@@ -309,14 +323,30 @@ def check_inputs(path: Path, grid: Mapping[str, Sequence[Any]], overrides: Mappi
                              f"{first_error}", field=f"--grid {key}")
 
 
-def table(points: Sequence[Point], records: Mapping[str, Mapping[str, Any]]) -> pd.DataFrame:
-    """One row per point, in grid order: point, the keys, error, the summary columns, wall_s."""
-    rows = []
-    for p in points:
-        rec = records[p.id]
-        rows.append({"point": p.index, **p.keys, "error": rec["error"], **rec["summary"],
-                     "wall_s": rec["wall_s"]})
-    df = pd.DataFrame(rows)
+def table(points: Sequence[Point], records: Mapping[str, Mapping[str, Any]],
+          batches: Sequence[pd.DataFrame] = ()) -> pd.DataFrame:
+    """One row per point, in grid order: point, the keys, error, the summary columns, wall_s.
+    `records`: points run one by one; `batches`: tables of points run together (column `id`
+    and a record's fields as columns)."""
+    index = {p.id: p.index for p in points}
+    rows = [{"id": pid, "error": rec["error"], **rec["summary"], "wall_s": rec["wall_s"]}
+            for pid, rec in records.items() if pid in index]
+    parts, order = [pd.DataFrame(rows)] if rows else [], [index[r["id"]] for r in rows]
+    for b in batches:
+        at = np.array([index.get(pid, -1) for pid in b["id"].tolist()], dtype=np.int64)
+        parts.append(b[at >= 0])
+        order.extend(at[at >= 0].tolist())
+    with warnings.catch_warnings():  # all-missing columns of a part: the same dtypes as rows
+        warnings.simplefilter("ignore", FutureWarning)
+        df = pd.concat(parts, ignore_index=True) if len(parts) > 1 else parts[0].reset_index(drop=True)
+    if len(parts) > 1:  # a column's type as one table of all the rows would infer it
+        for col in [c for c in df.columns if pd.api.types.is_object_dtype(df[c])]:
+            df[col] = pd.Series(df[col].tolist(), index=df.index)
+    df = df.drop(columns="id").iloc[np.argsort(np.asarray(order), kind="stable")].reset_index(drop=True)
+    keys = list(points[0].keys)
+    df.insert(0, "point", np.arange(len(points), dtype=np.int64))
+    for i, key in enumerate(keys):
+        df.insert(1 + i, key, [p.keys[key] for p in points])
     summary = [c for c in df.columns if c not in META_COLUMNS and c not in points[0].keys]
     scalars = [c for c in summary if "." not in c]  # in the summary's own order
     df = df[["point", *points[0].keys, "error", *scalars, *sorted(set(summary) - set(scalars)), "wall_s"]]
@@ -387,12 +417,11 @@ def _exit_with_parent(parent: int, lock: tuple[int, int, int] | None = None) -> 
     threading.Thread(target=watch, daemon=True, name="exit-with-parent").start()
 
 
-def _progress(items: Iterator, total: int, done: int, enabled: bool) -> Iterator:
-    """A tqdm bar (points done of total, rate and ETA) on stderr around `items`."""
+@contextlib.contextmanager
+def _bar(total: int, done: int, enabled: bool) -> Iterator[Any]:
+    """A tqdm bar (points done of total, rate and ETA) on stderr."""
     from tqdm import tqdm  # noqa: PLC0415
 
     with tqdm(total=total, initial=done, desc="sweep", unit="point", disable=not enabled,
               dynamic_ncols=True) as bar:
-        for item in items:
-            yield item
-            bar.update(1)
+        yield bar

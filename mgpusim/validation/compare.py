@@ -17,6 +17,7 @@ import pandas as pd
 
 from mgpusim.results.summary import frames_from_trace, summarize
 from mgpusim.results.waits import compare_waits
+from mgpusim.validation.speed_norm import verdict
 
 
 def step_means_ns(trace: pd.DataFrame, first_frame: int) -> dict[str, float]:
@@ -96,8 +97,19 @@ def error_table(rows: list[dict[str, Any]]) -> pd.DataFrame:
         "latency_error": r["latency_error"],
         "replay_frame_time_error": r.get("replay_frame_time_error", float("nan")),
         "replay_latency_error": r.get("replay_latency_error", float("nan")),
-        "stalled_frames": len(r.get("stalls", {}).get("frames", {}))} for r in rows])
+        "stalled_frames": len(r.get("stalls", {}).get("frames", {})), **_speed_columns(r)}
+        for r in rows])
     return table
+
+
+def _speed_columns(r: dict[str, Any]) -> dict[str, Any]:
+    """The speed-normalized columns of a comparison that has them (a lavapipe study's runs)."""
+    sp = r.get("speed")
+    if not sp:
+        return {}
+    return {"probe_ratio": sp["probe_ratio"], "probe_disagreement": sp["probe_disagreement"],
+            "other_cores": sp["other_cores"], "normalized_frame_time_error": sp["frame_time_error"],
+            "normalized_latency_error": sp["latency_error"], "speed_flag": sp["flag"]}
 
 
 def error_stats(table: pd.DataFrame) -> dict[str, float]:
@@ -113,4 +125,22 @@ def error_stats(table: pd.DataFrame) -> dict[str, float]:
                      replay_worst_abs_frame_time_error=float(rep.max()),
                      replay_median_abs_latency_error=float(np.median(rep_lat)),
                      replay_worst_abs_latency_error=float(rep_lat.max()))
-    return stats
+    return {**stats, **_normalized_stats(table)}
+
+
+def _normalized_stats(table: pd.DataFrame) -> dict[str, Any]:
+    """The speed-normalized errors' median and worst over every run with a probe, and the
+    verdict over the runs the refusal rule trusts (:func:`speed_norm.verdict`)."""
+    if "normalized_frame_time_error" not in table:
+        return {}
+    probed = table[table["normalized_frame_time_error"].notna()]
+    if probed.empty:
+        return {}
+    norm = np.abs(probed["normalized_frame_time_error"].to_numpy())
+    flags = probed["speed_flag"].fillna("").astype(str).tolist()
+    return {"normalized_median_abs_frame_time_error": float(np.median(norm)),
+            "normalized_worst_abs_frame_time_error": float(norm.max()),
+            "normalized_median_abs_latency_error":
+                float(np.median(np.abs(probed["normalized_latency_error"].to_numpy()))),
+            "median_probe_ratio": float(probed["probe_ratio"].median()),
+            "verdict": verdict(flags, probed["normalized_frame_time_error"].tolist())}

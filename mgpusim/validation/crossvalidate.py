@@ -7,10 +7,12 @@ simulated and replayed traces, measured-above-simulated timelines and both Perfe
 Two levels, side by side: the *prediction* (the calibrated cost model) and the *replay* (the
 model's timeline on the run's own task durations, :mod:`mgpusim.validation.replayed`). Both
 model the schedule as it ran: tasks the runner ran on another queue than the schedule's are
-moved there first (`queues_as_run` in the report).
+moved there first (`queues_as_run` in the report). Where a lavapipe run's speed was probed, a
+third: the prediction at that run's own machine speed (`speed`, :func:`normalized`).
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +21,7 @@ import pandas as pd
 from mgpusim.io.output import frame_window, write_json, write_table, write_text
 from mgpusim.io.perfetto import chrome_trace_json
 from mgpusim.io.plot import comparison_png
+from mgpusim.model.speed_scale import at_speed
 from mgpusim.results.summary import Result
 from mgpusim.results.waits import LONG_WAIT_NS, host_split
 from mgpusim.schedules.experiment import Experiment
@@ -29,6 +32,7 @@ from mgpusim.validation.measured import (other_machine, queues_as_run, read_meas
                                          read_submissions, run_machine)
 from mgpusim.validation.repeated_runs import measure_repeated, run_spread
 from mgpusim.validation.replayed import replay_comparison
+from mgpusim.validation.speed_norm import RunSpeed
 
 #: The report lists the hand-offs whose mean wait differs by at least this much (ms), at most
 #: this many: the ones that explain a frame-time error, not every task.
@@ -37,16 +41,21 @@ SHOWN_WAITS = 3
 
 
 def validate_experiment(exp: Experiment, out: Path, measured_dir: Path | None = None,
-                        repeats: int = 3, run_seconds: float = 1.0) -> dict[str, Any]:
+                        repeats: int = 3, run_seconds: float = 1.0,
+                        speed: RunSpeed | None = None) -> dict[str, Any]:
     """Measure (or load) and simulate `exp`; write the comparison to `out`; return its summary.
 
     Measuring runs the experiment `repeats` times, each about `run_seconds` long, under
     `out/measured/` and compares their steady window (:mod:`mgpusim.periodic_runs`); the
-    report's `measured_spread` is how far the whole runs differed."""
+    report's `measured_spread` is how far the whole runs differed. With the compared run's
+    `speed` (a lavapipe study's probes) the report also has the prediction at that run's own
+    machine speed under `speed` (:mod:`mgpusim.validation.speed_norm`)."""
     if measured_dir is None:
         measured_dir = measure_repeated(exp, out / "measured", repeats, run_seconds)
     measured = read_measured(measured_dir, exp)
     report, sim, replayed = both_levels(exp, measured)
+    if speed is not None:
+        report["speed"] = normalized(exp, measured, speed)
     report["measured_spread"], report["measured_runs"] = run_spread(measured_dir)
     report["measured_from"] = str(measured_dir)
     elsewhere = other_machine(exp.profile, run_machine(measured_dir))
@@ -80,6 +89,22 @@ def both_levels(exp: Experiment, measured: pd.DataFrame) -> tuple[dict[str, Any]
     report["replay_frame_time_error"] = report["replay"]["frame_time_error"]
     report["replay_latency_error"] = report["replay"]["latency_error"]
     return report, sim, replayed
+
+
+def normalized(exp: Experiment, measured: pd.DataFrame, speed: RunSpeed) -> dict[str, Any]:
+    """The prediction at the run's own speed, compared with the run, and the run's speed record:
+    what summary.json keeps under `speed`."""
+    scaled = replace(exp, profile=at_speed(exp.profile, speed.ratio))
+    sim = simulate(scaled, queues=queues_as_run(measured, build_program(scaled)))
+    report = compare(measured, sim.trace, exp.schedule.warmup_frames)
+    return {"run": speed.run, "probe_before_ms": speed.before_ms, "probe_after_ms": speed.after_ms,
+            "reference_ms": speed.reference_ms, "probe_ratio": speed.ratio,
+            "probe_disagreement": speed.disagreement, "other_cores": speed.other_cores,
+            "steal_cores": speed.steal_cores, "flag": speed.flag(),
+            "simulated_frame_ms": report["simulated"]["frame_time_ms"],
+            "frame_time_error": report["frame_time_error"],
+            "simulated_latency_ms": report["simulated"]["latency_ms"],
+            "latency_error": report["latency_error"]}
 
 
 def format_report(exp: Experiment, r: dict[str, Any]) -> str:
@@ -117,6 +142,11 @@ def format_report(exp: Experiment, r: dict[str, Any]) -> str:
                          for k in elsewhere["differs"])
         lines.append(f"  note: the profile was calibrated on another machine ({said}); its accuracy "
                      "holds there: calibrate one on this machine (bash scripts/main.sh on lavapipe)")
+    sp = r.get("speed")
+    if sp:  # the prediction at the run's own machine speed
+        lines.append(f"  normalized at probe ratio {sp['probe_ratio']:.2f}: frame "
+                     f"{sp['simulated_frame_ms']:.3f} ms {sp['frame_time_error']:+.1%}, latency "
+                     f"{sp['latency_error']:+.1%}" + (f" (flagged: {sp['flag']})" if sp["flag"] else ""))
     stalled = r.get("stalls", {}).get("frames", {})
     if stalled:
         shown = ", ".join(f"{f} ({ms:.1f} ms)" for f, ms in list(stalled.items())[:5])

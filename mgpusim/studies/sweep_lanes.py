@@ -1,0 +1,434 @@
+"""A sweep's points at the analytic level as numpy lanes (:mod:`mgpusim.sim.analytic_lanes`).
+
+Why: at ``--fidelity analytic`` one point costs a few milliseconds, nearly all of it loading
+the experiment and building its program, so a 100k-point grid over hardware what-ifs would
+take minutes point by point while the recurrence itself is the same for most points.
+
+How the grid is split:
+
+- *Lane keys* change only pass costs: ``profile.gpus.<i|*>.speed`` and
+  ``profile.gpus.<i|*>.costs.<kind>.fixed_ns`` / ``.ns_per_<term>`` of a cost the profile
+  already has. Each value is loaded once (checked like any override) and the coefficients it
+  sets read from the loaded profile; a key whose profile differs from the base anywhere else,
+  two keys that set the same coefficient, another ``profile.`` grid key that is not a lane
+  key, or a grid over the experiment's ``profile`` file makes them ordinary keys.
+- Every other key (scene, schedule, other profile keys) is a *group* key: each combination
+  of their values is a group, built once with the real code: its first point runs through
+  :func:`mgpusim.sim.simulation.simulate`, which gives the fields no pass cost changes
+  (memory, effects, fidelity, frames) and checks the lanes (that point's lane must reproduce
+  it, else the group runs point by point).
+
+``MGPUSIM_SWEEP_NO_LANES=1`` in the environment runs every point one by one (to compare).
+- Groups whose programs have one structure (:func:`~mgpusim.sim.analytic_lanes.structure`)
+  run as one set of lanes: the pass times of each lane from its coefficients (the cost
+  model's formula and rounding), every other time from its group.
+
+Points fall back to the per-point path, transparently and with the same columns, where the
+group cannot run as lanes (skippable tasks, vsync, long runs, a point that fails to load or
+run), or a lane's pass would exceed the time bound (the point then reports that error).
+"""
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any, Iterable, Iterator, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from mgpusim.model import limits as L
+from mgpusim.model.costs import CostModel
+from mgpusim.model.errors import MgpusimError
+from mgpusim.model.profile import HardwareProfile
+from mgpusim.model.tasks import PassTask
+from mgpusim.model.work_terms import UNPRICED_OK
+from mgpusim.schedules.experiment import load_experiment
+from mgpusim.schedules.program import build_program
+from mgpusim.sim import analytic_lanes as lanes_mod
+from mgpusim.sim.analytic import Analytic
+from mgpusim.sim.effects import choose_effects
+
+#: A coefficient a lane key sets: (GPU index, "speed") or (GPU index, kind, "fixed_ns" | term).
+Coef = tuple
+#: The summary fields a lane computes (the rest come from its group's first point).
+LANE_FIELDS = ("frame_time_ms", "fps", "latency_ms", "frame_time_jitter_ms", "frame_time_min_ms",
+               "frame_time_max_ms", "window_ns.0", "window_ns.1")
+_TOLERANCE = 1e-9
+
+
+@dataclass
+class Plan:
+    """The grid split: lane keys with each value's coefficients, group keys."""
+
+    lane_keys: list[str]
+    group_keys: list[str]
+    #: lane key -> per value, the coefficients it sets
+    coefs: dict[str, list[dict[Coef, float]]] = field(default_factory=dict)
+    #: why there are no lane keys, or why a key is not one (for the benchmark and docs)
+    notes: list[str] = field(default_factory=list)
+
+
+def plan(path: Path, grid: Mapping[str, Sequence[Any]], base: Mapping[str, Any]) -> Plan:
+    """Which grid keys run as lanes (see the module doc)."""
+    profile_keys = [k for k in grid if k.startswith("profile.")]
+    lane, notes, coefs = [], [], {}
+    if "profile" in grid or "profile" in base:
+        return Plan([], list(grid), notes=["the profile file itself changes"])
+    try:
+        start = load_experiment(path, dict(base)).profile
+    except MgpusimError:
+        return Plan([], list(grid), notes=["the base experiment does not load"])
+    for key in profile_keys:
+        found = _lane_coefs(path, base, key, grid[key], start)
+        if isinstance(found, str):
+            notes.append(f"{key}: {found}")
+        else:
+            lane.append(key)
+            coefs[key] = found
+    if len(lane) < len(profile_keys):  # another profile key could change what a lane key sets
+        notes.append("a profile key that is not a lane key makes every profile key a group key")
+        return Plan([], list(grid), notes=notes)
+    for i, a in enumerate(lane):
+        for b in lane[:i]:
+            if _touched(coefs[a]) & _touched(coefs[b]):
+                notes.append(f"{a} and {b} set the same coefficient")
+                return Plan([], list(grid), notes=notes)
+    return Plan(lane, [k for k in grid if k not in lane], coefs, notes)
+
+
+def _lane_coefs(path: Path, base: Mapping[str, Any], key: str, values: Sequence[Any],
+                start: HardwareProfile) -> list[dict[Coef, float]] | str:
+    """Per value, the coefficients `key` sets, or why it is not a lane key. Which GPUs a key
+    reaches is read from the loaded profiles, not from its path (``gpus.0`` names the first
+    ``[[gpus]]`` table, which may stand for several GPUs): the coefficients that differ
+    between the key's values, each of which must then equal the value itself."""
+    parts = key.split(".")[1:]
+    if not (len(parts) == 3 and parts[0] == "gpus" and parts[2] == "speed"
+            or len(parts) == 5 and parts[0] == "gpus" and parts[2] == "costs"
+            and (parts[4] == "fixed_ns" or parts[4].startswith("ns_per_"))):
+        return "not a pass-cost coefficient"
+    loaded = []
+    for value in values:
+        try:
+            prof = load_experiment(path, {**base, key: value}).profile
+        except MgpusimError:
+            return "a value does not load (its points report why)"
+        if _strip(prof) != _strip(start):
+            return "changes more than pass costs"
+        loaded.append(_all_coefs(prof))
+    touched = {c for c in loaded[0] if len({coefs[c] for coefs in loaded}) > 1}
+    if not touched:
+        return "its values set no coefficient to different numbers"
+    try:
+        if any(coefs[c] != float(v) for coefs, v in zip(loaded, values) for c in touched):
+            return "a coefficient it changes is not its value"
+    except (TypeError, ValueError):
+        return "not a number"
+    return [{c: coefs[c] for c in sorted(touched)} for coefs in loaded]
+
+
+def _strip(profile: HardwareProfile) -> HardwareProfile:
+    """The profile with every pass-cost coefficient and speed zeroed (kinds and terms kept)."""
+    gpus = tuple(replace(g, speed=0.0, costs=MappingProxyType(
+        {k: replace(c, fixed_ns=0.0, ns_per=MappingProxyType(dict.fromkeys(c.ns_per, 0.0)))
+         for k, c in g.costs.items()})) for g in profile.gpus)
+    return replace(profile, gpus=gpus)
+
+
+def _all_coefs(profile: HardwareProfile) -> dict[Coef, float]:
+    """Every pass-cost coefficient and speed of the profile's GPUs."""
+    out: dict[Coef, float] = {}
+    for i, g in enumerate(profile.gpus):
+        out[(i, "speed")] = g.speed
+        for kind, cost in g.costs.items():
+            out[(i, kind, "fixed_ns")] = cost.fixed_ns
+            out.update({(i, kind, term): v for term, v in cost.ns_per.items()})
+    return out
+
+
+def _touched(per_value: list[dict[Coef, float]]) -> set[Coef]:
+    return set().union(*per_value) if per_value else set()
+
+
+def flatten(value: Any, prefix: str = "") -> dict[str, Any]:
+    """Nested dicts and lists as dotted columns: {"a": {"b": 1}, "w": [2, 3]} ->
+    {"a.b": 1, "w.0": 2, "w.1": 3}."""
+    if isinstance(value, Mapping):
+        items: Iterable[tuple[Any, Any]] = value.items()
+    elif isinstance(value, (list, tuple)):
+        items = enumerate(value)
+    else:
+        return {prefix: value}
+    out: dict[str, Any] = {}
+    for k, v in items:
+        out.update(flatten(v, f"{prefix}.{k}" if prefix else str(k)))
+    return out
+
+
+# ----- groups ---------------------------------------------------------------------------------
+@dataclass
+class Group:
+    """The points of one combination of group-key values: the model of its first point, the
+    first point's summary, and the points' indices into the lane combinations."""
+
+    points: list[Any]
+    combos: np.ndarray  # per point (row), the index of each lane key's value
+    model: Analytic | None = None
+    costs: CostModel | None = None
+    summary: dict[str, Any] | None = None
+    signature: tuple | None = None
+    #: the group this is a slice of (None: a whole group), and whether it has its first point
+    origin: "Group | None" = None
+    has_first: bool = True
+    #: its first point's lane did not reproduce that point: every slice runs point by point
+    failed: bool = False
+
+
+def groups(plan_: Plan, todo: Sequence[Any], grid: Mapping[str, Sequence[Any]]) -> list[Group]:
+    """The points to run, grouped by their group-key values, in grid order. (A point's value
+    of each key is a digit of its index in the grid: the product, last key fastest.)"""
+    keys = list(grid)
+    sizes = np.array([len(grid[k]) for k in keys], dtype=np.int64)
+    strides = np.concatenate([np.cumprod(sizes[::-1])[::-1][1:], [1]])
+    index = np.fromiter((p.index for p in todo), dtype=np.int64, count=len(todo))
+    digits = {k: (index // strides[j]) % sizes[j] for j, k in enumerate(keys)}
+    gid = np.zeros(len(todo), dtype=np.int64)
+    for k in plan_.group_keys:
+        gid = gid * len(grid[k]) + digits[k]
+    combos = np.stack([digits[k] for k in plan_.lane_keys], axis=1) if plan_.lane_keys \
+        else np.zeros((len(todo), 0), dtype=np.int64)
+    order = np.argsort(gid, kind="stable")
+    bounds = np.flatnonzero(np.diff(gid[order])) + 1
+    members = np.split(order, bounds) if len(order) else []
+    members.sort(key=lambda m: m[0])
+    return [Group([todo[i] for i in m.tolist()], combos[m]) for m in members]
+
+
+def build(group: Group, path: Path, base: Mapping[str, Any], fidelity: str) -> str | None:
+    """Load and run the group's first point with the real code; the model its lanes share.
+    Returns why the group must run point by point (None: it can run as lanes)."""
+    from mgpusim.sim.simulation import simulate  # noqa: PLC0415
+
+    first = group.points[0]
+    try:
+        exp = load_experiment(path, {**base, **first.keys})
+        program = build_program(exp)
+        if program.refresh_hz:
+            return "vsync"
+        costs = CostModel(exp.profile)
+        model = Analytic(program, costs, choose_effects(program, exp.profile, fidelity))
+        if lanes_mod.lanes_refusal(model) is not None:
+            return lanes_mod.lanes_refusal(model)
+        group.summary = flatten(simulate(exp, fidelity=fidelity).summary)
+    except MgpusimError as exc:
+        return str(exc)
+    group.model, group.costs, group.signature = model, costs, lanes_mod.structure(model)
+    return None
+
+
+def group_lanes(group: Group, plan_: Plan) -> tuple[lanes_mod.Lanes, np.ndarray]:
+    """The group's lanes (pass times from each point's coefficients) and, per lane, whether
+    its pass times are within the time bound (a lane out of it runs point by point)."""
+    model, n = group.model, len(group.points)
+    lanes = lanes_mod.base_lanes(model, n)
+    ok = np.ones(n, dtype=bool)
+    if not plan_.lane_keys:
+        return lanes, ok
+    combos = group.combos
+    coef: dict[Coef, np.ndarray] = {}
+    for j, key in enumerate(plan_.lane_keys):
+        for c in _touched(plan_.coefs[key]):
+            table = np.array([v.get(c, np.nan) for v in plan_.coefs[key]], dtype=np.float64)
+            coef[c] = table[combos[:, j]]
+    profile = group.costs.profile
+    for ph, phase in enumerate(model.phases):
+        for i, node in enumerate(phase):
+            if isinstance(node.task, PassTask):
+                ns, good = _pass_ns(profile, node.task, coef, n)
+                if ns is not None:
+                    lanes.time[ph][i] = ns
+                    ok &= good
+    return lanes, ok
+
+
+def _pass_ns(profile: HardwareProfile, task: PassTask, coef: Mapping[Coef, np.ndarray], n: int
+             ) -> tuple[np.ndarray | None, np.ndarray]:
+    """A pass's time per lane, as :meth:`CostModel.pass_ns` computes it (the same float
+    operations in the same order, one rounding half up), or None where no lane changes it."""
+    d, kind, work = task.queue.device, task.kind, task.work
+    gpu = profile.gpus[d]
+    keys = [(d, "speed"), (d, kind, "fixed_ns"), *((d, kind, t) for t in work)]
+    if not any(k in coef for k in keys):
+        return None, np.ones(n, dtype=bool)
+
+    def get(k: Coef, default: float) -> Any:
+        return coef[k] if k in coef else default
+    speed = get((d, "speed"), gpu.speed)
+    cost = gpu.costs.get(kind)
+    if cost is None:  # a reference kind (checked when the group's first point ran)
+        total = np.full(n, work.get("reference_ns", 0.0)) / speed
+    else:
+        total = np.full(n, get((d, kind, "fixed_ns"), cost.fixed_ns), dtype=np.float64)
+        for term, amount in work.items():
+            if amount == 0:
+                continue
+            c = cost.ns_per.get(term)
+            if c is None:
+                if term in UNPRICED_OK.get(kind, ()):
+                    continue
+                c = 1.0  # a reference kind's reference_ns (others failed in the first point)
+            total = total + get((d, kind, term), c) * amount
+        total = total / speed
+    good = total <= L.MAX_TASK_NS  # also false for NaN
+    return np.floor(np.where(good, total, 0.0) + 0.5).astype(np.int64), good
+
+
+# ----- running ------------------------------------------------------------------------------
+@dataclass
+class Batch:
+    """Lanes of groups of one structure, run together."""
+
+    groups: list[Group]
+    model: Analytic
+
+
+def run_batch(batch: Batch, plan_: Plan) -> tuple[pd.DataFrame, list[Any]]:
+    """The batch's records as one table (column `id`, then `error`, `wall_s` and the summary
+    columns) and the points that must run point by point instead."""
+    t0 = time.perf_counter()
+    built = [group_lanes(g, plan_) for g in batch.groups]
+    result = lanes_mod.run_lanes(batch.model, lanes_mod.concat([b[0] for b in built]))
+    frames, fallback, at = [], [], 0
+    for g, (_, ok) in zip(batch.groups, built):
+        n = len(g.points)
+        mine = {k: v[at:at + n] for k, v in result.items()}
+        at += n
+        root = g.origin or g
+        if g.has_first and not _first_matches(g.summary, mine):
+            root.failed = True
+        if root.failed:
+            fallback.extend(g.points)
+            continue
+        fallback.extend(p for p, good in zip(g.points, ok) if not good)
+        frames.append(_records(g, mine, ok))
+    df = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame({"id": []})
+    if len(df):
+        df["wall_s"] = round((time.perf_counter() - t0) / len(df), 9)
+    return df, fallback
+
+
+def _first_matches(summary: Mapping[str, Any], lane: Mapping[str, np.ndarray]) -> bool:
+    """Whether lane 0 (the group's first point) reproduces that point's own summary."""
+    for key in (*LANE_FIELDS, *(k for k in lane if k.startswith("utilization."))):
+        want, got = summary.get(key), lane[key][0]
+        if want is None:
+            if not (isinstance(got, float) and math.isnan(got)):
+                return False
+        elif not math.isclose(float(got), float(want), rel_tol=_TOLERANCE, abs_tol=1e-12):
+            return False
+    used = bool(lane["fast_forward.used"][0])
+    if used != summary.get("fast_forward.used"):
+        return False
+    return not used or all(int(lane[f"fast_forward.{k}"][0]) == summary[f"fast_forward.{k}"]
+                           for k in ("period_frames", "period_ns", "from_frame"))
+
+
+def _records(group: Group, lane: Mapping[str, np.ndarray], ok: np.ndarray) -> pd.DataFrame:
+    """The group's good lanes as records: the first point's summary with each lane's own
+    timing, utilization and fast-forward fields."""
+    keep = np.flatnonzero(ok)
+    n = len(keep)
+    cols: dict[str, Any] = {"id": [group.points[i].id for i in keep], "error": [None] * n}
+    lane_cols = {k: v[keep] for k, v in lane.items() if not k.startswith("fast_forward.")}
+    lane_cols = {k: v for k, v in lane_cols.items()
+                 if not (k.startswith("utilization.") and np.isnan(v).all())}
+    summary = {k: v for k, v in group.summary.items()
+               if not k.startswith(("utilization.", "fast_forward.", "task_rates_hz."))}
+    for key, value in summary.items():
+        cols[key] = lane_cols.pop(key) if key in lane_cols else [value] * n
+    cols.update(lane_cols)
+    cols.update(_fast_forward(lane, keep))
+    program = group.model.program
+    if program.rate_tasks:  # none skipped (lanes have no skippable tasks): every frame counts
+        span = cols["window_ns.1"] - cols["window_ns.0"]
+        frames = program.frames - (program.warmup_frames + 1)
+        rate = np.where(span > 0, frames * 1e9 / np.where(span > 0, span, 1), 0.0)
+        cols.update({f"task_rates_hz.{name}": rate for name in program.rate_tasks})
+        cols["task_rates_hz.frames"] = cols["fps"]
+    return pd.DataFrame(cols)
+
+
+def _fast_forward(lane: Mapping[str, np.ndarray], keep: np.ndarray) -> dict[str, Any]:
+    """The summary's fast_forward fields per lane, as the analytic level words them."""
+    used = lane["fast_forward.used"][keep]
+    p, ns, f1 = (lane[f"fast_forward.{k}"][keep] for k in ("period_frames", "period_ns", "from_frame"))
+    why = [f"state repeats every {a} frame(s), {b} ns, from frame {c}" if u else "no repeat found"
+           for u, a, b, c in zip(used.tolist(), p.tolist(), ns.tolist(), f1.tolist())]
+    out: dict[str, Any] = {"fast_forward.used": used, "fast_forward.why": why}
+    if used.any():
+        for key, values in (("period_frames", p), ("period_ns", ns), ("from_frame", f1)):
+            out[f"fast_forward.{key}"] = values if used.all() else np.where(used, values, np.nan)
+    return out
+
+
+def batches(groups_: list[Group], max_lanes: int = 1 << 16) -> Iterator[Batch]:
+    """Built groups of one structure together, at most about `max_lanes` lanes a batch (a
+    batch is saved whole: a killed sweep loses at most the batch it was running)."""
+    by: dict[tuple, list[Group]] = {}
+    for whole in groups_:
+        for lo in range(0, len(whole.points), max_lanes):  # the slice with the first point first
+            g = whole if len(whole.points) <= max_lanes else replace(
+                whole, points=whole.points[lo:lo + max_lanes], combos=whole.combos[lo:lo + max_lanes],
+                origin=whole, has_first=not lo)
+            by.setdefault(g.signature, []).append(g)
+    for same in by.values():
+        run, size = [], 0
+        for g in same:
+            if run and size + len(g.points) > max_lanes:
+                yield Batch(run, run[0].model)
+                run, size = [], 0
+            run.append(g)
+            size += len(g.points)
+        if run:
+            yield Batch(run, run[0].model)
+
+
+class LaneRun:
+    """Runs `todo` as lanes where it can: iterate for one records table per batch; afterwards
+    `fallback` holds the points left to run one by one (in grid order)."""
+
+    def __init__(self, path: Path, base: Mapping[str, Any], grid: Mapping[str, Sequence[Any]],
+                 todo: Sequence[Any], fidelity: str, max_lanes: int = 1 << 16):
+        self.path, self.base, self.grid, self.todo = path, base, grid, list(todo)
+        self.fidelity, self.max_lanes = fidelity, max_lanes
+        self.fallback: list[Any] = []
+        self.plan: Plan | None = None
+
+    def __iter__(self) -> Iterator[pd.DataFrame]:
+        left = self.todo
+        if self.fidelity == "analytic" and left and not os.environ.get("MGPUSIM_SWEEP_NO_LANES"):
+            self.plan = plan(self.path, self.grid, self.base)
+            lanes_per_group = math.prod(len(self.grid[k]) for k in self.plan.lane_keys)
+            if lanes_per_group > 1:  # decided on the grid, not on what is left: resume is exact
+                left = []
+                yield from self._lanes()
+        self.fallback.extend(left)
+        order = {p.id: p.index for p in self.todo}
+        self.fallback.sort(key=lambda p: order[p.id])
+
+    def _lanes(self) -> Iterator[pd.DataFrame]:
+        built = []
+        for g in groups(self.plan, self.todo, self.grid):
+            if build(g, self.path, self.base, self.fidelity) is None:
+                built.append(g)
+            else:
+                self.fallback.extend(g.points)
+        for batch in batches(built, self.max_lanes):
+            df, fallback = run_batch(batch, self.plan)
+            self.fallback.extend(fallback)
+            if len(df):
+                yield df

@@ -43,6 +43,8 @@ def register(sub: argparse._SubParsersAction) -> None:
             s.add_argument("--runs", type=Path, help="measured runs folder (default: the study's "
                            "committed runs, else OUT/runs)")
         if name == "validate":
+            s.add_argument("--no-figures", dest="figures", action="store_false",
+                           help="tables only: no timelines or Perfetto traces per configuration (5x faster)")
             s.add_argument("--profile", type=Path, help="profile to simulate with (default: the study's)")
             s.add_argument("--set", dest="extra", action="append", default=[], metavar="KEY=VALUE",
                            help="an override added to every configuration (repeatable)")
@@ -141,7 +143,7 @@ def validate(args: argparse.Namespace) -> int:
             continue
         root = args.runs or pipeline.runs_root(study, held, out)
         tables[title] = pipeline.validate(study, entries, root, profile, out / "validation",
-                                          progress, tuple(args.extra))
+                                          progress, tuple(args.extra), args.figures)
         missing[title] = pipeline.without_runs(entries, root)
     calibration_root = args.runs or pipeline.runs_root(study, False, out)
     path = pipeline.write_report(out, study, tables, f"profile: {profile}",  # also errors.json

@@ -89,9 +89,10 @@ def write_profile(data: dict[str, Any], path: Path, lines: list[str]) -> Path:
 
 
 def validate(study: Study, entries: tuple[Entry, ...], root: Path, profile: Path, out: Path,
-             progress: Progress, extra: tuple[str, ...] = ()) -> pd.DataFrame:
+             progress: Progress, extra: tuple[str, ...] = (), figures: bool = True) -> pd.DataFrame:
     """Compare each entry's measured run under `root` with the model on `profile` (no device
-    needed); one row per entry with a run; `run_to_run_spread` where repeats were kept."""
+    needed); one row per entry with a run; `run_to_run_spread` where repeats were kept.
+    `figures`: each entry's timelines and traces too (most of the time taken)."""
     rows = []
     missing = without_runs(entries, root)
     if missing:
@@ -102,7 +103,7 @@ def validate(study: Study, entries: tuple[Entry, ...], root: Path, profile: Path
         if e.name in missing:
             continue
         exp = e.load(profile, extra)
-        report = validate_experiment(exp, out / e.name, folder, speed=speeds.get(e.name))
+        report = validate_experiment(exp, out / e.name, folder, speed=speeds.get(e.name), figures=figures)
         report["config"] = e.name
         progress(format_report(exp, report))
         rows.append((exp.schedule.name, report))

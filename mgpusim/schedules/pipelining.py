@@ -108,8 +108,9 @@ def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene,
     GPU 1's outputs arrive in `gpu0.in.X` (`buffers` copies), which GPU 0's filters sample in
     their place; a filter sampling its own previous output renders into two copies at least.
     A copy carries colour only, unless the pass's output_bytes also count a mesh's depth (a
-    later pass never reads a mesh's depth: each renders into an image of its own). A chunk of a copy is a range of rows of each image it carries (the height must
-    be a multiple of `chunks`). Present copies the last pass's image to `gpu0.display`."""
+    later pass never reads a mesh's depth: each renders into an image of its own). A chunk of
+    a copy is a range of rows of each image it carries (the height must be a multiple of
+    `chunks`). Present copies the last pass's image to `gpu0.display`."""
     b, buffers = Bindings(), cfg.opt("buffers")
     first = {p.name for p in scene.passes[:split]}
     staging = max(buffers, cfg.frames_in_flight)

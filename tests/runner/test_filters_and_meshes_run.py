@@ -42,7 +42,8 @@ def taa_reference() -> np.ndarray:
 @pytest.mark.parametrize("schedule, gpus, options", [
     ("sort_first", 4, {"balance": True}), ("sort_first", 2, {"host_copy": False, "buffers": 1}),
     ("sort_last", 2, {"host_copy": False}), ("sort_first", 1, {}),
-    ("pipelining", 2, {"split_at": 1, "chunks": 3}), ("pipelining", 2, {"split_at": 2, "buffers": 1}),
+    ("pipelining", 2, {"split_at": 1, "chunks": 3}),
+    ("pipelining", 2, {"split_at": 2, "buffers": 1}),
 ])
 def test_a_temporal_filter_samples_its_own_previous_frame_outside_afr(taa_reference, schedule, gpus,
                                                                        options):
@@ -74,7 +75,8 @@ def test_five_step_filters_sample_their_tiles_inputs(chain_reference, schedule, 
 
 def mesh_passes(output: int = COLOUR, filtered: bool = False) -> list[dict[str, Any]]:
     mesh = [{"name": "tori", "kind": "mesh", "triangles": 3000, "output_bytes": output}]
-    return mesh + ([{"name": "blur", "kind": "filter", "iterations": 5, "inputs": 1}] if filtered else [])
+    blur = {"name": "blur", "kind": "filter", "iterations": 5, "inputs": 1}
+    return mesh + ([blur] if filtered else [])
 
 
 @pytest.fixture(scope="module")

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 from types import MappingProxyType
-from typing import Any
+from typing import Any, Callable
 
 from mgpusim.model.scene import PassSpec, Scene
 from mgpusim.model.tasks import CopyTask, HostCopyTask, PassTask, Resource, Task
@@ -85,14 +85,8 @@ def bind_io(tasks: list[Task], scene: Scene, gpus: int, composite_kind: str,
             part = geometry[i] if geometry else (i, i + 1, gpus)
             params = _render_params(spec, scene, rects[i], origin, part, depth)
             params["clear"] = spec.name in own or index == _first_into_target(scene, own)
-            reads: tuple[str, ...] = ()
-            if spec.kind == "filter":
-                found = filter_reads(scene.passes, index, lambda n: (
-                    f"gpu{i}.pass.{n}" if n in own else target_of(i)))
-                if isinstance(found, str):
-                    params["unsupported"] = found
-                else:
-                    reads, params["read_offsets"] = tuple(found[0]), tuple(found[1])
+            reads = _filter_reads(scene, index, params, lambda n: (
+                f"gpu{i}.pass.{n}" if n in own else target_of(i)))
             out.append(dataclasses.replace(task, reads=reads, writes=(target,),
                                            params=MappingProxyType(params)))
         elif isinstance(task, PassTask) and task.step == "composite":
@@ -141,6 +135,20 @@ def own_images(scene: Scene) -> set[str]:
             sampled.update(found if not isinstance(found, str) else ())
     sampled.discard(scene.passes[-1].name)
     return sampled
+
+
+def _filter_reads(scene: Scene, index: int, params: dict[str, Any],
+                  image_of: Callable[[str], str]) -> tuple[str, ...]:
+    """What pass `index` samples (a filter; else nothing), its `read_offsets` put in `params`,
+    or `params["unsupported"]` saying why it cannot sample them."""
+    if scene.passes[index].kind != "filter":
+        return ()
+    found = filter_reads(scene.passes, index, image_of)
+    if isinstance(found, str):
+        params["unsupported"] = found
+        return ()
+    params["read_offsets"] = tuple(found[1])
+    return tuple(found[0])
 
 
 def _first_into_target(scene: Scene, own: set[str]) -> int:

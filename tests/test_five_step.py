@@ -297,3 +297,32 @@ def test_objects_and_strips_carry_their_placed_mesh_terms():
     render0 = next(t for t in build_program(exp).templates[0] if t.name == "render0")
     expected = sum(coverage(Placement((16, 6), (0, y, 16, 2)).mesh_view(400)).triangles for y in (0, 4))
     assert render0.work["visible_triangle"] == expected
+
+
+def test_five_step_binds_filters_to_their_tiles_and_a_mesh_to_depth():
+    """A pass a later filter samples renders into a tile image of its own, which the filter
+    reads (a temporal filter: the target of the previous frame, double-buffered); a mesh drawn
+    into the target gives it depth, while sort-first still downloads colour only."""
+    from mgpusim.model.profile import parse_profile
+    from mgpusim.schedules.experiment import parse_experiment
+    from mgpusim.schedules.program import build_program
+    prof = parse_profile(profile_dict(gpus=2), "p")
+
+    def program(passes):
+        data = {"name": "t", "scene": {"width": 8, "height": 4, "passes": passes},
+                "schedule": {"name": "sort_first", "gpus": 2, "frames": 3, "warmup_frames": 1}}
+        return build_program(parse_experiment(data, "t", profile=prof))
+    loop = {"name": "a", "kind": "fragment_loop", "iterations": 5}
+    taa = program([loop, {"name": "taa", "kind": "filter", "iterations": 5, "inputs": 2}])
+    tasks = {t.name: t for t in taa.templates[0]}
+    res = {r.name: r for r in taa.resources}
+    assert tasks["render1.taa"].reads == ("gpu1.pass.a", "gpu1.target")
+    assert tasks["render1.taa"].params["read_offsets"] == (0, -1)
+    assert tasks["render0.taa"].reads == ("gpu0.pass.a", "gpu0.frame")
+    assert (res["gpu1.pass.a"].width, res["gpu1.pass.a"].height) == (8, 2)
+    assert res["gpu0.frame"].buffers == 2 and res["gpu1.target"].buffers == 2
+    mesh = program([{"name": "m", "kind": "mesh", "triangles": 100}])
+    res = {r.name: r for r in mesh.resources}
+    assert res["gpu0.frame"].depth and res["gpu1.target"].depth and not res["gpu0.input1"].depth
+    d2h = next(t for t in mesh.templates[0] if t.name == "d2h1")
+    assert d2h.params["depth"] is False and d2h.bytes == 8 * 2 * 4

@@ -192,3 +192,25 @@ def test_consumer_chunks_each_piece_after_its_chunk():
     with pytest.raises(InputError, match="schedule.consumer_chunks"):
         build_program(experiment(profile(), "pipelining", READS, split_at=1, chunks=2,
                                  consumer_chunks=True))
+
+
+def test_a_temporal_filter_reads_its_inputs_and_its_own_previous_frame():
+    """A filter with one input more than the passes before it (TAA) samples them and, last, its
+    own output of the previous frame: with consumer_waits = 'reads' it waits for what crossed
+    (before, no source was found and only the present waited), and its image is bound
+    double-buffered, the history read one frame back."""
+    from mgpusim.schedules.pass_io import filter_sources
+    from mgpusim.schedules.program import build_program
+    passes = [timed("a", 1000, output_bytes=32), {"name": "taa", "kind": "filter", "inputs": 2,
+                                                      "iterations": 10}]
+    prof = profile()
+    exp = experiment(prof, "pipelining", passes, split_at=1, consumer_waits="reads")
+    assert filter_sources(exp.scene.passes, 1) == ["a", "taa"]
+    program = build_program(exp)
+    taa = next(t for t in program.templates[0] if t.name == "render.taa")
+    assert "out.a.h2d" in [d.task for d in taa.deps]
+    assert taa.reads == ("gpu0.in.a", "gpu0.pass.taa") and taa.params["read_offsets"] == (0, -1)
+    assert next(r for r in program.resources if r.name == "gpu0.pass.taa").buffers == 2
+    too_many = experiment(prof, "pipelining", [passes[0], {**passes[1], "inputs": 3}], split_at=1)
+    taa = next(t for t in build_program(too_many).templates[0] if t.name == "render.taa")
+    assert "1 come before it" in taa.params["unsupported"]

@@ -21,7 +21,7 @@ from mgpusim.model.tasks import Dep, PassTask, QueueRef, Resource, Task
 from mgpusim.schedules.base import Footprint, FrameProgram, chain_passes, present_task
 from mgpusim.schedules.binding import Bindings, bind_crossing
 from mgpusim.schedules.crossing import COPY_OPTIONS, Route, cross
-from mgpusim.schedules.pass_io import bind_full_frame, filter_sources, pass_image
+from mgpusim.schedules.pass_io import bind_full_frame, filter_reads, pass_image, reads_own_output
 from mgpusim.schedules.registry import Option, ScheduleConfig, register
 
 OPTIONS = {
@@ -118,15 +118,21 @@ def _bind_render(task: PassTask, p: int, n: int, scene: Scene, temporal: str | N
     index = next(i for i, s in enumerate(scene.passes) if task.name == f"render.{s.name}")
     spec = scene.passes[index]
     is_temporal = task.name == temporal
-    one_gpu_history = is_temporal and n == 1 and spec.kind == "filter"
+    own = not is_temporal and reads_own_output(scene.passes, index)
+    one_gpu_history = (is_temporal or own) and n == 1 and spec.kind == "filter"
     target = pass_image(b, f"gpu{p}.pass.{spec.name}", p, scene, spec,
                         buffers=2 if one_gpu_history else 1)
     if spec.kind != "filter":
         return bind_full_frame(task, spec, scene, target)
+    if own and n > 1:
+        why = (f"filter pass {spec.name!r} samples its previous output, which another GPU "
+               f"rendered under AFR: set schedule.temporal_pass = {spec.name!r}")
+        return bind_full_frame(task, spec, scene, target, why)
     if not is_temporal:
-        sources = filter_sources(scene.passes, index)
-        reads = sources if isinstance(sources, str) else [f"gpu{p}.pass.{s}" for s in sources]
-        return bind_full_frame(task, spec, scene, target, reads)
+        found = filter_reads(scene.passes, index, lambda s: f"gpu{p}.pass.{s}")
+        if isinstance(found, str):
+            return bind_full_frame(task, spec, scene, target, found)
+        return bind_full_frame(task, spec, scene, target, *found)
     # the temporal pass: the passes before it, then the history as its last input
     k = int(spec.param("inputs", 2))
     if not 2 <= k <= index + 1:

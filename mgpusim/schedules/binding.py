@@ -22,6 +22,9 @@ from typing import Any, Mapping, Sequence
 
 from mgpusim.model.tasks import CopyTask, HostCopyTask, Resource, Task
 
+#: Bytes of a colour (RGBA8) and a depth (D16) pixel of the runner's images.
+COLOUR_PIXEL_BYTES, DEPTH_PIXEL_BYTES = 4, 2
+
 
 class Bindings:
     """The resources a schedule declares, collected while its tasks are bound."""

@@ -11,16 +11,23 @@ read-back buffer), `gpu0.staging{i}` (the primary's staging buffer for it; `host
 host allocation imported by both devices, when there is no host-to-host copy), `gpu0.input{i}`
 (the uploaded contribution), `gpu0.frame` (the primary renders and composites into it) and
 `gpu0.display` (what present copies the frame to).
+
+A GPU's passes render into its target in order, the first clearing it; a pass that a later
+filter samples renders into an image of its own instead, `gpu{i}.pass.{name}` (its tile's
+rectangle, with depth for a mesh), and the filter samples those at its own pixel, so a tile's
+filter is exact. A filter sampling its own previous output (pass_io.py) reads the target of the
+previous frame, which is then double-buffered. A mesh drawn into the target gives it depth;
+sort-first still moves colour only.
 """
 from __future__ import annotations
 
 import dataclasses
 from types import MappingProxyType
-from typing import Any
+from typing import Any, Callable
 
-from mgpusim.model.scene import Scene
+from mgpusim.model.scene import PassSpec, Scene
 from mgpusim.model.tasks import CopyTask, HostCopyTask, PassTask, Resource, Task
-from mgpusim.schedules.pass_io import simulated_only
+from mgpusim.schedules.pass_io import filter_reads, filter_sources, reads_own_output, simulated_only
 
 Rect = tuple[int, int, int, int]  # x, y, width, height in frame pixels
 
@@ -42,11 +49,19 @@ def bind_io(tasks: list[Task], scene: Scene, gpus: int, composite_kind: str,
         tops = [sum(rows[:i]) for i in range(gpus)]
         rects = [(0, tops[i], w, rows[i]) for i in range(gpus)]
     bpp = scene.color_bytes_per_pixel + (scene.depth_bytes_per_pixel if depth else 0)
+    own = own_images(scene)
+    target_depth = depth or any(p.kind == "mesh" for p in scene.passes if p.name not in own)
+    history = reads_own_output(scene.passes, len(scene.passes) - 1)  # the last pass's
     res: dict[str, Resource] = {}
 
-    def image(name: str, device: int, rect: Rect, nbuf: int) -> str:
-        res[name] = Resource(name, device, "image", rect[2], rect[3], depth, buffers=nbuf)
+    def image(name: str, device: int, rect: Rect, nbuf: int, with_depth: bool = depth) -> str:
+        res[name] = Resource(name, device, "image", rect[2], rect[3], with_depth, buffers=nbuf)
         return name
+
+    def target_of(i: int) -> str:
+        if i == 0:
+            return "gpu0.frame"
+        return image(f"gpu{i}.target", i, rects[i], max(buffers, 2 if history else 1), target_depth)
 
     def buffer(name: str, device: int | None, rect: Rect) -> str:
         shared = (0, int(name.removeprefix("host.staging"))) if device is None else ()
@@ -54,17 +69,26 @@ def bind_io(tasks: list[Task], scene: Scene, gpus: int, composite_kind: str,
                              host_visible=True, shared_by=shared)
         return name
 
-    image("gpu0.frame", 0, (0, 0, w, h), 1)
+    image("gpu0.frame", 0, (0, 0, w, h), 2 if history else 1, target_depth)
     res["gpu0.display"] = Resource("gpu0.display", 0, "image", w, h, False)
     out: list[Task] = []
     for task in tasks:
         if isinstance(task, PassTask) and task.step == "render":
             i = task.queue.device
-            target = "gpu0.frame" if i == 0 else image(f"gpu{i}.target", i, rects[i], buffers)
-            origin = (0, 0) if i == 0 else rects[i][:2]
+            index = _pass_index(task, scene, i)
+            spec = scene.passes[index]
+            target, origin = target_of(i), ((0, 0) if i == 0 else rects[i][:2])
+            if spec.name in own:
+                target, origin = image(f"gpu{i}.pass.{spec.name}", i, rects[i],
+                                       2 if reads_own_output(scene.passes, index) else 1,
+                                       spec.kind == "mesh"), rects[i][:2]
             part = geometry[i] if geometry else (i, i + 1, gpus)
-            out.append(dataclasses.replace(task, writes=(target,), params=MappingProxyType(
-                _render_params(task, scene, rects[i], origin, part, i, depth))))
+            params = _render_params(spec, scene, rects[i], origin, part, depth)
+            params["clear"] = spec.name in own or index == _first_into_target(scene, own)
+            reads = _filter_reads(scene, index, params, lambda n: (
+                f"gpu{i}.pass.{n}" if n in own else target_of(i)))
+            out.append(dataclasses.replace(task, reads=reads, writes=(target,),
+                                           params=MappingProxyType(params)))
         elif isinstance(task, PassTask) and task.step == "composite":
             ins = tuple(f"gpu0.input{i}" for i in range(1, gpus))
             for i in range(1, gpus):
@@ -77,7 +101,9 @@ def bind_io(tasks: list[Task], scene: Scene, gpus: int, composite_kind: str,
             i = task.queue.device
             dst = buffer(f"gpu{i}.staging" if host_copy else f"host.staging{i}",
                          i if host_copy else None, rects[i])
-            out.append(dataclasses.replace(task, src=f"gpu{i}.target", dst=dst))
+            colour_only = {"depth": False} if target_depth and not depth else {}
+            out.append(dataclasses.replace(task, src=f"gpu{i}.target", dst=dst,
+                                           params=MappingProxyType({**task.params, **colour_only})))
         elif isinstance(task, HostCopyTask):
             i = _source_gpu(task, by_name)
             out.append(dataclasses.replace(task, src=f"gpu{i}.staging",
@@ -99,15 +125,50 @@ def _source_gpu(task: Task, by_name: dict[str, Task]) -> int:
     return task.queue.device
 
 
-def _render_params(task: PassTask, scene: Scene, rect: Rect, origin: tuple[int, int],
-                   part: tuple[int, int, int], gpu: int, depth: bool) -> dict[str, Any]:
+def own_images(scene: Scene) -> set[str]:
+    """The passes that render into an image of their own: those a later filter samples (the
+    last pass renders into the target, which a filter of its own previous output reads)."""
+    sampled: set[str] = set()
+    for index, spec in enumerate(scene.passes):
+        if spec.kind == "filter":
+            found = filter_sources(scene.passes, index)
+            sampled.update(found if not isinstance(found, str) else ())
+    sampled.discard(scene.passes[-1].name)
+    return sampled
+
+
+def _filter_reads(scene: Scene, index: int, params: dict[str, Any],
+                  image_of: Callable[[str], str]) -> tuple[str, ...]:
+    """What pass `index` samples (a filter; else nothing), its `read_offsets` put in `params`,
+    or `params["unsupported"]` saying why it cannot sample them."""
+    if scene.passes[index].kind != "filter":
+        return ()
+    found = filter_reads(scene.passes, index, image_of)
+    if isinstance(found, str):
+        params["unsupported"] = found
+        return ()
+    params["read_offsets"] = tuple(found[1])
+    return tuple(found[0])
+
+
+def _first_into_target(scene: Scene, own: set[str]) -> int:
+    """The index of the first pass drawn into the target (it clears it)."""
+    return next(k for k, p in enumerate(scene.passes) if p.name not in own)
+
+
+def _pass_index(task: PassTask, scene: Scene, gpu: int) -> int:
+    """The scene pass a render task of GPU `gpu` draws."""
+    return next(k for k, s in enumerate(scene.passes)
+                if task.name in (f"render{gpu}", f"render{gpu}.{s.name}"))
+
+
+def _render_params(spec: PassSpec, scene: Scene, rect: Rect, origin: tuple[int, int],
+                   part: tuple[int, int, int], depth: bool) -> dict[str, Any]:
     """Tile rectangle (frame pixels), the target's origin in the frame, and the pass's knobs;
     sort-last GPU i draws triangles [first, first + count) of the scene's mesh: units
     [begin, end) of `part` = (begin, end, units)."""
-    spec = next(s for s in scene.passes if task.name in (f"render{gpu}", f"render{gpu}.{s.name}"))
     params: dict[str, Any] = {"rect": rect, "origin": origin, "frame": (scene.width, scene.height),
-                              "clear": spec is scene.passes[0], "depth": depth,
-                              **{k: v for k, v in spec.params.items()}}
+                              "depth": depth, **{k: v for k, v in spec.params.items()}}
     if "triangles" in spec.params:
         total = int(spec.params["triangles"])
         begin, end, units = part

@@ -30,7 +30,7 @@ from mgpusim.schedules.base import (MAIN_THREAD, Footprint, FrameProgram, chain_
                                     present_task, queue_or_graphics)
 from mgpusim.schedules.binding import Bindings, bind_crossing
 from mgpusim.schedules.crossing import Route, cross
-from mgpusim.schedules.pass_io import bind_full_frame, filter_sources, pass_image
+from mgpusim.schedules.pass_io import bind_full_frame, filter_reads, pass_image, reads_own_output
 from mgpusim.schedules.registry import Option, ScheduleConfig, register
 
 OPTIONS = {
@@ -154,12 +154,12 @@ def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, n: int, pg: int,
         elif isinstance(task, PassTask) and task.step == "render":
             index = next(k for k, s in enumerate(scene.passes) if task.name == f"render.{s.name}")
             spec = scene.passes[index]
-            target = pass_image(b, f"gpu0.pass.{spec.name}", 0, scene, spec)
-            reads: list[str] | str = ()  # type: ignore[assignment]
-            if spec.kind == "filter":
-                sources = filter_sources(scene.passes, index)
-                reads = sources if isinstance(sources, str) else [f"gpu0.pass.{s}" for s in sources]
-            out.append(bind_full_frame(task, spec, scene, target, reads))
+            target = pass_image(b, f"gpu0.pass.{spec.name}", 0, scene, spec,
+                                buffers=2 if reads_own_output(scene.passes, index) else 1)
+            found = (filter_reads(scene.passes, index, lambda s: f"gpu0.pass.{s}")
+                     if spec.kind == "filter" else ((), ()))
+            reads, offsets = (found, ()) if isinstance(found, str) else found
+            out.append(bind_full_frame(task, spec, scene, target, reads, offsets))
         elif task.name == "present":
             out.append(replace(task, reads=(f"gpu0.pass.{scene.passes[-1].name}",),
                                writes=("gpu0.display",)))

@@ -4,14 +4,18 @@ Why shared: AFR, frame pipelining and particle offload run the scene's passes fu
 one GPU each; they bind those passes alike. Every pass renders into an image of its own
 (`{prefix}{pass name}`, with depth for a mesh), so a later `filter` pass can sample it; a
 `filter` with `inputs = k` samples the outputs of the k passes before it in the scene, the
-nearest last (its accumulating input). Schedules replace inputs where the data comes from
-elsewhere: another GPU's copy (pipelining), the previous frame (AFR's temporal pass).
+nearest last (its accumulating input). One input more than the passes before it (`inputs =
+index + 1`, a temporal filter such as TAA) is its own output of the previous frame on the same
+GPU, sampled last: what a one-GPU AFR temporal pass samples and what a frame import lists as a
+pass reading itself; the image it renders into is then double-buffered. Schedules replace inputs
+where the data comes from elsewhere: another GPU's copy (pipelining), the previous frame of
+another GPU (AFR's temporal pass on N GPUs). The model's work terms count `inputs` either way.
 """
 from __future__ import annotations
 
 import dataclasses
 from types import MappingProxyType
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 from mgpusim.model.scene import PassSpec, Scene
 from mgpusim.model.tasks import PassTask
@@ -51,14 +55,37 @@ def simulated_only(spec: PassSpec) -> dict[str, str]:
 
 
 def filter_sources(passes: Sequence[PassSpec], index: int) -> list[str] | str:
-    """Names of the passes a filter at `index` samples (the `inputs` before it, nearest last),
-    or why it cannot be run (too few passes before it)."""
+    """Names of the passes a filter at `index` samples (the `inputs` before it, nearest last;
+    with one input more than the passes before it, its own name last: its output of the
+    previous frame on the same GPU), or why it cannot be run."""
     spec = passes[index]
     k = int(spec.param("inputs", 1))
-    if not 1 <= k <= index:
+    if not 1 <= k <= index + 1:
         return (f"filter pass {spec.name!r} samples the {k} passes before it, but {index} "
-                f"come before it (1 to 4 inputs)")
+                f"come before it (1 to 4 inputs; one more than the passes before it samples "
+                f"its own output of the previous frame)")
+    if k == index + 1:
+        return [p.name for p in passes[:index]] + [spec.name]
     return [p.name for p in passes[index - k:index]]
+
+
+def reads_own_output(passes: Sequence[PassSpec], index: int) -> bool:
+    """Whether pass `index` is a filter that samples its own previous output (a history): the
+    image it renders into needs two buffered copies, one written while the other is read."""
+    spec = passes[index]
+    return spec.kind == "filter" and int(spec.param("inputs", 1)) == index + 1
+
+
+def filter_reads(passes: Sequence[PassSpec], index: int,
+                 image_of: Callable[[str], str]) -> tuple[list[str], list[int]] | str:
+    """The images a filter at `index` samples and their frame offsets: `image_of(name)` of
+    each source, its own image at offset -1 (the previous frame's output); or why not."""
+    sources = filter_sources(passes, index)
+    if isinstance(sources, str):
+        return sources
+    own = passes[index].name
+    return ([image_of(s) for s in sources],
+            [-1 if s == own and n == len(sources) - 1 else 0 for n, s in enumerate(sources)])
 
 
 def bind_full_frame(task: PassTask, spec: PassSpec, scene: Scene, target: str,

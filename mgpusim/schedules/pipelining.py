@@ -21,9 +21,11 @@ from mgpusim.model.profile import HardwareProfile
 from mgpusim.model.scene import PassSpec, Scene
 from mgpusim.model.tasks import Dep, PassTask, QueueRef, Resource, Task
 from mgpusim.schedules.base import Footprint, FrameProgram, chain_passes, present_task
-from mgpusim.schedules.binding import Bindings, bind_crossing, row_chunks
+from mgpusim.schedules.binding import (COLOUR_PIXEL_BYTES, DEPTH_PIXEL_BYTES, Bindings,
+                                       bind_crossing, row_chunks)
 from mgpusim.schedules.crossing import COPY_OPTIONS, Route, cross
-from mgpusim.schedules.pass_io import bind_full_frame, filter_sources, pass_image
+from mgpusim.schedules.pass_io import (bind_full_frame, filter_reads, filter_sources, pass_image,
+                                       reads_own_output)
 from mgpusim.schedules.registry import Option, ScheduleConfig, register
 
 OPTIONS = {
@@ -104,8 +106,11 @@ def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene,
 
     Pass X renders into `gpu1.pass.X` (GPU 1's passes, `buffers` copies) or `gpu0.pass.X`;
     GPU 1's outputs arrive in `gpu0.in.X` (`buffers` copies), which GPU 0's filters sample in
-    their place. A chunk of a copy is a range of rows of each image it carries (the height must
-    be a multiple of `chunks`). Present copies the last pass's image to `gpu0.display`."""
+    their place; a filter sampling its own previous output renders into two copies at least.
+    A copy carries colour only, unless the pass's output_bytes also count a mesh's depth (a
+    later pass never reads a mesh's depth: each renders into an image of its own). A chunk of
+    a copy is a range of rows of each image it carries (the height must be a multiple of
+    `chunks`). Present copies the last pass's image to `gpu0.display`."""
     b, buffers = Bindings(), cfg.opt("buffers")
     first = {p.name for p in scene.passes[:split]}
     staging = max(buffers, cfg.frames_in_flight)
@@ -115,12 +120,13 @@ def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene,
         return (f"gpu0.in.{name}" if name in first else f"gpu0.pass.{name}") if on_gpu0 \
             else f"gpu1.pass.{name}"
 
-    for spec in scene.passes:
+    for index, spec in enumerate(scene.passes):
+        history = 2 if reads_own_output(scene.passes, index) else 1  # written while read
         if spec.name in first:
-            pass_image(b, f"gpu1.pass.{spec.name}", 1, scene, spec, buffers)
+            pass_image(b, f"gpu1.pass.{spec.name}", 1, scene, spec, max(buffers, history))
             pass_image(b, f"gpu0.in.{spec.name}", 0, scene, spec, buffers)
         else:
-            pass_image(b, f"gpu0.pass.{spec.name}", 0, scene, spec)
+            pass_image(b, f"gpu0.pass.{spec.name}", 0, scene, spec, history)
     crossed = _bind_copies(tasks, cfg, scene, split, b, staging)
     out: list[Task] = []
     for task in tasks:
@@ -131,12 +137,11 @@ def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene,
         elif isinstance(task, PassTask) and task.step == "render":
             index = next(i for i, s in enumerate(scene.passes) if task.name == f"render.{s.name}")
             spec, on_gpu0 = scene.passes[index], task.queue.device == 0
-            reads: list[str] | str = ()  # type: ignore[assignment]
-            if spec.kind == "filter":
-                sources = filter_sources(scene.passes, index)
-                reads = (sources if isinstance(sources, str)
-                         else [image_of(n, on_gpu0) for n in sources])
-            out.append(bind_full_frame(task, spec, scene, image_of(spec.name, on_gpu0), reads))
+            target = image_of(spec.name, on_gpu0)
+            found = (filter_reads(scene.passes, index, lambda n: image_of(n, on_gpu0))
+                     if spec.kind == "filter" else ((), ()))
+            reads, offsets = (found, ()) if isinstance(found, str) else found
+            out.append(bind_full_frame(task, spec, scene, target, reads, offsets))
         elif task.name == "present":
             out.append(replace(task, reads=(image_of(scene.passes[-1].name, True),),
                                writes=("gpu0.display",)))
@@ -167,6 +172,8 @@ def _bind_copies(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, split: in
             piece_name = prefix if chunks == 1 else f"{prefix}#{c}"
             piece = pieces[piece_name]
             params = dict(regions[c])
+            if not _with_depth(scene, names):
+                params["depth"] = False
             if missing:
                 params = {"unsupported": f"GPU 0 reads the output of pass {missing[0]!r}, but "
                           f"its output_bytes is 0: set it to the image's bytes (width x height x 4)"}
@@ -177,6 +184,16 @@ def _bind_copies(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, split: in
                 down={"images": tuple(f"gpu1.pass.{n}" for n in names)},
                 up={"images": tuple(f"gpu0.in.{n}" for n in names)}))
     return crossed
+
+
+def _with_depth(scene: Scene, names: tuple[str, ...]) -> bool:
+    """Whether a copy of the outputs `names` carries depth too: their output_bytes are their
+    images' colour and depth bytes (a mesh's image has both; the model's bytes decide)."""
+    specs = [_spec(scene, n) for n in names]
+    meshes = sum(s.kind == "mesh" for s in specs)
+    colour_and_depth = scene.pixels * (len(specs) * COLOUR_PIXEL_BYTES
+                                       + meshes * DEPTH_PIXEL_BYTES)
+    return meshes > 0 and sum(_output_bytes(s) for s in specs) == colour_and_depth
 
 
 def _footprints(scene: Scene, n: int, intermediate: int) -> tuple[Footprint, ...]:

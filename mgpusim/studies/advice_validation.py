@@ -142,8 +142,9 @@ def capture_frame(setup: Setup, frame: Frame, folder: Path) -> tuple[Path, float
 def source_overrides(setup: Setup, frame: Frame, schedule: Mapping[str, Any]) -> dict[str, Any]:
     """An option's [schedule] table for the frame's own experiment, beside the capture's scene
     overrides: the schedule as advised, AFR's history size left to its default (the frame's
-    colour image, what was captured); under pipelining every pass's output is its image (what
-    the import gave each pass the runner renders), which the runner needs to copy it."""
+    colour image, what was captured); under pipelining every pass's output is its colour image
+    (what the import gave each pass the runner renders; a mesh's copy then leaves its depth
+    behind, which no later pass reads), which the runner needs to copy it."""
     scene = {k: v for k, v in frame.capture.items() if not k.startswith("schedule.")}
     sched = {k: v for k, v in schedule.items() if k != "history_bytes"}
     out: dict[str, Any] = {**scene, "schedule": sched}

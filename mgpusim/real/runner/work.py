@@ -186,7 +186,8 @@ def _frame_pass(task: PassTask, gpu: Gpu, res: Resources, targets: list[Any],
                          origin=tuple(p.get("origin", (0, 0))), eye=eye)
     if task.kind == "filter":
         inputs = [[c for c, _d in res.images(r)] for r in task.reads]
-        return Filter(gpu, targets, frame_size, int(p.get("iterations", 0)), inputs)
+        return Filter(gpu, targets, frame_size, int(p.get("iterations", 0)), inputs,
+                      rect=p.get("rect"), origin=tuple(p.get("origin", (0, 0))))
     if task.kind == "particle_render":
         return ParticleDraw(gpu, targets, int(p["particles"]))
     raise ScheduleError(f"pass {task.name!r}: kind {task.kind!r} has no Vulkan implementation in "
@@ -196,19 +197,20 @@ def _frame_pass(task: PassTask, gpu: Gpu, res: Resources, targets: list[Any],
 
 def _composite(task: PassTask, gpu: Gpu, res: Resources, owned: list[Any],
                p: dict[str, Any]) -> Recorder:
-    colour, depth = res.images(task.writes[0])[0]
-    target = target_over(gpu, colour, depth, clear=False)
+    out = task.writes[0]
+    targets = [target_over(gpu, colour, depth, clear=False) for colour, depth in res.images(out)]
     slots = max(res.resource(r).buffers for r in task.reads) if task.reads else 1
     inputs = [[res.images(r)[s % res.resource(r).buffers] for r in task.reads]
               for s in range(slots)]
     try:
-        work: Any = CompositeInto(gpu, target, tuple(p.get("frame", ())), inputs, p["inputs"],
+        work: Any = CompositeInto(gpu, targets, tuple(p.get("frame", ())), inputs, p["inputs"],
                                   bool(p["depth"]))
     except BaseException:
-        target.destroy()
+        for t in targets:
+            t.destroy()
         raise
     owned.append(work)
-    return lambda cmd, frame, _c: work.record(cmd, frame % slots)
+    return lambda cmd, frame, _c: work.record(cmd, frame % slots, res.slot(out, frame))
 
 
 def _particle_update(task: PassTask, gpu: Gpu, res: Resources, owned: list[Any],

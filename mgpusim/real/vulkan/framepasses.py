@@ -141,13 +141,16 @@ class MeshShare(_FramePass):
 
 class CompositeInto(_FramePass):
     """Draws each input (colour, or colour + depth with the depth test) into its frame
-    rectangle of a *loading* target; `inputs[slot][k]` is input k's images in buffer `slot`."""
+    rectangle of a *loading* target; `inputs[slot][k]` is input k's images in buffer `slot`.
+    `target` may be several buffered copies of the frame (a list): `record(cmd, slot,
+    target_slot)` draws into copy `target_slot`."""
 
-    def __init__(self, gpu: "Gpu", target: RenderTarget, frame: tuple[int, int],
-                 inputs: Sequence[Sequence[tuple[Image, Image | None]]], rects: Sequence[Rect],
-                 depth: bool):
-        super().__init__(gpu, [target])
-        if target.clear:
+    def __init__(self, gpu: "Gpu", target: RenderTarget | Sequence[RenderTarget],
+                 frame: tuple[int, int], inputs: Sequence[Sequence[tuple[Image, Image | None]]],
+                 rects: Sequence[Rect], depth: bool):
+        super().__init__(gpu, [target] if isinstance(target, RenderTarget) else target)
+        target = self.targets[0]
+        if any(t.clear for t in self.targets):
             raise InputError("the composite must load the frame, not clear it")
         self.frame = frame
         slots, k = len(inputs), len(rects)
@@ -163,10 +166,10 @@ class CompositeInto(_FramePass):
                      for x, y, rw, rh in rects]
         self._nonempty = [r[2] * r[3] > 0 for r in rects]
 
-    def record(self, cmd: Any, slot: int = 0) -> None:
+    def record(self, cmd: Any, slot: int = 0, target_slot: int = 0) -> None:
         v = vk()
         full = (0, 0, self.frame[0], self.frame[1])
-        begin(self.targets[0], cmd, full, full)
+        begin(self.targets[target_slot], cmd, full, full)
         for dset, pc, live in zip(self.sets[slot], self._pcs, self._nonempty):
             if live:
                 self.pipeline.bind(cmd, dset)
@@ -176,24 +179,31 @@ class CompositeInto(_FramePass):
 
 
 class Filter(_FramePass):
-    """A fragment loop that samples `len(inputs)` (1..4) full-frame images at its own pixel and
-    combines them (shaders/filter.frag): the pipelining chain's passes that read other passes'
-    outputs, and the temporal pass, whose last input is the previous frame's result.
-    `inputs[k][b]` is buffered copy b of input k; `record(cmd, slot, input_slots)` samples copy
-    `input_slots[k]` of each."""
+    """A fragment loop that samples `len(inputs)` (1..4) images at its own pixel and combines
+    them (shaders/filter.frag): the pipelining chain's passes that read other passes' outputs,
+    and the temporal pass, whose last input is the previous frame's result. Like a fragment-loop
+    tile it draws the frame rectangle `rect` (default: the whole frame) into targets whose pixel
+    (0, 0) is frame pixel `origin`; its inputs share that origin (a tile's images), so the
+    filter of a tile is exact. `inputs[k][b]` is buffered copy b of input k; `record(cmd,
+    slot, input_slots)` samples copy `input_slots[k]` of each."""
 
     MAX_INPUTS = 4
 
     def __init__(self, gpu: "Gpu", targets: Sequence[RenderTarget], frame: tuple[int, int],
-                 iterations: int, inputs: Sequence[Sequence[Image]]):
+                 iterations: int, inputs: Sequence[Sequence[Image]], *, rect: Rect | None = None,
+                 origin: tuple[int, int] = (0, 0)):
         super().__init__(gpu, targets)
         if not 1 <= len(inputs) <= self.MAX_INPUTS:
             raise InputError(f"a filter samples 1 to {self.MAX_INPUTS} inputs, got {len(inputs)}",
                              field="inputs")
+        rect = rect or (0, 0, frame[0], frame[1])
+        self.area, self.empty = _local(rect, origin), rect[2] * rect[3] == 0
+        self.viewport = (-origin[0], -origin[1], frame[0], frame[1])
+        x, y, w, h = self.area
         for k, copies in enumerate(inputs):
-            if any((img.width, img.height) != tuple(frame) for img in copies):
-                raise InputError(f"filter input {k} is not a {frame[0]}x{frame[1]} image",
-                                 field="inputs")
+            if not self.empty and any(img.width < x + w or img.height < y + h for img in copies):
+                raise InputError(f"filter input {k} does not cover the {w}x{h} pixels at "
+                                 f"({x}, {y}) that the filter draws", field="inputs")
         combos = list(itertools.product(*(range(len(c)) for c in inputs)))
         self.pipeline = graphics_pipeline(gpu, self.targets[0], "quad.vert", "filter.frag",
                                           samplers=self.MAX_INPUTS, max_sets=len(combos))
@@ -202,13 +212,14 @@ class Filter(_FramePass):
         self.sets = {combo: self.pipeline.descriptor_set(
             [inputs[k][b] for k, b in enumerate(combo)] + [inputs[0][combo[0]]] * pad)
             for combo in combos}
-        self.full = (0, 0, frame[0], frame[1])
         self._pc = quad_pc((-1, -1, 1, 1), (0, 0, 1, 1), (iterations, len(inputs), 0, 0))
 
     def record(self, cmd: Any, slot: int = 0, input_slots: Sequence[int] | None = None) -> None:
+        if self.empty:
+            return
         v = vk()
         combo = tuple(input_slots) if input_slots is not None else (0,) * len(next(iter(self.sets)))
-        begin(self.targets[slot], cmd, self.full, self.full)
+        begin(self.targets[slot], cmd, self.area, self.viewport)
         self.pipeline.bind(cmd, self.sets[combo])
         self.pipeline.push(cmd, stages(), self._pc)
         v.vkCmdDraw(cmd, 6, 1, 0, 0)

@@ -168,6 +168,30 @@ def test_host_threads_woken_at_once_take_turns_on_lavapipe(monkeypatch):
     assert all(g >= 300_000 for g in gaps), gaps
 
 
+def _h200_secondary_starts(*sets: str) -> list[int]:
+    """The 3 secondaries' render starts in one steady frame of the 4x H200 sort-first (each
+    waits for the primary's present two frames back: three threads woken by one input)."""
+    from pathlib import Path
+
+    from mgpusim.schedules.experiment import load_experiment, parse_overrides
+    exp = load_experiment(Path(__file__).resolve().parents[1] / "experiments/h200_x4/sort_first.toml",
+                          parse_overrides(["schedule.frames=20", *sets]))
+    t = simulate(exp).trace
+    f = t[(t.frame == 12) & t.task.isin(["render1", "render2", "render3"])]
+    return sorted(int(v) for v in f.start_ns)
+
+
+def test_a_real_gpu_profile_may_say_its_host_threads_take_turns():
+    """GPUs of their own wake their submit threads together unless the profile says the host's
+    threads take turns (the runner's interpreter lock): then one dispatch_ns apart."""
+    together = _h200_secondary_starts()
+    assert together[-1] - together[0] < 10_000
+    serial = _h200_secondary_starts("profile.host.serial_dispatch=true")
+    dispatch = 400_000  # h200_x4.toml
+    assert [b - a for a, b in zip(serial, serial[1:])] == [dispatch, dispatch]
+    assert _h200_secondary_starts("profile.host.serial_dispatch=false") == together
+
+
 def test_the_cores_know_each_pass_by_its_kind_and_a_pair_measured_kind_as_lossless():
     """What the host channel's loss rule reads: a pass's kind, lossless where the profile says
     its cores came from pairs; a copy is no pass."""

@@ -65,6 +65,11 @@ class HostProfile:
     #: parts to the memcpy threads, which wake too. Measured on lavapipe's runs (0.15-0.4 ms);
     #: it comes before `dispatch_ns`.
     host_copy_wake_ns: int = 0
+    #: Host threads woken by inputs take turns, one after another (FIFO), each for its
+    #: `dispatch_ns`: the mgpusim runner's threads run Python under one interpreter lock.
+    #: None: where the GPUs share the CPU (lavapipe, where it was found and measured), not on
+    #: GPUs of their own (a native engine's threads wake in parallel); a what-if either way.
+    serial_dispatch: bool | None = None
     #: Host time to record and submit one task, on its queue's submit thread: tasks of one
     #: queue are submitted one after another, a task fed by another device or the host only
     #: after the thread woke (dispatch_ns). Where the GPUs share the CPU it also takes cores.
@@ -395,6 +400,7 @@ def _parse_host(t: Table) -> HostProfile:
         gpus_share_cpu=t.get("gpus_share_cpu", bool, False),
         dispatch_ns=_ns(t, "dispatch_ns", 0),
         host_copy_wake_ns=_ns(t, "host_copy_wake_ns", 0),
+        serial_dispatch=t.get("serial_dispatch", bool, None) if t.has("serial_dispatch") else None,
         submit_ns=_ns(t, "submit_ns", 0),
         oversubscribed_efficiency=t.get("oversubscribed_efficiency", float, 1.0, above=0),
         cpu_overhead_scale=t.get("cpu_overhead_scale", float, 1.0, minimum=0, maximum=1),

@@ -210,7 +210,8 @@ class Engine:
                 self.channels[ex.channel.name] = ex.channel
         host_ex = self.executors["host"]
         self._host_work = host_ex.work  # one host thread's ns of time
-        self._serial_dispatch = host_ex.serial_dispatch
+        serial = self.costs.profile.host.serial_dispatch  # the profile's word, else the executor's
+        self._serial_dispatch = host_ex.serial_dispatch if serial is None else serial
         self._interp_busy = False  # a host thread is waking (serial dispatch)
         self._interp_waiting: deque[simpy.Event] = deque()  # threads waiting for their turn
         self._submit_load = host_ex.background() if self._submit_ns else None

@@ -4,36 +4,21 @@ run compares as the study's table says."""
 from __future__ import annotations
 
 import json
-import tomllib
 from pathlib import Path
 
 from mgpusim.cli import main
-from mgpusim.studies.measuring import measured_folder
-from mgpusim.studies.spec import load_study
+from tests.study_helpers import ROOT, calibrated_and_committed, validate_held_out
 
-ROOT = Path(__file__).resolve().parents[1]
 STUDY = ROOT / "experiments" / "h100_x2" / "study.toml"
 
 
-def _body(path: Path) -> dict:
-    return tomllib.loads(path.read_text())
-
-
 def test_the_committed_tables_and_runs_give_the_committed_profile(tmp_path):
-    assert main(["study", "calibrate", str(STUDY), "--out", str(tmp_path)]) == 0
-    fitted, committed = _body(tmp_path / "profile.toml"), _body(ROOT / "hardware_profiles" / "h100_x2.toml")
+    fitted, committed = calibrated_and_committed(STUDY, "h100_x2.toml", tmp_path)
     assert fitted["gpus"] == committed["gpus"] and fitted["host"] == committed["host"]
 
 
 def test_a_held_out_pipelining_run_is_within_the_target(tmp_path):
-    study = load_study(STUDY)
-    entry = next(e for e in study.held_out if e.name == "pipe_2gpu_uw3440")
-    args = ["validate", str(entry.experiment), "--measured", str(measured_folder(study.held_out_runs, entry.name)),
-            "--out", str(tmp_path / "v")]
-    for item in entry.sets:
-        args += ["--set", item]
-    assert main(args) == 0
-    summary = json.loads((tmp_path / "v" / "summary.json").read_text())
+    summary = validate_held_out(STUDY, "pipe_2gpu_uw3440", tmp_path)
     assert abs(summary["frame_time_error"]) <= 0.03
     assert summary["measured_runs"] == 2  # the steady window of two interleaved runs
 

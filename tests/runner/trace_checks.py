@@ -4,6 +4,9 @@ from __future__ import annotations
 import pandas as pd
 
 from mgpusim.schedules.base import FrameProgram
+from mgpusim.schedules.experiment import Experiment
+from mgpusim.schedules.program import build_program
+from mgpusim.sim.simulation import simulate
 
 
 def assert_dependencies_honoured(program: FrameProgram, trace: pd.DataFrame) -> None:
@@ -16,3 +19,13 @@ def assert_dependencies_honoured(program: FrameProgram, trace: pd.DataFrame) -> 
                 if frame + dep.offset >= 0:
                     before = spans.loc[(frame + dep.offset, dep.task), "end"]
                     assert spans.loc[(frame, task.name), "start"] >= before, (frame, task.name, dep)
+
+
+def assert_runs_the_simulators_tasks(exp: Experiment, measured: pd.DataFrame) -> None:
+    """The runner executed the schedule's own FrameProgram: the same (frame, device, engine,
+    step, task) rows as the simulator, and every dependency ended before its consumer began."""
+    def keys(trace: pd.DataFrame) -> set[tuple]:
+        gpu = trace[trace["device"] != "host"]
+        return set(map(tuple, gpu[["frame", "device", "engine", "step", "task"]].to_numpy()))
+    assert keys(measured) == keys(simulate(exp).trace)
+    assert_dependencies_honoured(build_program(exp), measured)

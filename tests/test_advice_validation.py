@@ -62,3 +62,39 @@ def test_no_frame_starts_past_the_deadline(setup: Setup, tmp_path: Path) -> None
     results = validate(setup, tmp_path, deadline_s=-1, log=lines.append)
     assert results.empty and not (tmp_path / "runs.csv").exists()
     assert any("past the deadline" in line for line in lines)
+
+
+def test_a_later_round_that_measures_an_option_clears_its_first_failure(setup: Setup, tmp_path: Path,
+                                                                        monkeypatch) -> None:
+    """One round's failure (a driver hiccup) stays in runs.csv; the option's row keeps the
+    round that measured it and no error."""
+    import mgpusim.studies.advice_validation as av
+    real, failed = av.measure, []
+
+    def flaky(setup_, path, overrides, out=None):
+        if out is None and not failed:  # the first option run of round 1
+            failed.append(True)
+            raise RuntimeError("device lost")
+        return real(setup_, path, overrides, out)
+    monkeypatch.setattr(av, "measure", flaky)
+    results = validate(setup, tmp_path, log=lambda _: None)
+    runs = pd.read_csv(tmp_path / "runs.csv")
+    assert runs["error"].fillna("").str.contains("device lost").sum() == 1
+    assert results["measured_ms"].notna().all() and results["error"].isna().all()
+
+
+def test_an_option_the_model_cannot_predict_keeps_the_frame_s_table(setup: Setup, tmp_path: Path,
+                                                                   monkeypatch) -> None:
+    """A prediction that fails (NaN) leaves that option unranked; the frame's real runs are
+    written all the same."""
+    import mgpusim.studies.advice_validation as av
+    real = av.evaluate
+
+    def one_nan(*args, **kwargs):
+        rows = real(*args, **kwargs)
+        rows[-1] = {**rows[-1], "frame_time_ms": math.nan}
+        return rows
+    monkeypatch.setattr(av, "evaluate", one_nan)
+    results = validate(setup, tmp_path, log=lambda _: None)
+    assert results["predicted_rank"].isna().sum() == 1
+    assert (tmp_path / "frames" / "fragment_loop.csv").exists()

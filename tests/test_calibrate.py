@@ -199,3 +199,12 @@ def test_a_fit_that_does_not_converge_is_an_input_error(monkeypatch):
     X = np.array([[1.0, 1.0], [1.0, 2.0], [1.0, 3.0]])
     with pytest.raises(InputError, match="mesh: .*did not converge"):
         fit_module.fit_nonnegative(X, np.array([2.0, 3.0, 4.0]), ["fixed_ns", "ns_per_pixel"], "mesh")
+
+
+def test_a_mesh_table_of_one_view_size_keeps_its_placed_terms():
+    """Only the particle draw's optional term falls back to the older model; a mesh table of one
+    view size keeps the placed terms (and says where it cannot tell them apart)."""
+    from mgpusim.calibration.pass_fit import read_measurements
+    df, _ = read_measurements([ROOT / "data" / "nvidia" / "h200_x4" / "measurements" / "mesh_1080.csv"])
+    fit = calibrate(df, {}).pass_fits["mesh"]
+    assert {"ns_per_fragment", "ns_per_triangle_edge", "ns_per_visible_triangle"} <= set(fit.names)

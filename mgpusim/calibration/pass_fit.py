@@ -21,7 +21,7 @@ from mgpusim.calibration.overlap_fit import fit_overlap
 from mgpusim.model.errors import InputError
 from mgpusim.model.geometry import MESH_PLACE, mesh_placement
 from mgpusim.model.scene import PassSpec
-from mgpusim.model.work_terms import REFERENCE_KINDS, UNPRICED_OK, WORK_TERMS
+from mgpusim.model.work_terms import PLACED_TERMS, REFERENCE_KINDS, UNPRICED_OK, WORK_TERMS
 from mgpusim.model.work_terms import pass_work as pass_work_placed
 from mgpusim.validation.measured_check import read_json_object, read_table
 
@@ -99,12 +99,14 @@ def fit_passes(df: pd.DataFrame, cal: Calibration) -> None:
 
 
 def _fit_kind(kind: str, works: list[dict[str, float]], durations: np.ndarray) -> Fit:
-    """Fit one kind's coefficients. A term that a profile may lack (:data:`UNPRICED_OK`) is
-    left out where the table cannot tell it from the others (one particle count, or one view
-    size): the kind keeps its older model rather than an arbitrary split of the time."""
+    """Fit one kind's coefficients. A term that a profile may lack (:data:`UNPRICED_OK`: the
+    particle draw's `particle_pixel`) is left out where the table cannot tell it from the others
+    (one particle count, or one view size): the kind keeps its older model rather than an
+    arbitrary split of the time. The mesh's placed terms stay (the studies fit them on tables of
+    several view sizes together; a table that cannot tell them apart says so in its warning)."""
     terms = sorted({t for w in works for t in w})
     fit = _fit_terms(kind, works, durations, terms)
-    optional = [t for t in terms if t in UNPRICED_OK.get(kind, ())]
+    optional = [t for t in terms if t in UNPRICED_OK.get(kind, ()) and t not in PLACED_TERMS.get(kind, ())]
     if optional and any("cannot tell" in w for w in fit.warnings):
         kept = [t for t in terms if t not in optional]
         reduced = _fit_terms(kind, works, durations, kept)

@@ -108,7 +108,6 @@ class Analytic:
         #: per phase, skippable task -> (its chain's leader, its same-frame skippable inputs)
         self.chains = [_skip_chains(ph) for ph in self.phases]
         self.approximations = self._approximations()
-        self.ties = 0
         #: the present is a task on a GPU queue, as the rows' per-frame presents count it (a
         #: present on the host would leave the rows' present unset): the recurrence's own
         #: per-frame presents then stand for the rows'
@@ -172,23 +171,19 @@ class Analytic:
             out.append("shared_executor: the emulated GPUs taken as independent devices (not a bound)")
         if "busy_wake" in needed:
             out.append("busy_wake: no copy waits behind another GPU's young pass (an optimistic bound)")
+        host = self.costs.profile.host
+        if host.serial_dispatch and host.dispatch_ns and not host.gpus_share_cpu:
+            out.append("serial_dispatch: host threads woken at once taken as waking together (an optimistic bound)")
         return out
 
     # ----- one configuration ---------------------------------------------------------------
-    def run(self, record: bool = True, progress: Callable[[int, int], None] | None = None
-            ) -> tuple[list[tuple], np.ndarray, np.ndarray, Repeat | None]:
-        """Rows, frame starts, presents, and the repeat (None: every frame computed, or the
-        arrays already extended when no rows were asked for). Sets `found` (the repeat's
-        period and first frame, or None), `skipped_frames` and `ties`."""
-        out = self.evaluate(record, progress)
-        self.found, self.ties, self.skipped_frames = out.found, out.ties, out.skipped_frames
-        return out.rows, out.start, out.present, out.repeat
-
     def evaluate(self, record: bool = True, progress: Callable[[int, int], None] | None = None
                  ) -> "_Run":
-        """:meth:`run`, its figures returned instead of set on the model: the model itself is
-        left as it was built, so that one model serves many runs (simulate() keeps it per
-        experiment, :mod:`mgpusim.sim.prepared`)."""
+        """One run of the recurrence: rows, frame starts, presents, the repeat (None: every
+        frame computed, or the arrays already extended when no rows were asked for), the
+        repeat found, skipped frames and tied skip decisions. The model itself is left as it
+        was built, so that one model serves many runs (simulate() keeps it per experiment,
+        :mod:`mgpusim.sim.prepared`)."""
         rec = _Recurrence(self, record)
         frames = self.program.frames
         horizon, repeat, f = frames, None, 0
@@ -502,16 +497,11 @@ def _extend(values: np.ndarray, computed: int, repeat: Repeat) -> None:
         values[computed:] = values[computed - p + k % p] + t * (k // p + 1)
 
 
-def analytic_raw(program: FrameProgram, costs: CostModel, effects: frozenset[str], record_trace: bool = True,
-                 progress: Callable[[int, int], None] | None = None):
-    """A RawResult from the recurrence, for :func:`mgpusim.results.summary.build_result`.
-    `progress(done, total)`: frames computed and frames to compute, now and then."""
-    return model_raw(Analytic(program, costs, effects), record_trace, progress)
-
-
 def model_raw(model: Analytic, record_trace: bool = True,
               progress: Callable[[int, int], None] | None = None):
-    """:func:`analytic_raw` of a model already built (which it leaves as it was)."""
+    """A RawResult from the recurrence of a model already built (which it leaves as it was),
+    for :func:`mgpusim.results.summary.build_result`. `progress(done, total)`: frames computed
+    and frames to compute, now and then."""
     out = model.evaluate(record=record_trace, progress=progress)
     program = model.program
     skipped = {n: len(v) for n, v in out.skipped_frames.items()}

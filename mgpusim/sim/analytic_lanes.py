@@ -133,7 +133,7 @@ def _chunk(model: Analytic) -> int:
     utilization) would pass LOG_BYTES."""
     per_frame = sum(max(1, len(n.part_times)) for phase in model.phases for n in phase) / len(model.phases)
     fit = LOG_BYTES // max(1, int(16 * per_frame * model.program.frames))
-    return int(min(CHUNK_LANES, max(256, fit)))
+    return int(min(CHUNK_LANES, max(1, fit)))
 
 
 def frame_times(model: Analytic, lanes: Lanes) -> dict[str, np.ndarray]:

@@ -38,15 +38,15 @@ from typing import Any, Callable, Mapping, Sequence
 
 import pandas as pd
 
+from mgpusim.io.output import write_text
 from mgpusim.model.errors import MgpusimError
+from mgpusim.schedules.binding import COLOUR_PIXEL_BYTES
 from mgpusim.schedules.experiment import load_experiment
 from mgpusim.sim.simulation import simulate
 from mgpusim.studies.advice import Advice, Link, evaluate, search
 
 #: The only link a real machine has: its profile's own.
 OWN_LINK = Link("as profiled", {}, "the profile's own link")
-#: Bytes per pixel of the RGBA8 images the runner's passes write.
-PIXEL_BYTES = 4
 RUN_FIELDS = ("frame", "round", "option", "family", "gpus", "measured_ms", "latency_ms", "wall_s", "error")
 
 
@@ -125,7 +125,6 @@ def _simulated_run(exp: Any) -> SimpleNamespace:
 
 def capture_frame(setup: Setup, frame: Frame, folder: Path) -> tuple[Path, float]:
     """Run the frame on one GPU for real and import the run: (the experiment, its frame time)."""
-    from mgpusim.io.output import write_text  # noqa: PLC0415
     from mgpusim.studies.capture_formats import read_run  # noqa: PLC0415
     from mgpusim.studies.frame_import import experiment_text, frame_from_slices  # noqa: PLC0415
 
@@ -150,7 +149,7 @@ def source_overrides(setup: Setup, frame: Frame, schedule: Mapping[str, Any]) ->
     out: dict[str, Any] = {**scene, "schedule": sched}
     if sched["name"] == "pipelining":
         exp = load_experiment(frame.experiment, scene, profile=setup.profile)
-        out["scene.passes.*.output_bytes"] = exp.scene.width * exp.scene.height * PIXEL_BYTES
+        out["scene.passes.*.output_bytes"] = exp.scene.width * exp.scene.height * COLOUR_PIXEL_BYTES
     return out
 
 
@@ -204,13 +203,16 @@ def one_frame(setup: Setup, frame: Frame, out: Path, log: Callable[[str], None])
             captures.append(capture_frame(setup, frame, folder / f"capture{r}")[::-1])
         for row, index in zip(rows, picks):
             got = _measure_option(setup, frame, advice, index, captures[-1][0])
-            _append_run(out, {**row, "round": r, **got})
+            ident = {k: row[k] for k in ("frame", "option", "family", "gpus")}
+            _append_run(out, {**ident, "round": r, **got})  # this round's run alone
             log(f"[{frame.name}] round {r}: {row['option']}: "
                 + (f"{got['measured_ms']:.3f} ms" if not got.get("error") else f"failed: {got['error']}"))
             if got.get("error"):
-                row["error"] = got["error"]
+                if "measured_ms" not in row:  # no round measured it yet: the error stands
+                    row["error"] = got["error"]
             elif got["measured_ms"] < row.get("measured_ms", math.inf):
                 row["measured_ms"] = got["measured_ms"]
+                row.pop("error", None)  # an earlier round's failure is in runs.csv
     quiet = min(captures, key=lambda c: c[0])[1]
     return _table(setup, frame, advice, picks, rows, quiet)
 
@@ -244,7 +246,7 @@ def _table(setup: Setup, frame: Frame, advice: Advice, picks: list[int], rows: l
     for col in ("measured_ms", "error"):
         if col not in table:
             table[col] = math.nan if col == "measured_ms" else None
-    table["predicted_rank"] = table["predicted_ms"].rank(method="first").astype(int)
+    table["predicted_rank"] = table["predicted_ms"].rank(method="first").astype("Int64")  # NaN: not predicted
     table["measured_rank"] = table["measured_ms"].rank(method="first")
     table["error_pct"] = 100 * (table["predicted_ms"] / table["measured_ms"] - 1)
     table["order_matches"] = order_matches(table, setup.tie)
@@ -299,7 +301,7 @@ def validate(setup: Setup, out: Path, *, only: str | None = None, deadline_s: fl
             log(f"[{frame.name}] not started: past the deadline of {deadline_s:.0f} s")
             continue
         table = one_frame(setup, frame, out, log)
-        table.round(4).to_csv(done, index=False)
+        write_text(table.round(4).to_csv(index=False), done)  # whole or not at all: done means done
         with pd.option_context("display.width", 220, "display.max_columns", 20):
             log(f"[{frame.name}] done\n" + table.drop(columns=["frame"]).round(3).to_string(index=False))
     return collect(setup, out, log)
@@ -313,9 +315,9 @@ def collect(setup: Setup, out: Path, log: Callable[[str], None] = print) -> pd.D
         log("no frame finished")
         return pd.DataFrame()
     results = pd.concat(parts, ignore_index=True)
-    results.to_csv(out / "results.csv", index=False)
+    write_text(results.to_csv(index=False), out / "results.csv")
     text = summary(results, setup.tie)
-    (out / "summary.txt").write_text(text + "\n", encoding="utf-8")
+    write_text(text + "\n", out / "summary.txt")
     log(text + f"; wrote {out / 'results.csv'}")
     return results
 

@@ -44,10 +44,14 @@ def record(config: str, run: str, before: Sequence[dict[str, Any]],
 
 
 def append(path: Path, row: dict[str, Any]) -> None:
-    """Add `row` to the table at `path` (written whole: a job cut short keeps its rows)."""
+    """Add `row` to the table at `path`, written whole or not at all (a temporary file renamed
+    over it): a job killed while writing keeps the rows before."""
+    from mgpusim.io.output import write_text  # noqa: PLC0415
+
     old = read(path)
     new = pd.DataFrame([row], columns=COLUMNS)
-    pd.concat([old, new] if not old.empty else [new], ignore_index=True).to_csv(path, index=False)
+    table = pd.concat([old, new] if not old.empty else [new], ignore_index=True)
+    write_text(table.to_csv(index=False), path)
 
 
 def read(path: Path) -> pd.DataFrame:

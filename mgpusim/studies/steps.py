@@ -197,7 +197,7 @@ def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_t
              "percentile of frame time over all runs; outside interference only adds time), and "
              "`spread` is (slowest / fastest - 1) of the whole runs' frame times, the machine's own "
              "noise. Each configuration's folder under validation/ holds `timelines.png` (measured "
-             "above simulated) and both Perfetto traces.", ""]
+             "above simulated) and both Perfetto traces (unless `--no-figures`).", ""]
     speed_lines = speed.report_lines(probes if probes is not None else speed.read_probes([]))
     speed_lines += run_speed.report_lines(run_speeds if run_speeds is not None else pd.DataFrame())
     lines += speed_lines
@@ -216,7 +216,8 @@ def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_t
         for schedule, part in groups:
             st = by_schedule.setdefault(title, {})[schedule] = error_stats(part)
             lines += [f"### {schedule}", "", markdown_table(part), "", stats_line(st), ""]
-            lines += [f"![{c}](validation/{c}/timelines.png)" for c in part["config"]] + [""]
+            lines += [f"![{c}](validation/{c}/timelines.png)" for c in part["config"]
+                      if (out / "validation" / c / "timelines.png").exists()] + [""]  # not --no-figures
         table.to_csv(out / f"errors_{title.split()[0].lower()}.csv", index=False)
     lines += ["## Calibration", "", "```", fit_text, "```", ""]
     out.mkdir(parents=True, exist_ok=True)

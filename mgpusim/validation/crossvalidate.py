@@ -38,6 +38,8 @@ from mgpusim.validation.speed_norm import RunSpeed
 #: this many: the ones that explain a frame-time error, not every task.
 SHOWN_WAIT_MS = 0.05
 SHOWN_WAITS = 3
+#: What a comparison draws besides its numbers (left out with `figures=False`).
+FIGURES = ("timelines.png", "measured.perfetto.json", "simulated.perfetto.json")
 
 
 def validate_experiment(exp: Experiment, out: Path, measured_dir: Path | None = None,
@@ -71,6 +73,9 @@ def validate_experiment(exp: Experiment, out: Path, measured_dir: Path | None = 
     write_table(replayed, out / "replayed_trace.parquet")
     if figures:
         _figures(exp, measured, sim, out)
+    else:  # an earlier run's figures would show beside these numbers
+        for name in FIGURES:
+            (out / name).unlink(missing_ok=True)
     return report
 
 

@@ -245,7 +245,7 @@ def test_particles_match_numpy(gpus, options):
     rates = result.summary["task_rates_hz"]
     # the steady-state rate: on one GPU the leader decides once the present two frames back has
     # ended, and a light frame's update may be done by then in every steady frame
-    assert rates["particle_update"] <= rates["frames"]
+    assert rates["particle_update"] <= rates["frames"] * (1 + 1e-9)  # equal where every update ran
     if gpus == 2:
         assert rates["particle_update"] < rates["frames"]
 

@@ -37,7 +37,7 @@ from mgpusim.sim.channel import Channel, FixedRateChannel
 from mgpusim.sim.hostlink import HostLinkChannel, LinkPort
 from mgpusim.sim.effects import choose_effects
 from mgpusim.sim.executors import Executor, Runner, make_executors
-from mgpusim.sim.state import Callback, Environment, Relative
+from mgpusim.sim.state import Callback, Environment, Relative, StreamProcess
 
 Key = tuple[int, str]
 
@@ -174,7 +174,7 @@ class Engine:
         self._make_executors = executors or (
             lambda env: make_executors(env, costs, "shared_executor" in effects,
                                        program if "shared_gpu" in effects else None))
-        self.processes: list[simpy.Process] = []
+        self.processes: list[StreamProcess] = []
         self.streams: list[_Stream] = []  # the processes' positions, in the same order
         self._ops: list[list[_Op]] = []
         #: called with the frame number when a frame presents (the fast-forward's probe)
@@ -252,7 +252,7 @@ class Engine:
         lean = (not host and not self._host_timeline and self._busy_wake is None
                 and not any(op.gap or op.fill_cores is not None for ops in plan for op in ops))
         proc = self._lean_stream_proc(plan, stream) if lean else self._stream_proc(plan, stream)
-        self.processes.append(self.env.process(proc))
+        self.processes.append(StreamProcess(self.env, proc))
 
     def _op(self, phase: int, task: Task) -> _Op:
         """Everything the hot loop needs about one task, computed once."""

@@ -148,9 +148,13 @@ class Channel:
         """Whether `flow` joins the running transfers on the fast path: they are on it, all
         capped, and their caps with its own add up to no more than the bandwidth (max-min
         fairness then gives each its cap)."""
-        if not self.shares_caps_freely or flow.cap is None or not self.flows[0].solo_rate:
+        cap = flow.cap
+        if not self.shares_caps_freely or cap is None or not self.flows[0].solo_rate:
             return False
-        total = (flow.cap.numerator, flow.cap.denominator)
+        if all(running.cap is cap for running in self.flows):  # the common case: n times one cap
+            n = len(self.flows) + 1
+            return n * cap.numerator * self.bandwidth.denominator <= self.bandwidth.numerator * cap.denominator
+        total = (cap.numerator, cap.denominator)
         for running in self.flows:
             if running.cap is None:
                 return False
@@ -416,6 +420,7 @@ class FixedRateChannel:
         self.active = 0
         self._busy_since = 0
         self._rates: dict[int, tuple[Fraction | None, int, int]] = {}
+        self._deliver = _Deliver((self,))  # every transfer's first callback (it holds nothing else)
 
     def transfer(self, nbytes: int, cap: Fraction | None = None) -> simpy.Event:
         """The transfer's own timeout: the channel's bookkeeping is its first callback, so a
@@ -434,7 +439,7 @@ class FixedRateChannel:
         if self.active > self.max_concurrent:
             self.max_concurrent = self.active
         done = self.env.timeout((2 * nbytes * den + num) // (2 * num))
-        done.callbacks.append(_Deliver((self,)))
+        done.callbacks.append(self._deliver)
         return done
 
     def _done(self) -> None:

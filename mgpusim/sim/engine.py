@@ -19,6 +19,7 @@ from array import array
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 from fractions import Fraction
+from functools import partial
 from typing import Callable, Iterable, Mapping
 
 import numpy as np
@@ -72,9 +73,23 @@ class _Op:
     name: str = ""
     #: its entry of the engine's dependents table (set once the op is built)
     dependents: list = field(default_factory=list)
+    #: `cross()` is the event of its bytes crossing `channel` (None without a channel): the
+    #: transfer with its arguments bound, its time worked out once where it is fixed
+    cross: Callable[[], simpy.Event] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "name", self.task.name)
+        if self.channel is not None:
+            object.__setattr__(self, "cross", _crossing(self.channel, self.nbytes, self.cap))
+
+
+def _crossing(channel: Channel | FixedRateChannel | LinkPort, nbytes: int,
+              cap: Fraction | None) -> Callable[[], simpy.Event]:
+    """A transfer of `nbytes` at `cap` on `channel`, ready to start: on a fixed-rate channel
+    its time does not depend on what else crosses, so it is worked out here, not per frame."""
+    if isinstance(channel, FixedRateChannel) and nbytes > 0:
+        return partial(channel.cross, channel.duration(nbytes, cap))
+    return partial(channel.transfer, nbytes, cap)
 
 
 class _Stream:
@@ -249,9 +264,13 @@ class Engine:
     def _start_stream(self, plan: list[list[_Op]], host: bool) -> None:
         stream = _Stream(host)
         self.streams.append(stream)
-        lean = (not host and not self._host_timeline and self._busy_wake is None
-                and not any(op.gap or op.fill_cores is not None for ops in plan for op in ops))
-        proc = self._lean_stream_proc(plan, stream) if lean else self._stream_proc(plan, stream)
+        if host:
+            lean = not self._host_timeline
+            proc = self._lean_host_proc(plan, stream) if lean else self._stream_proc(plan, stream)
+        else:
+            lean = (not self._host_timeline and self._busy_wake is None
+                    and not any(op.gap or op.fill_cores is not None for ops in plan for op in ops))
+            proc = self._lean_stream_proc(plan, stream) if lean else self._stream_proc(plan, stream)
         self.processes.append(StreamProcess(self.env, proc))
 
     def _op(self, phase: int, task: Task) -> _Op:
@@ -561,9 +580,9 @@ class Engine:
                     yield op.run(op.amount)
                 if op.fill_cores is not None:
                     busy_wake.pass_ended(op.device)
-                if op.channel is not None:
+                if op.cross is not None:
                     st.at = TRANSFER
-                    yield op.channel.transfer(op.nbytes, op.cap)
+                    yield op.cross()
                 finish(frame, op, op.engine, start, op.nbytes)
             frame += 1
 
@@ -571,7 +590,7 @@ class Engine:
         """:meth:`_stream_proc` for a queue with nothing between its task's inputs and its
         work: no host timeline (dispatch, submit), no idle gaps, no busy_wake. The same steps
         in the same order, without the tests for what it lacks (the hot path of most runs)."""
-        env, period, skip, ready = self.env, self.period, self._skip, self._ready
+        env, period, skip, ready, pending = self.env, self.period, self._skip, self._ready, self._pending
         waiters, check_ready, complete = self._waiters, self._check_ready, self._complete
         frame_start, rows = self.frame_start, self.rows
         frame = 0
@@ -582,7 +601,7 @@ class Engine:
                 key = (frame, op.name)
                 if key in ready:  # the common case: dependencies already met
                     ready.discard(key)
-                elif not check_ready(key, op.task):
+                elif key in pending or not check_ready(key, op.task):  # (inputs counted: waits)
                     ev = waiters[key] = env.event()
                     st.at = DEPS
                     yield ev
@@ -593,9 +612,9 @@ class Engine:
                 if op.run is not None:
                     st.at = RUN
                     yield op.run(op.amount)
-                if op.channel is not None:
+                if op.cross is not None:
                     st.at = TRANSFER
-                    yield op.channel.transfer(op.nbytes, op.cap)
+                    yield op.cross()
                 # _finish, inline
                 if start < frame_start[frame]:
                     frame_start[frame] = start
@@ -606,6 +625,30 @@ class Engine:
                     self._finish_present(frame, op)
                 else:
                     complete(frame, op.task, False, op.dependents)
+            frame += 1
+
+    def _lean_host_proc(self, plan: list[list[_Op]], st: _Stream):
+        """:meth:`_stream_proc` for the host-copy thread without a host timeline: no wake-up
+        or dispatch to wait for (no input's end is kept for them), so each host copy goes to
+        the memcpy threads as soon as its inputs are met. The same steps in the same order."""
+        env, period, skip, ready, pending = self.env, self.period, self._skip, self._ready, self._pending
+        waiters, check_ready, dispatch = self._waiters, self._check_ready, self._dispatch_host_copy
+        frame = 0
+        while frame < self.horizon:
+            st.frame = frame
+            for op in plan[frame % period]:
+                st.op = op
+                key = (frame, op.name)
+                if key in ready:
+                    ready.discard(key)
+                elif key in pending or not check_ready(key, op.task):
+                    ev = waiters[key] = env.event()
+                    st.at = DEPS
+                    yield ev
+                if skip and key in skip:
+                    self._skip_task(key, op.task)
+                    continue
+                dispatch(frame, op)
             frame += 1
 
     def _skip_task(self, key: Key, task: Task) -> None:

@@ -153,7 +153,11 @@ class Environment(simpy.Environment):
         if delay < 0:
             raise ValueError(f"Negative delay {delay}")
         event = _new(_Timeout)
-        event.env, event.callbacks, event._value, event._delay, event._ok = self, [], value, delay, True
+        event.env = self  # (one store each: a tuple assignment of five builds a tuple first)
+        event.callbacks = []
+        event._value = value
+        event._delay = delay
+        event._ok = True
         if self.schedule is not self._plain:  # wrapped (e.g. counted): through `schedule`
             self.schedule(event, NORMAL, delay)
         elif delay:
@@ -214,11 +218,13 @@ class Environment(simpy.Environment):
         if until is not None:
             return super().run(until)
         queue, now_list, pop, popleft = self._queue, self._now_list, heapq.heappop, self._now_list.popleft
+        now = self.now  # (only this loop moves the clock)
         while True:
-            if now_list and not (queue and queue[0][0] <= self.now):
+            if now_list and not (queue and queue[0][0] <= now):
                 event = popleft()
             elif queue:
-                self.now, _, _, event = pop(queue)
+                now, _, _, event = pop(queue)
+                self.now = now
             else:
                 return None
             callbacks, event.callbacks = event.callbacks, None

@@ -180,14 +180,6 @@ class Channel:
         end = now + (2 * flow.nbytes * den + num) // (2 * num)  # round half up of bytes / rate
         self.env.timeout(end - now).callbacks.append(_SoloDone((self, flow, self._epoch)))
 
-    def _solo_done(self, flow: _Flow, epoch: int) -> None:
-        if epoch != self._epoch:
-            return
-        self.flows.remove(flow)
-        if not self.flows:
-            self.busy.append((self._busy_since, self.env.now))
-        self._succeed(flow.done)  # (the timeout's only callback: at once if nothing else is due now)
-
     def _to_fluid(self, flow: _Flow, now: int) -> None:
         self._fit_scale(flow)
         rate_s = flow.solo_rate.numerator * (self._scale // flow.solo_rate.denominator)
@@ -347,7 +339,13 @@ class _SoloDone(Callback, tuple):
     __slots__ = ()
 
     def __call__(self, _event: simpy.Event) -> None:
-        self[0]._solo_done(self[1], self[2])
+        channel, flow, epoch = self  # (Channel._solo_done, inline: a call less per transfer)
+        if epoch != channel._epoch:
+            return
+        channel.flows.remove(flow)
+        if not channel.flows:
+            channel.busy.append((channel._busy_since, channel.env.now))
+        channel._succeed(flow.done)  # (the timeout's only callback: at once if nothing else is due now)
 
     def state(self, rel: Relative) -> tuple:
         current = self[2] == self[0]._epoch

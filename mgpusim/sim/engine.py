@@ -41,6 +41,7 @@ from mgpusim.sim.executors import Executor, Runner, make_executors
 from mgpusim.sim.state import Callback, Environment, Relative, StreamProcess
 
 Key = tuple[int, str]
+_heappop, _heappush = heapq.heappop, heapq.heappush  # (looked up once: used per host-copy part)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -704,7 +705,7 @@ class Engine:
         for size in sizes:
             part = (frame, op, size, state)
             if self._free_threads:
-                self._start_part(heapq.heappop(self._free_threads), part)
+                self._start_part(_heappop(self._free_threads), part)
             else:
                 self._part_queue.append(part)
 
@@ -713,22 +714,22 @@ class Engine:
         op = part[1]
         if op.measured:  # its whole time, measured
             done = op.run(op.amount) if op.run is not None else self.env.timeout(0)
-            done.callbacks.append(_PartStep((self, "done", tid, part, start)))
+            done.callbacks.append(_PartDone((self, tid, part, start)))
         elif op.duration:  # the part's fixed cost, then its bytes
-            self.env.timeout(op.duration).callbacks.append(_PartStep((self, "copy", tid, part, start)))
+            self.env.timeout(op.duration).callbacks.append(_PartCopy((self, tid, part, start)))
         else:
             self._part_copy(tid, part, start)
 
     def _part_copy(self, tid: int, part: tuple, start: int) -> None:
         ev = self._part_event(part[2], part[1].cap)
-        ev.callbacks.append(_PartStep((self, "done", tid, part, start)))
+        ev.callbacks.append(_PartDone((self, tid, part, start)))
 
     def _part_done(self, tid: int, part: tuple, start: int) -> None:
         frame, op, size, state = part
         if self._part_queue:
             self._start_part(tid, self._part_queue.popleft())
         else:
-            heapq.heappush(self._free_threads, tid)
+            _heappush(self._free_threads, tid)
         state[0] -= 1
         if start < self.frame_start[frame]:
             self.frame_start[frame] = start
@@ -871,20 +872,26 @@ class _Presented(Callback):
         return ("presented", rel.f(self.frame), rel.op(self.op))
 
 
-class _PartStep(Callback, tuple):
-    """(engine, step, memcpy thread, part, start): a host copy's part has spent its fixed cost
-    and starts copying (`copy`), or its bytes have crossed (`done`). A tuple: made at C speed,
-    two for every part."""
+class _PartCopy(Callback, tuple):
+    """(engine, memcpy thread, part, start): a host copy's part has spent its fixed cost and
+    starts copying. A tuple: made at C speed, for every part."""
 
     __slots__ = ()
 
     def __call__(self, _event: simpy.Event) -> None:
-        engine, step, tid, part, start = self
-        if step == "copy":
-            engine._part_copy(tid, part, start)
-        else:
-            engine._part_done(tid, part, start)
+        self[0]._part_copy(self[1], self[2], self[3])
 
     def state(self, rel: Relative) -> tuple:
-        _engine, step, tid, part, start = self
-        return ("part " + step, tid, rel.part(part), rel.t(start))
+        return ("part copy", self[1], rel.part(self[2]), rel.t(self[3]))
+
+
+class _PartDone(_PartCopy):
+    """(engine, memcpy thread, part, start): a host copy's part has crossed."""
+
+    __slots__ = ()
+
+    def __call__(self, _event: simpy.Event) -> None:
+        self[0]._part_done(self[1], self[2], self[3])
+
+    def state(self, rel: Relative) -> tuple:
+        return ("part done", self[1], rel.part(self[2]), rel.t(self[3]))

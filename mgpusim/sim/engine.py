@@ -171,13 +171,13 @@ class Engine:
         self._chains: SkipChains | GivenSkips = (SkipChains(program, self._index) if skips is None
                                                  else GivenSkips(skips))
         self._skip = self._chains.skip  # instances marked to be skipped, read in the hot loop
-        self._dependents = self._reverse_deps()
         host = costs.profile.host
         submission = "host_submission" in effects
         self._dispatch_ns = host.dispatch_ns if submission else 0
         self._copy_wake_ns = host.host_copy_wake_ns if submission else 0
         self._submit_ns = host.submit_ns if submission else 0
         self._host_timeline = bool(self._dispatch_ns or self._submit_ns or self._copy_wake_ns)
+        self._dependents = self._reverse_deps()
         self._cross_done: dict[Key, int] = {}  # instance -> when its last cross-device input ended
         self._busy_wake = (BusyWake(host.busy_wake_share, host.busy_wake_ns,
                                     host.busy_wake_window_ns, host.cpu_cores)
@@ -205,8 +205,8 @@ class Engine:
     def _reverse_deps(self) -> list[dict[str, list[tuple[str, int, Task, int, int, bool, bool]]]]:
         """dependents[phase][name] = [(dependent, frame distance k >= 0, its task, its number
         of dependencies, the frame from which all of them exist, whether the edge crosses
-        devices or the host: a host thread must wake to act on it, whether the dependent is
-        skippable)]."""
+        devices or the host where the host timeline is modelled: a host thread must wake to act
+        on it, whether the dependent is skippable)]."""
         out: list[dict[str, list]] = [defaultdict(list) for _ in range(self.period)]
         for q, tasks in enumerate(self.program.templates):
             for task in tasks:
@@ -214,7 +214,7 @@ class Engine:
                 for dep in task.deps:
                     k = -dep.offset
                     producer = self._index[(q - k) % self.period][dep.task]
-                    cross = wakes_host(producer, task, leads_chain(task, self._index[q]))
+                    cross = self._host_timeline and wakes_host(producer, task, leads_chain(task, self._index[q]))
                     out[(q - k) % self.period][dep.task].append(
                         (task.name, k, task, len(task.deps), lag, cross, task.skip_if_busy))
         return out
@@ -478,14 +478,13 @@ class Engine:
         if not dependents:
             return
         frames, pending, waiters = self.horizon, self._pending, self._waiters
-        cross_done = self._cross_done if self._host_timeline else None
         for name, k, dtask, ndeps, lag, cross, skippable in dependents:
             g = frame + k
             if g >= frames:
                 continue
             key = (g, name)
-            if cross and cross_done is not None:
-                cross_done[key] = self.env.now
+            if cross:  # (only where the host timeline is modelled)
+                self._cross_done[key] = self.env.now
             if g >= lag:  # all its inputs exist: count them down from ndeps (one lookup)
                 left = pending.pop(key, ndeps) - 1
             else:

@@ -98,12 +98,14 @@ class _Stream:
     without looking into its generator: the frame and task it is at, what it waits for there
     (`at`, one of the labels below), and the values still to be used from that point on."""
 
-    __slots__ = ("host", "frame", "op", "at", "submitted", "start", "wait")
+    __slots__ = ("host", "frame", "op", "at", "submitted", "start", "wait", "target")
 
     def __init__(self, host: bool):
         self.host = host
         self.frame, self.op, self.at = 0, None, "start"
         self.submitted = self.start = self.wait = 0
+        #: the event a stream that waits by itself waits on (None: its process's target)
+        self.target: simpy.Event | None = None
 
 
 #: Where a stream waits (`_Stream.at`): its task's dependencies; the host-copy thread's wake-up;
@@ -265,14 +267,16 @@ class Engine:
     def _start_stream(self, plan: list[list[_Op]], host: bool) -> None:
         stream = _Stream(host)
         self.streams.append(stream)
-        if host:
-            lean = not self._host_timeline
-            proc = self._lean_host_proc(plan, stream) if lean else self._stream_proc(plan, stream)
+        box: list[StreamProcess] = []  # a lean generator's process, read once it runs
+        if host and not self._host_timeline:
+            proc = self._lean_host_proc(plan, stream, box)
+        elif (not host and not self._host_timeline and self._busy_wake is None
+              and not any(op.gap or op.fill_cores is not None for ops in plan for op in ops)):
+            proc = self._lean_stream_proc(plan, stream, box)
         else:
-            lean = (not self._host_timeline and self._busy_wake is None
-                    and not any(op.gap or op.fill_cores is not None for ops in plan for op in ops))
-            proc = self._lean_stream_proc(plan, stream) if lean else self._stream_proc(plan, stream)
-        self.processes.append(StreamProcess(self.env, proc))
+            proc = self._stream_proc(plan, stream)
+        box.append(StreamProcess(self.env, proc))
+        self.processes.append(box[0])
 
     def _op(self, phase: int, task: Task) -> _Op:
         """Everything the hot loop needs about one task, computed once."""
@@ -586,13 +590,15 @@ class Engine:
                 finish(frame, op, op.engine, start, op.nbytes)
             frame += 1
 
-    def _lean_stream_proc(self, plan: list[list[_Op]], st: _Stream):
+    def _lean_stream_proc(self, plan: list[list[_Op]], st: _Stream, proc: list[StreamProcess]):
         """:meth:`_stream_proc` for a queue with nothing between its task's inputs and its
         work: no host timeline (dispatch, submit), no idle gaps, no busy_wake. The same steps
-        in the same order, without the tests for what it lacks (the hot path of most runs)."""
+        in the same order, without the tests for what it lacks (the hot path of most runs).
+        It waits by itself (see StreamProcess: `resume` on the event, then a bare yield), and
+        writes the event down in `st.target`. `proc`: [its process], filled before it runs."""
         env, period, skip, ready, pending = self.env, self.period, self._skip, self._ready, self._pending
         waiters, check_ready, complete = self._waiters, self._check_ready, self._complete
-        frame_start, rows = self.frame_start, self.rows
+        frame_start, rows, resume = self.frame_start, self.rows, proc[0].resume_direct
         frame = 0
         while frame < self.horizon:
             st.frame = frame
@@ -602,19 +608,24 @@ class Engine:
                 if key in ready:  # the common case: dependencies already met
                     ready.discard(key)
                 elif key in pending or not check_ready(key, op.task):  # (inputs counted: waits)
-                    ev = waiters[key] = env.event()
+                    ev = st.target = waiters[key] = env.event()
                     st.at = DEPS
-                    yield ev
+                    ev.callbacks.append(resume)
+                    yield
                 if skip and key in skip:
                     self._skip_task(key, op.task)
                     continue
                 start = st.start = env.now
                 if op.run is not None:
                     st.at = RUN
-                    yield op.run(op.amount)
+                    ev = st.target = op.run(op.amount)
+                    ev.callbacks.append(resume)
+                    yield
                 if op.cross is not None:
                     st.at = TRANSFER
-                    yield op.cross()
+                    ev = st.target = op.cross()
+                    ev.callbacks.append(resume)
+                    yield
                 # _finish, inline
                 if start < frame_start[frame]:
                     frame_start[frame] = start
@@ -626,13 +637,17 @@ class Engine:
                 else:
                     complete(frame, op.task, False, op.dependents)
             frame += 1
+        proc[0].finish()
+        yield  # (never resumed)
 
-    def _lean_host_proc(self, plan: list[list[_Op]], st: _Stream):
+    def _lean_host_proc(self, plan: list[list[_Op]], st: _Stream, proc: list[StreamProcess]):
         """:meth:`_stream_proc` for the host-copy thread without a host timeline: no wake-up
         or dispatch to wait for (no input's end is kept for them), so each host copy goes to
-        the memcpy threads as soon as its inputs are met. The same steps in the same order."""
+        the memcpy threads as soon as its inputs are met. The same steps in the same order;
+        it waits by itself, as :meth:`_lean_stream_proc`."""
         env, period, skip, ready, pending = self.env, self.period, self._skip, self._ready, self._pending
         waiters, check_ready, dispatch = self._waiters, self._check_ready, self._dispatch_host_copy
+        resume = proc[0].resume_direct
         frame = 0
         while frame < self.horizon:
             st.frame = frame
@@ -642,14 +657,17 @@ class Engine:
                 if key in ready:
                     ready.discard(key)
                 elif key in pending or not check_ready(key, op.task):
-                    ev = waiters[key] = env.event()
+                    ev = st.target = waiters[key] = env.event()
                     st.at = DEPS
-                    yield ev
+                    ev.callbacks.append(resume)
+                    yield
                 if skip and key in skip:
                     self._skip_task(key, op.task)
                     continue
                 dispatch(frame, op)
             frame += 1
+        proc[0].finish()
+        yield  # (never resumed)
 
     def _skip_task(self, key: Key, task: Task) -> None:
         self._skip.discard(key)
@@ -783,7 +801,8 @@ class Engine:
         from there (see `_Stream`)."""
         if not proc.is_alive:
             return ("finished",)
-        out: tuple = (st.at, rel.event(proc.target), rel.f(st.frame), rel.op(st.op))
+        target = proc.target if st.target is None else st.target
+        out: tuple = (st.at, rel.event(target), rel.f(st.frame), rel.op(st.op))
         if st.at in (TURN, DISPATCH):
             out += (st.wait,)
         elif st.at in (RUN, TRANSFER):

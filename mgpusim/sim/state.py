@@ -63,23 +63,32 @@ class Callback:
 class StreamProcess(simpy.Process):
     """SimPy's Process with a cheaper resume, for the model's streams (a resume per event).
 
-    The same steps as SimPy's `_resume` where the yielded event succeeded: send its value,
-    go on at once while the next event is already processed, else wait on it. It saves what
-    the model never uses: marking the process active (nothing asks `env.active_process`) and
-    a new bound method per wait (the one `resume` is appended every time). A failed event,
-    the generator's end and an exception go through SimPy's own code."""
+    A generator waits in one of two ways. It yields the event (SimPy's way): the process
+    resumes it with SimPy's steps for a succeeded event, without marking the process active
+    (nothing asks `env.active_process`) or making a bound method per wait. Or, on the hot path,
+    it appends :attr:`resume_direct` (its own `send`, called from C: no Python frame between
+    the event and the generator) to the event's callbacks itself and yields nothing; it then
+    never returns (a return would raise out of the callback) but calls :meth:`finish` and
+    stops at a last yield. The events and their order are the same either way. (An exception
+    raised in such a generator goes straight out of `env.run()`, not through the process event;
+    and a failed event it waits on is raised by the run loop: none is defused.)"""
 
     def __init__(self, env: simpy.Environment, generator: Any):
         super().__init__(env, generator)
+        self.generator = generator
         self._send = generator.send
         #: the callback a wait appends (one bound method, made once)
         self.resume = self._resume
+        #: the callback a generator that waits by itself appends (it is sent the event)
+        self.resume_direct = generator.send
 
     def _resume(self, event: simpy.Event) -> None:
         send = self._send
         try:
             while event._ok:
                 event = send(event._value)
+                if event is None:  # the generator waits by itself
+                    return
                 callbacks = event.callbacks
                 if callbacks is not None:
                     callbacks.append(self.resume)
@@ -89,6 +98,13 @@ class StreamProcess(simpy.Process):
             self._ended(exc)
             return
         simpy.Process._resume(self, event)  # a failed event: thrown into the generator
+
+    def finish(self) -> None:
+        """The generator that waits by itself is done: the process event succeeds (as when a
+        SimPy generator returns)."""
+        self._target = None  # type: ignore[assignment]
+        self._ok, self._value = True, None
+        self.env.schedule(self)
 
     def _ended(self, exc: BaseException) -> None:
         """The generator returned (StopIteration) or raised: the process event succeeds with

@@ -76,11 +76,10 @@ class StreamProcess(simpy.Process):
     def __init__(self, env: simpy.Environment, generator: Any):
         super().__init__(env, generator)
         self.generator = generator
-        self._send = generator.send
         #: the callback a wait appends (one bound method, made once)
         self.resume = self._resume
         #: the callback a generator that waits by itself appends (it is sent the event)
-        self.resume_direct = generator.send
+        self.resume_direct = self._send = generator.send
 
     def _resume(self, event: simpy.Event) -> None:
         send = self._send

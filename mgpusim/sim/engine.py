@@ -19,6 +19,7 @@ from array import array
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 from fractions import Fraction
+from functools import partial
 from typing import Callable, Iterable, Mapping
 
 import numpy as np
@@ -37,9 +38,10 @@ from mgpusim.sim.channel import Channel, FixedRateChannel
 from mgpusim.sim.hostlink import HostLinkChannel, LinkPort
 from mgpusim.sim.effects import choose_effects
 from mgpusim.sim.executors import Executor, Runner, make_executors
-from mgpusim.sim.state import Callback, Environment, Relative
+from mgpusim.sim.state import Callback, Environment, Relative, StreamProcess
 
 Key = tuple[int, str]
+_heappop, _heappush = heapq.heappop, heapq.heappush  # (looked up once: used per host-copy part)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -72,9 +74,23 @@ class _Op:
     name: str = ""
     #: its entry of the engine's dependents table (set once the op is built)
     dependents: list = field(default_factory=list)
+    #: `cross()` is the event of its bytes crossing `channel` (None without a channel): the
+    #: transfer with its arguments bound, its time worked out once where it is fixed
+    cross: Callable[[], simpy.Event] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "name", self.task.name)
+        if self.channel is not None:
+            object.__setattr__(self, "cross", _crossing(self.channel, self.nbytes, self.cap))
+
+
+def _crossing(channel: Channel | FixedRateChannel | LinkPort, nbytes: int,
+              cap: Fraction | None) -> Callable[[], simpy.Event]:
+    """A transfer of `nbytes` at `cap` on `channel`, ready to start: on a fixed-rate channel
+    its time does not depend on what else crosses, so it is worked out here, not per frame."""
+    if isinstance(channel, FixedRateChannel) and nbytes > 0:
+        return partial(channel.cross, channel.duration(nbytes, cap))
+    return partial(channel.transfer, nbytes, cap)
 
 
 class _Stream:
@@ -82,12 +98,14 @@ class _Stream:
     without looking into its generator: the frame and task it is at, what it waits for there
     (`at`, one of the labels below), and the values still to be used from that point on."""
 
-    __slots__ = ("host", "frame", "op", "at", "submitted", "start", "wait")
+    __slots__ = ("host", "frame", "op", "at", "submitted", "start", "wait", "target")
 
     def __init__(self, host: bool):
         self.host = host
         self.frame, self.op, self.at = 0, None, "start"
         self.submitted = self.start = self.wait = 0
+        #: the event a stream that waits by itself waits on (None: its process's target)
+        self.target: simpy.Event | None = None
 
 
 #: Where a stream waits (`_Stream.at`): its task's dependencies; the host-copy thread's wake-up;
@@ -155,13 +173,13 @@ class Engine:
         self._chains: SkipChains | GivenSkips = (SkipChains(program, self._index) if skips is None
                                                  else GivenSkips(skips))
         self._skip = self._chains.skip  # instances marked to be skipped, read in the hot loop
-        self._dependents = self._reverse_deps()
         host = costs.profile.host
         submission = "host_submission" in effects
         self._dispatch_ns = host.dispatch_ns if submission else 0
         self._copy_wake_ns = host.host_copy_wake_ns if submission else 0
         self._submit_ns = host.submit_ns if submission else 0
         self._host_timeline = bool(self._dispatch_ns or self._submit_ns or self._copy_wake_ns)
+        self._dependents = self._reverse_deps()
         self._cross_done: dict[Key, int] = {}  # instance -> when its last cross-device input ended
         self._busy_wake = (BusyWake(host.busy_wake_share, host.busy_wake_ns,
                                     host.busy_wake_window_ns, host.cpu_cores)
@@ -174,7 +192,7 @@ class Engine:
         self._make_executors = executors or (
             lambda env: make_executors(env, costs, "shared_executor" in effects,
                                        program if "shared_gpu" in effects else None))
-        self.processes: list[simpy.Process] = []
+        self.processes: list[StreamProcess] = []
         self.streams: list[_Stream] = []  # the processes' positions, in the same order
         self._ops: list[list[_Op]] = []
         #: called with the frame number when a frame presents (the fast-forward's probe)
@@ -189,8 +207,8 @@ class Engine:
     def _reverse_deps(self) -> list[dict[str, list[tuple[str, int, Task, int, int, bool, bool]]]]:
         """dependents[phase][name] = [(dependent, frame distance k >= 0, its task, its number
         of dependencies, the frame from which all of them exist, whether the edge crosses
-        devices or the host: a host thread must wake to act on it, whether the dependent is
-        skippable)]."""
+        devices or the host where the host timeline is modelled: a host thread must wake to act
+        on it, whether the dependent is skippable)]."""
         out: list[dict[str, list]] = [defaultdict(list) for _ in range(self.period)]
         for q, tasks in enumerate(self.program.templates):
             for task in tasks:
@@ -198,7 +216,7 @@ class Engine:
                 for dep in task.deps:
                     k = -dep.offset
                     producer = self._index[(q - k) % self.period][dep.task]
-                    cross = wakes_host(producer, task, leads_chain(task, self._index[q]))
+                    cross = self._host_timeline and wakes_host(producer, task, leads_chain(task, self._index[q]))
                     out[(q - k) % self.period][dep.task].append(
                         (task.name, k, task, len(task.deps), lag, cross, task.skip_if_busy))
         return out
@@ -250,10 +268,16 @@ class Engine:
     def _start_stream(self, plan: list[list[_Op]], host: bool) -> None:
         stream = _Stream(host)
         self.streams.append(stream)
-        lean = (not host and not self._host_timeline and self._busy_wake is None
-                and not any(op.gap or op.fill_cores is not None for ops in plan for op in ops))
-        proc = self._lean_stream_proc(plan, stream) if lean else self._stream_proc(plan, stream)
-        self.processes.append(self.env.process(proc))
+        box: list[StreamProcess] = []  # a lean generator's process, read once it runs
+        if host and not self._host_timeline:
+            proc = self._lean_host_proc(plan, stream, box)
+        elif (not host and not self._host_timeline and self._busy_wake is None
+              and not any(op.gap or op.fill_cores is not None for ops in plan for op in ops)):
+            proc = self._lean_stream_proc(plan, stream, box)
+        else:
+            proc = self._stream_proc(plan, stream)
+        box.append(StreamProcess(self.env, proc))
+        self.processes.append(box[0])
 
     def _op(self, phase: int, task: Task) -> _Op:
         """Everything the hot loop needs about one task, computed once."""
@@ -459,14 +483,13 @@ class Engine:
         if not dependents:
             return
         frames, pending, waiters = self.horizon, self._pending, self._waiters
-        cross_done = self._cross_done if self._host_timeline else None
         for name, k, dtask, ndeps, lag, cross, skippable in dependents:
             g = frame + k
             if g >= frames:
                 continue
             key = (g, name)
-            if cross and cross_done is not None:
-                cross_done[key] = self.env.now
+            if cross:  # (only where the host timeline is modelled)
+                self._cross_done[key] = self.env.now
             if g >= lag:  # all its inputs exist: count them down from ndeps (one lookup)
                 left = pending.pop(key, ndeps) - 1
             else:
@@ -562,19 +585,21 @@ class Engine:
                     yield op.run(op.amount)
                 if op.fill_cores is not None:
                     busy_wake.pass_ended(op.device)
-                if op.channel is not None:
+                if op.cross is not None:
                     st.at = TRANSFER
-                    yield op.channel.transfer(op.nbytes, op.cap)
+                    yield op.cross()
                 finish(frame, op, op.engine, start, op.nbytes)
             frame += 1
 
-    def _lean_stream_proc(self, plan: list[list[_Op]], st: _Stream):
+    def _lean_stream_proc(self, plan: list[list[_Op]], st: _Stream, proc: list[StreamProcess]):
         """:meth:`_stream_proc` for a queue with nothing between its task's inputs and its
         work: no host timeline (dispatch, submit), no idle gaps, no busy_wake. The same steps
-        in the same order, without the tests for what it lacks (the hot path of most runs)."""
-        env, period, skip, ready = self.env, self.period, self._skip, self._ready
+        in the same order, without the tests for what it lacks (the hot path of most runs).
+        It waits by itself (see StreamProcess: `resume` on the event, then a bare yield), and
+        writes the event down in `st.target`. `proc`: [its process], filled before it runs."""
+        env, period, skip, ready, pending = self.env, self.period, self._skip, self._ready, self._pending
         waiters, check_ready, complete = self._waiters, self._check_ready, self._complete
-        frame_start, rows = self.frame_start, self.rows
+        frame_start, rows, resume = self.frame_start, self.rows, proc[0].resume_direct
         frame = 0
         while frame < self.horizon:
             st.frame = frame
@@ -583,20 +608,25 @@ class Engine:
                 key = (frame, op.name)
                 if key in ready:  # the common case: dependencies already met
                     ready.discard(key)
-                elif not check_ready(key, op.task):
-                    ev = waiters[key] = env.event()
+                elif key in pending or not check_ready(key, op.task):  # (inputs counted: waits)
+                    ev = st.target = waiters[key] = env.event()
                     st.at = DEPS
-                    yield ev
+                    ev.callbacks.append(resume)
+                    yield
                 if skip and key in skip:
                     self._skip_task(key, op.task)
                     continue
                 start = st.start = env.now
                 if op.run is not None:
                     st.at = RUN
-                    yield op.run(op.amount)
-                if op.channel is not None:
+                    ev = st.target = op.run(op.amount)
+                    ev.callbacks.append(resume)
+                    yield
+                if op.cross is not None:
                     st.at = TRANSFER
-                    yield op.channel.transfer(op.nbytes, op.cap)
+                    ev = st.target = op.cross()
+                    ev.callbacks.append(resume)
+                    yield
                 # _finish, inline
                 if start < frame_start[frame]:
                     frame_start[frame] = start
@@ -608,6 +638,37 @@ class Engine:
                 else:
                     complete(frame, op.task, False, op.dependents)
             frame += 1
+        proc[0].finish()
+        yield  # (never resumed)
+
+    def _lean_host_proc(self, plan: list[list[_Op]], st: _Stream, proc: list[StreamProcess]):
+        """:meth:`_stream_proc` for the host-copy thread without a host timeline: no wake-up
+        or dispatch to wait for (no input's end is kept for them), so each host copy goes to
+        the memcpy threads as soon as its inputs are met. The same steps in the same order;
+        it waits by itself, as :meth:`_lean_stream_proc`."""
+        env, period, skip, ready, pending = self.env, self.period, self._skip, self._ready, self._pending
+        waiters, check_ready, dispatch = self._waiters, self._check_ready, self._dispatch_host_copy
+        resume = proc[0].resume_direct
+        frame = 0
+        while frame < self.horizon:
+            st.frame = frame
+            for op in plan[frame % period]:
+                st.op = op
+                key = (frame, op.name)
+                if key in ready:
+                    ready.discard(key)
+                elif key in pending or not check_ready(key, op.task):
+                    ev = st.target = waiters[key] = env.event()
+                    st.at = DEPS
+                    ev.callbacks.append(resume)
+                    yield
+                if skip and key in skip:
+                    self._skip_task(key, op.task)
+                    continue
+                dispatch(frame, op)
+            frame += 1
+        proc[0].finish()
+        yield  # (never resumed)
 
     def _skip_task(self, key: Key, task: Task) -> None:
         self._skip.discard(key)
@@ -662,7 +723,7 @@ class Engine:
         for size in sizes:
             part = (frame, op, size, state)
             if self._free_threads:
-                self._start_part(heapq.heappop(self._free_threads), part)
+                self._start_part(_heappop(self._free_threads), part)
             else:
                 self._part_queue.append(part)
 
@@ -671,22 +732,22 @@ class Engine:
         op = part[1]
         if op.measured:  # its whole time, measured
             done = op.run(op.amount) if op.run is not None else self.env.timeout(0)
-            done.callbacks.append(_PartStep((self, "done", tid, part, start)))
+            done.callbacks.append(_PartDone((self, tid, part, start)))
         elif op.duration:  # the part's fixed cost, then its bytes
-            self.env.timeout(op.duration).callbacks.append(_PartStep((self, "copy", tid, part, start)))
+            self.env.timeout(op.duration).callbacks.append(_PartCopy((self, tid, part, start)))
         else:
             self._part_copy(tid, part, start)
 
     def _part_copy(self, tid: int, part: tuple, start: int) -> None:
         ev = self._part_event(part[2], part[1].cap)
-        ev.callbacks.append(_PartStep((self, "done", tid, part, start)))
+        ev.callbacks.append(_PartDone((self, tid, part, start)))
 
     def _part_done(self, tid: int, part: tuple, start: int) -> None:
         frame, op, size, state = part
         if self._part_queue:
             self._start_part(tid, self._part_queue.popleft())
         else:
-            heapq.heappush(self._free_threads, tid)
+            _heappush(self._free_threads, tid)
         state[0] -= 1
         if start < self.frame_start[frame]:
             self.frame_start[frame] = start
@@ -741,7 +802,8 @@ class Engine:
         from there (see `_Stream`)."""
         if not proc.is_alive:
             return ("finished",)
-        out: tuple = (st.at, rel.event(proc.target), rel.f(st.frame), rel.op(st.op))
+        target = proc.target if st.target is None else st.target
+        out: tuple = (st.at, rel.event(target), rel.f(st.frame), rel.op(st.op))
         if st.at in (TURN, DISPATCH):
             out += (st.wait,)
         elif st.at in (RUN, TRANSFER):
@@ -829,20 +891,26 @@ class _Presented(Callback):
         return ("presented", rel.f(self.frame), rel.op(self.op))
 
 
-class _PartStep(Callback, tuple):
-    """(engine, step, memcpy thread, part, start): a host copy's part has spent its fixed cost
-    and starts copying (`copy`), or its bytes have crossed (`done`). A tuple: made at C speed,
-    two for every part."""
+class _PartCopy(Callback, tuple):
+    """(engine, memcpy thread, part, start): a host copy's part has spent its fixed cost and
+    starts copying. A tuple: made at C speed, for every part."""
 
     __slots__ = ()
 
     def __call__(self, _event: simpy.Event) -> None:
-        engine, step, tid, part, start = self
-        if step == "copy":
-            engine._part_copy(tid, part, start)
-        else:
-            engine._part_done(tid, part, start)
+        self[0]._part_copy(self[1], self[2], self[3])
 
     def state(self, rel: Relative) -> tuple:
-        _engine, step, tid, part, start = self
-        return ("part " + step, tid, rel.part(part), rel.t(start))
+        return ("part copy", self[1], rel.part(self[2]), rel.t(self[3]))
+
+
+class _PartDone(_PartCopy):
+    """(engine, memcpy thread, part, start): a host copy's part has crossed."""
+
+    __slots__ = ()
+
+    def __call__(self, _event: simpy.Event) -> None:
+        self[0]._part_done(self[1], self[2], self[3])
+
+    def state(self, rel: Relative) -> tuple:
+        return ("part done", self[1], rel.part(self[2]), rel.t(self[3]))

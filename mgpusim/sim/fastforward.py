@@ -80,7 +80,9 @@ class FastForward:
         self.reason = "no repeat found"
         self.active = True
         self._opid = {id(op): (i, j) for i, ops in enumerate(engine.all_ops()) for j, op in enumerate(ops)}
+        # a stream resumes through its process, or through its generator where it waits by itself
         self._proc_index = {id(p): i for i, p in enumerate(engine.processes)}
+        self._proc_index.update((id(p.generator), i) for i, p in enumerate(engine.processes))
         unknown = sorted({type(ex).__name__ for ex in engine.executors.values()
                           if type(ex) not in (Dedicated, SharedCores, SharedGpu)})
         if unknown:  # its state is not written down: a repeat could not be trusted
@@ -328,6 +330,6 @@ class _Describer(Relative):
         if isinstance(cb, Callback):
             return cb.state(self)
         owner = getattr(cb, "__self__", None)
-        if isinstance(owner, simpy.Process):  # a stream resuming
+        if owner is not None and id(owner) in self.proc_index:  # a stream resuming
             return ("resume", self.proc_index[id(owner)])
         raise Unsupported(f"a callback {cb!r}")

@@ -15,9 +15,12 @@ from collections import deque
 from typing import Any, Protocol
 
 import simpy
-from simpy.events import NORMAL
+from simpy.events import NORMAL, PENDING
 
-_new_timeout = object.__new__
+# looked up once: the hot paths below make an event per call
+_new = object.__new__
+_Timeout, _Event = simpy.Timeout, simpy.Event
+_heappush = heapq.heappush
 
 
 class Unsupported(Exception):
@@ -57,6 +60,62 @@ class Callback:
         raise NotImplementedError
 
 
+class StreamProcess(simpy.Process):
+    """SimPy's Process with a cheaper resume, for the model's streams (a resume per event).
+
+    A generator waits in one of two ways. It yields the event (SimPy's way): the process
+    resumes it with SimPy's steps for a succeeded event, without marking the process active
+    (nothing asks `env.active_process`) or making a bound method per wait. Or, on the hot path,
+    it appends :attr:`resume_direct` (its own `send`, called from C: no Python frame between
+    the event and the generator) to the event's callbacks itself and yields nothing; it then
+    never returns (a return would raise out of the callback) but calls :meth:`finish` and
+    stops at a last yield. The events and their order are the same either way. (An exception
+    raised in such a generator goes straight out of `env.run()`, not through the process event;
+    and a failed event it waits on is raised by the run loop: none is defused.)"""
+
+    def __init__(self, env: simpy.Environment, generator: Any):
+        super().__init__(env, generator)
+        self.generator = generator
+        #: the callback a wait appends (one bound method, made once)
+        self.resume = self._resume
+        #: the callback a generator that waits by itself appends (it is sent the event)
+        self.resume_direct = self._send = generator.send
+
+    def _resume(self, event: simpy.Event) -> None:
+        send = self._send
+        try:
+            while event._ok:
+                event = send(event._value)
+                if event is None:  # the generator waits by itself
+                    return
+                callbacks = event.callbacks
+                if callbacks is not None:
+                    callbacks.append(self.resume)
+                    self._target = event
+                    return
+        except BaseException as exc:  # the generator ended or failed: as SimPy does
+            self._ended(exc)
+            return
+        simpy.Process._resume(self, event)  # a failed event: thrown into the generator
+
+    def finish(self) -> None:
+        """The generator that waits by itself is done: the process event succeeds (as when a
+        SimPy generator returns)."""
+        self._target = None  # type: ignore[assignment]
+        self._ok, self._value = True, None
+        self.env.schedule(self)
+
+    def _ended(self, exc: BaseException) -> None:
+        """The generator returned (StopIteration) or raised: the process event succeeds with
+        its value or fails with the exception, as in SimPy's `_resume`."""
+        self._target = None  # type: ignore[assignment]
+        if isinstance(exc, StopIteration):
+            self._ok, self._value = True, exc.args[0] if exc.args else None
+        else:
+            self._ok, self._value = False, exc
+        self.env.schedule(self)
+
+
 class Environment(simpy.Environment):
     """SimPy's environment, with the queue of scheduled events its own, so that what is
     pending can be read (:meth:`pending`) without SimPy's private state, at no cost per event.
@@ -68,6 +127,19 @@ class Environment(simpy.Environment):
     priority (those were scheduled at an earlier time), and urgent ones go first anyway: so
     the heap's events due now run first, then the list in order, then time moves on."""
 
+    #: The clock, a plain attribute: SimPy's `now` is a property (a call on every read, and
+    #: the model reads it several times per event). This class attribute shadows it, so the
+    #: instance's own value is read directly; `_now`, which SimPy's code uses, is the same value.
+    now: int = 0
+
+    @property
+    def _now(self) -> int:  # type: ignore[override]
+        return self.now
+
+    @_now.setter
+    def _now(self, value: int) -> None:
+        self.now = value
+
     def __init__(self) -> None:
         super().__init__()
         # SimPy binds `timeout`, `event`, `process`, ... to the instance only for the class's own
@@ -76,6 +148,7 @@ class Environment(simpy.Environment):
             if type(obj) is simpy.core.BoundClass:
                 setattr(self, name, getattr(self, name))
         self.timeout = self._timeout  # type: ignore[method-assign]
+        self.event = self._event  # type: ignore[method-assign]
         #: the plain `schedule`: timeouts and triggers schedule inline while it is the one
         #: (a caller may wrap `schedule`, e.g. to count events: they then go through it)
         self._plain = self._schedule
@@ -86,7 +159,7 @@ class Environment(simpy.Environment):
     def _schedule(self, event: simpy.Event, priority: int = NORMAL, delay: int = 0) -> None:
         """SimPy's schedule, events for now at normal priority on the list."""
         if delay or priority != NORMAL:
-            heapq.heappush(self._queue, (self._now + delay, priority, next(self._eid), event))
+            heapq.heappush(self._queue, (self.now + delay, priority, next(self._eid), event))
         else:
             self._now_list.append(event)
 
@@ -94,14 +167,24 @@ class Environment(simpy.Environment):
         """SimPy's Timeout, made without its constructor's call chain."""
         if delay < 0:
             raise ValueError(f"Negative delay {delay}")
-        event = _new_timeout(simpy.Timeout)
-        event.env, event.callbacks, event._value, event._delay, event._ok = self, [], value, delay, True
+        event = _new(_Timeout)
+        event.env = self  # (one store each: a tuple assignment of five builds a tuple first)
+        event.callbacks = []
+        event._value = value
+        event._delay = delay
+        event._ok = True
         if self.schedule is not self._plain:  # wrapped (e.g. counted): through `schedule`
             self.schedule(event, NORMAL, delay)
         elif delay:
-            heapq.heappush(self._queue, (self._now + delay, NORMAL, next(self._eid), event))
+            _heappush(self._queue, (self.now + delay, NORMAL, next(self._eid), event))
         else:
             self._now_list.append(event)
+        return event
+
+    def _event(self) -> simpy.Event:
+        """SimPy's Event (pending), made without calling its constructor."""
+        event = _new(_Event)
+        event.env, event.callbacks, event._value = self, [], PENDING
         return event
 
     def trigger(self, event: simpy.Event) -> None:
@@ -114,15 +197,15 @@ class Environment(simpy.Environment):
 
     def peek(self) -> Any:
         if self._now_list:
-            return self._now
+            return self.now
         return self._queue[0][0] if self._queue else simpy.core.Infinity
 
     def _next(self) -> simpy.Event:
         """The next event in SimPy's order (see the class doc); IndexError when none is left."""
         queue, now_list = self._queue, self._now_list
-        if now_list and not (queue and queue[0][0] <= self._now):
+        if now_list and not (queue and queue[0][0] <= self.now):
             return now_list.popleft()
-        self._now, _, _, event = heapq.heappop(queue)
+        self.now, _, _, event = heapq.heappop(queue)
         return event
 
     def step(self) -> None:
@@ -150,11 +233,13 @@ class Environment(simpy.Environment):
         if until is not None:
             return super().run(until)
         queue, now_list, pop, popleft = self._queue, self._now_list, heapq.heappop, self._now_list.popleft
+        now = self.now  # (only this loop moves the clock)
         while True:
-            if now_list and not (queue and queue[0][0] <= self._now):
+            if now_list and not (queue and queue[0][0] <= now):
                 event = popleft()
             elif queue:
-                self._now, _, _, event = pop(queue)
+                now, _, _, event = pop(queue)
+                self.now = now
             else:
                 return None
             callbacks, event.callbacks = event.callbacks, None
@@ -170,7 +255,8 @@ class Environment(simpy.Environment):
         event is due at this instant, process it at once: the next step would pop it, so it
         runs in the same order, without a trip through the queue. (Only from a callback that
         is its event's last: anything the callback left would run after it in SimPy.)"""
-        if self.peek() <= self.now:
+        queue = self._queue
+        if self._now_list or (queue and queue[0][0] <= self.now):  # (peek() <= now, inline)
             event.succeed()
             return
         event._ok, event._value = True, None
@@ -189,7 +275,7 @@ class Environment(simpy.Environment):
         events due now, the list of events for now, then the heap's later ones."""
         if not self.tracking:
             raise Unsupported("the environment stopped keeping its events")
-        now = self._now
+        now = self.now
         heap = [(t, p, ev) for t, p, _eid, ev in sorted(self._queue)]
         due = [entry for entry in heap if entry[0] <= now]
         return due + [(now, NORMAL, ev) for ev in self._now_list] + heap[len(due):]

@@ -133,7 +133,7 @@ def probed_runs(tmp_path: Path) -> tuple[Path, dict[str, float]]:
 def test_each_run_is_predicted_at_its_own_probe_ratio(probed_runs, tmp_path: Path):
     root, ratios = probed_runs
     study = load_study(LAVAPIPE_STUDY)
-    speeds = pipeline.run_speeds(study, study.held_out, root)
+    speeds = pipeline.run_speeds(study, study.held_out, root, root)
     assert {n: s.ratio for n, s in speeds.items()} == pytest.approx(ratios)
     exp = next(e for e in study.held_out if e.name == "afr_3gpu").load(PROFILE)
     report = validate_experiment(exp, tmp_path / "v", measured_folder(root, "afr_3gpu"),
@@ -143,6 +143,23 @@ def test_each_run_is_predicted_at_its_own_probe_ratio(probed_runs, tmp_path: Pat
     assert sp["simulated_frame_ms"] > 1.15 * report["simulated"]["frame_time_ms"]  # slower machine
     measured = report["measured"]["frame_time_ms"]
     assert sp["frame_time_error"] == pytest.approx(sp["simulated_frame_ms"] / measured - 1)
+
+
+def test_held_out_runs_kept_apart_are_normalized_by_the_calibration_runs_speed(probed_runs, tmp_path: Path):
+    """A study whose halves keep their runs in different folders: the held-out folder's speed
+    records hold no calibration run, so the speed at calibration comes from the calibration
+    folder's."""
+    root, ratios = probed_runs
+    study = load_study(LAVAPIPE_STUDY)
+    table = run_speed.read(root / run_speed.FILE)
+    calibration = {e.name for e in study.calibration}
+    cal_root = tmp_path / "calibration_runs"
+    cal_root.mkdir()
+    table[table["config"].isin(calibration)].to_csv(cal_root / run_speed.FILE, index=False)
+    table[~table["config"].isin(calibration)].to_csv(root / run_speed.FILE, index=False)
+    assert pipeline.run_speeds(study, study.held_out, root, root) == {}  # no reference there
+    speeds = pipeline.run_speeds(study, study.held_out, root, cal_root)
+    assert {n: sp.ratio for n, sp in speeds.items()} == pytest.approx(ratios)
 
 
 def test_the_table_report_and_verdict_come_from_the_probes(probed_runs, tmp_path: Path):

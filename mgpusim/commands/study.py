@@ -137,15 +137,15 @@ def validate(args: argparse.Namespace) -> int:
     out, progress = _out(args, study), progress_printer()
     profile = args.profile or study.profile
     tables, missing = {}, {}
+    calibration_root = args.runs or pipeline.runs_root(study, False, out)
     for title, entries, held in ((pipeline.CALIBRATION_TITLE, study.calibration, False),
                                  (pipeline.HELD_OUT_TITLE, study.held_out, True)):
         if held and not args.held_out:
             continue
         root = args.runs or pipeline.runs_root(study, held, out)
         tables[title] = pipeline.validate(study, entries, root, profile, out / "validation",
-                                          progress, tuple(args.extra), args.figures)
+                                          progress, tuple(args.extra), args.figures, calibration_root)
         missing[title] = pipeline.without_runs(entries, root)
-    calibration_root = args.runs or pipeline.runs_root(study, False, out)
     path = pipeline.write_report(out, study, tables, f"profile: {profile}",  # also errors.json
                                  pipeline.probes_of(calibration_root), missing,
                                  pipeline.run_speed.read(calibration_root / pipeline.run_speed.FILE))

@@ -89,15 +89,18 @@ def write_profile(data: dict[str, Any], path: Path, lines: list[str]) -> Path:
 
 
 def validate(study: Study, entries: tuple[Entry, ...], root: Path, profile: Path, out: Path,
-             progress: Progress, extra: tuple[str, ...] = (), figures: bool = True) -> pd.DataFrame:
+             progress: Progress, extra: tuple[str, ...] = (), figures: bool = True,
+             calibration_root: Path | None = None) -> pd.DataFrame:
     """Compare each entry's measured run under `root` with the model on `profile` (no device
     needed); one row per entry with a run; `run_to_run_spread` where repeats were kept.
-    `figures`: each entry's timelines and traces too (most of the time taken)."""
+    `figures`: each entry's timelines and traces too (most of the time taken).
+    `calibration_root`: where the calibration runs are (default `root`), whose speed records
+    give the speed the profile was fitted at."""
     rows = []
     missing = without_runs(entries, root)
     if missing:
         progress(f"no measured run under {root} for {len(missing)} configuration(s): {', '.join(missing)}")
-    speeds = run_speeds(study, entries, root)
+    speeds = run_speeds(study, entries, root, calibration_root or root)
     for e in entries:
         folder = measured_folder(root, e.name)
         if e.name in missing:
@@ -115,15 +118,17 @@ def validate(study: Study, entries: tuple[Entry, ...], root: Path, profile: Path
     return table
 
 
-def run_speeds(study: Study, entries: tuple[Entry, ...], root: Path) -> dict[str, RunSpeed]:
+def run_speeds(study: Study, entries: tuple[Entry, ...], root: Path,
+               calibration_root: Path) -> dict[str, RunSpeed]:
     """Per entry with a speed record under `root` (a lavapipe job's `runs/run_speed.csv`), its
     compared run's speed against the probe at calibration: the median over the study's
-    calibration runs under the same root ({} where there are no records)."""
+    calibration runs, from the records under `calibration_root` ({} where there are none)."""
     table = run_speed.read(root / run_speed.FILE)
     if table.empty:
         return {}
-    ref = speed_norm.reference_ms(table, [(e.name, run_speed.compared_run(root, e.name))
-                                          for e in study.calibration])
+    cal = table if calibration_root == root else run_speed.read(calibration_root / run_speed.FILE)
+    ref = speed_norm.reference_ms(cal, [(e.name, run_speed.compared_run(calibration_root, e.name))
+                                        for e in study.calibration])
     if ref is None:
         return {}
     speeds = {e.name: speed_norm.speed_row(table, e.name, run_speed.compared_run(root, e.name), ref)

@@ -270,7 +270,7 @@ class Engine:
         self.streams.append(stream)
         box: list[StreamProcess] = []  # a lean generator's process, read once it runs
         if host and not self._host_timeline:
-            proc = self._lean_host_proc(plan, stream, box)
+            proc = self._lean_stream_proc(plan, stream, box, host=True)
         elif (not host and not self._host_timeline and self._busy_wake is None
               and not any(op.gap or op.fill_cores is not None for ops in plan for op in ops)):
             proc = self._lean_stream_proc(plan, stream, box)
@@ -591,15 +591,20 @@ class Engine:
                 finish(frame, op, op.engine, start, op.nbytes)
             frame += 1
 
-    def _lean_stream_proc(self, plan: list[list[_Op]], st: _Stream, proc: list[StreamProcess]):
-        """:meth:`_stream_proc` for a queue with nothing between its task's inputs and its
+    def _lean_stream_proc(self, plan: list[list[_Op]], st: _Stream, proc: list[StreamProcess],
+                          host: bool = False):
+        """:meth:`_stream_proc` for a stream with nothing between its task's inputs and its
         work: no host timeline (dispatch, submit), no idle gaps, no busy_wake. The same steps
         in the same order, without the tests for what it lacks (the hot path of most runs).
-        It waits by itself (see StreamProcess: `resume` on the event, then a bare yield), and
-        writes the event down in `st.target`. `proc`: [its process], filled before it runs."""
+        A queue runs each task and its transfer; the host-copy thread (`host`) hands each copy
+        to the memcpy threads as soon as its inputs are met (no input's end is kept for a
+        wake-up). It waits by itself (see StreamProcess: `resume` on the event, then a bare
+        yield), and writes the event down in `st.target`. `proc`: [its process], filled before
+        it runs."""
         env, period, skip, ready, pending = self.env, self.period, self._skip, self._ready, self._pending
         waiters, check_ready, complete = self._waiters, self._check_ready, self._complete
         frame_start, rows, resume = self.frame_start, self.rows, proc[0].resume_direct
+        dispatch = self._dispatch_host_copy
         frame = 0
         while frame < self.horizon:
             st.frame = frame
@@ -615,6 +620,9 @@ class Engine:
                     yield
                 if skip and key in skip:
                     self._skip_task(key, op.task)
+                    continue
+                if host:
+                    dispatch(frame, op)
                     continue
                 start = st.start = env.now
                 if op.run is not None:
@@ -637,35 +645,6 @@ class Engine:
                     self._finish_present(frame, op)
                 else:
                     complete(frame, op.task, False, op.dependents)
-            frame += 1
-        proc[0].finish()
-        yield  # (never resumed)
-
-    def _lean_host_proc(self, plan: list[list[_Op]], st: _Stream, proc: list[StreamProcess]):
-        """:meth:`_stream_proc` for the host-copy thread without a host timeline: no wake-up
-        or dispatch to wait for (no input's end is kept for them), so each host copy goes to
-        the memcpy threads as soon as its inputs are met. The same steps in the same order;
-        it waits by itself, as :meth:`_lean_stream_proc`."""
-        env, period, skip, ready, pending = self.env, self.period, self._skip, self._ready, self._pending
-        waiters, check_ready, dispatch = self._waiters, self._check_ready, self._dispatch_host_copy
-        resume = proc[0].resume_direct
-        frame = 0
-        while frame < self.horizon:
-            st.frame = frame
-            for op in plan[frame % period]:
-                st.op = op
-                key = (frame, op.name)
-                if key in ready:
-                    ready.discard(key)
-                elif key in pending or not check_ready(key, op.task):
-                    ev = st.target = waiters[key] = env.event()
-                    st.at = DEPS
-                    ev.callbacks.append(resume)
-                    yield
-                if skip and key in skip:
-                    self._skip_task(key, op.task)
-                    continue
-                dispatch(frame, op)
             frame += 1
         proc[0].finish()
         yield  # (never resumed)

@@ -33,6 +33,21 @@ def gbps_fraction(gbps: float) -> Fraction:
     return Fraction(repr(float(gbps)))
 
 
+
+def term_coefficient(cost: PassCost, kind: str, term: str, source: str, where: str) -> float | None:
+    """ns per unit of work `term` of a `kind` pass: the cost's coefficient, 1 for a reference
+    kind's `reference_ns`, None for a term the profile may lack (:data:`UNPRICED_OK`: it costs
+    nothing there); any other missing coefficient is an InputError naming it."""
+    coef = cost.ns_per.get(term)
+    if coef is not None:
+        return coef
+    if term in UNPRICED_OK.get(kind, ()):
+        return None
+    if kind in REFERENCE_KINDS and term == "reference_ns":
+        return 1.0
+    raise InputError(f"missing coefficient for work term {term!r}", file=source,
+                     field=f"{where}.ns_per_{term}")
+
 class CostModel:
     """Turns tasks into engine inputs using one hardware profile's coefficients."""
 
@@ -59,16 +74,9 @@ class CostModel:
         for term, amount in work.items():
             if amount == 0:
                 continue
-            coef = cost.ns_per.get(term)
-            if coef is None:
-                if term in UNPRICED_OK.get(kind, ()):
-                    continue
-                if kind in REFERENCE_KINDS and term == "reference_ns":
-                    coef = 1.0
-                else:
-                    raise InputError(f"missing coefficient for work term {term!r}",
-                                     file=self.profile.source, field=f"{where}.ns_per_{term}")
-            total += coef * amount
+            coef = term_coefficient(cost, kind, term, self.profile.source, where)
+            if coef is not None:
+                total += coef * amount
         return total / gpu.speed
 
     def _bounded(self, total: float, kind: str, work: Mapping[str, float], where: str) -> int:

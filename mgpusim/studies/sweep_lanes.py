@@ -41,11 +41,10 @@ import numpy as np
 import pandas as pd
 
 from mgpusim.model import limits as L
-from mgpusim.model.costs import CostModel
+from mgpusim.model.costs import CostModel, term_coefficient
 from mgpusim.model.errors import MgpusimError
 from mgpusim.model.profile import HardwareProfile
 from mgpusim.model.tasks import PassTask
-from mgpusim.model.work_terms import UNPRICED_OK
 from mgpusim.schedules.experiment import load_experiment
 from mgpusim.schedules.program import build_program
 from mgpusim.sim import analytic_lanes as lanes_mod
@@ -276,11 +275,9 @@ def _pass_ns(profile: HardwareProfile, task: PassTask, coef: Mapping[Coef, np.nd
         for term, amount in work.items():
             if amount == 0:
                 continue
-            c = cost.ns_per.get(term)
-            if c is None:
-                if term in UNPRICED_OK.get(kind, ()):
-                    continue
-                c = 1.0  # a reference kind's reference_ns (others failed in the first point)
+            c = term_coefficient(cost, kind, term, profile.source, f"gpus[{d}].costs.{kind}")
+            if c is None:  # a term the profile may lack: it costs nothing
+                continue
             total = total + get((d, kind, term), c) * amount
         total = total / speed
     good = total <= L.MAX_TASK_NS  # also false for NaN

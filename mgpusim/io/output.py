@@ -168,6 +168,15 @@ def write_text(text: str, path: Path) -> Path:
     return path
 
 
+def append_rows(path: Path, old: pd.DataFrame, rows: Iterable[dict[str, Any]],
+                columns: Iterable[str]) -> Path:
+    """`old` (the table at `path` as read) with `rows` added, written back whole or not at
+    all: a job killed while writing keeps the rows before (a job's probe and speed tables)."""
+    new = pd.DataFrame(list(rows), columns=list(columns))
+    table = pd.concat([old, new] if not old.empty else [new], ignore_index=True)
+    return write_text(table.to_csv(index=False), path)
+
+
 def write_result(result: Result, out: Path, trace_format: str = "parquet", title: str = "",
                  frames: range | None = None, trace_frames: int | None = None,
                  trace_rows: int = TRACE_ROWS,

@@ -44,14 +44,10 @@ def record(config: str, run: str, before: Sequence[dict[str, Any]],
 
 
 def append(path: Path, row: dict[str, Any]) -> None:
-    """Add `row` to the table at `path`, written whole or not at all (a temporary file renamed
-    over it): a job killed while writing keeps the rows before."""
-    from mgpusim.io.output import write_text  # noqa: PLC0415
+    """Add `row` to the table at `path`, written whole or not at all."""
+    from mgpusim.io.output import append_rows  # noqa: PLC0415
 
-    old = read(path)
-    new = pd.DataFrame([row], columns=COLUMNS)
-    table = pd.concat([old, new] if not old.empty else [new], ignore_index=True)
-    write_text(table.to_csv(index=False), path)
+    append_rows(path, read(path), [row], COLUMNS)
 
 
 def read(path: Path) -> pd.DataFrame:

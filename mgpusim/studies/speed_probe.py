@@ -187,11 +187,11 @@ def _unsteady_message(finding: str) -> str:
 
 
 def append_probe(path: Path, rows: Sequence[dict[str, Any]]) -> None:
-    """Add `rows` to the probe table at `path` (written whole each time: a job cut short keeps
-    every probe it took)."""
-    old = read_probes([path])
-    new = pd.DataFrame(list(rows), columns=COLUMNS)
-    pd.concat([old, new], ignore_index=True).to_csv(path, index=False)
+    """Add `rows` to the probe table at `path` (written whole each time, or not at all: a job
+    cut short keeps every probe it took)."""
+    from mgpusim.io.output import append_rows  # noqa: PLC0415
+
+    append_rows(path, read_probes([path]), rows, COLUMNS)
 
 
 def read_probes(paths: Sequence[Path]) -> pd.DataFrame:

@@ -3,6 +3,7 @@
     python scripts/pack_runs.py                 # every runs folder under data/ that is not packed
     python scripts/pack_runs.py data/nvidia/h200x2/runs_si
     python scripts/pack_runs.py --unpack data/nvidia/h200x2/runs_si
+    python scripts/pack_runs.py --logs data/nvidia/h200_x4      # its *.log into logs.parquet
 
 A runs folder is the folder a study or a `--runs` option names: the first three levels below
 data/ (data/lavapipe/<job>/runs, data/nvidia/h200x2/runs_si), or a run folder standing higher.
@@ -34,10 +35,17 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("folders", nargs="*", type=Path, help="runs folders (default: all under data/)")
     p.add_argument("--unpack", action="store_true", help="write the files back instead")
+    p.add_argument("--logs", action="store_true",
+                   help="the folders' measuring logs (*.log) into logs.parquet instead of runs")
     args = p.parse_args()
+    if args.logs and not args.folders:
+        p.error("--logs packs the folders given")
     folders = args.folders or runs_folders(ROOT / "data")
     for folder in folders:
-        n = run_archive.unpack(folder) if args.unpack else run_archive.pack(folder)
+        if args.logs:
+            n = run_archive.unpack_logs(folder) if args.unpack else run_archive.pack_logs(folder)
+        else:
+            n = run_archive.unpack(folder) if args.unpack else run_archive.pack(folder)
         print(f"{'unpacked' if args.unpack else 'packed'} {n:4d} files: {folder}")
     return 0
 

@@ -93,3 +93,19 @@ def test_the_pack_script_finds_the_runs_folders_and_every_committed_run_is_packe
     assert script.runs_folders(tmp_path) == [tmp_path / "lavapipe" / "job" / "runs",
                                               tmp_path / "nvidia" / "h100" / "run_single"]
     assert script.runs_folders(ROOT / "data") == []  # nothing left to pack
+
+
+def test_a_folder_s_logs_pack_into_one_table_and_come_back_byte_for_byte(tmp_path):
+    logs = {"logs/measure_a.log": "group a\nrc=0\n", "logs/sweeps.log": "sweeps took 31 s\n",
+            "deep/x/run.log": "é, and no newline at the end"}
+    for rel, text in logs.items():
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_bytes(text.encode("utf-8"))
+    (tmp_path / "PROVENANCE.md").write_text("kept\n")
+    assert run_archive.pack_logs(tmp_path) == 3
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["PROVENANCE.md", run_archive.LOGS]
+    with pytest.raises(ValueError, match="no log to pack"):
+        run_archive.pack_logs(tmp_path)
+    assert run_archive.unpack_logs(tmp_path) == 3
+    assert {rel: (tmp_path / rel).read_bytes().decode("utf-8") for rel in logs} == logs
+    assert not (tmp_path / run_archive.LOGS).exists()

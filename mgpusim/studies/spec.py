@@ -22,6 +22,7 @@ from mgpusim.model.limits import MAX_GPUS
 from mgpusim.model.profile import HardwareProfile, HostProfile
 from mgpusim.model.work_terms import WORK_TERMS, work_terms
 from mgpusim.schedules.experiment import Experiment, load_experiment, parse_overrides
+from mgpusim.validation import run_archive
 
 #: A key with no default: its absence is an error.
 _REQUIRED = object()
@@ -187,7 +188,8 @@ def load_study(path: Path | str) -> Study:
 
 def _path(t: Table, key: str, base: Path, default: Any = _REQUIRED, *, folder: bool = False) -> Any:
     """The path at `key`, relative to the study file (`base`), which must exist (as a folder
-    when `folder`). Why relative: a study and its data travel together (a checkout, a copy)."""
+    when `folder`: on disk, or one a packed archive above it holds, see run_archive). Why
+    relative: a study and its data travel together (a checkout, a copy)."""
     text = t.get(key, str) if default is _REQUIRED else t.get(key, str, default)
     if text is None:
         return None
@@ -196,7 +198,7 @@ def _path(t: Table, key: str, base: Path, default: Any = _REQUIRED, *, folder: b
     if Path(text).is_absolute():
         raise t.error(key, f"must be relative to the study file, got the absolute path {text!r}")
     p = base / text
-    if not (p.is_dir() if folder else p.exists()):
+    if not (run_archive.is_folder(p) if folder else p.exists()):
         raise t.error(key, f"{str(p)!r} does not exist{' (or is not a folder)' if folder else ''}")
     return p
 

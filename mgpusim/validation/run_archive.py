@@ -21,6 +21,9 @@ import pandas as pd
 #: The archive's two tables, in the packed folder.
 TRACES = "runs.parquet"
 FILES = "run_files.parquet"
+#: A folder's measuring logs (`*.log` below it), packed as one table (path, text): they are read
+#: by people, never by the tool, so no reader looks into it (:func:`unpack_logs` writes them back).
+LOGS = "logs.parquet"
 #: The one file of a run stored as columns (the trace schema); the rest are kept as text.
 TRACE_NAME = "trace.csv"
 #: How measured CSV tables are parsed (an empty cell is missing, "NA" is a string).
@@ -155,13 +158,18 @@ def pack(root: Path) -> int:
         (root / TRACES).unlink()
         (root / FILES).unlink()
         raise
+    _remove(files, root)
+    return len(files)
+
+
+def _remove(files: list[Path], root: Path) -> None:
+    """Delete packed `files`, and the folders below `root` they leave empty."""
     for f in files:
         f.unlink()
     for folder in sorted({f.parent for f in files}, key=lambda p: -len(p.parts)):
         while folder != root and folder.is_dir() and not any(folder.iterdir()):
             folder.rmdir()
             folder = folder.parent
-    return len(files)
 
 
 def _check_round_trip(root: Path, files: list[Path]) -> None:
@@ -187,3 +195,32 @@ def unpack(root: Path) -> int:
     (root / TRACES).unlink()
     (root / FILES).unlink()
     return len(archive.files) + len(archive.traces)
+
+
+# ----- logs --------------------------------------------------------------------------------------
+def pack_logs(root: Path) -> int:
+    """Pack every `*.log` file below `root` into `root/logs.parquet`, check that each reads back
+    exactly, then delete them (and emptied folders); returns how many went in."""
+    files = sorted(root.rglob("*.log"))
+    if not files:
+        raise ValueError(f"{root}: no log to pack")
+    if (root / LOGS).exists():
+        raise ValueError(f"{root / LOGS} exists: unpack it first")
+    texts = [(_rel(f, root), f.read_bytes().decode("utf-8")) for f in files]
+    pd.DataFrame(texts, columns=["path", "text"]).to_parquet(root / LOGS, index=False, compression="zstd")
+    stored = pd.read_parquet(root / LOGS)
+    if list(zip(stored["path"], stored["text"])) != texts:
+        (root / LOGS).unlink()
+        raise AssertionError(f"{root / LOGS} does not read back as the logs")
+    _remove(files, root)
+    return len(files)
+
+
+def unpack_logs(root: Path) -> int:
+    """Write `root/logs.parquet`'s logs back byte for byte and remove the table."""
+    table = pd.read_parquet(root / LOGS)
+    for rel, text in zip(table["path"], table["text"]):
+        (root / rel).parent.mkdir(parents=True, exist_ok=True)
+        (root / rel).write_bytes(text.encode("utf-8"))
+    (root / LOGS).unlink()
+    return len(table)

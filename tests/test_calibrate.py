@@ -208,3 +208,15 @@ def test_a_mesh_table_of_one_view_size_keeps_its_placed_terms():
     df, _ = read_measurements([ROOT / "data" / "nvidia" / "h200_x4" / "measurements" / "mesh_1080.csv"])
     fit = calibrate(df, {}).pass_fits["mesh"]
     assert {"ns_per_fragment", "ns_per_triangle_edge", "ns_per_visible_triangle"} <= set(fit.names)
+
+
+def test_host_copies_without_a_resolved_per_byte_cost_give_a_finite_rate():
+    """Noise can swamp the bytes of a thread count's copies (a flat duration): the rate is then
+    the fastest whole copy, finite and loadable, with a warning, never infinite."""
+    df = synthetic(np.random.default_rng(1))
+    flat = (df["pass"] == "host_copy") & (df["threads"] == 4)
+    df.loc[flat, "duration_ns"] = [4.0e6, 3.9e6]
+    cal = calibrate(df, {})
+    assert cal.host["memory_bandwidth_gbps"] == pytest.approx((1 << 25) / 3.9e6, rel=1e-6)
+    assert any("host_copy x4" in w and "lower bound" in w for w in cal.warnings)
+    apply(cal, lavapipe_base({}, gpus=2), "test")  # loads: no infinite bandwidth

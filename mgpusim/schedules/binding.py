@@ -20,6 +20,7 @@ import dataclasses
 from types import MappingProxyType
 from typing import Any, Mapping, Sequence
 
+from mgpusim.model.geometry import even_split
 from mgpusim.model.tasks import CopyTask, HostCopyTask, Resource, Task
 
 #: Bytes of a colour (RGBA8) and a depth (D16) pixel of the runner's images.
@@ -107,16 +108,25 @@ def _shared(b: Bindings, name: str, devices: tuple[int, int], nbytes: int, buffe
 
 
 def row_chunks(height: int, chunks: int) -> list[dict[str, Any]]:
-    """The copy params of each chunk of an image copy split into `chunks` equal pieces:
-    `rows` = (first row, rows).
-
-    The schedule splits a copy's bytes with `even_split`; chunks of whole rows carry exactly
-    those bytes only when the height is a multiple of the chunk count (the alignment rule).
-    Otherwise every chunk says why the runner cannot copy it (`unsupported`): the simulator
-    still runs such a configuration, the runner refuses it with that one message."""
-    if height % chunks:
-        why = (f"the Vulkan runner copies chunks of whole rows: the image height {height} must "
-               f"be a multiple of schedule.chunks = {chunks}")
+    """The copy params of each chunk of an image copy split into `chunks` pieces of whole rows:
+    `rows` = (first row, rows), the rows split as :func:`chunk_bytes` splits the bytes (the
+    last chunk takes the remainder), so that a chunk carries the bytes the model gives it.
+    A chunk needs a row at least: with more chunks than rows every chunk says why the runner
+    cannot copy it (`unsupported`); the simulator still runs such a configuration."""
+    if chunks > height:
+        why = (f"the Vulkan runner copies chunks of whole rows: schedule.chunks = {chunks} is "
+               f"more than the image's {height} rows")
         return [{"unsupported": why}] * chunks
-    rows = height // chunks
-    return [{"rows": (c * rows, rows)} for c in range(chunks)]
+    out, first = [], 0
+    for rows in even_split(height, chunks):
+        out.append({"rows": (first, rows)})
+        first += rows
+    return out
+
+
+def chunk_bytes(nbytes: int, height: int, chunks: int) -> list[int]:
+    """A copy's bytes in `chunks` pieces: whole rows of an image `height` rows high where the
+    bytes are whole rows (the runner copies rows), else equal shares."""
+    if height >= chunks and nbytes % height == 0:
+        return [rows * (nbytes // height) for rows in even_split(height, chunks)]
+    return even_split(nbytes, chunks)

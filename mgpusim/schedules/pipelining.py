@@ -16,13 +16,12 @@ from types import MappingProxyType
 
 from mgpusim.model import limits as L
 from mgpusim.model.errors import InputError
-from mgpusim.model.geometry import even_split
 from mgpusim.model.profile import HardwareProfile
 from mgpusim.model.scene import PassSpec, Scene
 from mgpusim.model.tasks import Dep, PassTask, QueueRef, Resource, Task
 from mgpusim.schedules.base import Footprint, FrameProgram, chain_passes, present_task
 from mgpusim.schedules.binding import (COLOUR_PIXEL_BYTES, DEPTH_PIXEL_BYTES, Bindings,
-                                       bind_crossing, row_chunks)
+                                       bind_crossing, chunk_bytes, row_chunks)
 from mgpusim.schedules.crossing import COPY_OPTIONS, Route, cross
 from mgpusim.schedules.pass_io import (bind_full_frame, filter_reads, filter_sources, pass_image,
                                        reads_own_output)
@@ -109,8 +108,8 @@ def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene,
     their place; a filter sampling its own previous output renders into two copies at least.
     A copy carries colour only, unless the pass's output_bytes also count a mesh's depth (a
     later pass never reads a mesh's depth: each renders into an image of its own). A chunk of
-    a copy is a range of rows of each image it carries (the height must be a multiple of
-    `chunks`). Present copies the last pass's image to `gpu0.display`."""
+    a copy is a range of rows of each image it carries (the last chunk takes the rows left
+    over). Present copies the last pass's image to `gpu0.display`."""
     b, buffers = Bindings(), cfg.opt("buffers")
     first = {p.name for p in scene.passes[:split]}
     staging = max(buffers, cfg.frames_in_flight)
@@ -237,7 +236,7 @@ def _copies(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, route: 
     chunks, buffers = cfg.opt("chunks"), cfg.opt("buffers")
     for prefix, nbytes, after in groups:
         consumer = _consumer(cfg, scene, prefix, readers)
-        for c, size in enumerate(even_split(nbytes, chunks)):
+        for c, size in enumerate(chunk_bytes(nbytes, scene.height, chunks)):
             name = prefix if chunks == 1 else f"{prefix}#{c}"
             ready = f"{after}#{c}" if _producer_split(cfg) else after
             reader = f"{consumer}#{c}" if _consumer_split(cfg) and consumer != "present" else consumer

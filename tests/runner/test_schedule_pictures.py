@@ -124,9 +124,20 @@ def test_pipelining_copy_queue_falls_back_and_says_so(pipeline_reference):
     assert "out.b#1.h2d: gpu0.transfer -> gpu0.graphics" in fallbacks
 
 
-def test_pipelining_chunks_must_be_whole_rows():
-    with pytest.raises(ScheduleError, match="height 48 must be a multiple of schedule.chunks = 5"):
-        run("pipelining", 2, pipeline_passes(), split_at=2, chunks=5)
+def test_pipelining_chunks_that_do_not_divide_the_height(pipeline_reference):
+    """48 rows in 5 chunks: 9, 9, 9, 9 and 12 rows, each copy carrying its rows' bytes (the
+    model's bytes), and the frame still equals one GPU's."""
+    result = run("pipelining", 2, pipeline_passes(), split_at=2, chunks=5)
+    assert np.array_equal(result.image, pipeline_reference)
+    d2h = result.trace[(result.trace["step"] == "d2h") & result.trace["task"].str.startswith("out.a#")]
+    row_bytes = W * 4
+    per_chunk = d2h.groupby("task")["bytes"].first().sort_index()
+    assert per_chunk.tolist() == [9 * row_bytes] * 4 + [12 * row_bytes]
+
+
+def test_pipelining_chunks_must_have_a_row_each():
+    with pytest.raises(ScheduleError, match="schedule.chunks = 49 is more than the image's 48 rows"):
+        run("pipelining", 2, pipeline_passes(), split_at=2, chunks=49)
 
 
 def test_wrong_pipeline_input_would_be_caught(pipeline_reference):

@@ -39,82 +39,107 @@ def bind_io(tasks: list[Task], scene: Scene, gpus: int, composite_kind: str,
     """The tasks with reads/writes/src/dst/params filled in, and the resources they name;
     `geometry`: per GPU (first, end, units) of the mesh a sort-last GPU draws (default: an
     even split, GPU i draws [i, i + 1) of N units)."""
-    w, h = scene.width, scene.height
-    depth = composite_kind == "composite_sort_last"
-    by_name = {t.name: t for t in tasks}
-    if depth:
-        rects: list[Rect] = [(0, 0, w, h)] * gpus
-    else:
-        rows = list(tile_rows or (h,))
-        tops = [sum(rows[:i]) for i in range(gpus)]
-        rects = [(0, tops[i], w, rows[i]) for i in range(gpus)]
-    bpp = scene.color_bytes_per_pixel + (scene.depth_bytes_per_pixel if depth else 0)
-    own = own_images(scene)
-    target_depth = depth or any(p.kind == "mesh" for p in scene.passes if p.name not in own)
-    history = reads_own_output(scene.passes, len(scene.passes) - 1)  # the last pass's
-    res: dict[str, Resource] = {}
+    binder = _Binder(scene, gpus, composite_kind, tile_rows, buffers, host_copy, geometry,
+                     {t.name: t for t in tasks})
+    return [binder.bind(task) for task in tasks], tuple(binder.res.values())
 
-    def image(name: str, device: int, rect: Rect, nbuf: int, with_depth: bool = depth) -> str:
-        res[name] = Resource(name, device, "image", rect[2], rect[3], with_depth, buffers=nbuf)
+
+class _Binder:
+    """The resources of one five-step run, named as the tasks are bound (each task kind by a
+    method of its own): tile rectangles, targets, staging buffers and uploaded inputs."""
+
+    def __init__(self, scene: Scene, gpus: int, composite_kind: str,
+                 tile_rows: tuple[int, ...] | None, buffers: int, host_copy: bool,
+                 geometry: list[tuple[int, int, int]] | None, by_name: dict[str, Task]):
+        self.scene, self.gpus, self.buffers, self.host_copy = scene, gpus, buffers, host_copy
+        self.geometry, self.by_name = geometry, by_name
+        w, h = scene.width, scene.height
+        self.depth = composite_kind == "composite_sort_last"
+        if self.depth:
+            self.rects: list[Rect] = [(0, 0, w, h)] * gpus
+        else:
+            rows = list(tile_rows or (h,))
+            tops = [sum(rows[:i]) for i in range(gpus)]
+            self.rects = [(0, tops[i], w, rows[i]) for i in range(gpus)]
+        self.bpp = scene.color_bytes_per_pixel + (scene.depth_bytes_per_pixel if self.depth else 0)
+        self.own = own_images(scene)
+        self.target_depth = self.depth or any(p.kind == "mesh" for p in scene.passes
+                                              if p.name not in self.own)
+        self.history = reads_own_output(scene.passes, len(scene.passes) - 1)  # the last pass's
+        self.res: dict[str, Resource] = {}
+        self.image("gpu0.frame", 0, (0, 0, w, h), 2 if self.history else 1, self.target_depth)
+        self.res["gpu0.display"] = Resource("gpu0.display", 0, "image", w, h, False)
+
+    def image(self, name: str, device: int, rect: Rect, nbuf: int, with_depth: bool | None = None) -> str:
+        depth = self.depth if with_depth is None else with_depth
+        self.res[name] = Resource(name, device, "image", rect[2], rect[3], depth, buffers=nbuf)
         return name
 
-    def target_of(i: int) -> str:
+    def target_of(self, i: int) -> str:
         if i == 0:
             return "gpu0.frame"
-        return image(f"gpu{i}.target", i, rects[i], max(buffers, 2 if history else 1), target_depth)
+        return self.image(f"gpu{i}.target", i, self.rects[i],
+                          max(self.buffers, 2 if self.history else 1), self.target_depth)
 
-    def buffer(name: str, device: int | None, rect: Rect) -> str:
+    def buffer(self, name: str, device: int | None, rect: Rect) -> str:
         shared = (0, int(name.removeprefix("host.staging"))) if device is None else ()
-        res[name] = Resource(name, device, "buffer", bytes=rect[2] * rect[3] * bpp, buffers=buffers,
-                             host_visible=True, shared_by=shared)
+        self.res[name] = Resource(name, device, "buffer", bytes=rect[2] * rect[3] * self.bpp,
+                                  buffers=self.buffers, host_visible=True, shared_by=shared)
         return name
 
-    image("gpu0.frame", 0, (0, 0, w, h), 2 if history else 1, target_depth)
-    res["gpu0.display"] = Resource("gpu0.display", 0, "image", w, h, False)
-    out: list[Task] = []
-    for task in tasks:
+    def bind(self, task: Task) -> Task:
         if isinstance(task, PassTask) and task.step == "render":
-            i = task.queue.device
-            index = _pass_index(task, scene, i)
-            spec = scene.passes[index]
-            target, origin = target_of(i), ((0, 0) if i == 0 else rects[i][:2])
-            if spec.name in own:
-                target, origin = image(f"gpu{i}.pass.{spec.name}", i, rects[i],
-                                       2 if reads_own_output(scene.passes, index) else 1,
-                                       spec.kind == "mesh"), rects[i][:2]
-            part = geometry[i] if geometry else (i, i + 1, gpus)
-            params = _render_params(spec, scene, rects[i], origin, part, depth)
-            params["clear"] = spec.name in own or index == _first_into_target(scene, own)
-            reads = _filter_reads(scene, index, params, lambda n: (
-                f"gpu{i}.pass.{n}" if n in own else target_of(i)))
-            out.append(dataclasses.replace(task, reads=reads, writes=(target,),
-                                           params=MappingProxyType(params)))
-        elif isinstance(task, PassTask) and task.step == "composite":
-            ins = tuple(f"gpu0.input{i}" for i in range(1, gpus))
-            for i in range(1, gpus):
-                image(ins[i - 1], 0, rects[i], buffers)
-            out.append(dataclasses.replace(task, reads=ins, writes=("gpu0.frame",), params=MappingProxyType(
-                {"inputs": tuple(rects[1:]), "frame": (w, h), "depth": depth})))
-        elif isinstance(task, PassTask) and task.step == "present":
-            out.append(dataclasses.replace(task, reads=("gpu0.frame",), writes=("gpu0.display",)))
-        elif isinstance(task, CopyTask) and task.path == "d2h":
-            i = task.queue.device
-            dst = buffer(f"gpu{i}.staging" if host_copy else f"host.staging{i}",
-                         i if host_copy else None, rects[i])
-            colour_only = {"depth": False} if target_depth and not depth else {}
-            out.append(dataclasses.replace(task, src=f"gpu{i}.target", dst=dst,
-                                           params=MappingProxyType({**task.params, **colour_only})))
-        elif isinstance(task, HostCopyTask):
-            i = _source_gpu(task, by_name)
-            out.append(dataclasses.replace(task, src=f"gpu{i}.staging",
-                                           dst=buffer(f"gpu0.staging{i}", 0, rects[i])))
-        elif isinstance(task, CopyTask) and task.path == "h2d":
-            i = _source_gpu(task, by_name)
-            src = f"gpu0.staging{i}" if host_copy else f"host.staging{i}"
-            out.append(dataclasses.replace(task, src=src, dst=f"gpu0.input{i}"))
-        else:
-            out.append(task)
-    return out, tuple(res.values())
+            return self.render(task)
+        if isinstance(task, PassTask) and task.step == "composite":
+            return self.composite(task)
+        if isinstance(task, PassTask) and task.step == "present":
+            return dataclasses.replace(task, reads=("gpu0.frame",), writes=("gpu0.display",))
+        if isinstance(task, CopyTask) and task.path == "d2h":
+            return self.download(task)
+        if isinstance(task, HostCopyTask):
+            i = _source_gpu(task, self.by_name)
+            return dataclasses.replace(task, src=f"gpu{i}.staging",
+                                       dst=self.buffer(f"gpu0.staging{i}", 0, self.rects[i]))
+        if isinstance(task, CopyTask) and task.path == "h2d":
+            i = _source_gpu(task, self.by_name)
+            src = f"gpu0.staging{i}" if self.host_copy else f"host.staging{i}"
+            return dataclasses.replace(task, src=src, dst=f"gpu0.input{i}")
+        return task
+
+    def render(self, task: PassTask) -> Task:
+        """A GPU's pass into its target (or an image of its own), on its tile or geometry share."""
+        scene, i = self.scene, task.queue.device
+        index = _pass_index(task, scene, i)
+        spec = scene.passes[index]
+        target, origin = self.target_of(i), ((0, 0) if i == 0 else self.rects[i][:2])
+        if spec.name in self.own:
+            target, origin = self.image(f"gpu{i}.pass.{spec.name}", i, self.rects[i],
+                                        2 if reads_own_output(scene.passes, index) else 1,
+                                        spec.kind == "mesh"), self.rects[i][:2]
+        part = self.geometry[i] if self.geometry else (i, i + 1, self.gpus)
+        params = _render_params(spec, scene, self.rects[i], origin, part, self.depth)
+        params["clear"] = spec.name in self.own or index == _first_into_target(scene, self.own)
+        reads = _filter_reads(scene, index, params, lambda n: (
+            f"gpu{i}.pass.{n}" if n in self.own else self.target_of(i)))
+        return dataclasses.replace(task, reads=reads, writes=(target,), params=MappingProxyType(params))
+
+    def composite(self, task: PassTask) -> Task:
+        """The primary draws every uploaded contribution into its frame."""
+        ins = tuple(f"gpu0.input{i}" for i in range(1, self.gpus))
+        for i in range(1, self.gpus):
+            self.image(ins[i - 1], 0, self.rects[i], self.buffers)
+        return dataclasses.replace(task, reads=ins, writes=("gpu0.frame",), params=MappingProxyType(
+            {"inputs": tuple(self.rects[1:]), "frame": (self.scene.width, self.scene.height),
+             "depth": self.depth}))
+
+    def download(self, task: CopyTask) -> Task:
+        """A secondary's target read back into its staging buffer (or the shared host one)."""
+        i = task.queue.device
+        dst = self.buffer(f"gpu{i}.staging" if self.host_copy else f"host.staging{i}",
+                          i if self.host_copy else None, self.rects[i])
+        colour_only = {"depth": False} if self.target_depth and not self.depth else {}
+        return dataclasses.replace(task, src=f"gpu{i}.target", dst=dst,
+                                   params=MappingProxyType({**task.params, **colour_only}))
 
 
 def _source_gpu(task: Task, by_name: dict[str, Task]) -> int:

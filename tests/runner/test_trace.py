@@ -59,7 +59,8 @@ def test_dependencies_and_queue_order_are_honoured(sort_first_3):
 
 def test_every_gpu_task_has_its_host_side(sort_first_3):
     """Each GPU task of the trace has one submissions row on the same clock: its submit thread
-    saw its inputs, then called vkQueueSubmit, then got control back; every input that another
+    saw its inputs, then called vkQueueSubmit, then got control back (a host copy's row: its
+    dispatcher saw its inputs, then queued its parts, before any part began); every input that another
     device or the host produced had ended by then, and the task started after the call (the
     device timestamps are mapped to the host clock to within a few microseconds)."""
     from mgpusim.results.waits import host_split
@@ -67,7 +68,13 @@ def test_every_gpu_task_has_its_host_side(sort_first_3):
     sub, tr = measured.submissions, measured.trace
     gpu = tr[tr["device"] != "host"]
     assert list(sub.columns) == list(SUBMISSION_COLUMNS)
-    assert len(sub) == len(gpu)
+    copies = sub[sub["device"] == "host"]  # one row per host copy, from its dispatcher
+    assert len(sub) - len(copies) == len(gpu)
+    parts = tr[tr["device"] == "host"].groupby(["frame", "task"])["start_ns"].min()
+    assert len(copies) == len(parts) and (copies["engine"] == "memcpy").all()
+    first_part = [parts[(row.frame, row.task)] for row in copies.itertuples()]
+    assert (copies["inputs_seen_ns"] <= copies["submit_ns"]).all()
+    assert (copies["submit_ns"].to_numpy() <= first_part).all()  # queued, then picked up
     joined = gpu.merge(sub, on=["frame", "device", "engine", "task"], how="inner")
     assert len(joined) == len(gpu)
     assert (joined["inputs_seen_ns"] <= joined["submit_ns"]).all()

@@ -33,19 +33,19 @@ def test_real_gpus_reuse_one_instance_and_lavapipe_does_not(monkeypatch):
     monkeypatch.setattr(host_machine.atexit, "register", lambda fn: fn)
     monkeypatch.setattr(host_machine, "Instance", _FakeInstance)
     _FakeInstance.made = 0
-    first = host_machine._instance(False, None)
-    assert host_machine._instance(False, None) is first and _FakeInstance.made == 1
-    assert host_machine._kept(first)
+    first = host_machine.instance_for(False, None)
+    assert host_machine.instance_for(False, None) is first and _FakeInstance.made == 1
+    assert host_machine.is_kept(first)
     host_machine.close_gpus([SimpleNamespace(instance=first, owns_instance=False, close=lambda: None)])
     assert not first.closed  # kept for the process
-    validated = host_machine._instance(True, None)
+    validated = host_machine.instance_for(True, None)
     assert validated is not first and _FakeInstance.made == 2
 
     monkeypatch.setattr(host_machine, "_REAL_INSTANCES", {})
     monkeypatch.setattr(host_machine, "Instance",
                         lambda **kw: _FakeInstance(lavapipe=True, **kw))
-    a, b = host_machine._instance(False, 4), host_machine._instance(False, 4)
-    assert a is not b and not host_machine._kept(a)
+    a, b = host_machine.instance_for(False, 4), host_machine.instance_for(False, 4)
+    assert a is not b and not host_machine.is_kept(a)
 
 
 def test_lavapipe_gpus_keep_no_instance(instance):

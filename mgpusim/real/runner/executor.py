@@ -65,7 +65,8 @@ class _Abort(Exception):
 
 class Executor:
     """Runs `nodes` once; `rows` are trace tuples (TRACE_COLUMNS order, absolute host ns),
-    `submissions` the host side of each GPU task (SUBMISSION_COLUMNS order, absolute host ns).
+    `submissions` the host side of each GPU task and host copy (SUBMISSION_COLUMNS order,
+    absolute host ns).
 
     Skippable tasks (`skip_if_busy`, the particle demo's "new wait") follow the simulator's
     rule (:class:`mgpusim.schedules.skipping.SkipChains`), decided when the task's stream reaches it
@@ -292,9 +293,14 @@ class Executor:
         self._release(node)
 
     def _host_dispatch(self, nodes: list[Node]) -> None:
+        """The host copies in order: each, once its inputs finished, split into parts for the
+        memcpy threads. Its submissions row (device `host`, engine `memcpy`) says when the
+        dispatcher saw the inputs, began queueing the parts and had queued them all, so that a
+        copy's hand-off splits as a GPU task's does (`results.waits.host_split`)."""
         for node in nodes:
             for prod, _kind in node.deps:
                 self._finish(prod, node)
+            seen = time.monotonic_ns()
             if self._skipped(node):
                 node.submitted.set()
                 continue
@@ -302,8 +308,12 @@ class Executor:
             parts = node.work.parts(node.frame)
             node.parts_left = len(parts)
             node.submitted.set()
+            call = time.monotonic_ns()
             for dst, src in parts:
                 self._parts.put((node, dst, src))
+            with self._rows_lock:
+                self.submissions.append((node.frame, "host", "memcpy", node.task.name, seen, call,
+                                         time.monotonic_ns()))
         for _ in range(self.host_threads):
             self._parts.put(None)
 

@@ -4,7 +4,7 @@ Why beside `vulkan.machine.make_gpus`: a measured multi-GPU run on NVIDIA wants 
 on physical device devices[i]" (one real GPU each, or several on one), which make_gpus only
 offers as "all on one" or "i mod count". On lavapipe every simulated GPU is its own instance
 either way (its own rasterizer pool), so `devices` is only checked there. Real GPUs share the
-process's kept instance (`host_machine._instance`): the NVIDIA driver refuses new instances
+process's kept instance (`host_machine.instance_for`): the NVIDIA driver refuses new instances
 after about 30 in one process.
 """
 from __future__ import annotations
@@ -13,7 +13,7 @@ from typing import Sequence
 
 from mgpusim.model.errors import InputError
 from mgpusim.real.vulkan.device import Gpu
-from mgpusim.real.vulkan.host_machine import _instance, _kept, close_gpus, make_gpus
+from mgpusim.real.vulkan.host_machine import close_gpus, instance_for, is_kept, make_gpus
 
 
 def open_gpus(n: int, *, devices: Sequence[int] | None = None,
@@ -25,11 +25,11 @@ def open_gpus(n: int, *, devices: Sequence[int] | None = None,
     devices = list(devices)
     if len(devices) != n:
         raise InputError(f"{len(devices)} device indices for {n} GPUs", field="devices")
-    first = _instance(validation, None)
+    first = instance_for(validation, None)
     bad = [d for d in devices if not 0 <= d < len(first.devices)]
     if bad:
         count = len(first.devices)
-        if not _kept(first):
+        if not is_kept(first):
             first.close()
         raise InputError(f"no physical device {bad[0]}; found {count}", field="devices")
     if first.devices[devices[0]].is_lavapipe:
@@ -41,7 +41,7 @@ def open_gpus(n: int, *, devices: Sequence[int] | None = None,
             gpus.append(Gpu(first, d, f"gpu{i}"))
     except BaseException:
         close_gpus(gpus)
-        if not _kept(first):
+        if not is_kept(first):
             first.close()
         raise
     return gpus

@@ -29,7 +29,7 @@ from mgpusim.real.vulkan.instance import Instance, validation_wanted
 _REAL_INSTANCES: dict[bool, Instance] = {}
 
 
-def _instance(validation: bool | None, lp_num_threads: int | None) -> Instance:
+def instance_for(validation: bool | None, lp_num_threads: int | None) -> Instance:
     """The kept instance of real GPUs where there is one, else a new instance (kept if its
     devices are real)."""
     kept = _REAL_INSTANCES.get(validation_wanted(validation))
@@ -49,7 +49,8 @@ def _close_kept() -> None:
     _REAL_INSTANCES.clear()
 
 
-def _kept(inst: Instance) -> bool:
+def is_kept(inst: Instance) -> bool:
+    """Whether `inst` is the process's kept instance of real GPUs (closed only at exit)."""
     return any(k is inst for k in _REAL_INSTANCES.values())
 
 
@@ -64,10 +65,10 @@ def make_gpus(n: int, *, lp_threads: Sequence[int | None] | None = None,
         threads *= n
     if len(threads) != n:
         raise InputError(f"{len(threads)} thread counts for {n} GPUs", field="lp_threads")
-    first = _instance(validation, threads[0])
+    first = instance_for(validation, threads[0])
     pick = physical if physical is not None else 0
     if not 0 <= pick < len(first.devices):
-        if not _kept(first):
+        if not is_kept(first):
             first.close()
         raise InputError(f"no physical device {pick}; found {len(first.devices)}",
                          field="device")
@@ -89,7 +90,7 @@ def make_gpus(n: int, *, lp_threads: Sequence[int | None] | None = None,
         return gpus
     except BaseException:
         close_gpus(gpus)
-        if not any(g.instance is first for g in gpus) and not _kept(first):
+        if not any(g.instance is first for g in gpus) and not is_kept(first):
             first.close()
         raise
 
@@ -97,7 +98,7 @@ def make_gpus(n: int, *, lp_threads: Sequence[int | None] | None = None,
 def close_gpus(gpus: Sequence[Gpu]) -> None:
     """Close every GPU, then the shared instance (if the GPUs did not own theirs and it is
     not the one real GPUs keep for the process)."""
-    shared = {id(g.instance): g.instance for g in gpus if not g.owns_instance and not _kept(g.instance)}
+    shared = {id(g.instance): g.instance for g in gpus if not g.owns_instance and not is_kept(g.instance)}
     for gpu in gpus:
         gpu.close()
     for inst in shared.values():

@@ -86,3 +86,23 @@ def test_core_use_reports_a_failed_command(capsys):
     rc = core_use.main(["--skip", "0", "--window", "0", "--", sys.executable, "-c", "raise SystemExit('no such run')"])
     assert rc == 1 and "no such run" in capsys.readouterr().err
 
+
+
+def test_handoff_split_reads_the_packed_4x_h200_runs(capsys):
+    """experiments/h200_x4/handoff_split.py on the committed runs of 2026-11-27: every run
+    (packed) gets its table; on 4 GPUs the three GPUs waiting for GPU 0's present saw it well
+    after it ended (the lock convoy the runner's fence waits had), and one memcpy thread
+    copies each host copy in one part."""
+    spec = importlib.util.spec_from_file_location(
+        "handoff_split", ROOT / "experiments" / "h200_x4" / "handoff_split.py")
+    split = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(split)
+    runs = ROOT / "data" / "nvidia" / "h200_x4" / "handoff_2026-11-27" / "runs"
+    folders = split.run_folders(runs)
+    assert sorted(f.name for f in folders) == ["l1080", "l1080b", "l1080t1", "nohost", "portrait"]
+    table = split.split_table(runs / "l1080", 30)
+    present = table.loc[[f"-2:present -> render{g}" for g in (1, 2, 3)]]
+    assert (present["input seen"] > 0.5).all() and (present["count"] > 50).all()
+    assert split.part_ms(runs / "l1080t1", 30).size * 3 == split.part_ms(runs / "l1080", 30).size
+    assert split.main([str(runs)]) == 0
+    assert capsys.readouterr().out.count("input seen") == 5

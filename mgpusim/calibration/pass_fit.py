@@ -183,6 +183,7 @@ def fit_copies(df: pd.DataFrame, cal: Calibration) -> None:
         for queue, group in rows.groupby("queue"):
             X = np.column_stack([np.ones(len(group)), group["bytes"].to_numpy(dtype=float)])
             fit = fit_nonnegative(X, group["duration_ns"].to_numpy(), ["fixed_ns", "ns_per_byte"], f"{name} on {queue}")
+            fit.coef[1] = per_byte_ns(fit.coef[1], group, f"{name} on {queue}", fit.warnings)
             cal.copy_fits[(path, str(queue))] = fit
             cal.warnings.extend(fit.warnings)
 
@@ -198,7 +199,8 @@ def fit_host_copies(df: pd.DataFrame, cal: Calibration) -> None:
         X = np.column_stack([np.ones(len(group)), group["bytes"].to_numpy(dtype=float)])
         fit = fit_nonnegative(X, group["duration_ns"].to_numpy(), ["fixed_ns", "ns_per_byte"], f"host_copy x{threads}")
         cal.warnings.extend(fit.warnings)
-        throughput[int(threads)] = copy_rate_gbps(fit.coef[1], group, threads, cal.warnings)
+        throughput[int(threads)] = 1.0 / per_byte_ns(fit.coef[1], group, f"host_copy x{threads}",
+                                                     cal.warnings)
         fixed.append(fit.coef[0])
     one = throughput.get(1, min(throughput.values()))
     most = max(throughput)
@@ -211,15 +213,23 @@ def fit_host_copies(df: pd.DataFrame, cal: Calibration) -> None:
     cal.host["memory_bandwidth_gbps"] = max(plateau, one)
 
 
-def copy_rate_gbps(ns_per_byte: float, group: pd.DataFrame, threads: int, warnings: list[str]) -> float:
-    """Bytes per ns from the fitted slope; where noise left no slope (the fixed cost swamped the
-    bytes), the fastest whole copy measured, fixed cost included: a finite lower bound."""
-    if ns_per_byte > 0:
-        return 1.0 / ns_per_byte
-    rate = float((group["bytes"] / group["duration_ns"]).max())
-    warnings.append(f"host_copy x{threads}: no per-byte cost resolved above the noise; "
-                    f"the rate is the fastest whole copy measured, {rate:.1f} GB/s (a lower bound)")
-    return rate
+#: The share of its largest copy's time that a fitted per-byte cost must explain to count as
+#: resolved: below it the bytes made no measurable difference (noise, or a fixed cost that
+#: swamps them) and 1 / slope would be an arbitrary, possibly astronomical rate.
+RESOLVED_SHARE = 0.01
+
+
+def per_byte_ns(ns_per_byte: float, group: pd.DataFrame, what: str, warnings: list[str]) -> float:
+    """A copy's fitted ns per byte where the bytes explain at least RESOLVED_SHARE of its
+    largest copy's time; else the fastest whole copy measured (fixed cost included), whose
+    rate is a finite lower bound, with a warning."""
+    largest = group.loc[group["bytes"].idxmax()]
+    if ns_per_byte * float(largest["bytes"]) >= RESOLVED_SHARE * float(largest["duration_ns"]):
+        return float(ns_per_byte)
+    fastest = float((group["duration_ns"] / group["bytes"]).min())
+    warnings.append(f"{what}: no per-byte cost resolved above the noise; the rate is the "
+                    f"fastest whole copy measured, {1 / fastest:.1f} GB/s (a lower bound)")
+    return fastest
 
 
 def _solo(df: pd.DataFrame) -> pd.Series:

@@ -27,7 +27,7 @@ import pandas as pd
 
 from mgpusim.calibration.busy_wake_fit import fit_busy_wake
 from mgpusim.calibration.fit import fit_nonnegative
-from mgpusim.calibration.pass_fit import COPY_PASSES, calibrate, copy_rate_gbps, read_measurements
+from mgpusim.calibration.pass_fit import COPY_PASSES, calibrate, per_byte_ns, read_measurements
 from mgpusim.calibration.profile_out import apply, lavapipe_base, report
 from mgpusim.calibration.run_fit import (Run, copy_wake_after_dispatch, fit_alone_scales,
                                          fit_copy_setup, fit_host_copy_wake, fit_host_effects,
@@ -178,7 +178,7 @@ def _host_copy(data: dict[str, Any], table: pd.DataFrame, name: str) -> str:
     fit = fit_nonnegative(np.c_[np.ones(len(d)), d["bytes"].to_numpy(float)],
                           d["duration_ns"].to_numpy(float), ["fixed_ns", "ns_per_byte"], "host copy")
     warnings: list[str] = []
-    fixed, gbps = float(fit.coef[0]), copy_rate_gbps(float(fit.coef[1]), d, threads, warnings)
+    fixed, gbps = float(fit.coef[0]), 1.0 / per_byte_ns(float(fit.coef[1]), d, "host copy", warnings)
     host.update(host_copy_fixed_ns=int(round(fixed)), memory_bandwidth_gbps=round(gbps, 3),
                 memcpy_thread_gbps=round(gbps / threads, 4))
     return (f"host copy on {threads} threads ({name}, {len(d)} rows): {fixed / 1e3:.0f} us + "

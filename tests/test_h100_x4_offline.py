@@ -3,8 +3,7 @@ and runs (data/nvidia/h100_x4/, packed) give the committed profile again, held-o
 as docs/nvidia_h100_x4.md says, and the copy table holds the rows of GPUs copying at once."""
 from __future__ import annotations
 
-import pandas as pd
-
+from mgpusim.validation.measured_check import read_table
 from tests.study_helpers import ROOT, calibrated_and_committed, validate_held_out
 
 STUDY = ROOT / "experiments" / "h100_x4" / "study.toml"
@@ -38,6 +37,6 @@ def test_the_copy_tables_hold_gpus_copying_at_once():
     """d2h and h2d were timed alone and with 2 and 4 GPUs copying at once (one row per GPU);
     the profile's link rates come from the rows of one GPU alone."""
     for path in ("d2h", "h2d"):
-        df = pd.read_csv(DATA / "measurements" / f"copy_{path}.csv")
+        df = read_table(DATA / "measurements" / f"copy_{path}.csv")  # packed: read in place
         counts = df.groupby("gpus")["gpu"].nunique().to_dict()
         assert counts == {1: 1, 2: 2, 4: 4}

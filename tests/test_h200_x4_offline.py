@@ -3,8 +3,7 @@
 docs/nvidia_h200_x4.md says, and the copy tables hold the rows of GPUs copying at once."""
 from __future__ import annotations
 
-import pandas as pd
-
+from mgpusim.validation.measured_check import read_table
 from tests.study_helpers import ROOT, calibrated_and_committed, validate_held_out
 
 STUDY = ROOT / "experiments" / "h200_x4" / "study.toml"
@@ -32,7 +31,7 @@ def test_the_copy_tables_hold_gpus_copying_at_once():
     """d2h and h2d were timed alone and with 2 and 4 GPUs copying at once (one row per GPU);
     four at once each get less than one alone (the host side of PCIe)."""
     for path in ("d2h", "h2d"):
-        df = pd.read_csv(DATA / "measurements" / f"copy_{path}.csv")
+        df = read_table(DATA / "measurements" / f"copy_{path}.csv")  # packed: read in place
         assert df.groupby("gpus")["gpu"].nunique().to_dict() == {1: 1, 2: 2, 4: 4}
         big = df[df["bytes"] == df["bytes"].max()]
         rate = (big["bytes"] / big["duration_ns"]).groupby(big["gpus"]).median()

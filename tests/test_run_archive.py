@@ -109,3 +109,41 @@ def test_a_folder_s_logs_pack_into_one_table_and_come_back_byte_for_byte(tmp_pat
     assert run_archive.unpack_logs(tmp_path) == 3
     assert {rel: (tmp_path / rel).read_bytes().decode("utf-8") for rel in logs} == logs
     assert not (tmp_path / run_archive.LOGS).exists()
+
+
+def test_a_folder_of_measured_tables_packs_and_calibration_reads_it_in_place(tmp_path):
+    """A job's measurements folder (pass tables, their machine records, the speed probes)
+    packed: calibration, the probe reader and a study's file check read it as from the disk,
+    and unpacking writes every file back byte for byte."""
+    from mgpusim.calibration.pass_fit import read_measurements
+    from mgpusim.studies.speed_probe import read_probes
+    source = ROOT / "data" / "lavapipe"
+    folder = tmp_path / "measurements"
+    folder.mkdir()
+    names = ["fragment_loop.csv", "host_copy.csv", "copy_d2h.csv"]
+    for name in names:
+        shutil.copy(source / name, folder / name)
+        shutil.copy(source / f"{name}.machine.json", folder / f"{name}.machine.json")
+    (folder / "speed.csv").write_text("point,pass,median_ms\nbefore,fragment_loop,4.5\n")
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    tables = [folder / n for n in names]
+    want, machine = read_measurements(tables)
+    assert run_archive.pack_tables(folder) == 7
+    assert sorted(p.name for p in folder.iterdir()) == [run_archive.FILES, run_archive.TRACES]
+    got, got_machine = read_measurements(tables)
+    pd.testing.assert_frame_equal(got, want)
+    assert got_machine == machine and machine
+    assert read_probes([folder / "speed.csv"])["median_ms"].tolist() == [4.5]
+    assert run_archive.is_file(folder / "host_copy.csv") and run_archive.is_folder(folder)
+    with pytest.raises(ValueError, match="packed already"):
+        run_archive.pack_tables(folder)
+    assert run_archive.unpack(folder) == 7
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+
+
+def test_every_committed_measurements_folder_is_packed():
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("pack_runs", ROOT / "scripts" / "pack_runs.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    assert script.table_folders(ROOT / "data") == []

@@ -24,6 +24,7 @@ from mgpusim.model.scene import PassSpec
 from mgpusim.model.work_terms import PLACED_TERMS, REFERENCE_KINDS, UNPRICED_OK, WORK_TERMS
 from mgpusim.model.work_terms import pass_work as pass_work_placed
 from mgpusim.validation.measured_check import read_json_object, read_table
+from mgpusim.validation import run_archive
 
 #: Every pass kind of the cost model that is measured and fitted: all but those known only by a
 #: reference time ("timed", "captured").
@@ -62,7 +63,7 @@ def read_measurements(paths: list[Path]) -> tuple[pd.DataFrame, dict[str, Any]]:
         df["source"] = path.name
         frames.append(df)
         record = path.with_name(path.name + ".machine.json")
-        if record.is_file() and not machine:
+        if not machine and run_archive.is_file(record):  # on disk, or in its packed folder
             machine = read_json_object(record)
     return pd.concat(frames, ignore_index=True), machine
 

@@ -198,7 +198,7 @@ def _path(t: Table, key: str, base: Path, default: Any = _REQUIRED, *, folder: b
     if Path(text).is_absolute():
         raise t.error(key, f"must be relative to the study file, got the absolute path {text!r}")
     p = base / text
-    if not (run_archive.is_folder(p) if folder else p.exists()):
+    if not (run_archive.is_folder(p) if folder else p.exists() or run_archive.is_file(p)):
         raise t.error(key, f"{str(p)!r} does not exist{' (or is not a folder)' if folder else ''}")
     return p
 
@@ -223,7 +223,7 @@ def _inside(t: Table, key: str, folder: Path, name: str) -> Path:
     if not name.strip() or "\0" in name or Path(name).is_absolute() or ".." in Path(name).parts:
         raise t.error(key, f"must name a file inside {str(folder)!r} (relative, no '..'), got {name!r}")
     p = folder / name
-    if not p.is_file():
+    if not run_archive.is_file(p):  # on disk, or in the folder's packed archive
         raise t.error(key, f"{str(p)!r} does not exist (or is not a file)")
     return p
 

@@ -11,6 +11,7 @@ last; the report shows how far it moved and warns when it moved more than `DRIFT
 """
 from __future__ import annotations
 
+import io
 import time
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -18,6 +19,7 @@ from typing import Any, Callable, Sequence
 import pandas as pd
 
 from mgpusim.model.errors import InputError, UnsteadyMachineError
+from mgpusim.validation import run_archive
 
 #: The reference passes: one bound by fragment shading, one by geometry and memory.
 PROBE: tuple[tuple[str, dict[str, Any]], ...] = (
@@ -195,8 +197,9 @@ def append_probe(path: Path, rows: Sequence[dict[str, Any]]) -> None:
 
 
 def read_probes(paths: Sequence[Path]) -> pd.DataFrame:
-    """The probe rows of every existing table among `paths`, in order."""
-    frames = [pd.read_csv(p) for p in paths if p.is_file()]
+    """The probe rows of every existing table among `paths` (on disk, or in a packed folder
+    above it), in order."""
+    frames = [pd.read_csv(io.StringIO(run_archive.read_text(p))) for p in paths if run_archive.is_file(p)]
     frames = [f for f in frames if not f.empty]
     if not frames:
         return pd.DataFrame(columns=COLUMNS)

@@ -4,7 +4,8 @@ A folder of committed runs (a study's calibration or held-out runs, a main job's
 hundreds of small files: per run its trace, summary, machine record, frames, and logs beside
 them. :func:`pack` turns such a folder into `runs.parquet` (every run's trace rows, the run's
 folder in column `run`) and `run_files.parquet` (every other file of the runs, by path, as
-text). Readers keep asking for a file by the path it had (`runs/sf_2gpu/steady/trace.csv`):
+text); :func:`pack_tables` packs a folder of measured tables the same way (no traces).
+Readers keep asking for a file by the path it had (`runs/sf_2gpu/steady/trace.csv`):
 :func:`is_file`, :func:`read_text` and :func:`read_table` answer from the disk where the file is
 there, else from the archive of the nearest packed folder above it. :func:`unpack` writes the
 files back, byte for byte.
@@ -195,6 +196,38 @@ def unpack(root: Path) -> int:
     (root / TRACES).unlink()
     (root / FILES).unlink()
     return len(archive.files) + len(archive.traces)
+
+
+def table_files(root: Path) -> list[Path]:
+    """What :func:`pack_tables` takes into the archive: every file below `root` but the
+    archive's own tables and the measuring logs."""
+    own = {root / TRACES, root / FILES, root / LOGS}
+    return sorted(f for f in root.rglob("*") if f.is_file() and f not in own and f.suffix != ".log")
+
+
+def pack_tables(root: Path) -> int:
+    """Archive a folder of measured tables (a job's `measurements/`: pass tables, their
+    `.machine.json` records, the speed probes) as :func:`pack` archives runs, every file as
+    text in `run_files.parquet` beside an empty `runs.parquet`, so that the same readers
+    (:func:`is_file`, :func:`read_text`, :func:`read_table`) find them; checked, then the files
+    deleted. Returns how many files went in."""
+    if (root / TRACES).exists() or (root / FILES).exists():
+        raise ValueError(f"{root} is packed already: unpack it first")
+    files = table_files(root)
+    if not files:
+        raise ValueError(f"{root}: no table to pack")
+    pd.DataFrame({"run": pd.Series(dtype="string")}).to_parquet(root / TRACES, index=False)
+    texts = [(_rel(f, root), f.read_bytes().decode("utf-8")) for f in files]
+    pd.DataFrame(texts, columns=["path", "text"]).to_parquet(root / FILES, index=False,
+                                                              compression="zstd")
+    try:
+        _check_round_trip(root, files)
+    except AssertionError:
+        (root / TRACES).unlink()
+        (root / FILES).unlink()
+        raise
+    _remove(files, root)
+    return len(files)
 
 
 # ----- logs --------------------------------------------------------------------------------------

@@ -1,6 +1,8 @@
 """Where the host hand-offs of measured runs spend their time: one table per run.
 
     PYTHONPATH=. python experiments/h200_x4/handoff_split.py data/nvidia/h200_x4/handoff_2026-11-27/runs
+    PYTHONPATH=. python experiments/h200_x4/handoff_split.py data/nvidia/h100_x4/runs \
+        --only sf4_1080p_it4000/steady --warmup 0
 
 For each run folder below the given folder (packed archives are read in place), every hand-off
 bound by an input is split at the host thread that acted on it (`mgpusim.results.waits.host_split`):
@@ -59,9 +61,12 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("runs", type=Path, help="a folder of measured runs (packed or not)")
     p.add_argument("--warmup", type=int, default=30, help="frames to leave out (default 30)")
+    p.add_argument("--only", default="", help="the runs whose folder path contains this")
     args = p.parse_args(argv)
     for folder in run_folders(args.runs):
-        print(f"{folder.name}")
+        if args.only not in folder.as_posix():
+            continue
+        print(folder.relative_to(args.runs).as_posix())
         print(split_table(folder, args.warmup).round(3).to_string())
         parts = part_ms(folder, args.warmup)
         if len(parts):

@@ -29,9 +29,10 @@ import pandas as pd
 #: Why 10 %: two fragment-loop probes back to back differ by a median 1.6 % (90th percentile
 #: 3 %), so 10 % is a real change of speed, not the probe's noise; and the window compared of a
 #: run whose speed moved by d may lie anywhere between its two probes, up to d from the faster
-#: one: at 10 % the size of the errors the verdict is about (held-out medians of 3-6 %). Measured since: a run apart, in a
-#: quiet job, ~30 % of the probes moved more (the machine's 0.25-2 s phases), so a quiet job has
-#: that share flagged and a half can come out refused (docs/journal/2026-11-26_speed_normalized.md).
+#: one: at 10 % the size of the errors the verdict is about (held-out medians of 3-6 %).
+#: Measured since: a run apart, in a quiet job, ~30 % of the probes moved more (the machine's
+#: 0.25-2 s phases), so a quiet job has that share flagged and a half can come out refused
+#: (docs/journal/2026-11-26_speed_normalized.md).
 DISAGREEMENT_LIMIT = 0.10
 #: Why 0.25 cores: an idle machine shows 0.01-0.02 cores of other work (the kernel's own); at a
 #: quarter core others hold an eighth of the two cores, enough to slow a pass filling both cores
@@ -60,7 +61,7 @@ class RunSpeed:
 
         Why the faster, not a mean: what is compared is the run's steady window, the fast end
         of its repeats (outside work and the machine's slow phases only add time), and of the
-        two probes the faster is the one taken in such a phase; a probe slowed by a passing
+        two probes the faster is the one nearer that state; a probe slowed by a passing slow
         phase says nothing about the window. Measured on three lavapipe main jobs of
         2026-11-27 on a drifting machine (data/lavapipe/main_job_2026-11-27_*): their
         normalized medians over all runs 4.7-5.4 % (calibration) and 5.2-6.3 % (held out),

@@ -150,7 +150,14 @@ def pack(root: Path) -> int:
             traces.append(trace.assign(run=_rel(f.parent, root))[["run", *trace.columns]])
         else:
             texts.append((rel, f.read_bytes().decode("utf-8")))
-    pd.concat(traces, ignore_index=True).to_parquet(root / TRACES, index=False, compression="zstd")
+    return _write_checked(root, pd.concat(traces, ignore_index=True), texts, files)
+
+
+def _write_checked(root: Path, traces: pd.DataFrame, texts: list[tuple[str, str]],
+                   files: list[Path]) -> int:
+    """Write the archive's two tables, check that every one of `files` reads back exactly as
+    from the disk, then delete them; on a mismatch delete the tables instead and raise."""
+    traces.to_parquet(root / TRACES, index=False, compression="zstd")
     pd.DataFrame(texts, columns=["path", "text"]).to_parquet(root / FILES, index=False,
                                                               compression="zstd")
     try:
@@ -216,18 +223,8 @@ def pack_tables(root: Path) -> int:
     files = table_files(root)
     if not files:
         raise ValueError(f"{root}: no table to pack")
-    pd.DataFrame({"run": pd.Series(dtype="string")}).to_parquet(root / TRACES, index=False)
     texts = [(_rel(f, root), f.read_bytes().decode("utf-8")) for f in files]
-    pd.DataFrame(texts, columns=["path", "text"]).to_parquet(root / FILES, index=False,
-                                                              compression="zstd")
-    try:
-        _check_round_trip(root, files)
-    except AssertionError:
-        (root / TRACES).unlink()
-        (root / FILES).unlink()
-        raise
-    _remove(files, root)
-    return len(files)
+    return _write_checked(root, pd.DataFrame({"run": pd.Series(dtype="string")}), texts, files)
 
 
 # ----- logs --------------------------------------------------------------------------------------

@@ -113,8 +113,9 @@ def test_a_folder_s_logs_pack_into_one_table_and_come_back_byte_for_byte(tmp_pat
 
 def test_a_folder_of_measured_tables_packs_and_calibration_reads_it_in_place(tmp_path):
     """A job's measurements folder (pass tables, their machine records, the speed probes)
-    packed: calibration, the probe reader and a study's file check read it as from the disk,
-    and unpacking writes every file back byte for byte."""
+    packed: calibration and the probe reader read it as from the disk (the study files' check
+    of their listed tables: the offline study tests), and unpacking writes every file back
+    byte for byte."""
     from mgpusim.calibration.pass_fit import read_measurements
     from mgpusim.studies.speed_probe import read_probes
     source = ROOT / "data" / "lavapipe"

@@ -40,7 +40,7 @@ from mgpusim.sim.engine import Engine, RawResult
 from mgpusim.sim.fastforward import Repeat
 
 NEG = -(1 << 62)  # "no constraint" (before time 0)
-_NO_START = np.iinfo(np.int64).max  # a frame with no task run yet (its start array's fill)
+NO_START = np.iinfo(np.int64).max  # a frame with no task run yet (its start array's fill)
 
 
 @dataclass(frozen=True)
@@ -212,7 +212,7 @@ class Analytic:
 
 @dataclass
 class _Run:
-    """One evaluation of the recurrence (see :meth:`Analytic.run`)."""
+    """One evaluation of the recurrence (see :meth:`Analytic.evaluate`)."""
 
     rows: list[tuple]
     start: np.ndarray
@@ -236,7 +236,7 @@ class _Recurrence:
         self.threads = [0] * model.threads
         self.host_prev = NEG
         self.rows: list[tuple] = []
-        self.start = np.full(frames, np.iinfo(np.int64).max, dtype=np.int64)
+        self.start = np.full(frames, NO_START, dtype=np.int64)
         self.present = np.full(frames, -1, dtype=np.int64)
         self.skips = _Skips()
         #: (phase, queues' clocks relative to the present) -> [snapshot, its state or None]
@@ -255,7 +255,7 @@ class _Recurrence:
         here: dict[str, int] = {}
         ends = self.ends
         ends.append(here)
-        first = _NO_START
+        first = NO_START
         skipped_here: set[str] = set()
         chains = m.chains[phase]
         queue_end, sub, rows = self.queue_end, self.sub, self.rows if self.record else None
@@ -306,7 +306,7 @@ class _Recurrence:
             here[node.name] = e
             if chain is not None:
                 self.skips.ran(chain[0], e)
-        if first != _NO_START:
+        if first != NO_START:
             self.start[f] = first
         self.present[f] = here[m.program.present_task]
 

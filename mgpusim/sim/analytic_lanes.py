@@ -28,7 +28,7 @@ from mgpusim.model.costs import CostModel
 from mgpusim.model.errors import InputError
 from mgpusim.model.tasks import PassTask
 from mgpusim.schedules.base import FrameProgram
-from mgpusim.sim.analytic import NEG, Analytic
+from mgpusim.sim.analytic import NEG, NO_START, Analytic
 from mgpusim.sim.effects import choose_effects
 
 #: Longest run (frames) computed as lanes: every frame is computed (no extrapolation), and each
@@ -216,7 +216,7 @@ class _Pass:
         phase = f % len(m.phases)
         here: dict[str, np.ndarray] = {}
         self.ends.append(here)
-        first = np.full(self.lanes.n, np.iinfo(np.int64).max, dtype=np.int64)
+        first = np.full(self.lanes.n, NO_START, dtype=np.int64)
         for i, node in enumerate(m.phases[phase]):
             ready, cross = self.neg, self.neg
             for dep, off, crosses in node.deps:

@@ -272,7 +272,7 @@ class Engine:
         if host and not self._host_timeline:
             proc = self._lean_stream_proc(plan, stream, box, host=True)
         elif (not host and not self._host_timeline and self._busy_wake is None
-              and not any(op.gap or op.fill_cores is not None for ops in plan for op in ops)):
+              and not any(op.gap for ops in plan for op in ops)):  # (fill_cores needs busy_wake)
             proc = self._lean_stream_proc(plan, stream, box)
         else:
             proc = self._stream_proc(plan, stream)

@@ -31,7 +31,3 @@ def cached(owner: object, what: Hashable, make: Callable[[], Any]) -> Any:
         value = entry[what] = make()
     return value
 
-
-def forget(owner: object) -> None:
-    """Drop what is kept for `owner` (tests; a caller that changed it in place)."""
-    _STORE.pop(id(owner), None)

@@ -101,9 +101,7 @@ class StreamProcess(simpy.Process):
     def finish(self) -> None:
         """The generator that waits by itself is done: the process event succeeds (as when a
         SimPy generator returns)."""
-        self._target = None  # type: ignore[assignment]
-        self._ok, self._value = True, None
-        self.env.schedule(self)
+        self._ended(StopIteration())
 
     def _ended(self, exc: BaseException) -> None:
         """The generator returned (StopIteration) or raised: the process event succeeds with

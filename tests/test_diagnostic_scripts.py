@@ -100,9 +100,11 @@ def test_handoff_split_reads_the_packed_4x_h200_runs(capsys):
     runs = ROOT / "data" / "nvidia" / "h200_x4" / "handoff_2026-11-27" / "runs"
     folders = split.run_folders(runs)
     assert sorted(f.name for f in folders) == ["l1080", "l1080b", "l1080t1", "nohost", "portrait"]
-    table = split.split_table(runs / "l1080", 30)
+    trace = split.read_table(runs / "l1080" / "trace.csv")
+    table = split.split_table(runs / "l1080", trace, 30)
     present = table.loc[[f"-2:present -> render{g}" for g in (1, 2, 3)]]
     assert (present["input seen"] > 0.5).all() and (present["count"] > 50).all()
-    assert split.part_ms(runs / "l1080t1", 30).size * 3 == split.part_ms(runs / "l1080", 30).size
+    one_thread = split.read_table(runs / "l1080t1" / "trace.csv")
+    assert split.part_ms(one_thread, 30).size * 3 == split.part_ms(trace, 30).size
     assert split.main([str(runs)]) == 0
     assert capsys.readouterr().out.count("input seen") == 5

@@ -39,9 +39,9 @@ def run_folders(root: Path) -> list[Path]:
     return run_archive.run_folders(root)
 
 
-def split_table(folder: Path, warmup: int) -> pd.DataFrame:
-    """One row per hand-off of the run in `folder`, frames before `warmup` left out; mean ms."""
-    trace = read_table(folder / run_archive.TRACE_NAME)
+def split_table(folder: Path, trace: pd.DataFrame, warmup: int) -> pd.DataFrame:
+    """One row per hand-off of the run in `folder` (its `trace`), frames before `warmup` left
+    out; mean ms."""
     submissions = read_submissions(folder)
     if submissions is None:
         raise SystemExit(f"{folder}: no submissions table (a run older than 2026-11-25)")
@@ -50,9 +50,8 @@ def split_table(folder: Path, warmup: int) -> pd.DataFrame:
                                  "device_start_ms": "start"})
 
 
-def part_ms(folder: Path, warmup: int) -> pd.Series:
-    """The durations of the run's host-copy parts (ms)."""
-    trace = read_table(folder / run_archive.TRACE_NAME)
+def part_ms(trace: pd.DataFrame, warmup: int) -> pd.Series:
+    """The durations of a run's host-copy parts (ms), from its `trace`."""
     parts = trace[(trace["step"] == "host_copy") & (trace["frame"] >= warmup)]
     return (parts["end_ns"] - parts["start_ns"]) / 1e6
 
@@ -66,9 +65,10 @@ def main(argv: list[str] | None = None) -> int:
     for folder in run_folders(args.runs):
         if args.only not in folder.as_posix():
             continue
+        trace = read_table(folder / run_archive.TRACE_NAME)
         print(folder.relative_to(args.runs).as_posix())
-        print(split_table(folder, args.warmup).round(3).to_string())
-        parts = part_ms(folder, args.warmup)
+        print(split_table(folder, trace, args.warmup).round(3).to_string())
+        parts = part_ms(trace, args.warmup)
         if len(parts):
             print(f"host-copy parts: {len(parts)}, median {parts.median():.3f} ms, "
                   f"90th percentile {parts.quantile(0.9):.3f} ms")

@@ -38,7 +38,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import pandas as pd
 
-from mgpusim.io.output import write_text
+from mgpusim.io.output import write_measured, write_text
 from mgpusim.model.errors import MgpusimError
 from mgpusim.schedules.binding import COLOUR_PIXEL_BYTES
 from mgpusim.schedules.experiment import load_experiment
@@ -103,7 +103,6 @@ class Log:
 def measure(setup: Setup, path: Path, overrides: Mapping[str, Any], out: Path | None = None) -> dict[str, float]:
     """One real run of the experiment at `path` under `overrides` (the setup's profile and
     devices): its mean period and latency; the run's files under `out` if given."""
-    from mgpusim.io.output import write_measured  # noqa: PLC0415
     from mgpusim.real.runner.execute import run_experiment  # noqa: PLC0415
 
     first = load_experiment(path, overrides, profile=setup.profile)
@@ -149,7 +148,7 @@ def source_overrides(setup: Setup, frame: Frame, schedule: Mapping[str, Any]) ->
     out: dict[str, Any] = {**scene, "schedule": sched}
     if sched["name"] == "pipelining":
         exp = load_experiment(frame.experiment, scene, profile=setup.profile)
-        out["scene.passes.*.output_bytes"] = exp.scene.width * exp.scene.height * COLOUR_PIXEL_BYTES
+        out["scene.passes.*.output_bytes"] = exp.scene.pixels * COLOUR_PIXEL_BYTES
     return out
 
 

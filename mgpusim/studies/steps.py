@@ -230,7 +230,7 @@ def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_t
     path.write_text("\n".join(lines))
     write_json(stats, out / "errors.json")
     write_json(by_schedule, out / "errors_by_schedule.json")
-    write_study_page(out, study.name, tables, stats, fit_text, speed_lines, missing)
+    write_study_page(out, study.name, tables, stats, by_schedule, fit_text, speed_lines, missing)
     return path
 
 

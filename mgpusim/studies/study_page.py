@@ -19,7 +19,6 @@ import pandas as pd
 
 from mgpusim.io.plot import errors_png
 from mgpusim.io.report_page import Section, write_page
-from mgpusim.validation.compare import error_stats
 
 #: The error table's columns on the page: (column, heading, scale). Errors are shown in %.
 _COLUMNS = (("config", "config", 1), ("measured_frame_ms", "measured frame (ms)", 1),
@@ -76,9 +75,11 @@ def normalized_line(st: Mapping[str, Any]) -> str:
 
 
 def write_study_page(out: Path, name: str, tables: Mapping[str, pd.DataFrame], stats: Mapping[str, Any],
-                     fit_text: str, speed_lines: Sequence[str] = (),
+                     by_schedule: Mapping[str, Mapping[str, Any]], fit_text: str,
+                     speed_lines: Sequence[str] = (),
                      missing: Mapping[str, list[str]] | None = None) -> Path:
-    """OUT/report.html (see the module doc): `stats` per half as errors.json has them;
+    """OUT/report.html (see the module doc): `stats` per half as errors.json has them,
+    `by_schedule` per half and schedule as errors_by_schedule.json has them;
     `speed_lines`: report.md's section on the machine's speed (Markdown, shown as text)."""
     sections = [Section("Summary", text=[INTRO] + [f"{title}: {stats_line(stats[title])}"
                                                     for title in tables if title in stats
@@ -87,7 +88,7 @@ def write_study_page(out: Path, name: str, tables: Mapping[str, pd.DataFrame], s
         sections.append(Section("The machine's speed during the job",
                                 code=["\n".join(line for line in speed_lines if not line.startswith("## "))]))
     for title, table in tables.items():
-        sections += _half(out, title, table, (missing or {}).get(title, []))
+        sections += _half(out, title, table, (missing or {}).get(title, []), by_schedule.get(title, {}))
     sections.append(Section("Calibration", code=[fit_text]))
     files = [(f.name, f.name) for f in sorted(out.glob("errors*.json")) + sorted(out.glob("errors_*.csv"))]
     sections.append(Section("Files", links=files + [("report.md", "report.md (the same report in Markdown)")]))
@@ -95,7 +96,8 @@ def write_study_page(out: Path, name: str, tables: Mapping[str, pd.DataFrame], s
                       f"{sum(len(t) for t in tables.values())} configurations compared")
 
 
-def _half(out: Path, title: str, table: pd.DataFrame, absent: list[str]) -> list[Section]:
+def _half(out: Path, title: str, table: pd.DataFrame, absent: list[str],
+          schedule_stats: Mapping[str, Any]) -> list[Section]:
     """A half's sections: its error plot, then one per schedule (table, timelines, traces)."""
     head = Section(title)
     if absent:
@@ -108,7 +110,7 @@ def _half(out: Path, title: str, table: pd.DataFrame, absent: list[str]) -> list
     parts = [head]
     groups = table.groupby("schedule", sort=False) if "schedule" in table else [("", table)]
     for schedule, part in groups:
-        s = Section(f"{title.split(' (')[0]}: {schedule}", text=[stats_line(error_stats(part))],
+        s = Section(f"{title.split(' (')[0]}: {schedule}", text=[stats_line(schedule_stats[schedule])],
                     tables=[("", page_table(part))])
         for config in part["config"]:
             folder = out / "validation" / str(config)

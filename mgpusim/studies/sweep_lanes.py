@@ -177,7 +177,6 @@ class Group:
     points: list[Any]
     combos: np.ndarray  # per point (row), the index of each lane key's value
     model: Analytic | None = None
-    costs: CostModel | None = None
     summary: dict[str, Any] | None = None
     signature: tuple | None = None
     #: the group this is a slice of (None: a whole group), and whether it has its first point
@@ -218,14 +217,14 @@ def build(group: Group, path: Path, base: Mapping[str, Any], fidelity: str) -> s
         program = build_program(exp)
         if program.refresh_hz:
             return "vsync"
-        costs = CostModel(exp.profile)
-        model = Analytic(program, costs, choose_effects(program, exp.profile, fidelity))
-        if lanes_mod.lanes_refusal(model) is not None:
-            return lanes_mod.lanes_refusal(model)
+        model = Analytic(program, CostModel(exp.profile), choose_effects(program, exp.profile, fidelity))
+        refusal = lanes_mod.lanes_refusal(model)
+        if refusal is not None:
+            return refusal
         group.summary = flatten(simulate(exp, fidelity=fidelity).summary)
     except MgpusimError as exc:
         return str(exc)
-    group.model, group.costs, group.signature = model, costs, lanes_mod.structure(model)
+    group.model, group.signature = model, lanes_mod.structure(model)
     return None
 
 
@@ -243,7 +242,7 @@ def group_lanes(group: Group, plan_: Plan) -> tuple[lanes_mod.Lanes, np.ndarray]
         for c in _touched(plan_.coefs[key]):
             table = np.array([v.get(c, np.nan) for v in plan_.coefs[key]], dtype=np.float64)
             coef[c] = table[combos[:, j]]
-    profile = group.costs.profile
+    profile = model.costs.profile
     for ph, phase in enumerate(model.phases):
         for i, node in enumerate(phase):
             if isinstance(node.task, PassTask):
@@ -414,8 +413,7 @@ class LaneRun:
                 left = []
                 yield from self._lanes()
         self.fallback.extend(left)
-        order = {p.id: p.index for p in self.todo}
-        self.fallback.sort(key=lambda p: order[p.id])
+        self.fallback.sort(key=lambda p: p.index)
 
     def _lanes(self) -> Iterator[pd.DataFrame]:
         built = []

@@ -182,9 +182,7 @@ def fit_copies(df: pd.DataFrame, cal: Calibration) -> None:
         if rows.empty:
             continue
         for queue, group in rows.groupby("queue"):
-            X = np.column_stack([np.ones(len(group)), group["bytes"].to_numpy(dtype=float)])
-            fit = fit_nonnegative(X, group["duration_ns"].to_numpy(), ["fixed_ns", "ns_per_byte"], f"{name} on {queue}")
-            fit.coef[1] = per_byte_ns(fit.coef[1], group, f"{name} on {queue}", fit.warnings)
+            fit = fit_copy_line(group, f"{name} on {queue}")
             cal.copy_fits[(path, str(queue))] = fit
             cal.warnings.extend(fit.warnings)
 
@@ -197,11 +195,9 @@ def fit_host_copies(df: pd.DataFrame, cal: Calibration) -> None:
     throughput: dict[int, float] = {}
     fixed: list[float] = []
     for threads, group in rows.groupby("threads"):
-        X = np.column_stack([np.ones(len(group)), group["bytes"].to_numpy(dtype=float)])
-        fit = fit_nonnegative(X, group["duration_ns"].to_numpy(), ["fixed_ns", "ns_per_byte"], f"host_copy x{threads}")
+        fit = fit_copy_line(group, f"host_copy x{threads}")
         cal.warnings.extend(fit.warnings)
-        throughput[int(threads)] = 1.0 / per_byte_ns(fit.coef[1], group, f"host_copy x{threads}",
-                                                     cal.warnings)
+        throughput[int(threads)] = 1.0 / fit.coef[1]
         fixed.append(fit.coef[0])
     one = throughput.get(1, min(throughput.values()))
     most = max(throughput)
@@ -218,6 +214,16 @@ def fit_host_copies(df: pd.DataFrame, cal: Calibration) -> None:
 #: resolved: below it the bytes made no measurable difference (noise, or a fixed cost that
 #: swamps them) and 1 / slope would be an arbitrary, possibly astronomical rate.
 RESOLVED_SHARE = 0.01
+
+
+def fit_copy_line(group: pd.DataFrame, what: str) -> Fit:
+    """A copy's time as fixed_ns + ns_per_byte x bytes over the rows of `group`, the per-byte
+    cost as :func:`per_byte_ns` takes it (its warning among the fit's): every copy fit's one
+    rule (device copies, host copies, the NVIDIA recipe's host copy)."""
+    X = np.column_stack([np.ones(len(group)), group["bytes"].to_numpy(dtype=float)])
+    fit = fit_nonnegative(X, group["duration_ns"].to_numpy(dtype=float), ["fixed_ns", "ns_per_byte"], what)
+    fit.coef[1] = per_byte_ns(fit.coef[1], group, what, fit.warnings)
+    return fit
 
 
 def per_byte_ns(ns_per_byte: float, group: pd.DataFrame, what: str, warnings: list[str]) -> float:

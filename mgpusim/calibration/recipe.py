@@ -22,12 +22,10 @@ import copy
 from pathlib import Path
 from typing import Any, Sequence
 
-import numpy as np
 import pandas as pd
 
 from mgpusim.calibration.busy_wake_fit import fit_busy_wake
-from mgpusim.calibration.fit import fit_nonnegative
-from mgpusim.calibration.pass_fit import COPY_PASSES, calibrate, per_byte_ns, read_measurements
+from mgpusim.calibration.pass_fit import COPY_PASSES, calibrate, fit_copy_line, read_measurements
 from mgpusim.calibration.profile_out import apply, lavapipe_base, report
 from mgpusim.calibration.run_fit import (Run, copy_wake_after_dispatch, fit_alone_scales,
                                          fit_copy_setup, fit_host_copy_wake, fit_host_effects,
@@ -175,14 +173,12 @@ def _host_copy(data: dict[str, Any], table: pd.DataFrame, name: str) -> str:
     host = data["host"]
     threads = int(host["memcpy_threads"])
     d = table[table["threads"] == threads]
-    fit = fit_nonnegative(np.c_[np.ones(len(d)), d["bytes"].to_numpy(float)],
-                          d["duration_ns"].to_numpy(float), ["fixed_ns", "ns_per_byte"], "host copy")
-    warnings: list[str] = []
-    fixed, gbps = float(fit.coef[0]), 1.0 / per_byte_ns(float(fit.coef[1]), d, "host copy", warnings)
+    fit = fit_copy_line(d, "host copy")
+    fixed, gbps = float(fit.coef[0]), 1.0 / float(fit.coef[1])
     host.update(host_copy_fixed_ns=int(round(fixed)), memory_bandwidth_gbps=round(gbps, 3),
                 memcpy_thread_gbps=round(gbps / threads, 4))
     return (f"host copy on {threads} threads ({name}, {len(d)} rows): {fixed / 1e3:.0f} us + "
-            f"bytes / {gbps:.1f} GB/s" + "".join(f"; {w}" for w in warnings))
+            f"bytes / {gbps:.1f} GB/s" + "".join(f"; {w}" for w in fit.warnings))
 
 
 def _copy_from(data: dict[str, Any], recipe: Any) -> str:

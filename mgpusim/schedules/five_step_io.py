@@ -63,6 +63,7 @@ class _Binder:
             self.rects = [(0, tops[i], w, rows[i]) for i in range(gpus)]
         self.bpp = scene.color_bytes_per_pixel + (scene.depth_bytes_per_pixel if self.depth else 0)
         self.own = own_images(scene)
+        self.first_into_target = _first_into_target(scene, self.own)  # it clears the target
         self.target_depth = self.depth or any(p.kind == "mesh" for p in scene.passes
                                               if p.name not in self.own)
         self.history = reads_own_output(scene.passes, len(scene.passes) - 1)  # the last pass's
@@ -118,7 +119,7 @@ class _Binder:
                                         spec.kind == "mesh"), self.rects[i][:2]
         part = self.geometry[i] if self.geometry else (i, i + 1, self.gpus)
         params = _render_params(spec, scene, self.rects[i], origin, part, self.depth)
-        params["clear"] = spec.name in self.own or index == _first_into_target(scene, self.own)
+        params["clear"] = spec.name in self.own or index == self.first_into_target
         reads = _filter_reads(scene, index, params, lambda n: (
             f"gpu{i}.pass.{n}" if n in self.own else self.target_of(i)))
         return dataclasses.replace(task, reads=reads, writes=(target,), params=MappingProxyType(params))

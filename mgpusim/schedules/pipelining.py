@@ -167,11 +167,12 @@ def _bind_copies(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, split: in
     for t in tasks:
         pieces[t.name.rpartition(".")[0]].append(t)
     for prefix, names in groups:
+        colour_only = not _with_depth(scene, names)
         for c in range(chunks):
             piece_name = prefix if chunks == 1 else f"{prefix}#{c}"
             piece = pieces[piece_name]
             params = dict(regions[c])
-            if not _with_depth(scene, names):
+            if colour_only:
                 params["depth"] = False
             if missing:
                 params = {"unsupported": f"GPU 0 reads the output of pass {missing[0]!r}, but "

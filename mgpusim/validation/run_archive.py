@@ -16,6 +16,7 @@ import io
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
+from typing import Iterable
 
 import pandas as pd
 
@@ -194,9 +195,7 @@ def unpack(root: Path) -> int:
     """Write a packed folder's files back (traces as CSV) and remove its tables; returns how
     many files were written."""
     archive = _open(root)
-    for rel, text in archive.files.items():
-        (root / rel).parent.mkdir(parents=True, exist_ok=True)
-        (root / rel).write_bytes(text.encode("utf-8"))
+    _write_texts(root, archive.files.items())
     for run, trace in archive.traces.items():
         (root / run).mkdir(parents=True, exist_ok=True)
         trace.to_csv(root / run / TRACE_NAME, index=False)
@@ -249,8 +248,13 @@ def pack_logs(root: Path) -> int:
 def unpack_logs(root: Path) -> int:
     """Write `root/logs.parquet`'s logs back byte for byte and remove the table."""
     table = pd.read_parquet(root / LOGS)
-    for rel, text in zip(table["path"], table["text"]):
-        (root / rel).parent.mkdir(parents=True, exist_ok=True)
-        (root / rel).write_bytes(text.encode("utf-8"))
+    _write_texts(root, zip(table["path"], table["text"]))
     (root / LOGS).unlink()
     return len(table)
+
+
+def _write_texts(root: Path, files: Iterable[tuple[str, str]]) -> None:
+    """Write each (relative path, text) below `root` byte for byte, making its folders."""
+    for rel, text in files:
+        (root / rel).parent.mkdir(parents=True, exist_ok=True)
+        (root / rel).write_bytes(text.encode("utf-8"))

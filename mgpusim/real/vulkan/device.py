@@ -73,10 +73,11 @@ class Submission:
         self._finished = False
         #: held by the one thread that reads the timestamps and recycles the slot
         self._read_lock = threading.Lock()
-        #: held while the fence is looked at without waiting, and while it is reset and the
-        #: slot recycled: vkResetFences needs the fence to itself, and a recycled slot belongs
-        #: to the next submission, so neither may overlap a look from another thread. Not held
-        #: while the timestamps are read: that read can block for milliseconds on lavapipe.
+        #: held while the slot is looked up (a waiter counting itself in, `poll`'s look at the
+        #: fence) and while the fence is reset and the slot recycled: vkResetFences needs the
+        #: fence to itself, and a recycled slot belongs to the next submission. Not held during
+        #: a fence wait (`_waiting` keeps the slot) nor while the timestamps are read: that
+        #: read can block for milliseconds on lavapipe.
         self._slot_lock = threading.Lock()
         #: threads inside vkWaitForFences on this fence now; the slot is recycled only at 0
         self._waiting = 0

@@ -181,8 +181,9 @@ class Analytic:
                  ) -> "_Run":
         """One run of the recurrence: rows, frame starts, presents, the repeat (None: every
         frame computed, or the arrays already extended when no rows were asked for), the
-        repeat found, skipped frames and tied skip decisions. The model itself is left as it
-        was built, so that one model serves many runs (simulate() keeps it per experiment,
+        repeat found, skipped frames and tied skip decisions, with the frames past those
+        computed filled in (:meth:`_extended`). The model itself is left as it was built, so
+        that one model serves many runs (simulate() keeps it per experiment,
         :mod:`mgpusim.sim.prepared`)."""
         rec = _Recurrence(self, record)
         frames = self.program.frames
@@ -200,14 +201,28 @@ class Analytic:
             f += 1
         if progress is not None:
             progress(horizon, horizon)
-        skipped_frames = rec.skips.frames
-        if repeat is not None and not record:  # no rows to compose: extend the arrays instead
-            _extend(rec.start, horizon, repeat)
-            _extend(rec.present, horizon, repeat)
-            skipped_frames = {n: _extend_frames(v, horizon, frames, repeat.frames)
-                              for n, v in rec.skips.frames.items()}
-            repeat = None
-        return _Run(rec.rows, rec.start, rec.present, repeat, rec.found, rec.skips.ties, skipped_frames)
+        run = _Run(rec.rows, rec.start, rec.present, repeat, rec.found, rec.skips.ties, rec.skips.frames)
+        return self._extended(run, horizon, record)
+
+    def _extended(self, run: "_Run", computed: int, record: bool) -> "_Run":
+        """`run` with its frames from `computed` on filled in from its repeat, the one place
+        the arrays are extended. Why here: the state repeats, so each such frame is the one a
+        period earlier, shifted, which is what the rows' repeat would give; extending the
+        arrays spares building them from the rows. Without rows (`record` off) the skipped
+        frames are continued too and the repeat is dropped (nothing left to compose). With
+        rows, the arrays stand for the rows' only when the present is a GPU task (see
+        `presents_on_gpu`); otherwise they are left to be built from the rows."""
+        repeat = run.repeat
+        if repeat is None or (record and not self.presents_on_gpu):
+            return run
+        _extend(run.start, computed, repeat)
+        _extend(run.present, computed, repeat)
+        run.frames_whole = True
+        if not record:
+            run.skipped_frames = {n: _extend_frames(v, computed, self.program.frames, repeat.frames)
+                                  for n, v in run.skipped_frames.items()}
+            run.repeat = None
+        return run
 
 
 @dataclass
@@ -221,6 +236,8 @@ class _Run:
     found: dict[str, int] | None
     ties: int
     skipped_frames: dict[str, list[int]]
+    #: `start` and `present` cover every frame, those past the computed ones included
+    frames_whole: bool = False
 
 
 class _Recurrence:
@@ -509,13 +526,7 @@ def model_raw(model: Analytic, record_trace: bool = True,
                     present_task=program.present_task, inputs=model.inputs)
     raw.recorded = record_trace
     raw.repeat = out.repeat
-    if out.repeat is not None and model.presents_on_gpu:
-        # every frame's start and present, as the rows' repeats would give them: the state
-        # repeats, so each frame past those computed is the one a period earlier, shifted
-        computed = program.frames - out.repeat.copies * out.repeat.frames
-        _extend(out.start, computed, out.repeat)
-        _extend(out.present, computed, out.repeat)
-        raw.frames_whole = True
+    raw.frames_whole = out.frames_whole
     found = out.found
     raw.fast_forward = {"used": found is not None}
     if found is None:

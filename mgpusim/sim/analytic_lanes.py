@@ -109,23 +109,45 @@ def lanes_refusal(model: Analytic) -> str | None:
 
 
 def run_lanes(model: Analytic, lanes: Lanes) -> dict[str, np.ndarray]:
-    """Per-lane summary arrays (see :func:`_summary`), CHUNK_LANES lanes at a time."""
+    """Per-lane summary arrays (see :func:`_summary`), the repeat's fields and each
+    resource's utilization included, :func:`_chunk` lanes at a time."""
     why = lanes_refusal(model)
     if why is not None:
         raise InputError(f"schedule {model.program.schedule!r} cannot run as lanes: {why}")
-    out: dict[str, list[np.ndarray]] = {}
-    chunk = _chunk(model)
+    return _by_chunks(model, lanes, _chunk(model), detect=True, log=True)
+
+
+def frame_times(model: Analytic, lanes: Lanes) -> dict[str, np.ndarray]:
+    """Frame time and latency (ms) per lane only: the first pass, no utilization."""
+    return _by_chunks(model, lanes, CHUNK_LANES, detect=False, log=False,
+                      keys=("frame_time_ms", "latency_ms"))
+
+
+def _by_chunks(model: Analytic, lanes: Lanes, chunk: int, detect: bool, log: bool,
+               keys: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
+    """The recurrence over `lanes`, `chunk` lanes at a time (numpy arrays that fit in cache
+    are faster than larger ones), each chunk's summary arrays joined. `detect`: look for the
+    repeat (the fast_forward fields); `log`: log every task's start and end, for each
+    resource's utilization; `keys`: the summary's figures kept (None: all)."""
+    out: dict[str, list[np.ndarray]] = {key: [] for key in keys or ()}
     for lo in range(0, lanes.n, chunk):
-        run = _Pass(model, lanes.take(slice(lo, lo + chunk)), detect=True)
+        run = _Pass(model, lanes.take(slice(lo, lo + chunk)), detect=detect, log=log)
         run.run()
         summary = _summary(model, run)
-        window = (summary["window_ns.0"], summary["window_ns.1"])
-        span = np.maximum(window[1] - window[0], 1)
-        for name, (busy, used) in run.busy_by_resource(*window).items():
-            summary[f"utilization.{name}"] = np.where(used, np.round(busy / span, 6), np.nan)
-        for key, value in summary.items():
-            out.setdefault(key, []).append(value)
+        if log:
+            summary.update(_utilization(run, summary))
+        for key in keys or summary:
+            out.setdefault(key, []).append(summary[key])
     return {k: np.concatenate(v) for k, v in out.items()}
+
+
+def _utilization(run: "_Pass", summary: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Each resource's busy share of the summary's present window per lane (NaN where a lane
+    never used it), rounded to 6 places as the scalar summary rounds it."""
+    window = (summary["window_ns.0"], summary["window_ns.1"])
+    span = np.maximum(window[1] - window[0], 1)
+    return {f"utilization.{name}": np.where(used, np.round(busy / span, 6), np.nan)
+            for name, (busy, used) in run.busy_by_resource(*window).items()}
 
 
 def _chunk(model: Analytic) -> int:
@@ -134,18 +156,6 @@ def _chunk(model: Analytic) -> int:
     per_frame = sum(max(1, len(n.part_times)) for phase in model.phases for n in phase) / len(model.phases)
     fit = LOG_BYTES // max(1, int(16 * per_frame * model.program.frames))
     return int(min(CHUNK_LANES, max(1, fit)))
-
-
-def frame_times(model: Analytic, lanes: Lanes) -> dict[str, np.ndarray]:
-    """Frame time and latency (ms) per lane only: the first pass, no utilization."""
-    out: dict[str, list[np.ndarray]] = {"frame_time_ms": [], "latency_ms": []}
-    for lo in range(0, lanes.n, CHUNK_LANES):
-        run = _Pass(model, lanes.take(slice(lo, lo + CHUNK_LANES)), log=False)
-        run.run()
-        summary = _summary(model, run)
-        for key in out:
-            out[key].append(summary[key])
-    return {k: np.concatenate(v) for k, v in out.items()}
 
 
 def _summary(model: Analytic, run: "_Pass") -> dict[str, np.ndarray]:

@@ -129,10 +129,8 @@ def _bind_render(task: PassTask, p: int, n: int, scene: Scene, temporal: str | N
                f"rendered under AFR: set schedule.temporal_pass = {spec.name!r}")
         return bind_full_frame(task, spec, scene, target, why)
     if not is_temporal:
-        found = filter_reads(scene.passes, index, lambda s: f"gpu{p}.pass.{s}")
-        if isinstance(found, str):
-            return bind_full_frame(task, spec, scene, target, found)
-        return bind_full_frame(task, spec, scene, target, *found)
+        return bind_full_frame(task, spec, scene, target,
+                               *filter_reads(scene.passes, index, lambda s: f"gpu{p}.pass.{s}"))
     # the temporal pass: the passes before it, then the history as its last input
     k = int(spec.param("inputs", 2))
     if not 2 <= k <= index + 1:

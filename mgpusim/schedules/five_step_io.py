@@ -23,11 +23,12 @@ from __future__ import annotations
 
 import dataclasses
 from types import MappingProxyType
-from typing import Any, Callable
+from typing import Any
 
 from mgpusim.model.scene import PassSpec, Scene
 from mgpusim.model.tasks import CopyTask, HostCopyTask, PassTask, Resource, Task
-from mgpusim.schedules.pass_io import filter_reads, filter_sources, reads_own_output, simulated_only
+from mgpusim.schedules.pass_io import (filter_reads, filter_sources, read_params, reads_own_output,
+                                       simulated_only)
 
 Rect = tuple[int, int, int, int]  # x, y, width, height in frame pixels
 
@@ -120,8 +121,9 @@ class _Binder:
         part = self.geometry[i] if self.geometry else (i, i + 1, self.gpus)
         params = _render_params(spec, scene, self.rects[i], origin, part, self.depth)
         params["clear"] = spec.name in self.own or index == self.first_into_target
-        reads = _filter_reads(scene, index, params, lambda n: (
-            f"gpu{i}.pass.{n}" if n in self.own else self.target_of(i)))
+        reads, extra = read_params(*filter_reads(scene.passes, index, lambda n: (
+            f"gpu{i}.pass.{n}" if n in self.own else self.target_of(i))))
+        params.update(extra)
         return dataclasses.replace(task, reads=reads, writes=(target,), params=MappingProxyType(params))
 
     def composite(self, task: PassTask) -> Task:
@@ -161,20 +163,6 @@ def own_images(scene: Scene) -> set[str]:
             sampled.update(found if not isinstance(found, str) else ())
     sampled.discard(scene.passes[-1].name)
     return sampled
-
-
-def _filter_reads(scene: Scene, index: int, params: dict[str, Any],
-                  image_of: Callable[[str], str]) -> tuple[str, ...]:
-    """What pass `index` samples (a filter; else nothing), its `read_offsets` put in `params`,
-    or `params["unsupported"]` saying why it cannot sample them."""
-    if scene.passes[index].kind != "filter":
-        return ()
-    found = filter_reads(scene.passes, index, image_of)
-    if isinstance(found, str):
-        params["unsupported"] = found
-        return ()
-    params["read_offsets"] = tuple(found[1])
-    return tuple(found[0])
 
 
 def _first_into_target(scene: Scene, own: set[str]) -> int:

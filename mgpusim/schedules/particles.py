@@ -156,10 +156,8 @@ def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, n: int, pg: int,
             spec = scene.passes[index]
             target = pass_image(b, f"gpu0.pass.{spec.name}", 0, scene, spec,
                                 buffers=2 if reads_own_output(scene.passes, index) else 1)
-            found = (filter_reads(scene.passes, index, lambda s: f"gpu0.pass.{s}")
-                     if spec.kind == "filter" else ((), ()))
-            reads, offsets = (found, ()) if isinstance(found, str) else found
-            out.append(bind_full_frame(task, spec, scene, target, reads, offsets))
+            reads = filter_reads(scene.passes, index, lambda s: f"gpu0.pass.{s}")
+            out.append(bind_full_frame(task, spec, scene, target, *reads))
         elif task.name == "present":
             out.append(replace(task, reads=(f"gpu0.pass.{scene.passes[-1].name}",),
                                writes=("gpu0.display",)))

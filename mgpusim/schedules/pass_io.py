@@ -76,26 +76,44 @@ def reads_own_output(passes: Sequence[PassSpec], index: int) -> bool:
     return spec.kind == "filter" and int(spec.param("inputs", 1)) == index + 1
 
 
+#: What a pass samples, in the shape `bind_full_frame` takes: (its images, their frame
+#: offsets); ((), ()) for a pass that samples nothing; (why, ()) for a filter the runner
+#: cannot run, `why` saying so.
+Reads = tuple[Sequence[str] | str, Sequence[int]]
+
+
 def filter_reads(passes: Sequence[PassSpec], index: int,
-                 image_of: Callable[[str], str]) -> tuple[list[str], list[int]] | str:
-    """The images a filter at `index` samples and their frame offsets: `image_of(name)` of
-    each source, its own image at offset -1 (the previous frame's output); or why not."""
+                 image_of: Callable[[str], str]) -> Reads:
+    """What pass `index` samples: a filter, `image_of(name)` of each source, its own image at
+    offset -1 (the previous frame's output); any other pass, nothing. One shape for all three
+    outcomes, so that a caller passes it on (`*filter_reads(...)`) without looking inside."""
+    if passes[index].kind != "filter":
+        return (), ()
     sources = filter_sources(passes, index)
     if isinstance(sources, str):
-        return sources
+        return sources, ()
     own = passes[index].name
     return ([image_of(s) for s in sources],
             [-1 if s == own and n == len(sources) - 1 else 0 for n, s in enumerate(sources)])
+
+
+def read_params(reads: Sequence[str] | str,
+                read_offsets: Sequence[int] = ()) -> tuple[tuple[str, ...], dict[str, Any]]:
+    """The images a pass samples and the runner's knobs that say how: `read_offsets` (the
+    current frame unless given), or `unsupported` when `reads` is why it cannot run. Shared by
+    the full-frame and the tiled (five-step) bindings, which put the knobs in different
+    places."""
+    if isinstance(reads, str):
+        return (), {"unsupported": reads}
+    if not reads:
+        return (), {}
+    return tuple(reads), {"read_offsets": tuple(read_offsets) or (0,) * len(reads)}
 
 
 def bind_full_frame(task: PassTask, spec: PassSpec, scene: Scene, target: str,
                     reads: Sequence[str] | str = (), read_offsets: Sequence[int] = ()) -> PassTask:
     """`task` rendering `spec` full-frame into `target`, sampling `reads` (a filter); a string
     in `reads` is why the runner cannot run it."""
-    extra: dict[str, Any] = {}
-    if isinstance(reads, str):
-        extra["unsupported"], reads = reads, ()
-    if reads:
-        extra["read_offsets"] = tuple(read_offsets) or (0,) * len(reads)
-    return dataclasses.replace(task, reads=tuple(reads), writes=(target,),
+    images, extra = read_params(reads, read_offsets)
+    return dataclasses.replace(task, reads=images, writes=(target,),
                                params=frame_params(spec, scene, **extra))

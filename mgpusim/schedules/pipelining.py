@@ -137,10 +137,8 @@ def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene,
             index = next(i for i, s in enumerate(scene.passes) if task.name == f"render.{s.name}")
             spec, on_gpu0 = scene.passes[index], task.queue.device == 0
             target = image_of(spec.name, on_gpu0)
-            found = (filter_reads(scene.passes, index, lambda n: image_of(n, on_gpu0))
-                     if spec.kind == "filter" else ((), ()))
-            reads, offsets = (found, ()) if isinstance(found, str) else found
-            out.append(bind_full_frame(task, spec, scene, target, reads, offsets))
+            reads = filter_reads(scene.passes, index, lambda n: image_of(n, on_gpu0))
+            out.append(bind_full_frame(task, spec, scene, target, *reads))
         elif task.name == "present":
             out.append(replace(task, reads=(image_of(scene.passes[-1].name, True),),
                                writes=("gpu0.display",)))

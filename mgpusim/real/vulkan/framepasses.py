@@ -54,7 +54,19 @@ def begin(target: RenderTarget, cmd: Any, area: Rect, viewport: Rect) -> None:
 
 
 def _local(rect: Rect, origin: tuple[int, int]) -> Rect:
+    """Frame rectangle `rect` in the pixels of a target whose pixel (0, 0) is frame `origin`."""
     return (rect[0] - origin[0], rect[1] - origin[1], rect[2], rect[3])
+
+
+def _placement(frame: tuple[int, int], rect: Rect | None,
+               origin: tuple[int, int]) -> tuple[Rect, Rect, bool]:
+    """(area, viewport, empty) of a pass drawing frame rectangle `rect` (None: the whole frame)
+    into a target whose pixel (0, 0) is frame `origin`: the target's area it draws (render area
+    and scissor), the full-frame viewport shifted by the origin (what makes a tile exact), and
+    whether there is nothing to draw. Shared so that every tiled pass places itself alike."""
+    rect = rect or (0, 0, frame[0], frame[1])
+    viewport = (-origin[0], -origin[1], frame[0], frame[1])
+    return _local(rect, origin), viewport, rect[2] * rect[3] == 0
 
 
 class _FramePass:
@@ -86,8 +98,7 @@ class FragmentLoopTile(_FramePass):
         super().__init__(gpu, targets)
         self.pipeline: Pipeline = graphics_pipeline(gpu, self.targets[0], "quad.vert", "loop.frag")
         self._owned.append(self.pipeline)
-        self.area, self.empty = _local(rect, origin), rect[2] * rect[3] == 0
-        self.viewport = (-origin[0], -origin[1], frame[0], frame[1])
+        self.area, self.viewport, self.empty = _placement(frame, rect, origin)
         shift = EYE_UV_SHIFT if eye == 1 else 0.0
         self._pc = quad_pc((-1, -1, 1, 1), (shift, 0, 1 + shift, 1), (iterations, 0, 0, 0))
 
@@ -115,9 +126,7 @@ class MeshShare(_FramePass):
         if self.targets[0].depth is None:
             raise InputError("a mesh pass needs a target with depth", field="depth")
         self.count, self.frame = count, frame
-        rect = rect or (0, 0, frame[0], frame[1])
-        self.area = _local(rect, origin)
-        self.viewport = (-origin[0], -origin[1], frame[0], frame[1])
+        self.area, self.viewport, _ = _placement(frame, rect, origin)  # clears even if empty
         self.vertices = None
         if count > 0:
             verts = torus_mesh(triangles)[3 * first:3 * (first + count)]
@@ -196,9 +205,7 @@ class Filter(_FramePass):
         if not 1 <= len(inputs) <= self.MAX_INPUTS:
             raise InputError(f"a filter samples 1 to {self.MAX_INPUTS} inputs, got {len(inputs)}",
                              field="inputs")
-        rect = rect or (0, 0, frame[0], frame[1])
-        self.area, self.empty = _local(rect, origin), rect[2] * rect[3] == 0
-        self.viewport = (-origin[0], -origin[1], frame[0], frame[1])
+        self.area, self.viewport, self.empty = _placement(frame, rect, origin)
         x, y, w, h = self.area
         for k, copies in enumerate(inputs):
             if not self.empty and any(img.width < x + w or img.height < y + h for img in copies):

@@ -40,6 +40,9 @@ class FakeBinding:
         self.looking = threading.Event()
         self.overlaps: list[str] = []
         self.resets = 0
+        self.lock = threading.Lock()
+        self.wait_s, self.timeouts = 0.0, 0
+        self.waits = self.inside = self.most_inside = 0
 
     def vkGetFenceStatus(self, _dev, _fence) -> None:
         self.looking.set()
@@ -48,7 +51,16 @@ class FakeBinding:
         raise _NotReady()
 
     def vkWaitForFences(self, *_args) -> None:
-        return None
+        with self.lock:
+            self.waits += 1
+            self.inside += 1
+            self.most_inside = max(self.most_inside, self.inside)
+        time.sleep(self.wait_s)
+        with self.lock:
+            self.inside -= 1
+        if self.timeouts:
+            self.timeouts -= 1
+            raise _Timeout()
 
     def vkGetQueryPoolResults(self, _dev, _pool, _first, _count, _size, data, *_rest) -> None:
         time.sleep(0.02)  # lavapipe's read blocks until the queue is idle
@@ -97,3 +109,33 @@ def test_two_waiters_reset_and_recycle_once(fake):
         t.join()
     assert fake.resets == 1
     assert queue.free == [("cmd", "fence", "pool")]
+
+
+def test_threads_waiting_for_one_task_call_the_driver_once(fake):
+    """Several threads waiting for one task: one is inside the driver's fence wait, the others
+    wait for it in Python, and all of them learn the end from that one wait."""
+    fake.wait_s = 0.05
+    sub, _queue = _submission()
+    seen: list[bool] = []
+    threads = [threading.Thread(target=lambda: seen.append(sub.finished(5_000_000_000)))
+               for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert seen == [True] * 4
+    assert fake.waits == 1 and fake.most_inside == 1
+
+
+def test_a_waiter_takes_the_watch_when_the_watcher_times_out(fake):
+    """A thread whose own wait is short leaves without the answer; one with time left watches
+    the fence in its place and sees the end."""
+    fake.wait_s, fake.timeouts = 0.05, 1
+    sub, _queue = _submission()
+    short: list[bool] = []
+    watcher = threading.Thread(target=lambda: short.append(sub.finished(50_000_000)))
+    watcher.start()
+    time.sleep(0.01)  # the short waiter holds the watch
+    assert sub.finished(5_000_000_000)
+    watcher.join()
+    assert short == [False] and fake.waits == 2 and fake.most_inside == 1

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import threading
+import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
@@ -73,52 +74,61 @@ class Submission:
         self._finished = False
         #: held by the one thread that reads the timestamps and recycles the slot
         self._read_lock = threading.Lock()
-        #: held while the slot is looked up (a waiter counting itself in, `poll`'s look at the
+        #: held while the slot is looked up (a waiter taking the watch, `poll`'s look at the
         #: fence) and while the fence is reset and the slot recycled: vkResetFences needs the
         #: fence to itself, and a recycled slot belongs to the next submission. Not held during
-        #: a fence wait (`_waiting` keeps the slot) nor while the timestamps are read: that
+        #: the fence wait (`_watched` keeps the slot) nor while the timestamps are read: that
         #: read can block for milliseconds on lavapipe.
         self._slot_lock = threading.Lock()
-        #: threads inside vkWaitForFences on this fence now; the slot is recycled only at 0
-        self._waiting = 0
-        self._no_waiters = threading.Condition(self._slot_lock)
+        #: True while one thread is inside vkWaitForFences on this fence for all the others
+        self._watched = False
+        #: notified when the watcher leaves the fence wait (finished or timed out)
+        self._changed = threading.Condition(self._slot_lock)
 
     def finished(self, timeout_ns: int) -> bool:
-        """True once the work has finished, waiting at most `timeout_ns` on its fence; any
-        thread may ask, and none of them reads the timestamps.
+        """True once the work has finished, waiting at most `timeout_ns`; any thread may ask,
+        and none of them reads the timestamps.
 
         Why apart from `wait()`: on lavapipe reading a query pool's results blocks until the
         queue is idle, so a thread that waited for task A by reading A's timestamps woke only
         when the work queued behind A was done too (measured: 5-13 ms late).
 
-        Why every thread waits on the fence itself, at once (Vulkan allows it; only a reset
-        needs the fence to itself): with one waiter at a time the others queued on a lock and
-        woke one after another. On 4x H200 the three GPUs waiting for GPU 0's present saw it
-        0.6-0.9 ms after it ended, against 0.17 ms where one thread waits (2026-11-27,
-        data/nvidia/h200_x4/handoff_2026-11-27)."""
+        Why one thread waits on the fence and the others wait for it in Python: only that one
+        calls the driver, and the slot is recycled once it has left the wait. On 4x H200
+        (driver 580) this, one waiter at a time behind a lock, and every waiter inside
+        vkWaitForFences at once gave alike frame times; what delays a woken thread there is
+        the interpreter, busy with the other runner threads (2026-11-27,
+        data/nvidia/h200_x4/waits_2026-11-27)."""
+        if timeout_ns <= 0:
+            return self.poll()
+        deadline = time.monotonic_ns() + timeout_ns
         with self._slot_lock:
+            while self._watched and not self._finished:
+                left = deadline - time.monotonic_ns()
+                if left <= 0:
+                    return False
+                self._changed.wait(left / 1e9)
             if self._finished or self._slot is None:
                 return True
+            self._watched = True
             fence = self._slot[1]
-            self._waiting += 1
         signalled = False
         try:
             call("vkWaitForFences", vk().vkWaitForFences, self.queue.gpu.device, 1, [fence],
-                 vk().VK_TRUE, timeout_ns)
+                 vk().VK_TRUE, max(0, deadline - time.monotonic_ns()))
             signalled = True
         except vk().VkTimeout:
             pass
         finally:
             with self._slot_lock:
-                self._waiting -= 1
+                self._watched = False
                 self._finished = self._finished or signalled
-                if not self._waiting:
-                    self._no_waiters.notify_all()
-        return self._finished
+                self._changed.notify_all()
+        return signalled
 
     def done(self) -> bool:
         """True once the GPU finished (a look at the fence, no wait)."""
-        return self.finished(0)
+        return self.poll()
 
     def poll(self) -> bool:
         """True if the work has finished, without waiting for the fence; at most for the
@@ -130,6 +140,7 @@ class Submission:
                 vk().vkGetFenceStatus(self.queue.gpu.device, self._slot[1])
             except vk().VkNotReady:
                 return False
+            self._finished = True
             return True
 
     def wait(self, timeout_ns: int = 60_000_000_000) -> "Submission":
@@ -141,8 +152,8 @@ class Submission:
         with self._read_lock:
             if self._ticks is None:  # another thread may have read them meanwhile
                 ticks = self._read_ticks()
-                with self._no_waiters:  # the fence is signalled: the waiters return at once
-                    self._no_waiters.wait_for(lambda: self._waiting == 0)
+                with self._changed:  # the fence is signalled: a watcher returns at once
+                    self._changed.wait_for(lambda: not self._watched)
                     self._recycle()
                     self._ticks = ticks
         return self

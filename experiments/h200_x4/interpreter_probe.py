@@ -1,0 +1,124 @@
+"""How long a woken runner thread waits for the interpreter during a measured run.
+
+    PYTHONPATH=. python experiments/h200_x4/interpreter_probe.py EXPERIMENT.toml \
+        [--set KEY=VALUE ...] [--devices 0,1,2,3] [--period-us 100] --out DIR
+
+A probe thread sleeps `--period-us` at a time, alone first (the idle baseline: the OS timer's own
+slack) and then while the runner runs the experiment in the same process. Each wake-up's
+lateness is how long the thread waited, after its sleep ended, for the CPU and for the
+interpreter lock: what a submit thread waits after its fence signalled before it can call
+vkQueueSubmit. With the machine's cores mostly idle (64 on the 4x H200 machine) the CPU is
+there at once, so lateness beyond the baseline is the interpreter.
+
+Why: on 4x H200 the threads waiting for another GPU's task saw its end 0.7-1.2 ms late in light
+sort-first frames on 4 GPUs, one waiter as much as several, where AFR's single hand-off saw it
+in 0.15 ms. This tells whether those threads waited for the interpreter (other runner threads
+holding it) or inside the driver.
+
+Writes DIR/run (the measured run, as `mgpusim run` writes it), DIR/probe.csv (phase: idle,
+setup, frames or after; wake-up time on the run's trace clock; lateness in ns) and prints the
+lateness per phase.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+IDLE_S = 1.0
+
+
+class Probe(threading.Thread):
+    """Sleeps `period_ns` at a time and records each wake-up's lateness until stopped."""
+
+    def __init__(self, period_ns: int):
+        super().__init__(name="interpreter-probe", daemon=True)
+        self.period_ns = period_ns
+        self.phase = "idle"
+        self.rows: list[tuple[str, int, int]] = []
+        self._done = threading.Event()
+
+    def run(self) -> None:
+        period_s = self.period_ns / 1e9
+        while not self._done.is_set():
+            before = time.monotonic_ns()
+            time.sleep(period_s)
+            woke = time.monotonic_ns()
+            self.rows.append((self.phase, woke, woke - before - self.period_ns))
+
+    def stop(self) -> None:
+        self._done.set()
+        self.join()
+
+    def table(self) -> pd.DataFrame:
+        return pd.DataFrame(self.rows, columns=["phase", "woke_ns", "late_ns"])
+
+
+def lateness(table: pd.DataFrame) -> pd.DataFrame:
+    """Per phase: wake-ups, median / 90th / 99th percentile / largest lateness (us), and the share
+    of wake-ups later than 0.5 ms."""
+    def stats(late: pd.Series) -> pd.Series:
+        us = late.to_numpy() / 1e3
+        return pd.Series({"wakeups": len(us), "median_us": np.median(us),
+                          "p90_us": np.percentile(us, 90), "p99_us": np.percentile(us, 99),
+                          "max_us": us.max(), "over_0.5ms": float(np.mean(us > 500))})
+    return table.groupby("phase", sort=False)["late_ns"].apply(stats).unstack().round(3)
+
+
+def on_run_clock(table: pd.DataFrame, result) -> pd.DataFrame:
+    """Wake-up times on the run's trace clock (0 at its first task), and the run phase split
+    into `setup` (devices, pipelines, warm-up submissions before the first task), `frames` (from
+    the first task's start to the last task's end) and `after`."""
+    origin = int(result.summary.get("clock_origin_ns", 0))
+    end = int(result.trace["end_ns"].max())
+    out = table.assign(woke_ns=table["woke_ns"] - origin)
+    running = out["phase"] == "run"
+    out.loc[running & (out["woke_ns"] < 0), "phase"] = "setup"
+    out.loc[running & (out["woke_ns"] >= 0) & (out["woke_ns"] <= end), "phase"] = "frames"
+    out.loc[running & (out["woke_ns"] > end), "phase"] = "after"
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("experiment", type=Path)
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    ap.add_argument("--devices", default=None)
+    ap.add_argument("--period-us", type=int, default=100)
+    ap.add_argument("--out", type=Path, required=True)
+    args = ap.parse_args(argv)
+    if args.period_us < 1:
+        ap.error("--period-us must be >= 1")
+
+    from mgpusim.io.output import write_measured
+    from mgpusim.model.config import int_list
+    from mgpusim.real.runner.execute import run_experiment
+    from mgpusim.schedules.experiment import load_experiment, parse_overrides
+
+    exp = load_experiment(args.experiment, parse_overrides(args.overrides))
+    devices = int_list(args.devices, "--devices")
+    probe = Probe(args.period_us * 1000)
+    probe.start()
+    time.sleep(IDLE_S)
+    probe.phase = "run"
+    try:
+        result = run_experiment(exp, devices=devices)
+    finally:
+        probe.stop()
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_measured(result, args.out / "run", "csv")
+    table = on_run_clock(probe.table(), result)
+    table.to_csv(args.out / "probe.csv", index=False)
+    print(f"{exp.name}: frame time {result.summary['frame_time_ms']:.3f} ms, "
+          f"switch interval {sys.getswitchinterval() * 1e6:.0f} us outside the run")
+    print(lateness(table).to_string())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

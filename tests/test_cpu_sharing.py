@@ -203,3 +203,34 @@ def test_the_cores_know_each_pass_by_its_kind_and_a_pair_measured_kind_as_lossle
     assert cores._tag(PassTask("r", "render", q, "fragment_loop")) == PassWork("fragment_loop", False)
     assert cores._tag(PassTask("m", "render", q, "mesh")) == PassWork("mesh", True)
     assert cores._tag(CopyTask("c", "d2h", q, 64, "d2h")) is None
+
+
+def test_a_real_gpu_host_may_share_one_interpreter():
+    """With `host.shared_interpreter` the three secondaries woken by one present share the
+    interpreter for their dispatch_ns: they start together (no turns), but each waking takes
+    three times as long, and the submit work of the frame's other tasks slows them more."""
+    alone = _h200_secondary_starts()
+    shared = _h200_secondary_starts("profile.host.shared_interpreter=true")
+    loaded = _h200_secondary_starts("profile.host.shared_interpreter=true",
+                                    "profile.host.submit_ns=50000")
+    assert shared[-1] - shared[0] < 10_000  # processor sharing: they finish waking together
+    assert shared[0] > alone[0] + 700_000  # 3 x 400 us of waking at a third of the interpreter each
+    assert loaded[0] > shared[0]
+
+
+def test_a_shared_interpreter_run_repeats_and_reports_the_interpreter_busy():
+    """Same input, same trace, with or without the fast-forward (which knows the interpreter's
+    channel as it knows the host's cores); the summary says how busy the interpreter was, the
+    figure the interpreter probe stands for on the real machine."""
+    from pathlib import Path
+
+    from mgpusim.schedules.experiment import load_experiment, parse_overrides
+    sets = ["schedule.frames=300", "profile.host.shared_interpreter=true", "profile.host.submit_ns=50000"]
+    exp = load_experiment(Path(__file__).resolve().parents[1] / "experiments/h200_x4/sort_first.toml",
+                          parse_overrides(sets))
+    a, b = simulate(exp), simulate(exp)
+    assert a.trace.equals(b.trace)
+    slow = simulate(exp, fast_forward=False)
+    assert a.summary["frame_time_ms"] == slow.summary["frame_time_ms"]
+    assert a.summary["latency_ms"] == slow.summary["latency_ms"]
+    assert 0.2 < a.summary["utilization"]["host.interpreter"] < 1

@@ -74,6 +74,15 @@ class HostProfile:
     #: queue are submitted one after another, a task fed by another device or the host only
     #: after the thread woke (dispatch_ns). Where the GPUs share the CPU it also takes cores.
     submit_ns: int = 0
+    #: The runner's threads on GPUs of their own share one Python interpreter: a woken thread's
+    #: `dispatch_ns` and every task's `submit_ns` (recording, submitting and reaping it) are
+    #: one core's time on one interpreter, shared by whoever runs Python at that moment. The
+    #: more tasks a frame hands between threads, the later each hand-off. Measured with
+    #: experiments/h200_x4/interpreter_probe.py: on 4x H200 a woken thread waited a median
+    #: 0.26 ms in light 4-GPU sort-first frames and nothing in AFR. A native engine's threads
+    #: do not share one: a what-if either way. Not where the GPUs share the CPU (lavapipe: the
+    #: cores are the shared resource there, `serial_dispatch` its turns).
+    shared_interpreter: bool = False
     #: Lavapipe: the fraction of the cores' time left for work when busy threads of different
     #: work want twice the cores or more (context switches, each evicting the other's caches);
     #: from 1 at as many threads as cores it falls linearly to this. 1 = perfect sharing.
@@ -402,6 +411,7 @@ def _parse_host(t: Table) -> HostProfile:
         host_copy_wake_ns=_ns(t, "host_copy_wake_ns", 0),
         serial_dispatch=t.get("serial_dispatch", bool, None) if t.has("serial_dispatch") else None,
         submit_ns=_ns(t, "submit_ns", 0),
+        shared_interpreter=t.get("shared_interpreter", bool, False),
         oversubscribed_efficiency=t.get("oversubscribed_efficiency", float, 1.0, above=0),
         cpu_overhead_scale=t.get("cpu_overhead_scale", float, 1.0, minimum=0, maximum=1),
         busy_wake_share=t.get("busy_wake_share", float, 0.0, minimum=0, maximum=1),

@@ -174,6 +174,9 @@ class Analytic:
         host = self.costs.profile.host
         if host.serial_dispatch and host.dispatch_ns and not host.gpus_share_cpu:
             out.append("serial_dispatch: host threads woken at once taken as waking together (an optimistic bound)")
+        if host.shared_interpreter and (host.dispatch_ns or host.submit_ns) and not host.gpus_share_cpu:
+            out.append("shared_interpreter: the runner's threads taken as each having an interpreter "
+                       "of its own (an optimistic bound)")
         return out
 
     # ----- one configuration ---------------------------------------------------------------

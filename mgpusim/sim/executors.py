@@ -150,6 +150,31 @@ class MeasuredCores(SharedCores):
         return run, ns
 
 
+class Interpreter(Dedicated):
+    """The host of GPUs with their own cores, driven by threads that share one Python
+    interpreter (`host.shared_interpreter`): a thread's wake-up work (`dispatch_ns`) and each
+    task's submit work (`submit_ns`) are time on one channel of one core, shared by all that
+    want it at once. Why a shared channel and not turns: the interpreter lock is handed over
+    every switch interval (0.2 ms in the runner), so threads that run Python together each
+    progress at a share of it. CPU tasks and host copies keep their own threads (a memcpy
+    runs without the lock)."""
+
+    shared = True
+
+    def __init__(self, env: simpy.Environment):
+        super().__init__(env)
+        self.channel = Channel(env, "host.interpreter", Fraction(1))
+
+    def work(self, ns: int) -> simpy.Event:
+        """A woken thread's `ns` of Python, at its share of the interpreter."""
+        return self.channel.transfer(ns, 1)
+
+    def background(self) -> Callable[[int], object] | None:
+        """A task's submit work on the interpreter, which nobody waits on but everyone
+        shares it with."""
+        return lambda ns: self.channel.transfer(ns, 1)
+
+
 class SharedGpu(Dedicated):
     """One physical GPU whose queues (of one or several logical GPUs) share its execution
     throughput: every pass and copy of its queues is work on one :class:`GpuChannel`. Alone a
@@ -250,7 +275,8 @@ def shared_gpu_groups(program: FrameProgram, profile: HardwareProfile) -> dict[i
 
 
 class Executor(Protocol):
-    """What the engine asks of an executor (Dedicated, SharedCores and SharedGpu are the kinds)."""
+    """What the engine asks of an executor (Dedicated, Interpreter, SharedCores and SharedGpu are
+    the kinds)."""
 
     #: whether other devices draw on the same cores (its `channel` is then one of the run's)
     shared: bool
@@ -285,7 +311,7 @@ def make_executors(env: simpy.Environment, costs: CostModel, shared: bool,
     profile = costs.profile
     one: Executor = SharedCores(env, costs) if shared else Dedicated(env)
     out: dict[str, Executor] = {f"gpu{i}": one for i in range(len(profile.gpus))}
-    out["host"] = one
+    out["host"] = Interpreter(env) if profile.host.shared_interpreter and not shared else one
     if program is not None and not shared:
         for phys in shared_gpu_groups(program, profile):
             gpu_ex = SharedGpu(env, profile, phys)

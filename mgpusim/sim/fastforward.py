@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import simpy
 
-from mgpusim.sim.executors import Dedicated, SharedCores, SharedGpu
+from mgpusim.sim.executors import Dedicated, Interpreter, SharedCores, SharedGpu
 from mgpusim.sim.state import Callback, Relative, Unsupported
 
 if TYPE_CHECKING:
@@ -84,7 +84,7 @@ class FastForward:
         self._proc_index = {id(p): i for i, p in enumerate(engine.processes)}
         self._proc_index.update((id(p.generator), i) for i, p in enumerate(engine.processes))
         unknown = sorted({type(ex).__name__ for ex in engine.executors.values()
-                          if type(ex) not in (Dedicated, SharedCores, SharedGpu)})
+                          if type(ex) not in (Dedicated, Interpreter, SharedCores, SharedGpu)})
         if unknown:  # its state is not written down: a repeat could not be trusted
             self.active = False
             self.reason = f"executor {', '.join(unknown)} has state this fast-forward does not describe"

@@ -163,4 +163,24 @@ def test_interpreter_probe_runs_on_lavapipe(tmp_path, capsys):
     table = pd.read_csv(out / "probe.csv")
     assert {"idle", "frames"} <= set(table["phase"]) and (table["late_ns"] > -1_000_000).all()
     assert (out / "run" / "trace.csv").exists() and (out / "run" / "summary.json").exists()
-    assert "frames" in capsys.readouterr().out
+    threads = pd.read_csv(out / "threads.csv")
+    measured = threads[threads["execution"] == threads["execution"].max()]
+    assert {"submit-gpu0/0", "reap-gpu0/0", "host-dispatch"} <= set(measured["thread"])
+    assert (measured["cpu_ns"] > 0).all() and (measured["cpu_ns"] <= measured["wall_ns"] * 1.05).all()
+    printed = capsys.readouterr().out
+    assert "frames" in printed and "cpu_us_per_frame" in printed
+
+
+def test_interpreter_probe_sums_the_measured_runs_threads_per_kind():
+    """Only the last execution (the measured run; a pre-warm pass runs before it) counts, and
+    its threads are summed per kind."""
+    probe = _probe_module()
+    threads = pd.DataFrame({"execution": [0, 1, 1, 1, 1],
+                            "thread": ["submit-gpu0/0", "submit-gpu0/0", "submit-gpu1/0",
+                                       "reap-gpu0/0", "memcpy3"],
+                            "cpu_ns": [9_000_000, 1_000_000, 3_000_000, 500_000, 200_000],
+                            "wall_ns": [10_000_000] * 5})
+    table = probe.cpu_per_frame(threads, frames=10)
+    assert table.loc["submit", "threads"] == 2 and table.loc["submit", "cpu_us_per_frame"] == 400
+    assert table.loc["submit", "cpu_share"] == 0.2
+    assert table.loc["reap", "cpu_us_per_frame"] == 50 and table.loc["memcpy", "threads"] == 1

@@ -15,9 +15,14 @@ sort-first frames on 4 GPUs, one waiter as much as several, where AFR's single h
 in 0.15 ms. This tells whether those threads waited for the interpreter (other runner threads
 holding it) or inside the driver.
 
+Also each runner thread's CPU time over its life (`time.thread_time_ns`, taken in the thread):
+where the interpreter's time goes, per thread (a queue's submit or reap thread, the host-copy
+dispatcher, a memcpy thread). CPU time counts Python and any driver call that spins rather than
+sleeps, so it bounds a thread's interpreter time from above.
+
 Writes DIR/run (the measured run, as `mgpusim run` writes it), DIR/probe.csv (phase: idle,
-setup, frames or after; wake-up time on the run's trace clock; lateness in ns) and prints the
-lateness per phase.
+setup, frames or after; wake-up time on the run's trace clock; lateness in ns), DIR/threads.csv
+(execution, thread, cpu_ns, wall_ns) and prints the lateness per phase and the threads' CPU time per frame.
 """
 from __future__ import annotations
 
@@ -26,6 +31,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import pandas as pd
@@ -57,6 +63,49 @@ class Probe(threading.Thread):
 
     def table(self) -> pd.DataFrame:
         return pd.DataFrame(self.rows, columns=["phase", "woke_ns", "late_ns"])
+
+
+class ThreadClock:
+    """Each runner thread's CPU and wall time over its life, taken inside the thread by
+    wrapping the runner's thread body (`Executor._guard`) while a run is made."""
+
+    def __init__(self) -> None:
+        self.rows: list[tuple[int, str, int, int]] = []
+        self._lock = threading.Lock()
+
+    def wrap(self, guard: Callable[..., None]) -> Callable[..., None]:
+        clock = self
+
+        def timed(executor: object, fn: Callable[..., None], *args: object) -> None:
+            cpu, wall = time.thread_time_ns(), time.monotonic_ns()
+            try:
+                guard(executor, fn, *args)
+            finally:
+                row = (id(executor), threading.current_thread().name,
+                       time.thread_time_ns() - cpu, time.monotonic_ns() - wall)
+                with clock._lock:
+                    clock.rows.append(row)
+        return timed
+
+    def table(self) -> pd.DataFrame:
+        """One row per thread: `execution` counts the runner's executions in the order they
+        began (a pre-warm pass runs before the measured one), then thread, cpu_ns, wall_ns."""
+        out = pd.DataFrame(self.rows, columns=["execution", "thread", "cpu_ns", "wall_ns"])
+        order = {e: k for k, e in enumerate(dict.fromkeys(out["execution"]))}
+        return out.assign(execution=out["execution"].map(order))
+
+
+def cpu_per_frame(threads: pd.DataFrame, frames: int) -> pd.DataFrame:
+    """Per kind of runner thread (submit, reap, host-dispatch, memcpy, ...) of the last
+    execution (the measured run's): threads, CPU time per frame (us) summed over them, and their
+    CPU share of their own wall time."""
+    threads = threads[threads["execution"] == threads["execution"].max()]
+    kind = threads["thread"].str.replace(r"[-/]?(gpu)?\d.*$", "", regex=True)
+    grouped = threads.assign(kind=kind).groupby("kind", sort=True)
+    out = pd.DataFrame({"threads": grouped.size(),
+                        "cpu_us_per_frame": grouped["cpu_ns"].sum() / frames / 1e3,
+                        "cpu_share": grouped["cpu_ns"].sum() / grouped["wall_ns"].sum()})
+    return out.round(3)
 
 
 def lateness(table: pd.DataFrame) -> pd.DataFrame:
@@ -102,13 +151,17 @@ def main(argv: list[str] | None = None) -> int:
 
     exp = load_experiment(args.experiment, parse_overrides(args.overrides))
     devices = int_list(args.devices, "--devices")
-    probe = Probe(args.period_us * 1000)
+    from mgpusim.real.runner.executor import Executor
+
+    probe, clock, guard = Probe(args.period_us * 1000), ThreadClock(), Executor._guard
     probe.start()
     time.sleep(IDLE_S)
     probe.phase = "run"
+    Executor._guard = clock.wrap(guard)  # type: ignore[method-assign]
     try:
         result = run_experiment(exp, devices=devices)
     finally:
+        Executor._guard = guard  # type: ignore[method-assign]
         probe.stop()
     args.out.mkdir(parents=True, exist_ok=True)
     write_measured(result, args.out / "run", "csv")
@@ -117,6 +170,11 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{exp.name}: frame time {result.summary['frame_time_ms']:.3f} ms, "
           f"switch interval {sys.getswitchinterval() * 1e6:.0f} us outside the run")
     print(lateness(table).to_string())
+    threads = clock.table()
+    threads.to_csv(args.out / "threads.csv", index=False)
+    frames = int(result.trace["frame"].max()) + 1
+    print(f"runner threads' CPU time per frame ({frames} frames):")
+    print(cpu_per_frame(threads, frames).to_string())
     return 0
 
 

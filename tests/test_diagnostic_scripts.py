@@ -167,6 +167,8 @@ def test_interpreter_probe_runs_on_lavapipe(tmp_path, capsys):
     measured = threads[threads["execution"] == threads["execution"].max()]
     assert {"submit-gpu0/0", "reap-gpu0/0", "host-dispatch"} <= set(measured["thread"])
     assert (measured["cpu_ns"] > 0).all() and (measured["cpu_ns"] <= measured["wall_ns"] * 1.05).all()
+    submit = measured[measured["thread"].str.startswith("submit")]
+    assert (submit["driver_ns"] > 0).all() and (measured["driver_ns"] <= measured["cpu_ns"]).all()
     printed = capsys.readouterr().out
     assert "frames" in printed and "cpu_us_per_frame" in printed
 
@@ -179,8 +181,9 @@ def test_interpreter_probe_sums_the_measured_runs_threads_per_kind():
                             "thread": ["submit-gpu0/0", "submit-gpu0/0", "submit-gpu1/0",
                                        "reap-gpu0/0", "memcpy3"],
                             "cpu_ns": [9_000_000, 1_000_000, 3_000_000, 500_000, 200_000],
-                            "wall_ns": [10_000_000] * 5})
+                            "wall_ns": [10_000_000] * 5,
+                            "driver_ns": [0, 250_000, 750_000, 100_000, 0]})
     table = probe.cpu_per_frame(threads, frames=10)
     assert table.loc["submit", "threads"] == 2 and table.loc["submit", "cpu_us_per_frame"] == 400
-    assert table.loc["submit", "cpu_share"] == 0.2
+    assert table.loc["submit", "cpu_share"] == 0.2 and table.loc["submit", "python_us_per_frame"] == 300
     assert table.loc["reap", "cpu_us_per_frame"] == 50 and table.loc["memcpy", "threads"] == 1

@@ -15,14 +15,15 @@ sort-first frames on 4 GPUs, one waiter as much as several, where AFR's single h
 in 0.15 ms. This tells whether those threads waited for the interpreter (other runner threads
 holding it) or inside the driver.
 
-Also each runner thread's CPU time over its life (`time.thread_time_ns`, taken in the thread):
-where the interpreter's time goes, per thread (a queue's submit or reap thread, the host-copy
-dispatcher, a memcpy thread). CPU time counts Python and any driver call that spins rather than
-sleeps, so it bounds a thread's interpreter time from above.
+Also each runner thread's CPU time over its life (`time.thread_time_ns`, taken in the thread)
+and the part of it inside Vulkan's C functions, where the interpreter lock is released: the
+rest is the thread's Python, which holds the lock. Per thread (a queue's submit or reap thread,
+the host-copy dispatcher, a memcpy thread, whose numpy copies run without the lock).
 
 Writes DIR/run (the measured run, as `mgpusim run` writes it), DIR/probe.csv (phase: idle,
 setup, frames or after; wake-up time on the run's trace clock; lateness in ns), DIR/threads.csv
-(execution, thread, cpu_ns, wall_ns) and prints the lateness per phase and the threads' CPU time per frame.
+(execution, thread, cpu_ns, wall_ns, driver_ns) and prints the lateness per phase and the
+threads' CPU and Python time per frame.
 """
 from __future__ import annotations
 
@@ -65,13 +66,47 @@ class Probe(threading.Thread):
         return pd.DataFrame(self.rows, columns=["phase", "woke_ns", "late_ns"])
 
 
-class ThreadClock:
-    """Each runner thread's CPU and wall time over its life, taken inside the thread by
-    wrapping the runner's thread body (`Executor._guard`) while a run is made."""
+class DriverClock:
+    """CPU time each thread spends inside Vulkan's C functions, where the interpreter lock is
+    released: the `vulkan` binding's one call site (`_callApi`) wrapped around the C call only,
+    after it has converted the arguments in Python. A thread's CPU time less this is its Python
+    time, which holds the lock (a memcpy thread's numpy copy aside)."""
 
     def __init__(self) -> None:
-        self.rows: list[tuple[int, str, int, int]] = []
+        self.spent: dict[int, int] = {}
+
+    def install(self) -> Callable[[], None]:
+        """Wrap the binding's C calls; returns what undoes it."""
+        import vulkan._vulkan as binding
+
+        original, ffi, auto = binding._callApi, binding.ffi, binding._auto_handle
+        spent = self.spent
+
+        def timed(fn: Callable[..., object], *args: object) -> object:
+            fn_args = [auto(i, j) for i, j in zip(args, ffi.typeof(fn).args)]
+            start = time.thread_time_ns()
+            try:
+                return fn(*fn_args)
+            finally:
+                ident = threading.get_ident()  # each thread adds to its own key only
+                spent[ident] = spent.get(ident, 0) + time.thread_time_ns() - start
+
+        binding._callApi = timed
+
+        def undo() -> None:
+            binding._callApi = original
+        return undo
+
+
+class ThreadClock:
+    """Each runner thread's CPU and wall time over its life, taken inside the thread by
+    wrapping the runner's thread body (`Executor._guard`) while a run is made, and the CPU time
+    it spent in Vulkan's C functions (`driver`)."""
+
+    def __init__(self, driver: DriverClock | None = None) -> None:
+        self.rows: list[tuple[int, str, int, int, int]] = []
         self._lock = threading.Lock()
+        self.driver = driver or DriverClock()
 
     def wrap(self, guard: Callable[..., None]) -> Callable[..., None]:
         clock = self
@@ -82,28 +117,33 @@ class ThreadClock:
                 guard(executor, fn, *args)
             finally:
                 row = (id(executor), threading.current_thread().name,
-                       time.thread_time_ns() - cpu, time.monotonic_ns() - wall)
+                       time.thread_time_ns() - cpu, time.monotonic_ns() - wall,
+                       clock.driver.spent.pop(threading.get_ident(), 0))
                 with clock._lock:
                     clock.rows.append(row)
         return timed
 
     def table(self) -> pd.DataFrame:
         """One row per thread: `execution` counts the runner's executions in the order they
-        began (a pre-warm pass runs before the measured one), then thread, cpu_ns, wall_ns."""
-        out = pd.DataFrame(self.rows, columns=["execution", "thread", "cpu_ns", "wall_ns"])
+        began (a pre-warm pass runs before the measured one), then thread, cpu_ns, wall_ns and
+        driver_ns (its CPU time inside Vulkan's C functions)."""
+        out = pd.DataFrame(self.rows, columns=["execution", "thread", "cpu_ns", "wall_ns", "driver_ns"])
         order = {e: k for k, e in enumerate(dict.fromkeys(out["execution"]))}
         return out.assign(execution=out["execution"].map(order))
 
 
 def cpu_per_frame(threads: pd.DataFrame, frames: int) -> pd.DataFrame:
     """Per kind of runner thread (submit, reap, host-dispatch, memcpy, ...) of the last
-    execution (the measured run's): threads, CPU time per frame (us) summed over them, and their
-    CPU share of their own wall time."""
+    execution (the measured run's): threads, CPU time per frame (us) summed over them, the part
+    of it outside Vulkan's C functions (`python_us_per_frame`, where a tracked driver time is
+    given), and their CPU share of their own wall time."""
     threads = threads[threads["execution"] == threads["execution"].max()]
     kind = threads["thread"].str.replace(r"[-/]?(gpu)?\d.*$", "", regex=True)
     grouped = threads.assign(kind=kind).groupby("kind", sort=True)
     out = pd.DataFrame({"threads": grouped.size(),
                         "cpu_us_per_frame": grouped["cpu_ns"].sum() / frames / 1e3,
+                        "python_us_per_frame": (grouped["cpu_ns"].sum()
+                                                - grouped["driver_ns"].sum()) / frames / 1e3,
                         "cpu_share": grouped["cpu_ns"].sum() / grouped["wall_ns"].sum()})
     return out.round(3)
 
@@ -158,9 +198,11 @@ def main(argv: list[str] | None = None) -> int:
     time.sleep(IDLE_S)
     probe.phase = "run"
     Executor._guard = clock.wrap(guard)  # type: ignore[method-assign]
+    undo = clock.driver.install()
     try:
         result = run_experiment(exp, devices=devices)
     finally:
+        undo()
         Executor._guard = guard  # type: ignore[method-assign]
         probe.stop()
     args.out.mkdir(parents=True, exist_ok=True)

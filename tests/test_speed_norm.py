@@ -165,6 +165,26 @@ def test_held_out_runs_kept_apart_are_normalized_by_the_calibration_runs_speed(p
     assert {n: sp.ratio for n, sp in speeds.items()} == pytest.approx(ratios)
 
 
+def test_one_command_reads_each_folders_speed_record_once(probed_runs, tmp_path: Path, monkeypatch):
+    """`study validate --held-out`'s two halves and its report share the records: the
+    calibration folder's is read once, not once per half and again for the report."""
+    root, ratios = probed_runs
+    study = load_study(LAVAPIPE_STUDY)
+    cal_root = tmp_path / "calibration_runs"
+    cal_root.mkdir()
+    shutil.copy(root / run_speed.FILE, cal_root / run_speed.FILE)
+    reads: list[Path] = []
+    read = run_speed.read
+    monkeypatch.setattr(run_speed, "read", lambda path: reads.append(path) or read(path))
+    tables: pipeline.SpeedTables = {}
+    pipeline.run_speeds(study, study.calibration, cal_root, cal_root, tables)
+    speeds = pipeline.run_speeds(study, study.held_out, root, cal_root, tables)
+    report_table = pipeline.speed_table(tables, cal_root)
+    assert {n: sp.ratio for n, sp in speeds.items()} == pytest.approx(ratios)
+    assert sorted(reads) == sorted([cal_root / run_speed.FILE, root / run_speed.FILE])
+    assert report_table is tables[cal_root] and len(report_table) == len(read(root / run_speed.FILE))
+
+
 def test_the_table_report_and_verdict_come_from_the_probes(probed_runs, tmp_path: Path):
     root, _ = probed_runs
     study = load_study(LAVAPIPE_STUDY)

@@ -137,6 +137,7 @@ def validate(args: argparse.Namespace) -> int:
     out, progress = _out(args, study), progress_printer()
     profile = args.profile or study.profile
     tables, missing = {}, {}
+    speeds: pipeline.SpeedTables = {}  # each runs folder's run_speed.csv, read once for both halves
     calibration_root = args.runs or pipeline.runs_root(study, False, out)
     for title, entries, held in ((pipeline.CALIBRATION_TITLE, study.calibration, False),
                                  (pipeline.HELD_OUT_TITLE, study.held_out, True)):
@@ -144,11 +145,12 @@ def validate(args: argparse.Namespace) -> int:
             continue
         root = args.runs or pipeline.runs_root(study, held, out)
         tables[title] = pipeline.validate(study, entries, root, profile, out / "validation",
-                                          progress, tuple(args.extra), args.figures, calibration_root)
+                                          progress, tuple(args.extra), args.figures, calibration_root,
+                                          speeds)
         missing[title] = pipeline.without_runs(entries, root)
     path = pipeline.write_report(out, study, tables, f"profile: {profile}",  # also errors.json
                                  pipeline.probes_of(calibration_root), missing,
-                                 pipeline.run_speed.read(calibration_root / pipeline.run_speed.FILE))
+                                 pipeline.speed_table(speeds, calibration_root))
     with pd.option_context("display.width", 200, "display.max_columns", 20):
         for title, table in tables.items():
             print(f"{title}\n{table.to_string(index=False)}")

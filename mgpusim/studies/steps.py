@@ -27,6 +27,8 @@ from mgpusim.validation.speed_norm import RunSpeed
 
 CALIBRATION_TITLE = "Calibration runs (seen by the fit)"
 HELD_OUT_TITLE = "Held-out runs (never seen by the fit)"
+#: Each runs folder's speed record (`runs/run_speed.csv`) as one command read it, by folder.
+SpeedTables = dict[Path, pd.DataFrame]
 
 
 def runs_root(study: Study, held_out: bool, out: Path) -> Path:
@@ -90,17 +92,19 @@ def write_profile(data: dict[str, Any], path: Path, lines: list[str]) -> Path:
 
 def validate(study: Study, entries: tuple[Entry, ...], root: Path, profile: Path, out: Path,
              progress: Progress, extra: tuple[str, ...] = (), figures: bool = True,
-             calibration_root: Path | None = None) -> pd.DataFrame:
+             calibration_root: Path | None = None,
+             speed_tables: SpeedTables | None = None) -> pd.DataFrame:
     """Compare each entry's measured run under `root` with the model on `profile` (no device
     needed); one row per entry with a run; `run_to_run_spread` where repeats were kept.
     `figures`: each entry's timelines and traces too (most of the time taken).
     `calibration_root`: where the calibration runs are (default `root`), whose speed records
-    give the speed the profile was fitted at."""
+    give the speed the profile was fitted at. `speed_tables`: the command's speed records
+    already read (see :func:`speed_table`), so that its halves and report share one read."""
     rows = []
     missing = without_runs(entries, root)
     if missing:
         progress(f"no measured run under {root} for {len(missing)} configuration(s): {', '.join(missing)}")
-    speeds = run_speeds(study, entries, root, calibration_root or root)
+    speeds = run_speeds(study, entries, root, calibration_root or root, speed_tables)
     for e in entries:
         folder = measured_folder(root, e.name)
         if e.name in missing:
@@ -118,15 +122,26 @@ def validate(study: Study, entries: tuple[Entry, ...], root: Path, profile: Path
     return table
 
 
+def speed_table(tables: SpeedTables, root: Path) -> pd.DataFrame:
+    """The speed record under `root`, read on first use and kept in `tables`. Why: one
+    `study validate --held-out` needs the calibration folder's record for each half's reference
+    and for the report; reading it once (maybe from a packed archive) keeps it one table."""
+    if root not in tables:
+        tables[root] = run_speed.read(root / run_speed.FILE)
+    return tables[root]
+
+
 def run_speeds(study: Study, entries: tuple[Entry, ...], root: Path,
-               calibration_root: Path) -> dict[str, RunSpeed]:
+               calibration_root: Path, tables: SpeedTables | None = None) -> dict[str, RunSpeed]:
     """Per entry with a speed record under `root` (a lavapipe job's `runs/run_speed.csv`), its
     compared run's speed against the probe at calibration: the median over the study's
-    calibration runs, from the records under `calibration_root` ({} where there are none)."""
-    table = run_speed.read(root / run_speed.FILE)
+    calibration runs, from the records under `calibration_root` ({} where there are none).
+    `tables`: records the caller already read, and where this one keeps those it reads."""
+    tables = {} if tables is None else tables
+    table = speed_table(tables, root)
     if table.empty:
         return {}
-    cal = table if calibration_root == root else run_speed.read(calibration_root / run_speed.FILE)
+    cal = speed_table(tables, calibration_root)
     ref = speed_norm.reference_ms(cal, [(e.name, run_speed.compared_run(calibration_root, e.name))
                                         for e in study.calibration])
     if ref is None:
@@ -167,15 +182,16 @@ def run(study: Study, out: Path, progress: Progress, held_out: bool = True,
     measure_runs(study, study.entries(held_out), base, out / "runs", progress, devices)
     progress("calibrate from runs")
     profile, fit_text = fit_on_runs(study, data, lines, out / "runs", out, base)
+    speeds: SpeedTables = {}  # after the runs are measured: read once, shared below
     tables_out = {CALIBRATION_TITLE: validate(study, study.calibration, out / "runs", profile,
-                                              out / "validation", progress)}
+                                              out / "validation", progress, speed_tables=speeds)}
     missing = {CALIBRATION_TITLE: without_runs(study.calibration, out / "runs")}
     if held_out and study.held_out:
         tables_out[HELD_OUT_TITLE] = validate(study, study.held_out, out / "runs", profile,
-                                              out / "validation", progress)
+                                              out / "validation", progress, speed_tables=speeds)
         missing[HELD_OUT_TITLE] = without_runs(study.held_out, out / "runs")
     return write_report(out, study, tables_out, fit_text, probes_of(out / "runs"), missing,
-                        run_speed.read(out / "runs" / run_speed.FILE))
+                        speed_table(speeds, out / "runs"))
 
 
 def probes_of(runs: Path) -> pd.DataFrame:

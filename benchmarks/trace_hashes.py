@@ -2,12 +2,16 @@
 meant to be a pure speed-up can be checked to change no result: run it before and after, and
 diff the outputs (every line must match).
 
-Each experiments/**/*.toml that loads is simulated at `full` fidelity for `--frames` frames with
-the fast-forward off (every frame through the event engine; `--fast-forward` turns it on), and
-its trace, frames and links tables and its summary are hashed together. An experiment that
-fails to load or simulate prints its error's type instead of a hash (the same before and after).
+Each shipped experiment (`shipped_experiments` in scripts/summaries.py: experiments/**/*.toml
+with a [schedule]; `simulate_shipped` there loads and simulates them) is simulated at `full`
+fidelity for `--frames` frames with the fast-forward off (every frame through the event engine;
+`--fast-forward` turns it on), and its trace, frames and links tables and its summary are hashed
+together. One line each, `NAME HASH rows=TRACE_ROWS` (NAME relative to experiments/); one that
+fails to load or simulate prints `NAME skipped (ERROR_TYPE)` instead (the same before and after).
 Last come the two configurations `mgpusim bench --what simpy` times (TC1 sort-first at 2 and 4
-GPUs, one warm-up frame).
+GPUs, one warm-up frame), named `bench sort_first_2gpu` and `bench sort_first_4gpu`.
+Since 2026-11-27 TOML files under experiments/ that are not experiments (case, machine, study
+files) print no line (they printed `skipped (InputError)` before); every hash is the same.
 
     PYTHONPATH=. python benchmarks/trace_hashes.py [--frames 200] [--fast-forward] > hashes.txt
 """
@@ -24,8 +28,9 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mgpusim import Experiment, load_experiment, simulate  # noqa: E402
+from mgpusim import Experiment, Result, simulate  # noqa: E402
 from mgpusim.studies.model_speed import DEFAULT_EXPERIMENT, sort_first_experiment  # noqa: E402
+from scripts.summaries import simulate_shipped  # noqa: E402
 
 
 def table_digest(table: pd.DataFrame) -> bytes:
@@ -34,9 +39,8 @@ def table_digest(table: pd.DataFrame) -> bytes:
     return values + repr(list(table.columns)).encode()
 
 
-def run_digest(exp: Experiment, fast_forward: bool) -> str:
-    """The hash of one experiment's simulated tables and summary."""
-    result = simulate(exp, fidelity="full", fast_forward=fast_forward)
+def result_digest(result: Result) -> str:
+    """The hash of one simulation's trace, frames and links tables and summary."""
     digest = hashlib.sha256()
     for table in (result.trace, result.frames, result.links):
         digest.update(table_digest(table))
@@ -44,17 +48,21 @@ def run_digest(exp: Experiment, fast_forward: bool) -> str:
     return f"{digest.hexdigest()[:16]} rows={len(result.trace)}"
 
 
+def run_digest(exp: Experiment, fast_forward: bool) -> str:
+    """The hash of one experiment simulated at `full` fidelity."""
+    return result_digest(simulate(exp, fidelity="full", fast_forward=fast_forward))
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--frames", type=int, default=200, help="frames per experiment (default: 200)")
     p.add_argument("--fast-forward", action="store_true", help="with the fast-forward on")
     args = p.parse_args()
-    for path in sorted(ROOT.glob("experiments/**/*.toml")):
+    shipped = simulate_shipped(ROOT, "full", args.fast_forward, {"schedule.frames": args.frames})
+    for path, result in shipped:
         name = str(path.relative_to(ROOT / "experiments"))
-        try:
-            line = run_digest(load_experiment(path, {"schedule.frames": args.frames}), args.fast_forward)
-        except Exception as exc:  # noqa: BLE001 (not an experiment, or one this setting refuses)
-            line = f"skipped ({type(exc).__name__})"
+        failed = isinstance(result, Exception)
+        line = f"skipped ({type(result).__name__})" if failed else result_digest(result)
         print(f"{name} {line}", flush=True)
     for gpus in (2, 4):
         exp = sort_first_experiment(DEFAULT_EXPERIMENT, gpus, args.frames)

@@ -6,6 +6,8 @@ file, so that two checkouts can be compared: results must not change when the en
     python scripts/summaries.py --compare A.json B.json
 
 An experiment a level refuses (vsync at `analytic`) records the error line instead.
+`shipped_experiments` and `simulate_shipped` are the one list of shipped experiments and the one
+loop that simulates them; `benchmarks/trace_hashes.py` hashes what they return.
 """
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ import hashlib
 import json
 import sys
 from pathlib import Path
+from typing import Any, Iterator
 
 
 def shipped_experiments(root: Path) -> list[Path]:
@@ -22,15 +25,28 @@ def shipped_experiments(root: Path) -> list[Path]:
     return [p for p in paths if "[schedule]" in p.read_text()]
 
 
-def collect(root: Path, fidelity: str = "full", fast_forward: bool = True) -> dict:
+def simulate_shipped(root: Path, fidelity: str = "full", fast_forward: bool = True,
+                     overrides: dict | None = None) -> Iterator[tuple[Path, Any]]:
+    """(path, result) for every shipped experiment in path order, loaded with `overrides` (dotted
+    key -> value); result is the exception instead where loading or simulating fails (a level an
+    experiment refuses)."""
     from mgpusim import load_experiment, simulate  # the public API: the same in every layout
-    out = {}
     for path in shipped_experiments(root):
         try:
-            result = simulate(load_experiment(path), fidelity=fidelity, fast_forward=fast_forward)
-        except Exception as exc:  # noqa: BLE001 (a level an experiment refuses: recorded as such)
-            out[str(path.relative_to(root))] = {"summary": {"error": str(exc)}, "trace_sha256": "",
-                                                "frames_sha256": ""}
+            exp = load_experiment(path, overrides) if overrides else load_experiment(path)
+            result = simulate(exp, fidelity=fidelity, fast_forward=fast_forward)
+        except Exception as exc:  # noqa: BLE001 (recorded as such by the caller)
+            result = exc
+        yield path, result
+
+
+def collect(root: Path, fidelity: str = "full", fast_forward: bool = True) -> dict:
+    """Each shipped experiment's summary and the SHA-256 of its trace and frames as CSV."""
+    out = {}
+    for path, result in simulate_shipped(root, fidelity, fast_forward):
+        if isinstance(result, Exception):
+            out[str(path.relative_to(root))] = {"summary": {"error": str(result)},
+                                                "trace_sha256": "", "frames_sha256": ""}
             continue
         trace = result.trace.to_csv(index=False).encode()
         out[str(path.relative_to(root))] = {

@@ -9,6 +9,8 @@ from types import SimpleNamespace
 import pandas as pd
 import pytest
 
+from mgpusim.validation import run_archive
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -99,7 +101,7 @@ def test_handoff_split_reads_the_packed_4x_h200_runs(capsys):
     split = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(split)
     runs = ROOT / "data" / "nvidia" / "h200_x4" / "handoff_2026-11-27" / "runs"
-    folders = split.run_folders(runs)
+    folders = run_archive.runs_in(runs)
     assert sorted(f.name for f in folders) == ["l1080", "l1080b", "l1080t1", "nohost", "portrait"]
     trace = split.read_table(runs / "l1080" / "trace.csv")
     table = split.split_table(runs / "l1080", trace, 30)

@@ -52,6 +52,14 @@ def test_pack_replaces_the_run_files_and_every_reader_finds_them(tmp_path):
     assert run_spread(folder) == (pytest.approx(0.1), 2)
 
 
+def test_the_runs_in_a_folder_are_listed_alike_on_disk_and_packed(tmp_path):
+    _runs(tmp_path)
+    on_disk = run_archive.runs_in(tmp_path)
+    assert on_disk == [tmp_path / "a" / "steady", tmp_path / "b" / "steady"]
+    run_archive.pack(tmp_path)
+    assert run_archive.runs_in(tmp_path) == on_disk
+
+
 def test_unpack_writes_the_files_back_byte_for_byte(tmp_path):
     files = _runs(tmp_path)
     run_archive.pack(tmp_path)

@@ -32,13 +32,6 @@ from mgpusim.validation.measured import read_submissions
 from mgpusim.validation.measured_check import read_table
 
 
-def run_folders(root: Path) -> list[Path]:
-    """The run folders under `root`, on disk or in its packed archive."""
-    if (root / run_archive.TRACES).is_file():
-        return [root / rel for rel in sorted(run_archive.archive_of(root / "x")[0].traces)]
-    return run_archive.run_folders(root)
-
-
 def split_table(folder: Path, trace: pd.DataFrame, warmup: int) -> pd.DataFrame:
     """One row per hand-off of the run in `folder` (its `trace`), frames before `warmup` left
     out; mean ms."""
@@ -62,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--warmup", type=int, default=30, help="frames to leave out (default 30)")
     p.add_argument("--only", default="", help="the runs whose folder path contains this")
     args = p.parse_args(argv)
-    for folder in run_folders(args.runs):
+    for folder in run_archive.runs_in(args.runs):
         if args.only not in folder.as_posix():
             continue
         trace = read_table(folder / run_archive.TRACE_NAME)

@@ -74,6 +74,14 @@ def archive_of(path: Path) -> tuple[Archive, str] | None:
     return None
 
 
+def runs_in(root: Path) -> list[Path]:
+    """The run folders under `root`: those packed in `root`'s own archive where it has one,
+    else those on disk (:func:`run_folders`)."""
+    if (root / TRACES).is_file() and (root / FILES).is_file():
+        return [root / rel if rel else root for rel in sorted(_open(root).traces)]
+    return run_folders(root)
+
+
 def is_folder(path: Path) -> bool:
     """A folder on disk, or one that a packed archive holds."""
     if path.is_dir():

@@ -189,3 +189,21 @@ def test_interpreter_probe_sums_the_measured_runs_threads_per_kind():
     assert table.loc["submit", "threads"] == 2 and table.loc["submit", "cpu_us_per_frame"] == 400
     assert table.loc["submit", "cpu_share"] == 0.2 and table.loc["submit", "python_us_per_frame"] == 300
     assert table.loc["reap", "cpu_us_per_frame"] == 50 and table.loc["memcpy", "threads"] == 1
+
+
+def test_interpreter_probe_measures_the_runner_threads_python_over_the_run():
+    """The load on the interpreter: the measured execution's threads but the memcpy ones, CPU
+    and Python (CPU less time in Vulkan's C functions) over the run's span, Python per GPU
+    task."""
+    probe = _probe_module()
+    threads = pd.DataFrame({"execution": [0, 1, 1, 1],
+                            "thread": ["submit-gpu0/0", "submit-gpu0/0", "reap-gpu0/0", "memcpy0"],
+                            "cpu_ns": [5_000_000, 600_000, 400_000, 900_000],
+                            "wall_ns": [2_000_000] * 4,
+                            "driver_ns": [0, 100_000, 100_000, 0]})
+    trace = pd.DataFrame({"frame": [0, 0, 1, 1], "device": ["gpu0", "host", "gpu0", "gpu0"],
+                          "start_ns": [0, 100, 1_000_000, 1_500_000],
+                          "end_ns": [900_000, 200, 1_400_000, 2_000_000]})
+    assert probe.python_load(threads, trace) == {
+        "gpu_tasks_per_frame": 1.5, "runner_cpu_share": 0.5, "runner_python_share": 0.4,
+        "python_us_per_gpu_task": 266.7}

@@ -22,8 +22,8 @@ the host-copy dispatcher, a memcpy thread, whose numpy copies run without the lo
 
 Writes DIR/run (the measured run, as `mgpusim run` writes it), DIR/probe.csv (phase: idle,
 setup, frames or after; wake-up time on the run's trace clock; lateness in ns), DIR/threads.csv
-(execution, thread, cpu_ns, wall_ns, driver_ns) and prints the lateness per phase and the
-threads' CPU and Python time per frame.
+(execution, thread, cpu_ns, wall_ns, driver_ns) and prints the lateness per phase, the
+threads' CPU and Python time per frame and their load on the interpreter (`python_load`).
 """
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 import pandas as pd
@@ -148,6 +148,23 @@ def cpu_per_frame(threads: pd.DataFrame, frames: int) -> pd.DataFrame:
     return out.round(3)
 
 
+def python_load(threads: pd.DataFrame, trace: pd.DataFrame) -> dict[str, float]:
+    """How much of the measured run the runner's threads (all but the memcpy threads, whose
+    numpy copies run without the lock) spent in CPU and in Python, as shares of the run's span
+    (first task's start to last task's end), and their Python time per GPU task. Why the span
+    and not frames x frame time: it is the time the threads had."""
+    threads = threads[threads["execution"] == threads["execution"].max()]
+    runner = threads[~threads["thread"].str.startswith("memcpy")]
+    span = int(trace["end_ns"].max() - trace["start_ns"].min())
+    frames = int(trace["frame"].max()) + 1
+    tasks = int((trace["device"] != "host").sum())
+    python = int((runner["cpu_ns"] - runner["driver_ns"]).sum())
+    return {"gpu_tasks_per_frame": round(tasks / frames, 2),
+            "runner_cpu_share": round(int(runner["cpu_ns"].sum()) / span, 3),
+            "runner_python_share": round(python / span, 3),
+            "python_us_per_gpu_task": round(python / 1e3 / tasks, 1)}
+
+
 def lateness(table: pd.DataFrame) -> pd.DataFrame:
     """Per phase: wake-ups, median / 90th / 99th percentile / largest lateness (us), and the share
     of wake-ups later than 0.5 ms."""
@@ -159,7 +176,7 @@ def lateness(table: pd.DataFrame) -> pd.DataFrame:
     return table.groupby("phase", sort=False)["late_ns"].apply(stats).unstack().round(3)
 
 
-def on_run_clock(table: pd.DataFrame, result) -> pd.DataFrame:
+def on_run_clock(table: pd.DataFrame, result: Any) -> pd.DataFrame:
     """Wake-up times on the run's trace clock (0 at its first task), and the run phase split
     into `setup` (devices, pipelines, warm-up submissions before the first task), `frames` (from
     the first task's start to the last task's end) and `after`."""
@@ -189,10 +206,10 @@ def main(argv: list[str] | None = None) -> int:
     from mgpusim.real.runner.execute import run_experiment
     from mgpusim.schedules.experiment import load_experiment, parse_overrides
 
-    exp = load_experiment(args.experiment, parse_overrides(args.overrides))
-    devices = int_list(args.devices, "--devices")
     from mgpusim.real.runner.executor import Executor
 
+    exp = load_experiment(args.experiment, parse_overrides(args.overrides))
+    devices = int_list(args.devices, "--devices")
     probe, clock, guard = Probe(args.period_us * 1000), ThreadClock(), Executor._guard
     probe.start()
     time.sleep(IDLE_S)
@@ -217,6 +234,7 @@ def main(argv: list[str] | None = None) -> int:
     frames = int(result.trace["frame"].max()) + 1
     print(f"runner threads' CPU time per frame ({frames} frames):")
     print(cpu_per_frame(threads, frames).to_string())
+    print(", ".join(f"{k} {v}" for k, v in python_load(threads, result.trace).items()))
     return 0
 
 

@@ -4,7 +4,7 @@ Vulkan requires vkResetFences to have the fence to itself; a `poll()` from one t
 runner's leaders look at other GPUs' work) must not overlap the reset that `wait()` does in
 another (the reap thread, recycling the fence for the next submission). The Khronos validation
 layer caught that overlap once in a test run; the window is microseconds there, so this test
-stands in a fake binding whose fence look lasts 50 ms and which records any reset inside it.
+stands in fake Vulkan calls whose fence look lasts 50 ms and which records any reset inside it.
 Two threads that wait for one submission must likewise reset its fence and give its slot back
 once.
 """
@@ -17,26 +17,16 @@ from types import SimpleNamespace
 import pytest
 
 from mgpusim.real.vulkan import device
-from mgpusim.real.vulkan import vk_errors as errors
 
 
-class _NotReady(Exception):
-    pass
+SLOT = "slot"  # the calls below take it as it is
 
 
-class _Timeout(Exception):
-    pass
-
-
-class FakeBinding:
-    """The few Vulkan calls a Submission makes, on one fence, with overlaps recorded."""
-
-    VkNotReady, VkTimeout = _NotReady, _Timeout
-    VkException = VkError = ProcedureNotFoundError = ExtensionNotSupportedError = RuntimeError
-    VK_TRUE, VK_QUERY_RESULT_64_BIT, VK_QUERY_RESULT_WAIT_BIT = 1, 1, 2
+class FakeHotPath:
+    """The per-task calls a Submission makes (mgpusim.real.vulkan.hotpath), on one fence, with
+    overlaps recorded."""
 
     def __init__(self) -> None:
-        self.ffi = SimpleNamespace(new=lambda _type: [0, 0])
         self.looking = threading.Event()
         self.overlaps: list[str] = []
         self.resets = 0
@@ -44,13 +34,13 @@ class FakeBinding:
         self.wait_s, self.timeouts = 0.0, 0
         self.waits = self.inside = self.most_inside = 0
 
-    def vkGetFenceStatus(self, _dev, _fence) -> None:
+    def fence_signalled(self, _dev, _slot) -> bool:
         self.looking.set()
         time.sleep(0.05)
         self.looking.clear()
-        raise _NotReady()
+        return False
 
-    def vkWaitForFences(self, *_args) -> None:
+    def wait_fence(self, _dev, _slot, _timeout_ns) -> bool:
         with self.lock:
             self.waits += 1
             self.inside += 1
@@ -60,13 +50,14 @@ class FakeBinding:
             self.inside -= 1
         if self.timeouts:
             self.timeouts -= 1
-            raise _Timeout()
+            return False
+        return True
 
-    def vkGetQueryPoolResults(self, _dev, _pool, _first, _count, _size, data, *_rest) -> None:
+    def read_ticks(self, _dev, _slot) -> tuple[int, int]:
         time.sleep(0.02)  # lavapipe's read blocks until the queue is idle
-        data[0], data[1] = 10, 20
+        return 10, 20
 
-    def vkResetFences(self, *_args) -> None:
+    def reset_fence(self, _dev, _slot) -> None:
         if self.looking.is_set():
             self.overlaps.append("vkResetFences during vkGetFenceStatus")
         self.resets += 1
@@ -74,16 +65,15 @@ class FakeBinding:
 
 @pytest.fixture
 def fake(monkeypatch):
-    binding = FakeBinding()
-    monkeypatch.setattr(device, "vk", lambda: binding)
-    monkeypatch.setattr(errors, "vk", lambda: binding)
-    return binding
+    calls = FakeHotPath()
+    monkeypatch.setattr(device, "hotpath", calls)
+    return calls
 
 
 def _submission() -> tuple[device.Submission, SimpleNamespace]:
     queue = SimpleNamespace(gpu=SimpleNamespace(device="dev"), lock=threading.Lock(), free=[],
                             recorded={})
-    return device.Submission(queue, ("cmd", "fence", "pool"), "probe"), queue
+    return device.Submission(queue, SLOT, "probe"), queue
 
 
 def test_wait_does_not_reset_the_fence_while_another_thread_polls(fake):
@@ -96,7 +86,7 @@ def test_wait_does_not_reset_the_fence_while_another_thread_polls(fake):
     poller.join()
     assert fake.overlaps == []
     assert seen == [False]  # it looked before the work was known finished
-    assert queue.free == [("cmd", "fence", "pool")] and fake.resets == 1
+    assert queue.free == [SLOT] and fake.resets == 1
     assert sub.poll()  # the slot is recycled: finished, without touching the fence again
 
 
@@ -108,7 +98,7 @@ def test_two_waiters_reset_and_recycle_once(fake):
     for t in threads:
         t.join()
     assert fake.resets == 1
-    assert queue.free == [("cmd", "fence", "pool")]
+    assert queue.free == [SLOT]
 
 
 def test_threads_waiting_for_one_task_call_the_driver_once(fake):

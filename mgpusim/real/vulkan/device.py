@@ -16,8 +16,9 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 from mgpusim.model.errors import InputError
-from mgpusim.real.vulkan import host_priority
+from mgpusim.real.vulkan import host_priority, hotpath
 from mgpusim.real.vulkan.buffers import Buffer, Image
+from mgpusim.real.vulkan.hotpath import Slot
 from mgpusim.real.vulkan.instance import Instance, PhysicalDeviceInfo, QueueFamilyInfo
 from mgpusim.real.vulkan.vk_errors import call, vk
 
@@ -27,7 +28,8 @@ QUEUE_KINDS = ("graphics", "compute", "transfer")
 
 @dataclass(eq=False)
 class Queue:
-    """One VkQueue with its own command pool and a free list of (cmd, fence, query pool)."""
+    """One VkQueue with its own command pool and a free list of slots (command buffer, fence,
+    query pool)."""
 
     gpu: "Gpu"
     kind: str
@@ -36,11 +38,11 @@ class Queue:
     handle: Any
     pool: Any
     lock: threading.Lock = field(default_factory=threading.Lock)
-    free: list[tuple[Any, Any, Any]] = field(default_factory=list)
+    free: list[Slot] = field(default_factory=list)
     #: idle slots whose command buffer holds a recording that can be submitted again, by key
-    recorded: dict[Any, list[tuple[Any, Any, Any]]] = field(default_factory=dict)
+    recorded: dict[Any, list[Slot]] = field(default_factory=dict)
 
-    def idle_slots(self) -> list[tuple[Any, Any, Any]]:
+    def idle_slots(self) -> list[Slot]:
         return self.free + [s for slots in self.recorded.values() for s in slots]
 
     @property
@@ -67,9 +69,9 @@ class Semaphore:
 class Submission:
     """Work submitted on a queue; `wait()` then `timestamps_ns()` gives its host-clock span."""
 
-    def __init__(self, queue: Queue, slot: tuple[Any, Any, Any], label: str, key: Any = None):
+    def __init__(self, queue: Queue, slot: Slot, label: str, key: Any = None):
         self.queue, self.label, self.key = queue, label, key
-        self._slot: tuple[Any, Any, Any] | None = slot
+        self._slot: Slot | None = slot
         self._ticks: tuple[int, int] | None = None
         self._finished = False
         #: held by the one thread that reads the timestamps and recycles the slot
@@ -111,14 +113,11 @@ class Submission:
             if self._finished or self._slot is None:
                 return True
             self._watched = True
-            fence = self._slot[1]
+            slot = self._slot
         signalled = False
         try:
-            call("vkWaitForFences", vk().vkWaitForFences, self.queue.gpu.device, 1, [fence],
-                 vk().VK_TRUE, max(0, deadline - time.monotonic_ns()))
-            signalled = True
-        except vk().VkTimeout:
-            pass
+            signalled = hotpath.wait_fence(self.queue.gpu.device, slot,
+                                           deadline - time.monotonic_ns())
         finally:
             with self._slot_lock:
                 self._watched = False
@@ -136,12 +135,8 @@ class Submission:
         with self._slot_lock:
             if self._finished or self._slot is None:
                 return True
-            try:
-                vk().vkGetFenceStatus(self.queue.gpu.device, self._slot[1])
-            except vk().VkNotReady:
-                return False
-            self._finished = True
-            return True
+            self._finished = hotpath.fence_signalled(self.queue.gpu.device, self._slot)
+            return self._finished
 
     def wait(self, timeout_ns: int = 60_000_000_000) -> "Submission":
         """Block until the work finished; reads the timestamps and recycles the slot."""
@@ -160,19 +155,13 @@ class Submission:
 
     def _read_ticks(self) -> tuple[int, int]:
         """The finished work's two timestamps, in device ticks."""
-        v = vk()
         assert self._slot is not None
-        data = v.ffi.new("uint64_t[2]")
-        call("vkGetQueryPoolResults", v.vkGetQueryPoolResults, self.queue.gpu.device,
-             self._slot[2], 0, 2, 16, data, 8,
-             v.VK_QUERY_RESULT_64_BIT | v.VK_QUERY_RESULT_WAIT_BIT)
-        return int(data[0]), int(data[1])
+        return hotpath.read_ticks(self.queue.gpu.device, self._slot)
 
     def _recycle(self) -> None:
         """Reset the fence and give the slot back to its queue, for the next submission."""
-        v = vk()
         assert self._slot is not None
-        call("vkResetFences", v.vkResetFences, self.queue.gpu.device, 1, [self._slot[1]])
+        hotpath.reset_fence(self.queue.gpu.device, self._slot)
         with self.queue.lock:
             if self.key is None:
                 self.queue.free.append(self._slot)
@@ -302,7 +291,7 @@ class Gpu:
         return (self.instance.lp_num_threads or (int(from_env) if from_env.isdigit() else 0)
                 or os.cpu_count() or 1)
 
-    def _slot(self, q: Queue) -> tuple[Any, Any, Any]:
+    def _slot(self, q: Queue) -> Slot:
         if q.free:
             return q.free.pop()
         v = vk()
@@ -313,7 +302,7 @@ class Gpu:
         fence = call("vkCreateFence", v.vkCreateFence, self.device, v.VkFenceCreateInfo(), None)
         qp_info = v.VkQueryPoolCreateInfo(queryType=v.VK_QUERY_TYPE_TIMESTAMP, queryCount=2)
         pool = call("vkCreateQueryPool", v.vkCreateQueryPool, self.device, qp_info, None)
-        return cmd, fence, pool
+        return Slot(cmd, fence, pool)
 
     def submit(self, queue: str | Queue, record: Recorder, *, wait: Sequence[Semaphore] = (),
                signal: Sequence[Semaphore] = (), label: str = "", key: Any = None) -> Submission:
@@ -323,7 +312,6 @@ class Gpu:
         Its command buffers are recorded once per slot and submitted again as they come back
         (as a renderer submits pre-recorded command buffers), so repeated submissions cost no
         recording on the host."""
-        v = vk()
         q = self.queue(queue)
         with q.lock:
             ready = q.recorded.get(key) if key is not None else None
@@ -332,24 +320,14 @@ class Gpu:
             else:
                 slot = self._slot(q)
                 self._record(slot, record, once=key is None)
-            wait_handles = [s.handle for s in wait]
-            stages = [v.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT] * len(wait_handles)
-            signal_handles = [s.handle for s in signal]
-            cmds = [slot[0]]
-            info = v.VkSubmitInfo(waitSemaphoreCount=len(wait_handles),
-                                  pWaitSemaphores=wait_handles or None,
-                                  pWaitDstStageMask=stages or None, commandBufferCount=1,
-                                  pCommandBuffers=cmds, signalSemaphoreCount=len(signal_handles),
-                                  pSignalSemaphores=signal_handles or None)
-            infos = [info]
-            call("vkQueueSubmit", v.vkQueueSubmit, q.handle, 1, infos, slot[1])
+            hotpath.submit(q.handle, slot, [s.handle for s in wait], [s.handle for s in signal])
         return Submission(q, slot, label, key)
 
     @staticmethod
-    def _record(slot: tuple[Any, Any, Any], record: Recorder, once: bool) -> None:
+    def _record(slot: Slot, record: Recorder, once: bool) -> None:
         """`record(cmd)` between two timestamps, each behind a full barrier."""
         v = vk()
-        cmd, _fence, pool = slot
+        cmd, pool = slot.cmd, slot.pool
         all_cmds = v.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT
         mem = v.VK_ACCESS_MEMORY_READ_BIT | v.VK_ACCESS_MEMORY_WRITE_BIT
         barriers = [v.VkMemoryBarrier(srcAccessMask=mem, dstAccessMask=mem)]
@@ -388,9 +366,9 @@ class Gpu:
         for sem in self._semaphores:
             sem.destroy()
         for q in {id(q): q for q in self.queues.values()}.values():
-            for _cmd, fence, pool in q.idle_slots():
-                v.vkDestroyFence(self.device, fence, None)
-                v.vkDestroyQueryPool(self.device, pool, None)
+            for slot in q.idle_slots():
+                v.vkDestroyFence(self.device, slot.fence, None)
+                v.vkDestroyQueryPool(self.device, slot.pool, None)
             q.free.clear()
             q.recorded.clear()
             v.vkDestroyCommandPool(self.device, q.pool, None)

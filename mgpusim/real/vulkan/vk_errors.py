@@ -53,6 +53,12 @@ def vk() -> ModuleType:
     return _vk
 
 
+def result_name(code: int) -> str:
+    """A VkResult's name as `call` words it (the binding's exception class name)."""
+    exc = getattr(vk(), "exception_codes", {}).get(code)
+    return exc.__name__ if exc is not None else _EXTRA_CODES.get(code, f"VkResult {code}")
+
+
 def call(name: str, fn: Callable[..., Any], *args: Any) -> Any:
     """Run one binding call; turn any failure into a VulkanError naming `name`."""
     module = vk()

@@ -22,6 +22,7 @@ from typing import Any, Callable
 import numpy as np
 
 from mgpusim.model.errors import InputError, ScheduleError
+from mgpusim.real.runner.latch import Latch
 from mgpusim.real.runner.plan import CPU_STREAM, HOST_STREAM, Node
 from mgpusim.real.runner.work import CpuWork, GpuWork, HostWork
 from mgpusim.real.vulkan import host_priority
@@ -85,7 +86,8 @@ class Executor:
         self._rows_lock = threading.Lock()
         self._sem_pool: dict[int, list[Any]] = defaultdict(list)
         self._sem_lock = threading.Lock()
-        self._parts: queue_mod.Queue = queue_mod.Queue()
+        #: the memcpy threads' parts to copy (a SimpleQueue: put and get are C, no Python lock)
+        self._parts: queue_mod.SimpleQueue = queue_mod.SimpleQueue()
         self._by_key = {(n.frame, n.task.name): n for n in nodes}
         self._skip_lock = threading.Lock()
         #: skippable GPU nodes submitted and not yet known to be finished (see `_skipped`), by id
@@ -176,7 +178,7 @@ class Executor:
         return found
 
     # -- waiting ---------------------------------------------------------------------------
-    def _wait(self, event: threading.Event, who: Node, what: str) -> None:
+    def _wait(self, event: Latch, who: Node, what: str) -> None:
         deadline = time.monotonic() + self.stall_s
         while not event.wait(POLL_S):
             if self.abort.is_set():

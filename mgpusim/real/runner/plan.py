@@ -15,12 +15,12 @@ dependency points to an earlier position, so that order can never deadlock.
 """
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from mgpusim.model.errors import ScheduleError
 from mgpusim.model.tasks import Task
+from mgpusim.real.runner.latch import Latch
 from mgpusim.real.runner.work import CpuWork, GpuWork, HostWork, Work
 from mgpusim.schedules.base import FrameProgram, leads_chain
 from mgpusim.schedules.task_inputs import waits_for_labels
@@ -44,8 +44,8 @@ class Node:
     sem_consumers: list["Node"] = field(default_factory=list)
     signals: dict[int, Any] = field(default_factory=dict)  # id(consumer) -> Semaphore
     waits: list[Any] = field(default_factory=list)  # Semaphores this node waited on
-    submitted: threading.Event = field(default_factory=threading.Event)
-    completed: threading.Event = field(default_factory=threading.Event)
+    submitted: Latch = field(default_factory=Latch)
+    completed: Latch = field(default_factory=Latch)
     submission: Any = None
     parts_left: int = 0
     skipped: bool = False  # a skip_if_busy task that was skipped (see Executor)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import importlib.util
+import re
 import sys
 from pathlib import Path
 from types import SimpleNamespace
@@ -173,6 +174,7 @@ def test_interpreter_probe_runs_on_lavapipe(tmp_path, capsys):
     assert (submit["driver_ns"] > 0).all() and (measured["driver_ns"] <= measured["cpu_ns"]).all()
     printed = capsys.readouterr().out
     assert "frames" in printed and "cpu_us_per_frame" in printed
+    assert re.search(r"command buffers recorded: [1-9]\d* for \d+ tasks", printed)
 
 
 def test_interpreter_probe_sums_the_measured_runs_threads_per_kind():

@@ -28,6 +28,9 @@ threads' CPU and Python time per frame and their load on the interpreter (`pytho
 from __future__ import annotations
 
 import argparse
+import cProfile
+import io
+import pstats
 import sys
 import threading
 import time
@@ -69,33 +72,72 @@ class Probe(threading.Thread):
 class DriverClock:
     """CPU time each thread spends inside Vulkan's C functions, where the interpreter lock is
     released: the `vulkan` binding's one call site (`_callApi`) wrapped around the C call only,
-    after it has converted the arguments in Python. A thread's CPU time less this is its Python
-    time, which holds the lock (a memcpy thread's numpy copy aside)."""
+    after it has converted the arguments in Python, and the runner's per-task calls
+    (`mgpusim.real.vulkan.hotpath`, straight on the C library) through a library whose functions
+    are timed. A thread's CPU time less this is its Python time, which holds the lock (a memcpy
+    thread's numpy copy aside)."""
 
     def __init__(self) -> None:
         self.spent: dict[int, int] = {}
 
-    def install(self) -> Callable[[], None]:
-        """Wrap the binding's C calls; returns what undoes it."""
-        import vulkan._vulkan as binding
-
-        original, ffi, auto = binding._callApi, binding.ffi, binding._auto_handle
+    def timed(self, fn: Callable[..., object]) -> Callable[..., object]:
+        """`fn` with its CPU time added to the calling thread's."""
         spent = self.spent
 
-        def timed(fn: Callable[..., object], *args: object) -> object:
-            fn_args = [auto(i, j) for i, j in zip(args, ffi.typeof(fn).args)]
+        def call(*args: object) -> object:
             start = time.thread_time_ns()
             try:
-                return fn(*fn_args)
+                return fn(*args)
             finally:
                 ident = threading.get_ident()  # each thread adds to its own key only
                 spent[ident] = spent.get(ident, 0) + time.thread_time_ns() - start
+        return call
 
-        binding._callApi = timed
+    def install(self) -> Callable[[], None]:
+        """Wrap the binding's C calls and the hot path's; returns what undoes it."""
+        import vulkan._vulkan as binding
+
+        from mgpusim.real.vulkan import hotpath
+
+        original, ffi, auto = binding._callApi, binding.ffi, binding._auto_handle
+
+        def api(fn: Callable[..., object], *args: object) -> object:
+            fn_args = [auto(i, j) for i, j in zip(args, ffi.typeof(fn).args)]
+            return self.timed(fn)(*fn_args)
+
+        binding._callApi = api
+        hot_vk, timed_binding = hotpath.vk, _TimedBinding(hotpath.vk(), self)
+        hotpath.vk = lambda: timed_binding  # type: ignore[assignment]
 
         def undo() -> None:
             binding._callApi = original
+            hotpath.vk = hot_vk  # type: ignore[assignment]
         return undo
+
+
+class _TimedBinding:
+    """The `vulkan` module as the hot path sees it, with `lib`'s functions timed."""
+
+    def __init__(self, module: Any, clock: DriverClock) -> None:
+        self._module = module
+        self.lib = _TimedLib(module.lib, clock)
+
+    def __getattr__(self, name: str) -> Any:
+        value = getattr(self._module, name)
+        setattr(self, name, value)  # looked up once
+        return value
+
+
+class _TimedLib:
+    """A C library whose functions add their CPU time to the calling thread's."""
+
+    def __init__(self, lib: Any, clock: DriverClock) -> None:
+        self._lib, self._clock = lib, clock
+
+    def __getattr__(self, name: str) -> Any:
+        fn = self._clock.timed(getattr(self._lib, name))
+        setattr(self, name, fn)  # wrapped once
+        return fn
 
 
 class ThreadClock:
@@ -130,6 +172,55 @@ class ThreadClock:
         out = pd.DataFrame(self.rows, columns=["execution", "thread", "cpu_ns", "wall_ns", "driver_ns"])
         order = {e: k for k, e in enumerate(dict.fromkeys(out["execution"]))}
         return out.assign(execution=out["execution"].map(order))
+
+
+class CpuProfile:
+    """Where the runner threads' CPU time goes: a cProfile per thread timed by the thread's own
+    CPU clock (so a thread's waits count for nothing), summed over the threads. The profiler's
+    own cost per call inflates cheap functions; the ranking is what to read."""
+
+    def __init__(self) -> None:
+        if sys.version_info >= (3, 12):  # cProfile became one process-wide monitor
+            raise SystemExit("--profile needs Python < 3.12: from 3.12 on only one cProfile can "
+                             "be active in a process, and this one profiles each thread apart")
+        self.profiles: list[cProfile.Profile] = []
+        self._lock = threading.Lock()
+
+    def wrap(self, guard: Callable[..., None]) -> Callable[..., None]:
+        def profiled(executor: object, fn: Callable[..., None], *args: object) -> None:
+            profile = cProfile.Profile(time.thread_time_ns, 1e-9)
+            with self._lock:
+                self.profiles.append(profile)
+            profile.runcall(guard, executor, fn, *args)
+        return profiled
+
+    def top(self, count: int) -> str:
+        """The `count` functions with the most own CPU time, as pstats prints them."""
+        text = io.StringIO()
+        stats = pstats.Stats(*self.profiles, stream=text) if self.profiles else None
+        if stats is not None:
+            stats.sort_stats("tottime").print_stats(count)
+        return text.getvalue()
+
+
+def count_recordings() -> tuple[list[int], Callable[[], None]]:
+    """Count the command buffers the runner records (`Gpu._record`): a submission whose
+    recorded command buffer is not back from the previous one records a new one, which is
+    Python work the steady state otherwise does not have. Returns the count (a one-item list)
+    and what undoes the counting."""
+    from mgpusim.real.vulkan.device import Gpu
+
+    count, original = [0], Gpu.__dict__["_record"]
+
+    def counted(slot: Any, record: Callable[[Any], None], once: bool) -> None:
+        count[0] += 1
+        original.__func__(slot, record, once)
+
+    Gpu._record = staticmethod(counted)  # type: ignore[method-assign]
+
+    def undo() -> None:
+        Gpu._record = original  # type: ignore[method-assign]
+    return count, undo
 
 
 def cpu_per_frame(threads: pd.DataFrame, frames: int) -> pd.DataFrame:
@@ -197,6 +288,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--devices", default=None)
     ap.add_argument("--period-us", type=int, default=100)
     ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--profile", type=int, default=0, metavar="N",
+                    help="also profile the runner threads' CPU time and print the N functions "
+                         "with the most of it (slows the run: its lateness is not the run's own)")
     args = ap.parse_args(argv)
     if args.period_us < 1:
         ap.error("--period-us must be >= 1")
@@ -214,11 +308,14 @@ def main(argv: list[str] | None = None) -> int:
     probe.start()
     time.sleep(IDLE_S)
     probe.phase = "run"
-    Executor._guard = clock.wrap(guard)  # type: ignore[method-assign]
-    undo = clock.driver.install()
+    profile = CpuProfile() if args.profile else None
+    timed = clock.wrap(guard)
+    Executor._guard = profile.wrap(timed) if profile else timed  # type: ignore[method-assign]
+    undo, recordings, stop_counting = clock.driver.install(), *count_recordings()
     try:
         result = run_experiment(exp, devices=devices)
     finally:
+        stop_counting()
         undo()
         Executor._guard = guard  # type: ignore[method-assign]
         probe.stop()
@@ -235,6 +332,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"runner threads' CPU time per frame ({frames} frames):")
     print(cpu_per_frame(threads, frames).to_string())
     print(", ".join(f"{k} {v}" for k, v in python_load(threads, result.trace).items()))
+    print(f"command buffers recorded: {recordings[0]} for {len(result.trace)} tasks run "
+          f"(pre-warm frames and clock calibration included)")
+    if profile is not None:
+        print(profile.top(args.profile))
     return 0
 
 

@@ -192,12 +192,12 @@ def _h200_dispatch_ns() -> int:
 def test_a_real_gpu_profile_may_say_its_host_threads_take_turns():
     """GPUs of their own wake their submit threads together unless the profile says the host's
     threads take turns (the runner's interpreter lock): then one dispatch_ns apart."""
-    together = _h200_secondary_starts()
+    together = _h200_secondary_starts("profile.host.serial_dispatch=false")
     assert together[-1] - together[0] < 10_000
     serial = _h200_secondary_starts("profile.host.serial_dispatch=true")
     dispatch = _h200_dispatch_ns()
     assert [b - a for a, b in zip(serial, serial[1:])] == [dispatch, dispatch]
-    assert _h200_secondary_starts("profile.host.serial_dispatch=false") == together
+    assert _h200_secondary_starts() == serial  # the 4x H200 profile says they take turns
 
 
 def test_the_cores_know_each_pass_by_its_kind_and_a_pair_measured_kind_as_lossless():
@@ -217,9 +217,11 @@ def test_a_real_gpu_host_may_share_one_interpreter():
     """With `host.shared_interpreter` the three secondaries woken by one present share the
     interpreter for their dispatch_ns: they start together (no turns), but each waking takes
     three times as long, and the submit work of the frame's other tasks slows them more."""
-    alone = _h200_secondary_starts()
-    shared = _h200_secondary_starts("profile.host.shared_interpreter=true")
+    alone = _h200_secondary_starts("profile.host.serial_dispatch=false")
+    shared = _h200_secondary_starts("profile.host.shared_interpreter=true",
+                                    "profile.host.serial_dispatch=false")
     loaded = _h200_secondary_starts("profile.host.shared_interpreter=true",
+                                    "profile.host.serial_dispatch=false",
                                     "profile.host.submit_ns=50000")
     assert shared[-1] - shared[0] < 10_000  # processor sharing: they finish waking together
     # 3 wakings of dispatch_ns each at a third of the interpreter: done after 3x, not 1x

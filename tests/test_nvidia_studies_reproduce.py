@@ -55,10 +55,13 @@ def test_no_figures_changes_no_number(tmp_path: Path) -> None:
 
 
 def _shared_interpreter_study(tmp_path: Path) -> Path:
-    """The 4x H200 study as a what-if: its profile with `host.shared_interpreter`, and the grid
-    searching each task's submit work on the interpreter beside the wake-up's dispatch work."""
+    """The 4x H200 study as a what-if: its profile with `host.shared_interpreter` instead of
+    `serial_dispatch`, and the grid searching each task's submit work on the interpreter beside
+    the wake-up's dispatch work."""
     here = ROOT / "experiments" / "h200_x4"
     profile = (ROOT / "hardware_profiles" / "h200_x4.toml").read_text()
+    # the interpreter shared instead of taken in turns (the profile's serial_dispatch)
+    profile = profile.replace("\nserial_dispatch = true\n", "\n", 1)
     profile = profile.replace("\n[host]\n", "\n[host]\nshared_interpreter = true\n", 1)
     (tmp_path / "h200_x4_shared_interpreter.toml").write_text(profile)
     root = os.path.relpath(ROOT, tmp_path)  # the study's paths must be relative to it

@@ -94,4 +94,4 @@ def test_a_shared_interpreter_fits_the_4x_h200_sort_first_replay(tmp_path: Path)
     key = "replay_median_abs_frame_time_error"
     assert want[cal]["sort_first"][key] > 0.08
     assert got[cal]["sort_first"][key] < 0.5 * want[cal]["sort_first"][key]
-    assert got[cal]["xr"][key] > 0.02 > 0.01 > want[cal]["xr"][key]
+    assert got[cal]["xr"][key] > 0.02 and want[cal]["xr"][key] < 0.01

@@ -3,9 +3,9 @@
 Why not through the `vulkan` binding like every other call: its wrappers convert each argument
 in Python on every call (the function's signature looked up, each handle and list cast to a new
 C array) and build a struct field by field through keyword defaults. For a task that is all the
-Python there is: submit, fence wait, timestamp read, fence reset. Measured on lavapipe, one
-thread, pre-recorded command buffer: 129 us of CPU per task through the binding, 48 us with the
-same four calls made here (most of it the driver's own work). With light 4-GPU frames the
+Python there is: submit, fence wait, timestamp read, fence reset. `benchmarks/submit_overhead.py`
+times the four calls both ways on one thread: on lavapipe 75-136 us of CPU per task through the
+binding, 22-57 us made here (the VM's speed moved between runs). With light 4-GPU frames the
 runner's threads kept the interpreter busy for most of the run, and a thread woken by a fence
 waited for it (docs/nvidia_h200_x4.md, "The threads wait for the interpreter"): what the
 runner spends in Python delays the very hand-offs it measures.

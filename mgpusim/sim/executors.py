@@ -171,8 +171,8 @@ class Interpreter(Dedicated):
 
     def background(self) -> Callable[[int], object] | None:
         """A task's submit work on the interpreter, which nobody waits on but everyone
-        shares it with."""
-        return lambda ns: self.channel.transfer(ns, 1)
+        shares it with: the same work as a woken thread's."""
+        return self.work
 
 
 class SharedGpu(Dedicated):

@@ -21,8 +21,9 @@ from typing import Any, Sequence
 
 from mgpusim.real.vulkan.vk_errors import VulkanError, result_name, vk
 
-#: VkResult codes the callers tell apart from success
-SUCCESS, NOT_READY, TIMEOUT = 0, 1, 2
+#: VkResult of success; the other non-negative results the callers get (VK_NOT_READY from a
+#: fence look, VK_TIMEOUT from a fence wait) read as "not yet"
+SUCCESS = 0
 
 
 @dataclass(eq=False)

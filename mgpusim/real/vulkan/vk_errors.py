@@ -55,7 +55,7 @@ def vk() -> ModuleType:
 
 def result_name(code: int) -> str:
     """A VkResult's name as `call` words it (the binding's exception class name)."""
-    exc = getattr(vk(), "exception_codes", {}).get(code)
+    exc = vk().exception_codes.get(code)
     return exc.__name__ if exc is not None else _EXTRA_CODES.get(code, f"VkResult {code}")
 
 

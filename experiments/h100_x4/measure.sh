@@ -2,12 +2,14 @@
 # The 4x H100 study's measurements, on the device machine, from the project root:
 #   source .gl/env.sh; export PYTHONPATH=$PWD:$PYTHONPATH; export MGPUSIM_CACHE=$PWD/.spvcache
 #   SWEEPS=1 bash experiments/h100_x4/measure.sh /tmp/work GROUP...
-# (STUDY_DIR=experiments/h200_x4: the same for the study of that folder, on its machine)
+# (STUDY_DIR=experiments/h200_x4 or another study's folder, DEVICES=0,1 on two GPUs: the same for
+# the study of that folder, on its machine)
 # (carrying .gl, .whl with tomli_w and .spvcache filled here: the machine has no glslc).
 # SWEEPS=1: first the machine (nvidia-smi, topology, lscpu, Vulkan devices and device groups) and
 # the pass tables (`mgpusim measure`, one process per table; copies also with 2 and 4 GPUs
 # copying at once); SWEEPS=mesh: the mesh tables only; SWEEPS=particles: the particle update
-# and draw tables only. Then each GROUP (a substring of configuration names) in its own process:
+# and draw tables only. Then each GROUP (a regular expression searched in the configuration names,
+# as `--only` takes it: a substring, or ^sf_ for the names that start so) in its own process:
 # `mgpusim study measure` from a copy of study.toml without the committed tables and runs.
 # One process per group because after about 30 runs in one process the next Vulkan instance
 # fails (VkErrorIncompatibleDriver); a failed group is taken again once. A group already done
@@ -69,14 +71,14 @@ if [ "${SWEEPS:-0}" = 1 ] || [ "${SWEEPS:-0}" = particles ]; then
 fi
 
 study=$here/study_measure.toml  # vanishes with the machine's copy of the tree
-grep -v -e '^runs = ' -e '^tables = ' -e '^files = ' $here/study.toml > "$study"
+grep -v -e '^runs = ' -e '^tables = ' -e '^files = ' -e '^host_copy_table = ' $here/study.toml > "$study"
 for g in "$@"; do
   if grep -q "^$g rc=0" "$work/logs/groups.txt" 2>/dev/null; then continue; fi
   if [ "$SECONDS" -gt "$deadline" ]; then echo "$g skipped at ${SECONDS}s" >> "$work/logs/groups.txt"; continue; fi
   for try in 1 2; do
     s=$SECONDS
     $py -m mgpusim study measure "$study" --devices "$devices" --held-out --only "$g" \
-      --out "$work/study" > "$work/logs/measure_${g}_$try.log" 2>&1
+      --out "$work/study" > "$work/logs/measure_${g//[^A-Za-z0-9_]/}_$try.log" 2>&1
     rc=$?
     echo "$g rc=$rc try=$try $((SECONDS - s))s" >> "$work/logs/groups.txt"
     [ $rc = 0 ] && break

@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 import time
 from dataclasses import replace
@@ -35,7 +36,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         s.add_argument("--out", type=Path, default=None, help="output folder (default out/<study name>)")
         if name in ("measure", "run"):
             s.add_argument("--devices", help="physical device of each simulated GPU, e.g. 0,1 (NVIDIA)")
-            s.add_argument("--only", help="only the configurations whose name contains this")
+            s.add_argument("--only", help="only the configurations whose name this regular expression "
+                           "matches anywhere (a plain substring works; ^sf_ for names that start so)")
             add_steady_check(s)
         if name in ("measure", "run", "validate"):
             s.add_argument("--held-out", action="store_true", help="include the held-out configurations")
@@ -99,8 +101,15 @@ def _out(args: argparse.Namespace, study: Study) -> Path:
 def _filtered(study: Study, args: argparse.Namespace) -> Study:
     if not getattr(args, "only", None):
         return study
-    keep = lambda es: tuple(e for e in es if args.only in e.name)  # noqa: E731
-    return replace(study, calibration=keep(study.calibration), held_out=keep(study.held_out))
+    try:
+        pattern = re.compile(args.only)
+    except re.error as e:
+        raise InputError(f"--only {args.only!r} is not a regular expression: {e}") from None
+    keep = lambda es: tuple(e for e in es if pattern.search(e.name))  # noqa: E731
+    kept = replace(study, calibration=keep(study.calibration), held_out=keep(study.held_out))
+    if not kept.calibration and not kept.held_out:
+        raise InputError(f"--only {args.only!r} matches no configuration of {study.name}")
+    return kept
 
 
 def measure(args: argparse.Namespace) -> int:

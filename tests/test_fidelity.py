@@ -14,6 +14,7 @@ from mgpusim.model.costs import CostModel
 from mgpusim.model.errors import InputError
 from mgpusim.results.periodic import shifted_overlap
 from mgpusim.schedules.experiment import load_experiment
+from mgpusim.sim.analytic import host_approximations
 from mgpusim.sim.effects import EFFECTS, choose_effects, parse_effects
 from mgpusim.sim.engine import Engine
 from mgpusim.sim.executors import make_executors
@@ -169,16 +170,10 @@ def _analytic_cases() -> list[tuple[Path, dict]]:
                 continue
             prog = build_program(exp)
             skips = any(t.skip_if_busy for ts in prog.templates for t in ts)
-            if not skips and not SHARING & choose_effects(prog, exp.profile) and not _takes_turns(exp):
+            if (not skips and not SHARING & choose_effects(prog, exp.profile)
+                    and not host_approximations(exp.profile.host)):
                 cases.append((path, sets))
     return cases
-
-
-def _takes_turns(exp) -> bool:
-    """A real-GPU host whose woken threads take turns (`serial_dispatch`, the 4x H200 profile):
-    the analytic level takes them as waking together, an optimistic bound it says it is."""
-    host = exp.profile.host
-    return bool(host.serial_dispatch and host.dispatch_ns and not host.gpus_share_cpu)
 
 
 ANALYTIC = _analytic_cases()
@@ -206,8 +201,9 @@ def test_analytic_equals_full_model_where_nothing_is_shared(case):
 def test_analytic_equals_queues_level(path: Path):
     exp = load_experiment(path)
     queues, analytic = simulate(exp, fidelity="queues"), simulate(exp, fidelity="analytic")
-    if _takes_turns(exp):  # an optimistic bound, and it says so
-        assert any(note.startswith("serial_dispatch") for note in analytic.summary["effects"]["analytic_approximations"])
+    bounds = host_approximations(exp.profile.host)
+    if bounds:  # host rules the recurrence leaves out (the 4x H200 profile's turns): a bound
+        assert set(bounds) <= set(analytic.summary["effects"]["analytic_approximations"])
         assert analytic.summary["frame_time_ms"] <= queues.summary["frame_time_ms"]
         return
     pd.testing.assert_frame_equal(queues.frames, analytic.frames)

@@ -32,6 +32,7 @@ import numpy as np
 
 from mgpusim.model.costs import CostModel
 from mgpusim.model.errors import InputError, ScheduleError
+from mgpusim.model.profile import HostProfile
 from mgpusim.model.geometry import even_split
 from mgpusim.model.tasks import CpuTask, HostCopyTask, Task
 from mgpusim.schedules.base import FrameProgram, leads_chain, wakes_host
@@ -76,6 +77,23 @@ def _round_div(nbytes: int, rate: Fraction) -> int:
     """bytes / rate, rounded half up, as the link channel computes it."""
     num, den = rate.numerator, rate.denominator
     return (2 * nbytes * den + num) // (2 * num)
+
+
+def host_approximations(host: HostProfile) -> list[str]:
+    """The host rules of `host` that the recurrence leaves out, one note each. Both are
+    optimistic bounds: the recurrence wakes every thread at once and gives each its own
+    interpreter, so a frame can only come out as fast as the event model's or faster. Empty:
+    the host side adds nothing the recurrence cannot follow (on lavapipe the shared cores are
+    the `shared_executor` effect instead)."""
+    if host.gpus_share_cpu:
+        return []
+    out = []
+    if host.serial_dispatch and host.dispatch_ns:
+        out.append("serial_dispatch: host threads woken at once taken as waking together (an optimistic bound)")
+    if host.shared_interpreter and (host.dispatch_ns or host.submit_ns):
+        out.append("shared_interpreter: the runner's threads taken as each having an interpreter "
+                   "of its own (an optimistic bound)")
+    return out
 
 
 class Analytic:
@@ -171,13 +189,7 @@ class Analytic:
             out.append("shared_executor: the emulated GPUs taken as independent devices (not a bound)")
         if "busy_wake" in needed:
             out.append("busy_wake: no copy waits behind another GPU's young pass (an optimistic bound)")
-        host = self.costs.profile.host
-        if host.serial_dispatch and host.dispatch_ns and not host.gpus_share_cpu:
-            out.append("serial_dispatch: host threads woken at once taken as waking together (an optimistic bound)")
-        if host.shared_interpreter and (host.dispatch_ns or host.submit_ns) and not host.gpus_share_cpu:
-            out.append("shared_interpreter: the runner's threads taken as each having an interpreter "
-                       "of its own (an optimistic bound)")
-        return out
+        return out + host_approximations(self.costs.profile.host)
 
     # ----- one configuration ---------------------------------------------------------------
     def evaluate(self, record: bool = True, progress: Callable[[int, int], None] | None = None

@@ -84,8 +84,10 @@ class Submission:
         self._slot_lock = threading.Lock()
         #: True while one thread is inside vkWaitForFences on this fence for all the others
         self._watched = False
-        #: notified when the watcher leaves the fence wait (finished or timed out)
-        self._changed = threading.Condition(self._slot_lock)
+        #: notified when the watcher leaves the fence wait (finished or timed out); made only
+        #: when a second thread has to wait for the watcher (a Condition is Python to build,
+        #: and most submissions have one waiter)
+        self._changed: threading.Condition | None = None
 
     def finished(self, timeout_ns: int) -> bool:
         """True once the work has finished, waiting at most `timeout_ns`; any thread may ask,
@@ -109,7 +111,7 @@ class Submission:
                 left = deadline - time.monotonic_ns()
                 if left <= 0:
                     return False
-                self._changed.wait(left / 1e9)
+                self._condition().wait(left / 1e9)
             if self._finished or self._slot is None:
                 return True
             self._watched = True
@@ -122,8 +124,15 @@ class Submission:
             with self._slot_lock:
                 self._watched = False
                 self._finished = self._finished or signalled
-                self._changed.notify_all()
+                if self._changed is not None:
+                    self._changed.notify_all()
         return signalled
+
+    def _condition(self) -> threading.Condition:
+        """The watcher's Condition, made on first need; call with `_slot_lock` held."""
+        if self._changed is None:
+            self._changed = threading.Condition(self._slot_lock)
+        return self._changed
 
     def done(self) -> bool:
         """True once the GPU finished (a look at the fence, no wait)."""
@@ -147,8 +156,9 @@ class Submission:
         with self._read_lock:
             if self._ticks is None:  # another thread may have read them meanwhile
                 ticks = self._read_ticks()
-                with self._changed:  # the fence is signalled: a watcher returns at once
-                    self._changed.wait_for(lambda: not self._watched)
+                with self._slot_lock:  # the fence is signalled: a watcher returns at once
+                    if self._watched:
+                        self._condition().wait_for(lambda: not self._watched)
                     self._recycle()
                     self._ticks = ticks
         return self

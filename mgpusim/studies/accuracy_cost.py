@@ -10,9 +10,9 @@ alone (the event engine or the analytic recurrence).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
 import pandas as pd
@@ -20,12 +20,13 @@ import pandas as pd
 from mgpusim.io.shipped import examples, shipped_dir
 from mgpusim.model.errors import InputError
 from mgpusim.schedules.experiment import Experiment, load_experiment
-from mgpusim.sim.simulation import simulate
+from mgpusim.model.tasks import QueueRef
+from mgpusim.sim.simulation import build_program, simulate
 from mgpusim.studies.measuring import measured_folder
 from mgpusim.studies.spec import load_study
 from mgpusim.validation import run_archive
 from mgpusim.validation.compare import rel_error, steady_summary
-from mgpusim.validation.measured import read_measured
+from mgpusim.validation.measured import queues_as_run, read_measured
 
 EXPERIMENTS = shipped_dir("experiments")
 PROFILES = shipped_dir("hardware_profiles")
@@ -70,6 +71,9 @@ class Configuration:
     name: str
     experiment: Experiment
     measured: pd.DataFrame  # the measured trace
+    #: the queues the run replaced by another (the runner's one queue per family), as
+    #: `mgpusim validate` simulates them: every level is compared with the schedule as it ran
+    queues: Mapping[QueueRef, QueueRef] = field(default_factory=dict)
 
 
 def configurations(sources: tuple[Source, ...]) -> list[Configuration]:
@@ -83,7 +87,9 @@ def configurations(sources: tuple[Source, ...]) -> list[Configuration]:
             if folder is None:
                 continue
             exp = entry.load(src.profile or study.profile)
-            out.append(Configuration(src.name, entry.name, exp, read_measured(folder, exp)))
+            measured = read_measured(folder, exp)
+            out.append(Configuration(src.name, entry.name, exp, measured,
+                                     queues_as_run(measured, build_program(exp))))
     return out
 
 
@@ -113,7 +119,7 @@ def run_levels(configs: list[Configuration], variants: dict[str, dict[str, Any]]
             wall, model, result = float("inf"), float("inf"), None
             for _ in range(repeats):
                 t0 = time.perf_counter()
-                result = simulate(c.experiment, record_trace=False, **kwargs)
+                result = simulate(c.experiment, record_trace=False, queues=c.queues, **kwargs)
                 wall = min(wall, time.perf_counter() - t0)
                 model = min(model, result.model_wall_s)
             s = result.summary

@@ -41,13 +41,19 @@ def nvlink_profiles(profile: Path) -> dict[str, HardwareProfile]:
     return out
 
 
+#: The schedules the what-if is made for: the five-step's download and upload over each GPU's
+#: own link (the other schedules' copies run on paths of their own: what-ifs of their own)
+FIVE_STEP = ("sort_first", "sort_last")
+
+
 def nvlink_whatif(study: Study, extra: tuple[str, ...] = ()) -> pd.DataFrame:
-    """Simulated frame time and latency of every held-out multi-GPU configuration: as run (PCIe,
-    the configuration's own host_copy), and over NVLink-rate links."""
+    """Simulated frame time and latency of every held-out five-step configuration on several
+    GPUs: as run (PCIe, the configuration's own host_copy), and over NVLink-rate links."""
     profiles = nvlink_profiles(study.profile)
     rows = []
     for e in study.held_out:
-        if e.load(study.profile).schedule.gpus < 2:
+        schedule = e.load(study.profile).schedule
+        if schedule.gpus < 2 or schedule.name not in FIVE_STEP:
             continue  # one GPU: nothing crosses
         row: dict[str, Any] = {"config": e.name}
         for label, prof in profiles.items():

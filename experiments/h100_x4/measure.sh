@@ -11,8 +11,10 @@
 # and draw tables only. Then each GROUP (a regular expression searched in the configuration names,
 # as `--only` takes it: a substring, or ^sf_ for the names that start so) in its own process:
 # `mgpusim study measure` from a copy of study.toml without the committed tables and runs.
-# One process per group because after about 30 runs in one process the next Vulkan instance
-# fails (VkErrorIncompatibleDriver); a failed group is taken again once. A group already done
+# One process per group, so that each group's runs are packed into $OUT as soon as it is done
+# and a failed group is taken again once. (The groups began as a way round the NVIDIA driver's
+# refusing a new VkInstance after about 30 in one process; the runner now keeps one instance
+# for real GPUs, and one process takes a whole study.) A group already done
 # (WORK/logs/groups.txt) is skipped; no group starts after DEADLINE_S seconds. WORK is tarred
 # into $OUT after each step, so what was measured comes back even if the call is cut short.
 set -u

@@ -32,8 +32,8 @@ import numpy as np
 
 from mgpusim.model.costs import CostModel
 from mgpusim.model.errors import InputError, ScheduleError
-from mgpusim.model.profile import HostProfile
 from mgpusim.model.geometry import even_split
+from mgpusim.model.profile import HostProfile
 from mgpusim.model.tasks import CpuTask, HostCopyTask, Task
 from mgpusim.schedules.base import FrameProgram, leads_chain, wakes_host
 from mgpusim.sim.effects import choose_effects

@@ -19,8 +19,8 @@ import pandas as pd
 
 from mgpusim.io.shipped import examples, shipped_dir
 from mgpusim.model.errors import InputError
-from mgpusim.schedules.experiment import Experiment, load_experiment
 from mgpusim.model.tasks import QueueRef
+from mgpusim.schedules.experiment import Experiment, load_experiment
 from mgpusim.sim.simulation import build_program, simulate
 from mgpusim.studies.measuring import measured_folder
 from mgpusim.studies.spec import load_study

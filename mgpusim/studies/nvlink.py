@@ -54,7 +54,7 @@ def nvlink_whatif(study: Study, extra: tuple[str, ...] = ()) -> pd.DataFrame:
     for e in study.held_out:
         schedule = e.load(study.profile).schedule
         if schedule.gpus < 2 or schedule.name not in FIVE_STEP:
-            continue  # one GPU: nothing crosses
+            continue  # one GPU: nothing crosses; another schedule: not this what-if
         row: dict[str, Any] = {"config": e.name}
         for label, prof in profiles.items():
             sets = extra + (() if label == "measured_links" else ("schedule.host_copy=false",))

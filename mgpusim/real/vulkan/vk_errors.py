@@ -53,7 +53,7 @@ def vk() -> ModuleType:
     return _vk
 
 
-def result_name(code: int) -> str:
+def result_name(code: int | None) -> str:
     """A VkResult's name as `call` words it (the binding's exception class name)."""
     exc = vk().exception_codes.get(code)
     return exc.__name__ if exc is not None else _EXTRA_CODES.get(code, f"VkResult {code}")
@@ -65,8 +65,7 @@ def call(name: str, fn: Callable[..., Any], *args: Any) -> Any:
     try:
         return fn(*args)
     except KeyError as exc:  # an extension result code missing from the binding's table
-        code = exc.args[0] if exc.args else None
-        raise VulkanError(name, _EXTRA_CODES.get(code, f"VkResult {code}")) from None
+        raise VulkanError(name, result_name(exc.args[0] if exc.args else None)) from None
     except module.VkTimeout:
         raise
     except module.VkNotReady:

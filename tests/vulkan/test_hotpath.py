@@ -81,3 +81,17 @@ def test_the_benchmark_prints_both_ways(capsys):
     for name in ("through the binding", "straight (hotpath.py)"):
         line = next(line for line in printed.splitlines() if name in line)
         assert float(line.split()[-2]) > 0
+
+
+@pytest.mark.parametrize("code, words", [(-1000069000, "VK_ERROR_OUT_OF_POOL_MEMORY"),
+                                         (-1234567, "VkResult -1234567")])
+def test_a_result_the_binding_does_not_know_is_named_by_call_as_by_the_hot_path(code, words):
+    """The binding raises KeyError for a result missing from its table: `call` names it as
+    `result_name` (and so the hot path) does."""
+    from mgpusim.real.vulkan.vk_errors import call, result_name
+
+    def unknown() -> None:
+        raise KeyError(code)
+    with pytest.raises(VulkanError, match=words) as info:
+        call("vkSomething", unknown)
+    assert "vkSomething" in str(info.value) and result_name(code) == words

@@ -17,6 +17,8 @@
 # for real GPUs, and one process takes a whole study.) A group already done
 # (WORK/logs/groups.txt) is skipped; no group starts after DEADLINE_S seconds. WORK is tarred
 # into $OUT after each step, so what was measured comes back even if the call is cut short.
+# EXPECT_GPU=H100: stop at once (exit 3, the cards named) unless every card's name has it: a
+# request for one kind of machine may be answered by another, whose runs would not belong here.
 set -u
 work=${1:?work folder}; shift
 py=${PYTHON:-python3}
@@ -24,6 +26,13 @@ deadline=${DEADLINE_S:-480}
 devices=${DEVICES:-0,1,2,3}
 here=${STUDY_DIR:-$(dirname "$0")}
 card=$(basename "$here")
+if [ -n "${EXPECT_GPU:-}" ]; then
+  names=$(nvidia-smi --query-gpu=name --format=csv,noheader 2>&1)
+  if [ -z "$names" ] || echo "$names" | grep -v -q -- "$EXPECT_GPU"; then
+    echo "measure.sh: expected every card to be an $EXPECT_GPU, got: $(echo "$names" | tr '\n' ';')" >&2
+    exit 3
+  fi
+fi
 mkdir -p "$work/measurements/parts" "$work/logs"
 pack() { [ -n "${OUT:-}" ] && tar czf "$OUT/${card}_${TAG:-work}.tgz" -C "$work" . ; }
 m() { local out=$1; shift; timeout 150 $py -m mgpusim measure --quiet --reps 5 --warmup 2 "$@" \

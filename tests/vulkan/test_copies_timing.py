@@ -139,6 +139,26 @@ def test_finished_sees_the_end_of_a_task_with_more_work_queued_behind_it(gpu):
     b.destroy()
 
 
+def test_reading_a_tasks_timestamps_does_not_wait_for_the_work_behind_it(gpu):
+    """Lavapipe's vkGetQueryPoolResults waits for the device to go idle: a reap thread reading
+    task A's timestamps that way waited for B too, and a busy GPU's slots came back frames late.
+    The command buffer copies its stamps to mapped memory instead: reading them is immediate."""
+    a, b = FragmentLoop(gpu, 64, 64, 300), FragmentLoop(gpu, 64, 64, 30000)
+    try:
+        first = gpu.submit("graphics", a.record)
+        second = gpu.submit("graphics", b.record)
+        while not first.finished(1_000_000):
+            pass
+        a_start, a_end = first.wait().timestamps_ns()  # reads the stamps, recycles the slot
+        running = not second.poll()  # B still runs: the read did not wait for it
+        b_start, _ = second.wait().timestamps_ns()
+        assert running and a_start < a_end <= b_start
+    finally:  # destroyed even when an assertion fails, so the layer reports no leak
+        gpu.wait_idle()
+        a.destroy()
+        b.destroy()
+
+
 def test_simulated_gpus_are_separate_instances_with_thread_counts():
     gpus = make_gpus(2, lp_threads=[1, 2])
     try:

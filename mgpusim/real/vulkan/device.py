@@ -24,6 +24,9 @@ from mgpusim.real.vulkan.vk_errors import call, vk
 
 Recorder = Callable[[Any], None]
 QUEUE_KINDS = ("graphics", "compute", "transfer")
+#: a slot's two 64-bit timestamps, copied by its command buffer where the driver's query read
+#: would wait for the device to idle (lavapipe; see hotpath)
+STAMP_BYTES = 16
 
 
 @dataclass(eq=False)
@@ -235,6 +238,8 @@ class Gpu:
                                     ppEnabledExtensionNames=exts or None)
         self.queues: dict[str, Queue] = {}
         self._semaphores: list[Semaphore] = []
+        #: the slots' timestamp targets (lavapipe), destroyed with the device
+        self._stamp_buffers: list[Buffer] = []
         threads_before = host_priority.snapshot() if self.info.is_lavapipe else None
         self.device = call("vkCreateDevice", v.vkCreateDevice, self.physical, info, None)
         host_priority.promote_new(threads_before)  # its queue thread, rasterizers, compute pool
@@ -312,7 +317,13 @@ class Gpu:
         fence = call("vkCreateFence", v.vkCreateFence, self.device, v.VkFenceCreateInfo(), None)
         qp_info = v.VkQueryPoolCreateInfo(queryType=v.VK_QUERY_TYPE_TIMESTAMP, queryCount=2)
         pool = call("vkCreateQueryPool", v.vkCreateQueryPool, self.device, qp_info, None)
-        return Slot(cmd, fence, pool)
+        slot = Slot(cmd, fence, pool)
+        if self.info.is_lavapipe:  # its query read waits for the device to idle (hotpath)
+            buffer = Buffer(self, STAMP_BYTES, host_visible=True, usage=v.VK_BUFFER_USAGE_TRANSFER_DST_BIT)
+            self._stamp_buffers.append(buffer)
+            slot.stamps = buffer.view("<u8")
+            slot.stamp_buffer = buffer.handle
+        return slot
 
     def submit(self, queue: str | Queue, record: Recorder, *, wait: Sequence[Semaphore] = (),
                signal: Sequence[Semaphore] = (), label: str = "", key: Any = None) -> Submission:
@@ -351,6 +362,13 @@ class Gpu:
         record(cmd)
         v.vkCmdPipelineBarrier(cmd, all_cmds, all_cmds, 0, 1, barriers, 0, None, 0, None)
         v.vkCmdWriteTimestamp(cmd, v.VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, pool, 1)
+        if slot.stamps is not None:  # the stamps into mapped memory, for the host to read
+            v.vkCmdCopyQueryPoolResults(cmd, pool, 0, 2, slot.stamp_buffer, 0, 8,
+                                        v.VK_QUERY_RESULT_64_BIT | v.VK_QUERY_RESULT_WAIT_BIT)
+            to_host = [v.VkMemoryBarrier(srcAccessMask=v.VK_ACCESS_TRANSFER_WRITE_BIT,
+                                         dstAccessMask=v.VK_ACCESS_HOST_READ_BIT)]
+            v.vkCmdPipelineBarrier(cmd, v.VK_PIPELINE_STAGE_TRANSFER_BIT, v.VK_PIPELINE_STAGE_HOST_BIT,
+                                   0, 1, to_host, 0, None, 0, None)
         call("vkEndCommandBuffer", v.vkEndCommandBuffer, cmd)
 
     def forget(self, key: Any) -> None:
@@ -382,6 +400,9 @@ class Gpu:
             q.free.clear()
             q.recorded.clear()
             v.vkDestroyCommandPool(self.device, q.pool, None)
+        for buffer in self._stamp_buffers:
+            buffer.destroy()
+        self._stamp_buffers.clear()
         v.vkDestroyDevice(self.device, None)
         self.device = None
         if self.owns_instance:

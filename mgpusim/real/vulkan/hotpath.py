@@ -13,6 +13,14 @@ runner spends in Python delays the very hand-offs it measures.
 A :class:`Slot` keeps the C arrays its calls pass, made once when the slot is made. Every
 function here returns or raises as the binding would: a failing call is a VulkanError naming it.
 cffi releases the interpreter lock during each call, as the binding's calls do.
+
+Where a slot has `stamps` (on lavapipe), its command buffer copies the two timestamps into that
+mapped memory itself, and :func:`read_ticks` reads them from there with no Vulkan call. Why:
+lavapipe's vkGetQueryPoolResults waits for the whole device to go idle before it reads (Mesa
+22.3's `lvp_GetQueryPoolResults` calls DeviceWaitIdle first, whatever the flags), so a GPU kept
+busy frame after frame left its reap thread blocked for many frames. Its slots did not come
+back, and the submit thread recorded a new command buffer for 15-35 % of the tasks of a light
+4-GPU sort-first run: Python work on the critical path of the hand-offs being measured.
 """
 from __future__ import annotations
 
@@ -34,6 +42,11 @@ class Slot:
     cmd: Any
     fence: Any
     pool: Any
+    #: where the command buffer copies its two timestamps (a mapped uint64[2]), or None: they
+    #: are read from the query pool
+    stamps: Any = None
+    #: the VkBuffer behind `stamps`, which the command buffer copies the timestamps into
+    stamp_buffer: Any = None
     cmds: Any = field(init=False, repr=False)
     fences: Any = field(init=False, repr=False)
     ticks: Any = field(init=False, repr=False)
@@ -88,7 +101,11 @@ def reset_fence(device: Any, slot: Slot) -> None:
 
 
 def read_ticks(device: Any, slot: Slot) -> tuple[int, int]:
-    """The finished work's two timestamps in device ticks (waits for them to be available)."""
+    """The finished work's two timestamps in device ticks (waits for them to be available):
+    from the slot's `stamps` where it has them (its fence must have signalled), else from its
+    query pool."""
+    if slot.stamps is not None:
+        return int(slot.stamps[0]), int(slot.stamps[1])
     v = vk()
     flags = v.VK_QUERY_RESULT_64_BIT | v.VK_QUERY_RESULT_WAIT_BIT
     _check("vkGetQueryPoolResults",

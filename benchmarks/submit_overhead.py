@@ -10,7 +10,9 @@ empty between its timestamps, so what is left is the host's cost, Python and dri
 run on the same pre-recorded slot; the first lavapipe device unless --device says otherwise.
 Measured on the 2-core development VM (lavapipe, 2026-11-27, three runs as its speed moved):
 75 / 112 / 136 us through the binding, 22 / 54 / 57 us straight: the wrappers were half or more
-of a task's host cost.
+of a task's host cost. On lavapipe the straight way now reads the stamps the command buffer
+copied to memory instead of calling vkGetQueryPoolResults (docs/runner.md): two runs later that
+day, 68 / 95 us through the binding, 18 / 27 us straight.
 """
 from __future__ import annotations
 

@@ -33,6 +33,17 @@ def test_a_submission_waits_for_the_semaphore_another_signalled(gpu):
     assert gpu.queue("graphics").recorded["a"], "the slot went back to its key"
 
 
+def test_stamps_in_memory_are_the_query_pools(gpu):
+    """On lavapipe a slot's command buffer copies its stamps to mapped memory; read from there
+    they equal the query pool's own results (the read a real GPU's slot makes)."""
+    from dataclasses import replace
+    sub = gpu.submit("graphics", _empty, label="stamped", key="stamped")
+    from_memory = sub.wait().raw_ticks()
+    slot = gpu.queue("graphics").recorded["stamped"][0]
+    assert slot.stamps is not None and from_memory[0] <= from_memory[1]
+    assert hotpath.read_ticks(gpu.device, replace(slot, stamps=None)) == from_memory
+
+
 def _fake(result: int) -> SimpleNamespace:
     real = vk()
     lib = SimpleNamespace(vkWaitForFences=lambda *a: result, vkGetFenceStatus=lambda *a: result,

@@ -34,7 +34,7 @@ if [ -n "${EXPECT_GPU:-}" ]; then
   fi
 fi
 mkdir -p "$work/measurements/parts" "$work/logs"
-pack() { [ -n "${OUT:-}" ] && tar czf "$OUT/${card}_${TAG:-work}.tgz" -C "$work" . ; }
+pack() { if [ -n "${OUT:-}" ]; then tar czf "$OUT/${card}_${TAG:-work}.tgz" -C "$work" . ; fi; }
 m() { local out=$1; shift; timeout 150 $py -m mgpusim measure --quiet --reps 5 --warmup 2 "$@" \
         --out "$work/measurements/$out" >> "$work/logs/sweeps.log" 2>&1 || echo "FAILED: $out $*" >> "$work/logs/sweeps.log"; }
 

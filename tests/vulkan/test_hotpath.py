@@ -8,6 +8,7 @@ read as the binding's calls do, a VulkanError naming the call.
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from types import SimpleNamespace
 
 import pytest
@@ -36,7 +37,6 @@ def test_a_submission_waits_for_the_semaphore_another_signalled(gpu):
 def test_stamps_in_memory_are_the_query_pools(gpu):
     """On lavapipe a slot's command buffer copies its stamps to mapped memory; read from there
     they equal the query pool's own results (the read a real GPU's slot makes)."""
-    from dataclasses import replace
     sub = gpu.submit("graphics", _empty, label="stamped", key="stamped")
     from_memory = sub.wait().raw_ticks()
     slot = gpu.queue("graphics").recorded["stamped"][0]

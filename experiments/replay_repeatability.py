@@ -103,12 +103,15 @@ def main(argv: list[str] | None = None) -> int:
     if len(args.runs) < 2:
         p.error("give two or more runs folders")
     study = load_study(args.study)
+    names = [label(runs) for runs in args.runs]
+    if len(set(names)) < len(names):  # two sets of one name: their paths tell them apart
+        names = [str(runs) for runs in args.runs]
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for i, runs in enumerate(args.runs):
+        for i, (runs, name) in enumerate(zip(args.runs, names)):
             print(f"replaying {runs} ...", file=sys.stderr)
             errors = set_errors(study, runs, set_profile(runs, args.profile), args.only, Path(tmp) / str(i))
-            rows.append(errors.assign(set=label(runs)))
+            rows.append(errors.assign(set=name))
     errors = pd.concat(rows, ignore_index=True)
     if args.out:
         args.out.mkdir(parents=True, exist_ok=True)

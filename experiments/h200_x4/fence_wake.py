@@ -143,7 +143,8 @@ def split(trace: pd.DataFrame, waits: pd.DataFrame, woken: pd.DataFrame,
     """Per (thread kind, task kind), in us: for the thread inside the driver's fence wait, the
     median and 90th percentile of `driver` (task end -> the driver returned) and `interpreter`
     (-> the thread ran Python again); for every thread that waited, `ran_on` (task end -> it ran
-    on). Frames before `warmup` and waits that began after the task had ended are left out."""
+    on). Frames before `warmup` are left out, and from `ran_on` the threads that began waiting
+    only after the task had ended (they did not wait for it)."""
     end = trace[trace["frame"] >= warmup].groupby(["frame", "task"])["end_ns"].max().rename("end")
     w = waits.join(end, on=["frame", "task"], how="inner")
     w = _kinds(w.assign(driver=(w["c_return"] - w["end"]) / 1e3,

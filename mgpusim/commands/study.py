@@ -3,7 +3,9 @@
 - measure: the microbenchmark sweeps and every configuration's runs, on Vulkan, into OUT;
 - calibrate: fit a profile from the tables and the calibration runs (no device needed);
 - validate: compare each configuration's measured run with the model (no device needed);
-- run: all of it, and report.md (`mgpusim main` runs the lavapipe study this way).
+- run: all of it, and report.md (`mgpusim main` runs the lavapipe study this way);
+- floor: replay several sets of the study's runs and say how far each configuration's replay
+  error moves between them (no device needed).
 """
 from __future__ import annotations
 
@@ -51,6 +53,17 @@ def register(sub: argparse._SubParsersAction) -> None:
             s.add_argument("--set", dest="extra", action="append", default=[], metavar="KEY=VALUE",
                            help="an override added to every configuration (repeatable)")
         s.set_defaults(func=_STEPS[name])
+    doc = ("replay several sets of the study's runs: how far each configuration's replay error "
+           "moves between them, the floor under any model's (no device needed)")
+    f = steps.add_parser("floor", help=doc, description=doc)
+    f.add_argument("study", type=Path, help="study TOML file (a shipped one by its checkout path too)")
+    f.add_argument("--runs", type=Path, action="append", required=True, metavar="FOLDER",
+                   help="a measured runs folder of the study (give two or more)")
+    f.add_argument("--profile", type=Path, help="one profile for every set (default: the "
+                   "profile.toml beside each runs folder, as a main job writes it)")
+    f.add_argument("--only", help="only the configurations whose name this regular expression matches")
+    f.add_argument("--out", type=Path, default=None, help="output folder (default out/<study name>-floor)")
+    f.set_defaults(func=floor)
 
 
 def add_steady_check(p: argparse.ArgumentParser) -> None:
@@ -178,6 +191,40 @@ def run(args: argparse.Namespace) -> int:
     steady_check(args, study, out, progress)
     path = pipeline.run(study, out, progress, args.held_out, int_list(args.devices, "--devices"))
     print(path.read_text())
+    return 0
+
+
+def floor(args: argparse.Namespace) -> int:
+    import pandas as pd  # noqa: PLC0415
+
+    from mgpusim.studies import replay_floor  # noqa: PLC0415
+    from mgpusim.studies.spec import load_study  # noqa: PLC0415
+    if len(args.runs) < 2:
+        raise InputError("give two or more --runs folders", field="--runs")
+    study = _filtered(load_study(resolve_experiment(args.study)), args)
+    out = args.out or Path("out") / f"{study.name}-floor"
+    check_out_dir(out)
+    profiles = [replay_floor.set_profile(runs, args.profile) for runs in args.runs]  # all checked first
+    rows = []
+    for runs, name, profile in zip(args.runs, replay_floor.set_names(args.runs), profiles):
+        print(f"replaying {runs} with {profile} ...", file=sys.stderr)
+        rows.append(replay_floor.set_errors(study, runs, profile).assign(set=name))
+    errors = pd.concat(rows, ignore_index=True)[replay_floor.ERROR_COLUMNS]
+    table = replay_floor.spread(errors)
+    if table.empty:
+        raise InputError("no configuration has a run in every set", field="--runs")
+    per_set = replay_floor.floor(errors)
+    out.mkdir(parents=True, exist_ok=True)
+    errors.to_csv(out / "replay_errors.csv", index=False)
+    table.to_csv(out / "replay_floor.csv")
+    per_set.to_csv(out / "replay_floor_per_set.csv")
+    with pd.option_context("display.width", 200, "display.max_columns", 20, "display.max_rows", 1000):
+        print((table * 100).round(1).to_string())
+        print(f"\n{len(table)} configurations; half-range of the replay error over the sets: "
+              f"median {table.half_range.median():.1%}, worst {table.half_range.max():.1%}")
+        print("\nper set, |replay error| against the floor of one timeline per configuration (%):")
+        print((per_set * 100).round(1).to_string())
+    print(f"wrote {out}")
     return 0
 
 

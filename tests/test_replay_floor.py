@@ -73,3 +73,10 @@ def test_one_set_is_refused_before_any_work(tmp_path, capsys):
                  "--runs", str(H200_X4 / "runs"), "--out", str(tmp_path / "f")]) != 0
     assert "two or more --runs" in capsys.readouterr().err
     assert not (tmp_path / "f").exists()
+
+
+def test_a_missing_runs_folder_is_named(tmp_path, capsys):
+    assert main(["study", "floor", str(ROOT / "experiments" / "h200_x4" / "study.toml"),
+                 "--runs", str(H200_X4 / "runs"), "--runs", str(tmp_path / "nowhere"),
+                 "--profile", str(ROOT / "hardware_profiles" / "h200_x4.toml"), "--out", str(tmp_path / "f")]) != 0
+    assert "nowhere" in capsys.readouterr().err

@@ -23,6 +23,8 @@ from mgpusim.model.config import int_list
 from mgpusim.model.errors import InputError
 
 if TYPE_CHECKING:  # annotations only: loaded when the command runs
+    import pandas as pd
+
     from mgpusim.studies.spec import Study
 
 
@@ -201,6 +203,9 @@ def floor(args: argparse.Namespace) -> int:
     from mgpusim.studies.spec import load_study  # noqa: PLC0415
     if len(args.runs) < 2:
         raise InputError("give two or more --runs folders", field="--runs")
+    missing = [str(runs) for runs in args.runs if not runs.is_dir()]
+    if missing:
+        raise InputError(f"no such runs folder: {', '.join(missing)}", field="--runs")
     study = _filtered(load_study(resolve_experiment(args.study)), args)
     out = args.out or Path("out") / f"{study.name}-floor"
     check_out_dir(out)
@@ -218,14 +223,20 @@ def floor(args: argparse.Namespace) -> int:
     errors.to_csv(out / "replay_errors.csv", index=False)
     table.to_csv(out / "replay_floor.csv")
     per_set.to_csv(out / "replay_floor_per_set.csv")
+    _print_floor(table, per_set)
+    print(f"wrote {out}")
+    return 0
+
+
+def _print_floor(table: pd.DataFrame, per_set: pd.DataFrame) -> None:
+    """The floor's two tables, in percent."""
+    import pandas as pd  # noqa: PLC0415
     with pd.option_context("display.width", 200, "display.max_columns", 20, "display.max_rows", 1000):
         print((table * 100).round(1).to_string())
         print(f"\n{len(table)} configurations; half-range of the replay error over the sets: "
               f"median {table.half_range.median():.1%}, worst {table.half_range.max():.1%}")
         print("\nper set, |replay error| against the floor of one timeline per configuration (%):")
         print((per_set * 100).round(1).to_string())
-    print(f"wrote {out}")
-    return 0
 
 
 _STEPS = {"measure": measure, "calibrate": calibrate, "validate": validate, "run": run}

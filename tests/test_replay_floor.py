@@ -31,7 +31,7 @@ def test_spread_is_half_the_range_over_the_sets_seen_in_all():
 
 
 def test_floor_measures_each_set_from_the_configurations_mid_range():
-    out = rf.floor(_errors())
+    out = rf.floor(rf.spread(_errors()))
     # noisy's mid-range is 0: sets a and b sit 0.10 from it, c 0.04; steady's is 0.02
     assert out.loc["a", "floor_worst"] == pytest.approx(0.10)
     assert out.loc["c", "floor_worst"] == pytest.approx(0.04)

@@ -218,7 +218,7 @@ def floor(args: argparse.Namespace) -> int:
     table = replay_floor.spread(errors)
     if table.empty:
         raise InputError("no configuration has a run in every set", field="--runs")
-    per_set = replay_floor.floor(errors)
+    per_set = replay_floor.floor(table)
     out.mkdir(parents=True, exist_ok=True)
     errors.to_csv(out / "replay_errors.csv", index=False)
     table.to_csv(out / "replay_floor.csv")

@@ -50,13 +50,14 @@ def set_errors(study: Study, runs: Path, profile: Path) -> pd.DataFrame:
     prediction frame-time errors, with `profile` (columns `half`, `config`, `replay`,
     `prediction`)."""
     frames = []
+    speeds: pipeline.SpeedTables = {}  # the set's speed record, read once for both halves
     with tempfile.TemporaryDirectory() as work:
         for title, held in HALVES:
             entries = study.held_out if held else study.calibration
             if not entries:
                 continue
             table = pipeline.validate(study, entries, runs, profile, Path(work) / title,
-                                      lambda _message: None, figures=False)
+                                      lambda _message: None, figures=False, speed_tables=speeds)
             if len(table):
                 frames.append(pd.DataFrame({
                     "half": "held out" if held else "calibration", "config": table["config"],
@@ -74,11 +75,11 @@ def spread(errors: pd.DataFrame) -> pd.DataFrame:
     return table.sort_values("half_range")
 
 
-def floor(errors: pd.DataFrame) -> pd.DataFrame:
-    """Per set: the replay's median and worst |error|, and those of its errors' distance from
-    each configuration's mid-range over the sets (the best one timeline per configuration could
-    do), over the configurations seen in every set."""
-    table = spread(errors).drop(columns="half_range")
+def floor(spread_table: pd.DataFrame) -> pd.DataFrame:
+    """Per set, from :func:`spread`'s table: the replay's median and worst |error|, and those of
+    its errors' distance from each configuration's mid-range over the sets (the best one
+    timeline per configuration could do), over the configurations seen in every set."""
+    table = spread_table.drop(columns="half_range")
     centre = (table.max(axis=1) + table.min(axis=1)) / 2
     best = table.sub(centre, axis=0).abs()
     return pd.DataFrame({"replay_median": table.abs().median(), "replay_worst": table.abs().max(),

@@ -18,7 +18,9 @@ import pandas as pd
 
 from mgpusim.model.errors import InputError, MgpusimError, ScheduleError
 from mgpusim.model.profile import HardwareProfile
+from mgpusim.real.runner import native
 from mgpusim.real.runner.executor import Executor
+from mgpusim.real.runner.native import NativeExecutor
 from mgpusim.real.runner.plan import build_nodes
 from mgpusim.real.runner.resources import Resources
 from mgpusim.real.runner.work import GpuWork, Work, build_work
@@ -75,11 +77,12 @@ def run_program(program: FrameProgram, gpus: Sequence[Gpu], *, host_threads: int
         period = len(program.templates)
         warm = prewarm_frames if prewarm_frames is not None else -(-max(
             2, program.buffers, period) // period) * period
+        core = _core(program, works)
         if warm:
-            Executor(build_nodes(program, works, warm), host_threads, stall_timeout_s,
-                     program).execute()
-        timed = Executor(build_nodes(program, works, program.frames), host_threads,
-                         stall_timeout_s, program)
+            core(build_nodes(program, works, warm), host_threads, stall_timeout_s,
+                 program).execute()
+        timed = core(build_nodes(program, works, program.frames), host_threads,
+                     stall_timeout_s, program)
         rows = timed.execute()
         for g in gpus:
             g.wait_idle()
@@ -110,12 +113,22 @@ def run_program(program: FrameProgram, gpus: Sequence[Gpu], *, host_threads: int
                         if isinstance(w, GpuWork) and w.fallback})
     if fallbacks:
         summary["queue_fallbacks"] = fallbacks
+    summary["runner"] = "native" if isinstance(timed, NativeExecutor) else "python"
     _skips(program, timed, summary)
     return RunResult(summary, trace, frames, image, depth, readback=readback,
                      submissions=make_submissions(submitted))
 
 
-def _skips(program: FrameProgram, timed: Executor, summary: dict[str, Any]) -> None:
+def _core(program: FrameProgram, works: list[dict[str, Work]]) -> type[Executor] | type[NativeExecutor]:
+    """The executor MGPUSIM_RUNNER asks for: the native core where it can run the program (one
+    frame's nodes tell), else the Python executor."""
+    if native.wanted() != "native" or native.unsupported(
+            program, build_nodes(program, works, len(program.templates))):
+        return Executor
+    return NativeExecutor
+
+
+def _skips(program: FrameProgram, timed: Executor | NativeExecutor, summary: dict[str, Any]) -> None:
     """Skipped instances as the simulator reports them (`skipped_tasks`, `task_rates_hz`),
     plus what the run chose at submit time (`skipped_frames`, `read_frames`)."""
     skipped = timed.skipped_frames

@@ -371,6 +371,27 @@ class Gpu:
                                    0, 1, to_host, 0, None, 0, None)
         call("vkEndCommandBuffer", v.vkEndCommandBuffer, cmd)
 
+    def take_recorded(self, queue: str | Queue, key: Any, record: Recorder, count: int) -> list[Slot]:
+        """`count` idle slots holding `record`'s commands for `key` (recorded now where fewer
+        are idle), for a caller that submits, waits and resets them itself: the native runner
+        core. They come back with `give_back`."""
+        q = self.queue(queue)
+        with q.lock:
+            slots = q.recorded.pop(key, [])
+            while len(slots) < count:
+                slot = self._slot(q)
+                self._record(slot, record, once=False)
+                slots.append(slot)
+            if len(slots) > count:
+                q.recorded[key] = slots[count:]
+        return slots[:count]
+
+    def give_back(self, queue: str | Queue, key: Any, slots: Sequence[Slot]) -> None:
+        """Slots of `take_recorded`, their fences reset, idle again."""
+        q = self.queue(queue)
+        with q.lock:
+            q.recorded.setdefault(key, []).extend(slots)
+
     def forget(self, key: Any) -> None:
         """Drop the command buffers recorded for `key` (before the work they draw is destroyed):
         their slots go back to the free list, to be recorded afresh."""

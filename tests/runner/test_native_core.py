@@ -1,0 +1,93 @@
+"""The native runner core (MGPUSIM_RUNNER=native) runs the same program as the Python executor:
+the simulator's rows, every dependency honoured, the same picture; what it cannot run goes to
+the Python executor, and the summary says which ran."""
+from __future__ import annotations
+
+import shutil
+from typing import Any
+
+import numpy as np
+import pytest
+
+from mgpusim.real.runner import native, run_experiment
+from mgpusim.schedules.program import build_program
+
+from . import test_schedule_pictures as pictures
+from .conftest import experiment
+from .trace_checks import assert_runs_the_simulators_tasks
+
+pytestmark = [pytest.mark.vulkan,
+              pytest.mark.skipif(shutil.which("cc") is None, reason="no C compiler to build the core")]
+
+
+def _run(monkeypatch: pytest.MonkeyPatch, runner: str, exp: Any, **kw: Any):
+    monkeypatch.setenv(native.RUNNER_ENV, runner)
+    return run_experiment(exp, **kw)
+
+
+@pytest.fixture(scope="module")
+def sort_first_pair():
+    """Sort-first on 3 GPUs, 12 frames (each recorded slot is used three times), both cores."""
+    with pytest.MonkeyPatch.context() as mp:
+        exp = experiment("sort_first", 3, width=64, height=256, work=200, frames=12)
+        return exp, _run(mp, "python", exp), _run(mp, "native", exp)
+
+
+def test_native_core_runs_the_simulators_program(sort_first_pair):
+    exp, python, measured = sort_first_pair
+    assert python.summary["runner"] == "python" and measured.summary["runner"] == "native"
+    assert_runs_the_simulators_tasks(exp, measured.trace)
+    tr = measured.trace
+    for (_dev, _eng), rows in tr[tr["device"] != "host"].groupby(["device", "engine"]):
+        rows = rows.sort_values("start_ns")
+        assert (rows["start_ns"].to_numpy()[1:] >= rows["end_ns"].to_numpy()[:-1]).all()
+    assert len(tr) == len(python.trace)
+    assert np.array_equal(measured.image, python.image)
+
+
+def test_native_core_records_the_host_side(sort_first_pair):
+    """Submission rows as the Python executor writes them: one per GPU task and per host copy,
+    inputs seen before the call, a copy's parts queued before the first begins, every part's
+    bytes adding up to its copy."""
+    exp, python, measured = sort_first_pair
+    sub, tr = measured.submissions, measured.trace
+    assert list(sub.columns) == list(python.submissions.columns) and len(sub) == len(python.submissions)
+    assert (sub["inputs_seen_ns"] <= sub["submit_ns"]).all()
+    copies = sub[sub["device"] == "host"]
+    parts = tr[tr["device"] == "host"]
+    first = parts.groupby(["frame", "task"])["start_ns"].min()
+    assert all(row.submit_ns <= first[(row.frame, row.task)] for row in copies.itertuples())
+    want = {t.name: t.bytes for t in build_program(exp).tasks(0) if t.step == "host_copy"}
+    got = parts.groupby(["frame", "task"])["bytes"].sum()
+    assert all(got[(f, name)] == b for f in range(12) for name, b in want.items())
+    assert set(parts["engine"]) <= {"thread0", "thread1"}
+
+
+@pytest.mark.parametrize("schedule, gpus, options", [
+    ("afr", 3, {"temporal_pass": "taa", "host_copy": True}),
+    ("xr", 4, {"scaling": "strong", "buffers": 3, "frames_in_flight": 2}),
+    ("pipelining", 2, {"split_at": 2}),
+    ("particles", 2, {"policy": "wait", "particles": pictures.P, "prof": pictures.profile(compute=0)}),
+])
+def test_native_core_runs_each_schedule(monkeypatch, schedule, gpus, options):
+    """AFR (a template per GPU), XR strong scaling, pipelining and particles offloaded with
+    waits draw what the Python executor draws, in the simulator's order."""
+    passes = {"afr": pictures.afr_passes("taa"), "xr": pictures.XR_PASSES["mesh"],
+              "pipelining": pictures.pipeline_passes(), "particles": pictures.ENGINE}[schedule]
+    exp = pictures.experiment(schedule, gpus, passes, frames=8, **options)
+    python = _run(monkeypatch, "python", exp, prewarm_frames=0)
+    measured = _run(monkeypatch, "native", exp, prewarm_frames=0)
+    assert measured.summary["runner"] == "native"
+    assert_runs_the_simulators_tasks(exp, measured.trace)
+    assert np.array_equal(measured.image, python.image)
+
+
+def test_what_the_core_cannot_run_goes_to_python(monkeypatch):
+    """The particle demo's 'new_wait' decides at submit time whether to skip an update: the
+    Python executor runs it, and the summary says so."""
+    exp = pictures.experiment("particles", 2, pictures.ENGINE, frames=4, particles=pictures.P,
+                              policy="new_wait")
+    program = build_program(exp)
+    assert "skippable" in (native.unsupported(program, []) or "")
+    result = _run(monkeypatch, "native", exp, prewarm_frames=0)
+    assert result.summary["runner"] == "python" and "task_rates_hz" in result.summary

@@ -70,7 +70,7 @@ typedef struct { /* VkSubmitInfo */
 } submit_info;
 
 typedef struct {
-    atomic_int submitted, done, reaped, watchers, parts_left;
+    atomic_int submitted, done, reaped, watching, parts_left;
 } node_state;
 
 typedef struct {
@@ -153,32 +153,48 @@ static int wait_flag(run_t *r, atomic_int *word, int64_t who, int64_t other) {
     return 0;
 }
 
-/* Wait in the driver for GPU node `p`'s fence. `watchers` keeps the reap thread from resetting
- * the fence while a thread may still be inside (or about to enter) the wait: a waiter counts
- * itself in before it looks at `done`, the reaper sets `done` before it looks at the count. */
+/* Wait for GPU node `p`'s fence. One thread at a time waits in the driver (`watching`); the
+ * others sleep on `done`, which it sets. Why: with several threads inside vkWaitForFences on one
+ * fence, the NVIDIA driver (580, four H200s) woke one of them at the signal and the others about
+ * 9 ms later (a light sort-first frame went from 2.1 to 11 ms every few frames). The Python
+ * executor's Submission.finished keeps one watcher for the same reason. The reap thread resets
+ * the fence only once no thread watches it: a thread takes the watch, then looks at `done`; the
+ * reaper sets `done`, then looks at the watch. */
 static int wait_fence(run_t *r, int64_t p, int64_t who) {
     node_state *s = &r->state[p];
-    int rc = 0;
-    atomic_fetch_add(&s->watchers, 1);
     int64_t deadline = now_ns() + r->stall_ns;
     void *device = (void *)col(r, p, C_DEVICE);
     const int64_t *fence = &r->nodes[p * N_COLS + C_FENCE];
     while (!atomic_load(&s->done)) {
-        if (atomic_load(&r->abort)) { rc = -1; break; }
-        int32_t res = r->wait(device, 1, fence, 1, SLICE_NS);
-        if (res == VK_SUCCESS) {
-            set_flag(&s->done);
-        } else if (res != VK_TIMEOUT) {
-            fail(r, ERR_VULKAN, who, p, res, CALL_WAIT);
-            rc = -1;
-        } else if (now_ns() > deadline) {
+        if (atomic_load(&r->abort)) return -1;
+        if (now_ns() > deadline) {
             fail(r, ERR_DEVICE, who, p, 0, CALL_WAIT);
-            rc = -1;
+            return -1;
         }
-        if (rc) break;
+        int idle = 0;
+        if (!atomic_compare_exchange_strong(&s->watching, &idle, 1)) {
+            futex_wait(&s->done, 0, SLICE_NS); /* the watcher wakes us */
+            continue;
+        }
+        int rc = 0;
+        while (!rc && !atomic_load(&s->done)) {
+            int32_t res = r->wait(device, 1, fence, 1, SLICE_NS);
+            if (res == VK_SUCCESS) {
+                set_flag(&s->done);
+            } else if (res != VK_TIMEOUT) {
+                fail(r, ERR_VULKAN, who, p, res, CALL_WAIT);
+                rc = -1;
+            } else if (atomic_load(&r->abort)) {
+                rc = -1;
+            } else if (now_ns() > deadline) {
+                fail(r, ERR_DEVICE, who, p, 0, CALL_WAIT);
+                rc = -1;
+            }
+        }
+        atomic_store(&s->watching, 0);
+        return rc;
     }
-    atomic_fetch_sub(&s->watchers, 1);
-    return rc;
+    return 0;
 }
 
 /* Block until node `p` finished: a GPU node's fence (once submitted), a host copy's last part. */
@@ -259,7 +275,7 @@ static void *reap_stream(void *arg) {
             o[O_TICK0] = (int64_t)ticks[0];
             o[O_TICK1] = (int64_t)ticks[1];
         }
-        while (atomic_load(&s->watchers) > 0) sched_yield(); /* they return at once: signalled */
+        while (atomic_load(&s->watching)) sched_yield(); /* it returns at once: signalled */
         int32_t res = r->reset(device, 1, &r->nodes[n * N_COLS + C_FENCE]);
         if (res != VK_SUCCESS) {
             fail(r, ERR_VULKAN, n, -1, res, CALL_RESET);

@@ -54,44 +54,56 @@ def test_no_figures_changes_no_number(tmp_path: Path) -> None:
     assert a == b
 
 
-def _shared_interpreter_study(tmp_path: Path) -> Path:
-    """The 4x H200 study as a what-if: its profile with `host.shared_interpreter` instead of
-    `serial_dispatch`, and the grid searching each task's submit work on the interpreter beside
-    the wake-up's dispatch work."""
+def _python_runs_study(tmp_path: Path, shared: bool) -> Path:
+    """The 4x H200 study on the Python executor's runs (`data/nvidia/h200_x4/runs`, the
+    study's before the native runner core), its profile's host threads taking turns on one
+    interpreter lock as that executor's did (`serial_dispatch`) or, as a what-if, sharing it
+    (`host.shared_interpreter`), the grid then searching each task's submit work on the
+    interpreter beside the wake-up's dispatch work."""
     here = ROOT / "experiments" / "h200_x4"
+    folder = tmp_path / ("shared" if shared else "serial")
+    folder.mkdir()
     profile = (ROOT / "hardware_profiles" / "h200_x4.toml").read_text()
-    # the interpreter shared instead of taken in turns (the profile's serial_dispatch)
-    profile = profile.replace("\nserial_dispatch = true\n", "\n", 1)
-    profile = profile.replace("\n[host]\n", "\n[host]\nshared_interpreter = true\n", 1)
-    (tmp_path / "h200_x4_shared_interpreter.toml").write_text(profile)
-    root = os.path.relpath(ROOT, tmp_path)  # the study's paths must be relative to it
+    assert "\nserial_dispatch = false\n" in profile  # the native core's threads wake together
+    turns = "shared_interpreter = true" if shared else "serial_dispatch = true"
+    profile = profile.replace("\nserial_dispatch = false\n", f"\n{turns}\n", 1)
+    (folder / "h200_x4_python.toml").write_text(profile)
+    root = os.path.relpath(ROOT, folder)  # the study's paths must be relative to it
     text = (here / "study.toml").read_text().replace('"../../', f'"{root}/')
-    text = text.replace(f'"{root}/hardware_profiles/h200_x4.toml"', '"h200_x4_shared_interpreter.toml"')
+    text = text.replace("/data/nvidia/h200_x4/runs_native_2026-11-27", "/data/nvidia/h200_x4/runs")
+    text = text.replace(f'"{root}/hardware_profiles/h200_x4.toml"', '"h200_x4_python.toml"')
     text = text.replace('experiment = "', f'experiment = "{root}/experiments/h200_x4/')
-    grid = ("dispatch_ns = [0, 50000, 100000, 150000, 200000, 300000, 400000, 600000]\n"
-            "submit_ns = [0, 25000, 50000, 100000, 150000, 200000, 300000]\n")
-    head, rest = text.split("[calibration.host_grid]\n", 1)
-    text = head + "[calibration.host_grid]\n" + grid + rest.split("\n", 1)[1]
-    study = tmp_path / "study.toml"
+    if shared:
+        grid = ("dispatch_ns = [0, 50000, 100000, 150000, 200000, 300000, 400000, 600000]\n"
+                "submit_ns = [0, 25000, 50000, 100000, 150000, 200000, 300000]\n")
+        head, rest = text.split("[calibration.host_grid]\n", 1)
+        text = head + "[calibration.host_grid]\n" + grid + rest.split("\n", 1)[1]
+    study = folder / "study.toml"
     study.write_text(text)
     return study
 
 
-def test_a_shared_interpreter_fits_the_4x_h200_sort_first_replay(tmp_path: Path) -> None:
-    """What docs/nvidia_h200_x4.md reports of the what-if: calibrated with the runner's threads
-    sharing one interpreter, the grid gives each task submit work on it, and the replay of the
-    calibration half's sort-first runs falls from a 9 % median miss to under half of it, while
-    the calibration half's XR replay gets worse (why the shipped profile leaves it off)."""
-    study = _shared_interpreter_study(tmp_path)
-    assert main(["study", "calibrate", str(study), "--out", str(tmp_path / "cal")]) == 0
-    fitted = (tmp_path / "cal" / "profile.toml").read_text()
-    assert "shared_interpreter = true" in fitted and "submit_ns = 100000" in fitted
+def _calibrated_errors(study: Path) -> dict:
+    out = study.parent
+    assert main(["study", "calibrate", str(study), "--out", str(out / "cal")]) == 0
     assert main(["study", "validate", str(study), "--held-out", "--no-figures",
-                 "--profile", str(tmp_path / "cal" / "profile.toml"), "--out", str(tmp_path / "v")]) == 0
-    got = json.loads((tmp_path / "v" / "errors_by_schedule.json").read_text())
-    want = json.loads((ROOT / "data" / "nvidia" / "h200_x4" / "errors_by_schedule.json").read_text())
+                 "--profile", str(out / "cal" / "profile.toml"), "--out", str(out / "v")]) == 0
+    return json.loads((out / "v" / "errors_by_schedule.json").read_text())
+
+
+def test_a_shared_interpreter_fits_the_python_executors_sort_first_replay(tmp_path: Path) -> None:
+    """What docs/nvidia_h200_x4.md reports of the what-if on the Python executor's runs:
+    calibrated with the runner's threads sharing one interpreter, the grid gives each task
+    submit work on it, and the replay of the calibration half's sort-first runs falls from a
+    9 % median miss (threads taking turns) to under half of it, while the calibration half's XR
+    replay gets worse (why that profile left it off)."""
+    serial = _calibrated_errors(_python_runs_study(tmp_path, shared=False))
+    shared_study = _python_runs_study(tmp_path, shared=True)
+    shared = _calibrated_errors(shared_study)
+    fitted = (shared_study.parent / "cal" / "profile.toml").read_text()
+    assert "shared_interpreter = true" in fitted and "submit_ns = 100000" in fitted
     cal = "Calibration runs (seen by the fit)"
     key = "replay_median_abs_frame_time_error"
-    assert want[cal]["sort_first"][key] > 0.08
-    assert got[cal]["sort_first"][key] < 0.5 * want[cal]["sort_first"][key]
-    assert got[cal]["xr"][key] > 0.02 and want[cal]["xr"][key] < 0.01
+    assert serial[cal]["sort_first"][key] > 0.08
+    assert shared[cal]["sort_first"][key] < 0.5 * serial[cal]["sort_first"][key]
+    assert shared[cal]["xr"][key] > 0.02 and serial[cal]["xr"][key] < 0.01

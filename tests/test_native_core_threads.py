@@ -71,9 +71,9 @@ def test_a_stuck_schedule_stops_with_both_nodes_named():
 
 def test_runner_env_value_is_checked(monkeypatch):
     monkeypatch.setenv(native.RUNNER_ENV, "rust")
-    with pytest.raises(InputError, match="MGPUSIM_RUNNER must be one of python, native"):
+    with pytest.raises(InputError, match="MGPUSIM_RUNNER must be one of auto, python, native"):
         native.wanted()
     monkeypatch.setenv(native.RUNNER_ENV, "Native")
     assert native.wanted() == "native"
     monkeypatch.delenv(native.RUNNER_ENV)
-    assert native.wanted() == "python"
+    assert native.wanted() == "auto"

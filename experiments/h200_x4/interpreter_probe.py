@@ -30,6 +30,7 @@ from __future__ import annotations
 import argparse
 import cProfile
 import io
+import os
 import pstats
 import sys
 import threading
@@ -312,6 +313,7 @@ def main(argv: list[str] | None = None) -> int:
     timed = clock.wrap(guard)
     Executor._guard = profile.wrap(timed) if profile else timed  # type: ignore[method-assign]
     undo, recordings, stop_counting = clock.driver.install(), *count_recordings()
+    os.environ["MGPUSIM_RUNNER"] = "python"  # the probe times the Python executor's threads
     try:
         result = run_experiment(exp, devices=devices)
     finally:

@@ -1,6 +1,6 @@
-"""The native runner core (MGPUSIM_RUNNER=native) runs the same program as the Python executor:
-the simulator's rows, every dependency honoured, the same picture; what it cannot run goes to
-the Python executor, and the summary says which ran."""
+"""The native runner core (MGPUSIM_RUNNER=native on lavapipe) runs the same program as the
+Python executor: the simulator's rows, every dependency honoured, the same picture; what it
+cannot run goes to the Python executor, and the summary says which ran and why."""
 from __future__ import annotations
 
 import shutil
@@ -91,3 +91,13 @@ def test_what_the_core_cannot_run_goes_to_python(monkeypatch):
     assert "skippable" in (native.unsupported(program, []) or "")
     result = _run(monkeypatch, "native", exp, prewarm_frames=0)
     assert result.summary["runner"] == "python" and "task_rates_hz" in result.summary
+    assert "cannot run this program: it has skippable tasks" in result.summary["runner_note"]
+
+
+def test_lavapipe_runs_on_the_python_executor_unless_asked(monkeypatch):
+    """By default the core runs on real GPUs only: the lavapipe profiles' host effects are the
+    Python executor's, and the summary says why it ran."""
+    monkeypatch.delenv(native.RUNNER_ENV, raising=False)
+    result = run_experiment(experiment("sort_first", 2, frames=3))
+    assert result.summary["runner"] == "python"
+    assert result.summary["runner_note"].startswith("lavapipe:")

@@ -77,7 +77,9 @@ def run_program(program: FrameProgram, gpus: Sequence[Gpu], *, host_threads: int
         period = len(program.templates)
         warm = prewarm_frames if prewarm_frames is not None else -(-max(
             2, program.buffers, period) // period) * period
-        core = _core(program, works)
+        runner, runner_note = native.choose(program, build_nodes(program, works, period),
+                                            any(g.info.is_lavapipe for g in gpus))
+        core = NativeExecutor if runner == "native" else Executor
         if warm:
             core(build_nodes(program, works, warm), host_threads, stall_timeout_s,
                  program).execute()
@@ -113,19 +115,12 @@ def run_program(program: FrameProgram, gpus: Sequence[Gpu], *, host_threads: int
                         if isinstance(w, GpuWork) and w.fallback})
     if fallbacks:
         summary["queue_fallbacks"] = fallbacks
-    summary["runner"] = "native" if isinstance(timed, NativeExecutor) else "python"
+    summary["runner"] = runner
+    if runner_note:
+        summary["runner_note"] = runner_note
     _skips(program, timed, summary)
     return RunResult(summary, trace, frames, image, depth, readback=readback,
                      submissions=make_submissions(submitted))
-
-
-def _core(program: FrameProgram, works: list[dict[str, Work]]) -> type[Executor] | type[NativeExecutor]:
-    """The executor MGPUSIM_RUNNER asks for: the native core where it can run the program (one
-    frame's nodes tell), else the Python executor."""
-    if native.wanted() != "native" or native.unsupported(
-            program, build_nodes(program, works, len(program.templates))):
-        return Executor
-    return NativeExecutor
 
 
 def _skips(program: FrameProgram, timed: Executor | NativeExecutor, summary: dict[str, Any]) -> None:

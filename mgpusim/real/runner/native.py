@@ -1,5 +1,5 @@
-"""The native runner core: the planned nodes executed by C threads (`native_core.c`), chosen with
-MGPUSIM_RUNNER=native.
+"""The native runner core: the planned nodes executed by C threads (`native_core.c`). It runs
+on real GPUs unless MGPUSIM_RUNNER says otherwise (`choose`).
 
 Why: the Python executor's threads hand each task on through the interpreter. With light 4-GPU
 frames its sixteen threads keep the interpreter busy, and a thread the driver woke from a fence
@@ -18,6 +18,12 @@ are the same.
 What it does not run: skippable tasks, submit-time choices (the particle demo's newest-buffer
 draw) and the as-built host loop's CPU tasks, which depend on the run's course in Python. A
 program with any of them runs on the Python executor; `unsupported` says why.
+
+Why not on lavapipe by default: there the runner's threads share the machine's cores with the
+"GPUs'" rasterizer threads either way, the lavapipe profiles' host effects (a submit thread's
+time per task, the threads' turns) were measured on the Python executor's runs, and a main job
+on the core (2026-11-27) replayed no closer than the Python executor's jobs (held out 1.9 / 10.3 %
+against 1.5-2.6 / 8-13 %, the machine's speed moving 84 % during the job).
 """
 from __future__ import annotations
 
@@ -42,9 +48,10 @@ from mgpusim.real.vulkan.vk_errors import VulkanError, result_name, vk
 from mgpusim.schedules.base import FrameProgram
 
 SOURCE = Path(__file__).with_name("native_core.c")
-#: the environment variable that picks the runner core, and its values
+#: the environment variable that picks the runner core, and its values (auto: the native core on
+#: real GPUs where it can run the program, the Python executor otherwise)
 RUNNER_ENV = "MGPUSIM_RUNNER"
-RUNNERS = ("python", "native")
+RUNNERS = ("auto", "python", "native")
 #: recorded slots per recording key: how many of a key's submissions may be in flight at once
 SLOTS_PER_KEY = 4
 #: semaphores per semaphore edge of the template
@@ -62,8 +69,8 @@ CALLS = ("vkQueueSubmit", "vkWaitForFences", "vkResetFences", "vkGetQueryPoolRes
 
 
 def wanted() -> str:
-    """The runner core MGPUSIM_RUNNER names: python (the default) or native."""
-    raw = os.environ.get(RUNNER_ENV, "").strip().lower() or "python"
+    """The runner core MGPUSIM_RUNNER names: auto (the default), python or native."""
+    raw = os.environ.get(RUNNER_ENV, "").strip().lower() or "auto"
     if raw not in RUNNERS:
         raise InputError(f"{RUNNER_ENV} must be one of {', '.join(RUNNERS)}, got {raw!r}",
                          field=RUNNER_ENV)
@@ -80,6 +87,28 @@ def unsupported(program: FrameProgram, nodes: list[Node]) -> str | None:
         if isinstance(node.work, GpuWork) and node.work.choose is not None:
             return f"task {node.task.name!r} chooses its input at submit time"
     return None
+
+
+def choose(program: FrameProgram, nodes: list[Node], lavapipe: bool) -> tuple[str, str | None]:
+    """The core that runs `nodes` ("native" or "python") and, where the Python executor runs
+    although the core was asked for or could have run, why (the run's summary records both)."""
+    asked = wanted()
+    if asked == "python":
+        return "python", None
+    reason = unsupported(program, nodes)
+    if reason is not None:
+        return "python", f"the native core cannot run this program: {reason}"
+    if asked == "native":
+        library_path()  # a missing compiler is an error when the core was asked for
+        return "native", None
+    if lavapipe:
+        return "python", ("lavapipe: its profiles' host effects are the Python executor's "
+                          f"({RUNNER_ENV}=native runs the core)")
+    try:
+        library_path()
+    except DependencyError as exc:
+        return "python", str(exc)
+    return "native", None
 
 
 def library_path() -> Path:

@@ -17,6 +17,9 @@
 # for real GPUs, and one process takes a whole study.) A group already done
 # (WORK/logs/groups.txt) is skipped; no group starts after DEADLINE_S seconds. WORK is tarred
 # into $OUT after each step, so what was measured comes back even if the call is cut short.
+# The runs use the runner's native core (MGPUSIM_RUNNER=auto picks it on real GPUs); the 2x H100,
+# 4x H100 and 2x H200 studies' committed runs were made with the Python executor
+# (MGPUSIM_RUNNER=python measures them so again).
 # EXPECT_GPU=H100: stop at once (exit 3, the cards named) unless every card's name has it: a
 # request for one kind of machine may be answered by another, whose runs would not belong here.
 set -u

@@ -52,8 +52,8 @@ def test_a_set_without_its_own_profile_needs_one(tmp_path):
 
 
 def test_two_committed_sets_of_4x_h200_runs(tmp_path, capsys):
-    """The light sort-first frame on 4 H200s misses in both sets by about as much: a miss of
-    the model (or the runner), not of the runs' repeatability."""
+    """On the Python executor's runs the light sort-first frame on 4 H200s misses in both sets
+    by about as much: a miss of the model (or the runner), not of the runs' repeatability."""
     out = tmp_path / "floor"
     assert main(["study", "floor", str(ROOT / "experiments" / "h200_x4" / "study.toml"),
                  "--runs", str(H200_X4 / "runs"), "--runs", str(H200_X4 / "runs_repeat_2026-11-27"),
@@ -80,3 +80,19 @@ def test_a_missing_runs_folder_is_named(tmp_path, capsys):
                  "--runs", str(H200_X4 / "runs"), "--runs", str(tmp_path / "nowhere"),
                  "--profile", str(ROOT / "hardware_profiles" / "h200_x4.toml"), "--out", str(tmp_path / "f")]) != 0
     assert "nowhere" in capsys.readouterr().err
+
+
+def test_two_committed_sets_of_the_native_cores_4x_h200_runs(tmp_path):
+    """On the native core's runs the same frame replays within 3 % in both sets, and no
+    configuration's replay moves by more than 1 % between them."""
+    out = tmp_path / "floor"
+    assert main(["study", "floor", str(ROOT / "experiments" / "h200_x4" / "study.toml"),
+                 "--runs", str(H200_X4 / "runs_native_2026-11-27"),
+                 "--runs", str(H200_X4 / "runs_native_repeat_2026-11-27"),
+                 "--profile", str(ROOT / "hardware_profiles" / "h200_x4.toml"),
+                 "--only", "^cal_sf4_|^sf4_|^xrs4_", "--out", str(out)]) == 0
+    errors = pd.read_csv(out / "replay_errors.csv")
+    light = errors[errors.config == "cal_sf4_1440p_it1000"].replay
+    assert len(light) == 2 and (light.abs() < 0.03).all()
+    per_set = pd.read_csv(out / "replay_floor_per_set.csv", index_col=0)
+    assert (per_set.floor_worst < 0.01).all() and (per_set.replay_worst < 0.03).all()

@@ -42,6 +42,7 @@ import numpy as np
 from mgpusim.model.errors import DependencyError, InputError, ScheduleError
 from mgpusim.real.runner.plan import CPU_STREAM, HOST_STREAM, Node
 from mgpusim.real.runner.work import CpuWork, GpuWork, HostWork
+from mgpusim.real.vulkan import hotpath
 from mgpusim.real.vulkan.device import Gpu
 from mgpusim.real.vulkan.shader_cache import cache_dir
 from mgpusim.real.vulkan.vk_errors import VulkanError, result_name, vk
@@ -65,6 +66,7 @@ EDGE_DONE, EDGE_SUBMITTED, EDGE_REAPED = 0, 1, 2
 STREAM_GPU, STREAM_HOST = 0, 1
 N_OUT = 5  # seen, call, called, tick0, tick1
 ERR_VULKAN, ERR_STUCK, ERR_DEVICE, ERR_THREAD = 1, 2, 3, 4
+#: the Vulkan calls the core makes, passed to it in this order (its CALL_* codes)
 CALLS = ("vkQueueSubmit", "vkWaitForFences", "vkResetFences", "vkGetQueryPoolResults")
 
 
@@ -168,15 +170,15 @@ class NativeExecutor:
         self._index = {id(n): i for i, n in enumerate(nodes)}
 
     # -- planning ---------------------------------------------------------------------------
-    def _slots(self) -> tuple[dict[int, Any], dict[int, int], list[tuple[Gpu, Any, Any, list]]]:
-        """Each GPU node's slot, the node that used the slot before it, and what to give back."""
+    def _slots(self, taken: list[tuple[Gpu, Any, Any, list]]) -> tuple[dict[int, Any], dict[int, int]]:
+        """Each GPU node's slot and the node that used the slot before it; every slot taken is
+        listed in `taken` as soon as it is, so that a failure later gives it back."""
         by_key: dict[Any, list[Node]] = defaultdict(list)
         for node in self.nodes:
             if isinstance(node.work, GpuWork):
                 by_key[(id(node.work), node.work.key(node.frame))].append(node)
         slot_of: dict[int, Any] = {}
         previous: dict[int, int] = {}
-        taken = []
         for (_w, key), users in by_key.items():
             work = users[0].work
             frame = users[0].frame
@@ -188,7 +190,7 @@ class NativeExecutor:
                 slot_of[id(node)] = slots[j % count]
                 if j >= count:
                     previous[id(node)] = self._index[id(users[j - count])]
-        return slot_of, previous, taken
+        return slot_of, previous
 
     def _semaphores(self) -> tuple[dict[tuple[int, int], int], dict[int, list[int]]]:
         """The semaphore of each (producer, consumer) edge, and per producer the consumers of
@@ -214,82 +216,90 @@ class NativeExecutor:
         """The arrays the core reads: nodes, semaphores, edges, parts, streams."""
         sem_of, reuse = self._semaphores()
         table = np.zeros((len(self.nodes), len(COLUMNS)), dtype=np.int64)
-        sems: list[int] = []
-        deps: list[int] = []
-        parts: list[int] = []
-        part_node: list[int] = []
+        flat: dict[str, list[int]] = {"sems": [], "deps": [], "parts": [], "part_node": []}
         keep: list[Any] = []  # the host copies' views, alive until the run ends
         for i, node in enumerate(self.nodes):
-            row = table[i]
-            row[COL["dep_off"]] = len(deps) // 2
-            for prod, kind in node.deps:
-                if kind == "host":
-                    deps += [self._index[id(prod)], EDGE_DONE]
-                elif kind == "semaphore":
-                    deps += [self._index[id(prod)], EDGE_SUBMITTED]
-            for p in reuse.get(id(node), []):
-                deps += [p, EDGE_DONE]
-            if id(node) in previous:
-                deps += [previous[id(node)], EDGE_REAPED]
-            row[COL["dep_n"]] = len(deps) // 2 - row[COL["dep_off"]]
+            self._edges(table[i], node, reuse, previous, flat["deps"])
             if isinstance(node.work, HostWork):
-                row[COL["kind"]] = KIND_HOST
-                row[COL["part_off"]] = len(part_node)
-                for dst, src in node.work.parts(node.frame):
-                    keep += [dst, src]
-                    parts += [dst.ctypes.data, src.ctypes.data, int(dst.nbytes)]
-                    part_node.append(i)
-                row[COL["part_n"]] = len(part_node) - row[COL["part_off"]]
-                continue
-            work = node.work
-            assert isinstance(work, GpuWork)
-            slot = slot_of[id(node)]
-            row[COL["kind"]] = KIND_GPU
-            row[COL["queue"]] = _address(work.queue.handle)
-            row[COL["device"]] = _address(work.gpu.device)
-            row[COL["cmd"]] = _address(slot.cmd)
-            row[COL["fence"]] = _address(slot.fence)
-            row[COL["pool"]] = _address(slot.pool)
-            row[COL["stamps"]] = slot.stamps.ctypes.data if slot.stamps is not None else 0
-            row[COL["wait_off"]] = len(sems)
-            sems += [sem_of[(id(prod), id(node))] for prod, kind in node.deps
-                     if kind == "semaphore"]
-            row[COL["wait_n"]] = len(sems) - row[COL["wait_off"]]
-            row[COL["signal_off"]] = len(sems)
-            sems += [sem_of[(id(node), id(cons))] for cons in node.sem_consumers]
-            row[COL["signal_n"]] = len(sems) - row[COL["signal_off"]]
+                self._host_row(table[i], i, node, flat, keep)
+            else:
+                self._gpu_row(table[i], node, slot_of[id(node)], sem_of, flat["sems"])
         streams: dict[str, list[int]] = defaultdict(list)
         for i, node in enumerate(self.nodes):
             streams[node.stream].append(i)
         order = [s for s in streams if not s.startswith(CPU_STREAM)]
-        arrays = {
-            "nodes": table,
-            "sems": np.array(sems or [0], dtype=np.int64),
-            "deps": np.array(deps or [0, 0], dtype=np.int64),
-            "parts": np.array(parts or [0, 0, 0], dtype=np.int64),
-            "part_node": np.array(part_node or [0], dtype=np.int64),
-            "stream_nodes": np.array([i for s in order for i in streams[s]] or [0], dtype=np.int64),
-            "stream_off": np.cumsum([0] + [len(streams[s]) for s in order], dtype=np.int64),
-            "stream_kind": np.array([STREAM_HOST if s == HOST_STREAM else STREAM_GPU for s in order]
-                                    or [0], dtype=np.int64),
-        }
-        arrays["streams"] = len(order)
-        arrays["part_count"] = len(part_node)
-        arrays["keep"] = keep
+        empty = {"sems": [0], "deps": [0, 0], "parts": [0, 0, 0], "part_node": [0]}
+        arrays: dict[str, Any] = {name: np.array(values or empty[name], dtype=np.int64)
+                                  for name, values in flat.items()}
+        arrays.update(
+            nodes=table, keep=keep, streams=len(order), part_count=len(flat["part_node"]),
+            stream_nodes=np.array([i for s in order for i in streams[s]] or [0], dtype=np.int64),
+            stream_off=np.cumsum([0] + [len(streams[s]) for s in order], dtype=np.int64),
+            stream_kind=np.array([STREAM_HOST if s == HOST_STREAM else STREAM_GPU for s in order]
+                                 or [0], dtype=np.int64))
         return arrays
+
+    def _edges(self, row: np.ndarray, node: Node, reuse: dict[int, list[int]],
+               previous: dict[int, int], deps: list[int]) -> None:
+        """`node`'s waits as (producer, edge) pairs: its host and semaphore inputs, the
+        consumers of the semaphores it reuses, the previous user of its slot."""
+        row[COL["dep_off"]] = len(deps) // 2
+        for prod, kind in node.deps:
+            if kind == "host":
+                deps += [self._index[id(prod)], EDGE_DONE]
+            elif kind == "semaphore":
+                deps += [self._index[id(prod)], EDGE_SUBMITTED]
+        for p in reuse.get(id(node), []):
+            deps += [p, EDGE_DONE]
+        if id(node) in previous:
+            deps += [previous[id(node)], EDGE_REAPED]
+        row[COL["dep_n"]] = len(deps) // 2 - row[COL["dep_off"]]
+
+    @staticmethod
+    def _host_row(row: np.ndarray, i: int, node: Node, flat: dict[str, list[int]],
+                  keep: list[Any]) -> None:
+        """A host copy: its parts' (dst, src, bytes)."""
+        assert isinstance(node.work, HostWork)
+        row[COL["kind"]] = KIND_HOST
+        row[COL["part_off"]] = len(flat["part_node"])
+        for dst, src in node.work.parts(node.frame):
+            keep += [dst, src]
+            flat["parts"] += [dst.ctypes.data, src.ctypes.data, int(dst.nbytes)]
+            flat["part_node"].append(i)
+        row[COL["part_n"]] = len(flat["part_node"]) - row[COL["part_off"]]
+
+    @staticmethod
+    def _gpu_row(row: np.ndarray, node: Node, slot: Any, sem_of: dict[tuple[int, int], int],
+                 sems: list[int]) -> None:
+        """A GPU task: its queue, slot, and the semaphores it waits on and signals."""
+        work = node.work
+        assert isinstance(work, GpuWork)
+        row[COL["kind"]] = KIND_GPU
+        row[COL["queue"]] = _address(work.queue.handle)
+        row[COL["device"]] = _address(work.gpu.device)
+        row[COL["cmd"]] = _address(slot.cmd)
+        row[COL["fence"]] = _address(slot.fence)
+        row[COL["pool"]] = _address(slot.pool)
+        row[COL["stamps"]] = slot.stamps.ctypes.data if slot.stamps is not None else 0
+        row[COL["wait_off"]] = len(sems)
+        sems += [sem_of[(id(prod), id(node))] for prod, kind in node.deps if kind == "semaphore"]
+        row[COL["wait_n"]] = len(sems) - row[COL["wait_off"]]
+        row[COL["signal_off"]] = len(sems)
+        sems += [sem_of[(id(node), id(cons))] for cons in node.sem_consumers]
+        row[COL["signal_n"]] = len(sems) - row[COL["signal_off"]]
 
     # -- running ----------------------------------------------------------------------------
     def execute(self) -> list[tuple]:
         """Run every node on the core; raise its first error."""
-        slot_of, previous, taken = self._slots()
+        taken: list[tuple[Gpu, Any, Any, list]] = []
         try:
+            slot_of, previous = self._slots(taken)
             t = self._tables(slot_of, previous)
             out = np.zeros((len(self.nodes), N_OUT), dtype=np.int64)
             part_out = np.zeros((max(1, t["part_count"]), 3), dtype=np.int64)
             error = np.zeros(5, dtype=np.int64)
             v = vk()
-            fn = [_address(v.ffi.addressof(v.lib, name)) for name in
-                  ("vkQueueSubmit", "vkWaitForFences", "vkResetFences", "vkGetQueryPoolResults")]
+            fn = [_address(v.ffi.addressof(v.lib, name)) for name in CALLS]
             _core().mgpusim_run(*fn, _ptr(t["nodes"]), len(self.nodes), _ptr(t["sems"]),
                                 _ptr(t["deps"]), _ptr(t["parts"]), t["part_count"],
                                 _ptr(t["part_node"]), _ptr(t["stream_nodes"]), _ptr(t["stream_off"]),
@@ -307,13 +317,14 @@ class NativeExecutor:
 
     def _settle(self, taken: list[tuple[Gpu, Any, Any, list]]) -> None:
         """After a failed run: the devices idle, every taken slot's fence reset and given back."""
-        from mgpusim.real.vulkan import hotpath  # noqa: PLC0415
-        for gpu, queue, key, slots in taken:
-            try:
+        try:
+            for gpu in {id(g): g for g, _q, _k, _s in taken}.values():
                 gpu.wait_idle()
+            for gpu, _queue, _key, slots in taken:
                 for slot in slots:
                     hotpath.reset_fence(gpu.device, slot)
-            finally:
+        finally:
+            for gpu, queue, key, slots in taken:
                 gpu.give_back(queue, key, slots)
 
     def _error(self, error: np.ndarray) -> Exception:

@@ -378,10 +378,18 @@ class Gpu:
         q = self.queue(queue)
         with q.lock:
             slots = q.recorded.pop(key, [])
-            while len(slots) < count:
-                slot = self._slot(q)
-                self._record(slot, record, once=False)
-                slots.append(slot)
+            try:
+                while len(slots) < count:
+                    slot = self._slot(q)
+                    try:
+                        self._record(slot, record, once=False)
+                    except BaseException:
+                        q.free.append(slot)  # not recorded: the free list records it afresh
+                        raise
+                    slots.append(slot)
+            except BaseException:
+                q.recorded[key] = slots  # kept for Gpu.close
+                raise
             if len(slots) > count:
                 q.recorded[key] = slots[count:]
         return slots[:count]

@@ -65,6 +65,8 @@ KIND_GPU, KIND_HOST = 0, 1
 EDGE_DONE, EDGE_SUBMITTED, EDGE_REAPED = 0, 1, 2
 STREAM_GPU, STREAM_HOST = 0, 1
 N_OUT = 5  # seen, call, called, tick0, tick1
+#: semaphores one task may wait on (native_core.c's MAX_WAITS)
+MAX_WAITS = 64
 ERR_VULKAN, ERR_STUCK, ERR_DEVICE, ERR_THREAD = 1, 2, 3, 4
 #: the Vulkan calls the core makes, passed to it in this order (its CALL_* codes)
 CALLS = ("vkQueueSubmit", "vkWaitForFences", "vkResetFences", "vkGetQueryPoolResults")
@@ -88,6 +90,8 @@ def unsupported(program: FrameProgram, nodes: list[Node]) -> str | None:
             return f"task {node.task.name!r} is a CPU task of the as-built host loop"
         if isinstance(node.work, GpuWork) and node.work.choose is not None:
             return f"task {node.task.name!r} chooses its input at submit time"
+        if sum(kind == "semaphore" for _p, kind in node.deps) > MAX_WAITS:
+            return f"task {node.task.name!r} waits on more than {MAX_WAITS} semaphores"
     return None
 
 
@@ -339,8 +343,10 @@ class NativeExecutor:
         if kind == ERR_DEVICE:
             return ScheduleError(f"{other_label} did not finish on the device within "
                                  f"{self.stall_s:.0f} s")
-        return ScheduleError(f"the native runner core could not start its threads "
-                             f"(error {result}, {label})")
+        if 0 <= node < len(self.nodes):  # the only per-node refusal before the threads start
+            return ScheduleError(f"{label} waits on {result} semaphores; the native runner core "
+                                 f"takes at most {MAX_WAITS} (MGPUSIM_RUNNER=python runs it)")
+        return ScheduleError(f"the native runner core could not start its threads (errno {result})")
 
     def _rows(self, out: np.ndarray, part_out: np.ndarray, t: dict[str, Any]) -> list[tuple]:
         """Trace rows and submission rows in the Python executor's shapes."""

@@ -101,3 +101,22 @@ def test_lavapipe_runs_on_the_python_executor_unless_asked(monkeypatch):
     result = run_experiment(experiment("sort_first", 2, frames=3))
     assert result.summary["runner"] == "python"
     assert result.summary["runner_note"].startswith("lavapipe:")
+
+
+def test_runner_cores_benchmark_prints_both_cores(capsys):
+    """benchmarks/runner_cores.py: one run on each core, a row each (what they measure is the
+    machine's to say, not the test's), and MGPUSIM_RUNNER left as it was."""
+    import importlib.util
+    import os
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "runner_cores.py"
+    spec = importlib.util.spec_from_file_location("runner_cores", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    before = os.environ.get(native.RUNNER_ENV)
+    assert module.main(["--reps", "1", "--frames", "10"]) == 0
+    assert os.environ.get(native.RUNNER_ENV) == before
+    rows = [line.split() for line in capsys.readouterr().out.splitlines()[1:]]
+    assert [r[0] for r in rows] == ["python", "native"]
+    assert all(float(r[1]) > 0 and int(r[5]) > 0 for r in rows)

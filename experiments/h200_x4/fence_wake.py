@@ -19,25 +19,26 @@ thread that waited for a task: thread, frame, task, enter, exit), on the trace's
 prints the split. `--report FOLDER` prints it again for every such DIR below FOLDER, or from
 the packed `waits.parquet` / `woken.parquet` of a committed folder.
 
-The C function is built with the system's C compiler into $MGPUSIM_CACHE (or a temporary
-folder) the first time; on a machine without one, bring the built `fence_wake.so` in that
-cache (the NVIDIA machines have no compiler: carry `.spvcache` built here).
+The C function is built with the system's C compiler into $MGPUSIM_CACHE/native (else
+~/.cache/mgpusim/native) the first time, as the runner's native core is; on a machine without
+one, bring the built `fence_wake-<hash>.so` in that cache (the NVIDIA machines have no
+compiler: carry `.spvcache` built here).
 """
 from __future__ import annotations
 
 import argparse
 import ctypes
 import os
-import shutil
-import subprocess
 import sys
-import tempfile
 import threading
 import time
 from pathlib import Path
 from typing import Any, Callable
 
 import pandas as pd
+
+from mgpusim.model.errors import DependencyError
+from mgpusim.real.vulkan import c_library
 
 HERE = Path(__file__).resolve().parent
 SOURCE = HERE / "fence_wake.c"
@@ -46,18 +47,12 @@ WARMUP = 20
 
 
 def shim(cache: Path | None = None) -> Path:
-    """The built C function's library, built from `fence_wake.c` if it is not there yet."""
-    folder = cache or Path(os.environ.get("MGPUSIM_CACHE") or tempfile.gettempdir())
-    lib = folder / "fence_wake.so"
-    if lib.is_file() and lib.stat().st_mtime >= SOURCE.stat().st_mtime:
-        return lib
-    cc = shutil.which(os.environ.get("CC", "cc"))
-    if cc is None:
-        raise SystemExit(f"no C compiler to build {SOURCE.name}, and no {lib}: build it on a machine "
-                         f"with one (MGPUSIM_CACHE={folder}) and bring it")
-    folder.mkdir(parents=True, exist_ok=True)
-    subprocess.run([cc, "-O2", "-shared", "-fPIC", "-o", str(lib), str(SOURCE)], check=True)
-    return lib
+    """The built C function's library (`c_library.built`: into `cache`, default
+    `$MGPUSIM_CACHE/native`), built from `fence_wake.c` if it is not there yet."""
+    try:
+        return c_library.built(SOURCE, cache)
+    except DependencyError as exc:
+        raise SystemExit(str(exc)) from None
 
 
 class Recorder:

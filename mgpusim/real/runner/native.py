@@ -28,10 +28,7 @@ against 1.5-2.6 / 8-13 %, the machine's speed moving 84 % during the job).
 from __future__ import annotations
 
 import ctypes
-import hashlib
 import os
-import shutil
-import subprocess
 from collections import defaultdict
 from functools import lru_cache
 from pathlib import Path
@@ -42,9 +39,8 @@ import numpy as np
 from mgpusim.model.errors import DependencyError, InputError, ScheduleError
 from mgpusim.real.runner.plan import CPU_STREAM, HOST_STREAM, Node
 from mgpusim.real.runner.work import CpuWork, GpuWork, HostWork
-from mgpusim.real.vulkan import hotpath
+from mgpusim.real.vulkan import c_library, hotpath
 from mgpusim.real.vulkan.device import Gpu
-from mgpusim.real.vulkan.shader_cache import cache_dir
 from mgpusim.real.vulkan.vk_errors import VulkanError, result_name, vk
 from mgpusim.schedules.base import FrameProgram
 
@@ -117,26 +113,11 @@ def choose(program: FrameProgram, nodes: list[Node], lavapipe: bool) -> tuple[st
     return "native", None
 
 
+@lru_cache(maxsize=1)
 def library_path() -> Path:
     """The built core, `<cache>/native/native_core-<hash>.so`, built with cc on first use (a
     machine without a compiler runs from a cache filled elsewhere: MGPUSIM_CACHE)."""
-    source = SOURCE.read_bytes()
-    target = cache_dir().parent / "native" / f"native_core-{hashlib.sha256(source).hexdigest()[:16]}.so"
-    if target.is_file():
-        return target
-    cc = shutil.which(os.environ.get("CC", "cc"))
-    if cc is None:
-        raise DependencyError(f"the native runner core needs a C compiler (cc) to build "
-                              f"{SOURCE.name}, or {target.name} in {target.parent} (MGPUSIM_CACHE)")
-    target.parent.mkdir(parents=True, exist_ok=True)
-    partial = target.with_suffix(f".{os.getpid()}.tmp")
-    done = subprocess.run([cc, "-O2", "-shared", "-fPIC", "-pthread", "-o", str(partial),
-                           str(SOURCE)], capture_output=True, text=True)
-    if done.returncode != 0:
-        partial.unlink(missing_ok=True)
-        raise DependencyError(f"building {SOURCE.name} failed: {done.stderr.strip()[-400:]}")
-    partial.replace(target)
-    return target
+    return c_library.built(SOURCE)
 
 
 @lru_cache(maxsize=1)

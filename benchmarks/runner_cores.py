@@ -5,7 +5,7 @@ at the thread that acted on it.
         [--set key=value ...] [experiment.toml]
 
 The same experiment runs alternately on the Python executor and the native core
-(MGPUSIM_RUNNER=python / native), `--reps` times each. Per run it prints the steady frame time
+(`run_experiment(runner=...)`), `--reps` times each. Per run it prints the steady frame time
 and, over the hand-offs bound by an input (another device's task or a host copy), the mean
 wait from the input's end until the thread had seen it (`seen`: the wake), from then to the
 submit call (`call`: the thread's own work, and in Python its turn at the interpreter) and to
@@ -20,7 +20,6 @@ the Python executor, 1.89-1.91 ms on the core.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
 
@@ -28,7 +27,6 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from mgpusim.model.config import int_list  # noqa: E402
-from mgpusim.real.runner import native  # noqa: E402
 from mgpusim.real.runner.execute import run_experiment  # noqa: E402
 from mgpusim.results.waits import host_split  # noqa: E402
 from mgpusim.schedules.experiment import load_experiment, parse_overrides  # noqa: E402
@@ -51,8 +49,7 @@ def handoffs(trace, submissions, first_frame: int) -> dict[str, float]:
 
 def measure(exp, runner: str, devices: list[int] | None) -> dict[str, object]:
     """One run of `exp` on `runner`'s core: its frame time and hand-off split."""
-    os.environ[native.RUNNER_ENV] = runner
-    result = run_experiment(exp, devices=devices)
+    result = run_experiment(exp, devices=devices, runner=runner)
     split = handoffs(result.trace, result.submissions, int(exp.schedule.warmup_frames))
     return {"runner": result.summary["runner"], "frame_ms": result.summary["frame_time_ms"], **split}
 
@@ -71,19 +68,12 @@ def main(argv: list[str] | None = None) -> int:
     sets += [f"schedule.frames={args.frames}", f"schedule.warmup_frames={args.frames // 5}"]
     exp = load_experiment(args.experiment, parse_overrides(sets))
     devices = int_list(args.devices, "--devices") if args.devices else None
-    asked = os.environ.get(native.RUNNER_ENV)
     print(f"{'core':8} {'frame ms':>9} {'seen ms':>8} {'call ms':>8} {'start ms':>9} {'hand-offs':>9}")
-    try:
-        for _rep in range(args.reps):
-            for runner in ("python", "native"):
-                r = measure(exp, runner, devices)
-                print(f"{r['runner']:8} {r['frame_ms']:9.3f} {r['seen']:8.3f} {r['call']:8.3f} "
-                      f"{r['start']:9.3f} {r['count']:9d}", flush=True)
-    finally:
-        if asked is None:
-            os.environ.pop(native.RUNNER_ENV, None)
-        else:
-            os.environ[native.RUNNER_ENV] = asked
+    for _rep in range(args.reps):
+        for runner in ("python", "native"):
+            r = measure(exp, runner, devices)
+            print(f"{r['runner']:8} {r['frame_ms']:9.3f} {r['seen']:8.3f} {r['call']:8.3f} "
+                  f"{r['start']:9.3f} {r['count']:9d}", flush=True)
     return 0
 
 

@@ -77,3 +77,6 @@ def test_runner_env_value_is_checked(monkeypatch):
     assert native.wanted() == "native"
     monkeypatch.delenv(native.RUNNER_ENV)
     assert native.wanted() == "auto"
+    assert native.wanted(" Python") == "python"  # a run's own argument before the variable
+    with pytest.raises(InputError, match="runner must be one of auto, python, native, got 'rust'"):
+        native.wanted("rust")

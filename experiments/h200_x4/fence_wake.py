@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import ctypes
-import os
 import sys
 import threading
 import time
@@ -156,13 +155,6 @@ def split(trace: pd.DataFrame, waits: pd.DataFrame, woken: pd.DataFrame,
     return watcher.round(0), every.round(0)
 
 
-def _restore(name: str, value: str | None) -> None:
-    if value is None:
-        os.environ.pop(name, None)
-    else:
-        os.environ[name] = value
-
-
 def measure(experiment: Path, overrides: list[str], devices: list[int] | None, out: Path) -> str:
     """Run `experiment` with the stamped waits in place; write DIR/run, waits.csv, woken.csv."""
     from mgpusim.io.output import write_measured
@@ -171,13 +163,10 @@ def measure(experiment: Path, overrides: list[str], devices: list[int] | None, o
     exp = load_experiment(experiment, parse_overrides(overrides))
     recorder = Recorder(shim())
     recorder.install()
-    asked = os.environ.get("MGPUSIM_RUNNER")
-    os.environ["MGPUSIM_RUNNER"] = "python"  # the probe stamps the Python executor's waits
-    try:
-        result = run_experiment(exp, devices=devices)
+    try:  # the probe stamps the Python executor's waits
+        result = run_experiment(exp, devices=devices, runner="python")
     finally:
         recorder.uninstall()
-        _restore("MGPUSIM_RUNNER", asked)
     out.mkdir(parents=True, exist_ok=True)
     write_measured(result, out / "run", "csv")
     waits, woken = recorder.tables(int(result.summary["clock_origin_ns"]))

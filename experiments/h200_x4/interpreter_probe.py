@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import cProfile
 import io
-import os
 import pstats
 import sys
 import threading
@@ -313,9 +312,8 @@ def main(argv: list[str] | None = None) -> int:
     timed = clock.wrap(guard)
     Executor._guard = profile.wrap(timed) if profile else timed  # type: ignore[method-assign]
     undo, recordings, stop_counting = clock.driver.install(), *count_recordings()
-    os.environ["MGPUSIM_RUNNER"] = "python"  # the probe times the Python executor's threads
-    try:
-        result = run_experiment(exp, devices=devices)
+    try:  # the probe times the Python executor's threads
+        result = run_experiment(exp, devices=devices, runner="python")
     finally:
         stop_counting()
         undo()

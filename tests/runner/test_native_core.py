@@ -101,6 +101,8 @@ def test_lavapipe_runs_on_the_python_executor_unless_asked(monkeypatch):
     result = run_experiment(experiment("sort_first", 2, frames=3))
     assert result.summary["runner"] == "python"
     assert result.summary["runner_note"].startswith("lavapipe:")
+    asked = run_experiment(experiment("sort_first", 2, frames=3), runner="native")
+    assert asked.summary["runner"] == "native" and "runner_note" not in asked.summary
 
 
 def test_runner_cores_benchmark_prints_both_cores(capsys):

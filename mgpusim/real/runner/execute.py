@@ -53,12 +53,14 @@ class RunResult:
 
 def run_program(program: FrameProgram, gpus: Sequence[Gpu], *, host_threads: int = 1,
                 prewarm_frames: int | None = None, rebase: bool = True,
-                stall_timeout_s: float = 120.0, read: Sequence[str] = ()) -> RunResult:
+                stall_timeout_s: float = 120.0, read: Sequence[str] = (),
+                runner: str | None = None) -> RunResult:
     """Execute `program` on `gpus` (simulated GPU i = gpus[i]); the GPUs stay open.
 
     The default prewarm is a whole number of template periods (AFR's frame f runs on GPU
     f mod N), so the timed run's frame 0 continues where the prewarm left off. `read` names
-    resources to read back after the run (RunResult.readback)."""
+    resources to read back after the run (RunResult.readback). `runner`: the executor (auto,
+    python or native; default MGPUSIM_RUNNER, docs/runner.md)."""
     if host_threads < 1:
         raise InputError(f"must be >= 1, got {host_threads}", field="host_threads")
     declared = program.resources
@@ -77,9 +79,9 @@ def run_program(program: FrameProgram, gpus: Sequence[Gpu], *, host_threads: int
         period = len(program.templates)
         warm = prewarm_frames if prewarm_frames is not None else -(-max(
             2, program.buffers, period) // period) * period
-        runner, runner_note = native.choose(program, build_nodes(program, works, period),
-                                            any(g.info.is_lavapipe for g in gpus))
-        core = NativeExecutor if runner == "native" else Executor
+        core_name, runner_note = native.choose(program, build_nodes(program, works, period),
+                                               any(g.info.is_lavapipe for g in gpus), runner)
+        core = NativeExecutor if core_name == "native" else Executor
         if warm:
             core(build_nodes(program, works, warm), host_threads, stall_timeout_s,
                  program).execute()
@@ -115,7 +117,7 @@ def run_program(program: FrameProgram, gpus: Sequence[Gpu], *, host_threads: int
                         if isinstance(w, GpuWork) and w.fallback})
     if fallbacks:
         summary["queue_fallbacks"] = fallbacks
-    summary["runner"] = runner
+    summary["runner"] = core_name
     if runner_note:
         summary["runner_note"] = runner_note
     _skips(program, timed, summary)
@@ -178,14 +180,14 @@ def profile_lp_threads(profile: HardwareProfile, gpus: int) -> list[int | None] 
 def run_experiment(exp: Experiment, *, devices: Sequence[int] | None = None,
                    lp_threads: Sequence[int | None] | None = None, host_threads: int | None = None,
                    prewarm_frames: int | None = None, validation: bool | None = None,
-                   read: Sequence[str] = ()) -> RunResult:
+                   read: Sequence[str] = (), runner: str | None = None) -> RunResult:
     """Build `exp`'s program as the simulator does, open its GPUs, run it, close them.
 
     `devices[i]`: physical device of simulated GPU i (NVIDIA; default i mod count; lavapipe
     always gives each simulated GPU its own instance). `lp_threads[i]`: LP_NUM_THREADS of GPU i
     (default: a lavapipe profile's `cpu_threads` of that GPU, the threads it was calibrated
     with). `host_threads`: memcpy threads (default: the profile's `host.memcpy_threads`, the
-    simulator's split)."""
+    simulator's split). `runner`: as run_program's."""
     from mgpusim.real.runner.gpu_map import open_gpus  # noqa: PLC0415
     from mgpusim.real.vulkan.host_machine import close_gpus, machine_record  # noqa: PLC0415
 
@@ -196,7 +198,7 @@ def run_experiment(exp: Experiment, *, devices: Sequence[int] | None = None,
     gpus = open_gpus(program.gpus, devices=devices, lp_threads=lp_threads, validation=validation)
     try:
         result = run_program(program, gpus, host_threads=threads, prewarm_frames=prewarm_frames,
-                             read=read)
+                             read=read, runner=runner)
         result.machine = machine_record(gpus, {"host_threads": threads})
     finally:
         close_gpus(gpus)

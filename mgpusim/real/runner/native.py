@@ -68,12 +68,14 @@ ERR_VULKAN, ERR_STUCK, ERR_DEVICE, ERR_THREAD = 1, 2, 3, 4
 CALLS = ("vkQueueSubmit", "vkWaitForFences", "vkResetFences", "vkGetQueryPoolResults")
 
 
-def wanted() -> str:
-    """The runner core MGPUSIM_RUNNER names: auto (the default), python or native."""
-    raw = os.environ.get(RUNNER_ENV, "").strip().lower() or "auto"
+def wanted(asked: str | None = None) -> str:
+    """The runner core asked for: `asked` (a run's `runner` argument), else MGPUSIM_RUNNER;
+    auto (the default), python or native."""
+    source = "runner" if asked is not None else RUNNER_ENV
+    raw = asked if asked is not None else os.environ.get(RUNNER_ENV, "")
+    raw = raw.strip().lower() or "auto"
     if raw not in RUNNERS:
-        raise InputError(f"{RUNNER_ENV} must be one of {', '.join(RUNNERS)}, got {raw!r}",
-                         field=RUNNER_ENV)
+        raise InputError(f"{source} must be one of {', '.join(RUNNERS)}, got {raw!r}", field=source)
     return raw
 
 
@@ -91,10 +93,12 @@ def unsupported(program: FrameProgram, nodes: list[Node]) -> str | None:
     return None
 
 
-def choose(program: FrameProgram, nodes: list[Node], lavapipe: bool) -> tuple[str, str | None]:
-    """The core that runs `nodes` ("native" or "python") and, where the Python executor runs
-    although the core was asked for or could have run, why (the run's summary records both)."""
-    asked = wanted()
+def choose(program: FrameProgram, nodes: list[Node], lavapipe: bool,
+           runner: str | None = None) -> tuple[str, str | None]:
+    """The core that runs `nodes` ("native" or "python"; `runner` asks, else MGPUSIM_RUNNER)
+    and, where the Python executor runs although the core was asked for or could have run,
+    why (the run's summary records both)."""
+    asked = wanted(runner)
     if asked == "python":
         return "python", None
     reason = unsupported(program, nodes)

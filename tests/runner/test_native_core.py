@@ -1,10 +1,9 @@
-"""The native runner core (MGPUSIM_RUNNER=native on lavapipe) runs the same program as the
+"""The native runner core (asked for on lavapipe: runner="native") runs the same program as the
 Python executor: the simulator's rows, every dependency honoured, the same picture; what it
 cannot run goes to the Python executor, and the summary says which ran and why."""
 from __future__ import annotations
 
 import shutil
-from typing import Any
 
 import numpy as np
 import pytest
@@ -20,17 +19,13 @@ pytestmark = [pytest.mark.vulkan,
               pytest.mark.skipif(shutil.which("cc") is None, reason="no C compiler to build the core")]
 
 
-def _run(monkeypatch: pytest.MonkeyPatch, runner: str, exp: Any, **kw: Any):
-    monkeypatch.setenv(native.RUNNER_ENV, runner)
-    return run_experiment(exp, **kw)
 
 
 @pytest.fixture(scope="module")
 def sort_first_pair():
     """Sort-first on 3 GPUs, 12 frames (each recorded slot is used three times), both cores."""
-    with pytest.MonkeyPatch.context() as mp:
-        exp = experiment("sort_first", 3, width=64, height=256, work=200, frames=12)
-        return exp, _run(mp, "python", exp), _run(mp, "native", exp)
+    exp = experiment("sort_first", 3, width=64, height=256, work=200, frames=12)
+    return exp, run_experiment(exp, runner="python"), run_experiment(exp, runner="native")
 
 
 def test_native_core_runs_the_simulators_program(sort_first_pair):
@@ -69,14 +64,14 @@ def test_native_core_records_the_host_side(sort_first_pair):
     ("pipelining", 2, {"split_at": 2}),
     ("particles", 2, {"policy": "wait", "particles": pictures.P, "prof": pictures.profile(compute=0)}),
 ])
-def test_native_core_runs_each_schedule(monkeypatch, schedule, gpus, options):
+def test_native_core_runs_each_schedule(schedule, gpus, options):
     """AFR (a template per GPU), XR strong scaling, pipelining and particles offloaded with
     waits draw what the Python executor draws, in the simulator's order."""
     passes = {"afr": pictures.afr_passes("taa"), "xr": pictures.XR_PASSES["mesh"],
               "pipelining": pictures.pipeline_passes(), "particles": pictures.ENGINE}[schedule]
     exp = pictures.experiment(schedule, gpus, passes, frames=8, **options)
-    python = _run(monkeypatch, "python", exp, prewarm_frames=0)
-    measured = _run(monkeypatch, "native", exp, prewarm_frames=0)
+    python = run_experiment(exp, prewarm_frames=0, runner="python")
+    measured = run_experiment(exp, prewarm_frames=0, runner="native")
     assert measured.summary["runner"] == "native"
     assert_runs_the_simulators_tasks(exp, measured.trace)
     assert np.array_equal(measured.image, python.image)
@@ -84,12 +79,14 @@ def test_native_core_runs_each_schedule(monkeypatch, schedule, gpus, options):
 
 def test_what_the_core_cannot_run_goes_to_python(monkeypatch):
     """The particle demo's 'new_wait' decides at submit time whether to skip an update: the
-    Python executor runs it, and the summary says so."""
+    Python executor runs it, and the summary says so (the core asked for through
+    MGPUSIM_RUNNER, as a user would)."""
     exp = pictures.experiment("particles", 2, pictures.ENGINE, frames=4, particles=pictures.P,
                               policy="new_wait")
     program = build_program(exp)
     assert "skippable" in (native.unsupported(program, []) or "")
-    result = _run(monkeypatch, "native", exp, prewarm_frames=0)
+    monkeypatch.setenv(native.RUNNER_ENV, "native")
+    result = run_experiment(exp, prewarm_frames=0)
     assert result.summary["runner"] == "python" and "task_rates_hz" in result.summary
     assert "cannot run this program: it has skippable tasks" in result.summary["runner_note"]
 

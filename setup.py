@@ -19,6 +19,6 @@ def shipped_packages() -> list[str]:
     return out
 
 
-# Namespace packages too: mgpusim/real/vulkan/shaders/ has no __init__.py but ships its sources.
+# Namespace packages too: mgpusim/real/passes/shaders/ has no __init__.py but ships its sources.
 PACKAGES = find_namespace_packages(include=["mgpusim*"], exclude=["*__pycache__*"])
 setup(packages=PACKAGES + shipped_packages(), package_dir=SHIPPED)

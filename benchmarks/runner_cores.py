@@ -26,7 +26,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mgpusim.model.config import int_list  # noqa: E402
+from mgpusim.model.toml_checks import int_list  # noqa: E402
 from mgpusim.real.runner.execute import run_experiment  # noqa: E402
 from mgpusim.results.waits import host_split  # noqa: E402
 from mgpusim.schedules.experiment import load_experiment, parse_overrides  # noqa: E402

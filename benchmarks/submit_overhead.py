@@ -68,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.tasks < 1:
         ap.error("--tasks must be >= 1")
     from mgpusim.real.runner.gpu_map import open_gpus
-    from mgpusim.real.vulkan.host_machine import close_gpus
+    from mgpusim.real.vulkan.machine import close_gpus
 
     gpus = open_gpus(1, devices=[args.device])
     try:

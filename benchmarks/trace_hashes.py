@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from mgpusim import Experiment, Result, simulate  # noqa: E402
-from mgpusim.studies.model_speed import DEFAULT_EXPERIMENT, sort_first_experiment  # noqa: E402
+from mgpusim.bench.model_speed import DEFAULT_EXPERIMENT, sort_first_experiment  # noqa: E402
 from scripts.summaries import simulate_shipped  # noqa: E402
 
 

@@ -22,7 +22,7 @@ _API = {
     "Result": "mgpusim.results.summary",
     "Experiment": "mgpusim.schedules.experiment", "load_experiment": "mgpusim.schedules.experiment",
     "simulate": "mgpusim.sim.simulation",
-    "sweep": "mgpusim.studies.sweep_grid",
+    "sweep": "mgpusim.sweeps.grid",
 }
 __all__ = sorted(_API)
 __version__ = "0.1.0"

@@ -35,7 +35,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mgpusim.model.config import read_toml  # noqa: E402
+from mgpusim.model.toml_checks import read_toml  # noqa: E402
 from mgpusim.model.errors import MgpusimError  # noqa: E402
 from mgpusim.model.profile import parse_profile  # noqa: E402
 from mgpusim.schedules.experiment import load_experiment, parse_experiment  # noqa: E402

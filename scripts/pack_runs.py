@@ -9,7 +9,7 @@
 
 A runs folder is the folder a study or a `--runs` option names: the first three levels below
 data/ (data/lavapipe/<job>/runs, data/nvidia/h200x2/runs_si), or a run folder standing higher.
-Each becomes runs.parquet + run_files.parquet (mgpusim.validation.run_archive); every file is
+Each becomes runs.parquet + run_files.parquet (mgpusim.measure.run_archive); every file is
 read back and compared before the originals are deleted. A folder of measured tables (a job's
 `measurements/`: pass tables, their machine records, speed probes) packs the same way with
 `--tables` (every file as text in run_files.parquet, runs.parquet empty).
@@ -20,7 +20,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from mgpusim.validation import run_archive
+from mgpusim.measure import run_archive
 
 ROOT = Path(__file__).resolve().parents[1]
 

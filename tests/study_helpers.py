@@ -9,7 +9,7 @@ from typing import Any
 
 from mgpusim.cli import main
 from mgpusim.studies.measuring import measured_folder
-from mgpusim.studies.spec import load_study
+from mgpusim.studies.study_file import load_study
 
 ROOT = Path(__file__).resolve().parents[1]
 

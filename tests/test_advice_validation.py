@@ -1,4 +1,4 @@
-"""The advice validation's logic (mgpusim/studies/advice_validation.py) offline: the simulator
+"""The advice validation's logic (mgpusim/advise/on_hardware.py) offline: the simulator
 stands in for the real runs (`dry_run`), on an NVIDIA frame of the H100 entry point."""
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from mgpusim.studies.advice_validation import Frame, Setup, collect, order_matches, pair_agreement, validate
+from mgpusim.advise.on_hardware import Frame, Setup, collect, order_matches, pair_agreement, validate
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -68,7 +68,7 @@ def test_a_later_round_that_measures_an_option_clears_its_first_failure(setup: S
                                                                         monkeypatch) -> None:
     """One round's failure (a driver hiccup) stays in runs.csv; the option's row keeps the
     round that measured it and no error."""
-    import mgpusim.studies.advice_validation as av
+    import mgpusim.advise.on_hardware as av
     real, failed = av.measure, []
 
     def flaky(setup_, path, overrides, out=None):
@@ -87,7 +87,7 @@ def test_an_option_the_model_cannot_predict_keeps_the_frame_s_table(setup: Setup
                                                                    monkeypatch) -> None:
     """A prediction that fails (NaN) leaves that option unranked; the frame's real runs are
     written all the same."""
-    import mgpusim.studies.advice_validation as av
+    import mgpusim.advise.on_hardware as av
     real = av.evaluate
 
     def one_nan(*args, **kwargs):

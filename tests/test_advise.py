@@ -10,8 +10,8 @@ import pytest
 
 from mgpusim import load_experiment
 from mgpusim.cli import main
-from mgpusim.studies.advice import CHUNKS, LINKS, options, pareto, search
-from mgpusim.studies.advice_report import write_advice
+from mgpusim.advise.advisor import CHUNKS, LINKS, options, pareto, search
+from mgpusim.advise.report import write_advice
 from tests.headless_browser import NO_BROWSER, find_browser, open_page
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1333,7 +1333,7 @@ def test_a_run_failing_while_writing_leaves_no_partial_folder(tmp_path: Path, mo
                                                             fails: str, error: type):
     """The folder is written beside --out and moved in at the end: out of memory, a full disk
     or Ctrl-C in the middle leaves neither --out nor its new parent folders nor a temporary."""
-    from mgpusim.io import output
+    from mgpusim.io import writers as output
 
     def boom(*args, **kwargs):
         raise error(28, "No space left on device") if error is OSError else error()
@@ -1345,7 +1345,7 @@ def test_a_run_failing_while_writing_leaves_no_partial_folder(tmp_path: Path, mo
 
 
 def test_a_rerun_into_an_existing_folder_replaces_its_files_and_keeps_the_others(tmp_path: Path, monkeypatch):
-    from mgpusim.io import output
+    from mgpusim.io import writers as output
     out = tmp_path / "out"
     assert main(["simulate", SWEEP, "--set", "schedule.frames=20", "--out", str(out)]) == 0
     (out / "notes.txt").write_text("mine")

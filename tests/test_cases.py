@@ -13,11 +13,11 @@ from mgpusim import cli
 from mgpusim.model.errors import InputError
 from mgpusim.model.geometry import mesh_placement
 from mgpusim.sim.simulation import simulate
-from mgpusim.studies.cases import (COMPARISON, Case, CaseResult, calibrate, case_names, comparison,
+from mgpusim.cases.case_file import (COMPARISON, Case, CaseResult, calibrate, case_names, comparison,
                                    comparison_markdown, copy_limited_fps, docs_block, load_case,
                                    markdown, metric, parameter_overrides, run_case,
                                    sections_rendered, span_ms, steady, table, with_docs_block)
-from mgpusim.studies.spec import load_study
+from mgpusim.studies.study_file import load_study
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = ("dx12_pipelining", "particle_offload", "vulkan_thesis", "xr_stereo")
@@ -212,7 +212,7 @@ def test_lavapipe_study_loads_and_simulates_on_the_lavapipe_profile(name):
     study = load_study(ROOT / "experiments" / "cases" / name / "lavapipe.toml")
     assert study.calibration and study.held_out
     try:
-        from mgpusim.real.vulkan.microbench import parse_sweeps
+        from mgpusim.measure.microbench import parse_sweeps
     except ImportError:  # pragma: no cover - the Vulkan extra is not installed
         parse_sweeps = None
     if parse_sweeps is not None:

@@ -10,13 +10,13 @@ from types import SimpleNamespace
 import pandas as pd
 import pytest
 
-from mgpusim.validation import run_archive
+from mgpusim.measure import run_archive
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _script(name: str):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "experiments" / "lavapipe" / f"{name}.py")
+    spec = importlib.util.spec_from_file_location(name, ROOT / "tools" / "probes" / "lavapipe" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -93,12 +93,12 @@ def test_core_use_reports_a_failed_command(capsys):
 
 
 def test_handoff_split_reads_the_packed_4x_h200_runs(capsys):
-    """experiments/h200_x4/handoff_split.py on the committed runs of 2026-11-27: every run
+    """tools/probes/h200_x4/handoff_split.py on the committed runs of 2026-11-27: every run
     (packed) gets its table; on 4 GPUs the three GPUs waiting for GPU 0's present saw it well
     after it ended (the threads waited for the interpreter: see the probe's test below), and
     one memcpy thread copies each host copy in one part."""
     spec = importlib.util.spec_from_file_location(
-        "handoff_split", ROOT / "experiments" / "h200_x4" / "handoff_split.py")
+        "handoff_split", ROOT / "tools" / "probes" / "h200_x4" / "handoff_split.py")
     split = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(split)
     runs = ROOT / "data" / "nvidia" / "h200_x4" / "handoff_2026-11-27" / "runs"
@@ -116,7 +116,7 @@ def test_handoff_split_reads_the_packed_4x_h200_runs(capsys):
 
 def _probe_module():
     spec = importlib.util.spec_from_file_location(
-        "interpreter_probe", ROOT / "experiments" / "h200_x4" / "interpreter_probe.py")
+        "interpreter_probe", ROOT / "tools" / "probes" / "h200_x4" / "interpreter_probe.py")
     probe = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(probe)
     return probe

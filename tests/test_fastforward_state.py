@@ -13,7 +13,7 @@ from mgpusim.sim import engine as engine_module
 from mgpusim.sim import fastforward
 from mgpusim.sim.engine import Engine
 from mgpusim.sim.simulation import build_program
-from mgpusim.sim.state import Environment, Unsupported
+from mgpusim.sim.snapshot import Environment, Unsupported
 from tests.conftest import make_experiment
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -117,6 +117,6 @@ def test_the_fast_forward_reads_no_private_attribute_of_another_object():
 def test_the_bench_long_run_script_runs_in_a_fresh_interpreter():
     """`mgpusim bench`'s long run is a script string run in a child process: its imports are
     checked only when it runs."""
-    from mgpusim.studies.model_speed import long_run
+    from mgpusim.bench.model_speed import long_run
     out = long_run(frames=200)
     assert out["frames"] == 200 and out["fast_forward"]["used"] is True and out["rows"] > 0

@@ -1,4 +1,4 @@
-"""experiments/h200_x4/fence_wake.py: a woken runner thread's wait, split at the driver's return."""
+"""tools/probes/h200_x4/fence_wake.py: a woken runner thread's wait, split at the driver's return."""
 from __future__ import annotations
 
 import importlib.util
@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location("fence_wake", ROOT / "experiments" / "h200_x4" / "fence_wake.py")
+_spec = importlib.util.spec_from_file_location("fence_wake", ROOT / "tools" / "probes" / "h200_x4" / "fence_wake.py")
 fw = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(fw)
 

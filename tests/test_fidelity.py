@@ -244,7 +244,7 @@ def test_analytic_extrapolates_long_runs():
 
 
 def test_streamed_trace_file_is_the_whole_trace(tmp_path: Path):
-    from mgpusim.io.output import write_table, write_trace
+    from mgpusim.io.writers import write_table, write_trace
     exp = load_experiment(ROOT / "experiments" / "sort_first_tc1.toml", {"schedule.frames": 600})
     on, off = simulate(exp), simulate(exp, fast_forward=False)
     assert on.compact
@@ -299,7 +299,7 @@ def test_fidelity_without_the_measured_data_is_one_clear_error(tmp_path: Path, c
 
 def test_fidelity_command_writes_the_table(tmp_path: Path):
     from mgpusim.cli import main
-    from mgpusim.studies.accuracy_cost import committed_sources, configurations
+    from mgpusim.bench.accuracy_cost import committed_sources, configurations
 
     # the committed H200, H100 and lavapipe runs
     assert len(configurations(committed_sources(ROOT / "data"))) >= 100
@@ -446,7 +446,7 @@ def test_sweep_refuses_skippable_schedules():
 def test_written_outputs_do_not_depend_on_the_fast_forward(tmp_path: Path):
     """The windows of a compact trace (timeline, Perfetto) and the tables are the files the
     whole trace gives."""
-    from mgpusim.io.output import write_result
+    from mgpusim.io.writers import write_result
     exp = load_experiment(ROOT / "experiments" / "sort_first_tc1.toml", {"schedule.frames": 600})
     on, off = simulate(exp), simulate(exp, fast_forward=False)
     assert on.compact

@@ -13,8 +13,8 @@ from mgpusim.cli import main
 from mgpusim.model.errors import InputError
 from mgpusim.model.scene import PassSpec, temporal_reads
 from mgpusim.model.work_terms import pass_work
-from mgpusim.studies.capture_formats import read_chrome, read_csv, read_run
-from mgpusim.studies.frame_import import frame_from_slices
+from mgpusim.frames.formats import read_chrome, read_csv, read_run
+from mgpusim.frames.importer import frame_from_slices
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples" / "frames"

@@ -16,10 +16,10 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from mgpusim.cli import main
-from mgpusim.model.config import name_problem
+from mgpusim.model.toml_checks import name_problem
 from mgpusim.model.errors import InputError
-from mgpusim.studies import sweep_grid as sweeps
-from mgpusim.studies.spec import load_study
+from mgpusim.sweeps import grid as sweeps
+from mgpusim.studies.study_file import load_study
 from tests.test_bad_inputs import SWEEP, mini_study
 
 

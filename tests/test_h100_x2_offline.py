@@ -27,7 +27,7 @@ def test_a_run_on_a_profile_that_cannot_cost_a_pass_gets_max_frames():
     """A new card's first study: its profile lacks the filter until the calibration, so the run
     length cannot be estimated; the run gets `max_frames` frames instead of failing."""
     from mgpusim import load_experiment
-    from mgpusim.validation.repeated_runs import with_run_length
+    from mgpusim.measure.repeated_runs import with_run_length
     exp = load_experiment(STUDY.parent / "afr_temporal.toml", {"schedule.gpus": 1},
                           profile=ROOT / "hardware_profiles" / "h100.toml")
     assert with_run_length(exp, 0.5, 123).schedule.frames == 123

@@ -15,8 +15,8 @@ import pytest
 from mgpusim.cli import main
 from mgpusim.studies import load_study, validate
 from mgpusim.studies.measuring import measured_folder
-from mgpusim.studies.nvlink import nvlink_whatif
-from mgpusim.validation import run_archive
+from tests.nvlink_whatif import nvlink_whatif
+from mgpusim.measure import run_archive
 
 ROOT = Path(__file__).resolve().parents[1]
 STUDY = ROOT / "experiments" / "h200" / "study.toml"

@@ -11,7 +11,7 @@ import tomli_w
 from mgpusim import load_profile
 from mgpusim.cli import main
 from mgpusim.commands.main_job import LAVAPIPE_STUDY, REFUSED
-from mgpusim.model.config import read_toml
+from mgpusim.model.toml_checks import read_toml
 from mgpusim.studies import load_study
 
 #: one configuration of each schedule, 1 and 2 GPUs

@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from mgpusim.io import output
+from mgpusim.io import writers as output
 from mgpusim.io.perfetto import chrome_trace
 from mgpusim.results.periodic import _SteadyOrder
 from mgpusim.results.waits import input_edges, parse_waits_for

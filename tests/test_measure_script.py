@@ -1,4 +1,4 @@
-"""experiments/h100_x4/measure.sh, the NVIDIA studies' device script: with EXPECT_GPU it stops
+"""tools/nvidia/measure.sh, the NVIDIA studies' device script: with EXPECT_GPU it stops
 at once, naming the cards, on a machine whose cards are not the study's (a request for one kind
 of machine may be answered by another), and goes on where they are."""
 from __future__ import annotations
@@ -9,7 +9,7 @@ import subprocess
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPT = ROOT / "experiments" / "h100_x4" / "measure.sh"
+SCRIPT = ROOT / "tools" / "nvidia" / "measure.sh"
 
 
 def _run(tmp_path: Path, cards: list[str], expect: str) -> subprocess.CompletedProcess:

@@ -8,7 +8,7 @@ import pytest
 
 from mgpusim.schedules.experiment import load_experiment
 from mgpusim.sim.simulation import simulate
-from mgpusim.studies.model_speed import (events_per_frame, hand_written_sort_first,
+from mgpusim.bench.model_speed import (events_per_frame, hand_written_sort_first,
                                          sort_first_experiment)
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -44,8 +44,8 @@ def test_wheel_ships_experiments_profiles_and_shaders(tmp_path):
         assert f"mgpusim/experiments/{path.relative_to(ROOT / 'experiments').as_posix()}" in names
     for path in (ROOT / "hardware_profiles").glob("*.toml"):
         assert f"mgpusim/hardware_profiles/{path.name}" in names
-    for path in (ROOT / "mgpusim" / "real" / "vulkan" / "shaders").iterdir():
-        assert f"mgpusim/real/vulkan/shaders/{path.name}" in names
+    for path in (ROOT / "mgpusim" / "real" / "passes" / "shaders").iterdir():
+        assert f"mgpusim/real/passes/shaders/{path.name}" in names
     meta = next(n for n in names if n.endswith(".dist-info/METADATA"))
     text = zipfile.ZipFile(wheel).read(meta).decode()
     assert f"Version: {mgpusim.__version__}" in text

@@ -11,7 +11,7 @@ from mgpusim.cli import main
 from mgpusim.model.errors import InputError
 from mgpusim.model.profile import CalibratedOn, load_profile
 from mgpusim.studies.measuring import measured_folder
-from mgpusim.studies.spec import load_study
+from mgpusim.studies.study_file import load_study
 from mgpusim.validation.measured import other_machine
 from mgpusim.validation.measured_check import machine_of
 

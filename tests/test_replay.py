@@ -20,7 +20,7 @@ from mgpusim.schedules.program import build_program, on_queues
 from mgpusim.sim.replay import replay
 from mgpusim.sim.simulation import simulate
 from mgpusim.studies.measuring import measured_folder
-from mgpusim.studies.spec import load_study
+from mgpusim.studies.study_file import load_study
 from mgpusim.validation.measured import queues_as_run
 from mgpusim.validation.replayed import measured_durations, replay_comparison
 

@@ -1,4 +1,4 @@
-"""mgpusim study floor (mgpusim/studies/replay_floor.py): the floor runs put under the replay."""
+"""mgpusim study floor (mgpusim/studies/floor.py): the floor runs put under the replay."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -8,7 +8,7 @@ import pytest
 
 from mgpusim.cli import main
 from mgpusim.model.errors import InputError
-from mgpusim.studies import replay_floor as rf
+from mgpusim.studies import floor as rf
 
 ROOT = Path(__file__).resolve().parents[1]
 H200_X4 = ROOT / "data" / "nvidia" / "h200_x4"

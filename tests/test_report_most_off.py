@@ -6,7 +6,7 @@ import math
 import pandas as pd
 import pytest
 
-from mgpusim.studies.steps import markdown_table, most_off
+from mgpusim.studies.pipeline import markdown_table, most_off
 
 
 def report(steps: dict[str, float], waits: dict[str, float]) -> dict:

@@ -10,9 +10,9 @@ import pytest
 
 from mgpusim import load_experiment
 from mgpusim.studies.measuring import measured_folder
-from mgpusim.validation import run_archive
+from mgpusim.measure import run_archive
 from mgpusim.validation.measured import read_measured
-from mgpusim.validation.repeated_runs import run_spread
+from mgpusim.measure.repeated_runs import run_spread
 
 ROOT = Path(__file__).resolve().parents[1]
 TRACE = ("frame,device,engine,step,task,start_ns,end_ns,bytes,waits_for\n"
@@ -125,7 +125,7 @@ def test_a_folder_of_measured_tables_packs_and_calibration_reads_it_in_place(tmp
     of their listed tables: the offline study tests), and unpacking writes every file back
     byte for byte."""
     from mgpusim.calibration.pass_fit import read_measurements
-    from mgpusim.studies.speed_probe import read_probes
+    from mgpusim.measure.speed_probe import read_probes
     source = ROOT / "data" / "lavapipe"
     folder = tmp_path / "measurements"
     folder.mkdir()

@@ -7,7 +7,7 @@ from collections import defaultdict
 from pathlib import Path
 
 from mgpusim.schedules.program import build_program
-from mgpusim.studies.spec import load_study
+from mgpusim.studies.study_file import load_study
 
 STUDY = Path(__file__).resolve().parents[1] / "experiments" / "lavapipe" / "study.toml"
 

@@ -18,10 +18,11 @@ from mgpusim.model.costs import CostModel
 from mgpusim.model.errors import InputError
 from mgpusim.model.speed_scale import at_speed
 from mgpusim.sim.simulation import simulate
-from mgpusim.studies import load_study, run_speed
-from mgpusim.studies import steps as pipeline
+from mgpusim.studies import load_study
+from mgpusim.measure import run_speed
+from mgpusim.studies import pipeline as pipeline
 from mgpusim.studies.measuring import measured_folder
-from mgpusim.validation import speed_norm as sn
+from mgpusim.measure import speed_norm as sn
 from mgpusim.validation.crossvalidate import validate_experiment
 
 ROOT = Path(__file__).resolve().parents[1]

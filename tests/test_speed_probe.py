@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from mgpusim.model.errors import InputError, UnsteadyMachineError
-from mgpusim.studies import speed_probe as speed
+from mgpusim.measure import speed_probe as speed
 
 
 def probes(mesh_ms: list[float]) -> pd.DataFrame:

@@ -1,4 +1,4 @@
-"""The steady window of noisy measured runs (mgpusim.validation.steady_window)."""
+"""The steady window of noisy measured runs (mgpusim.measure.steady_window)."""
 from __future__ import annotations
 
 import pandas as pd
@@ -6,7 +6,7 @@ import pytest
 
 from mgpusim.model.errors import InputError
 from mgpusim.results.summary import frames_from_trace
-from mgpusim.validation import steady_window as sw
+from mgpusim.measure import steady_window as sw
 from mgpusim.validation.compare import steady_summary
 
 MS = 1_000_000
@@ -66,7 +66,7 @@ def test_the_steady_folder_keeps_the_window_of_the_host_side_too(tmp_path):
     from types import SimpleNamespace
 
     from mgpusim.results.trace import make_submissions
-    from mgpusim.validation.repeated_runs import write_steady_window
+    from mgpusim.measure.repeated_runs import write_steady_window
 
     def result(periods):
         trace = run_trace(periods)

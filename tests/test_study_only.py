@@ -8,7 +8,7 @@ import pytest
 
 from mgpusim.commands.study import _filtered
 from mgpusim.model.errors import InputError
-from mgpusim.studies.spec import load_study
+from mgpusim.studies.study_file import load_study
 
 STUDY = Path(__file__).resolve().parents[1] / "experiments" / "h200" / "study.toml"
 

@@ -1,4 +1,4 @@
-"""report.html of `mgpusim study validate` (mgpusim/studies/study_page.py), offline on a
+"""report.html of `mgpusim study validate` (mgpusim/studies/page.py), offline on a
 few configurations of the committed 2x H100 study, and opened in a headless browser where
 Chromium is installed."""
 from __future__ import annotations

@@ -16,7 +16,7 @@ import pytest
 import mgpusim
 from mgpusim.cli import main
 from mgpusim.model.errors import InputError
-from mgpusim.studies import sweep_grid as sweeps
+from mgpusim.sweeps import grid as sweeps
 
 ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENT = ROOT / "experiments" / "sort_first_tc1.toml"
@@ -226,7 +226,7 @@ def _quick(out: Path) -> list[str]:
 
 
 def test_a_sweep_into_a_folder_another_sweep_holds_is_refused_and_touches_nothing(tmp_path, capsys):
-    from mgpusim.io.sweep_store import PointStore
+    from mgpusim.sweeps.store import PointStore
     out = tmp_path / "sw"
     with PointStore(out):  # as a running sweep holds it
         assert main(_quick(out)) == 2
@@ -244,7 +244,7 @@ def test_the_lock_ends_with_a_sweep_killed_by_sigkill(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     holder = subprocess.Popen(
         [sys.executable, "-c", "import sys, time; from pathlib import Path; "
-         "from mgpusim.io.sweep_store import PointStore; s = PointStore(Path(sys.argv[1])).__enter__(); "
+         "from mgpusim.sweeps.store import PointStore; s = PointStore(Path(sys.argv[1])).__enter__(); "
          "print('held', flush=True); time.sleep(600)", str(out)], env=env, stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "held"

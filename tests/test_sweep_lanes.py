@@ -15,8 +15,8 @@ import pandas as pd
 import pytest
 
 from mgpusim.cli import main
-from mgpusim.studies import sweep_grid as sweeps
-from mgpusim.studies import sweep_lanes as lanes
+from mgpusim.sweeps import grid as sweeps
+from mgpusim.sweeps import lanes as lanes
 
 ROOT = Path(__file__).resolve().parents[1]
 EXP = ROOT / "experiments"

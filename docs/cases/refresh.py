@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mgpusim.studies.cases import (COMPARISON, case_names, comparison_markdown, load_case, markdown,
+from mgpusim.cases.case_file import (COMPARISON, case_names, comparison_markdown, load_case, markdown,
                                    run_case, with_docs_block)
 from mgpusim.commands.case import write_timelines
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from mgpusim.model.config import did_you_mean
+from mgpusim.model.toml_checks import did_you_mean
 from mgpusim.model.errors import InputError
 from mgpusim.model.limits import MAX_TASK_NS, MAX_WORK
 from mgpusim.validation.measured_check import number_column, unknown_names

@@ -23,7 +23,7 @@ from mgpusim.model.geometry import MESH_PLACE, mesh_placement
 from mgpusim.model.scene import PassSpec
 from mgpusim.model.work_terms import PLACED_TERMS, REFERENCE_KINDS, UNPRICED_OK, WORK_TERMS
 from mgpusim.model.work_terms import pass_work as pass_work_placed
-from mgpusim.validation import run_archive
+from mgpusim.measure import run_archive
 from mgpusim.validation.measured_check import read_json_object, read_table
 
 #: Every pass kind of the cost model that is measured and fitted: all but those known only by a

@@ -1,7 +1,7 @@
 """A study's calibration, step by step: microbenchmark tables, then measured runs.
 
 The one place that says how a profile is fitted for a machine. The steps a study's recipe
-(:class:`mgpusim.studies.spec.Recipe`) switches on, in order:
+(:class:`mgpusim.studies.study_file.Recipe`) switches on, in order:
 1. the pass, copy and host-copy tables (`mgpusim measure` output) fitted onto a base profile:
    a lavapipe skeleton made from the tables' machine record, or the study profile's own
    structure (queues, links, memory) for real GPUs; where the recipe asks (`host_pcie`), the
@@ -31,7 +31,7 @@ from mgpusim.calibration.run_fit import (Run, copy_wake_after_dispatch, fit_alon
                                          fit_copy_setup, fit_host_copy_wake, fit_host_effects,
                                          fit_passes_from_runs, fit_task_gap, with_alone_scales,
                                          with_pass_fits)
-from mgpusim.model.config import read_toml
+from mgpusim.model.toml_checks import read_toml
 from mgpusim.model.profile import BUSY_WAKE_WINDOW_NS
 from mgpusim.model.work_terms import PLACED_TERMS
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mgpusim.io.outpath import check_out_dir
+from mgpusim.io.out_folder import check_out_dir
 from mgpusim.io.shipped import resolve_experiment
 from mgpusim.model.errors import InputError
 
@@ -37,8 +37,8 @@ def run(args: argparse.Namespace) -> int:
     import time  # noqa: PLC0415
 
     from mgpusim.schedules.experiment import parse_overrides  # noqa: PLC0415
-    from mgpusim.studies.advice import search  # noqa: PLC0415
-    from mgpusim.studies.advice_report import write_advice  # noqa: PLC0415
+    from mgpusim.advise.advisor import search  # noqa: PLC0415
+    from mgpusim.advise.report import write_advice  # noqa: PLC0415
     for name, value, low in (("--confirm", args.confirm, 1), ("--timelines", args.timelines, 0),
                              ("--workers", args.workers, 1)):
         if value is not None and value < low:

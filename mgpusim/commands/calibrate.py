@@ -7,8 +7,8 @@ import shlex
 import sys
 from pathlib import Path
 
-from mgpusim.io.outpath import check_out_file
-from mgpusim.model.config import read_toml
+from mgpusim.io.out_folder import check_out_file
+from mgpusim.model.toml_checks import read_toml
 from mgpusim.model.errors import InputError
 from mgpusim.model.limits import MAX_GPUS
 
@@ -29,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
     from mgpusim.calibration import (apply, calibrate, lavapipe_base,  # noqa: PLC0415
                                      read_measurements, report)
     from mgpusim.calibration.profile_out import fit_details  # noqa: PLC0415
-    from mgpusim.io.output import write_json  # noqa: PLC0415
+    from mgpusim.io.writers import write_json  # noqa: PLC0415
     check_out_file(args.out)
     if not 1 <= args.gpus <= MAX_GPUS:
         raise InputError(f"must be in 1..{MAX_GPUS}, got {args.gpus}", field="--gpus")

@@ -13,12 +13,12 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
-from mgpusim.io.outpath import check_out_dir
+from mgpusim.io.out_folder import check_out_dir
 from mgpusim.model.errors import InputError
 from mgpusim.model.limits import MAX_FRAMES, WHY_FRAMES
 
 if TYPE_CHECKING:  # annotations only: loaded when the command runs
-    from mgpusim.studies.cases import CaseResult
+    from mgpusim.cases.case_file import CaseResult
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -36,8 +36,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mgpusim.io.output import write_table, write_text  # noqa: PLC0415
-    from mgpusim.studies.cases import (case_names, comparison, comparison_markdown,  # noqa: PLC0415
+    from mgpusim.io.writers import write_table, write_text  # noqa: PLC0415
+    from mgpusim.cases.case_file import (case_names, comparison, comparison_markdown,  # noqa: PLC0415
                                        load_case, markdown, run_case, table)
     if args.list:
         for name in case_names():
@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
 
 def print_calibration(case, frames: int | None) -> int:
     """The values the case's published figures set, beside the case file's."""
-    from mgpusim.studies.cases import calibrate  # noqa: PLC0415
+    from mgpusim.cases.case_file import calibrate  # noqa: PLC0415
     found = calibrate(case, frames)
     print(f"{case.name}: parameters set by published figures (calibration rules of {case.file})")
     for fig in case.published:

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from mgpusim.io.outpath import check_out_dir
+from mgpusim.io.out_folder import check_out_dir
 from mgpusim.model.errors import InputError
 
 if TYPE_CHECKING:  # annotations only: loaded when the command runs
@@ -29,8 +29,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mgpusim.io.output import write_table  # noqa: PLC0415
-    from mgpusim.studies.accuracy_cost import (committed_sources, configurations,  # noqa: PLC0415
+    from mgpusim.io.writers import write_table  # noqa: PLC0415
+    from mgpusim.bench.accuracy_cost import (committed_sources, configurations,  # noqa: PLC0415
                                                deviations, deviations_markdown, markdown,
                                                run_levels, summarize_deviations, summarize_levels)
     if args.docs and not (DOCS / "fidelity.md").is_file():
@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     check_out_dir(args.out)  # before any work
     from mgpusim.io.progress import bar  # noqa: PLC0415
     from mgpusim.io.shipped import examples  # noqa: PLC0415
-    from mgpusim.studies.accuracy_cost import VARIANTS  # noqa: PLC0415
+    from mgpusim.bench.accuracy_cost import VARIANTS  # noqa: PLC0415
     configs = configurations(sources)
     with bar((len(configs) + len(examples())) * len(VARIANTS), "fidelity", "run", args.progress) as shown:
         def step(name: str) -> None:

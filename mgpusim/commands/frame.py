@@ -11,7 +11,7 @@ import argparse
 import re
 from pathlib import Path
 
-from mgpusim.io.outpath import check_out_file
+from mgpusim.io.out_folder import check_out_file
 from mgpusim.model.errors import InputError
 
 #: The profile an imported frame names unless --profile gives one: GPUs of the capture's class
@@ -51,10 +51,10 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mgpusim.io.output import write_text  # noqa: PLC0415
+    from mgpusim.io.writers import write_text  # noqa: PLC0415
     from mgpusim.io.shipped import shipped_dir  # noqa: PLC0415
-    from mgpusim.studies.capture_formats import detect_format, read_capture  # noqa: PLC0415
-    from mgpusim.studies.frame_import import (check_experiment, experiment_text,  # noqa: PLC0415
+    from mgpusim.frames.formats import detect_format, read_capture  # noqa: PLC0415
+    from mgpusim.frames.importer import (check_experiment, experiment_text,  # noqa: PLC0415
                                               frame_from_slices)
     if not 0.0 <= args.pixel_share <= 1.0:
         raise InputError(f"must be in [0, 1], got {args.pixel_share}", field="--pixel-share")

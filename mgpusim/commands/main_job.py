@@ -1,7 +1,7 @@
 """`mgpusim main [--out DIR] [--held-out] [--repeats R] [--run-seconds S] [--steady-check F]`:
 the lavapipe study (measure, calibrate, validate, report), the README's main command. Exits 3
 with one `refused:` line (report written) when the speed rule refuses a half's verdict: too
-many runs measured while the machine changed speed or was loaded (:mod:`mgpusim.validation.speed_norm`)."""
+many runs measured while the machine changed speed or was loaded (:mod:`mgpusim.measure.speed_norm`)."""
 from __future__ import annotations
 
 import argparse
@@ -11,7 +11,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from mgpusim.commands.study import add_steady_check, progress_printer, steady_check
-from mgpusim.io.outpath import check_out_dir
+from mgpusim.io.out_folder import check_out_dir
 from mgpusim.io.shipped import shipped_dir
 
 #: The exit status of a job whose verdict the speed rule refused (report written, no verdict):
@@ -36,9 +36,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mgpusim.studies import speed_probe as speed  # noqa: PLC0415
-    from mgpusim.studies import steps as pipeline  # noqa: PLC0415
-    from mgpusim.studies.spec import load_study  # noqa: PLC0415
+    from mgpusim.measure import speed_probe as speed  # noqa: PLC0415
+    from mgpusim.studies import pipeline as pipeline  # noqa: PLC0415
+    from mgpusim.studies.study_file import load_study  # noqa: PLC0415
     check_out_dir(args.out)
     study = load_study(args.study)
     runs = study.runs

@@ -10,13 +10,13 @@ import argparse
 import sys
 from pathlib import Path
 
-from mgpusim.io.outpath import check_out_file
-from mgpusim.model.config import int_list
+from mgpusim.io.out_folder import check_out_file
+from mgpusim.model.toml_checks import int_list
 from mgpusim.model.errors import InputError
 
 
 def _list() -> int:
-    from mgpusim.real.vulkan.microbench import (  # noqa: PLC0415 - keeps `--help` free of numpy/pandas
+    from mgpusim.measure.microbench import (  # noqa: PLC0415 - keeps `--help` free of numpy/pandas
         PASSES)
 
     for spec in PASSES.values():
@@ -39,7 +39,7 @@ def _overlap_table(df) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mgpusim.io.output import write_json  # noqa: PLC0415
+    from mgpusim.io.writers import write_json  # noqa: PLC0415
     if args.list:
         return _list()
     if not args.pass_name or not args.out:
@@ -54,8 +54,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"must be >= 0, got {args.warmup}", field="--warmup")
     from tqdm import tqdm  # noqa: PLC0415
 
-    from mgpusim.real.vulkan import microbench as m  # noqa: PLC0415
-    from mgpusim.real.vulkan.host_machine import (close_gpus, machine_record,  # noqa: PLC0415
+    from mgpusim.measure import microbench as m  # noqa: PLC0415
+    from mgpusim.real.vulkan.machine import (close_gpus, machine_record,  # noqa: PLC0415
                                                   make_gpus)
 
     sweeps = m.parse_sweeps(args.pass_name, args.sweep or [])
@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     lp = int_list(args.lp_threads, "--lp-threads")
     count, device = args.gpus, args.device
     if args.pass_name == "overlap":  # its pairs' VkDevices, all on one physical GPU
-        from mgpusim.real.vulkan.overlap_probe import gpus_needed  # noqa: PLC0415
+        from mgpusim.measure.overlap import gpus_needed  # noqa: PLC0415
         count, device = gpus_needed(sweeps.get("pair", [m.PASSES["overlap"].params["pair"]])), device or 0
     gpus = [] if m.spec(args.pass_name).host else make_gpus(count, lp_threads=lp, physical=device)
     try:

@@ -10,14 +10,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mgpusim.io.outpath import check_out_dir
-from mgpusim.model.config import int_list
+from mgpusim.io.out_folder import check_out_dir
+from mgpusim.model.toml_checks import int_list
 from mgpusim.model.errors import InputError
 from mgpusim.model.limits import MAX_FRAMES, MAX_THREADS
 
 
 def run(args: argparse.Namespace) -> int:
-    from mgpusim.io.output import write_measured  # noqa: PLC0415
+    from mgpusim.io.writers import write_measured  # noqa: PLC0415
     from mgpusim.io.shipped import resolve_experiment  # noqa: PLC0415
     from mgpusim.schedules.experiment import load_experiment, parse_overrides  # noqa: PLC0415
 

@@ -5,7 +5,7 @@ import argparse
 from pathlib import Path
 
 from mgpusim.io.defaults import PERFETTO_SLICES, TRACE_FRAMES, TRACE_ROWS
-from mgpusim.io.outpath import check_out_dir
+from mgpusim.io.out_folder import check_out_dir
 from mgpusim.io.shipped import resolve_experiment
 from mgpusim.model.errors import InputError
 
@@ -54,7 +54,7 @@ def parse_frames(text: str) -> range:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mgpusim.io.output import write_result  # noqa: PLC0415
+    from mgpusim.io.writers import write_result  # noqa: PLC0415
     from mgpusim.schedules.experiment import load_experiment, parse_overrides  # noqa: PLC0415
     from mgpusim.sim.effects import parse_effects  # noqa: PLC0415
     from mgpusim.sim.simulation import simulate  # noqa: PLC0415
@@ -121,7 +121,7 @@ def effects_notes(exp, summary: dict, forced: dict[str, bool] | None) -> list[st
 
 def window_notes(result, args: argparse.Namespace) -> list[str]:
     """What the files leave out of a run too large to hold whole, and how to get it."""
-    from mgpusim.io.output import perfetto_frames, table_frames  # noqa: PLC0415
+    from mgpusim.io.writers import perfetto_frames, table_frames  # noqa: PLC0415
     n, notes = len(result.frames), []
     kept = table_frames(result, args.trace_rows)
     if kept < n:

@@ -17,15 +17,15 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
-from mgpusim.io.outpath import check_out_dir
+from mgpusim.io.out_folder import check_out_dir
 from mgpusim.io.shipped import resolve_experiment
-from mgpusim.model.config import int_list
+from mgpusim.model.toml_checks import int_list
 from mgpusim.model.errors import InputError
 
 if TYPE_CHECKING:  # annotations only: loaded when the command runs
     import pandas as pd
 
-    from mgpusim.studies.spec import Study
+    from mgpusim.studies.study_file import Study
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -82,7 +82,7 @@ def steady_check(args: argparse.Namespace, study: Study, out: Path,
     """With --steady-check: the probes before any other work (with --wait-steady, tried until
     they agree); on a steady machine they open the job's probe table (out/measurements), on a
     drifting one nothing is written."""
-    from mgpusim.studies import speed_probe as speed  # noqa: PLC0415
+    from mgpusim.measure import speed_probe as speed  # noqa: PLC0415
     if args.steady_check is None:
         if args.wait_steady is not None:
             raise InputError("--wait-steady waits for --steady-check to pass; give both",
@@ -129,7 +129,7 @@ def _filtered(study: Study, args: argparse.Namespace) -> Study:
 
 def measure(args: argparse.Namespace) -> int:
     from mgpusim.studies.measuring import measure_microbenchmarks, measure_runs  # noqa: PLC0415
-    from mgpusim.studies.spec import load_study  # noqa: PLC0415
+    from mgpusim.studies.study_file import load_study  # noqa: PLC0415
     study = _filtered(load_study(resolve_experiment(args.study)), args)
     out, progress = _out(args, study), progress_printer()
     steady_check(args, study, out, progress)
@@ -142,8 +142,8 @@ def measure(args: argparse.Namespace) -> int:
 
 
 def calibrate(args: argparse.Namespace) -> int:
-    from mgpusim.studies import steps as pipeline  # noqa: PLC0415
-    from mgpusim.studies.spec import load_study  # noqa: PLC0415
+    from mgpusim.studies import pipeline as pipeline  # noqa: PLC0415
+    from mgpusim.studies.study_file import load_study  # noqa: PLC0415
     study = load_study(resolve_experiment(args.study))
     out = _out(args, study)
     profile, text = pipeline.calibrate(study, out, progress_printer(), runs_dir=args.runs)
@@ -155,8 +155,8 @@ def calibrate(args: argparse.Namespace) -> int:
 def validate(args: argparse.Namespace) -> int:
     import pandas as pd  # noqa: PLC0415
 
-    from mgpusim.studies import steps as pipeline  # noqa: PLC0415
-    from mgpusim.studies.spec import load_study  # noqa: PLC0415
+    from mgpusim.studies import pipeline as pipeline  # noqa: PLC0415
+    from mgpusim.studies.study_file import load_study  # noqa: PLC0415
     study = load_study(resolve_experiment(args.study))
     out, progress = _out(args, study), progress_printer()
     profile = args.profile or study.profile
@@ -186,8 +186,8 @@ def validate(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mgpusim.studies import steps as pipeline  # noqa: PLC0415
-    from mgpusim.studies.spec import load_study  # noqa: PLC0415
+    from mgpusim.studies import pipeline as pipeline  # noqa: PLC0415
+    from mgpusim.studies.study_file import load_study  # noqa: PLC0415
     study = _filtered(load_study(resolve_experiment(args.study)), args)
     out, progress = _out(args, study), progress_printer()
     steady_check(args, study, out, progress)
@@ -199,8 +199,8 @@ def run(args: argparse.Namespace) -> int:
 def floor(args: argparse.Namespace) -> int:
     import pandas as pd  # noqa: PLC0415
 
-    from mgpusim.studies import replay_floor  # noqa: PLC0415
-    from mgpusim.studies.spec import load_study  # noqa: PLC0415
+    from mgpusim.studies import floor as replay_floor  # noqa: PLC0415
+    from mgpusim.studies.study_file import load_study  # noqa: PLC0415
     if len(args.runs) < 2:
         raise InputError("give two or more --runs folders", field="--runs")
     missing = [str(runs) for runs in args.runs if not runs.is_dir()]

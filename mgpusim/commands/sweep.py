@@ -42,7 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from mgpusim.schedules.experiment import parse_overrides  # noqa: PLC0415
-    from mgpusim.studies.sweep_grid import parse_grid, sweep  # noqa: PLC0415
+    from mgpusim.sweeps.grid import parse_grid, sweep  # noqa: PLC0415
     path = resolve_experiment(args.experiment)
     grid = parse_grid(args.grid)
     out = args.out or Path("out") / f"{path.stem}-sweep"

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from mgpusim.io.outpath import check_out_dir
+from mgpusim.io.out_folder import check_out_dir
 from mgpusim.io.shipped import resolve_experiment
 from mgpusim.model.errors import InputError
 

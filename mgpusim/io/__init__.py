@@ -1,2 +1,2 @@
-"""The edges: output paths checked first, run folders written, plots, Perfetto traces, a sweep's
-resumable folder, and where the shipped experiments and profiles are installed."""
+"""The edges: output paths checked first, run folders written, plots, Perfetto traces, report
+pages, and where the shipped experiments and profiles are installed."""

@@ -14,7 +14,7 @@ from typing import Sequence
 
 import pandas as pd
 
-from mgpusim.io.output import write_text
+from mgpusim.io.writers import write_text
 
 _STYLE = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px; color: #222; }

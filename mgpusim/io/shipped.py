@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from mgpusim.model.config import read_toml
+from mgpusim.model.toml_checks import read_toml
 from mgpusim.model.errors import InputError
 
 _PACKAGE = Path(__file__).resolve().parents[1]  # mgpusim/, this module being in mgpusim/io/

@@ -13,7 +13,7 @@ from types import MappingProxyType
 from typing import Any, Mapping, TypeVar
 
 from mgpusim.model import limits as L
-from mgpusim.model.config import Table, did_you_mean, read_toml
+from mgpusim.model.toml_checks import Table, did_you_mean, read_toml
 from mgpusim.model.errors import InputError
 from mgpusim.model.overrides import set_dotted
 from mgpusim.model.work_terms import WORK_TERMS, work_terms
@@ -78,7 +78,7 @@ class HostProfile:
     #: `dispatch_ns` and every task's `submit_ns` (recording, submitting and reaping it) are
     #: one core's time on one interpreter, shared by whoever runs Python at that moment. The
     #: more tasks a frame hands between threads, the later each hand-off. Measured with
-    #: experiments/h200_x4/interpreter_probe.py: on 4x H200 a woken thread waited a median
+    #: tools/probes/h200_x4/interpreter_probe.py: on 4x H200 a woken thread waited a median
     #: 0.26 ms in light 4-GPU sort-first frames and nothing in AFR. A native engine's threads
     #: do not share one: a what-if either way. Not where the GPUs share the CPU (lavapipe: the
     #: cores are the shared resource there, `serial_dispatch` its turns).

@@ -11,7 +11,7 @@ from types import MappingProxyType
 from typing import Mapping
 
 from mgpusim.model import limits as L
-from mgpusim.model.config import Table, did_you_mean, show_value
+from mgpusim.model.toml_checks import Table, did_you_mean, show_value
 from mgpusim.model.geometry import Placement
 
 

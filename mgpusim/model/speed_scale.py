@@ -4,7 +4,7 @@ behind speed-normalized prediction (docs/validation.md, "Speed-normalized predic
 Why: on lavapipe every GPU is the host's own CPU, and a shared virtual machine runs 10-130 %
 slower or faster within minutes (the hypervisor's steal, the host's clock). A profile
 calibrated at one speed then predicts a run measured at another with that ratio as error. A
-reference pass timed beside each run (:mod:`mgpusim.studies.speed_probe`) says how much slower
+reference pass timed beside each run (:mod:`mgpusim.measure.speed_probe`) says how much slower
 the machine was then; `at_speed` turns the calibrated profile into the one for that moment.
 
 What scales (times `scale`, rates over `scale`): everything that is CPU work on lavapipe.

@@ -12,7 +12,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Mapping
 
-from mgpusim.model.config import Table, read_toml
+from mgpusim.model.toml_checks import Table, read_toml
 from mgpusim.model.errors import InputError
 from mgpusim.model.overrides import parse_overrides, parse_value, set_dotted, split_profile
 from mgpusim.model.profile import HardwareProfile, load_profile, require_gpus

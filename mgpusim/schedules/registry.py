@@ -12,7 +12,7 @@ from types import MappingProxyType
 from typing import Any, Callable, Mapping
 
 from mgpusim.model import limits as L
-from mgpusim.model.config import Table
+from mgpusim.model.toml_checks import Table
 from mgpusim.model.profile import HardwareProfile
 from mgpusim.model.scene import Scene
 from mgpusim.schedules.base import MAX_REFRESH_HZ, FrameProgram

@@ -27,7 +27,7 @@ from typing import Callable
 
 import simpy
 
-from mgpusim.sim.state import Callback, Relative
+from mgpusim.sim.snapshot import Callback, Relative
 
 _ZERO = Fraction(0)
 #: An occupant's amount (:meth:`Channel.occupy`): more than any run can use up.

@@ -38,7 +38,7 @@ from mgpusim.sim.channel import Channel, FixedRateChannel
 from mgpusim.sim.hostlink import HostLinkChannel, LinkPort
 from mgpusim.sim.effects import choose_effects
 from mgpusim.sim.executors import Executor, Runner, make_executors
-from mgpusim.sim.state import Callback, Environment, Relative, StreamProcess
+from mgpusim.sim.snapshot import Callback, Environment, Relative, StreamProcess
 
 Key = tuple[int, str]
 _heappop, _heappush = heapq.heappop, heapq.heappush  # (looked up once: used per host-copy part)

@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any, Callable
 import simpy
 
 from mgpusim.sim.executors import Dedicated, Interpreter, SharedCores, SharedGpu
-from mgpusim.sim.state import Callback, Relative, Unsupported
+from mgpusim.sim.snapshot import Callback, Relative, Unsupported
 
 if TYPE_CHECKING:
     from mgpusim.sim.engine import Engine

@@ -20,7 +20,7 @@ from fractions import Fraction
 import simpy
 
 from mgpusim.sim.channel import Settle, Wake
-from mgpusim.sim.state import Relative
+from mgpusim.sim.snapshot import Relative
 
 
 class _Flow:

@@ -1,20 +1,22 @@
 """Studies: named sets of configurations measured for real, a calibration and a validation.
 
-:mod:`.spec` reads a study file; :mod:`.measure` measures it on Vulkan; :mod:`.pipeline` runs
-the steps measure -> calibrate -> validate -> report. The lavapipe main job
+:mod:`.study_file` reads a study file; :mod:`.measuring` measures it on Vulkan; :mod:`.pipeline`
+runs the steps measure -> calibrate -> validate -> report; :mod:`.page` writes its report page
+and :mod:`.floor` the replay floor between two sets of runs. The lavapipe main job
 (`experiments/lavapipe/study.toml`) and the NVIDIA validations (`experiments/h200/study.toml`,
 `experiments/h100/study.toml`) are studies.
 
 The names below load on first use: a command that needs one module of this package (`mgpusim
-sweep` needs :mod:`.sweep_grid`) does not pay for the calibration and report code.
+study floor` needs :mod:`.floor`) does not pay for the calibration and report code.
 """
 from __future__ import annotations
 
 import importlib
 from typing import Any
 
-_API = {"Entry": "spec", "Study": "spec", "load_study": "spec", "calibrate": "steps",
-        "load_runs": "steps", "run": "steps", "validate": "steps", "write_report": "steps"}
+_API = {"Entry": "study_file", "Study": "study_file", "load_study": "study_file",
+        "calibrate": "pipeline", "load_runs": "pipeline", "run": "pipeline", "validate": "pipeline",
+        "write_report": "pipeline"}
 __all__ = sorted(_API)
 
 

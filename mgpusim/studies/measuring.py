@@ -2,7 +2,7 @@
 
 Runs of the configurations are interleaved over the repeats, so that a slow phase of a noisy
 machine hits different configurations each round; with `steady_window` the compared run is
-the steady window of the repeats (:mod:`mgpusim.validation.steady_window`), written as a measured folder
+the steady window of the repeats (:mod:`mgpusim.measure.steady_window`), written as a measured folder
 `runs/<config>/steady`. Every run is kept under `runs/<config>/run<k>`. On lavapipe the speed
 probe is timed before the first run of a round and after every run, and each run's probes and
 the other processes' load during it go to `runs/run_speed.csv` (:mod:`.run_speed`): what the
@@ -16,13 +16,14 @@ from typing import Any, Callable
 
 import pandas as pd
 
-from mgpusim.io.output import write_json, write_measured
-from mgpusim.studies import host_load, run_speed
-from mgpusim.studies import speed_probe as speed
-from mgpusim.studies.spec import Entry, Study
-from mgpusim.validation import run_archive
+from mgpusim.io.writers import write_json, write_measured
+from mgpusim.measure import host_load
+from mgpusim.measure import run_speed
+from mgpusim.measure import speed_probe as speed
+from mgpusim.studies.study_file import Entry, Study
+from mgpusim.measure import run_archive
 from mgpusim.validation.measured import TRACE_FILES
-from mgpusim.validation.repeated_runs import with_run_length, write_steady_window
+from mgpusim.measure.repeated_runs import with_run_length, write_steady_window
 
 Progress = Callable[[str], None]
 
@@ -31,8 +32,8 @@ def measure_microbenchmarks(study: Study, out: Path, progress: Progress) -> list
     """Run every sweep on one simulated GPU, and every pair sweep alone and on two at once, in
     `rounds` rounds; one table (+ machine record) per pass. Each row has the pass's time, and a
     row of one GPU the process's CPU time while it ran."""
-    from mgpusim.real.vulkan import microbench as m  # noqa: PLC0415 - Vulkan is needed only to measure
-    from mgpusim.real.vulkan.host_machine import (close_gpus, machine_record,  # noqa: PLC0415
+    from mgpusim.measure import microbench as m  # noqa: PLC0415 - Vulkan is needed only to measure
+    from mgpusim.real.vulkan.machine import (close_gpus, machine_record,  # noqa: PLC0415
                                                   make_gpus)
 
     mb = study.microbenchmarks

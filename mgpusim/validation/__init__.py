@@ -1,1 +1,1 @@
-"""Measured runs read and checked, compared with the model, and repeated on noisy machines."""
+"""Measured runs read and checked, compared with the model (cross-validation and replay)."""

@@ -17,7 +17,7 @@ import pandas as pd
 
 from mgpusim.results.summary import frames_from_trace, summarize
 from mgpusim.results.waits import compare_waits
-from mgpusim.validation.speed_norm import verdict
+from mgpusim.measure.speed_norm import verdict
 
 
 def step_means_ns(trace: pd.DataFrame, first_frame: int) -> dict[str, float]:

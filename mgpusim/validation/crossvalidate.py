@@ -18,7 +18,7 @@ from typing import Any
 
 import pandas as pd
 
-from mgpusim.io.output import frame_window, write_json, write_table, write_text
+from mgpusim.io.writers import frame_window, write_json, write_table, write_text
 from mgpusim.io.perfetto import chrome_trace_json
 from mgpusim.io.plot import comparison_png
 from mgpusim.model.speed_scale import at_speed
@@ -30,9 +30,9 @@ from mgpusim.sim.simulation import simulate
 from mgpusim.validation.compare import compare
 from mgpusim.validation.measured import (other_machine, queues_as_run, read_measured,
                                          read_submissions, run_machine)
-from mgpusim.validation.repeated_runs import measure_repeated, run_spread
+from mgpusim.measure.repeated_runs import measure_repeated, run_spread
 from mgpusim.validation.replayed import replay_comparison
-from mgpusim.validation.speed_norm import RunSpeed
+from mgpusim.measure.speed_norm import RunSpeed
 
 #: The report lists the hand-offs whose mean wait differs by at least this much (ms), at most
 #: this many: the ones that explain a frame-time error, not every task.
@@ -51,7 +51,7 @@ def validate_experiment(exp: Experiment, out: Path, measured_dir: Path | None = 
     `out/measured/` and compares their steady window (:mod:`mgpusim.periodic_runs`); the
     report's `measured_spread` is how far the whole runs differed. With the compared run's
     `speed` (a lavapipe study's probes) the report also has the prediction at that run's own
-    machine speed under `speed` (:mod:`mgpusim.validation.speed_norm`). Without `figures` the
+    machine speed under `speed` (:mod:`mgpusim.measure.speed_norm`). Without `figures` the
     timelines and Perfetto traces are left out: the tables alone, in a fifth of the time."""
     if measured_dir is None:
         measured_dir = measure_repeated(exp, out / "measured", repeats, run_seconds)

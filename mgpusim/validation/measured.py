@@ -18,7 +18,7 @@ from mgpusim.model.tasks import CpuTask, HostCopyTask, QueueRef
 from mgpusim.results.trace import SUBMISSION_COLUMNS
 from mgpusim.schedules.base import FrameProgram
 from mgpusim.schedules.experiment import Experiment
-from mgpusim.validation import run_archive
+from mgpusim.measure import run_archive
 from mgpusim.validation.measured_check import (check_physical_gpus, check_recorded_config,
                                                check_trace, machine_of, read_json_object,
                                                read_table)

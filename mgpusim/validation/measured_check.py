@@ -3,7 +3,7 @@ broken or mismatched file is one InputError naming it and the column or field, n
 pandas traceback or a comparison of unlike runs.
 
 `read_table` and `read_json_object` are the only functions here that touch files (on disk, or in
-a packed folder of runs: :mod:`mgpusim.validation.run_archive`); the checks take what they read.
+a packed folder of runs: :mod:`mgpusim.measure.run_archive`); the checks take what they read.
 """
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from mgpusim.model.errors import InputError
 from mgpusim.model.profile import CalibratedOn
 from mgpusim.results.trace import TRACE_COLUMNS
 from mgpusim.schedules.program import build_program, run_config
-from mgpusim.validation import run_archive
+from mgpusim.measure import run_archive
 
 #: How a key missing on one side shows in a mismatch message.
 _ABSENT = "no value"

@@ -6,7 +6,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from mgpusim.studies.advice_validation import Frame, Setup, validate
+from mgpusim.advise.on_hardware import Frame, Setup, validate
 
 pytestmark = pytest.mark.vulkan
 ROOT = Path(__file__).resolve().parents[2]

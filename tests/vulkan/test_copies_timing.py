@@ -9,9 +9,9 @@ import pytest
 
 from mgpusim.real.vulkan.copies import (CopyD2D, CopyD2H, CopyH2D, copy_image_to_buffer, download,
                                         upload)
-from mgpusim.real.vulkan.host_machine import close_gpus, make_gpus
-from mgpusim.real.vulkan.hostcopy import MIN_CHUNK, HostCopier
-from mgpusim.real.vulkan.passes import FragmentLoop, Mesh
+from mgpusim.real.vulkan.machine import close_gpus, make_gpus
+from mgpusim.real.host.memcpy import MIN_CHUNK, HostCopier
+from mgpusim.real.passes.standalone import FragmentLoop, Mesh
 
 pytestmark = pytest.mark.vulkan
 

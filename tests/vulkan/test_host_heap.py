@@ -16,8 +16,8 @@ pytestmark = pytest.mark.vulkan
 
 SCRIPT = """
 import resource, sys
-from mgpusim.real.vulkan.host_machine import make_gpus, close_gpus
-from mgpusim.real.vulkan.passes import Mesh
+from mgpusim.real.vulkan.machine import make_gpus, close_gpus
+from mgpusim.real.passes.standalone import Mesh
 gpus = make_gpus(1)
 mesh = Mesh(gpus[0], 128, 96, 60000)
 for _ in range(10):

@@ -11,9 +11,9 @@ import pytest
 from mgpusim.cli import main
 from mgpusim.model.errors import InputError
 from mgpusim.real.runner import executor
-from mgpusim.real.vulkan import host_priority
+from mgpusim.real.host import priority as host_priority
 from mgpusim.real.vulkan.device import Gpu
-from mgpusim.real.vulkan.host_machine import machine_record
+from mgpusim.real.vulkan.machine import machine_record
 from mgpusim.real.vulkan.instance import Instance
 
 pytestmark = pytest.mark.vulkan

@@ -10,7 +10,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from mgpusim.real.vulkan import host_machine
+from mgpusim.real.vulkan import machine as host_machine
 
 pytestmark = pytest.mark.vulkan
 

@@ -6,8 +6,8 @@ import pytest
 
 from mgpusim.real.vulkan.buffers import DEPTH_FORMAT
 from mgpusim.real.vulkan.copies import download, upload
-from mgpusim.real.vulkan.particle_passes import ParticleUpdate, initial_state, reference_update
-from mgpusim.real.vulkan.passes import (CompositeSortFirst, CompositeSortLast, FragmentLoop, Mesh,
+from mgpusim.real.passes.particle_update import ParticleUpdate, initial_state, reference_update
+from mgpusim.real.passes.standalone import (CompositeSortFirst, CompositeSortLast, FragmentLoop, Mesh,
                                         ParticleRender, torus_mesh)
 
 pytestmark = pytest.mark.vulkan
@@ -136,7 +136,7 @@ def test_failed_pipeline_creation_leaves_nothing_behind(gpu):
 
 
 def test_present_copies_the_frame_into_the_displayed_image(gpu):
-    from mgpusim.real.vulkan.passes import Present
+    from mgpusim.real.passes.standalone import Present
     p = Present(gpu, 24, 16)
     pixels = np.random.default_rng(2).integers(0, 256, (16, 24, 4), dtype=np.uint8)
     upload(gpu, p.frame, pixels)
@@ -147,7 +147,7 @@ def test_present_copies_the_frame_into_the_displayed_image(gpu):
 
 def test_microbenchmarks_record_the_runners_passes(gpu):
     """One pass library: what `mgpusim measure` times is the runner's own pass object."""
-    from mgpusim.real.vulkan import framepasses as fp
+    from mgpusim.real.passes import recorders as fp
     built = [(FragmentLoop(gpu, 16, 16, 5), fp.FragmentLoopTile), (Mesh(gpu, 16, 16, 50), fp.MeshShare),
              (CompositeSortFirst(gpu, 16, 16, 2), fp.CompositeInto),
              (CompositeSortLast(gpu, 16, 16, 2), fp.CompositeInto)]
@@ -162,7 +162,7 @@ def test_microbenchmarks_record_the_runners_passes(gpu):
 def test_filter_combines_its_inputs_as_the_shader_says(gpu, inputs):
     """fract(last input + (other inputs + the loop's uv) / 16), per pixel: what the temporal
     pass and the pipelining chain compute."""
-    from mgpusim.real.vulkan.passes import FilterPass
+    from mgpusim.real.passes.standalone import FilterPass
 
     w, h, n = 32, 24, 20
     p = FilterPass(gpu, w, h, n, inputs)

@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 
 from mgpusim.cli import main
-from mgpusim.studies import speed_probe as speed
+from mgpusim.measure import speed_probe as speed
 
 pytestmark = pytest.mark.vulkan
 

@@ -189,7 +189,7 @@ def run_experiment(exp: Experiment, *, devices: Sequence[int] | None = None,
     with). `host_threads`: memcpy threads (default: the profile's `host.memcpy_threads`, the
     simulator's split). `runner`: as run_program's."""
     from mgpusim.real.runner.gpu_map import open_gpus  # noqa: PLC0415
-    from mgpusim.real.vulkan.host_machine import close_gpus, machine_record  # noqa: PLC0415
+    from mgpusim.real.vulkan.machine import close_gpus, machine_record  # noqa: PLC0415
 
     program = build_program(exp)
     threads = exp.profile.host.memcpy_threads if host_threads is None else host_threads

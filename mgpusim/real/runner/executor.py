@@ -25,7 +25,7 @@ from mgpusim.model.errors import InputError, ScheduleError
 from mgpusim.real.runner.latch import Latch
 from mgpusim.real.runner.plan import CPU_STREAM, HOST_STREAM, Node
 from mgpusim.real.runner.work import CpuWork, GpuWork, HostWork
-from mgpusim.real.vulkan import host_priority
+from mgpusim.real.host import priority as host_priority
 from mgpusim.real.vulkan.device import Gpu
 from mgpusim.schedules.base import FrameProgram
 from mgpusim.schedules.skipping import SkipChains
@@ -99,7 +99,7 @@ class Executor:
         #: per reading task, the frame whose output each frame's instance read (`newest`)
         self.read_frames: dict[str, dict[int, int | None]] = defaultdict(dict)
         #: with MGPUSIM_HOST_PRIORITY=realtime on lavapipe, the runner's threads take
-        #: SCHED_FIFO as lavapipe's do (vulkan/host_priority.py)
+        #: SCHED_FIFO as lavapipe's do (host/priority.py)
         self.promote_threads = host_priority.wanted() and any(
             isinstance(n.work, GpuWork) and n.work.gpu.info.is_lavapipe for n in nodes)
 

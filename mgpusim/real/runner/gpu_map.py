@@ -13,7 +13,7 @@ from typing import Sequence
 
 from mgpusim.model.errors import InputError
 from mgpusim.real.vulkan.device import Gpu
-from mgpusim.real.vulkan.host_machine import close_gpus, instance_for, is_kept, make_gpus
+from mgpusim.real.vulkan.machine import close_gpus, instance_for, is_kept, make_gpus
 
 
 def open_gpus(n: int, *, devices: Sequence[int] | None = None,

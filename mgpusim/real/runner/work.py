@@ -34,9 +34,9 @@ from mgpusim.real.runner.resources import COLOR_BPP, DEPTH_BPP, Resources
 from mgpusim.real.vulkan.copies import (copy_buffer, copy_buffer_to_rect, copy_rect,
                                         copy_rect_to_buffer)
 from mgpusim.real.vulkan.device import Gpu, Queue
-from mgpusim.real.vulkan.framepasses import (CompositeInto, Filter, FragmentLoopTile, MeshShare,
+from mgpusim.real.passes.recorders import (CompositeInto, Filter, FragmentLoopTile, MeshShare,
                                              ParticleDraw, copy_image, target_over)
-from mgpusim.real.vulkan.particle_passes import ParticleUpdate
+from mgpusim.real.passes.particle_update import ParticleUpdate
 
 
 @dataclass

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from mgpusim.model.errors import DependencyError
-from mgpusim.real.vulkan import host_priority
-from mgpusim.real.vulkan.hostheap import keep_heap
+from mgpusim.real.host import priority as host_priority
+from mgpusim.real.host.heap import keep_heap
 from mgpusim.real.vulkan.vk_errors import APT_LAYERS, APT_RUNTIME, VulkanError, call, vk
 
 VALIDATION_LAYER = "VK_LAYER_KHRONOS_validation"

@@ -17,7 +17,8 @@ from pathlib import Path
 from mgpusim.model.errors import DependencyError
 from mgpusim.real.vulkan.vk_errors import require_compiler
 
-SHADER_DIR = Path(__file__).with_name("shaders")
+# The GLSL sources belong to the pass library (real/passes/shaders/); this module only compiles.
+SHADER_DIR = Path(__file__).resolve().parents[1] / "passes" / "shaders"
 
 
 def cache_dir() -> Path:

@@ -1,0 +1,2 @@
+"""Captured frames: the capture formats read (:mod:`.formats`: Chrome trace JSON, CSV, measured
+runs) and a frame turned into an experiment (:mod:`.importer`), for `mgpusim frame import`."""

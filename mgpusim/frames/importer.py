@@ -1,0 +1,281 @@
+"""A measured frame as an experiment: `mgpusim frame import`.
+
+A capture's slices (:mod:`mgpusim.frames.formats`) become one frame: every pass with
+its median GPU time over the captured frames, the queue it ran on, the passes whose outputs it
+reads and the bytes of its output that others read, the CPU work per frame. The frame is
+written as an experiment of `captured` passes (docs/formats.md) that every schedule can run,
+so `mgpusim simulate`, `sweep` and `advise` take it like any other experiment.
+
+How a pass's output is found: a pass reads resources (names); the last pass before it in the
+frame that writes a resource is its producer. A resource written only at or after the reader
+is the previous frame's (a temporal input, which alternate-frame rendering must carry between
+GPUs). A name that no pass writes but that is a pass's name means all that pass writes; other
+names (textures loaded once, buffers from the CPU) are no pass's. A pass's `output_bytes` is the
+size of what it writes that another pass reads (where the capture gives no size: a colour
+target of the frame, which the import notes), and the last pass's image is presented.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import pandas as pd
+
+from mgpusim.model.errors import InputError
+from mgpusim.schedules.experiment import Experiment, parse_experiment
+
+#: Bytes per pixel of the colour target assumed for an output the capture gives no size for.
+DEFAULT_COLOR_BYTES = 4
+
+
+@dataclass(frozen=True)
+class CapturedPass:
+    """One pass of the frame: median `gpu_ms` over the `frames` it ran in."""
+
+    name: str
+    queue: str
+    gpu_ms: float
+    frames: int
+    pixel_share: float
+    reads: tuple[str, ...] = ()
+    output_bytes: int = 0
+    #: the spread of its time over the frames (median absolute deviation, ms)
+    spread_ms: float = 0.0
+
+
+@dataclass(frozen=True)
+class CapturedFrame:
+    """A frame from a capture: its passes in order (one eye's, for a stereo frame), the CPU
+    work per frame, and what the import noticed and left out (`notes`)."""
+
+    name: str
+    source: str
+    width: int
+    height: int
+    passes: tuple[CapturedPass, ...]
+    frames: int
+    cpu_ms: float = 0.0
+    views: int = 1
+    #: the GPU's busy span per frame (median of last end - first start), where times are known
+    gpu_span_ms: float | None = None
+    notes: tuple[str, ...] = ()
+    #: where a measured run came from (experiment name and file, schedule)
+    origin: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def gpu_ms(self) -> float:
+        """The sum of the passes' times (one eye's for a stereo frame)."""
+        return sum(p.gpu_ms for p in self.passes)
+
+
+def frame_from_slices(slices: pd.DataFrame, *, name: str, source: str, width: int, height: int,
+                      pixel_share: float = 1.0, left_out: Mapping[str, float] | None = None,
+                      origin: Mapping[str, Any] | None = None) -> CapturedFrame:
+    """The frame the slices make (see the module doc); `pixel_share` for passes whose capture
+    does not say how much of their time scales with pixels."""
+    gpu = slices[slices["queue"].isin(["graphics", "compute"])]
+    if gpu.empty:
+        raise InputError("no GPU passes in the capture (queues graphics or compute)", file=source)
+    frames = sorted(gpu["frame"].unique())
+    views = 2 if (gpu["view"] >= 0).any() else 1
+    if views == 2 and (gpu["view"] < 0).any():
+        bad = gpu.loc[gpu["view"] < 0, "name"].iloc[0]
+        raise InputError(f"a stereo capture (passes with a view) where pass {bad!r} has none: give "
+                         "every GPU pass its view (0 or 1)", file=source, field="view")
+    keyed = _occurrences(gpu)
+    passes = _passes(keyed, pixel_share, width * height * DEFAULT_COLOR_BYTES)
+    notes = list(_notes(slices, keyed, passes, len(frames), left_out or {}, views))
+    cpu = slices[slices["queue"] == "cpu"]
+    cpu_ms = float(cpu["ms"].sum()) / len(frames) if len(cpu) else 0.0
+    span = _gpu_span(gpu)
+    if span is not None and views == 1 and span < 0.95 * sum(p.gpu_ms for p in passes[0]):
+        notes.append(f"passes overlapped in the capture: the GPU was busy {span:.3f} ms per frame, "
+                     f"the passes sum to {sum(p.gpu_ms for p in passes[0]):.3f} ms; the schedules "
+                     "run them one after the other")
+    return CapturedFrame(name, source, width, height, passes[0], len(frames), cpu_ms, views, span,
+                         tuple(notes + list(passes[1])), dict(origin or {}))
+
+
+def _occurrences(gpu: pd.DataFrame) -> pd.DataFrame:
+    """Each slice keyed by its pass: its name, with '#k' for the k-th slice of that name in its
+    frame and view (a pass run twice a frame is two passes), and its start within its frame."""
+    df = gpu.copy()
+    df["order"] = range(len(df))
+    df = df.sort_values(["frame", "view", "start_ns", "order"], kind="stable", na_position="last")
+    nth = df.groupby(["frame", "view", "name"], sort=False).cumcount()
+    df["key"] = df["name"].where(nth == 0, df["name"] + "#" + (nth + 1).astype(str))
+    first = df.groupby(["frame", "view"], sort=False)["start_ns"].transform("min")
+    df["offset"] = df["start_ns"] - first
+    return df
+
+
+def _passes(keyed: pd.DataFrame, default_share: float,
+            default_bytes: int) -> tuple[tuple[CapturedPass, ...], list[str]]:
+    """The passes in frame order, their reads resolved to passes, and notes on assumed sizes."""
+    order = (keyed.groupby("key", sort=False)
+             .agg(offset=("offset", "median"), order=("order", "min"), ms=("ms", "median"),
+                  frames=("frame", "nunique"), queue=("queue", lambda q: q.mode().iat[0]),
+                  share=("pixel_share", "median"))
+             .sort_values(["offset", "order"], na_position="last", kind="stable"))
+    spread = keyed.groupby("key")["ms"].apply(lambda s: float((s - s.median()).abs().median()))
+    io = _io(keyed, list(order.index))
+    producers, sizes, notes = _producers(list(order.index), io, default_bytes)
+    passes = []
+    for key, row in order.iterrows():
+        share = row["share"] if not math.isnan(row["share"]) else default_share
+        passes.append(CapturedPass(str(key), str(row["queue"]), float(row["ms"]), int(row["frames"]),
+                                   float(share), tuple(producers[key]), int(sizes[key]),
+                                   float(spread[key])))
+    return tuple(passes), notes
+
+
+def _io(keyed: pd.DataFrame, keys: list[str]) -> dict[str, tuple[tuple[str, ...], dict[str, int | None]]]:
+    """Per pass: the resources it reads and those it writes with their bytes (None: unknown),
+    from its first slice that names any (captures repeat them every frame)."""
+    out: dict[str, tuple[tuple[str, ...], dict[str, int | None]]] = {}
+    for key, group in keyed.groupby("key", sort=False):
+        named = group[(group["reads"].map(len) > 0) | (group["writes"].map(len) > 0)]
+        row = named.iloc[0] if len(named) else group.iloc[0]
+        sizes = list(row["bytes"]) or [None] * len(row["writes"])
+        out[str(key)] = (tuple(row["reads"]), dict(zip(row["writes"], sizes)))
+    for key in keys:
+        out.setdefault(key, ((), {}))
+    return out
+
+
+def _producers(keys: list[str], io: dict[str, tuple[tuple[str, ...], dict[str, int | None]]],
+               default_bytes: int) -> tuple[dict[str, list[str]], dict[str, int], list[str]]:
+    """Reads resolved to the passes that wrote them (see the module doc), and each pass's
+    output bytes: what it writes that some pass reads, plus the last pass's image."""
+    reads: dict[str, list[str]] = {k: [] for k in keys}
+    read_from: dict[str, set[str]] = {k: set() for k in keys}
+    for i, key in enumerate(keys):
+        for res in io[key][0]:
+            writer = next((keys[j] for j in range(i - 1, -1, -1) if res in io[keys[j]][1]), None)
+            if writer is None:  # the previous frame's, from the last writer of the frame
+                writer = next((keys[j] for j in range(len(keys) - 1, i - 1, -1) if res in io[keys[j]][1]), None)
+            if writer is None and res in reads:
+                writer, res = res, "*"  # a pass's name: all it writes
+            if writer is None:
+                continue
+            if writer not in reads[key]:
+                reads[key].append(writer)
+            read_from[writer].add(res)
+    sizes, unknown = {}, []
+    for key in keys:
+        written = io[key][1]
+        whole = key == keys[-1] or "*" in read_from[key]  # presented, or read by its name
+        used = set(written) if whole else {r for r in read_from[key] if r in written}
+        if whole and not written:
+            used.add("")  # an output the capture does not name
+        total = 0
+        for res in used:
+            size = written.get(res) if res else None
+            if size is None:
+                unknown.append(key)
+                size = default_bytes
+            total += size
+        sizes[key] = total
+    notes = []
+    if unknown:
+        shown = ", ".join(sorted(set(unknown))[:5]) + (" ..." if len(set(unknown)) > 5 else "")
+        notes.append(f"output sizes not in the capture, taken as one colour target of the frame "
+                     f"({default_bytes} bytes): {shown}")
+    return reads, sizes, notes
+
+
+def _notes(slices: pd.DataFrame, keyed: pd.DataFrame, passes: tuple, frames: int,
+           left_out: Mapping[str, float], views: int) -> list[str]:
+    out = []
+    transfer = slices[slices["queue"] == "transfer"]
+    if len(transfer):
+        out.append(f"transfer-queue work left out ({transfer['ms'].sum() / frames:.3f} ms per frame): "
+                   "the schedules place their own copies")
+    for where, ms in sorted(left_out.items()):
+        out.append(f"not frame work, left out: {where} ({ms:.3f} ms in all)")
+    partial = [p.name for p in passes[0] if p.frames < frames]
+    if partial:
+        out.append(f"passes missing from some frames (their median is over the frames they ran in): "
+                   f"{', '.join(partial[:5])}{' ...' if len(partial) > 5 else ''}")
+    compute = [p.name for p in passes[0] if p.queue == "compute"]
+    if compute:
+        out.append(f"ran on the compute queue in the capture: {', '.join(compute[:5])}"
+                   f"{' ...' if len(compute) > 5 else ''}; the schedules run every pass on the "
+                   "graphics queue, in order")
+    return out
+
+
+def _gpu_span(gpu: pd.DataFrame) -> float | None:
+    if gpu["start_ns"].isna().any():
+        return None
+    per = gpu.groupby("frame").agg(lo=("start_ns", "min"), hi=("end_ns", "max"))
+    return float(((per["hi"] - per["lo"]) / 1e6).median())
+
+
+# ----- the experiment -------------------------------------------------------------------------
+def experiment_text(frame: CapturedFrame, profile: Path, out: Path, frames: int = 60,
+                    warmup: int = 10) -> str:
+    """The experiment file of `frame` (TOML), naming `profile` relative to `out`'s folder."""
+    ref = _profile_ref(profile, out)
+    lines = [f"# Imported by `mgpusim frame import` from {frame.source}",
+             f"# {frame.frames} captured frame(s); every pass's gpu_ms is its median over them "
+             f"({'one eye of two views' if frame.views == 2 else 'one view'}).",
+             f"# The passes sum to {frame.gpu_ms:.3f} ms of GPU time per frame"
+             + (f"; the GPU was busy {frame.gpu_span_ms:.3f} ms per frame." if frame.gpu_span_ms else "."),
+             "# pixel_share: the part of a pass's time that scales with the pixels it draws (a",
+             "# sort-first tile); the rest scales with the geometry it draws (a sort-last share).",
+             *(f"# note: {n}" for n in frame.notes),
+             f"name = {_q(frame.name)}",
+             f"description = {_q(f'frame imported from {frame.source}: {len(frame.passes)} passes')}",
+             f"profile = {_q(ref)}", "", "[scene]", f"width = {frame.width}", f"height = {frame.height}"]
+    for p in frame.passes:
+        lines += ["", "[[scene.passes]]", f"name = {_q(p.name)}", 'kind = "captured"',
+                  f"gpu_ms = {p.gpu_ms:.6g}" + (f"  # +- {p.spread_ms:.3g} ms over {p.frames} frame(s)"
+                                               if p.frames > 1 else ""),
+                  f"pixels = {frame.width * frame.height}", f"pixel_share = {p.pixel_share:g}"]
+        if p.output_bytes:
+            lines.append(f"output_bytes = {p.output_bytes}")
+        if p.reads:
+            lines.append("reads = [" + ", ".join(_q(r) for r in p.reads) + "]")
+        if p.queue != "graphics":
+            lines.append(f"# ran on the {p.queue} queue in the capture")
+    lines += ["", "[schedule]"] + schedule_lines(frame, frames, warmup)
+    return "\n".join(lines) + "\n"
+
+
+def _profile_ref(profile: Path, out: Path) -> str:
+    """The profile as the experiment names it: relative to the experiment's folder where both
+    lie under the working directory (a checkout moved elsewhere still works), else absolute."""
+    here, prof, folder = Path.cwd().resolve(), profile.resolve(), out.resolve().parent
+    if prof.is_relative_to(here) and folder.is_relative_to(here):
+        return Path(os.path.relpath(prof, folder)).as_posix()
+    return prof.as_posix()
+
+
+def schedule_lines(frame: CapturedFrame, frames: int, warmup: int) -> list[str]:
+    """One GPU: the frame as captured (a stereo frame's two views in turn on it, XR's simulated
+    mode); `mgpusim advise` searches the multi-GPU schedules from there."""
+    lines = ['name = "xr"', "gpus = 1", 'mode = "simulated"', "views = 2"] if frame.views == 2 else \
+        ['name = "pipelining"', "gpus = 1"]
+    lines += [f"frames = {frames}", f"warmup_frames = {warmup}"]
+    if frame.views == 1 and any(p.reads for p in frame.passes):
+        lines.append('consumer_waits = "reads"   # split across GPUs, a pass waits only for what it reads')
+    if frame.cpu_ms:
+        lines.append(f"cpu_frame_us = {frame.cpu_ms * 1000:.6g}   # the capture's CPU work per frame")
+    return lines
+
+
+def _q(text: str) -> str:
+    """A TOML basic string (JSON's escapes are TOML's)."""
+    return json.dumps(text, ensure_ascii=False)
+
+
+def check_experiment(text: str, out: Path) -> Experiment:
+    """The written experiment as `simulate` will read it: an import that would not load is an
+    error here, before any file is written."""
+    import tomllib  # noqa: PLC0415
+    return parse_experiment(tomllib.loads(text), str(out), base=out.resolve().parent)

@@ -1,0 +1,303 @@
+"""A study's steps: measure -> calibrate -> validate -> report, each usable on its own.
+
+`run` does all four into one output folder (what `mgpusim main` does for the lavapipe study);
+`calibrate` and `validate` also work on committed runs with no device (the NVIDIA studies).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import tomli_w
+
+from mgpusim.calibration.recipe import profile_from_tables, refine_on_runs
+from mgpusim.io.writers import write_json
+from mgpusim.measure import run_speed
+from mgpusim.measure import speed_probe as speed
+from mgpusim.studies.measuring import (Progress, measure_microbenchmarks, measure_runs,
+                                       measured_folder)
+from mgpusim.studies.study_file import Entry, Study
+from mgpusim.studies.page import stats_line, write_study_page
+from mgpusim.measure import run_archive
+from mgpusim.measure import speed_norm
+from mgpusim.validation.compare import error_stats, error_table
+from mgpusim.validation.crossvalidate import format_report, validate_experiment
+from mgpusim.validation.measured import read_measured
+from mgpusim.measure.speed_norm import RunSpeed
+
+CALIBRATION_TITLE = "Calibration runs (seen by the fit)"
+HELD_OUT_TITLE = "Held-out runs (never seen by the fit)"
+#: Each runs folder's speed record (`runs/run_speed.csv`) as one command read it, by folder.
+SpeedTables = dict[Path, pd.DataFrame]
+
+
+def runs_root(study: Study, held_out: bool, out: Path) -> Path:
+    """Where a half's measured runs lie: the study's committed folder, or `out/runs`."""
+    committed = study.held_out_runs if held_out else study.calibration_runs
+    return committed if committed is not None else out / "runs"
+
+
+def without_runs(entries: tuple[Entry, ...], root: Path) -> list[str]:
+    """The names of the entries that have no measured run under `root`: listed in the fit
+    report, the validation output and report.md, never left out silently."""
+    return [e.name for e in entries if not run_archive.is_folder(measured_folder(root, e.name))]
+
+
+def load_runs(study: Study, entries: tuple[Entry, ...], root: Path,
+              profile: Path | None = None) -> list[tuple[Any, pd.DataFrame]]:
+    """(experiment, measured trace) of every entry whose run lies under `root`."""
+    runs = []
+    for e in entries:
+        folder = measured_folder(root, e.name)
+        if run_archive.is_folder(folder):
+            exp = e.load(profile or study.profile)
+            runs.append((exp, read_measured(folder, exp)))
+    return runs
+
+
+def calibrate(study: Study, out: Path, progress: Progress, tables: list[Path] | None = None,
+              runs_dir: Path | None = None) -> tuple[Path, str]:
+    """Fit the study's profile on its tables, then on its calibration runs (committed, under
+    `runs_dir`, or under `out/runs`); write `out/profile.toml`; return it and the fit text."""
+    tables = tables or study.microbenchmarks.tables(out / "measurements")
+    data, lines = profile_from_tables(study.recipe, tables, study.profile,
+                                      f"mgpusim study calibrate {study.file}")
+    progress(f"calibrate from {len(tables)} tables")
+    return fit_on_runs(study, data, lines, runs_dir or runs_root(study, False, out), out)
+
+
+def fit_on_runs(study: Study, data: dict[str, Any], lines: list[str], root: Path, out: Path,
+                profile: Path | None = None) -> tuple[Path, str]:
+    """The recipe's run-based steps on the calibration runs under `root` (their experiments
+    built on `profile`, default the study's); write `out/profile.toml` with the fit report."""
+    runs = load_runs(study, study.calibration, root, profile)
+    data, more = refine_on_runs(study.recipe, data, runs)
+    missing = without_runs(study.calibration, root)
+    if missing:
+        more = more + [f"{len(missing)} calibration configuration(s) without a measured run under "
+                       f"{root} (not in the fit): {', '.join(missing)}"]
+    return write_profile(data, out / "profile.toml", lines + more), "\n".join(lines + more)
+
+
+def write_profile(data: dict[str, Any], path: Path, lines: list[str]) -> Path:
+    """The profile TOML with the fit report as its header comment, written whole or not at all."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    header = "# Calibrated by mgpusim study. Fit report:\n" + "".join(
+        f"#   {line}\n" for text in lines for line in text.splitlines())
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(header + "\n" + tomli_w.dumps(data))
+    tmp.replace(path)
+    return path
+
+
+def validate(study: Study, entries: tuple[Entry, ...], root: Path, profile: Path, out: Path,
+             progress: Progress, extra: tuple[str, ...] = (), figures: bool = True,
+             calibration_root: Path | None = None,
+             speed_tables: SpeedTables | None = None) -> pd.DataFrame:
+    """Compare each entry's measured run under `root` with the model on `profile` (no device
+    needed); one row per entry with a run; `run_to_run_spread` where repeats were kept.
+    `figures`: each entry's timelines and traces too (most of the time taken).
+    `calibration_root`: where the calibration runs are (default `root`), whose speed records
+    give the speed the profile was fitted at. `speed_tables`: the command's speed records
+    already read (see :func:`speed_table`), so that its halves and report share one read."""
+    rows = []
+    missing = without_runs(entries, root)
+    if missing:
+        progress(f"no measured run under {root} for {len(missing)} configuration(s): {', '.join(missing)}")
+    speeds = run_speeds(study, entries, root, calibration_root or root, speed_tables)
+    for e in entries:
+        folder = measured_folder(root, e.name)
+        if e.name in missing:
+            continue
+        exp = e.load(profile, extra)
+        report = validate_experiment(exp, out / e.name, folder, speed=speeds.get(e.name), figures=figures)
+        report["config"] = e.name
+        progress(format_report(exp, report))
+        rows.append((exp.schedule.name, report))
+    table = error_table([r for _, r in rows])
+    if rows:
+        table["schedule"] = [name for name, _ in rows]
+        table["run_to_run_spread"] = [r["measured_spread"] for _, r in rows]
+        table = table.join(pd.DataFrame([most_off(r) for _, r in rows], index=table.index))
+    return table
+
+
+def speed_table(tables: SpeedTables, root: Path) -> pd.DataFrame:
+    """The speed record under `root`, read on first use and kept in `tables`. Why: one
+    `study validate --held-out` needs the calibration folder's record for each half's reference
+    and for the report; reading it once (maybe from a packed archive) keeps it one table."""
+    if root not in tables:
+        tables[root] = run_speed.read(root / run_speed.FILE)
+    return tables[root]
+
+
+def run_speeds(study: Study, entries: tuple[Entry, ...], root: Path,
+               calibration_root: Path, tables: SpeedTables | None = None) -> dict[str, RunSpeed]:
+    """Per entry with a speed record under `root` (a lavapipe job's `runs/run_speed.csv`), its
+    compared run's speed against the probe at calibration: the median over the study's
+    calibration runs, from the records under `calibration_root` ({} where there are none).
+    `tables`: records the caller already read, and where this one keeps those it reads."""
+    tables = {} if tables is None else tables
+    table = speed_table(tables, root)
+    if table.empty:
+        return {}
+    cal = speed_table(tables, calibration_root)
+    ref = speed_norm.reference_ms(cal, [(e.name, run_speed.compared_run(calibration_root, e.name))
+                                        for e in study.calibration])
+    if ref is None:
+        return {}
+    speeds = {e.name: speed_norm.speed_row(table, e.name, run_speed.compared_run(root, e.name), ref)
+              for e in entries}
+    return {name: sp for name, sp in speeds.items() if sp is not None}
+
+
+def most_off(report: dict[str, Any]) -> dict[str, Any]:
+    """Where one comparison differs most: the step whose mean duration is furthest off in ms
+    (simulated - measured, and as simulated / measured - 1) and the hand-off whose mean wait
+    from ready to start is (measured - simulated ms; none where no wait was compared). Why: a
+    frame-time error says how far the model is off, these say where to look for the effect it
+    lacks; in ms, since a tiny step far off in % moves a frame little."""
+    steps = report.get("steps", {})
+    step = max(steps, key=lambda k: (abs(_step_ms(steps[k])), k), default="")
+    waits = report.get("waits", {})
+    edge = next(iter(waits), "")  # sorted by |difference|, largest first
+    return {"step_most_off": step,
+            "step_difference_ms": _step_ms(steps[step]) if step else float("nan"),
+            "step_error": steps[step]["error"] if step else float("nan"),
+            "wait_most_off": edge,
+            "wait_difference_ms": waits[edge]["difference_ms"] if edge else float("nan")}
+
+
+def run(study: Study, out: Path, progress: Progress, held_out: bool = True,
+        devices: list[int] | None = None) -> Path:
+    """Measure, calibrate, validate and report the whole study into `out`."""
+    out.mkdir(parents=True, exist_ok=True)
+    tables = None
+    if study.microbenchmarks.sweeps and study.microbenchmarks.folder is None:
+        tables = measure_microbenchmarks(study, out / "measurements", progress)
+    command = f"mgpusim study run {study.file}"
+    data, lines = profile_from_tables(study.recipe, tables or study.microbenchmarks.tables(out / "measurements"),
+                                      study.profile, command)
+    base = write_profile(data, out / "profile_microbenchmarks.toml", lines)
+    measure_runs(study, study.entries(held_out), base, out / "runs", progress, devices)
+    progress("calibrate from runs")
+    profile, fit_text = fit_on_runs(study, data, lines, out / "runs", out, base)
+    speeds: SpeedTables = {}  # after the runs are measured: read once, shared below
+    tables_out = {CALIBRATION_TITLE: validate(study, study.calibration, out / "runs", profile,
+                                              out / "validation", progress, speed_tables=speeds)}
+    missing = {CALIBRATION_TITLE: without_runs(study.calibration, out / "runs")}
+    if held_out and study.held_out:
+        tables_out[HELD_OUT_TITLE] = validate(study, study.held_out, out / "runs", profile,
+                                              out / "validation", progress, speed_tables=speeds)
+        missing[HELD_OUT_TITLE] = without_runs(study.held_out, out / "runs")
+    return write_report(out, study, tables_out, fit_text, probes_of(out / "runs"), missing,
+                        speed_table(speeds, out / "runs"))
+
+
+def probes_of(runs: Path) -> pd.DataFrame:
+    """The speed probes of the job whose runs lie in `runs` (and its tables beside them)."""
+    return speed.read_probes([runs.parent / "measurements" / speed.FILE, runs / speed.FILE])
+
+
+def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_text: str,
+                 probes: pd.DataFrame | None = None,
+                 missing: dict[str, list[str]] | None = None,
+                 run_speeds: pd.DataFrame | None = None) -> Path:
+    """report.md: the machine's speed during the job (its probes, when measured, and each run's
+    from `run_speeds`, runs/run_speed.csv); per half, the
+    configurations without a measured run (`missing`), and per schedule the error table, its
+    statistics and the stacked measured/simulated timelines; errors.json (per half, with the
+    configurations without runs) and errors_by_schedule.json; errors_*.csv; report.html, the
+    same as a static page with error plots (mgpusim/studies/page.py)."""
+    lines = [f"# mgpusim study {study.name}: measured vs simulated", "",
+             "Errors are simulated / measured - 1, at two levels: the *prediction* (the calibrated "
+             "cost model) and the *replay* (the model's timeline with every task taking the "
+             "duration the run measured for it: what is left is the timeline's own error, which "
+             "a noisy machine cannot move). With repeated runs the measured side is the "
+             "steady window of the interleaved repeats (the window of >= 200 ms at the 10th "
+             "percentile of frame time over all runs; outside interference only adds time), and "
+             "`spread` is (slowest / fastest - 1) of the whole runs' frame times, the machine's own "
+             "noise. Each configuration's folder under validation/ holds `timelines.png` (measured "
+             "above simulated) and both Perfetto traces (unless `--no-figures`).", ""]
+    speed_lines = speed.report_lines(probes if probes is not None else speed.read_probes([]))
+    speed_lines += run_speed.report_lines(run_speeds if run_speeds is not None else pd.DataFrame())
+    lines += speed_lines
+    stats: dict[str, Any] = {}
+    by_schedule: dict[str, dict[str, Any]] = {}
+    for title, table in tables.items():
+        absent = (missing or {}).get(title, [])
+        if absent:
+            stats.setdefault(title, {})["without_runs"] = absent
+            lines += [f"## {title}", "", f"No measured run, not compared: {', '.join(absent)}.", ""]
+        if table.empty:
+            continue
+        stats[title] = {**error_stats(table), **stats.get(title, {})}
+        lines += ([] if absent else [f"## {title}", ""]) + [stats_line(stats[title]), ""]
+        groups = table.groupby("schedule", sort=False) if "schedule" in table else [("", table)]
+        for schedule, part in groups:
+            st = by_schedule.setdefault(title, {})[schedule] = error_stats(part)
+            lines += [f"### {schedule}", "", markdown_table(part), "", stats_line(st), ""]
+            lines += [f"![{c}](validation/{c}/timelines.png)" for c in part["config"]
+                      if (out / "validation" / c / "timelines.png").exists()] + [""]  # not --no-figures
+        table.to_csv(out / f"errors_{title.split()[0].lower()}.csv", index=False)
+    lines += ["## Calibration", "", "```", fit_text, "```", ""]
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "report.md"
+    path.write_text("\n".join(lines))
+    write_json(stats, out / "errors.json")
+    write_json(by_schedule, out / "errors_by_schedule.json")
+    write_study_page(out, study.name, tables, stats, by_schedule, fit_text, speed_lines, missing)
+    return path
+
+
+def refusals(stats: dict[str, Any]) -> list[str]:
+    """One line per half of a job whose verdict the speed rule refused (errors.json's stats)."""
+    return [f"{title}: {st['verdict']['refused']}" for title, st in stats.items()
+            if isinstance(st, dict) and "refused" in st.get("verdict", {})]
+
+
+def markdown_table(table: pd.DataFrame) -> str:
+    head = ("| config | measured frame (ms) | simulated | error | replay error | spread | stalls left out | "
+            "measured latency (ms) | simulated | error | replay error | step most off (simulated - measured) | "
+            "hand-off most off (measured - simulated) |")
+    rows = [head, "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    probed = "probe_ratio" in table
+    if probed:  # a lavapipe job's runs: the prediction at each run's own machine speed
+        rows = [head + " probe ratio (run / calibration) | normalized error | speed flag |",
+                rows[1] + "---|---|---|"]
+    for r in table.itertuples():
+        spread = getattr(r, "run_to_run_spread", float("nan"))
+        stalls = getattr(r, "stalled_frames", 0)
+        rep = getattr(r, "replay_frame_time_error", float("nan"))
+        rep_lat = getattr(r, "replay_latency_error", float("nan"))
+        rows.append(f"| {r.config} | {r.measured_frame_ms:.2f} | {r.simulated_frame_ms:.2f} | "
+                    f"{r.frame_time_error:+.1%} | {rep:+.1%} | {spread:.0%} | {stalls or ''} | "
+                    f"{r.measured_latency_ms:.2f} | {r.simulated_latency_ms:.2f} | {r.latency_error:+.1%} | "
+                    f"{rep_lat:+.1%} | {_step_cell(r)} | {_wait_cell(r)} |"
+                    + (_speed_cells(r) if probed else ""))
+    return "\n".join(rows)
+
+
+def _speed_cells(r: Any) -> str:
+    """Probe ratio, normalized frame-time error and flag (blank where the run has no probe)."""
+    if pd.isna(r.probe_ratio):
+        return " | | |"
+    flag = r.speed_flag if isinstance(r.speed_flag, str) and r.speed_flag else ""
+    return (f" {r.probe_ratio:.2f} | {r.normalized_frame_time_error:+.1%} | "
+            f"{'**flagged**: ' + flag if flag else ''} |")
+
+
+def _step_ms(step: dict[str, float]) -> float:
+    return step["simulated_ms"] - step["measured_ms"]
+
+
+def _step_cell(r: Any) -> str:
+    step = getattr(r, "step_most_off", "")
+    return (f"{step} {r.step_difference_ms:+.2f} ms ({r.step_error:+.0%})"
+            if isinstance(step, str) and step else "")
+
+
+def _wait_cell(r: Any) -> str:
+    edge = getattr(r, "wait_most_off", "")
+    return f"`{edge}` {r.wait_difference_ms:+.2f} ms" if isinstance(edge, str) and edge else ""

@@ -1,0 +1,3 @@
+"""Sweeps: an experiment times a grid of overrides (:mod:`.grid`), the vectorised analytic lanes
+that run many points at once (:mod:`.lanes`), and the resumable store of finished points
+(:mod:`.store`), for `mgpusim sweep` and :func:`mgpusim.sweep`."""

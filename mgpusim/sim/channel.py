@@ -27,6 +27,7 @@ from typing import Callable
 
 import simpy
 
+from mgpusim.sim.fluid import FluidChannel
 from mgpusim.sim.snapshot import Callback, Relative
 
 _ZERO = Fraction(0)
@@ -56,7 +57,7 @@ class _Flow:
         self.solo_rate: Fraction = _ZERO  # non-zero while the flow runs on the fast path
 
 
-class Channel:
+class Channel(FluidChannel):
     """One direction of one link; `busy` records the intervals with at least one transfer."""
 
     #: whether several capped transfers that fit in the bandwidth may take the fast path (not
@@ -209,14 +210,6 @@ class Channel:
         for f in self.flows:
             f.cap_s = None
 
-    def _advance(self) -> None:
-        now = self.env.now
-        dt = now - self._t
-        if dt:
-            for flow in self.flows:
-                flow.remaining -= flow.rate * dt
-            self._t = now
-
     def _reshare(self) -> None:
         """Max-min fair shares with per-flow caps (water-filling), all in integers."""
         capacity = self._capacity_now()  # (may grow the scale: read it after)
@@ -266,24 +259,9 @@ class Channel:
             return 2 * self.bandwidth
         return sum((f.cap for f in self.flows), Fraction(0))
 
-    def _settle(self, _event=None) -> None:
-        """Complete the flows due now, share the bandwidth anew and plan the next wake-up."""
-        self._settle_pending = False
-        if not self.flows or self.flows[0].solo_rate:
-            return  # released empty (an occupant), maybe on the fast path since: nothing to share
-        self._advance()
-        self._reshare()
-        finished = [f for f in self.flows if 2 * f.remaining < f.rate]
-        if finished:
-            self.flows = [f for f in self.flows if 2 * f.remaining >= f.rate]
-            for flow in finished:
-                flow.done.succeed()
-            if not self.flows:
-                self.busy.append((self._busy_since, self.env.now))
-                self._gen += 1
-                return
-            self._reshare()
-        self._plan()
+    def _idle(self) -> bool:
+        # released empty (an occupant), maybe on the fast path since: nothing to share
+        return not self.flows or bool(self.flows[0].solo_rate)
 
     def _plan(self) -> None:
         self._gen += 1

@@ -20,6 +20,7 @@ from fractions import Fraction
 import simpy
 
 from mgpusim.sim.channel import Settle, Wake
+from mgpusim.sim.fluid import FluidChannel
 from mgpusim.sim.snapshot import Relative
 
 
@@ -32,7 +33,7 @@ class _Flow:
         self.rate = Fraction(0)
 
 
-class HostLinkChannel:
+class HostLinkChannel(FluidChannel):
     """One direction of PCIe for every GPU: the GPUs' links (`link(name, bandwidth)` adds one)
     and the host's capacity behind them. `busy` records the intervals with at least one
     transfer on any of the links."""
@@ -76,34 +77,13 @@ class HostLinkChannel:
             self.env.timeout(0).callbacks.append(Settle((self,)))
         return done
 
-    # ----- the solver -------------------------------------------------------------------
-    def _advance(self) -> None:
-        dt = self.env.now - self._t
-        if dt:
-            for flow in self.flows:
-                flow.remaining -= flow.rate * dt
-        self._t = self.env.now
-
+    # ----- the solver (its loop: FluidChannel._settle) ------------------------------------
     def _reshare(self) -> None:
         """Progressive filling over the links and the host channel, with per-flow caps."""
         share(self.flows, self.links, self.capacity)
 
-    def _settle(self) -> None:
-        self._settle_pending = False
-        if not self.flows:
-            return
-        self._advance()
-        self._reshare()
-        finished = [f for f in self.flows if 2 * f.remaining < f.rate]
-        if finished:
-            self.flows = [f for f in self.flows if 2 * f.remaining >= f.rate]
-            for flow in finished:
-                flow.done.succeed()
-            if not self.flows:
-                self.busy.append((self._busy_since, self.env.now))
-                self._gen += 1
-                return
-            self._reshare()
+    def _plan(self) -> None:
+        """Wake at the next flow's end, rounded half up to the nanosecond."""
         self._gen += 1
         wake = min(self._t + int(f.remaining / f.rate + Fraction(1, 2)) for f in self.flows)
         wake = max(wake, self.env.now)

@@ -159,3 +159,79 @@ def test_fast_forward_of_the_as_built_loop_is_exact():
     slow = simulate(exp, record_trace=False, fast_forward=False)
     assert fast.summary["fast_forward"]["used"] is True
     assert fast.frames.present_ns.tolist() == slow.frames.present_ns.tolist()
+
+
+def test_as_built_upload_waits_for_the_primary_render_without_a_transfer_queue():
+    """GPUs with a graphics queue only (lavapipe): the main thread joins the primary's render
+    thread before it records the upload. Same costs as the exact timeline above: render0 ends
+    at 181, the main thread wakes at 186 and records the upload (186-188), which runs 193-257
+    on the primary's graphics queue (with a transfer queue of its own it was recorded at 83)."""
+    prof = _host(dispatch_ns=5, thread_start_ns=3, record_ns=2)
+    prof["gpus"][0]["queues"] = {"graphics": 1}
+    r = simulate(make_experiment(prof, gpus=2, frames=4, iterations=10, host_work="as_built"))
+    assert rows(r, "cpu.record_upload", 0) == [(186, 188)]
+    assert rows(r, "h2d1", 0) == [(193, 257)]
+    t = r.trace.set_index(["frame", "task"])
+    assert t.loc[(0, "h2d1"), "engine"] == "graphics"
+    assert rows(r, "present", 0) == [(301, 311)]
+
+
+def test_as_built_update_gap_sleeps_between_present_and_next_frame():
+    """One GPU (record 2, submit +5, render 320, present 10) with a 100 ns update gap: the main
+    thread wakes after the present (337 + 5) and sleeps 100 ns; the next recording follows on
+    the same thread at once: a 442 ns loop. The gap is a sleep: on CPU-emulated GPUs sharing
+    one core it slows nothing."""
+    exp = make_experiment(_host(dispatch_ns=5, record_ns=2), gpus=1, frames=3, iterations=10,
+                          host_work="as_built", update_gap_ns=100)
+    r = simulate(exp)
+    assert rows(r, "cpu.update_gap") == [(342, 442), (784, 884), (1226, 1326)]
+    assert rows(r, "cpu.record0") == [(0, 2), (442, 444), (884, 886)]
+    assert simulate(exp, fidelity="analytic").frames.present_ns.tolist() == r.frames.present_ns.tolist()
+    shared = _host(dispatch_ns=5, record_ns=2, cpu_cores=1, gpus_share_cpu=True)
+    r = simulate(make_experiment(shared, gpus=1, frames=3, iterations=10, host_work="as_built",
+                                 update_gap_ns=100))
+    assert rows(r, "cpu.update_gap", 0) == [(342, 442)]
+
+
+def test_update_gap_needs_the_as_built_loop():
+    with pytest.raises(InputError, match="schedule.update_gap_ns"):
+        build_program(make_experiment(gpus=2, update_gap_ns=100))
+    with pytest.raises(InputError, match="schedule.update_gap_ns"):
+        make_experiment(gpus=2, host_work="as_built", update_gap_ns=-1)
+
+
+def test_an_idle_cpu_task_takes_no_core_beside_a_pass():
+    """A 1000 ns pass on a CPU-emulated GPU that has the host's one core, beside 600 ns of CPU
+    work on the main thread: busy work shares the core while both run (the pass ends at 1600);
+    a sleep of the same length leaves it at 1000."""
+    from mgpusim.model.costs import CostModel
+    from mgpusim.model.profile import parse_profile
+    from mgpusim.model.tasks import CpuTask, Dep, PassTask, QueueRef
+    from mgpusim.schedules.base import FrameProgram
+    from mgpusim.sim.engine import Engine
+
+    from tests.schedule_helpers import gpu
+
+    prof = parse_profile({"name": "one core", "gpus": [gpu(count=1)],
+                          "host": {"memory_bandwidth_gbps": 1.0, "memcpy_threads": 1, "memcpy_thread_gbps": 1.0,
+                                   "cpu_cores": 1, "gpus_share_cpu": True}}, "one-core")
+    ends = {}
+    for idle in (False, True):
+        tasks = (CpuTask("cpu.wait", "cpu", fixed_ns=600.0, idle=idle),
+                 PassTask("present", "present", QueueRef(0, "graphics"), "timed", {"reference_ns": 1000.0}))
+        program = FrameProgram("idle", 1, 1, 0, (tasks,))
+        ends[idle] = int(Engine(program, CostModel(prof)).run().present_end[0])
+    assert ends == {False: 1600, True: 1000}
+
+
+def test_as_built_host_copy_parts_follow_bp_parallel_copy():
+    """bp's `parallelCopy` splits a copy into parts of max(bytes / threads, 512 KiB): a
+    1024x384 sort-first tile (1,572,864 B) on 12 hardware threads is 3 parts; 400 KiB is one."""
+    prof = _host(memcpy_threads=12)
+    program = build_program(make_experiment(prof, gpus=2, width=1024, height=768, iterations=10,
+                                            host_work="as_built"))
+    copy = next(t for t in program.templates[0] if t.name == "host_copy1")
+    assert copy.bytes == 1024 * 384 * 4 and copy.parts(12) == 3
+    small = build_program(make_experiment(prof, gpus=2, width=320, height=640, iterations=10,
+                                          host_work="as_built"))
+    assert next(t for t in small.templates[0] if t.name == "host_copy1").parts(12) == 1

@@ -164,6 +164,9 @@ class CpuTask:
         {"unsupported": "CPU tasks are simulated only: the Vulkan runner runs GPU work and copies"}))
     threads: int = 0
     command_buffers: int = 0
+    #: the thread sleeps for its time (a timer, such as a window toolkit's update gap): it
+    #: takes no core, so on CPU-emulated GPUs it slows no pass beside it
+    idle: bool = False
 
     @property
     def cost_ns(self) -> float:

@@ -51,6 +51,11 @@ OPTIONS = {
                         "idle, the host copy read from uncached staging memory on every hardware "
                         "thread, every contribution composited, a barrier per frame; "
                         "mgpusim/schedules/host_loop.py)", choices=HOST_WORK),
+    "update_gap_ns": Option(int, 0, "with host_work = 'as_built': the window's idle time between "
+                            "a present and the next frame (Qt's update request: "
+                            "QT_QPA_UPDATE_IDLE_TIME, 5 ms by default in the reference renderer's "
+                            "window); 0 = the next frame starts at once", minimum=0,
+                            maximum=L.MAX_TASK_NS, why=L.WHY_TIME),
 }
 SORT_FIRST_OPTIONS = {
     **OPTIONS,
@@ -297,9 +302,13 @@ def _build(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, pixels: 
                   contribution_bytes_per_frame=sum(contribution[1:]))
     tasks, resources = bind_io(tasks, scene, n, composite.kind, record.get("tile_rows"),
                                buffers, host_copy, geometry)
+    if cfg.opt("update_gap_ns") and cfg.opt("host_work") != "as_built":
+        raise InputError("update_gap_ns is the reference renderer's window loop: it needs "
+                         "host_work = 'as_built'", field="schedule.update_gap_ns")
     if cfg.opt("host_work") == "as_built":
         _check_as_built(cfg)
-        tasks = as_built(tasks, n, last_render, depth=composite.kind == "composite_sort_last")
+        tasks = as_built(tasks, n, last_render, depth=composite.kind == "composite_sort_last",
+                         update_gap_ns=cfg.opt("update_gap_ns"))
         record.update(host_work="as_built")
     if unsupported:
         tasks = [replace(t, params=MappingProxyType({**t.params, "unsupported": unsupported}))

@@ -17,6 +17,14 @@ the thesis's library and the `bpQt` window loop) does per frame, on the applicat
    own included), joins the secondaries' threads, submits the composite, waits idle and
    presents; only then does the next frame start.
 
+Two details of the order decide a frame on a GPU without a transfer queue of its own (lavapipe):
+the main thread joins the primary's render thread *before* it records the upload there (the
+upload then queues behind the primary's render of the next frame; with a dedicated transfer
+queue it records the upload first), and after the present the window asks for the next frame
+through Qt's update request, a timer of `QT_QPA_UPDATE_IDLE_TIME` ms (5 by default) during
+which nothing runs: `update_gap_ns` (bp's `bpQt/src/Window.cpp`, `frame()`; vmgpu runs
+continuously, every frame requesting the next).
+
 So every frame ends in a barrier: no GPU starts frame f+1 before frame f was presented, and
 every hand-off between a thread and a queue costs a wake-up (`host.dispatch_ns`). The thread
 starts and the recordings are CPU tasks that cost `host.thread_start_ns` and `host.record_ns`
@@ -34,9 +42,13 @@ from typing import Sequence
 from mgpusim.model.tasks import CopyTask, CpuTask, Dep, HostCopyTask, PassTask, Task
 from mgpusim.schedules.base import MAIN_THREAD
 
-#: `parallelCopy`'s smallest part: 1024 bytes (bp/src/Util.cpp of the thesis's library); it
-#: splits a copy into one part per hardware thread above that.
-PARALLEL_COPY_MIN_BYTES = 1024
+#: `parallelCopy`'s smallest part (bp/src/Util.cpp of the thesis's library, `CHUNK_SIZE`):
+#: 512 KiB since bp's commit "Larger chunk size for parallel copy" (2018-01-29; 1024 bytes
+#: before it), the value vmgpu's pinned bp has. A copy up to it is one memmove on the calling
+#: thread; a larger one is split into parts of max(bytes / hardware threads, 512 KiB).
+PARALLEL_COPY_MIN_BYTES = 512 * 1024
+#: The CPU task that stands for the window toolkit's gap between a present and the next frame.
+UPDATE_GAP = "cpu.update_gap"
 #: The steps of the host loop's CPU tasks (the trace's `step` column).
 STEP = "host_loop"
 #: The Vulkan runner runs these CPU tasks (it starts and joins their threads on an application
@@ -49,18 +61,22 @@ def gpu_thread(gpu: int) -> str:
     return f"gpu{gpu}"
 
 
-def as_built(tasks: Sequence[Task], gpus: int, renders: Sequence[str], depth: bool = False) -> list[Task]:
+def as_built(tasks: Sequence[Task], gpus: int, renders: Sequence[str], depth: bool = False,
+             update_gap_ns: int = 0) -> list[Task]:
     """The five-step `tasks` (renders, d2h{i}, host_copy{i}, h2d{i}, composite, present;
     `renders[i]`: GPU i's last render) run by the reference code's frame loop (module doc);
-    `depth`: the contributions carry depth, whose host copy has a thread of its own."""
+    `depth`: the contributions carry depth, whose host copy has a thread of its own;
+    `update_gap_ns`: the window's idle time between a present and the next frame (module doc)."""
     by_name = {t.name: t for t in tasks}
+    gap = _update_gap(update_gap_ns)
+    start = Dep(gap[0].name if gap else "present", -1)
     if gpus == 1:  # one GPU renders straight to the window: record, submit, wait idle, present
         record = CpuTask("cpu.record0", STEP, MAIN_THREAD, command_buffers=1,
-                         deps=(Dep("present", -1),), params=RUNNABLE)
-        return [record] + [_after(t, "cpu.record0") if _first_render(t, 0) else t for t in tasks]
+                         deps=(start,), params=RUNNABLE)
+        return [record] + [_after(t, "cpu.record0") if _first_render(t, 0) else t for t in tasks] + gap
     secondaries = range(1, gpus)
     threads = 2 * gpus - 1 + (gpus - 1 if depth else 0)  # renders, copies, depth copies
-    launch = CpuTask("cpu.launch", STEP, MAIN_THREAD, threads=threads, deps=(Dep("present", -1),),
+    launch = CpuTask("cpu.launch", STEP, MAIN_THREAD, threads=threads, deps=(start,),
                      params=RUNNABLE)
     out: list[Task] = [launch]
     for i in range(gpus):
@@ -84,6 +100,11 @@ def as_built(tasks: Sequence[Task], gpus: int, renders: Sequence[str], depth: bo
             staged.append(Dep(hc.name))
         else:
             staged += [Dep(f"d2h{i}", -1), Dep(launch.name)]
+    primary = by_name[renders[0]]
+    assert isinstance(primary, PassTask)
+    shared_queue = any(by_name[f"h2d{i}"].queue == primary.queue for i in secondaries)
+    if shared_queue:  # no transfer queue of its own: the upload waits for the primary's render
+        staged.append(Dep(renders[0]))
     out.append(CpuTask("cpu.record_upload", STEP, MAIN_THREAD, command_buffers=1, deps=tuple(staged),
                        params=RUNNABLE))
     for i in secondaries:
@@ -94,7 +115,15 @@ def as_built(tasks: Sequence[Task], gpus: int, renders: Sequence[str], depth: bo
                        params=RUNNABLE))
     out.append(dataclasses.replace(by_name["composite"], deps=(Dep("cpu.record_composite"),)))
     out.append(by_name["present"])
-    return out
+    return out + gap
+
+
+def _update_gap(ns: int) -> list[Task]:
+    """The window's wait after a present (none for 0): the main thread sleeps, no core taken."""
+    if not ns:
+        return []
+    return [CpuTask(UPDATE_GAP, STEP, MAIN_THREAD, fixed_ns=float(ns), deps=(Dep("present"),),
+                    idle=True, params=RUNNABLE)]
 
 
 def _first_render(task: Task, gpu: int) -> bool:

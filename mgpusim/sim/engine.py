@@ -295,7 +295,7 @@ class Engine:
             return _Op(task, duration, None, cap, 0, "host", "memcpy", self._waits_for[phase][task.name],
                        task.name == self.program.present_task)
         if isinstance(task, CpuTask):  # one host thread's time (a core's, on emulated GPUs)
-            run, amount = self.executors["host"].runner(duration, 1)
+            run, amount = self._cpu_runner(task, duration)
             return _Op(task, duration, None, None, 0, "host", task.thread,
                        self._waits_for[phase][task.name], task.name == self.program.present_task,
                        run, amount, cpu=True)
@@ -325,6 +325,13 @@ class Engine:
                    self._waits_for[phase][task.name], task.name == self.program.present_task,
                    run, amount, gap, gap_run, fill_cores=fills)
 
+    def _cpu_runner(self, task: CpuTask, duration: int) -> tuple[Runner | None, int]:
+        """A CPU task's time on a host core (shared with the GPUs' passes on CPU-emulated GPUs),
+        or, for a thread that sleeps (`idle`), plain time."""
+        if task.idle:
+            return (self.env.timeout, duration) if duration else (None, 0)
+        return self.executors["host"].runner(duration, 1)
+
     def _measured_op(self, phase: int, task: Task, duration: int) -> _Op:
         """A task that takes the given `duration` (ns) on its queue, thread or memcpy threads,
         whatever else runs: no channel, cap or shared executor stretches it. The idle gap and
@@ -335,7 +342,7 @@ class Engine:
             return _Op(task, duration, None, None, 0, "host", "memcpy", waits, present, run, amount,
                        measured=True)
         if isinstance(task, CpuTask):
-            run, amount = self.executors["host"].runner(duration, 1)
+            run, amount = self._cpu_runner(task, duration)
             return _Op(task, duration, None, None, 0, "host", task.thread, waits, present, run, amount,
                        cpu=True, measured=True)
         executor = self.executors[task.queue.device_name]

@@ -1,7 +1,7 @@
 """Scenes: resolution, bytes per pixel and the passes of a frame with their work.
 
 A pass's parameters (iterations, triangles, particles, duration_ms, output_bytes, ...) are
-kept as given; :func:`mgpusim.model.costs.pass_work` turns them, with the pixels and geometry share a
+kept as given; :func:`mgpusim.model.work_terms.pass_work` turns them, with the pixels and geometry share a
 schedule assigns to a GPU, into the work terms the cost coefficients multiply.
 """
 from __future__ import annotations

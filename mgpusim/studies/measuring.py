@@ -5,7 +5,7 @@ machine hits different configurations each round; with `steady_window` the compa
 the steady window of the repeats (:mod:`mgpusim.measure.steady_window`), written as a measured folder
 `runs/<config>/steady`. Every run is kept under `runs/<config>/run<k>`. On lavapipe the speed
 probe is timed before the first run of a round and after every run, and each run's probes and
-the other processes' load during it go to `runs/run_speed.csv` (:mod:`.run_speed`): what the
+the other processes' load during it go to `runs/run_speed.csv` (:mod:`mgpusim.measure.run_speed`): what the
 speed-normalized prediction and its refusal rule read.
 """
 from __future__ import annotations
@@ -70,7 +70,7 @@ def measure_microbenchmarks(study: Study, out: Path, progress: Progress) -> list
 
 
 def _probe(out: Path, point: str, threads: int | None, progress: Progress) -> None:
-    """The machine's reference speed now, added to `out`'s probe table (see :mod:`.speed`):
+    """The machine's reference speed now, added to `out`'s probe table (see :mod:`mgpusim.measure.speed_probe`):
     on lavapipe studies (`threads` set), whose GPUs are the host's own shared cores; a real
     GPU's passes at the probe's size last tens of microseconds, too short to tell its speed."""
     if threads is None:

@@ -48,7 +48,7 @@ def validate_experiment(exp: Experiment, out: Path, measured_dir: Path | None = 
     """Measure (or load) and simulate `exp`; write the comparison to `out`; return its summary.
 
     Measuring runs the experiment `repeats` times, each about `run_seconds` long, under
-    `out/measured/` and compares their steady window (:mod:`mgpusim.periodic_runs`); the
+    `out/measured/` and compares their steady window (:mod:`mgpusim.measure.steady_window`); the
     report's `measured_spread` is how far the whole runs differed. With the compared run's
     `speed` (a lavapipe study's probes) the report also has the prediction at that run's own
     machine speed under `speed` (:mod:`mgpusim.measure.speed_norm`). Without `figures` the

@@ -2,7 +2,7 @@
 
 Each renders into targets it is given (`record(cmd, slot)` picks one of B buffered targets):
 a primary renders its tile straight into the frame it composites into, and compositing loads
-the frame instead of clearing it. :mod:`.passes` wraps each with images of its own for
+the frame instead of clearing it. :mod:`.standalone` wraps each with images of its own for
 `mgpusim measure`. Render passes that differ only in load/store ops are compatible, so one
 pipeline serves the clearing and the loading target alike.
 

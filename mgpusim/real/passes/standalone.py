@@ -1,6 +1,6 @@
 """The pass library as microbenchmarks: each pass on targets and inputs of its own.
 
-Why thin wrappers: the work itself is implemented once, in :mod:`.framepasses` (what the runner
+Why thin wrappers: the work itself is implemented once, in :mod:`.recorders` (what the runner
 executes inside a schedule: the fragment loop on a tile of the frame, a share of the mesh, the
 composite drawing into the frame it loads, present as an image copy). Each class here builds
 the images that pass needs and records exactly that work, so `mgpusim measure` times what the

@@ -4,7 +4,7 @@ Why beside `vulkan.machine.make_gpus`: a measured multi-GPU run on NVIDIA wants 
 on physical device devices[i]" (one real GPU each, or several on one), which make_gpus only
 offers as "all on one" or "i mod count". On lavapipe every simulated GPU is its own instance
 either way (its own rasterizer pool), so `devices` is only checked there. Real GPUs share the
-process's kept instance (`host_machine.instance_for`): the NVIDIA driver refuses new instances
+process's kept instance (`vulkan.machine.instance_for`): the NVIDIA driver refuses new instances
 after about 30 in one process.
 """
 from __future__ import annotations

@@ -174,7 +174,7 @@ def _pass(task: PassTask, gpu: Gpu, res: Resources, owned: list[Any],
 
 def _frame_pass(task: PassTask, gpu: Gpu, res: Resources, targets: list[Any],
                 p: dict[str, Any]) -> Any:
-    """The framepasses object that renders `task` into `targets`."""
+    """The `passes.recorders` object that renders `task` into `targets`."""
     frame_size = tuple(p.get("frame", ()))
     eye = p.get("eye")
     if task.kind == "fragment_loop":

@@ -147,7 +147,7 @@ class Instance:
 
     def __init__(self, *, validation: bool | None = None, lp_num_threads: int | None = None):
         v = vk()
-        keep_heap()  # before the driver allocates: see hostheap
+        keep_heap()  # before the driver allocates: see mgpusim.real.host.heap
         self.validation = validation_wanted(validation)
         self.lp_num_threads = lp_num_threads
         layers: list[str] = []

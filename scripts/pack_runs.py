@@ -1,14 +1,14 @@
 """Pack the committed measured runs under data/ into Parquet tables (or unpack them).
 
     python scripts/pack_runs.py                 # every runs folder under data/ that is not packed
-    python scripts/pack_runs.py data/nvidia/h200x2/runs_si
-    python scripts/pack_runs.py --unpack data/nvidia/h200x2/runs_si
+    python scripts/pack_runs.py data/nvidia/h200_x2/runs_si
+    python scripts/pack_runs.py --unpack data/nvidia/h200_x2/runs_si
     python scripts/pack_runs.py --logs data/nvidia/h200_x4      # its *.log into logs.parquet
     python scripts/pack_runs.py --tables                        # every measurements folder
     python scripts/pack_runs.py --tables data/nvidia/h200_x4/measurements
 
 A runs folder is the folder a study or a `--runs` option names: the first three levels below
-data/ (data/lavapipe/<job>/runs, data/nvidia/h200x2/runs_si), or a run folder standing higher.
+data/ (data/lavapipe/<job>/runs, data/nvidia/h200_x2/runs_si), or a run folder standing higher.
 Each becomes runs.parquet + run_files.parquet (mgpusim.measure.run_archive); every file is
 read back and compared before the originals are deleted. A folder of measured tables (a job's
 `measurements/`: pass tables, their machine records, speed probes) packs the same way with

@@ -1,6 +1,6 @@
 """The two-H200 study re-validated and re-calibrated offline from its committed runs and tables.
 
-The runs under data/nvidia/h200x2/ were measured on 2x NVIDIA H200 (driver 580, one VkDevice per
+The runs under data/nvidia/h200_x2/ were measured on 2x NVIDIA H200 (driver 580, one VkDevice per
 GPU; data/nvidia/README.md says how); the profile is the calibrated hardware_profiles/h200_x2.toml.
 """
 from __future__ import annotations
@@ -27,7 +27,7 @@ def test_validate_measured_h200_run_offline(tmp_path: Path) -> None:
     study = load_study(STUDY)
     entry = next(e for e in study.held_out if e.name == CONFIG)
     measured = measured_folder(study.held_out_runs, CONFIG)
-    assert run_archive.is_file(measured / "trace.csv")  # committed packed: data/nvidia/h200x2/runs_si
+    assert run_archive.is_file(measured / "trace.csv")  # committed packed: data/nvidia/h200_x2/runs_si
     args = ["validate", str(entry.experiment), "--profile", str(study.profile), "--measured", str(measured),
             "--out", str(tmp_path / "v")]
     for s in entry.sets:

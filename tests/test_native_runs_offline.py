@@ -39,7 +39,7 @@ def test_2x_h200_native_set_calibrates_and_replays_within_target(tmp_path: Path)
     calibration half: both halves within target on every schedule, AFR temporal included
     (on the Python executor's runs its host copy made it miss)."""
     study = str(ROOT / "experiments/h200/study.toml")
-    runs = str(ROOT / "data/nvidia/h200x2/runs_native_2026-11-27")
+    runs = str(ROOT / "data/nvidia/h200_x2/runs_native_2026-11-27")
     assert main(["study", "calibrate", study, "--runs", runs, "--out", str(tmp_path / "cal")]) == 0
     fitted = (tmp_path / "cal" / "profile.toml").read_text()
     assert "dispatch_ns = 100000" in fitted  # 0.2 ms on the Python executor's runs

@@ -16,7 +16,7 @@ from mgpusim.cli import main
 ROOT = Path(__file__).resolve().parents[1]
 
 #: study -> the data folder holding its runs and committed error tables
-STUDIES = {"h100_x2": "h100_x2", "h100_x4": "h100_x4", "h200_x4": "h200_x4", "h200": "h200x2"}
+STUDIES = {"h100_x2": "h100_x2", "h100_x4": "h100_x4", "h200_x4": "h200_x4", "h200": "h200_x2"}
 
 
 def _close(got: object, want: object, where: str) -> None:

@@ -85,7 +85,7 @@ def test_an_installed_wheel_runs_the_readme_commands_from_another_folder(tmp_pat
     assert (work / "v" / "summary.json").is_file()
     study = cmd("study", "validate", "experiments/h200/study.toml", "--held-out", "--out", "sv")
     assert study.returncode == 2 and len(study.stderr.strip().splitlines()) == 1
-    assert "data/nvidia/h200x2" in study.stderr and not (work / "sv").exists()
+    assert "data/nvidia/h200_x2" in study.stderr and not (work / "sv").exists()
     fidelity = cmd("fidelity", "--out", "f")
     assert fidelity.returncode == 2 and "pass a checkout's data/ folder" in fidelity.stderr
     _calibration_notebook_runs_from(work, site)

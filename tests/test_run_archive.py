@@ -80,7 +80,7 @@ def test_a_trace_the_tables_cannot_hold_exactly_is_refused_and_nothing_is_delete
 
 def test_a_committed_packed_run_reads_as_it_was_measured(tmp_path):
     """The H200 study's held-out runs are committed packed; unpacked, the same run reads the same."""
-    packed = ROOT / "data" / "nvidia" / "h200x2" / "runs_si"
+    packed = ROOT / "data" / "nvidia" / "h200_x2" / "runs_si"
     assert (packed / run_archive.TRACES).is_file()
     exp = load_experiment(ROOT / "experiments" / "h200" / "sort_first.toml",
                           {"scene.width": 1920, "scene.height": 1080, "scene.passes.0.iterations": 4000})

@@ -5,7 +5,7 @@
 # one GPU: the update on the graphics queue, on the compute queue (async compute), and on a
 # second logical GPU (a second VkDevice on the same GPU). Everything lands in FOLDER, packed into
 # TARBALL_DIR/queues.tar.gz (the device tool brings back few files); unpack it into
-# data/nvidia/h100/queues/ for experiments/h100/queues.toml. Under 6 minutes. From the project
+# data/nvidia/h100_x1/queues/ for experiments/h100/queues.toml. Under 6 minutes. From the project
 # root on the device machine (carrying .gl, .whl and .spvcache, SPIR-V compiled here):
 #   source .gl/env.sh; export PYTHONPATH=$PWD:$PYTHONPATH; export MGPUSIM_CACHE=$PWD/.spvcache; bash data/nvidia/run_overlap.sh /tmp/queues $OUT
 set -u

@@ -51,8 +51,8 @@ def committed_sources(data: Path) -> tuple[Source, ...]:
     lavapipe = data / "lavapipe" / "main_job_2026-11-24"
     sources = (
         Source("2x H200", EXPERIMENTS / "h200/study.toml",
-               (data / "nvidia/h200x2/runs_2026-11-27",)),
-        Source("H100", EXPERIMENTS / "h200/study.toml", (data / "nvidia/h100/runs_1gpu",),
+               (data / "nvidia/h200_x2/runs_2026-11-27",)),
+        Source("H100", EXPERIMENTS / "h200/study.toml", (data / "nvidia/h100_x1/runs_1gpu",),
                PROFILES / "h100.toml"),
         Source("lavapipe", EXPERIMENTS / "lavapipe/study.toml", (lavapipe / "runs",),
                lavapipe / "profile.toml"),

@@ -24,7 +24,7 @@ sys.path.insert(0, str(ROOT))
 from mgpusim.io.perfetto import chrome_trace_json  # noqa: E402
 from mgpusim.frames.formats import read_run  # noqa: E402
 
-RUNS = ROOT / "data/lavapipe/main_job_2026-11-25/runs"
+RUNS = ROOT / "data/lavapipe/history/main_job_2026-11-25/runs"
 OUT = ROOT / "examples/frames"
 
 

@@ -816,7 +816,7 @@ MINI_STUDY_CASES: list[tuple[str, Callable[[dict], None], tuple[str, ...]]] = [
     ("files-parent", _put("microbenchmarks.files", ["../../../../etc/passwd"]), ("files[0]", "inside")),
     ("files-absolute", _put("microbenchmarks.files", ["/etc/hostname"]), ("files[0]", "inside")),
     ("files-nope", _put("microbenchmarks.files", ["nope.csv"]), ("files[0]", "does not exist")),
-    ("files-folder", _put("microbenchmarks.files", ["main_job_2026-11-24"]), ("files[0]", "not a file")),
+    ("files-folder", _put("microbenchmarks.files", ["history"]), ("files[0]", "not a file")),
     ("files-without-tables", _drop("microbenchmarks.tables"), ("microbenchmarks.files", "go together")),
     ("tables-without-files", _drop("microbenchmarks.files"), ("microbenchmarks.tables", "go together")),
     ("tables-absolute", _abs("microbenchmarks.tables"), ("microbenchmarks.tables", "absolute")),

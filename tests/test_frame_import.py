@@ -18,7 +18,7 @@ from mgpusim.frames.importer import frame_from_slices
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples" / "frames"
-RUN = ROOT / "data/lavapipe/main_job_2026-11-25/runs/pipe_1gpu/steady"
+RUN = ROOT / "data/lavapipe/history/main_job_2026-11-25/runs/pipe_1gpu/steady"
 PROFILE = ROOT / "hardware_profiles/pcie4_pair.toml"
 
 

@@ -48,7 +48,7 @@ def committed_sources(data: Path) -> tuple[Source, ...]:
     and held-out runs, the H100's 1-GPU runs of the same study, and the steady windows of the
     lavapipe main job of 2026-11-24 with the profile that job fitted. `data` is given by the
     caller (a wheel has no measured data): a folder that lacks them is one clear error."""
-    lavapipe = data / "lavapipe" / "main_job_2026-11-24"
+    lavapipe = data / "lavapipe" / "history" / "main_job_2026-11-24"
     sources = (
         Source("2x H200", EXPERIMENTS / "h200/study.toml",
                (data / "nvidia/h200_x2/runs_2026-11-27",)),

@@ -63,9 +63,10 @@ class RunSpeed:
         of its repeats (outside work and the machine's slow phases only add time), and of the
         two probes the faster is the one nearer that state; a probe slowed by a passing slow
         phase says nothing about the window. Measured on three lavapipe main jobs of
-        2026-11-27 on a drifting machine (data/lavapipe/main_job_2026-11-27_*): their
-        normalized medians over all runs 4.7-5.4 % (calibration) and 5.2-6.3 % (held out),
-        with the geometric mean 5.6-11.7 % and 5.1-7.7 %."""
+        2026-11-27 on a drifting machine (jobs main_job_2026-11-27_* of
+        data/lavapipe/history/main_jobs.parquet): their normalized medians over all runs
+        4.7-5.4 % (calibration) and 5.2-6.3 % (held out), with the geometric mean 5.6-11.7 %
+        and 5.1-7.7 %."""
         return min(self.before_ms, self.after_ms)
 
     @property

@@ -34,11 +34,11 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import pandas as pd
 
-from mgpusim.model.toml_checks import read_toml
 from mgpusim.model.errors import InputError, MgpusimError
 from mgpusim.model.overrides import set_dotted, split_profile
 from mgpusim.model.profile import HardwareProfile, load_profile
 from mgpusim.model.scene import temporal_reads
+from mgpusim.model.toml_checks import read_toml
 from mgpusim.schedules.experiment import Experiment, load_experiment, parse_experiment
 from mgpusim.sim.simulation import simulate
 

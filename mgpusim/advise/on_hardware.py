@@ -26,11 +26,11 @@ measured and predicted frame time, the prediction from the frame's own experimen
 """
 from __future__ import annotations
 
+import argparse
 import csv
+import dataclasses
 import math
 import time
-import argparse
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
@@ -38,12 +38,12 @@ from typing import Any, Callable, Mapping, Sequence
 
 import pandas as pd
 
+from mgpusim.advise.advisor import Advice, Link, evaluate, search
 from mgpusim.io.writers import write_measured, write_text
 from mgpusim.model.errors import MgpusimError
 from mgpusim.schedules.binding import COLOUR_PIXEL_BYTES
 from mgpusim.schedules.experiment import load_experiment
 from mgpusim.sim.simulation import simulate
-from mgpusim.advise.advisor import Advice, Link, evaluate, search
 
 #: The only link a real machine has: its profile's own.
 OWN_LINK = Link("as profiled", {}, "the profile's own link")

@@ -16,12 +16,12 @@ from typing import Any
 
 import pandas as pd
 
-from mgpusim.io.writers import write_json, write_result, write_table
+from mgpusim.advise.advisor import Advice, option_command
 from mgpusim.io.plot import pareto_png
 from mgpusim.io.report_page import Section, write_page
+from mgpusim.io.writers import write_json, write_result, write_table
 from mgpusim.schedules.experiment import load_experiment
 from mgpusim.sim.simulation import simulate
-from mgpusim.advise.advisor import Advice, option_command
 
 #: Options within this share of the best frame time count as as fast (the answer then names
 #: the one with the fewest GPUs among them too).

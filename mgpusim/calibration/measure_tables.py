@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import pandas as pd
 
-from mgpusim.model.toml_checks import did_you_mean
 from mgpusim.model.errors import InputError
 from mgpusim.model.limits import MAX_TASK_NS, MAX_WORK
+from mgpusim.model.toml_checks import did_you_mean
 from mgpusim.validation.measured_check import number_column, unknown_names
 
 #: The measure library's passes and the columns each row of one needs (its parameters).

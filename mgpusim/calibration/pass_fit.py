@@ -18,12 +18,12 @@ import pandas as pd
 from mgpusim.calibration.fit import Fit, fit_nonnegative
 from mgpusim.calibration.measure_tables import check_measure_table
 from mgpusim.calibration.overlap_fit import fit_overlap
+from mgpusim.measure import run_archive
 from mgpusim.model.errors import InputError
 from mgpusim.model.geometry import MESH_PLACE, mesh_placement
 from mgpusim.model.scene import PassSpec
 from mgpusim.model.work_terms import PLACED_TERMS, REFERENCE_KINDS, UNPRICED_OK, WORK_TERMS
 from mgpusim.model.work_terms import pass_work as pass_work_placed
-from mgpusim.measure import run_archive
 from mgpusim.validation.measured_check import read_json_object, read_table
 
 #: Every pass kind of the cost model that is measured and fitted: all but those known only by a

@@ -27,12 +27,20 @@ import pandas as pd
 from mgpusim.calibration.busy_wake_fit import fit_busy_wake
 from mgpusim.calibration.pass_fit import COPY_PASSES, calibrate, fit_copy_line, read_measurements
 from mgpusim.calibration.profile_out import apply, lavapipe_base, report
-from mgpusim.calibration.run_fit import (Run, copy_wake_after_dispatch, fit_alone_scales,
-                                         fit_copy_setup, fit_host_copy_wake, fit_host_effects,
-                                         fit_passes_from_runs, fit_task_gap, with_alone_scales,
-                                         with_pass_fits)
-from mgpusim.model.toml_checks import read_toml
+from mgpusim.calibration.run_fit import (
+    Run,
+    copy_wake_after_dispatch,
+    fit_alone_scales,
+    fit_copy_setup,
+    fit_host_copy_wake,
+    fit_host_effects,
+    fit_passes_from_runs,
+    fit_task_gap,
+    with_alone_scales,
+    with_pass_fits,
+)
 from mgpusim.model.profile import BUSY_WAKE_WINDOW_NS
+from mgpusim.model.toml_checks import read_toml
 from mgpusim.model.work_terms import PLACED_TERMS
 
 

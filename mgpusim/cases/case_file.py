@@ -45,8 +45,8 @@ from typing import Any, Callable, Mapping
 import pandas as pd
 
 from mgpusim.io.shipped import shipped_dir
-from mgpusim.model.toml_checks import Table, did_you_mean, name_problem, read_toml
 from mgpusim.model.errors import InputError
+from mgpusim.model.toml_checks import Table, did_you_mean, name_problem, read_toml
 from mgpusim.results.summary import Result
 from mgpusim.schedules.experiment import Experiment, load_experiment, parse_overrides
 from mgpusim.schedules.memory_check import footprints, held_sections, sections_that_fit

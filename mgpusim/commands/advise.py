@@ -36,9 +36,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import time  # noqa: PLC0415
 
-    from mgpusim.schedules.experiment import parse_overrides  # noqa: PLC0415
     from mgpusim.advise.advisor import search  # noqa: PLC0415
     from mgpusim.advise.report import write_advice  # noqa: PLC0415
+    from mgpusim.schedules.experiment import parse_overrides  # noqa: PLC0415
     for name, value, low in (("--confirm", args.confirm, 1), ("--timelines", args.timelines, 0),
                              ("--workers", args.workers, 1)):
         if value is not None and value < low:

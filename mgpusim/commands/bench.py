@@ -31,8 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mgpusim.bench.model_speed import (analytic_speed, effect_costs,  # noqa: PLC0415
-                                             effects_saving, long_run, run_bench)
+    from mgpusim.bench.model_speed import analytic_speed, effect_costs, effects_saving, long_run, run_bench  # noqa: PLC0415
     if args.frames < 2 or args.repeats < 1:
         raise InputError(f"need --frames >= 2 and --repeats >= 1, got {args.frames} and {args.repeats}")
     from mgpusim.io.progress import bar  # noqa: PLC0415

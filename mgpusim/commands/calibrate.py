@@ -8,9 +8,9 @@ import sys
 from pathlib import Path
 
 from mgpusim.io.out_folder import check_out_file
-from mgpusim.model.toml_checks import read_toml
 from mgpusim.model.errors import InputError
 from mgpusim.model.limits import MAX_GPUS
+from mgpusim.model.toml_checks import read_toml
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -26,8 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import tomli_w  # noqa: PLC0415
 
-    from mgpusim.calibration import (apply, calibrate, lavapipe_base,  # noqa: PLC0415
-                                     read_measurements, report)
+    from mgpusim.calibration import apply, calibrate, lavapipe_base, read_measurements, report  # noqa: PLC0415
     from mgpusim.calibration.profile_out import fit_details  # noqa: PLC0415
     from mgpusim.io.writers import write_json  # noqa: PLC0415
     check_out_file(args.out)

@@ -36,9 +36,16 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mgpusim.cases.case_file import (  # noqa: PLC0415
+        case_names,
+        comparison,
+        comparison_markdown,
+        load_case,
+        markdown,
+        run_case,
+        table,
+    )
     from mgpusim.io.writers import write_table, write_text  # noqa: PLC0415
-    from mgpusim.cases.case_file import (case_names, comparison, comparison_markdown,  # noqa: PLC0415
-                                       load_case, markdown, run_case, table)
     if args.list:
         for name in case_names():
             case = load_case(name)

@@ -29,17 +29,24 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mgpusim.bench.accuracy_cost import (  # noqa: PLC0415
+        committed_sources,
+        configurations,
+        deviations,
+        deviations_markdown,
+        markdown,
+        run_levels,
+        summarize_deviations,
+        summarize_levels,
+    )
     from mgpusim.io.writers import write_table  # noqa: PLC0415
-    from mgpusim.bench.accuracy_cost import (committed_sources, configurations,  # noqa: PLC0415
-                                               deviations, deviations_markdown, markdown,
-                                               run_levels, summarize_deviations, summarize_levels)
     if args.docs and not (DOCS / "fidelity.md").is_file():
         raise InputError(f"needs a checkout with {DOCS / 'fidelity.md'}", field="--docs")
     sources = committed_sources(args.data)
     check_out_dir(args.out)  # before any work
+    from mgpusim.bench.accuracy_cost import VARIANTS  # noqa: PLC0415
     from mgpusim.io.progress import bar  # noqa: PLC0415
     from mgpusim.io.shipped import examples  # noqa: PLC0415
-    from mgpusim.bench.accuracy_cost import VARIANTS  # noqa: PLC0415
     configs = configurations(sources)
     with bar((len(configs) + len(examples())) * len(VARIANTS), "fidelity", "run", args.progress) as shown:
         def step(name: str) -> None:

@@ -51,11 +51,10 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mgpusim.io.writers import write_text  # noqa: PLC0415
-    from mgpusim.io.shipped import shipped_dir  # noqa: PLC0415
     from mgpusim.frames.formats import detect_format, read_capture  # noqa: PLC0415
-    from mgpusim.frames.importer import (check_experiment, experiment_text,  # noqa: PLC0415
-                                              frame_from_slices)
+    from mgpusim.frames.importer import check_experiment, experiment_text, frame_from_slices  # noqa: PLC0415
+    from mgpusim.io.shipped import shipped_dir  # noqa: PLC0415
+    from mgpusim.io.writers import write_text  # noqa: PLC0415
     if not 0.0 <= args.pixel_share <= 1.0:
         raise InputError(f"must be in [0, 1], got {args.pixel_share}", field="--pixel-share")
     if args.out.suffix != ".toml":

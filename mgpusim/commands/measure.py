@@ -11,13 +11,12 @@ import sys
 from pathlib import Path
 
 from mgpusim.io.out_folder import check_out_file
-from mgpusim.model.toml_checks import int_list
 from mgpusim.model.errors import InputError
+from mgpusim.model.toml_checks import int_list
 
 
 def _list() -> int:
-    from mgpusim.measure.microbench import (  # noqa: PLC0415 - keeps `--help` free of numpy/pandas
-        PASSES)
+    from mgpusim.measure.microbench import PASSES  # noqa: PLC0415 - keeps `--help` free of numpy/pandas
 
     for spec in PASSES.values():
         params = ", ".join(f"{k}={v}" for k, v in spec.params.items())
@@ -55,8 +54,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm  # noqa: PLC0415
 
     from mgpusim.measure import microbench as m  # noqa: PLC0415
-    from mgpusim.real.vulkan.machine import (close_gpus, machine_record,  # noqa: PLC0415
-                                                  make_gpus)
+    from mgpusim.real.vulkan.machine import close_gpus, machine_record, make_gpus  # noqa: PLC0415
 
     sweeps = m.parse_sweeps(args.pass_name, args.sweep or [])
     combos = len(m.combinations(args.pass_name, sweeps))

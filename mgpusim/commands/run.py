@@ -11,14 +11,14 @@ import argparse
 from pathlib import Path
 
 from mgpusim.io.out_folder import check_out_dir
-from mgpusim.model.toml_checks import int_list
 from mgpusim.model.errors import InputError
 from mgpusim.model.limits import MAX_FRAMES, MAX_THREADS
+from mgpusim.model.toml_checks import int_list
 
 
 def run(args: argparse.Namespace) -> int:
-    from mgpusim.io.writers import write_measured  # noqa: PLC0415
     from mgpusim.io.shipped import resolve_experiment  # noqa: PLC0415
+    from mgpusim.io.writers import write_measured  # noqa: PLC0415
     from mgpusim.schedules.experiment import load_experiment, parse_overrides  # noqa: PLC0415
 
     exp = load_experiment(resolve_experiment(args.experiment), parse_overrides(args.overrides))
@@ -32,8 +32,7 @@ def run(args: argparse.Namespace) -> int:
     _check_counts(args, devices)
     out = args.out or Path("out") / f"{exp.name}-measured"
     check_out_dir(out)
-    from mgpusim.real.runner.execute import (  # noqa: PLC0415 - Vulkan only after the checks
-        run_experiment)
+    from mgpusim.real.runner.execute import run_experiment  # noqa: PLC0415 - Vulkan only after the checks
     result = run_experiment(exp, devices=devices, lp_threads=int_list(args.lp_threads, "--lp-threads"),
                             host_threads=args.host_threads, prewarm_frames=args.prewarm)
     write_measured(result, out, args.format)

@@ -19,8 +19,8 @@ from typing import TYPE_CHECKING, Callable
 
 from mgpusim.io.out_folder import check_out_dir
 from mgpusim.io.shipped import resolve_experiment
-from mgpusim.model.toml_checks import int_list
 from mgpusim.model.errors import InputError
+from mgpusim.model.toml_checks import int_list
 
 if TYPE_CHECKING:  # annotations only: loaded when the command runs
     import pandas as pd

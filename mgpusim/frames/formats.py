@@ -19,11 +19,10 @@ from typing import Any, Iterable
 
 import pandas as pd
 
-from mgpusim.model.errors import InputError
 from mgpusim.measure import run_archive
+from mgpusim.model.errors import InputError
 from mgpusim.validation.measured import TRACE_FILES
-from mgpusim.validation.measured_check import (check_trace, number_column, read_json_object,
-                                               read_table)
+from mgpusim.validation.measured_check import check_trace, number_column, read_json_object, read_table
 
 #: One row per piece of work: `queue` is graphics, compute, transfer or cpu; `ms` its time;
 #: start/end in ns where the capture has them (NaN in a CSV); `reads`/`writes` resource names;

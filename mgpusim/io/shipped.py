@@ -11,8 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from mgpusim.model.toml_checks import read_toml
 from mgpusim.model.errors import InputError
+from mgpusim.model.toml_checks import read_toml
 
 _PACKAGE = Path(__file__).resolve().parents[1]  # mgpusim/, this module being in mgpusim/io/
 

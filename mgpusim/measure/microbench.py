@@ -17,15 +17,22 @@ from typing import Any, Callable, Iterable, Sequence
 
 import pandas as pd
 
+from mgpusim.measure import overlap as overlap
 from mgpusim.model.errors import InputError
 from mgpusim.model.geometry import MESH_PLACE, mesh_placement
-from mgpusim.measure import overlap as overlap
-from mgpusim.real.vulkan.copies import CopyD2D, CopyD2H, CopyH2D
-from mgpusim.real.vulkan.device import Gpu
 from mgpusim.real.host.memcpy import HostCopy
 from mgpusim.real.passes.particle_update import ParticleUpdate
-from mgpusim.real.passes.standalone import (CompositeSortFirst, CompositeSortLast, FilterPass,
-                                        FragmentLoop, Mesh, ParticleRender, Present)
+from mgpusim.real.passes.standalone import (
+    CompositeSortFirst,
+    CompositeSortLast,
+    FilterPass,
+    FragmentLoop,
+    Mesh,
+    ParticleRender,
+    Present,
+)
+from mgpusim.real.vulkan.copies import CopyD2D, CopyD2H, CopyH2D
+from mgpusim.real.vulkan.device import Gpu
 
 
 def _mesh(gpu: Gpu, p: dict[str, Any]) -> Mesh:

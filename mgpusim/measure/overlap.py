@@ -20,10 +20,10 @@ from typing import Any, Callable, Sequence
 
 from mgpusim.model.costs import overlap_efficiency
 from mgpusim.model.errors import InputError
-from mgpusim.real.vulkan.copies import CopyD2D, CopyD2H, CopyH2D
-from mgpusim.real.vulkan.device import Gpu
 from mgpusim.real.passes.particle_update import ParticleUpdate
 from mgpusim.real.passes.standalone import FragmentLoop, ParticleRender
+from mgpusim.real.vulkan.copies import CopyD2D, CopyD2H, CopyH2D
+from mgpusim.real.vulkan.device import Gpu
 
 #: Each pair: the queue families of its two pieces of work, and whether they run on two
 #: VkDevices of one physical GPU.

@@ -16,11 +16,11 @@ from pathlib import Path
 from typing import Any
 
 from mgpusim.io.writers import write_json, write_measured, write_table
+from mgpusim.measure import run_archive
+from mgpusim.measure import steady_window as sw
 from mgpusim.model.errors import InputError
 from mgpusim.schedules.experiment import Experiment
 from mgpusim.sim.simulation import simulate
-from mgpusim.measure import run_archive
-from mgpusim.measure import steady_window as sw
 
 
 def with_run_length(exp: Experiment, seconds: float, max_frames: int) -> Experiment:
@@ -67,8 +67,7 @@ def measure_repeated(exp: Experiment, out: Path, repeats: int, run_seconds: floa
     """Run `exp` `repeats` times (each about `run_seconds` long); keep every run under
     `out/run<k>`; return the measured folder to compare: the steady window of the runs, or the
     one run when there is a single short one."""
-    from mgpusim.real.runner.execute import (  # noqa: PLC0415 - Vulkan is needed only to measure
-        run_experiment)
+    from mgpusim.real.runner.execute import run_experiment  # noqa: PLC0415 - Vulkan is needed only to measure
 
     exp = with_run_length(exp, run_seconds, max_frames)
     runs = []

@@ -18,8 +18,8 @@ from typing import Any, Callable, Sequence
 
 import pandas as pd
 
-from mgpusim.model.errors import InputError, UnsteadyMachineError
 from mgpusim.measure import run_archive
+from mgpusim.model.errors import InputError, UnsteadyMachineError
 
 #: The reference passes: one bound by fragment shading, one by geometry and memory.
 PROBE: tuple[tuple[str, dict[str, Any]], ...] = (

@@ -13,9 +13,9 @@ from types import MappingProxyType
 from typing import Any, Mapping, TypeVar
 
 from mgpusim.model import limits as L
-from mgpusim.model.toml_checks import Table, did_you_mean, read_toml
 from mgpusim.model.errors import InputError
 from mgpusim.model.overrides import set_dotted
+from mgpusim.model.toml_checks import Table, did_you_mean, read_toml
 from mgpusim.model.work_terms import WORK_TERMS, work_terms
 
 _T = TypeVar("_T")

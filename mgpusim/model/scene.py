@@ -11,8 +11,8 @@ from types import MappingProxyType
 from typing import Mapping
 
 from mgpusim.model import limits as L
-from mgpusim.model.toml_checks import Table, did_you_mean, show_value
 from mgpusim.model.geometry import Placement
+from mgpusim.model.toml_checks import Table, did_you_mean, show_value
 
 
 @dataclass(frozen=True)

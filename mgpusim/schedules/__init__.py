@@ -7,7 +7,6 @@ does not fit the GPUs' memory.
 from __future__ import annotations
 
 from mgpusim.schedules.base import FrameProgram
-from mgpusim.schedules.registry import (SCHEDULES, ScheduleConfig, ScheduleDef, ensure_loaded,
-                                        register)
+from mgpusim.schedules.registry import SCHEDULES, ScheduleConfig, ScheduleDef, ensure_loaded, register
 
 __all__ = ["SCHEDULES", "FrameProgram", "ScheduleConfig", "ScheduleDef", "register", "ensure_loaded"]

@@ -19,8 +19,7 @@ from mgpusim.model.errors import ScheduleError
 from mgpusim.model.geometry import Placement
 from mgpusim.model.profile import HardwareProfile
 from mgpusim.model.scene import PassSpec
-from mgpusim.model.tasks import (CopyTask, CpuTask, Dep, HostCopyTask, PassTask, QueueRef, Resource,
-                                 Task)
+from mgpusim.model.tasks import CopyTask, CpuTask, Dep, HostCopyTask, PassTask, QueueRef, Resource, Task
 from mgpusim.model.work_terms import pass_work
 
 

@@ -12,11 +12,11 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Mapping
 
-from mgpusim.model.toml_checks import Table, read_toml
 from mgpusim.model.errors import InputError
 from mgpusim.model.overrides import parse_overrides, parse_value, set_dotted, split_profile
 from mgpusim.model.profile import HardwareProfile, load_profile, require_gpus
 from mgpusim.model.scene import Scene, parse_scene
+from mgpusim.model.toml_checks import Table, read_toml
 from mgpusim.model.work_terms import COMMON_PARAMS, PARAM_BOUNDS, PASS_PARAMS, REQUIRED_PARAMS
 from mgpusim.schedules.registry import ScheduleConfig, parse_schedule_config
 

@@ -22,8 +22,7 @@ from mgpusim.model.profile import HardwareProfile
 from mgpusim.model.scene import PassSpec, Scene
 from mgpusim.model.tasks import CopyTask, Dep, HostCopyTask, PassTask, QueueRef, Task
 from mgpusim.model.work_terms import PLACED_TERMS, pass_work
-from mgpusim.schedules.base import (Footprint, FrameProgram, chain_passes, present_task,
-                                    present_work, queue_or_graphics)
+from mgpusim.schedules.base import Footprint, FrameProgram, chain_passes, present_task, present_work, queue_or_graphics
 from mgpusim.schedules.five_step_io import bind_io
 from mgpusim.schedules.host_loop import as_built
 from mgpusim.schedules.registry import Option, ScheduleConfig, register

@@ -27,8 +27,7 @@ from typing import Any
 
 from mgpusim.model.scene import PassSpec, Scene
 from mgpusim.model.tasks import CopyTask, HostCopyTask, PassTask, Resource, Task
-from mgpusim.schedules.pass_io import (filter_reads, filter_sources, read_params, reads_own_output,
-                                       simulated_only)
+from mgpusim.schedules.pass_io import filter_reads, filter_sources, read_params, reads_own_output, simulated_only
 
 Rect = tuple[int, int, int, int]  # x, y, width, height in frame pixels
 

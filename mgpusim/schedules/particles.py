@@ -26,8 +26,7 @@ from mgpusim.model.particle_layout import CALC_BYTES, STATE_BYTES, UPDATE_DT, VE
 from mgpusim.model.profile import HardwareProfile
 from mgpusim.model.scene import PassSpec, Scene
 from mgpusim.model.tasks import CpuTask, Dep, PassTask, QueueRef, Resource, Task
-from mgpusim.schedules.base import (MAIN_THREAD, Footprint, FrameProgram, chain_passes,
-                                    present_task, queue_or_graphics)
+from mgpusim.schedules.base import MAIN_THREAD, Footprint, FrameProgram, chain_passes, present_task, queue_or_graphics
 from mgpusim.schedules.binding import Bindings, bind_crossing
 from mgpusim.schedules.crossing import Route, cross
 from mgpusim.schedules.pass_io import bind_full_frame, filter_reads, pass_image, reads_own_output

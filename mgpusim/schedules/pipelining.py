@@ -20,11 +20,16 @@ from mgpusim.model.profile import HardwareProfile
 from mgpusim.model.scene import PassSpec, Scene
 from mgpusim.model.tasks import Dep, PassTask, QueueRef, Resource, Task
 from mgpusim.schedules.base import Footprint, FrameProgram, chain_passes, present_task
-from mgpusim.schedules.binding import (COLOUR_PIXEL_BYTES, DEPTH_PIXEL_BYTES, Bindings,
-                                       bind_crossing, chunk_bytes, row_chunks)
+from mgpusim.schedules.binding import (
+    COLOUR_PIXEL_BYTES,
+    DEPTH_PIXEL_BYTES,
+    Bindings,
+    bind_crossing,
+    chunk_bytes,
+    row_chunks,
+)
 from mgpusim.schedules.crossing import COPY_OPTIONS, Route, cross
-from mgpusim.schedules.pass_io import (bind_full_frame, filter_reads, filter_sources, pass_image,
-                                       reads_own_output)
+from mgpusim.schedules.pass_io import bind_full_frame, filter_reads, filter_sources, pass_image, reads_own_output
 from mgpusim.schedules.registry import Option, ScheduleConfig, register
 
 OPTIONS = {

@@ -12,9 +12,9 @@ from types import MappingProxyType
 from typing import Any, Callable, Mapping
 
 from mgpusim.model import limits as L
-from mgpusim.model.toml_checks import Table
 from mgpusim.model.profile import HardwareProfile
 from mgpusim.model.scene import Scene
+from mgpusim.model.toml_checks import Table
 from mgpusim.schedules.base import MAX_REFRESH_HZ, FrameProgram
 
 #: The built-in schedules' modules (each registers itself when imported).

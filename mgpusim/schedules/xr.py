@@ -30,8 +30,7 @@ from mgpusim.model.scene import PassSpec, Scene
 from mgpusim.model.tasks import Dep, PassTask, QueueRef, Resource, Task
 from mgpusim.model.work_terms import pass_work
 from mgpusim.schedules.afr import present_queue
-from mgpusim.schedules.base import (Footprint, FrameProgram, chain_passes, present_task,
-                                    queue_or_graphics)
+from mgpusim.schedules.base import Footprint, FrameProgram, chain_passes, present_task, queue_or_graphics
 from mgpusim.schedules.binding import Bindings, bind_crossing
 from mgpusim.schedules.crossing import PATHS, Route, cross
 from mgpusim.schedules.pass_io import simulated_only

@@ -17,13 +17,11 @@ from typing import Any, Callable
 import pandas as pd
 
 from mgpusim.io.writers import write_json, write_measured
-from mgpusim.measure import host_load
-from mgpusim.measure import run_speed
+from mgpusim.measure import host_load, run_archive, run_speed
 from mgpusim.measure import speed_probe as speed
-from mgpusim.studies.study_file import Entry, Study
-from mgpusim.measure import run_archive
-from mgpusim.validation.measured import TRACE_FILES
 from mgpusim.measure.repeated_runs import with_run_length, write_steady_window
+from mgpusim.studies.study_file import Entry, Study
+from mgpusim.validation.measured import TRACE_FILES
 
 Progress = Callable[[str], None]
 
@@ -33,8 +31,7 @@ def measure_microbenchmarks(study: Study, out: Path, progress: Progress) -> list
     `rounds` rounds; one table (+ machine record) per pass. Each row has the pass's time, and a
     row of one GPU the process's CPU time while it ran."""
     from mgpusim.measure import microbench as m  # noqa: PLC0415 - Vulkan is needed only to measure
-    from mgpusim.real.vulkan.machine import (close_gpus, machine_record,  # noqa: PLC0415
-                                                  make_gpus)
+    from mgpusim.real.vulkan.machine import close_gpus, machine_record, make_gpus  # noqa: PLC0415
 
     mb = study.microbenchmarks
     out.mkdir(parents=True, exist_ok=True)
@@ -105,8 +102,7 @@ def measure_runs(study: Study, entries: tuple[Entry, ...], profile: Path, out: P
                  progress: Progress, devices: list[int] | None = None) -> dict[str, Path]:
     """Run every entry `repeats` times, interleaved; return each entry's measured folder (its
     steady window, or its single run)."""
-    from mgpusim.real.runner.execute import (  # noqa: PLC0415 - Vulkan is needed only to measure
-        run_experiment)
+    from mgpusim.real.runner.execute import run_experiment  # noqa: PLC0415 - Vulkan is needed only to measure
 
     rs = study.runs
     threads = study.lavapipe_threads()

@@ -13,18 +13,15 @@ import tomli_w
 
 from mgpusim.calibration.recipe import profile_from_tables, refine_on_runs
 from mgpusim.io.writers import write_json
-from mgpusim.measure import run_speed
+from mgpusim.measure import run_archive, run_speed, speed_norm
 from mgpusim.measure import speed_probe as speed
-from mgpusim.studies.measuring import (Progress, measure_microbenchmarks, measure_runs,
-                                       measured_folder)
-from mgpusim.studies.study_file import Entry, Study
+from mgpusim.measure.speed_norm import RunSpeed
+from mgpusim.studies.measuring import Progress, measure_microbenchmarks, measure_runs, measured_folder
 from mgpusim.studies.page import stats_line, write_study_page
-from mgpusim.measure import run_archive
-from mgpusim.measure import speed_norm
+from mgpusim.studies.study_file import Entry, Study
 from mgpusim.validation.compare import error_stats, error_table
 from mgpusim.validation.crossvalidate import format_report, validate_experiment
 from mgpusim.validation.measured import read_measured
-from mgpusim.measure.speed_norm import RunSpeed
 
 CALIBRATION_TITLE = "Calibration runs (seen by the fit)"
 HELD_OUT_TITLE = "Held-out runs (never seen by the fit)"

@@ -16,13 +16,13 @@ from types import MappingProxyType
 from typing import Any, Mapping, Sequence
 
 from mgpusim.calibration.measure_tables import MEASURED_PASSES
-from mgpusim.model.toml_checks import Table, did_you_mean, read_toml
+from mgpusim.measure import run_archive
 from mgpusim.model.errors import InputError
 from mgpusim.model.limits import MAX_GPUS
 from mgpusim.model.profile import HardwareProfile, HostProfile
+from mgpusim.model.toml_checks import Table, did_you_mean, read_toml
 from mgpusim.model.work_terms import WORK_TERMS, work_terms
 from mgpusim.schedules.experiment import Experiment, load_experiment, parse_overrides
-from mgpusim.measure import run_archive
 
 #: A key with no default: its absence is an error.
 _REQUIRED = object()

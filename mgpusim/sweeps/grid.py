@@ -35,9 +35,9 @@ import numpy as np
 import pandas as pd
 
 from mgpusim.io.shipped import resolve_experiment
-from mgpusim.model.toml_checks import did_you_mean
 from mgpusim.model.errors import InputError, MgpusimError
 from mgpusim.model.limits import MAX_SWEEP_POINTS, MAX_SWEEP_WORKERS, WHY_SWEEP
+from mgpusim.model.toml_checks import did_you_mean
 from mgpusim.schedules.experiment import load_experiment, parse_value
 from mgpusim.sim.effects import FIDELITIES
 from mgpusim.sim.simulation import simulate

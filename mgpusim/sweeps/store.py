@@ -111,8 +111,7 @@ class PointStore:
 
     def finish(self, df: pd.DataFrame, keys: list[str], metric: str, spec: dict[str, Any]) -> dict[str, Path]:
         """Write the table, the plot and the description, each atomically."""
-        from mgpusim.io.plot import (  # noqa: PLC0415 - matplotlib only when a folder is written
-            sweep_png)
+        from mgpusim.io.plot import sweep_png  # noqa: PLC0415 - matplotlib only when a folder is written
 
         failed = int(df["error"].notna().sum())
         files = {"table": atomic_write(self.out / "sweep.parquet", lambda tmp: df.to_parquet(tmp, index=False))}

@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from mgpusim.measure.speed_norm import verdict
 from mgpusim.results.summary import frames_from_trace, summarize
 from mgpusim.results.waits import compare_waits
-from mgpusim.measure.speed_norm import verdict
 
 
 def step_means_ns(trace: pd.DataFrame, first_frame: int) -> dict[str, float]:

@@ -18,9 +18,11 @@ from typing import Any
 
 import pandas as pd
 
-from mgpusim.io.writers import frame_window, write_json, write_table, write_text
 from mgpusim.io.perfetto import chrome_trace_json
 from mgpusim.io.plot import comparison_png
+from mgpusim.io.writers import frame_window, write_json, write_table, write_text
+from mgpusim.measure.repeated_runs import measure_repeated, run_spread
+from mgpusim.measure.speed_norm import RunSpeed
 from mgpusim.model.speed_scale import at_speed
 from mgpusim.results.summary import Result
 from mgpusim.results.waits import LONG_WAIT_NS, host_split
@@ -28,11 +30,8 @@ from mgpusim.schedules.experiment import Experiment
 from mgpusim.schedules.program import build_program
 from mgpusim.sim.simulation import simulate
 from mgpusim.validation.compare import compare
-from mgpusim.validation.measured import (other_machine, queues_as_run, read_measured,
-                                         read_submissions, run_machine)
-from mgpusim.measure.repeated_runs import measure_repeated, run_spread
+from mgpusim.validation.measured import other_machine, queues_as_run, read_measured, read_submissions, run_machine
 from mgpusim.validation.replayed import replay_comparison
-from mgpusim.measure.speed_norm import RunSpeed
 
 #: The report lists the hand-offs whose mean wait differs by at least this much (ms), at most
 #: this many: the ones that explain a frame-time error, not every task.

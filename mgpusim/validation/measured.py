@@ -12,16 +12,21 @@ from typing import Any
 
 import pandas as pd
 
+from mgpusim.measure import run_archive
 from mgpusim.model.errors import InputError
 from mgpusim.model.profile import CalibratedOn, HardwareProfile
 from mgpusim.model.tasks import CpuTask, HostCopyTask, QueueRef
 from mgpusim.results.trace import SUBMISSION_COLUMNS
 from mgpusim.schedules.base import FrameProgram
 from mgpusim.schedules.experiment import Experiment
-from mgpusim.measure import run_archive
-from mgpusim.validation.measured_check import (check_physical_gpus, check_recorded_config,
-                                               check_trace, machine_of, read_json_object,
-                                               read_table)
+from mgpusim.validation.measured_check import (
+    check_physical_gpus,
+    check_recorded_config,
+    check_trace,
+    machine_of,
+    read_json_object,
+    read_table,
+)
 
 TRACE_FILES = ("trace.parquet", "trace.csv")
 SUBMISSION_FILES = ("submissions.parquet", "submissions.csv")

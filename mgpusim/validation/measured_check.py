@@ -15,11 +15,11 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 import pandas as pd
 
+from mgpusim.measure import run_archive
 from mgpusim.model.errors import InputError
 from mgpusim.model.profile import CalibratedOn
 from mgpusim.results.trace import TRACE_COLUMNS
 from mgpusim.schedules.program import build_program, run_config
-from mgpusim.measure import run_archive
 
 #: How a key missing on one side shows in a mismatch message.
 _ABSENT = "no value"

@@ -16,9 +16,9 @@ import itertools
 from typing import TYPE_CHECKING, Any, Sequence
 
 from mgpusim.model.errors import InputError
+from mgpusim.real.passes.draw import draw_vertices, quad_pc, stages, torus_mesh, view_matrix
 from mgpusim.real.vulkan.buffers import Image
 from mgpusim.real.vulkan.copies import upload
-from mgpusim.real.passes.draw import draw_vertices, quad_pc, stages, torus_mesh, view_matrix
 from mgpusim.real.vulkan.pipelines import Pipeline, RenderTarget, graphics_pipeline
 from mgpusim.real.vulkan.vk_errors import vk
 

@@ -18,13 +18,11 @@ import numpy as np
 
 from mgpusim.model.errors import InputError
 from mgpusim.model.geometry import even_split
+from mgpusim.real.passes.draw import torus_mesh  # noqa: F401  (re-exported: the tests build meshes with it)
+from mgpusim.real.passes.particle_update import ParticleUpdate
+from mgpusim.real.passes.recorders import CompositeInto, Filter, FragmentLoopTile, MeshShare, ParticleDraw, copy_image
 from mgpusim.real.vulkan.buffers import DEPTH_FORMAT, Buffer, Image
 from mgpusim.real.vulkan.copies import clear_image, upload
-from mgpusim.real.passes.draw import (  # noqa: F401  (re-exported: the tests build meshes with it)
-    torus_mesh)
-from mgpusim.real.passes.recorders import (CompositeInto, Filter, FragmentLoopTile, MeshShare,
-                                             ParticleDraw, copy_image)
-from mgpusim.real.passes.particle_update import ParticleUpdate
 from mgpusim.real.vulkan.pipelines import RenderTarget
 
 if TYPE_CHECKING:

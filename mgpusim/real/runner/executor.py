@@ -22,10 +22,10 @@ from typing import Any, Callable
 import numpy as np
 
 from mgpusim.model.errors import InputError, ScheduleError
+from mgpusim.real.host import priority as host_priority
 from mgpusim.real.runner.latch import Latch
 from mgpusim.real.runner.plan import CPU_STREAM, HOST_STREAM, Node
 from mgpusim.real.runner.work import CpuWork, GpuWork, HostWork
-from mgpusim.real.host import priority as host_priority
 from mgpusim.real.vulkan.device import Gpu
 from mgpusim.schedules.base import FrameProgram
 from mgpusim.schedules.skipping import SkipChains

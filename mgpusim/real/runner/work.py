@@ -30,13 +30,19 @@ from mgpusim.model.errors import ScheduleError
 from mgpusim.model.geometry import even_split
 from mgpusim.model.particle_layout import UPDATE_DT
 from mgpusim.model.tasks import CopyTask, CpuTask, HostCopyTask, PassTask, Task
-from mgpusim.real.runner.resources import COLOR_BPP, DEPTH_BPP, Resources
-from mgpusim.real.vulkan.copies import (copy_buffer, copy_buffer_to_rect, copy_rect,
-                                        copy_rect_to_buffer)
-from mgpusim.real.vulkan.device import Gpu, Queue
-from mgpusim.real.passes.recorders import (CompositeInto, Filter, FragmentLoopTile, MeshShare,
-                                             ParticleDraw, copy_image, target_over)
 from mgpusim.real.passes.particle_update import ParticleUpdate
+from mgpusim.real.passes.recorders import (
+    CompositeInto,
+    Filter,
+    FragmentLoopTile,
+    MeshShare,
+    ParticleDraw,
+    copy_image,
+    target_over,
+)
+from mgpusim.real.runner.resources import COLOR_BPP, DEPTH_BPP, Resources
+from mgpusim.real.vulkan.copies import copy_buffer, copy_buffer_to_rect, copy_rect, copy_rect_to_buffer
+from mgpusim.real.vulkan.device import Gpu, Queue
 
 
 @dataclass

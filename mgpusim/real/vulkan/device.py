@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 from mgpusim.model.errors import InputError
-from mgpusim.real.vulkan import hotpath
 from mgpusim.real.host import priority as host_priority
+from mgpusim.real.vulkan import hotpath
 from mgpusim.real.vulkan.buffers import Buffer, Image
 from mgpusim.real.vulkan.hotpath import Slot
 from mgpusim.real.vulkan.instance import Instance, PhysicalDeviceInfo, QueueFamilyInfo

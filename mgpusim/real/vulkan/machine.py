@@ -16,10 +16,9 @@ from typing import Any, Sequence
 
 from mgpusim.model.errors import InputError
 from mgpusim.real.host import priority as host_priority
-from mgpusim.real.vulkan.device import Gpu
 from mgpusim.real.host.heap import keep_heap
+from mgpusim.real.vulkan.device import Gpu
 from mgpusim.real.vulkan.instance import Instance, validation_wanted
-
 
 #: The VkInstance of real (not CPU-emulated) GPUs, one per validation setting, kept for the
 #: process. Why: the NVIDIA driver (580.159) refuses a new instance once about 30 have been

@@ -30,7 +30,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Iterable, Mapping, Sequence, cast
 
 import pandas as pd
 
@@ -321,7 +321,7 @@ def search(path: str | Path, overrides: Mapping[str, Any] | None = None, *, max_
         raise InputError("no option of this frame could run, not even on one GPU"
                          + (f" (the first error: {errors.iloc[0]})" if len(errors) else ""), file=path)
     bound = fast_level_is_bound(exp)
-    baseline = table.loc[0, ["frame_time_ms", "latency_ms"]].to_dict()
+    baseline = cast(dict[str, float], table.loc[0, ["frame_time_ms", "latency_ms"]].to_dict())
     table["speedup"] = baseline["frame_time_ms"] / table["frame_time_ms"]
     notes = [] if bound else [f"the {fast} level is not a bound on this profile (its GPUs share the "
                               "CPU, which it leaves out): options outside the confirmed ones may do better"]

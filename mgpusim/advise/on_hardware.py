@@ -34,7 +34,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence, cast
 
 import pandas as pd
 
@@ -239,7 +239,7 @@ def _table(setup: Setup, frame: Frame, advice: Advice, picks: list[int], rows: l
     for row, index in zip(rows, picks):
         row["predicted_ms"] = predicted[index]["frame_time_ms"]
         row["predicted_latency_ms"] = predicted[index]["latency_ms"]
-        row["advised_rank"] = int(advice.table.loc[index, "rank"])
+        row["advised_rank"] = int(cast(int, advice.table.loc[index, "rank"]))
         row["source_predicted_ms"] = source_prediction(setup, frame, advice, index)
     table = pd.DataFrame(rows)
     for col in ("measured_ms", "error"):

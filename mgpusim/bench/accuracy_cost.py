@@ -18,13 +18,14 @@ import numpy as np
 import pandas as pd
 
 from mgpusim.io.shipped import examples, shipped_dir
+from mgpusim.measure import run_archive
 from mgpusim.model.errors import InputError
 from mgpusim.model.tasks import QueueRef
+from mgpusim.results.summary import Result
 from mgpusim.schedules.experiment import Experiment, load_experiment
 from mgpusim.sim.simulation import build_program, simulate
 from mgpusim.studies.measuring import measured_folder
 from mgpusim.studies.study_file import load_study
-from mgpusim.measure import run_archive
 from mgpusim.validation.compare import rel_error, steady_summary
 from mgpusim.validation.measured import queues_as_run, read_measured
 
@@ -121,7 +122,8 @@ def run_levels(configs: list[Configuration], variants: dict[str, dict[str, Any]]
                 t0 = time.perf_counter()
                 result = simulate(c.experiment, record_trace=False, queues=c.queues, **kwargs)
                 wall = min(wall, time.perf_counter() - t0)
-                model = min(model, result.model_wall_s)
+                model = min(model, _model_s(result))
+            assert result is not None  # repeats >= 1
             s = result.summary
             rows.append({"machine": c.source, "config": c.name, "schedule": c.experiment.schedule.name,
                          "gpus": c.experiment.schedule.gpus, "level": level,
@@ -130,6 +132,12 @@ def run_levels(configs: list[Configuration], variants: dict[str, dict[str, Any]]
                          "latency_error": rel_error(s["latency_ms"], measured["latency_ms"]),
                          "wall_ms": wall * 1e3, "model_ms": model * 1e3})
     return pd.DataFrame(rows)
+
+
+def _model_s(result: Result) -> float:
+    """The model's own time of a run (simulate sets it)."""
+    assert result.model_wall_s is not None
+    return result.model_wall_s
 
 
 def summarize_levels(table: pd.DataFrame) -> pd.DataFrame:
@@ -156,6 +164,7 @@ def markdown(summary: pd.DataFrame) -> str:
     lines = ["| level | schedule | configurations | median / worst \\|frame-time error\\| | "
              "median / worst \\|latency error\\| | simulate() ms (median) | model ms (median) |",
              "|---|---|---|---|---|---|---|"]
+    r: Any  # a row's fields (pandas-stubs types each as any scalar)
     for r in summary.itertuples(index=False):
         lines.append(f"| {r.level} | {r.schedule} | {r.configurations} | "
                      f"{100 * r.median_abs_frame_time_error:.1f} % / {100 * r.worst_abs_frame_time_error:.1f} % | "
@@ -178,7 +187,8 @@ def deviations(variants: dict[str, dict[str, Any]] | None = None, repeats: int =
             model, result = float("inf"), None
             for _ in range(repeats):
                 result = simulate(exp, record_trace=False, **kwargs)
-                model = min(model, result.model_wall_s)
+                model = min(model, _model_s(result))
+            assert result is not None  # repeats >= 1
             ft = result.summary["frame_time_ms"]
             rows.append({"experiment": example.name, "level": level,
                          "frame_ms": ft, "model_ms": model * 1e3})
@@ -202,6 +212,7 @@ def summarize_deviations(table: pd.DataFrame) -> pd.DataFrame:
 def deviations_markdown(summary: pd.DataFrame) -> str:
     lines = ["| level | experiments | median / worst \\|frame time - full\\| | worst on | model ms (median) |",
              "|---|---|---|---|---|"]
+    r: Any  # a row's fields (pandas-stubs types each as any scalar)
     for r in summary.itertuples(index=False):
         lines.append(f"| {r.level} | {r.experiments} | {100 * r.median_abs_deviation:.1f} % / "
                      f"{100 * r.worst_abs_deviation:.1f} % | {r.worst_experiment} | {r.median_model_ms:.2f} |")

@@ -23,9 +23,11 @@ import time
 from dataclasses import replace
 from fractions import Fraction
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, cast
 
 import simpy
+from simpy.core import SimTime
+from simpy.events import EventPriority
 
 from mgpusim.io.shipped import shipped_dir
 from mgpusim.model.costs import CostModel
@@ -89,7 +91,7 @@ def _divide(nbytes: int, rate: Fraction) -> int:
 
 
 def hand_written_sort_first(exp: Any, frames: int | None = None,
-                            env: simpy.Environment | None = None) -> list[int]:
+                            env: simpy.Environment | None = None) -> list[SimTime]:
     """The presents (ns) of a sort-first experiment with host copies, simulated by a plain
     SimPy model written for this one frame: a process per queue and for the host thread that
     dispatches copies, an event per task instance, a Resource for the memcpy threads. Task
@@ -109,12 +111,13 @@ def hand_written_sort_first(exp: Any, frames: int | None = None,
             cost[t.name] = (costs.copy_setup_ns(t.queue.device, t.queue.family, t.path, t.peer)
                             + _divide(t.bytes, costs.link_bandwidth(t.queue.device, t.path)))
     part_rate = min(costs.memcpy_thread_cap(), costs.host_memory_bandwidth())
+    host_copies = {i: cast(HostCopyTask, task[f"host_copy{i}"]) for i in secondaries}
     parts = {f"host_copy{i}": [host.host_copy_fixed_ns + _divide(size, part_rate) for size in
-                               even_split(task[f"host_copy{i}"].bytes, task[f"host_copy{i}"].parts(host.memcpy_threads))]
-             for i in secondaries}
+                               even_split(hc.bytes, hc.parts(host.memcpy_threads))]
+             for i, hc in host_copies.items()}
     env = env if env is not None else simpy.Environment()
     done: dict[tuple[int, str], simpy.Event] = {}
-    presents: list[int] = []
+    presents: list[SimTime] = []
     threads = simpy.Resource(env, capacity=host.memcpy_threads)
     copying = [0]  # parts on host memory now
 
@@ -134,7 +137,9 @@ def hand_written_sort_first(exp: Any, frames: int | None = None,
 
     def run(f: int, name: str, ns: int):
         yield env.timeout(ns)
-        ended(f, name).succeed()
+        ev = ended(f, name)
+        assert ev is not None  # f >= 0
+        ev.succeed()
 
     def primary_graphics():
         for f in range(frames):
@@ -176,7 +181,9 @@ def hand_written_sort_first(exp: Any, frames: int | None = None,
             copying[0] -= 1
         left[0] -= 1
         if not left[0]:
-            ended(f, name).succeed()
+            ev = ended(f, name)
+            assert ev is not None  # f >= 0
+            ev.succeed()
 
     def host_dispatch():
         for f in range(frames):
@@ -214,7 +221,8 @@ class _Counting(simpy.Environment):
         super().__init__()
         self.events = 0
 
-    def schedule(self, event: simpy.Event, priority: int = simpy.events.NORMAL, delay: int = 0) -> None:
+    def schedule(self, event: simpy.Event, priority: EventPriority = simpy.events.NORMAL,
+                 delay: SimTime = 0) -> None:
         self.events += 1
         super().schedule(event, priority, delay)
 
@@ -228,10 +236,10 @@ def events_per_frame(exp: Any, frames: int) -> dict[str, float]:
     count = [0]
     plain = engine.env.schedule
 
-    def counted(event: simpy.Event, priority: int = simpy.events.NORMAL, delay: int = 0) -> None:
+    def counted(event: simpy.Event, priority: EventPriority = simpy.events.NORMAL, delay: SimTime = 0) -> None:
         count[0] += 1
         plain(event, priority, delay)
-    engine.env.schedule = counted  # type: ignore[method-assign]
+    engine.env.schedule = counted  # type: ignore[method-assign]  # counted on this one instance
     engine.run()
     env = _Counting()
     hand_written_sort_first(exp, frames, env)

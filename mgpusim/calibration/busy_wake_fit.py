@@ -97,6 +97,7 @@ def young_pass_delays(trace: pd.DataFrame, filling: set[str], copies: set[str],
     rows = trace[trace["task"].isin(copies) & ready.notna()]
     median = (rows["end_ns"] - rows["start_ns"]).groupby(rows["task"]).median()
     first: dict[tuple[int, str], tuple[float, int, int]] = {}
+    row: Any  # a row's fields (pandas-stubs types each as any scalar)
     for idx, row in zip(rows.index, rows.itertuples()):
         at = ready[idx]
         young = np.flatnonzero((f_dev != row.device) & (f_start <= at)

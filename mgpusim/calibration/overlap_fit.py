@@ -1,11 +1,11 @@
 """Overlap efficiencies of the queues of one GPU, from `mgpusim measure --pass overlap` rows.
 
 Each measured size of each pair (and graphics work: the fragment loop is the GPU's default,
-another pass kind gets a table of its own, `queue_overlap.<kind>`) gives one efficiency, from the fastest of its repetitions (A
-alone, B alone, both at once: the least disturbed run of each); a pair's efficiency is the
-median over its sizes. Rows whose pair ran on a fallback queue (a family the device lacks) say
-nothing about that pair (both pieces ran on one queue, one after the other) and are left out
-with a warning.
+another pass kind gets a table of its own, `queue_overlap.<kind>`) gives one efficiency, from
+the fastest of its repetitions (A alone, B alone, both at once: the least disturbed run of
+each); a pair's efficiency is the median over its sizes. Rows whose pair ran on a fallback
+queue (a family the device lacks) say nothing about that pair (both pieces ran on one queue,
+one after the other) and are left out with a warning.
 """
 from __future__ import annotations
 

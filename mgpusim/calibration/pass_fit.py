@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pandas as pd
@@ -48,7 +48,8 @@ class Calibration:
     #: lavapipe: per pass kind, CPU time of a submission outside the pass (the fit's intercept)
     submission_cpu_ns: dict[str, float] = field(default_factory=dict)
     copy_fits: dict[tuple[str, str], Fit] = field(default_factory=dict)
-    host: dict[str, float] = field(default_factory=dict)
+    #: host copies: GB/s and ns (floats), and the throughput per thread count (a table)
+    host: dict[str, Any] = field(default_factory=dict)
     #: overlap efficiency per queue pair: (median over sizes, each size's) (calibrate/overlap.py)
     overlap: dict[str, tuple[float, list[float]]] = field(default_factory=dict)
     machine: dict[str, Any] = field(default_factory=dict)
@@ -57,7 +58,8 @@ class Calibration:
 
 def read_measurements(paths: list[Path]) -> tuple[pd.DataFrame, dict[str, Any]]:
     """Concatenate measure tables (CSV or Parquet); return them and the first machine record."""
-    frames, machine = [], {}
+    frames: list[pd.DataFrame] = []
+    machine: dict[str, Any] = {}
     for path in paths:
         df = check_measure_table(read_table(path), str(path))
         df["source"] = path.name
@@ -79,8 +81,9 @@ def pass_work(row: pd.Series) -> dict[str, float]:
         pixels *= params.get("inputs", 1)  # one full-screen quad per input
     spec = PassSpec(kind, kind, params)
     if kind == "mesh" and all(k in row and pd.notna(row[k]) for k in MESH_PLACE):
-        place = mesh_placement(row.to_dict())
+        place = mesh_placement(cast(dict[str, Any], row.to_dict()))
         view = place.mesh_view(int(params["triangles"]))
+        assert view.count is not None  # mesh_view counts the triangles it draws
         return pass_work_placed(spec, place.pixels, view.count / view.triangles, place)
     return WORK_TERMS[kind](spec, pixels, 1.0)
 
@@ -197,7 +200,7 @@ def fit_host_copies(df: pd.DataFrame, cal: Calibration) -> None:
     for threads, group in rows.groupby("threads"):
         fit = fit_copy_line(group, f"host_copy x{threads}")
         cal.warnings.extend(fit.warnings)
-        throughput[int(threads)] = 1.0 / fit.coef[1]
+        throughput[int(cast(int, threads))] = 1.0 / fit.coef[1]
         fixed.append(fit.coef[0])
     one = throughput.get(1, min(throughput.values()))
     most = max(throughput)
@@ -230,7 +233,8 @@ def per_byte_ns(ns_per_byte: float, group: pd.DataFrame, what: str, warnings: li
     """A copy's fitted ns per byte where the bytes explain at least RESOLVED_SHARE of its
     largest copy's time; else the fastest whole copy measured (fixed cost included), whose
     rate is a finite lower bound, with a warning."""
-    largest = group.loc[group["bytes"].idxmax()]
+    # pandas-stubs: .loc takes any label, and idxmax gives one typed Hashable
+    largest = group.loc[group["bytes"].idxmax()]  # type: ignore[call-overload]
     if ns_per_byte * float(largest["bytes"]) >= RESOLVED_SHARE * float(largest["duration_ns"]):
         return float(ns_per_byte)
     fastest = float((group["duration_ns"] / group["bytes"]).min())

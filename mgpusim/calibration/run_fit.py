@@ -18,7 +18,7 @@ import multiprocessing
 import os
 from collections import defaultdict
 from dataclasses import replace
-from typing import Any, Iterator, Mapping, Sequence
+from typing import Any, Iterable, Iterator, Mapping, Sequence, cast
 
 import numpy as np
 import pandas as pd
@@ -130,7 +130,8 @@ def _alone_instances(runs: Sequence[Run]) -> Iterator[tuple[Task, int]]:
             continue
         tasks = tasks_by_name(exp)
         steady = trace[(trace["frame"] >= exp.schedule.warmup_frames) & (trace["device"] != "host")]
-        passes = steady[steady["task"].map(lambda n: isinstance(tasks.get(n), PassTask))]
+        passes = steady[steady["task"].isin({n for n, t in tasks.items() if isinstance(t, PassTask)})]
+        row: Any  # a row's fields (pandas-stubs types each as any scalar)
         for row in steady.itertuples():
             task = tasks.get(row.task)
             if task is None or not passes[(passes["device"] != row.device)
@@ -193,9 +194,10 @@ def fit_host_copy_wake(runs: Sequence[Run]) -> tuple[int, int] | None:
         copies = host.groupby(["frame", "task"], sort=False).agg(
             start=("start_ns", "min"), end=("end_ns", "max")).sort_values("start")
         previous_end = None
-        for (frame, name), row in copies.iterrows():
-            inputs = [ends.get((int(frame) + d.offset, d.task)) for d in tasks[name].deps]
-            inputs = [e for e in inputs if e is not None]
+        # rows by (frame, task): the index's two levels (pandas-stubs types a label as Hashable)
+        for (frame, name), row in cast(Iterable[tuple[tuple[Any, str], pd.Series]], copies.iterrows()):
+            found = [ends.get((int(frame) + d.offset, d.task)) for d in tasks[name].deps]
+            inputs = [e for e in found if e is not None]
             if inputs:
                 last = max(inputs)
                 if (previous_end is None or previous_end <= last) and row["start"] >= last:
@@ -301,11 +303,11 @@ def fit_host_effects(profile_data: dict[str, Any], runs: Sequence[Run],
 
 
 #: What the grid's worker processes read (set before they fork, so nothing is pickled).
-_GRID: tuple[dict[str, Any], list[Experiment], list[float], list[Queues], list[Any] | None] | None = None
+_GRID: tuple[dict[str, Any], list[Experiment], list[float], Sequence[Queues], list[Any] | None] | None = None
 
 
 def _trial_scores(profile_data: dict[str, Any], exps: list[Experiment], measured: list[float],
-                  trials: list[dict[str, Any]], queues: list[Queues],
+                  trials: list[dict[str, Any]], queues: Sequence[Queues],
                   replays: list[Any] | None = None) -> list[float]:
     """Mean |frame-time error| of each trial, in trial order, on up to all cores (forked
     workers where the platform forks; else one process)."""

@@ -40,7 +40,7 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, cast
 
 import pandas as pd
 
@@ -361,7 +361,7 @@ def _derived(t: Table, runs: set[str], metrics: set[str]) -> Derived:
     pair = t.get("runs", list)
     d = Derived(name=t.get("name", str), label=t.get("label", str),
                 kind=t.get("kind", str, choices=DERIVED_KINDS),
-                metric=t.get("metric", str, choices=sorted(metrics)), runs=tuple(pair))  # type: ignore[arg-type]
+                metric=t.get("metric", str, choices=sorted(metrics)), runs=tuple(pair))
     t.finish()
     if len(pair) != 2 or any(r not in runs for r in pair):
         raise t.error("runs", f"expected two simulated runs of this case, got {pair!r}")
@@ -449,7 +449,7 @@ def comparison_markdown(cr: CaseResult) -> str:
             role = f"sets {par.label} = {_fmt(float(par.value))}"
         else:
             role = "test (predicted)"
-        lines.append(f"| {p.label} | {_fmt(float(p.value))} | {_fmt(float(row.predicted))} | "
+        lines.append(f"| {p.label} | {_fmt(float(p.value))} | {_fmt(float(cast(float, row.predicted)))} | "
                      f"{row.error:+.1%} | {role} |")
     return "\n".join(lines) + "\n"
 
@@ -469,10 +469,7 @@ def calibrate(case: Case, frames: int | None = None, rounds: int = 3, tol: float
                 continue
             only = set().union(*(quantity_runs(case, f.quantity) for f in setters
                                  if f.sets == par.name))
-
-            def miss(v: float) -> float:
-                cr = run_case(case, frames, {**values, par.name: v}, only)
-                return predicted(cr, fig.quantity) - fig.value
+            miss = _figure_miss(case, frames, values, par, only, fig)
             lo, hi = par.bounds
             f_lo, f_hi = miss(lo), miss(hi)
             if f_lo * f_hi > 0:  # out of reach: the end nearer the figure
@@ -486,6 +483,16 @@ def calibrate(case: Case, frames: int | None = None, rounds: int = 3, tol: float
                 lo, hi, f_lo = (mid, hi, f_mid) if f_mid * f_lo > 0 else (lo, mid, f_lo)
             values[par.name] = round((lo + hi) / 2) if par.integer else (lo + hi) / 2
     return values
+
+
+def _figure_miss(case: Case, frames: int | None, values: Mapping[str, float], par: Parameter,
+                 only: set[str], fig: Published) -> Callable[[float], float]:
+    """How far the prediction of `fig` is from the figure with `par` at a value and the other
+    parameters at `values` (read when called), simulating only the runs in `only`."""
+    def miss(v: float) -> float:
+        cr = run_case(case, frames, {**values, par.name: v}, only)
+        return predicted(cr, fig.quantity) - fig.value
+    return miss
 
 
 def metric(cr: CaseResult, run: str, name: str) -> float:

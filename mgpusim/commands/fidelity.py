@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from mgpusim.io.out_folder import check_out_dir
 from mgpusim.model.errors import InputError
@@ -89,6 +89,7 @@ def pareto_png(levels: pd.DataFrame, path: Path, deviations: pd.DataFrame | None
     markers = {"all": "o", "sort_first": "^", "sort_last": "v"}
     colour = {level: f"C{i}" for i, level in enumerate(dict.fromkeys(levels["level"]))}
     ax = axes[0][0]
+    r: Any  # a row's fields (pandas-stubs types each as any scalar)
     for r in levels.itertuples(index=False):
         ax.scatter(r.median_model_ms, max(r.median_abs_frame_time_error, 1e-4) * 100, color=colour[r.level],
                    marker=markers.get(r.schedule, "s"), s=80 if r.schedule == "all" else 30,

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 from mgpusim.io.out_folder import check_out_file
 from mgpusim.model.errors import InputError
@@ -30,6 +31,7 @@ def _overlap_table(df) -> str:
 
     lines = ["pair                queues                          alone A / B (ms)   together (ms)"
              "  efficiency  note"]
+    r: Any  # a row's fields (pandas-stubs types each as any scalar)
     for r in fastest_of(df).itertuples(index=False):
         lines.append(f"{r.pair:19s} {r.queue_a + ' + ' + r.queue_b:31s} {r.alone_a_ns / 1e6:7.3f} / "
                      f"{r.alone_b_ns / 1e6:7.3f} {r.duration_ns / 1e6:13.3f}  {r.efficiency:10.3f}  "

@@ -15,7 +15,7 @@ import json
 import math
 import re
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, cast
 
 import pandas as pd
 
@@ -109,8 +109,8 @@ def read_chrome(path: Path, cpu_threads: tuple[str, ...] = ("main",)) -> tuple[p
             spans.setdefault(track, []).append(begun)
             continue
         start = _time_field(ev, "ts", i, file)
-        item = {"name": str(ev.get("name", "")), "cat": str(ev.get("cat", "")), "start": start,
-                "args": ev.get("args") if isinstance(ev.get("args"), dict) else {}, "index": i}
+        item: dict[str, Any] = {"name": str(ev.get("name", "")), "cat": str(ev.get("cat", "")), "start": start,
+                                "args": ev.get("args") if isinstance(ev.get("args"), dict) else {}, "index": i}
         if ph == "B":
             open_.setdefault(track, []).append(item)
             continue
@@ -147,7 +147,9 @@ def _chrome_events(path: Path) -> list[Any]:
 
 
 def _metadata(ev: dict[str, Any], procs: dict[int, str], names: dict[tuple[int, int], str]) -> None:
-    args = ev.get("args") if isinstance(ev.get("args"), dict) else {}
+    args = ev.get("args")
+    if not isinstance(args, dict):
+        args = {}
     name = args.get("name")
     if not isinstance(name, str):
         return
@@ -359,11 +361,11 @@ def read_csv(path: Path) -> tuple[pd.DataFrame, dict[str, Any]]:
         if queue not in QUEUES:
             raise InputError(f"row {i}: expected one of {', '.join(QUEUES)}, got {str(row['queue'])[:40]!r}",
                              file=file, field="queue")
-        frame = 0 if frames is None else frames.iat[i]
+        frame = 0 if frames is None else cast(float, frames.iat[i])
         if frame != int(frame):
             raise InputError(f"row {i}: expected a whole frame number, got {frame}", file=file, field="frame")
         writes = _names(row.get("writes"), file, f"writes (row {i})")
-        rows.append({"frame": int(frame), "queue": queue, "name": name, "ms": float(ms.iat[i]),
+        rows.append({"frame": int(frame), "queue": queue, "name": name, "ms": float(cast(float, ms.iat[i])),
                      "start_ns": math.nan, "end_ns": math.nan,
                      "reads": _names(row.get("reads"), file, f"reads (row {i})"), "writes": writes,
                      "bytes": _sizes(row.get("bytes"), len(writes), file, f"bytes (row {i})"),
@@ -437,7 +439,9 @@ def _run_io(specs: list[dict[str, Any]], config: dict[str, Any],
     `reads` table what it lists."""
     names = [str(s["name"]) for s in specs]
     schedule_inputs = config["inputs"].get("schedule") if isinstance(config["inputs"].get("schedule"), dict) else {}
-    listed = schedule_inputs.get("reads") if isinstance(schedule_inputs.get("reads"), dict) else {}
+    listed = schedule_inputs.get("reads")
+    if not isinstance(listed, dict):
+        listed = {}
     temporal = schedule_inputs.get("temporal_pass") or config.get("temporal_pass") or ""
     out = {}
     for i, spec in enumerate(specs):
@@ -460,10 +464,11 @@ def _run_rows(trace: pd.DataFrame, specs: list[dict[str, Any]],
     kinds = {str(s["name"]): str(s.get("kind", "")) for s in specs}
     single = next(iter(kinds)) if len(kinds) == 1 else None
     rows = []
+    r: Any  # a row's fields (pandas-stubs types each as any scalar)
     for r in trace[trace["step"] == "render"].itertuples(index=False):
         m = _RENDER_TASK.match(str(r.task))
         name = (m.group("name") or single) if m else None
-        if name not in kinds:
+        if m is None or name not in kinds:
             raise InputError(f"render task {r.task!r} names no pass of the recorded scene", file=file)
         view = int(m.group("view")) if views == 2 and m.group("view") else -1
         reads, size = io[name]

@@ -21,7 +21,7 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, cast
 
 import pandas as pd
 
@@ -125,7 +125,8 @@ def _passes(keyed: pd.DataFrame, default_share: float,
     io = _io(keyed, list(order.index))
     producers, sizes, notes = _producers(list(order.index), io, default_bytes)
     passes = []
-    for key, row in order.iterrows():
+    for index, row in order.iterrows():
+        key = cast(str, index)  # a pass's name
         share = row["share"] if not math.isnan(row["share"]) else default_share
         passes.append(CapturedPass(str(key), str(row["queue"]), float(row["ms"]), int(row["frames"]),
                                    float(share), tuple(producers[key]), int(sizes[key]),

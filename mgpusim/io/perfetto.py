@@ -246,7 +246,9 @@ def _peer_channels(rows: pd.DataFrame, links: pd.DataFrame | None) -> pd.Series:
     """The peer link each p2p copy crossed: its GPU's only peer link, else the one that was
     busy when the copy ended."""
     out = pd.Series(None, index=rows.index, dtype=object)
-    names = sorted(set(links["channel"].astype(str))) if links is not None else []
+    if links is None:  # no link crossed: none to name
+        return out
+    names = sorted(set(links["channel"].astype(str)))
     device = rows["device"].astype(str)
     end = rows["end_ns"].to_numpy(np.int64)
     for dev in device.unique():

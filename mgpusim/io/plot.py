@@ -71,7 +71,7 @@ def draw_timeline(ax, trace: pd.DataFrame, links: pd.DataFrame | None = None,
     for step, group in both.groupby("step", sort=False):
         for label, g2 in group.groupby("label"):
             sp = list(zip((g2["start_ns"] - lo) / 1e6, ((g2["end_ns"] - g2["start_ns"]) / 1e6).clip(lower=1e-6)))
-            ax.broken_barh(sp, (y[label] - 0.4, 0.8), facecolors=colours[str(step)],
+            ax.broken_barh(sp, (y[str(label)] - 0.4, 0.8), facecolors=colours[str(step)],
                            edgecolor="black", linewidth=0.2, label=str(step))
     _frame_labels(ax, both, y, lo, hi)
     ax.set_yticks(range(len(rows)), list(reversed(rows)), fontsize=7)
@@ -184,7 +184,7 @@ def draw_sweep(ax, table: pd.DataFrame, keys: Sequence[str], metric: str = "fram
         ax.text(0.5, 0.5, f"no point has a {metric}", ha="center", va="center", transform=ax.transAxes)
         ax.set_axis_off()
     elif len(keys) == 2 or len(keys) > 2 and _combinations(table, keys[1:]) > MAX_SWEEP_LINES:
-        failed = table["error"].notna() if "error" in table else False
+        failed = table["error"].notna() if "error" in table else pd.Series(False, index=table.index)
         _heatmap(ax.figure, ax, table.assign(**{metric: table[metric].mask(failed)}), keys, metric)
     else:
         _lines(ax, ok, keys, metric)

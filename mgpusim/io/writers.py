@@ -45,12 +45,14 @@ def write_trace(result: Result, path: Path, rows_per_group: int = 250_000,
             return write_table(trace, path)
         table = pa.Table.from_pandas(trace, preserve_index=False).replace_schema_metadata(None)
         return _write_arrow([table.cast(schema)], schema, path)
+    assert result.repeated is not None  # compact: kept as the repeated rows
     return _write_arrow(result.repeated.arrow_chunks(schema, rows_per_group, frames), schema, path)
 
 
 def rows_per_frame(result: Result) -> np.ndarray:
     """How many trace rows each frame has (without building a compact trace)."""
     if result.compact:
+        assert result.repeated is not None  # compact: kept as the repeated rows
         return result.repeated.rows_per_frame(len(result.frames))
     return np.bincount(result.trace["frame"].to_numpy(np.int64), minlength=len(result.frames))
 

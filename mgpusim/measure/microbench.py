@@ -141,7 +141,7 @@ def combinations(pass_name: str, sweeps: dict[str, list[int | str]]) -> list[dic
 
 def measure(pass_name: str, gpus: Sequence[Gpu], sweeps: dict[str, list[int | str]], *,
             reps: int = 5, warmup: int = 2,
-            progress: Callable[[int], None] | None = None) -> pd.DataFrame:
+            progress: Callable[[int], object] | None = None) -> pd.DataFrame:
     """Run every combination on every GPU; one row per GPU x combination x repetition. Several
     GPUs run each repetition at once (they compete, as in a multi-GPU frame); one GPU's rows
     also have the process's CPU time of each pass."""

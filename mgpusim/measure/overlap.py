@@ -56,8 +56,8 @@ def _work(gpu: Gpu, family: str, p: dict[str, Any]) -> Any:
     return _COPIES[p["copy"]](gpu, p["bytes"], "transfer")
 
 
-def gpus_needed(pairs: Sequence[str]) -> int:
-    """VkDevices the pairs need: two for `devices`, else one."""
+def gpus_needed(pairs: Sequence[int | str]) -> int:
+    """VkDevices the pairs (a sweep's `pair` values) need: two for `devices`, else one."""
     return 2 if any(PAIRS[p][2] for p in pairs if p in PAIRS) else 1
 
 

@@ -16,7 +16,7 @@ import io
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Iterable
+from typing import Any, Iterable, cast
 
 import pandas as pd
 
@@ -29,7 +29,7 @@ LOGS = "logs.parquet"
 #: The one file of a run stored as columns (the trace schema); the rest are kept as text.
 TRACE_NAME = "trace.csv"
 #: How measured CSV tables are parsed (an empty cell is missing, "NA" is a string).
-CSV_OPTIONS = {"keep_default_na": False, "na_values": [""], "encoding": "utf-8"}
+CSV_OPTIONS: dict[str, Any] = {"keep_default_na": False, "na_values": [""], "encoding": "utf-8"}
 
 
 @dataclass(frozen=True)
@@ -54,7 +54,7 @@ def _rel(path: Path, root: Path) -> str:
 def _load(root: Path, stamp: tuple[int, int]) -> Archive:
     """The archive of `root` (cached while its tables are unchanged: `stamp` is their mtimes)."""
     table = pd.read_parquet(root / TRACES)
-    traces = {run: rows.drop(columns="run").reset_index(drop=True)
+    traces = {cast(str, run): rows.drop(columns="run").reset_index(drop=True)  # the run column: names
               for run, rows in table.groupby("run", sort=False)}
     files = pd.read_parquet(root / FILES)
     return Archive(root, traces, dict(zip(files["path"], files["text"])))

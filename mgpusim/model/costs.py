@@ -12,7 +12,7 @@ from typing import Mapping
 
 from mgpusim.model import limits as L
 from mgpusim.model.errors import InputError, TimeBoundError
-from mgpusim.model.profile import HardwareProfile
+from mgpusim.model.profile import HardwareProfile, PassCost
 from mgpusim.model.tasks import CpuTask, HostCopyTask
 from mgpusim.model.work_terms import REFERENCE_KINDS, UNPRICED_OK
 
@@ -33,7 +33,6 @@ def gbps_fraction(gbps: float) -> Fraction:
     return Fraction(repr(float(gbps)))
 
 
-
 def term_coefficient(cost: PassCost, kind: str, term: str, source: str, where: str) -> float | None:
     """ns per unit of work `term` of a `kind` pass: the cost's coefficient, 1 for a reference
     kind's `reference_ns`, None for a term the profile may lack (:data:`UNPRICED_OK`: it costs
@@ -47,6 +46,7 @@ def term_coefficient(cost: PassCost, kind: str, term: str, source: str, where: s
         return 1.0
     raise InputError(f"missing coefficient for work term {term!r}", file=source,
                      field=f"{where}.ns_per_{term}")
+
 
 class CostModel:
     """Turns tasks into engine inputs using one hardware profile's coefficients."""

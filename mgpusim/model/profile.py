@@ -316,9 +316,12 @@ def apply_profile_overrides(data: dict, overrides: Mapping[str, object], file: s
 def _nominal_rates(data: dict) -> dict[int, float]:
     """GB/s of lanes x per-lane rate of each [[gpus]] table's link (where gen and lanes are valid)."""
     out = {}
-    for i, gpu in enumerate(data.get("gpus") if isinstance(data.get("gpus"), list) else []):
+    gpus = data.get("gpus")
+    for i, gpu in enumerate(gpus if isinstance(gpus, list) else []):
         link = gpu.get("link") if isinstance(gpu, dict) else None
-        gen = link.get("pcie_gen") if isinstance(link, dict) else None
+        if not isinstance(link, dict):
+            continue
+        gen = link.get("pcie_gen")
         if isinstance(gen, int) and gen in PCIE_LANE_GBPS and link.get("lanes") in PCIE_LANES:
             out[i] = PCIE_LANE_GBPS[link["pcie_gen"]] * link["lanes"]
     return out

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
-from typing import Mapping
+from typing import Any, Mapping
 
 from mgpusim.model import limits as L
 from mgpusim.model.geometry import Placement
@@ -111,8 +111,8 @@ def parse_scene(t: Table, pass_params: Mapping[str, tuple[str, ...]],
         pt.finish()
         passes.append(PassSpec(name, kind, MappingProxyType(params), reads))
     sections = _sections(t) if t.has("sections") else ()
-    side = {"minimum": 1, "maximum": L.MAX_SIDE, "why": L.WHY_IMAGE}
-    per_pixel = {"maximum": L.MAX_BYTES_PER_PIXEL, "why": L.WHY_IMAGE}
+    side: dict[str, Any] = {"minimum": 1, "maximum": L.MAX_SIDE, "why": L.WHY_IMAGE}
+    per_pixel: dict[str, Any] = {"maximum": L.MAX_BYTES_PER_PIXEL, "why": L.WHY_IMAGE}
     scene = Scene(
         width=t.get("width", int, **side),
         height=t.get("height", int, **side),
@@ -156,7 +156,7 @@ def _sections(t: Table) -> tuple[Section, ...]:
         name = st.get("name", str)
         if name in {s.name for s in out}:
             raise st.error("name", f"duplicate section name {name!r}")
-        size = {"minimum": 0, "maximum": L.MAX_BYTES, "why": L.WHY_BYTES}
+        size: dict[str, Any] = {"minimum": 0, "maximum": L.MAX_BYTES, "why": L.WHY_BYTES}
         out.append(Section(name, st.get("geometry_bytes", int, **size),
                            st.get("texture_bytes", int, 0, **size)))
         st.finish()

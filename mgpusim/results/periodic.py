@@ -80,12 +80,14 @@ class RepeatedRows:
         return prefix, block, rest
 
     @functools.cached_property
-    def _coded(self) -> tuple[tuple[dict, dict, dict], dict[str, np.ndarray], Callable[[], Sequence[str]]]:
+    def _coded(self) -> tuple[tuple[dict, dict, dict], dict[str, np.ndarray],
+                              Callable[[], Sequence[str] | np.ndarray]]:
         """The parts with every column as numbers, the dictionaries, the labels of `waits_for`."""
         cols = dict(self._numbers)
         dictionary: dict[str, np.ndarray] = {}
         for c in _STR:
             cols[c], dictionary[c] = _encode(np.array(self._text[c], dtype=object))
+        labels: Callable[[], Sequence[str] | np.ndarray]
         if self._given_labels is not None:
             cols[_WAITS] = np.array(self._text[_WAITS], dtype=np.int64)
             labels = self._given_labels

@@ -78,6 +78,7 @@ class Result:
     def trace_chunks(self, rows_per_chunk: int = 1_000_000) -> Iterator[pd.DataFrame]:
         """The trace in sorted chunks, without building it whole when it is kept compact."""
         if self.compact:
+            assert self.repeated is not None  # compact: kept as the repeated rows
             yield from self.repeated.chunks(rows_per_chunk)
             return
         trace = self.trace
@@ -107,6 +108,7 @@ class Result:
         """The trace rows of frames first..last-1 (sorted as the whole trace), without
         building the whole trace of a long fast-forwarded run."""
         if self.compact:
+            assert self.repeated is not None  # compact: kept as the repeated rows
             return self.repeated.window(first, last)
         trace = self.trace
         return trace[(trace["frame"] >= first) & (trace["frame"] < last)].reset_index(drop=True)

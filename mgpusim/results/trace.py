@@ -62,7 +62,7 @@ def waits_for_column(values: np.ndarray, labels: Sequence[str] | None = None) ->
     return pd.Categorical.from_codes(codes[np.asarray(values, dtype=np.int64)], categories=uniques)
 
 
-def waits_for_categories(labels: Sequence[str]) -> tuple[np.ndarray, Any]:
+def waits_for_categories(labels: Sequence[str] | np.ndarray) -> tuple[np.ndarray, Any]:
     """(code of each id's label, the distinct labels): a categorical's parts, from labels by
     id (several tasks share a label, often the empty one)."""
     codes, uniques = pd.factorize(np.asarray(labels, dtype=object))

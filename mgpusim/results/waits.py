@@ -149,7 +149,7 @@ def host_split(trace: pd.DataFrame, submissions: pd.DataFrame,
                           "device_start_ms": (rows["start_ns"] - rows["submit_ns"]) / 1e6,
                           "wait_ms": (rows["start_ns"] - rows["ready_ns"]) / 1e6})
     means = parts.groupby("edge").mean().sort_values("wait_ms", ascending=False, kind="stable")
-    counts = parts.groupby("edge").size()
+    counts = parts.groupby("edge").size().to_dict()
     return {str(edge): {"input_seen_ms": float(m.input_seen_ms), "submit_call_ms": float(m.submit_call_ms),
                         "device_start_ms": float(m.device_start_ms), "count": int(counts[edge])}
             for edge, m in means.iterrows()}

@@ -101,6 +101,7 @@ def _bind(templates: tuple[tuple[Task, ...], ...], cfg: ScheduleConfig, scene: S
                 bound.append(_bind_render(task, p, n, scene, temporal, b))
             elif task.name == "present":
                 src = f"gpu0.{last}" if p == 0 else f"gpu0.from{p}"
+                assert isinstance(task, PassTask)
                 bound.append(replace(task, reads=(src,), writes=("gpu0.display",)))
             else:
                 bound.append(task)

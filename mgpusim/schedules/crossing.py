@@ -13,7 +13,7 @@ from typing import Any, Callable
 
 from mgpusim.model.errors import InputError
 from mgpusim.model.profile import HardwareProfile
-from mgpusim.model.tasks import CopyTask, Dep, HostCopyTask, QueueRef, Task
+from mgpusim.model.tasks import CopyPath, CopyTask, Dep, HostCopyTask, QueueRef, Task
 from mgpusim.schedules.base import queue_or_graphics
 from mgpusim.schedules.registry import Option
 
@@ -81,7 +81,7 @@ def cross(prefix: str, profile: HardwareProfile, src: int, dst: int, nbytes: int
     if src != dst and (route.path == "group" or use_peer(profile, src, dst, route)):
         dev, peer = (dst, src) if pull else (src, dst)
         q = copy_queue(profile, dev, route.copy_queue)
-        path = "group" if route.path == "group" else "p2p"
+        path: CopyPath = "group" if route.path == "group" else "p2p"
         return [CopyTask(f"{prefix}.{path}", "p2p", q, path, nbytes, deps + dst_deps, peer=peer,
                          skip_if_busy=skip, pull=pull)]
     d2h = CopyTask(f"{prefix}.d2h", "d2h", copy_queue(profile, src, route.copy_queue), "d2h",

@@ -13,6 +13,7 @@ import math
 from dataclasses import replace
 from fractions import Fraction
 from types import MappingProxyType
+from typing import Sequence
 
 from mgpusim.model import limits as L
 from mgpusim.model.costs import CostModel
@@ -261,7 +262,7 @@ def _composite(kind: str, inputs: int, pixels: int) -> PassSpec:
 
 def _build(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, pixels: list[int],
            shares: list[float], contribution: list[int], composite: PassSpec,
-           record: dict, places: list[Placement], *,
+           record: dict, places: Sequence[Placement | tuple[Placement, ...]], *,
            geometry: list[tuple[int, int, int]] | None = None,
            unsupported: str | None = None) -> FrameProgram:
     """The five steps for every GPU: `pixels`, geometry `shares`, `places` (where it draws)
@@ -371,7 +372,7 @@ def _renders(gpu: int, scene: Scene, pixels: int, share: float,
     strips = place if isinstance(place, tuple) else None
     tasks = chain_passes(scene.passes, QueueRef(gpu, "graphics"), first, pixels,
                          lambda spec: f"render{gpu}" if single else f"render{gpu}.{spec.name}",
-                         share, place=None if strips is not None else place)
+                         share, place=None if isinstance(place, tuple) else place)
     if strips is None:
         return tasks
     return [replace(t, work=MappingProxyType({**t.work, **_placed_sum(spec, share, strips)}))

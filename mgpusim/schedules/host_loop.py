@@ -37,10 +37,12 @@ from __future__ import annotations
 
 import dataclasses
 from types import MappingProxyType
-from typing import Sequence
+from typing import Mapping, Sequence, TypeVar
 
 from mgpusim.model.tasks import CopyTask, CpuTask, Dep, HostCopyTask, PassTask, Task
 from mgpusim.schedules.base import MAIN_THREAD
+
+T = TypeVar("T", PassTask, CopyTask, HostCopyTask, CpuTask)
 
 #: `parallelCopy`'s smallest part (bp/src/Util.cpp of the thesis's library, `CHUNK_SIZE`):
 #: 512 KiB since bp's commit "Larger chunk size for parallel copy" (2018-01-29; 1024 bytes
@@ -94,15 +96,14 @@ def as_built(tasks: Sequence[Task], gpus: int, renders: Sequence[str], depth: bo
     staged = []
     for i in secondaries:  # the previous loop's contributions, copied on every hardware thread
         if f"host_copy{i}" in by_name:
-            hc = by_name[f"host_copy{i}"]
+            hc = _of_kind(by_name, f"host_copy{i}", HostCopyTask)
             out.append(dataclasses.replace(hc, deps=(Dep(f"d2h{i}", -1), Dep(launch.name)) + hc.deps[1:],
                                            chunk_min_bytes=PARALLEL_COPY_MIN_BYTES, uncached=True))
             staged.append(Dep(hc.name))
         else:
             staged += [Dep(f"d2h{i}", -1), Dep(launch.name)]
-    primary = by_name[renders[0]]
-    assert isinstance(primary, PassTask)
-    shared_queue = any(by_name[f"h2d{i}"].queue == primary.queue for i in secondaries)
+    primary = _of_kind(by_name, renders[0], PassTask)
+    shared_queue = any(_of_kind(by_name, f"h2d{i}", CopyTask).queue == primary.queue for i in secondaries)
     if shared_queue:  # no transfer queue of its own: the upload waits for the primary's render
         staged.append(Dep(renders[0]))
     out.append(CpuTask("cpu.record_upload", STEP, MAIN_THREAD, command_buffers=1, deps=tuple(staged),
@@ -124,6 +125,13 @@ def _update_gap(ns: int) -> list[Task]:
         return []
     return [CpuTask(UPDATE_GAP, STEP, MAIN_THREAD, fixed_ns=float(ns), deps=(Dep("present"),),
                     idle=True, params=RUNNABLE)]
+
+
+def _of_kind(by_name: Mapping[str, Task], name: str, kind: type[T]) -> T:
+    """Task `name` of the five steps, which is a `kind` (a render a PassTask, h2d a CopyTask)."""
+    task = by_name[name]
+    assert isinstance(task, kind), f"{name} is a {type(task).__name__}"
+    return task
 
 
 def _first_render(task: Task, gpu: int) -> bool:

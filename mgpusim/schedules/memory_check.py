@@ -29,9 +29,9 @@ def footprints(program: FrameProgram, scene: Scene) -> tuple[Footprint, ...]:
     return tuple(Footprint(i, 1.0, full, 0) for i in range(program.gpus))
 
 
-def memory_report(program: FrameProgram, exp: Experiment) -> dict[str, dict[str, int | float]]:
-    """used / capacity per GPU, for the summary."""
-    out = {}
+def memory_report(program: FrameProgram, exp: Experiment) -> dict[str, dict[str, int | float | list[str]]]:
+    """used / capacity per GPU, for the summary (and the sections it holds, where the scene has them)."""
+    out: dict[str, dict[str, int | float | list[str]]] = {}
     for fp in footprints(program, exp.scene):
         cap = exp.profile.gpus[fp.gpu].memory_bytes
         used = fp.used(exp.scene.dataset_bytes)

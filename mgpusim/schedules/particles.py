@@ -144,10 +144,12 @@ def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, n: int, pg: int,
         if task.name in crossed:
             out.append(crossed[task.name])
         elif task.name == "particle_update":
+            assert isinstance(task, PassTask)
             out.append(replace(task, writes=(vertices, state), params=MappingProxyType(
                 {"particles": n, "dt": UPDATE_DT, "seed": 0})))
         elif task.name == "particle_render":
             params = {"particles": n, "clear": False, **({"newest_of": writer} if new_wait else {})}
+            assert isinstance(task, PassTask)
             out.append(replace(task, reads=(shown,), writes=(draw_into,),
                                params=MappingProxyType(params)))
         elif isinstance(task, PassTask) and task.step == "render":
@@ -158,6 +160,7 @@ def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, n: int, pg: int,
             reads = filter_reads(scene.passes, index, lambda s: f"gpu0.pass.{s}")
             out.append(bind_full_frame(task, spec, scene, target, *reads))
         elif task.name == "present":
+            assert isinstance(task, PassTask)
             out.append(replace(task, reads=(f"gpu0.pass.{scene.passes[-1].name}",),
                                writes=("gpu0.display",)))
         else:

@@ -10,6 +10,7 @@ and the rest of the frame's work. Intermediate buffers are multi-buffered (`buff
 """
 from __future__ import annotations
 
+import functools
 from collections import defaultdict
 from dataclasses import replace
 from types import MappingProxyType
@@ -67,13 +68,13 @@ def build_pipelining(cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile
     route = Route.from_options(cfg.opt)
     first, rest = scene.passes[:split], scene.passes[split:]
     tasks: list[Task] = []
-    arrivals: list[str] = []
+    arrivals: list[tuple[str, str]] = []
     buffers, fif = cfg.opt("buffers"), cfg.frames_in_flight
     readers = _readers(cfg, scene, split)
     if first:
         renders = _passes(1, first, scene, (Dep("present", -fif),))
         if _producer_split(cfg):
-            renders = _split_renders(renders, first, cfg.opt("chunks"))
+            renders = _split_renders(renders, cfg.opt("chunks"))
         copies, arrivals = _copies(cfg, scene, profile, route, first, readers)
         # GPU 1 may overwrite its outputs once the copies of frame f-buffers have read them
         reads = tuple(Dep(c.name, -buffers) for c in copies if c.step in ("d2h", "p2p"))
@@ -142,9 +143,10 @@ def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene,
             index = next(i for i, s in enumerate(scene.passes) if task.name == f"render.{s.name}")
             spec, on_gpu0 = scene.passes[index], task.queue.device == 0
             target = image_of(spec.name, on_gpu0)
-            reads = filter_reads(scene.passes, index, lambda n: image_of(n, on_gpu0))
+            reads = filter_reads(scene.passes, index, functools.partial(image_of, on_gpu0=on_gpu0))
             out.append(bind_full_frame(task, spec, scene, target, *reads))
         elif task.name == "present":
+            assert isinstance(task, PassTask)
             out.append(replace(task, reads=(image_of(scene.passes[-1].name, True),),
                                writes=("gpu0.display",)))
         else:
@@ -272,14 +274,13 @@ def _consumer_split(cfg: ScheduleConfig) -> bool:
     return cfg.opt("chunks") > 1 and cfg.gpus > 1
 
 
-def _split_renders(renders: list[PassTask], specs: tuple[PassSpec, ...],
-                   chunks: int) -> list[PassTask]:
+def _split_renders(renders: list[PassTask], chunks: int) -> list[PassTask]:
     """Each of GPU 1's passes as `chunks` sub-passes in order (`render.X#c`, each 1/chunks of
     the work plus the pass's fixed cost); the Vulkan runner does not split passes."""
     why = MappingProxyType({"unsupported": "schedule.producer_chunks: passes rendered in "
                             "pieces are simulated only"})
     out: list[PassTask] = []
-    for task, spec in zip(renders, specs):
+    for task in renders:
         work = MappingProxyType({k: v / chunks for k, v in task.work.items()})
         for c in range(chunks):
             deps = task.deps if c == 0 else (Dep(out[-1].name),)
@@ -362,7 +363,7 @@ def _reading_passes(rest: tuple[PassSpec, ...], scene: Scene, fif: int,
             out.append(_with_deps(task, tuple(Dep(a) for g, a in arrivals if g in groups)))
             continue
         chunk = {g: [a for gg, a in arrivals if gg == g] for g in groups}
-        split = _split_renders([task], (spec,), pieces)
+        split = _split_renders([task], pieces)
         for c, sub in enumerate(split):
             if c:
                 sub = replace(sub, deps=(Dep(out[-1].name),))

@@ -124,6 +124,7 @@ def _bind(tasks: list[Task], cfg: ScheduleConfig, scene: Scene, gpu_of: list[int
             v = int(task.name.removeprefix("render").partition(".")[0])
             out.append(_bind_view(task, scene, v, gpu_of[v], place[v]))
         elif task.name == "present":
+            assert isinstance(task, PassTask)
             out.append(replace(task, reads=("gpu0.final",), writes=("gpu0.display",)))
         else:
             out.append(task)

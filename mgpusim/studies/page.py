@@ -13,7 +13,7 @@ the file in any browser, offline.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping, Sequence, cast
 
 import pandas as pd
 
@@ -110,7 +110,7 @@ def _half(out: Path, title: str, table: pd.DataFrame, absent: list[str],
     parts = [head]
     groups = table.groupby("schedule", sort=False) if "schedule" in table else [("", table)]
     for schedule, part in groups:
-        s = Section(f"{title.split(' (')[0]}: {schedule}", text=[stats_line(schedule_stats[schedule])],
+        s = Section(f"{title.split(' (')[0]}: {schedule}", text=[stats_line(schedule_stats[cast(str, schedule)])],
                     tables=[("", page_table(part))])
         for config in part["config"]:
             folder = out / "validation" / str(config)

@@ -6,7 +6,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import pandas as pd
 import tomli_w
@@ -233,7 +233,7 @@ def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_t
         lines += ([] if absent else [f"## {title}", ""]) + [stats_line(stats[title]), ""]
         groups = table.groupby("schedule", sort=False) if "schedule" in table else [("", table)]
         for schedule, part in groups:
-            st = by_schedule.setdefault(title, {})[schedule] = error_stats(part)
+            st = by_schedule.setdefault(title, {})[cast(str, schedule)] = error_stats(part)
             lines += [f"### {schedule}", "", markdown_table(part), "", stats_line(st), ""]
             lines += [f"![{c}](validation/{c}/timelines.png)" for c in part["config"]
                       if (out / "validation" / c / "timelines.png").exists()] + [""]  # not --no-figures

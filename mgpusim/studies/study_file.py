@@ -349,7 +349,8 @@ def _check_copy_from(t: Table, profile: Path | None, costs: tuple[str, ...], hos
     other = Table(read_toml(profile), str(profile))
     gpus = other.data.get("gpus")
     have = gpus[0].get("costs", {}) if isinstance(gpus, list) and gpus and isinstance(gpus[0], dict) else {}
-    host_t = other.data.get("host") if isinstance(other.data.get("host"), dict) else {}
+    host_t = other.data.get("host")
+    host_t = host_t if isinstance(host_t, dict) else {}
     for key, wanted, present in (("costs", costs, have), ("host", host, host_t)):
         missing = [w for w in wanted if w not in present]
         if missing:

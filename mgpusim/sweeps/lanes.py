@@ -228,10 +228,22 @@ def build(group: Group, path: Path, base: Mapping[str, Any], fidelity: str) -> s
     return None
 
 
+def _model(group: Group) -> Analytic:
+    """The model `build` made for the group (only groups it built run as lanes)."""
+    assert group.model is not None
+    return group.model
+
+
+def _summary(group: Group) -> dict[str, Any]:
+    """The summary of the group's first point, as `build` simulated it."""
+    assert group.summary is not None
+    return group.summary
+
+
 def group_lanes(group: Group, plan_: Plan) -> tuple[lanes_mod.Lanes, np.ndarray]:
     """The group's lanes (pass times from each point's coefficients) and, per lane, whether
     its pass times are within the time bound (a lane out of it runs point by point)."""
-    model, n = group.model, len(group.points)
+    model, n = _model(group), len(group.points)
     lanes = lanes_mod.base_lanes(model, n)
     ok = np.ones(n, dtype=bool)
     if not plan_.lane_keys:
@@ -304,7 +316,7 @@ def run_batch(batch: Batch, plan_: Plan) -> tuple[pd.DataFrame, list[Any]]:
         mine = {k: v[at:at + n] for k, v in result.items()}
         at += n
         root = g.origin or g
-        if g.has_first and not _first_matches(g.summary, mine):
+        if g.has_first and not _first_matches(_summary(g), mine):
             root.failed = True
         if root.failed:
             fallback.extend(g.points)
@@ -342,13 +354,13 @@ def _records(group: Group, lane: Mapping[str, np.ndarray], ok: np.ndarray) -> pd
     lane_cols = {k: v[keep] for k, v in lane.items() if not k.startswith("fast_forward.")}
     lane_cols = {k: v for k, v in lane_cols.items()
                  if not (k.startswith("utilization.") and np.isnan(v).all())}
-    summary = {k: v for k, v in group.summary.items()
+    summary = {k: v for k, v in _summary(group).items()
                if not k.startswith(("utilization.", "fast_forward.", "task_rates_hz."))}
     for key, value in summary.items():
         cols[key] = lane_cols.pop(key) if key in lane_cols else [value] * n
     cols.update(lane_cols)
     cols.update(_fast_forward(lane, keep))
-    program = group.model.program
+    program = _model(group).program
     if program.rate_tasks:  # none skipped (lanes have no skippable tasks): every frame counts
         span = cols["window_ns.1"] - cols["window_ns.0"]
         frames = program.frames - (program.warmup_frames + 1)
@@ -374,7 +386,7 @@ def _fast_forward(lane: Mapping[str, np.ndarray], keep: np.ndarray) -> dict[str,
 def batches(groups_: list[Group], max_lanes: int = 1 << 16) -> Iterator[Batch]:
     """Built groups of one structure together, at most about `max_lanes` lanes a batch (a
     batch is saved whole: a killed sweep loses at most the batch it was running)."""
-    by: dict[tuple, list[Group]] = {}
+    by: dict[tuple | None, list[Group]] = {}
     for whole in groups_:
         for lo in range(0, len(whole.points), max_lanes):  # the slice with the first point first
             g = whole if len(whole.points) <= max_lanes else replace(
@@ -382,15 +394,16 @@ def batches(groups_: list[Group], max_lanes: int = 1 << 16) -> Iterator[Batch]:
                 origin=whole, has_first=not lo)
             by.setdefault(g.signature, []).append(g)
     for same in by.values():
-        run, size = [], 0
+        run: list[Group] = []
+        size = 0
         for g in same:
             if run and size + len(g.points) > max_lanes:
-                yield Batch(run, run[0].model)
+                yield Batch(run, _model(run[0]))
                 run, size = [], 0
             run.append(g)
             size += len(g.points)
         if run:
-            yield Batch(run, run[0].model)
+            yield Batch(run, _model(run[0]))
 
 
 class LaneRun:
@@ -416,14 +429,16 @@ class LaneRun:
         self.fallback.sort(key=lambda p: p.index)
 
     def _lanes(self) -> Iterator[pd.DataFrame]:
+        plan_ = self.plan
+        assert plan_ is not None  # planned by __iter__
         built = []
-        for g in groups(self.plan, self.todo, self.grid):
+        for g in groups(plan_, self.todo, self.grid):
             if build(g, self.path, self.base, self.fidelity) is None:
                 built.append(g)
             else:
                 self.fallback.extend(g.points)
         for batch in batches(built, self.max_lanes):
-            df, fallback = run_batch(batch, self.plan)
+            df, fallback = run_batch(batch, plan_)
             self.fallback.extend(fallback)
             if len(df):
                 yield df

@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any, Iterable, Mapping, cast
 
 import numpy as np
 import pandas as pd
@@ -19,6 +19,7 @@ from mgpusim.measure import run_archive
 from mgpusim.model.errors import InputError
 from mgpusim.model.profile import CalibratedOn
 from mgpusim.results.trace import TRACE_COLUMNS
+from mgpusim.schedules import SCHEDULES, ensure_loaded
 from mgpusim.schedules.program import build_program, run_config
 
 #: How a key missing on one side shows in a mismatch message.
@@ -98,7 +99,8 @@ def integer_column(col: pd.Series, file: str, name: str, minimum: int | None = N
     """`col` as int64: every value a finite whole number in [minimum, int64]."""
     values = pd.to_numeric(col, errors="coerce")
     as_float = values.astype(float)
-    ok = np.isfinite(as_float) & (as_float == np.floor(as_float)) & (as_float.abs() < 2.0 ** 63)
+    # a Series (numpy's stubs type a ufunc of a Series as an ndarray)
+    ok = cast(pd.Series, np.isfinite(as_float) & (as_float == np.floor(as_float)) & (as_float.abs() < 2.0 ** 63))
     if minimum is not None:
         ok &= as_float >= minimum
     if not ok.all():
@@ -114,7 +116,7 @@ def number_column(col: pd.Series, file: str, name: str, *, minimum: float | None
                   rows: pd.Series | None = None) -> pd.Series:
     """`col` as float: finite numbers (in the range) on `rows` (all rows by default)."""
     values = pd.to_numeric(col, errors="coerce").astype(float)
-    ok = np.isfinite(values)
+    ok = cast(pd.Series, np.isfinite(values))  # a Series (numpy's stubs say ndarray)
     if minimum is not None:
         ok &= values >= minimum
     if above is not None:
@@ -164,7 +166,6 @@ def _drop_newer_defaults(config: dict[str, Any], inputs: dict[str, Any], schedul
     recorded = config.get("inputs", {}).get("schedule") if isinstance(config.get("inputs"), dict) else None
     if not isinstance(recorded, dict):
         return
-    from mgpusim.schedules import SCHEDULES, ensure_loaded
     ensure_loaded()
     options = SCHEDULES[schedule].options if schedule in SCHEDULES else {}
     for key, option in options.items():

@@ -9,7 +9,7 @@ machine cannot move: a large prediction error with a small replay error is the c
 """
 from __future__ import annotations
 
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping, cast
 
 import pandas as pd
 
@@ -28,7 +28,8 @@ def measured_durations(trace: pd.DataFrame) -> tuple[dict[tuple[int, str], int],
     once, and the copy is done when the last one is)."""
     frame = trace["frame"].to_numpy()
     took = (trace["end_ns"] - trace["start_ns"]).groupby([trace["frame"], trace["task"]]).max()
-    durations = {(int(f), str(t)): int(ns) for (f, t), ns in took.items()}
+    # keys (frame, task): the two levels of the index (pandas-stubs types a key as Hashable)
+    durations = {(int(f), str(t)): int(ns) for (f, t), ns in cast(Iterable[tuple[tuple[Any, Any], Any]], took.items())}
     return durations, int(frame.max()) + 1 if len(frame) else 0
 
 

@@ -1,4 +1,5 @@
-"""Particle update + billboard build (docs/sources.md: particles on a secondary GPU) as a compute pass, and its numpy reference.
+"""Particle update + billboard build (docs/sources.md: particles on a secondary GPU) as a compute
+pass, and its numpy reference.
 
 Why a numpy reference here: the tests compare the shader with it, and the runner can use it to
 check offloaded particle results. Layout per particle (std430): pos, dir (w = velocity),

@@ -13,7 +13,7 @@ in a single-GPU render of the whole frame.
 from __future__ import annotations
 
 import itertools
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence, cast
 
 from mgpusim.model.errors import InputError
 from mgpusim.real.passes.draw import draw_vertices, quad_pc, stages, torus_mesh, view_matrix
@@ -167,7 +167,8 @@ class CompositeInto(_FramePass):
         self.pipeline = graphics_pipeline(gpu, target, "quad.vert", frag, samplers=samplers,
                                           depth_test=depth, max_sets=max(1, slots * k))
         self._owned.append(self.pipeline)
-        self.sets = [[self.pipeline.descriptor_set([c, d] if depth else [c]) for c, d in per_slot]
+        # with `depth` every input has its depth image
+        self.sets = [[self.pipeline.descriptor_set([c, cast(Image, d)] if depth else [c]) for c, d in per_slot]
                      for per_slot in inputs]
         w, h = frame
         self._pcs = [quad_pc((-1 + 2 * x / w, -1 + 2 * y / h, -1 + 2 * (x + rw) / w,

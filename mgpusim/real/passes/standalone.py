@@ -22,7 +22,7 @@ from mgpusim.real.passes.draw import torus_mesh  # noqa: F401  (re-exported: the
 from mgpusim.real.passes.particle_update import ParticleUpdate
 from mgpusim.real.passes.recorders import CompositeInto, Filter, FragmentLoopTile, MeshShare, ParticleDraw, copy_image
 from mgpusim.real.vulkan.buffers import DEPTH_FORMAT, Buffer, Image
-from mgpusim.real.vulkan.copies import clear_image, upload
+from mgpusim.real.vulkan.copies import clear_images, upload
 from mgpusim.real.vulkan.pipelines import RenderTarget
 
 if TYPE_CHECKING:
@@ -48,6 +48,7 @@ class _GraphicsPass:
     """A pass that owns what it draws with; `destroy` frees it in reverse order."""
 
     queue = "graphics"
+    work: Any  # the runner's pass that `record` records: each subclass makes one
 
     def __init__(self, gpu: "Gpu"):
         self.gpu = gpu
@@ -115,7 +116,7 @@ class _Composite(_GraphicsPass):
         self.width, self.height = width, height
         self.target = RenderTarget(gpu, width, height, depth=depth, clear=False)
         images = [i for i in (self.target.color, self.target.depth) if i is not None]
-        gpu.run("graphics", lambda cmd: [clear_image(cmd, i) for i in images])
+        gpu.run("graphics", lambda cmd: clear_images(cmd, images))
         self.work = CompositeInto(gpu, self.target, (width, height), [inputs], rects, depth)
         self._owned.append(self.work)
         self.bytes = width * height * (6 if depth else 4)

@@ -255,7 +255,7 @@ class Executor:
             choice = work.choose(frame, self) if work.choose is not None else None
             call = time.monotonic_ns()
             node.submission = work.gpu.submit(
-                work.queue, lambda cmd, r=work.record, f=frame, c=choice: r(cmd, f, c),
+                work.queue, work.bound(frame, choice),
                 wait=node.waits, signal=list(node.signals.values()), label=node.label,
                 key=work.key(frame, choice))
             with self._rows_lock:

@@ -170,10 +170,10 @@ class NativeExecutor:
         previous: dict[int, int] = {}
         for (_w, key), users in by_key.items():
             work = users[0].work
+            assert isinstance(work, GpuWork)  # by_key holds GPU nodes only
             frame = users[0].frame
             count = min(SLOTS_PER_KEY, len(users))
-            slots = work.gpu.take_recorded(work.queue, key,
-                                           lambda cmd, r=work.record, f=frame: r(cmd, f, None), count)
+            slots = work.gpu.take_recorded(work.queue, key, work.bound(frame), count)
             taken.append((work.gpu, work.queue, key, slots))
             for j, node in enumerate(users):
                 slot_of[id(node)] = slots[j % count]
@@ -193,6 +193,7 @@ class NativeExecutor:
                 edge = (id(prod.work), cons.task.name)
                 ring = rings.get(edge)
                 if ring is None:
+                    assert isinstance(prod.work, GpuWork)  # only queue work signals semaphores
                     ring = rings[edge] = [prod.work.gpu.semaphore() for _ in range(SEMAPHORES_PER_EDGE)]
                 done = uses[edge]
                 handle[(id(prod), id(cons))] = _address(ring[len(done) % len(ring)].handle)

@@ -14,7 +14,7 @@ from typing import Any, Sequence
 from mgpusim.model.errors import InputError, ScheduleError
 from mgpusim.model.tasks import Resource
 from mgpusim.real.vulkan.buffers import DEPTH_FORMAT, Image
-from mgpusim.real.vulkan.copies import clear_image
+from mgpusim.real.vulkan.copies import clear_images
 from mgpusim.real.vulkan.device import Gpu
 from mgpusim.real.vulkan.hostmem import SharedHostMemory
 
@@ -56,7 +56,7 @@ class Resources:
             # defined contents before the first frame: a temporal pass's first history, a
             # frame no copy has reached yet
             made = [img for pair in pairs for img in pair if img is not None]
-            gpu.run("graphics", lambda cmd: [clear_image(cmd, img) for img in made])
+            gpu.run("graphics", lambda cmd: clear_images(cmd, made))
         elif res.device is None:
             owners = [self._gpu(res, d) for d in res.shared_by]
             for d in res.shared_by:

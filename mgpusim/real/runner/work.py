@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
-from typing import Any, Callable, Hashable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -44,6 +44,10 @@ from mgpusim.real.runner.resources import COLOR_BPP, DEPTH_BPP, Resources
 from mgpusim.real.vulkan.copies import copy_buffer, copy_buffer_to_rect, copy_rect, copy_rect_to_buffer
 from mgpusim.real.vulkan.device import Gpu, Queue
 
+#: What a task's `choose` answers at submit time (module doc): how many particle updates the
+#: step covers, or the vertex-buffer slot to draw (None: nothing uploaded yet).
+Choice = int | None
+
 
 @dataclass
 class GpuWork:
@@ -52,21 +56,26 @@ class GpuWork:
     can know (which vertex buffer is the newest, how many updates were skipped): its answer is
     passed to `record` and is part of the recorded command buffer's key."""
 
-    task: Task
+    task: PassTask | CopyTask
     device: int
     gpu: Gpu
     queue: Queue
     engine: str
-    record: Callable[[Any, int, Hashable], None]
+    record: Callable[[Any, int, Choice], None]
     nbytes: int
     fallback: bool  # the program asked for a queue this device lacks
     cycle: int  # record(cmd, f, c) depends on f only through f % cycle
-    choose: Callable[[int, Any], Hashable] | None = None
+    choose: Callable[[int, Any], Choice] | None = None
 
-    def key(self, frame: int, choice: Hashable = None) -> tuple[int, int, Hashable]:
+    def key(self, frame: int, choice: Choice = None) -> tuple[int, int, Choice]:
         """Submissions with one key record the same commands: the Gpu records each command
         buffer once and submits it again (no Python recording in the steady state)."""
         return id(self), frame % self.cycle, choice
+
+    def bound(self, frame: int, choice: Choice = None) -> Callable[[Any], None]:
+        """`record` of frame `frame` with `choice`, as the Gpu records it: `bound(cmd)`."""
+        record = self.record
+        return lambda cmd: record(cmd, frame, choice)
 
 
 @dataclass
@@ -136,11 +145,11 @@ def build_work(task: Task, gpus: list[Gpu], res: Resources, host_threads: int,
                    res.cycle, choose)
 
 
-Recorder = Callable[[Any, int, Hashable], None]
+Recorder = Callable[[Any, int, Choice], None]
 
 
 def _pass(task: PassTask, gpu: Gpu, res: Resources, owned: list[Any],
-          queue: Queue) -> tuple[Recorder, Callable[[int, Any], Hashable] | None]:
+          queue: Queue) -> tuple[Recorder, Callable[[int, Any], Choice] | None]:
     p = dict(task.params)
     if task.step == "present" or task.kind == "present":
         (src,), (dst,) = task.reads, task.writes
@@ -169,7 +178,7 @@ def _pass(task: PassTask, gpu: Gpu, res: Resources, owned: list[Any],
     if task.kind == "filter":
         offsets = tuple(p.get("read_offsets", (0,) * len(task.reads)))
 
-        def record(cmd: Any, frame: int, _c: Hashable) -> None:
+        def record(cmd: Any, frame: int, _c: Choice) -> None:
             work.record(cmd, res.slot(out, frame),
                         [res.slot(r, frame + o) for r, o in zip(task.reads, offsets)])
         return record, None
@@ -220,7 +229,7 @@ def _composite(task: PassTask, gpu: Gpu, res: Resources, owned: list[Any],
 
 
 def _particle_update(task: PassTask, gpu: Gpu, res: Resources, owned: list[Any],
-                     p: dict[str, Any]) -> tuple[Recorder, Callable[[int, Any], Hashable] | None]:
+                     p: dict[str, Any]) -> tuple[Recorder, Callable[[int, Any], Choice] | None]:
     """The update writes buffered copy f % B of its vertex buffer; a skipped update's time
     step is added to the next one that runs (`choose`: 1 + the updates skipped just before)."""
     vertices, state = task.writes
@@ -232,7 +241,7 @@ def _particle_update(task: PassTask, gpu: Gpu, res: Resources, owned: list[Any],
     owned.append(work)
     dt = work.dt
 
-    def record(cmd: Any, frame: int, steps: Hashable) -> None:
+    def record(cmd: Any, frame: int, steps: Choice) -> None:
         work.record(cmd, res.slot(vertices, frame), dt * int(steps or 1))
     if not task.skip_if_busy:
         return record, None
@@ -240,23 +249,24 @@ def _particle_update(task: PassTask, gpu: Gpu, res: Resources, owned: list[Any],
 
 
 def _particle_draw(task: PassTask, res: Resources, work: Any, queue: Queue,
-                   out: str) -> tuple[Recorder, Callable[[int, Any], Hashable] | None]:
+                   out: str) -> tuple[Recorder, Callable[[int, Any], Choice] | None]:
     """The draw reads the vertex buffer of frame f's upload (`wait`), or with `params
     ["newest_of"]` (`new_wait`) the newest that task wrote before the draw was submitted."""
     (vertices,) = task.reads
     device = task.queue.device
     writer = task.params.get("newest_of")
 
-    def record(cmd: Any, frame: int, slot: Hashable) -> None:
-        if writer is not None and slot is None:  # nothing uploaded yet: no particles
+    def record(cmd: Any, frame: int, slot: Choice) -> None:
+        if writer is None:
+            slot = res.slot(vertices, frame)
+        elif slot is None:  # nothing uploaded yet: no particles
             work.record(cmd, res.slot(out, frame), None)
             return
-        slot = res.slot(vertices, frame) if writer is None else int(slot)  # type: ignore[arg-type]
-        work.record(cmd, res.slot(out, frame), res.buffer(vertices, device, slot))
+        work.record(cmd, res.slot(out, frame), res.buffer(vertices, device, int(slot)))
     if writer is None:
         return record, None
 
-    def choose(frame: int, progress: Any) -> Hashable:
+    def choose(frame: int, progress: Any) -> Choice:
         source = progress.newest(writer, frame, queue, task.name)
         return None if source is None else res.slot(vertices, source)
     return record, choose
@@ -289,13 +299,14 @@ def _copy(task: CopyTask, res: Resources) -> Recorder:
     _check_bytes(task, offset)
     dev = task.queue.device
 
-    def record(cmd: Any, frame: int, _c: Hashable) -> None:
+    def record(cmd: Any, frame: int, _c: Choice) -> None:
         buf = res.buffer(buffer.name, dev, res.slot(buffer.name, frame))
         for name, rect, at_colour, at_depth in parts:
             pair = res.images(name)[res.slot(name, frame)]
             for image, at in ((pair[0], at_colour), (pair[1], at_depth)):
                 if at is None:
                     continue
+                assert image is not None  # a depth offset only for an image with depth
                 if down:
                     copy_rect_to_buffer(cmd, image, buf, at, rect)
                 else:
@@ -328,11 +339,13 @@ def _image_copy(task: CopyTask, res: Resources) -> Recorder:
     (dx, dy, _w, _r), _c, _d = _region(task, dst, src.depth and dst.depth)
     _check_bytes(task, colour + depth)
 
-    def record(cmd: Any, frame: int, _c: Hashable) -> None:
+    def record(cmd: Any, frame: int, _c: Choice) -> None:
         s = res.images(src.name)[res.slot(src.name, frame)]
         d = res.images(dst.name)[res.slot(dst.name, frame)]
         for k in range(2 if depth else 1):
-            copy_rect(cmd, s[k], d[k], (0, y), (dx, dy), (width, rows))
+            source, target = s[k], d[k]
+            assert source is not None and target is not None  # depth: both images have it
+            copy_rect(cmd, source, target, (0, y), (dx, dy), (width, rows))
     return record
 
 
@@ -344,7 +357,7 @@ def _buffer_copy(task: CopyTask, res: Resources) -> Recorder:
                             f"{src.bytes} and {dst.bytes} bytes")
     dev = task.queue.device
 
-    def record(cmd: Any, frame: int, _c: Hashable) -> None:
+    def record(cmd: Any, frame: int, _c: Choice) -> None:
         copy_buffer(cmd, res.buffer(src.name, dev, res.slot(src.name, frame)),
                     res.buffer(dst.name, dev, res.slot(dst.name, frame)), task.bytes)
     return record

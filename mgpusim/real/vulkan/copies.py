@@ -7,7 +7,7 @@ Why recorders (functions of `cmd`): the runner composes them freely on any queue
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Iterable
 
 import numpy as np
 
@@ -102,6 +102,12 @@ def clear_image(cmd: Any, image: Image) -> None:
     else:
         colour = v.VkClearColorValue(float32=[0.0, 0.0, 0.0, 0.0])
         v.vkCmdClearColorImage(cmd, image.handle, general, colour, 1, ranges)
+
+
+def clear_images(cmd: Any, images: Iterable[Image]) -> None:
+    """Record clearing each of `images` in turn (:func:`clear_image`)."""
+    for image in images:
+        clear_image(cmd, image)
 
 
 def upload(gpu: "Gpu", target: Buffer | Image, data: np.ndarray) -> None:

@@ -38,6 +38,8 @@ def import_alignment(gpu: "Gpu") -> int:
 class ImportedBuffer:
     """A VkBuffer of one device bound to imported host memory; duck-types memory.Buffer."""
 
+    array: np.ndarray | None  # None once destroyed, as memory.Buffer's
+
     def __init__(self, gpu: "Gpu", address: int, size: int, array: np.ndarray):
         v = vk()
         lib = v.lib
@@ -94,6 +96,9 @@ class SharedHostMemory:
     `.array` is the memory as uint8 (numpy); `.buffer(gpu)` the ImportedBuffer of one device.
     """
 
+    array: np.ndarray | None  # None once destroyed
+    _whole: np.ndarray | None
+
     def __init__(self, size: int, gpus: Sequence["Gpu"]):
         if size <= 0:
             raise InputError(f"shared host memory size must be positive, got {size}")
@@ -108,11 +113,11 @@ class SharedHostMemory:
         whole = np.frombuffer(self._map, dtype=np.uint8)
         if whole.ctypes.data % align:
             raise InputError(f"host allocation not aligned to {align} bytes")
-        self.array = whole[:size]
+        array = self.array = whole[:size]
         self._buffers: dict[int, ImportedBuffer] = {}
         try:
             for g in gpus:
-                self._buffers[id(g)] = ImportedBuffer(g, whole.ctypes.data, self.alloc_size, self.array)
+                self._buffers[id(g)] = ImportedBuffer(g, whole.ctypes.data, self.alloc_size, array)
         except BaseException:
             self.destroy()
             raise
@@ -126,7 +131,7 @@ class SharedHostMemory:
         for buf in self._buffers.values():
             buf.destroy()
         self._buffers.clear()
-        self.array = None  # type: ignore[assignment]
+        self.array = None
         self._whole = None
         if getattr(self, "_map", None) is not None:
             try:

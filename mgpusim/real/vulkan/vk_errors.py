@@ -56,7 +56,11 @@ def vk() -> ModuleType:
 def result_name(code: int | None) -> str:
     """A VkResult's name as `call` words it (the binding's exception class name)."""
     exc = vk().exception_codes.get(code)
-    return exc.__name__ if exc is not None else _EXTRA_CODES.get(code, f"VkResult {code}")
+    if exc is not None:
+        return exc.__name__
+    if code is not None and code in _EXTRA_CODES:
+        return _EXTRA_CODES[code]
+    return f"VkResult {code}"
 
 
 def call(name: str, fn: Callable[..., Any], *args: Any) -> Any:

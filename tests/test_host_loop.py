@@ -8,10 +8,15 @@ from __future__ import annotations
 import pytest
 
 from mgpusim import InputError, simulate
+from mgpusim.model.costs import CostModel
+from mgpusim.model.profile import parse_profile
+from mgpusim.model.tasks import CpuTask, PassTask, QueueRef
+from mgpusim.schedules.base import FrameProgram
 from mgpusim.schedules.program import build_program
 from mgpusim.sim.effects import EFFECTS, choose_effects
+from mgpusim.sim.engine import Engine
 from tests.conftest import make_experiment, profile_dict
-from tests.schedule_helpers import experiment, profile, rows, timed
+from tests.schedule_helpers import experiment, gpu, profile, rows, timed
 
 
 def _host(gpus: int = 2, **host):
@@ -204,14 +209,6 @@ def test_an_idle_cpu_task_takes_no_core_beside_a_pass():
     """A 1000 ns pass on a CPU-emulated GPU that has the host's one core, beside 600 ns of CPU
     work on the main thread: busy work shares the core while both run (the pass ends at 1600);
     a sleep of the same length leaves it at 1000."""
-    from mgpusim.model.costs import CostModel
-    from mgpusim.model.profile import parse_profile
-    from mgpusim.model.tasks import CpuTask, Dep, PassTask, QueueRef
-    from mgpusim.schedules.base import FrameProgram
-    from mgpusim.sim.engine import Engine
-
-    from tests.schedule_helpers import gpu
-
     prof = parse_profile({"name": "one core", "gpus": [gpu(count=1)],
                           "host": {"memory_bandwidth_gbps": 1.0, "memcpy_threads": 1, "memcpy_thread_gbps": 1.0,
                                    "cpu_cores": 1, "gpus_share_cpu": True}}, "one-core")

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 from types import ModuleType
 
+import pandas as pd
 import pytest
 
 from mgpusim.schedules.experiment import load_experiment
@@ -45,7 +46,6 @@ def test_particle_sweep_covers_every_count_and_config(tmp_path: Path) -> None:
     run = subprocess.run([sys.executable, str(TOOLS / "particles_sweep.py"), "--csv", str(out)],
                          capture_output=True, text=True, cwd=ROOT, timeout=300)
     assert run.returncode == 0, run.stderr[-2000:]
-    import pandas as pd
     table = pd.read_csv(out)
     assert len(table) == 8 * 3
     one = table[table.config == "1gpu"].set_index("particles")

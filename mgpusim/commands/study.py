@@ -157,6 +157,9 @@ def validate(args: argparse.Namespace) -> int:
 
     from mgpusim.studies import pipeline as pipeline  # noqa: PLC0415
     from mgpusim.studies.study_file import load_study  # noqa: PLC0415
+    from mgpusim.vmgpu import study as frame_times  # noqa: PLC0415
+    if frame_times.is_frame_time_study(resolve_experiment(args.study)):
+        return validate_frame_times(args)
     study = load_study(resolve_experiment(args.study))
     out, progress = _out(args, study), progress_printer()
     profile = args.profile or study.profile
@@ -182,6 +185,32 @@ def validate(args: argparse.Namespace) -> int:
                 print(f"no measured run (not compared): {', '.join(missing[title])}")
     print((out / "errors.json").read_text())
     print(f"wrote {path}")
+    return 0
+
+
+def validate_frame_times(args: argparse.Namespace) -> int:
+    """`study validate` of a frame-time study (an external renderer's measured frame times):
+    its one parameter fitted on the calibration half, then each half compared (no replay:
+    such a renderer writes no per-task timestamps)."""
+    from mgpusim.io.writers import write_text  # noqa: PLC0415
+    from mgpusim.vmgpu import study as frame_times  # noqa: PLC0415
+    for flag in ("runs", "profile"):
+        if getattr(args, flag, None) is not None:
+            raise InputError(f"--{flag} is for studies of our own runner's runs; a frame-time study "
+                             f"names its table and profile in its file", field=f"--{flag}")
+    if args.extra:
+        raise InputError("--set is for studies of our own runner's runs", field="--set")
+    study = frame_times.load_study(resolve_experiment(args.study))
+    out, progress = args.out or Path("out") / study.name, progress_printer()
+    check_out_dir(out)
+    result = frame_times.validate(study, args.held_out, progress)
+    page = frame_times.markdown(result)
+    out.mkdir(parents=True, exist_ok=True)
+    for half, table in result.halves.items():
+        table.to_csv(out / f"{half}.csv", index=False)
+    write_text(page, out / "report.md")
+    print(page)
+    print(f"wrote {out}")
     return 0
 
 

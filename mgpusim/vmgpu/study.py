@@ -1,0 +1,259 @@
+"""vmgpu's measured frame times beside the model's predictions: a study of a renderer we did not
+write (the thesis's own, run on lavapipe by :mod:`mgpusim.vmgpu.campaign`).
+
+Why a study of its own kind: vmgpu gives frame times, not the per-task timestamps our runner
+writes, so there is no trace to join and no replay level; what can be compared is each
+configuration's frame time, measured (the median over its interleaved repeats, with their range
+as the noise band) and predicted by the as-built five-step schedule on the lavapipe profile
+calibrated on our own microbenchmarks. The study file names, before any comparison, the one
+parameter fitted to vmgpu's own frame times (`[fit]`: a profile key, the strategy whose
+calibration-half runs set it); every other number comes from the profile or the sources.
+
+For 3 and 4 GPUs the prediction stands beside an Amdahl line fitted to the same 1 -> 2 GPU
+point (the measured single-GPU and 2-GPU frame times of that strategy, triangles and
+resolution): a model that cannot beat it has learnt nothing about what each added GPU costs.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import pandas as pd
+
+from mgpusim.model.errors import InputError
+from mgpusim.model.toml_checks import Table, read_toml
+from mgpusim.schedules.experiment import Experiment, load_experiment, parse_overrides
+from mgpusim.sim.simulation import simulate
+
+#: The value of a study file's `kind` that makes it a frame-time study of an external renderer.
+KIND = "external_frame_times"
+#: vmgpu's strategy names -> the model's schedules (single is the sort-first path on one GPU:
+#: vmgpu's InitSF.cpp renders it straight into the swapchain).
+SCHEDULES = {"single": "sort_first", "sort-first": "sort_first", "sort-last": "sort_last"}
+#: The columns of a measured runs table this study reads.
+RUN_COLUMNS = ("config", "half", "strategy", "gpus", "triangles", "width", "height", "repeat",
+               "median_ms", "other_cores")
+#: A run is quiet when the machine's other processes used at most this much of a core beside
+#: it (on two cores, a quarter of one moves a CPU-bound run by about a tenth).
+QUIET_OTHER_CORES = 0.25
+
+
+@dataclass(frozen=True)
+class Fit:
+    """The one parameter fitted to the renderer's own frame times: `key` (a `--set` key),
+    searched in [`low`, `high`] (geometrically) so that the calibration-half runs of
+    `strategy` have a median error of zero; `why` says what it stands for."""
+
+    key: str
+    strategy: str
+    low: float
+    high: float
+    why: str
+
+
+@dataclass(frozen=True)
+class FrameTimeStudy:
+    name: str
+    description: str
+    path: Path
+    experiment: Path
+    runs: Path
+    sets: tuple[str, ...]
+    fit: Fit
+    targets: dict[str, float]
+
+
+def is_frame_time_study(path: Path) -> bool:
+    """Whether the study file at `path` is a frame-time study (its `kind`)."""
+    return read_toml(path).get("kind") == KIND
+
+
+def load_study(path: Path) -> FrameTimeStudy:
+    """The study file at `path`, every path in it relative to the file."""
+    t = Table(read_toml(path), str(path))
+    base = path.parent
+    t.get("kind", str, choices=(KIND,))
+    fit = t.table("fit")
+    targets = t.table("targets", None)
+    study = FrameTimeStudy(
+        name=t.get("name", str), description=t.get("description", str, ""), path=path,
+        experiment=base / t.get("experiment", str), runs=base / t.get("runs", str),
+        sets=tuple(str(s) for s in t.get("sets", list, [])),
+        fit=Fit(fit.get("key", str), fit.get("strategy", str), fit.get("low", float, minimum=1e-9),
+                fit.get("high", float, minimum=1e-9), fit.get("why", str)),
+        targets={"median_error": targets.get("median_error", float, 0.05, minimum=0.0),
+                 "worst_error": targets.get("worst_error", float, 0.10, minimum=0.0)})
+    for table in (t, fit, targets):
+        table.finish()
+    if study.fit.strategy not in SCHEDULES:
+        raise InputError(f"expected one of {sorted(SCHEDULES)}, got {study.fit.strategy!r}",
+                         file=str(path), field="fit.strategy")
+    if study.fit.low >= study.fit.high:
+        raise InputError("fit.low must be below fit.high", file=str(path), field="fit.low")
+    return study
+
+
+def measured(study: FrameTimeStudy) -> pd.DataFrame:
+    """One row per configuration: the median of its repeats' median frame times, and the
+    repeats' range as the noise band (`lo_ms`, `hi_ms`); `quiet` counts the repeats measured
+    with other processes using at most QUIET_OTHER_CORES (the machine's other load, which no
+    model of vmgpu can predict)."""
+    runs_file = study.runs / "runs.parquet"
+    if not runs_file.is_file():
+        raise InputError(f"no measured runs table at {runs_file}", file=str(study.path), field="runs")
+    runs = pd.read_parquet(runs_file)
+    missing = [c for c in RUN_COLUMNS if c not in runs.columns]
+    if missing:
+        raise InputError(f"{runs_file} lacks the columns {missing}", file=str(study.path), field="runs")
+    keys = ["config", "half", "strategy", "gpus", "triangles", "width", "height"]
+    runs = runs.assign(quiet=runs.other_cores <= QUIET_OTHER_CORES)
+    table = runs.groupby(keys, as_index=False).agg(
+        measured_ms=("median_ms", "median"), lo_ms=("median_ms", "min"), hi_ms=("median_ms", "max"),
+        repeats=("repeat", "nunique"), quiet=("quiet", "sum"))
+    return table.sort_values(["strategy", "triangles", "width", "gpus"]).reset_index(drop=True)
+
+
+def experiment_of(study: FrameTimeStudy, row: Any, extra: tuple[str, ...] = ()) -> Experiment:
+    """The model's experiment for one measured configuration."""
+    sets = [*study.sets, f"schedule.name={SCHEDULES[row.strategy]}", f"schedule.gpus={int(row.gpus)}",
+            f"scene.width={int(row.width)}", f"scene.height={int(row.height)}",
+            f"scene.passes.0.triangles={int(row.triangles)}", *extra]
+    return load_experiment(study.experiment, parse_overrides(sets))
+
+
+def predict(study: FrameTimeStudy, table: pd.DataFrame, value: float) -> pd.Series:
+    """The model's frame time (ms) of every row of `table` with the fitted key at `value`."""
+    extra = (f"{study.fit.key}={value!r}",)
+    return pd.Series([simulate(experiment_of(study, row, extra), record_trace=False).summary["frame_time_ms"]
+                      for row in table.itertuples()], index=table.index)
+
+
+def fit_value(study: FrameTimeStudy, table: pd.DataFrame,
+              progress: Callable[[str], None] | None = None) -> float:
+    """The fitted parameter: a geometric bisection on [low, high] until the calibration runs of
+    the fit's strategy have a median signed error of zero (to 0.1 % of the value). The frame
+    time must move one way with the value over the range (a cost up, a speed down)."""
+    rows = table[(table.half == "calibration") & (table.strategy == study.fit.strategy)]
+    if rows.empty:
+        raise InputError(f"no calibration run of {study.fit.strategy!r} to fit {study.fit.key}",
+                         file=str(study.path), field="fit.strategy")
+
+    def error(value: float) -> float:
+        return float(((predict(study, rows, value) - rows.measured_ms) / rows.measured_ms).median())
+
+    low, high = study.fit.low, study.fit.high
+    e_low, e_high = error(low), error(high)
+    if (e_low > 0) == (e_high > 0):
+        raise InputError(f"{study.fit.key} in [{low:g}, {high:g}] does not bracket the measured "
+                         f"frame times (median errors {e_low:+.1%} and {e_high:+.1%})",
+                         file=str(study.path), field="fit")
+    rising = e_high > 0  # a cost: the prediction grows with the value
+    while high / low > 1.001:
+        mid = math.sqrt(low * high)
+        if progress:
+            progress(f"fit {study.fit.key} in [{low:.4g}, {high:.4g}]")
+        if (error(mid) > 0) == rising:
+            high = mid
+        else:
+            low = mid
+    return math.sqrt(low * high)
+
+
+def amdahl_ms(t1: float, t2: float, gpus: int) -> float:
+    """The frame time at `gpus` GPUs on the Amdahl line through the 1- and 2-GPU frame times:
+    gain(N) = 1 / ((1 - p) + p / N) with p from gain(2) = t1 / t2 (p < 0 where two GPUs are
+    slower than one: the line then keeps falling)."""
+    p = 2.0 * (1.0 - t2 / t1)
+    return t1 * ((1.0 - p) + p / gpus)
+
+
+def compared(study: FrameTimeStudy, table: pd.DataFrame, value: float) -> pd.DataFrame:
+    """`table` with the prediction, its error, the noise band's half-width and, at 3 and 4
+    GPUs, the Amdahl line through the same strategy's measured 1 -> 2 GPU point."""
+    out = table.assign(predicted_ms=predict(study, table, value))
+    out["error"] = out.predicted_ms / out.measured_ms - 1.0
+    out["noise"] = (out.hi_ms - out.lo_ms) / 2.0 / out.measured_ms
+    single = out[out.strategy == "single"].set_index(["triangles", "width", "height"]).measured_ms
+    two = out[out.gpus == 2].set_index(["strategy", "triangles", "width", "height"]).measured_ms
+    amdahl: list[float] = []
+    for strategy, gpus, *key in zip(out.strategy, out.gpus, out.triangles, out.width, out.height):
+        point = (strategy, *key)
+        known = tuple(key) in single.index and point in two.index
+        amdahl.append(amdahl_ms(float(single[tuple(key)]), float(two[point]), int(gpus))
+                      if gpus >= 3 and known else float("nan"))
+    out["amdahl_ms"] = amdahl
+    out["amdahl_error"] = out.amdahl_ms / out.measured_ms - 1.0
+    return out
+
+
+def verdict(study: FrameTimeStudy, table: pd.DataFrame) -> list[str]:
+    """Lines that state each target met or missed on `table` (one half)."""
+    abs_err = table.error.abs()
+    far = table[table.gpus >= 3].dropna(subset=["amdahl_error"])
+    beats = (far.error.abs() < far.amdahl_error.abs())
+    lines = [f"median |error| {abs_err.median():.1%} (target {study.targets['median_error']:.0%}): "
+             f"{'met' if abs_err.median() <= study.targets['median_error'] else 'missed'}",
+             f"worst |error| {abs_err.max():.1%} (target {study.targets['worst_error']:.0%}): "
+             f"{'met' if abs_err.max() <= study.targets['worst_error'] else 'missed'}"
+             f" ({table.config.iloc[int(abs_err.to_numpy().argmax())]})",
+             f"3 and 4 GPUs closer than Amdahl's line: {int(beats.sum())} of {len(far)}"
+             + ("" if far.empty else f" (model median {far.error.abs().median():.1%}, Amdahl "
+                                     f"{far.amdahl_error.abs().median():.1%})"),
+             f"noise: the repeats' half-range is {table.noise.median():.1%} of the frame time "
+             f"(median), {table.noise.max():.1%} at most; {int((table.quiet == table.repeats).sum())} "
+             f"of {len(table)} configurations had every repeat quiet (other processes <= "
+             f"{QUIET_OTHER_CORES} core)"]
+    return lines
+
+
+#: The columns of the printed comparison, in order.
+SHOWN = ["config", "strategy", "gpus", "triangles", "width", "height", "repeats", "quiet", "measured_ms",
+         "lo_ms", "hi_ms", "predicted_ms", "error", "amdahl_ms", "amdahl_error"]
+
+
+@dataclass(frozen=True)
+class Validation:
+    """A frame-time study checked: the fitted value and each half's comparison."""
+
+    study: FrameTimeStudy
+    value: float
+    halves: dict[str, pd.DataFrame]
+
+
+def validate(study: FrameTimeStudy, held_out: bool,
+             progress: Callable[[str], None] | None = None) -> Validation:
+    """Fit the study's one parameter on the calibration half, then compare the calibration
+    half and (`held_out`) the held-out half with the model."""
+    table = measured(study)
+    value = fit_value(study, table, progress)
+    halves = {"calibration": compared(study, table[table.half == "calibration"], value)}
+    if held_out:
+        halves["held-out"] = compared(study, table[table.half == "held-out"], value)
+    return Validation(study, value, halves)
+
+
+def markdown(v: Validation) -> str:
+    """The validation as a page: the verdict of each half first, then its table."""
+    s = v.study
+    lines = [f"# {s.name}: measured vs predicted frame times", "", s.description, "",
+             f"Fitted before any comparison: `{s.fit.key}` = {v.value:.4g} on the calibration "
+             f"half's `{s.fit.strategy}` runs ({s.fit.why}). Replay level: none (vmgpu writes no "
+             "per-task timestamps).", ""]
+    for half, table in v.halves.items():
+        lines += [f"## {half}", ""] + [f"- {line}" for line in verdict(s, table)] + [""]
+        shown = table[SHOWN].copy()
+        for col in ("error", "amdahl_error"):
+            shown[col] = shown[col].map(lambda x: "" if pd.isna(x) else f"{x:+.1%}")
+        for col in ("measured_ms", "lo_ms", "hi_ms", "predicted_ms", "amdahl_ms"):
+            shown[col] = shown[col].map(lambda x: "" if pd.isna(x) else f"{x:.2f}")
+        lines += [_pipe_table(shown), ""]
+    return "\n".join(lines)
+
+
+def _pipe_table(table: pd.DataFrame) -> str:
+    """A Markdown pipe table of `table`'s cells as they print."""
+    rows = [list(map(str, table.columns)), ["---"] * len(table.columns)]
+    rows += [[str(v) for v in row] for row in table.itertuples(index=False)]
+    return "\n".join("| " + " | ".join(r) + " |" for r in rows)

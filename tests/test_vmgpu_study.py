@@ -1,0 +1,112 @@
+"""The vmgpu study (mgpusim/vmgpu/study.py), offline from the committed frame times: the one
+fitted parameter, both halves compared, the Amdahl line, and the refusals of bad study files."""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from mgpusim.cli import main
+from mgpusim.model.errors import InputError
+from mgpusim.vmgpu import study as fts
+
+ROOT = Path(__file__).resolve().parents[1]
+STUDY = ROOT / "experiments" / "vmgpu" / "study.toml"
+
+
+@pytest.fixture(scope="module")
+def validation() -> fts.Validation:
+    return fts.validate(fts.load_study(STUDY), held_out=True)
+
+
+def test_amdahl_line_through_the_one_to_two_gpu_point() -> None:
+    assert fts.amdahl_ms(10.0, 6.0, 2) == pytest.approx(6.0)
+    assert fts.amdahl_ms(10.0, 6.0, 4) == pytest.approx(4.0)  # p = 0.8: 10 (0.2 + 0.8 / 4)
+    assert fts.amdahl_ms(10.0, 12.0, 4) > 12.0  # two GPUs slower than one: the line keeps rising
+
+
+def test_the_fit_zeroes_the_calibration_single_gpu_error(validation: fts.Validation) -> None:
+    s = validation.study
+    assert s.fit.low < validation.value < s.fit.high
+    cal = validation.halves["calibration"]
+    single = cal[cal.strategy == s.fit.strategy]
+    assert len(single) >= 2 and abs(single.error.median()) < 0.005
+
+
+def test_both_halves_hold_every_strategy_and_gpu_count(validation: fts.Validation) -> None:
+    for half, table in validation.halves.items():
+        assert set(table.half) == {half}
+        assert {(r.strategy, r.gpus) for r in table.itertuples()} == {
+            ("single", 1), *((s, n) for s in ("sort-first", "sort-last") for n in (2, 3, 4))}
+        assert (table.predicted_ms > 0).all() and (table.lo_ms <= table.measured_ms).all()
+        assert (table.measured_ms <= table.hi_ms).all()
+        far = table[table.gpus >= 3]
+        assert far.amdahl_ms.notna().all() and table[table.gpus < 3].amdahl_ms.isna().all()
+
+
+def test_the_verdict_states_each_target(validation: fts.Validation) -> None:
+    lines = fts.verdict(validation.study, validation.halves["held-out"])
+    assert lines[0].startswith("median |error|") and ("met" in lines[0] or "missed" in lines[0])
+    assert "closer than Amdahl's line" in lines[2] and "noise" in lines[3]
+
+
+def test_study_validate_on_the_command_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "v"
+    assert main(["study", "validate", str(STUDY), "--held-out", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "## held-out" in text and "Fitted before any comparison" in text
+    assert pd.read_csv(out / "held-out.csv").shape[0] == 14
+    assert (out / "report.md").read_text().startswith("# vmgpu_lavapipe")
+
+
+def test_runs_of_our_runner_are_refused_for_a_frame_time_study(tmp_path: Path, capsys) -> None:
+    assert main(["study", "validate", str(STUDY), "--runs", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
+    assert "--runs" in capsys.readouterr().err
+
+
+def _study_copy(tmp_path: Path, text: str) -> Path:
+    folder = tmp_path / "experiments" / "vmgpu"
+    folder.mkdir(parents=True)
+    shutil.copy(STUDY.with_name("vmgpu.toml"), folder / "vmgpu.toml")
+    (folder / "vmgpu.toml").write_text((folder / "vmgpu.toml").read_text().replace(
+        "../../hardware_profiles", str(ROOT / "hardware_profiles")))
+    path = folder / "study.toml"
+    path.write_text(text.replace("../../data", str(ROOT / "data")))
+    return path
+
+
+@pytest.mark.parametrize("change, field", [
+    (("[fit]", "[fit]\nkeyy = 1"), "fit.keyy"),
+    (('strategy = "single"', 'strategy = "afr"'), "fit.strategy"),
+    (("low = 1.0", "low = 5000.0"), "fit.low"),
+    (('kind = "external_frame_times"', 'kind = "external_frame_times"\nruns = "x"'), None),
+])
+def test_bad_study_files_are_refused_naming_the_field(tmp_path: Path, change, field) -> None:
+    path = _study_copy(tmp_path, STUDY.read_text().replace(*change))
+    with pytest.raises(InputError) as err:
+        fts.load_study(path)
+    if field:
+        assert err.value.field == field
+
+
+def test_a_fit_range_that_cannot_bracket_is_refused(tmp_path: Path) -> None:
+    path = _study_copy(tmp_path, STUDY.read_text().replace("high = 2000.0", "high = 1.5"))
+    with pytest.raises(InputError, match="does not bracket"):
+        fts.fit_value(fts.load_study(path), fts.measured(fts.load_study(path)))
+
+
+def test_a_runs_table_without_its_columns_is_refused(tmp_path: Path) -> None:
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    pd.read_parquet(ROOT / "data" / "vmgpu" / "lavapipe" / "runs.parquet").drop(
+        columns=["other_cores"]).to_parquet(runs / "runs.parquet")
+    path = _study_copy(tmp_path, STUDY.read_text().replace('runs = "../../data/vmgpu/lavapipe"',
+                                                           f'runs = "{runs}"'))
+    with pytest.raises(InputError, match="other_cores"):
+        fts.measured(fts.load_study(path))
+    empty = _study_copy(tmp_path / "e", STUDY.read_text().replace('runs = "../../data/vmgpu/lavapipe"',
+                                                                  f'runs = "{tmp_path / "none"}"'))
+    with pytest.raises(InputError, match="no measured runs table"):
+        fts.measured(fts.load_study(empty))

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from fractions import Fraction
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 
@@ -36,9 +36,14 @@ from mgpusim.model.geometry import even_split
 from mgpusim.model.profile import HostProfile
 from mgpusim.model.tasks import CpuTask, HostCopyTask, Task
 from mgpusim.schedules.base import FrameProgram, leads_chain, wakes_host
+from mgpusim.schedules.skipping import SkipChains
+from mgpusim.sim.channel import FixedRateChannel
 from mgpusim.sim.effects import choose_effects
-from mgpusim.sim.engine import Engine, RawResult
+from mgpusim.sim.engine import RawResult
+from mgpusim.sim.executors import make_executors
 from mgpusim.sim.fastforward import Repeat
+from mgpusim.sim.ops import Op, OpBuilder
+from mgpusim.sim.snapshot import Environment
 
 NEG = -(1 << 62)  # "no constraint" (before time 0)
 NO_START = np.iinfo(np.int64).max  # a frame with no task run yet (its start array's fill)
@@ -96,6 +101,21 @@ def host_approximations(host: HostProfile) -> list[str]:
     return out
 
 
+#: The effects the recurrence leaves out: it takes every link, host memory, core and GPU as if
+#: each piece of work had it alone (see the module doc and `Analytic._approximations`).
+UNSHARED = frozenset({"shared_executor", "shared_gpu", "link_sharing", "host_pcie",
+                      "host_memory_sharing", "busy_wake"})
+
+
+def _builder(program: FrameProgram, costs: CostModel, effects: frozenset[str]) -> OpBuilder:
+    """The engine's own rules for durations, rates and labels (:class:`.ops.OpBuilder`), on an
+    environment that never runs: every device on its own executor and every link at its fixed
+    rate (the recurrence takes everything as unshared), so each op's channel only says its
+    bandwidth. Why not the engine itself: the recurrence needs none of its run state."""
+    env = Environment()
+    return OpBuilder(program, costs, effects - UNSHARED, env, make_executors(env, costs, shared=False))
+
+
 class Analytic:
     """The recurrence for one program and cost model (see the module doc)."""
 
@@ -110,18 +130,18 @@ class Analytic:
         self.submit = host.submit_ns if submission else 0
         self.copy_wake = host.host_copy_wake_ns if submission else 0
         self.timeline = bool(self.dispatch or self.submit or self.copy_wake)
-        # the engine's own rules for durations, channels and labels, without running it
-        probe = Engine(program, costs, record_trace=False,
-                       effects=effects - {"shared_executor", "shared_gpu", "link_sharing",
-                                          "host_pcie", "host_memory_sharing", "busy_wake"})
-        self.inputs = probe.inputs  # the ids the rows log, and what each lists
-        self.threads = host.memcpy_threads
-        self.thread_names = [f"thread{i}" for i in range(self.threads)]
         #: per frame phase, task name -> its task (a name may sit on other devices in other phases)
         self.task_of = [{t.name: t for t in tasks} for tasks in program.templates]
+        # the skip rule's grouping refuses a skippable task behind two chains, as the engine
+        # does (the recurrence groups them itself, :func:`_skip_chains`)
+        SkipChains(program, self.task_of)
+        builder = _builder(program, costs, effects)
+        self.inputs = builder.inputs  # the ids the rows log, and what each lists
+        self.threads = host.memcpy_threads
+        self.thread_names = [f"thread{i}" for i in range(self.threads)]
         self.host_memory = costs.host_memory_bandwidth()
         self.phases = [self._order([self._node(op, phase) for op in ops])
-                       for phase, ops in enumerate(probe.all_ops())]
+                       for phase, ops in enumerate(builder.all_ops())]
         self.lag = max([1] + [-d[1] for ph in self.phases for n in ph for d in n.deps])
         #: per phase, skippable task -> (its chain's leader, its same-frame skippable inputs)
         self.chains = [_skip_chains(ph) for ph in self.phases]
@@ -132,7 +152,7 @@ class Analytic:
         self.presents_on_gpu = all(n.device != "host" for ph in self.phases for n in ph
                                    if n.name == program.present_task)
 
-    def _node(self, op: Any, phase: int) -> _Node:
+    def _node(self, op: Op, phase: int) -> _Node:
         task = op.task
         deps = tuple((d.task, d.offset, self._crosses(task, d.task, (phase + d.offset) % len(self.task_of), phase))
                      for d in task.deps)
@@ -146,7 +166,8 @@ class Analytic:
             return _Node(task.name, task, f"host.{task.thread}", deps, op.duration, 0, None, 0, (),
                          "host", task.thread, op.waits_for, cpu=True, time=op.duration)
         rate = None
-        if op.channel is not None:
+        if op.channel is not None:  # (at its fixed rate: see _builder)
+            assert isinstance(op.channel, FixedRateChannel)
             bw = op.channel.bandwidth
             rate = bw if op.cap is None or op.cap >= bw else op.cap
         moved = _round_div(op.nbytes, rate) if rate is not None and op.nbytes else 0

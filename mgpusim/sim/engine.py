@@ -9,6 +9,9 @@
 - Devices run their work on the executors the engine is given (:mod:`.executors`): their own
   cores, or a pool shared with other devices (CPU-emulated GPUs); the engine asks each executor
   for a runner once per task and never branches on its kind in the hot loop.
+- What each task costs, which channel it crosses and how its row is labelled is decided once
+  per task, before the run, by :class:`.ops.OpBuilder` (shared with the analytic level and the
+  replay); the engine runs the timeline of those ops.
 - Only the effects a scene calls for are instantiated (:mod:`.effects`).
 Dependencies are counted, not stored as events per task, so memory stays flat over 10^5 frames.
 """
@@ -19,7 +22,6 @@ from array import array
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 from fractions import Fraction
-from functools import partial
 from typing import Callable, Iterable, Mapping
 
 import numpy as np
@@ -29,68 +31,17 @@ from mgpusim.model.costs import CostModel, gbps_fraction, round_half_up
 from mgpusim.model.errors import InputError, ScheduleError
 from mgpusim.model.geometry import even_split
 from mgpusim.model.limits import INT64_MAX
-from mgpusim.model.tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
+from mgpusim.model.tasks import CopyTask, CpuTask, HostCopyTask, QueueRef, Task
 from mgpusim.schedules.base import FrameProgram, leads_chain, wakes_host
 from mgpusim.schedules.skipping import GivenSkips, SkipChains
-from mgpusim.schedules.task_inputs import TaskInputs, task_inputs
+from mgpusim.schedules.task_inputs import TaskInputs
 from mgpusim.sim.busy_wake import BusyWake
-from mgpusim.sim.channel import Channel, FixedRateChannel
-from mgpusim.sim.hostlink import HostLinkChannel, LinkPort
 from mgpusim.sim.effects import choose_effects
-from mgpusim.sim.executors import Executor, Runner, make_executors
+from mgpusim.sim.executors import Executor, make_executors
+from mgpusim.sim.ops import Key, Op, OpBuilder, RunChannel
 from mgpusim.sim.snapshot import Callback, Environment, Relative, StreamProcess
 
-Key = tuple[int, str]
 _heappop, _heappush = heapq.heappop, heapq.heappush  # (looked up once: used per host-copy part)
-
-
-@dataclass(frozen=True, slots=True, eq=False)
-class _Op:
-    task: Task
-    duration: int
-    channel: Channel | FixedRateChannel | None
-    cap: Fraction | None
-    nbytes: int
-    device: str
-    engine: str
-    #: the task's id in the program's TaskInputs (its listed inputs), logged with every row
-    waits_for: int
-    is_present: bool
-    #: What the executor makes of the task's work: `run(amount)` is the event to wait for
-    #: (None: no work to wait for).
-    run: Runner | None = None
-    amount: int = 0
-    #: The queue's idle time before the task (the GPU's task_gap_ns), on the host's executor.
-    gap: int = 0
-    gap_run: Runner | None = None
-    #: a CPU task: its thread wakes `dispatch_ns` after an input from elsewhere, no submit cost
-    cpu: bool = False
-    #: a pass that keeps every host core busy (the busy_wake effect): the cores it keeps busy
-    fill_cores: Fraction | None = None
-    #: the duration is a measured one (the replay level): a copy or host-copy part spends
-    #: exactly `duration`, crossing no channel
-    measured: bool = False
-    #: the task's name (read in the hot loop)
-    name: str = ""
-    #: its entry of the engine's dependents table (set once the op is built)
-    dependents: list = field(default_factory=list)
-    #: `cross()` is the event of its bytes crossing `channel` (None without a channel): the
-    #: transfer with its arguments bound, its time worked out once where it is fixed
-    cross: Callable[[], simpy.Event] | None = None
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "name", self.task.name)
-        if self.channel is not None:
-            object.__setattr__(self, "cross", _crossing(self.channel, self.nbytes, self.cap))
-
-
-def _crossing(channel: Channel | FixedRateChannel | LinkPort, nbytes: int,
-              cap: Fraction | None) -> Callable[[], simpy.Event]:
-    """A transfer of `nbytes` at `cap` on `channel`, ready to start: on a fixed-rate channel
-    its time does not depend on what else crosses, so it is worked out here, not per frame."""
-    if isinstance(channel, FixedRateChannel) and nbytes > 0:
-        return partial(channel.cross, channel.duration(nbytes, cap))
-    return partial(channel.transfer, nbytes, cap)
 
 
 class _Stream:
@@ -123,7 +74,7 @@ class RawResult:
     rows: list[tuple]
     frame_start: np.ndarray
     present_end: np.ndarray
-    channels: dict[str, Channel]
+    channels: dict[str, RunChannel]
     skipped: dict[str, int] = field(default_factory=dict)
     effects: dict[str, bool] = field(default_factory=dict)
     #: frames in which each skippable task was skipped (for update rates in steady state)
@@ -142,6 +93,10 @@ class RawResult:
 
 
 class Engine:
+    """The event model of one program: a process per stream running its ops (built once by
+    :class:`.ops.OpBuilder`), the dependency counts between task instances, the host's threads,
+    and what the run observed (:meth:`run`)."""
+
     def __init__(self, program: FrameProgram, costs: CostModel, record_trace: bool = True,
                  effects: frozenset[str] | None = None,
                  executors: Callable[[simpy.Environment], dict[str, Executor]] | None = None,
@@ -150,11 +105,11 @@ class Engine:
         :func:`.effects.choose_effects`). `executors`: builds the executor of every device and
         the host (default: shared host cores where the shared_executor effect is on).
         `durations`: (phase, task name) -> ns the task takes there instead of its cost (the
-        replay level, :mod:`.replay`: measured durations; a copy then crosses no channel, a
-        host copy's every part takes the given time). `skips`: the (frame, task) instances to
+        replay level, :mod:`.replay`: measured durations, which the builder makes measured ops
+        of, :meth:`.ops.OpBuilder.measured_op`; a copy then crosses no channel, a host copy's
+        every part takes the given time). `skips`: the (frame, task) instances to
         skip instead of the skip rule's decisions (the replay: those a measured run skipped)."""
         self.program, self.costs, self.record = program, costs, record_trace
-        self._durations = durations or {}
         if effects is None:
             effects = choose_effects(program, costs.profile)
         self.effects = effects
@@ -184,24 +139,18 @@ class Engine:
         self._busy_wake = (BusyWake(host.busy_wake_share, host.busy_wake_ns,
                                     host.busy_wake_window_ns, host.cpu_cores)
                            if "busy_wake" in effects else None)
-        #: every task's id and the inputs its trace row lists; rows log the id
-        self.inputs = task_inputs(program)
-        self._waits_for = self.inputs.ids
-        self.channels: dict[str, Channel | FixedRateChannel] = {}
         self._unfinished = self._tasks_in(0, program.frames)
-        self._make_executors = executors or (
-            lambda env: make_executors(env, costs, "shared_executor" in effects,
-                                       program if "shared_gpu" in effects else None))
         self.processes: list[StreamProcess] = []
         self.streams: list[_Stream] = []  # the processes' positions, in the same order
-        self._ops: list[list[_Op]] = []
         #: called with the frame number when a frame presents (the fast-forward's probe)
         self.on_present: Callable[[int], None] | None = None
         #: vsync: the display's refresh period in ns (exact), and the last flip's time
         self.refresh_period = (Fraction(10 ** 9) / gbps_fraction(program.refresh_hz)
                                if program.refresh_hz else None)
         self._last_flip = -1
-        self._setup_resources()
+        self._setup_resources(executors or (
+            lambda env: make_executors(env, costs, "shared_executor" in effects,
+                                       program if "shared_gpu" in effects else None)), durations)
 
     # ----- build -------------------------------------------------------------------------
     def _reverse_deps(self) -> list[dict[str, list[tuple[str, int, Task, int, int, bool, bool]]]]:
@@ -221,11 +170,17 @@ class Engine:
                         (task.name, k, task, len(task.deps), lag, cross, task.skip_if_busy))
         return out
 
-    def _setup_resources(self) -> None:
-        self.executors = self._make_executors(self.env)
-        for ex in dict.fromkeys(self.executors.values()):  # a shared pool is one channel
-            if ex.shared:
-                self.channels[ex.channel.name] = ex.channel
+    def _setup_resources(self, executors: Callable[[Environment], dict[str, Executor]],
+                         durations: Mapping[Key, int] | None) -> None:
+        """The executors, the ops (:class:`.ops.OpBuilder`: durations, channels, labels), the
+        host threads' state, and a process per stream with the ops it runs per frame phase."""
+        self.executors = executors(self.env)
+        self.builder = OpBuilder(self.program, self.costs, self.effects, self.env, self.executors,
+                                 durations, self._busy_wake)
+        #: every task's id and the inputs its trace row lists; rows log the id
+        self.inputs = self.builder.inputs
+        #: every channel of the run, in the order made (the builder's: it adds the links)
+        self.channels = self.builder.channels
         host_ex = self.executors["host"]
         self._host_work = host_ex.work  # one host thread's ns of time
         serial = self.costs.profile.host.serial_dispatch  # the profile's word, else the executor's
@@ -233,14 +188,13 @@ class Engine:
         self._interp_busy = False  # a host thread is waking (serial dispatch)
         self._interp_waiting: deque[simpy.Event] = deque()  # threads waiting for their turn
         self._submit_load = host_ex.background() if self._submit_ns else None
-        queues: dict[QueueRef, list[list[_Op]]] = {}
-        host_ops: list[list[_Op]] = [[] for _ in range(self.period)]
-        for phase, tasks in enumerate(self.program.templates):
-            self._ops.append([])
-            for task in tasks:
-                op = self._op(phase, task)
+        queues: dict[QueueRef, list[list[Op]]] = {}
+        host_ops: list[list[Op]] = [[] for _ in range(self.period)]
+        self._ops = self.builder.all_ops()
+        for phase, ops in enumerate(self._ops):
+            for op in ops:
+                task = op.task
                 object.__setattr__(op, "dependents", self._dependents[phase].get(task.name, []))
-                self._ops[-1].append(op)
                 if isinstance(task, HostCopyTask):
                     host_ops[phase].append(op)
                 else:
@@ -251,12 +205,10 @@ class Engine:
         if any(host_ops):
             host = self.costs.profile.host
             self._threads_all = [f"thread{i}" for i in range(host.memcpy_threads)]
-            self._part_sizes: dict[_Op, list[int]] = {}  # a host copy's part sizes, per task
+            self._part_sizes: dict[Op, list[int]] = {}  # a host copy's part sizes, per task
             self._free_threads = list(range(host.memcpy_threads))
             self._part_queue: deque = deque()
-            kind = Channel if "host_memory_sharing" in self.effects else FixedRateChannel
-            memory = self.channels["host.memory"] = kind(self.env, "host.memory",
-                                                         self.costs.host_memory_bandwidth())
+            memory = self.builder.host_memory()
             # a part runs at its copy's cap (its op's): a memcpy thread's speed, or slower
             # where it reads uncached memory (the uncached_reads effect)
             if host_ex.copies_on_cores:  # a memcpy thread is one core's work
@@ -265,7 +217,7 @@ class Engine:
                 self._part_event = memory.transfer
             self._start_stream(host_ops, host=True)
 
-    def _start_stream(self, plan: list[list[_Op]], host: bool) -> None:
+    def _start_stream(self, plan: list[list[Op]], host: bool) -> None:
         stream = _Stream(host)
         self.streams.append(stream)
         box: list[StreamProcess] = []  # a lean generator's process, read once it runs
@@ -278,95 +230,6 @@ class Engine:
             proc = self._stream_proc(plan, stream)
         box.append(StreamProcess(self.env, proc))
         self.processes.append(box[0])
-
-    def _op(self, phase: int, task: Task) -> _Op:
-        """Everything the hot loop needs about one task, computed once."""
-        measured = self._durations.get((phase, task.name))
-        if measured is not None:
-            return self._measured_op(phase, task, measured)
-        channel, cap, nbytes = None, None, 0
-        duration = self._duration(task)
-        gap, gap_run = 0, None
-        if isinstance(task, HostCopyTask):
-            cap = self.costs.host_copy_cap(task, "uncached_reads" in self.effects)
-            self.costs.check_transfer(task.name, task.bytes, cap, duration,
-                                      "host.uncached_read_gbps" if cap < self.costs.memcpy_thread_cap()
-                                      else "host.memcpy_thread_gbps")
-            return _Op(task, duration, None, cap, 0, "host", "memcpy", self._waits_for[phase][task.name],
-                       task.name == self.program.present_task)
-        if isinstance(task, CpuTask):  # one host thread's time (a core's, on emulated GPUs)
-            run, amount = self._cpu_runner(task, duration)
-            return _Op(task, duration, None, None, 0, "host", task.thread,
-                       self._waits_for[phase][task.name], task.name == self.program.present_task,
-                       run, amount, cpu=True)
-        executor = self.executors[task.queue.device_name]
-        if isinstance(task, CopyTask):
-            nbytes = task.bytes
-            full_cap = self.costs.copy_cap(task.queue.device, task.queue.family, task.path)
-            self._check_copy_time(task, full_cap, duration)
-            cap = full_cap if "copy_engine_caps" in self.effects else None
-            if executor.copies_on_cores:  # a memcpy in the queue's thread / its GPU's work
-                bw = self._path_bandwidth(task)
-                rate = bw if cap is None else min(cap, bw)
-                duration += -(-nbytes * rate.denominator // rate.numerator)
-                cap = None
-            else:
-                channel = self._channel_for(task)
-        if "task_gaps" in self.effects:
-            gap = self.costs.profile.gpus[task.queue.device].task_gap_ns
-            if gap:
-                gap_run = executor.work
-        run, amount = executor.task_runner(task, duration)
-        fills = None
-        if self._busy_wake is not None and isinstance(task, PassTask):
-            cores = executor.cores(task)
-            fills = cores if self._busy_wake.fills(cores, duration) else None
-        return _Op(task, duration, channel, cap, nbytes, task.queue.device_name, task.queue.engine,
-                   self._waits_for[phase][task.name], task.name == self.program.present_task,
-                   run, amount, gap, gap_run, fill_cores=fills)
-
-    def _cpu_runner(self, task: CpuTask, duration: int) -> tuple[Runner | None, int]:
-        """A CPU task's time on a host core (shared with the GPUs' passes on CPU-emulated GPUs),
-        or, for a thread that sleeps (`idle`), plain time."""
-        if task.idle:
-            return (self.env.timeout, duration) if duration else (None, 0)
-        return self.executors["host"].runner(duration, 1)
-
-    def _measured_op(self, phase: int, task: Task, duration: int) -> _Op:
-        """A task that takes the given `duration` (ns) on its queue, thread or memcpy threads,
-        whatever else runs: no channel, cap or shared executor stretches it. The idle gap and
-        host hand-offs before it stay the model's."""
-        waits, present = self._waits_for[phase][task.name], task.name == self.program.present_task
-        if isinstance(task, HostCopyTask):  # each part: one memcpy thread's core for its time
-            run, amount = self.executors["host"].runner(duration, 1)
-            return _Op(task, duration, None, None, 0, "host", "memcpy", waits, present, run, amount,
-                       measured=True)
-        if isinstance(task, CpuTask):
-            run, amount = self._cpu_runner(task, duration)
-            return _Op(task, duration, None, None, 0, "host", task.thread, waits, present, run, amount,
-                       cpu=True, measured=True)
-        executor = self.executors[task.queue.device_name]
-        gap = self.costs.profile.gpus[task.queue.device].task_gap_ns if "task_gaps" in self.effects else 0
-        run, amount = executor.task_runner(task, duration)
-        nbytes = task.bytes if isinstance(task, CopyTask) else 0
-        fills = None
-        if self._busy_wake is not None and isinstance(task, PassTask):
-            cores = executor.cores(task)
-            fills = cores if self._busy_wake.fills(cores, duration) else None
-        return _Op(task, duration, None, None, nbytes, task.queue.device_name, task.queue.engine, waits,
-                   present, run, amount, gap, executor.work if gap else None, fill_cores=fills,
-                   measured=True)
-
-    def _check_copy_time(self, task: CopyTask, cap: Fraction | None, setup: int) -> None:
-        """A copy alone on its path must end within the bound on one task's time."""
-        bw, dev = self._path_bandwidth(task), task.queue.device
-        field = {"p2p": "peer_links", "d2d": f"gpus[{dev}].local_copy_gbps",
-                 "group": f"gpus[{task.ends()[0]}].link.d2h_gbps"}.get(
-            task.path, f"gpus[{dev}].link.{task.path}_gbps")
-        if cap is not None and cap < bw:
-            bw, field = cap, f"gpus[{dev}].copy.{task.queue.family}.{task.path}_gbps"
-        self.costs.check_transfer(task.name, task.bytes, bw, setup, field)
-
 
     def _dispatch_wait(self, key: Key, keep: bool = False) -> int:
         """Host dispatch still owed before `key` starts: `dispatch_ns` after the last of its
@@ -418,46 +281,6 @@ class Engine:
         done = self._cross_done.pop(key, None)
         ready = previous if done is None else max(previous, done + self._dispatch_ns, woke)
         return ready + self._submit_ns
-
-    def _duration(self, task: Task) -> int:
-        if isinstance(task, PassTask):
-            return self.costs.pass_ns(task.queue.device, task.kind, task.work)
-        if isinstance(task, CopyTask):
-            return self.costs.copy_setup_ns(task.queue.device, task.queue.family, task.path, task.peer)
-        if isinstance(task, CpuTask):
-            return self.costs.cpu_task_ns(task, "host_frame_work" in self.effects)
-        return self.costs.profile.host.host_copy_fixed_ns
-
-    def _channel_name(self, task: CopyTask) -> str:
-        dev = task.queue.device
-        if task.path in ("p2p", "group"):
-            if task.peer is None:
-                raise ScheduleError(f"copy {task.name!r} on a peer path names no peer")
-            return f"peer{dev}-{task.peer}"
-        return f"gpu{dev}.{task.path}"
-
-    def _path_bandwidth(self, task: CopyTask) -> Fraction:
-        dev = task.queue.device
-        if task.path == "p2p":
-            return self.costs.peer_bandwidth(dev, task.peer)  # type: ignore[arg-type]
-        if task.path == "group":
-            return self.costs.group_bandwidth(*task.ends())
-        return self.costs.link_bandwidth(dev, task.path)
-
-    def _channel_for(self, task: CopyTask) -> Channel | FixedRateChannel | LinkPort:
-        host_gbps = self.costs.profile.host.pcie_gbps(task.path) if "host_pcie" in self.effects else None
-        if host_gbps:  # the GPU's link and the host side of PCIe, shared by every GPU's copies
-            shared = f"pcie.{task.path}"
-            if shared not in self.channels:
-                self.channels[shared] = HostLinkChannel(self.env, shared, gbps_fraction(host_gbps))
-            host = self.channels[shared]
-            assert isinstance(host, HostLinkChannel)
-            return host.port(self._channel_name(task), self._path_bandwidth(task))
-        name = self._channel_name(task)
-        if name not in self.channels:
-            kind = Channel if "link_sharing" in self.effects else FixedRateChannel
-            self.channels[name] = kind(self.env, name, self._path_bandwidth(task))
-        return self.channels[name]
 
     # ----- dependencies ------------------------------------------------------------------
     def _initial(self, frame: int, task: Task) -> int:
@@ -514,7 +337,7 @@ class Engine:
                 self._ready.add(key)
 
     # ----- processes ---------------------------------------------------------------------
-    def _stream_proc(self, plan: list[list[_Op]], st: _Stream):
+    def _stream_proc(self, plan: list[list[Op]], st: _Stream):
         """One in-order stream: a queue, or (`st.host`) the host thread that dispatches host
         copies. Each task runs after its dependencies and any host dispatch it owes; a queue
         task then spends its pass or copy time and crosses its channel, a host copy is handed
@@ -598,7 +421,7 @@ class Engine:
                 finish(frame, op, op.engine, start, op.nbytes)
             frame += 1
 
-    def _lean_stream_proc(self, plan: list[list[_Op]], st: _Stream, proc: list[StreamProcess],
+    def _lean_stream_proc(self, plan: list[list[Op]], st: _Stream, proc: list[StreamProcess],
                           host: bool = False):
         """:meth:`_stream_proc` for a stream with nothing between its task's inputs and its
         work: no host timeline (dispatch, submit), no idle gaps, no busy_wake. The same steps
@@ -661,7 +484,7 @@ class Engine:
         self._cross_done.pop(key, None)
         self._complete(key[0], task, skipped=True)
 
-    def _finish(self, frame: int, op: _Op, engine: str, start: int, nbytes: int) -> None:
+    def _finish(self, frame: int, op: Op, engine: str, start: int, nbytes: int) -> None:
         end = self.env.now
         if start < self.frame_start[frame]:
             self.frame_start[frame] = start
@@ -673,7 +496,7 @@ class Engine:
         else:
             self._finish_present(frame, op)
 
-    def _finish_present(self, frame: int, op: _Op) -> None:
+    def _finish_present(self, frame: int, op: Op) -> None:
         """The present task ended now: the frame presents, or (vsync) is shown, and its
         present completes, at the next free refresh."""
         if self.refresh_period is None:
@@ -683,7 +506,7 @@ class Engine:
         flip = self._next_vblank(end)
         self.env.timeout(flip - end).callbacks.append(_Presented(self, frame, op))
 
-    def _presented(self, frame: int, op: _Op) -> None:
+    def _presented(self, frame: int, op: Op) -> None:
         self.present_end[frame] = self.env.now
         if self.on_present is not None:
             self.on_present(frame)
@@ -699,7 +522,7 @@ class Engine:
         self._last_flip = v
         return v
 
-    def _dispatch_host_copy(self, frame: int, op: _Op) -> None:
+    def _dispatch_host_copy(self, frame: int, op: Op) -> None:
         """Split into parts of >= chunk_min_bytes, at most one per memcpy thread."""
         sizes = self._part_sizes.get(op)
         if sizes is None:
@@ -810,8 +633,8 @@ class Engine:
         return rel.t(value)
 
     # ----- run ---------------------------------------------------------------------------
-    def all_ops(self) -> list[list[_Op]]:
-        """Every task's _Op, per frame phase, in submission order."""
+    def all_ops(self) -> list[list[Op]]:
+        """Every task's Op, per frame phase, in submission order."""
         return self._ops
 
     def shorten(self, frames: int) -> None:
@@ -867,7 +690,7 @@ class _Presented(Callback):
 
     __slots__ = ("engine", "frame", "op")
 
-    def __init__(self, engine: Engine, frame: int, op: _Op):
+    def __init__(self, engine: Engine, frame: int, op: Op):
         self.engine, self.frame, self.op = engine, frame, op
 
     def __call__(self, _event: simpy.Event) -> None:

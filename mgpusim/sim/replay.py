@@ -58,7 +58,9 @@ def replay(exp: Experiment, durations: Durations, frames: int,
            queues: Mapping[QueueRef, QueueRef] | None = None) -> Result:
     """Run `exp`'s schedule for `frames` frames with each task taking its measured duration
     (`durations`; see the module doc for tasks without one), the tasks of the queues in `queues` on the
-    queue the run used (:func:`mgpusim.schedules.program.on_queues`). Same input, same result."""
+    queue the run used (:func:`mgpusim.schedules.program.on_queues`). Same input, same result.
+    The engine's builder turns each measured duration into its task's op
+    (:meth:`mgpusim.sim.ops.OpBuilder.measured_op`); the rest of the timeline is the model's."""
     if frames < 1:
         raise InputError("the measured run has no frames to replay", field="frames")
     program = unrolled(on_queues(build_program(exp), queues or {}), frames)

@@ -27,12 +27,16 @@ def test_amdahl_line_through_the_one_to_two_gpu_point() -> None:
     assert fts.amdahl_ms(10.0, 12.0, 4) > 12.0  # two GPUs slower than one: the line keeps rising
 
 
-def test_the_fit_zeroes_the_calibration_single_gpu_error(validation: fts.Validation) -> None:
+def test_each_fit_zeroes_its_calibration_runs_error(validation: fts.Validation) -> None:
+    """One parameter per strategy, each fitted on its strategy's calibration runs at its GPU
+    count (single on 1, sort-first and sort-last on 2), in the file's order."""
     s = validation.study
-    assert s.fit.low < validation.value < s.fit.high
+    assert [f.strategy for f in s.fits] == ["single", "sort-first", "sort-last"]
     cal = validation.halves["calibration"]
-    single = cal[cal.strategy == s.fit.strategy]
-    assert len(single) >= 2 and abs(single.error.median()) < 0.005
+    for fit in s.fits:
+        assert fit.low < validation.values[fit.key] < fit.high
+        rows = cal[(cal.strategy == fit.strategy) & (cal.gpus == fit.gpus)]
+        assert len(rows) >= 2 and abs(rows.error.median()) < 0.005
 
 
 def test_both_halves_hold_every_strategy_and_gpu_count(validation: fts.Validation) -> None:
@@ -56,7 +60,7 @@ def test_study_validate_on_the_command_line(tmp_path: Path, capsys: pytest.Captu
     out = tmp_path / "v"
     assert main(["study", "validate", str(STUDY), "--held-out", "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "## held-out" in text and "Fitted before any comparison" in text
+    assert "## held-out" in text and "Named in the study file before any comparison" in text
     assert pd.read_csv(out / "held-out.csv").shape[0] == 14
     assert (out / "report.md").read_text().startswith("# vmgpu_lavapipe")
 
@@ -78,9 +82,11 @@ def _study_copy(tmp_path: Path, text: str) -> Path:
 
 
 @pytest.mark.parametrize("change, field", [
-    (("[fit]", "[fit]\nkeyy = 1"), "fit.keyy"),
-    (('strategy = "single"', 'strategy = "afr"'), "fit.strategy"),
-    (("low = 1.0", "low = 5000.0"), "fit.low"),
+    (("[[fit]]", "[[fit]]\nkeyy = 1", 1), "fit[0].keyy"),
+    (('strategy = "single"', 'strategy = "afr"'), "fit[0].strategy"),
+    (("low = 1.0", "low = 5000.0"), "fit[0].low"),
+    (("gpus = 1\n", "gpus = 2\n"), "fit[0].gpus"),
+    (('strategy = "sort-last"', 'strategy = "sort-first"'), "fit"),
     (('kind = "external_frame_times"', 'kind = "external_frame_times"\nruns = "x"'), None),
 ])
 def test_bad_study_files_are_refused_naming_the_field(tmp_path: Path, change, field) -> None:
@@ -94,7 +100,7 @@ def test_bad_study_files_are_refused_naming_the_field(tmp_path: Path, change, fi
 def test_a_fit_range_that_cannot_bracket_is_refused(tmp_path: Path) -> None:
     path = _study_copy(tmp_path, STUDY.read_text().replace("high = 2000.0", "high = 1.5"))
     with pytest.raises(InputError, match="does not bracket"):
-        fts.fit_value(fts.load_study(path), fts.measured(fts.load_study(path)))
+        fts.fit_values(fts.load_study(path), fts.measured(fts.load_study(path)))
 
 
 def test_a_runs_table_without_its_columns_is_refused(tmp_path: Path) -> None:

@@ -5,9 +5,10 @@ Why a study of its own kind: vmgpu gives frame times, not the per-task timestamp
 writes, so there is no trace to join and no replay level; what can be compared is each
 configuration's frame time, measured (the median over its interleaved repeats, with their range
 as the noise band) and predicted by the as-built five-step schedule on the lavapipe profile
-calibrated on our own microbenchmarks. The study file names, before any comparison, the one
-parameter fitted to vmgpu's own frame times (`[fit]`: a profile key, the strategy whose
-calibration-half runs set it); every other number comes from the profile or the sources.
+calibrated on our own microbenchmarks. The study file names, before any comparison, the
+parameters fitted to vmgpu's own frame times, at most one per strategy (`[[fit]]`: a profile
+key, the strategy and GPU count whose calibration-half runs set it, fitted in the file's order
+with the earlier ones in place); every other number comes from the profile or the sources.
 
 For 3 and 4 GPUs the prediction stands beside an Amdahl line fitted to the same 1 -> 2 GPU
 point (the measured single-GPU and 2-GPU frame times of that strategy, triangles and
@@ -42,12 +43,13 @@ QUIET_OTHER_CORES = 0.25
 
 @dataclass(frozen=True)
 class Fit:
-    """The one parameter fitted to the renderer's own frame times: `key` (a `--set` key),
-    searched in [`low`, `high`] (geometrically) so that the calibration-half runs of
-    `strategy` have a median error of zero; `why` says what it stands for."""
+    """A parameter fitted to the renderer's own frame times: `key` (a `--set` key), searched
+    in [`low`, `high`] (geometrically) so that the calibration-half runs of `strategy` on
+    `gpus` GPUs have a median error of zero; `why` says what it stands for."""
 
     key: str
     strategy: str
+    gpus: int
     low: float
     high: float
     why: str
@@ -61,7 +63,7 @@ class FrameTimeStudy:
     experiment: Path
     runs: Path
     sets: tuple[str, ...]
-    fit: Fit
+    fits: tuple[Fit, ...]
     targets: dict[str, float]
 
 
@@ -75,24 +77,32 @@ def load_study(path: Path) -> FrameTimeStudy:
     t = Table(read_toml(path), str(path))
     base = path.parent
     t.get("kind", str, choices=(KIND,))
-    fit = t.table("fit")
+    fits = t.tables("fit")
     targets = t.table("targets", None)
     study = FrameTimeStudy(
         name=t.get("name", str), description=t.get("description", str, ""), path=path,
         experiment=base / t.get("experiment", str), runs=base / t.get("runs", str),
         sets=tuple(str(s) for s in t.get("sets", list, [])),
-        fit=Fit(fit.get("key", str), fit.get("strategy", str), fit.get("low", float, minimum=1e-9),
-                fit.get("high", float, minimum=1e-9), fit.get("why", str)),
+        fits=tuple(_fit(f) for f in fits),
         targets={"median_error": targets.get("median_error", float, 0.05, minimum=0.0),
                  "worst_error": targets.get("worst_error", float, 0.10, minimum=0.0)})
-    for table in (t, fit, targets):
+    for table in (t, *fits, targets):
         table.finish()
-    if study.fit.strategy not in SCHEDULES:
-        raise InputError(f"expected one of {sorted(SCHEDULES)}, got {study.fit.strategy!r}",
-                         file=str(path), field="fit.strategy")
-    if study.fit.low >= study.fit.high:
-        raise InputError("fit.low must be below fit.high", file=str(path), field="fit.low")
+    strategies = [f.strategy for f in study.fits]
+    if len(set(strategies)) < len(strategies):
+        raise InputError("at most one fitted parameter per strategy", file=str(path), field="fit")
     return study
+
+
+def _fit(f: Table) -> Fit:
+    fit = Fit(f.get("key", str), f.get("strategy", str, choices=tuple(SCHEDULES)),
+              f.get("gpus", int, minimum=1, maximum=4), f.get("low", float, above=0.0),
+              f.get("high", float, above=0.0), f.get("why", str))
+    if fit.low >= fit.high:
+        raise f.error("low", "must be below high")
+    if (fit.strategy == "single") != (fit.gpus == 1):
+        raise f.error("gpus", "single runs on 1 GPU, sort-first and sort-last on 2 or more")
+    return fit
 
 
 def measured(study: FrameTimeStudy) -> pd.DataFrame:
@@ -123,37 +133,48 @@ def experiment_of(study: FrameTimeStudy, row: Any, extra: tuple[str, ...] = ()) 
     return load_experiment(study.experiment, parse_overrides(sets))
 
 
-def predict(study: FrameTimeStudy, table: pd.DataFrame, value: float) -> pd.Series:
-    """The model's frame time (ms) of every row of `table` with the fitted key at `value`."""
-    extra = (f"{study.fit.key}={value!r}",)
+def predict(study: FrameTimeStudy, table: pd.DataFrame, values: dict[str, float]) -> pd.Series:
+    """The model's frame time (ms) of every row of `table` with the fitted keys at `values`."""
+    extra = tuple(f"{key}={value!r}" for key, value in values.items())
     return pd.Series([simulate(experiment_of(study, row, extra), record_trace=False).summary["frame_time_ms"]
                       for row in table.itertuples()], index=table.index)
 
 
-def fit_value(study: FrameTimeStudy, table: pd.DataFrame,
+def fit_values(study: FrameTimeStudy, table: pd.DataFrame,
+               progress: Callable[[str], None] | None = None) -> dict[str, float]:
+    """Every fitted parameter, in the study file's order, each with the earlier ones in place."""
+    values: dict[str, float] = {}
+    for fit in study.fits:
+        values[fit.key] = fit_value(study, fit, table, values, progress)
+    return values
+
+
+def fit_value(study: FrameTimeStudy, fit: Fit, table: pd.DataFrame, known: dict[str, float],
               progress: Callable[[str], None] | None = None) -> float:
-    """The fitted parameter: a geometric bisection on [low, high] until the calibration runs of
-    the fit's strategy have a median signed error of zero (to 0.1 % of the value). The frame
-    time must move one way with the value over the range (a cost up, a speed down)."""
-    rows = table[(table.half == "calibration") & (table.strategy == study.fit.strategy)]
+    """One fitted parameter: a geometric bisection on [low, high] until the calibration runs of
+    the fit's strategy and GPU count have a median signed error of zero (to 0.1 % of the
+    value), the `known` values in place. The frame time must move one way with the value over
+    the range (a cost up, a speed down)."""
+    rows = table[(table.half == "calibration") & (table.strategy == fit.strategy) & (table.gpus == fit.gpus)]
     if rows.empty:
-        raise InputError(f"no calibration run of {study.fit.strategy!r} to fit {study.fit.key}",
+        raise InputError(f"no calibration run of {fit.strategy!r} on {fit.gpus} GPU(s) to fit {fit.key}",
                          file=str(study.path), field="fit.strategy")
 
     def error(value: float) -> float:
-        return float(((predict(study, rows, value) - rows.measured_ms) / rows.measured_ms).median())
+        predicted = predict(study, rows, {**known, fit.key: value})
+        return float(((predicted - rows.measured_ms) / rows.measured_ms).median())
 
-    low, high = study.fit.low, study.fit.high
+    low, high = fit.low, fit.high
     e_low, e_high = error(low), error(high)
     if (e_low > 0) == (e_high > 0):
-        raise InputError(f"{study.fit.key} in [{low:g}, {high:g}] does not bracket the measured "
+        raise InputError(f"{fit.key} in [{low:g}, {high:g}] does not bracket the measured "
                          f"frame times (median errors {e_low:+.1%} and {e_high:+.1%})",
                          file=str(study.path), field="fit")
     rising = e_high > 0  # a cost: the prediction grows with the value
     while high / low > 1.001:
         mid = math.sqrt(low * high)
         if progress:
-            progress(f"fit {study.fit.key} in [{low:.4g}, {high:.4g}]")
+            progress(f"fit {fit.key} in [{low:.4g}, {high:.4g}]")
         if (error(mid) > 0) == rising:
             high = mid
         else:
@@ -169,10 +190,10 @@ def amdahl_ms(t1: float, t2: float, gpus: int) -> float:
     return t1 * ((1.0 - p) + p / gpus)
 
 
-def compared(study: FrameTimeStudy, table: pd.DataFrame, value: float) -> pd.DataFrame:
+def compared(study: FrameTimeStudy, table: pd.DataFrame, values: dict[str, float]) -> pd.DataFrame:
     """`table` with the prediction, its error, the noise band's half-width and, at 3 and 4
     GPUs, the Amdahl line through the same strategy's measured 1 -> 2 GPU point."""
-    out = table.assign(predicted_ms=predict(study, table, value))
+    out = table.assign(predicted_ms=predict(study, table, values))
     out["error"] = out.predicted_ms / out.measured_ms - 1.0
     out["noise"] = (out.hi_ms - out.lo_ms) / 2.0 / out.measured_ms
     single = out[out.strategy == "single"].set_index(["triangles", "width", "height"]).measured_ms
@@ -215,32 +236,34 @@ SHOWN = ["config", "strategy", "gpus", "triangles", "width", "height", "repeats"
 
 @dataclass(frozen=True)
 class Validation:
-    """A frame-time study checked: the fitted value and each half's comparison."""
+    """A frame-time study checked: the fitted values (by key) and each half's comparison."""
 
     study: FrameTimeStudy
-    value: float
+    values: dict[str, float]
     halves: dict[str, pd.DataFrame]
 
 
 def validate(study: FrameTimeStudy, held_out: bool,
              progress: Callable[[str], None] | None = None) -> Validation:
-    """Fit the study's one parameter on the calibration half, then compare the calibration
-    half and (`held_out`) the held-out half with the model."""
+    """Fit the study's parameters on the calibration half, then compare the calibration half
+    and (`held_out`) the held-out half with the model."""
     table = measured(study)
-    value = fit_value(study, table, progress)
-    halves = {"calibration": compared(study, table[table.half == "calibration"], value)}
+    values = fit_values(study, table, progress)
+    halves = {"calibration": compared(study, table[table.half == "calibration"], values)}
     if held_out:
-        halves["held-out"] = compared(study, table[table.half == "held-out"], value)
-    return Validation(study, value, halves)
+        halves["held-out"] = compared(study, table[table.half == "held-out"], values)
+    return Validation(study, values, halves)
 
 
 def markdown(v: Validation) -> str:
     """The validation as a page: the verdict of each half first, then its table."""
     s = v.study
     lines = [f"# {s.name}: measured vs predicted frame times", "", s.description, "",
-             f"Fitted before any comparison: `{s.fit.key}` = {v.value:.4g} on the calibration "
-             f"half's `{s.fit.strategy}` runs ({s.fit.why}). Replay level: none (vmgpu writes no "
-             "per-task timestamps).", ""]
+             "Named in the study file before any comparison, each fitted on the calibration half "
+             "only (in this order, the earlier ones in place):", ""]
+    lines += [f"- `{f.key}` = {v.values[f.key]:.4g} on the {f.strategy} runs on {f.gpus} GPU(s): "
+              f"{f.why}" for f in s.fits]
+    lines += ["", "Replay level: none (vmgpu writes no per-task timestamps).", ""]
     for half, table in v.halves.items():
         lines += [f"## {half}", ""] + [f"- {line}" for line in verdict(s, table)] + [""]
         shown = table[SHOWN].copy()

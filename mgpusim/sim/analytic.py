@@ -158,10 +158,12 @@ class Analytic:
                      for d in task.deps)
         if isinstance(task, HostCopyTask):
             parts = tuple(even_split(task.bytes, task.parts(self.threads)))
-            rate = op.cap if op.cap < self.host_memory else self.host_memory  # a part alone
-            return _Node(task.name, task, "host", deps, op.duration, task.bytes, rate, 0, parts,
+            cap = op.cap
+            assert cap is not None, "a host copy's op has its parts' cap (a memcpy thread's speed)"
+            part_rate = cap if cap < self.host_memory else self.host_memory  # a part alone
+            return _Node(task.name, task, "host", deps, op.duration, task.bytes, part_rate, 0, parts,
                          "host", "memcpy", op.waits_for,
-                         part_times=tuple((size, op.duration + _round_div(size, rate)) for size in parts))
+                         part_times=tuple((size, op.duration + _round_div(size, part_rate)) for size in parts))
         if isinstance(task, CpuTask):
             return _Node(task.name, task, f"host.{task.thread}", deps, op.duration, 0, None, 0, (),
                          "host", task.thread, op.waits_for, cpu=True, time=op.duration)
@@ -191,7 +193,8 @@ class Analytic:
             if n.stream in stream_prev:
                 before[n.name].add(stream_prev[n.stream])
             stream_prev[n.stream] = n.name
-        out, done = [], set()
+        out: list[_Node] = []
+        done: set[str] = set()
         while len(out) < len(nodes):
             ready = [n for n in nodes if n.name not in done and before[n.name] <= done]
             if not ready:
@@ -390,7 +393,7 @@ class _Recurrence:
         end, threads, names = NEG, self.threads, self.m.thread_names
         rows = self.rows if self.record else None
         for size, took in node.part_times:
-            for tid, s in enumerate(threads):
+            for tid, s in enumerate(threads):  # noqa: B007 - `tid`, the thread found, is read after the loop
                 if s <= t:
                     s = t
                     break

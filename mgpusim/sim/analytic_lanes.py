@@ -308,18 +308,18 @@ class _Pass:
         if not self.plog:
             return out
         threads, lane = self.model.threads, np.arange(n)
-        busy, used = np.zeros(threads * n, dtype=np.int64), np.zeros(threads * n, dtype=bool)
+        flat_busy, flat_used = np.zeros(threads * n, dtype=np.int64), np.zeros(threads * n, dtype=bool)
         for start, end, tid in self.plog:
             at = tid.astype(np.int64) * n + lane  # one thread per lane: no index twice
-            busy[at] += inside(start, end)
-            used[at] = True
-        busy, used = busy.reshape(threads, n), used.reshape(threads, n)
+            flat_busy[at] += inside(start, end)
+            flat_used[at] = True
+        thread_busy, thread_used = flat_busy.reshape(threads, n), flat_used.reshape(threads, n)
         for k, tname in enumerate(self.model.thread_names):
             name = f"host.{tname}"
             if name in out:  # a CPU task's thread of the same name: one resource
-                out[name] = (out[name][0] + busy[k], every)
+                out[name] = (out[name][0] + thread_busy[k], every)
             else:
-                out[name] = (busy[k], used[k])
+                out[name] = (thread_busy[k], thread_used[k])
         return out
 
     def _state_hash(self, f: int) -> np.ndarray:
@@ -430,7 +430,9 @@ def sweep(program: FrameProgram, costs: CostModel, pass_scale: np.ndarray, link_
     for ph, phase in enumerate(model.phases):
         for i, node in enumerate(phase):
             if node.stream == "host":
-                lanes.time[ph][i] = [node.fixed + scaled(size / float(node.rate), link_scale)
+                rate = node.rate
+                assert rate is not None, "a host copy's node has its parts' rate"
+                lanes.time[ph][i] = [node.fixed + scaled(size / float(rate), link_scale)
                                      for size in node.parts]
             elif isinstance(node.task, PassTask):
                 raw = costs.pass_cost_ns(node.task.queue.device, node.task.kind, node.task.work)

@@ -28,7 +28,7 @@ from typing import Callable
 import simpy
 
 from mgpusim.sim.fluid import FluidChannel
-from mgpusim.sim.snapshot import Callback, Relative
+from mgpusim.sim.snapshot import Callback, Environment, Relative
 
 _ZERO = Fraction(0)
 #: An occupant's amount (:meth:`Channel.occupy`): more than any run can use up.
@@ -64,7 +64,7 @@ class Channel(FluidChannel):
     #: where the capacity depends on who shares the channel)
     shares_caps_freely = True
 
-    def __init__(self, env: simpy.Environment, name: str, bandwidth: Fraction,
+    def __init__(self, env: Environment, name: str, bandwidth: Fraction,
                  oversubscribed: Fraction | None = None):
         """`oversubscribed`: the capacity when the flows' caps add up to twice `bandwidth` or
         more; between `bandwidth` and twice it, the capacity falls linearly from `bandwidth`
@@ -255,9 +255,12 @@ class Channel(FluidChannel):
     def _demand(self) -> Fraction:
         """What the flows would take if alone together: the sum of their caps (an uncapped
         flow takes everything)."""
-        if any(f.cap is None for f in self.flows):
-            return 2 * self.bandwidth
-        return sum((f.cap for f in self.flows), Fraction(0))
+        total = _ZERO
+        for f in self.flows:
+            if f.cap is None:
+                return 2 * self.bandwidth
+            total += f.cap
+        return total
 
     def _idle(self) -> bool:
         # released empty (an occupant), maybe on the fast path since: nothing to share
@@ -354,7 +357,7 @@ class GpuChannel(Channel):
 
     shares_caps_freely = False  # the capacity depends on whose work shares the GPU
 
-    def __init__(self, env: simpy.Environment, name: str,
+    def __init__(self, env: Environment, name: str,
                  capacity_of: Callable[[tuple], Fraction]):
         super().__init__(env, name, Fraction(1))
         self._capacity_of = capacity_of
@@ -390,7 +393,7 @@ class FixedRateChannel:
     channel's bandwidth, or its cap if lower), however many overlap. The `queues` fidelity level
     and scenes whose copies never overlap use it; `busy` and `max_concurrent` as in Channel."""
 
-    def __init__(self, env: simpy.Environment, name: str, bandwidth: Fraction):
+    def __init__(self, env: Environment, name: str, bandwidth: Fraction):
         if bandwidth <= 0:
             raise ValueError(f"channel {name}: bandwidth must be > 0")
         self.env, self.name, self.bandwidth = env, name, Fraction(bandwidth)

@@ -53,7 +53,8 @@ class _Stream:
 
     def __init__(self, host: bool):
         self.host = host
-        self.frame, self.op, self.at = 0, None, "start"
+        self.frame, self.at = 0, "start"
+        self.op: Op | None = None
         self.submitted = self.start = self.wait = 0
         #: the event a stream that waits by itself waits on (None: its process's target)
         self.target: simpy.Event | None = None
@@ -76,7 +77,9 @@ class RawResult:
     present_end: np.ndarray
     channels: dict[str, RunChannel]
     skipped: dict[str, int] = field(default_factory=dict)
-    effects: dict[str, bool] = field(default_factory=dict)
+    #: what the run showed of the effects (link contention, ...); the analytic level says
+    #: whether it is exact and, where not, lists its approximations
+    effects: dict[str, bool | list[str]] = field(default_factory=dict)
     #: frames in which each skippable task was skipped (for update rates in steady state)
     skipped_frames: dict[str, list[int]] = field(default_factory=dict)
     present_task: str = "present"
@@ -188,7 +191,7 @@ class Engine:
         self._interp_busy = False  # a host thread is waking (serial dispatch)
         self._interp_waiting: deque[simpy.Event] = deque()  # threads waiting for their turn
         self._submit_load = host_ex.background() if self._submit_ns else None
-        queues: dict[QueueRef, list[list[Op]]] = {}
+        queues: dict[QueueRef | tuple[str, str], list[list[Op]]] = {}  # a queue, or ("host", a CPU thread)
         host_ops: list[list[Op]] = [[] for _ in range(self.period)]
         self._ops = self.builder.all_ops()
         for phase, ops in enumerate(self._ops):
@@ -399,21 +402,23 @@ class Engine:
                             yield env.timeout(submitted - env.now)
                         if self._submit_load is not None:
                             self._submit_load(self._submit_ns)  # the submit thread's cores
-                if op.gap:
+                gap_run = op.gap_run  # (set where the task has a gap: one read either way)
+                if gap_run is not None:
                     st.at = GAP
-                    yield op.gap_run(op.gap)
+                    yield gap_run(op.gap)
                 if busy_wake is not None and isinstance(op.task, CopyTask):
                     wait = busy_wake.copy_wait(op.device, env.now)
                     if wait:  # the copy's thread waits behind the pass; a core idles meanwhile
                         st.at = BUSY_WAKE
                         yield self._host_work(wait)
                 start = st.start = env.now
-                if op.fill_cores is not None:
-                    busy_wake.pass_started(op.device, start, op.fill_cores, op.duration)
+                fills = op.fill_cores  # (set only where busy_wake is on)
+                if fills is not None and busy_wake is not None:
+                    busy_wake.pass_started(op.device, start, fills, op.duration)
                 if op.run is not None:
                     st.at = RUN
                     yield op.run(op.amount)
-                if op.fill_cores is not None:
+                if fills is not None and busy_wake is not None:
                     busy_wake.pass_ended(op.device)
                 if op.cross is not None:
                     st.at = TRANSFER
@@ -499,11 +504,12 @@ class Engine:
     def _finish_present(self, frame: int, op: Op) -> None:
         """The present task ended now: the frame presents, or (vsync) is shown, and its
         present completes, at the next free refresh."""
-        if self.refresh_period is None:
+        period = self.refresh_period
+        if period is None:
             self._presented(frame, op)
             return
         end = self.env.now
-        flip = self._next_vblank(end)
+        flip = self._next_vblank(end, period)
         self.env.timeout(flip - end).callbacks.append(_Presented(self, frame, op))
 
     def _presented(self, frame: int, op: Op) -> None:
@@ -512,10 +518,9 @@ class Engine:
             self.on_present(frame)
         self._complete(frame, op.task, False, op.dependents)
 
-    def _next_vblank(self, t: int) -> int:
+    def _next_vblank(self, t: int, period: Fraction) -> int:
         """The first refresh at or after `t` and after the last flip (FIFO: one image per
-        refresh). Refresh k is at k x period ns, rounded half up (exact for any rate)."""
-        period = self.refresh_period
+        refresh). Refresh k is at k x `period` ns, rounded half up (exact for any rate)."""
         k = max(0, int(t // period) - 1)
         while (v := round_half_up(k * period)) < t or v <= self._last_flip:
             k += 1
@@ -661,7 +666,7 @@ class Engine:
             raise ScheduleError(self._blocked_message())
         ch = self.channels
         links = {n: c for n, c in ch.items() if not n.startswith("host.") and not n.endswith(".exec")}
-        effects = {
+        effects: dict[str, bool | list[str]] = {
             "link_model": bool(links),
             "link_contention": any(c.max_concurrent > 1 for c in links.values()),
             "host_copies": "host.memory" in ch,

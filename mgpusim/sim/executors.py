@@ -22,9 +22,14 @@ from mgpusim.model.profile import QUEUE_FAMILIES, HardwareProfile
 from mgpusim.model.tasks import CopyTask, CpuTask, HostCopyTask, PassTask, QueueRef, Task
 from mgpusim.schedules.base import FrameProgram
 from mgpusim.sim.channel import Channel, GpuChannel, PassWork
+from mgpusim.sim.snapshot import Environment
 
 #: A runner: called with an amount, returns the event that fires when that work is done.
 Runner = Callable[[int], simpy.Event]
+#: One thread's cap on a pool of cores (or on the interpreter): one core. A Fraction, as every
+#: cap a channel takes, and one object for all such work (a channel compares caps by identity
+#: before it compares them by value).
+ONE_CORE = Fraction(1)
 
 
 class Dedicated:
@@ -36,8 +41,10 @@ class Dedicated:
     #: host threads waking on inputs take turns (see SharedCores); a real GPU's host has the
     #: cores to wake them at once, and its calibrated `dispatch_ns` holds what they wait for
     serial_dispatch = False
+    #: the channel of the cores it shares with other devices or threads: none, its own cores
+    channel: Channel | None = None
 
-    def __init__(self, env: simpy.Environment):
+    def __init__(self, env: Environment):
         self.env = env
 
     def runner(self, ns: int, cores: Fraction | int = 1) -> tuple[Runner | None, int]:
@@ -72,7 +79,7 @@ class SharedCores:
     #: their frames 0.4-1.5 ms apart, one after another, not together
     serial_dispatch = True
 
-    def __init__(self, env: simpy.Environment, costs: CostModel):
+    def __init__(self, env: Environment, costs: CostModel):
         host = costs.profile.host
         self.costs = costs
         cores = Fraction(host.cpu_cores)
@@ -97,7 +104,7 @@ class SharedCores:
         transfer, main = self.channel.transfer, run
 
         def with_overhead(amount: int) -> simpy.Event:
-            transfer(overhead, 1)
+            transfer(overhead, ONE_CORE)
             return main(amount)
         return with_overhead, amount
 
@@ -118,11 +125,11 @@ class SharedCores:
 
     def work(self, ns: int) -> simpy.Event:
         """One thread's `ns` of time: one core's work on the pool."""
-        return self.channel.transfer(ns, 1)
+        return self.channel.transfer(ns, ONE_CORE)
 
     def background(self) -> Callable[[int], object] | None:
         """One core's work for `ns` that nobody waits on (a submit thread recording commands)."""
-        return lambda ns: self.channel.transfer(ns, 1)
+        return lambda ns: self.channel.transfer(ns, ONE_CORE)
 
     def cores(self, task: Task) -> Fraction:
         """Cores a task keeps busy (see `task_cores`)."""
@@ -160,14 +167,15 @@ class Interpreter(Dedicated):
     runs without the lock)."""
 
     shared = True
+    channel: Channel
 
-    def __init__(self, env: simpy.Environment):
+    def __init__(self, env: Environment):
         super().__init__(env)
         self.channel = Channel(env, "host.interpreter", Fraction(1))
 
     def work(self, ns: int) -> simpy.Event:
         """A woken thread's `ns` of Python, at its share of the interpreter."""
-        return self.channel.transfer(ns, 1)
+        return self.channel.transfer(ns, ONE_CORE)
 
     def background(self) -> Callable[[int], object] | None:
         """A task's submit work on the interpreter, which nobody waits on but everyone
@@ -189,8 +197,9 @@ class SharedGpu(Dedicated):
 
     shared = True
     copies_on_cores = True
+    channel: GpuChannel
 
-    def __init__(self, env: simpy.Environment, profile: HardwareProfile, physical: int):
+    def __init__(self, env: Environment, profile: HardwareProfile, physical: int):
         super().__init__(env)
         self.profile = profile
         self.channel = GpuChannel(env, f"gpu{physical}.exec", lambda tags: capacity(profile, tags))
@@ -208,10 +217,10 @@ WorkTag = tuple[QueueRef, str]
 
 
 def task_cores(profile: HardwareProfile, task: Task) -> Fraction:
-    """Cores a task of CPU-emulated GPUs keeps busy: a copy the queue thread, a pass its kind's
-    measured `cores`, else the GPU's rasterizer threads (never more than the host's cores)."""
+    """Cores a task of CPU-emulated GPUs keeps busy: a copy or a CPU task its thread, a pass its
+    kind's measured `cores`, else the GPU's rasterizer threads (never more than the host's cores)."""
     host = profile.host
-    if isinstance(task, (CopyTask, HostCopyTask)):
+    if isinstance(task, (CopyTask, HostCopyTask, CpuTask)):
         return Fraction(1)
     gpu = profile.gpus[task.queue.device]
     threads = Fraction(min(gpu.cpu_threads or host.cpu_cores, host.cpu_cores))
@@ -250,7 +259,7 @@ def capacity(profile: HardwareProfile, tags: tuple[WorkTag, ...]) -> Fraction:
         return Fraction(1)
     effs = [Fraction(repr(pair_efficiency(profile, a, b))).limit_denominator(1000)
             for i, a in enumerate(tags) for b in tags[i + 1:]]
-    mean_gain = sum(e - 1 for e in effs) / len(effs)
+    mean_gain = sum((e - 1 for e in effs), Fraction(0)) / len(effs)
     return min(Fraction(n), max(min(Fraction(1), min(effs)), 1 + (n - 1) * mean_gain))
 
 
@@ -282,6 +291,13 @@ class Executor(Protocol):
     shared: bool
     #: whether a copy is work on the cores (a memcpy) rather than a crossing of a link channel
     copies_on_cores: bool
+    #: whether host threads waking on inputs take turns (the default where the profile does
+    #: not say, `host.serial_dispatch`)
+    serial_dispatch: bool
+
+    @property
+    def channel(self) -> Channel | None:
+        """The channel of the cores it shares (None where it shares none)."""
 
     def runner(self, ns: int, cores: Fraction | int = 1) -> tuple[Runner | None, int]: ...
 
@@ -294,7 +310,7 @@ class Executor(Protocol):
     def cores(self, task: Task) -> Fraction: ...
 
 
-def measured_executors(env: simpy.Environment, costs: CostModel) -> dict[str, Executor]:
+def measured_executors(env: Environment, costs: CostModel) -> dict[str, Executor]:
     """Every device and the host on one pool of the host's cores that measured work occupies
     (:class:`MeasuredCores`): the replay of a run on CPU-emulated GPUs."""
     pool = MeasuredCores(env, costs)
@@ -303,7 +319,7 @@ def measured_executors(env: simpy.Environment, costs: CostModel) -> dict[str, Ex
     return out
 
 
-def make_executors(env: simpy.Environment, costs: CostModel, shared: bool,
+def make_executors(env: Environment, costs: CostModel, shared: bool,
                    program: FrameProgram | None = None) -> dict[str, Executor]:
     """One executor per device name ("gpu<i>") and "host". `shared`: every device and the host
     draw on the host's cores (the shared_executor effect). `program` (the shared_gpu effect):

@@ -190,7 +190,7 @@ def run(engine: Engine, enabled: bool = True, record_trace: bool = True,
     total)`: called as frames present (about 200 times in a run), with the frames presented
     and the frames the run will simulate (fewer once a repeat is found)."""
     ff = FastForward(engine, keep_rows=record_trace) if enabled else None
-    hooks = []
+    hooks: list[Callable[[int], None]] = []
     if ff is not None and ff.active:
         hooks.append(ff.on_present)
     else:

@@ -12,13 +12,13 @@ from __future__ import annotations
 
 from typing import Any
 
-import simpy
+from mgpusim.sim.snapshot import Environment
 
 
 class FluidChannel:
     """The advance / settle loop of a fluid channel; subclasses say how flows share it."""
 
-    env: simpy.Environment
+    env: Environment
     name: str
     flows: list[Any]
     busy: list[tuple[int, int]]

@@ -21,7 +21,7 @@ import simpy
 
 from mgpusim.sim.channel import Settle, Wake
 from mgpusim.sim.fluid import FluidChannel
-from mgpusim.sim.snapshot import Relative
+from mgpusim.sim.snapshot import Environment, Relative
 
 
 class _Flow:
@@ -38,7 +38,7 @@ class HostLinkChannel(FluidChannel):
     and the host's capacity behind them. `busy` records the intervals with at least one
     transfer on any of the links."""
 
-    def __init__(self, env: simpy.Environment, name: str, capacity: Fraction):
+    def __init__(self, env: Environment, name: str, capacity: Fraction):
         if capacity <= 0:
             raise ValueError(f"channel {name}: capacity must be > 0")
         self.env, self.name, self.capacity = env, name, Fraction(capacity)

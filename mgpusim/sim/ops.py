@@ -227,7 +227,9 @@ class OpBuilder:
         """The bandwidth of the link a copy crosses, alone on it."""
         dev = task.queue.device
         if task.path == "p2p":
-            return self.costs.peer_bandwidth(dev, task.peer)  # type: ignore[arg-type]
+            if task.peer is None:  # (refused as its channel's name refuses it)
+                raise ScheduleError(f"copy {task.name!r} on a peer path names no peer")
+            return self.costs.peer_bandwidth(dev, task.peer)
         if task.path == "group":
             return self.costs.group_bandwidth(*task.ends())
         return self.costs.link_bandwidth(dev, task.path)

@@ -93,7 +93,9 @@ def filled(program: FrameProgram, durations: Durations) -> dict[tuple[int, str],
     out: dict[tuple[int, str], int] = {}
     for frame in range(program.frames):
         for task in program.tasks(frame):
-            ns = durations.get((frame, task.name), medians.get(task.name))
-            if ns is not None:
-                out[(frame, task.name)] = int(ns)
+            took = durations.get((frame, task.name))
+            if took is None:
+                took = medians.get(task.name)
+            if took is not None:
+                out[(frame, task.name)] = int(took)
     return out

@@ -103,8 +103,7 @@ def _run_model(exp: Experiment, program: FrameProgram, chosen: frozenset[str], f
     costs = CostModel(exp.profile)
     try:
         if fidelity == "analytic":
-            from mgpusim.sim.analytic import (  # noqa: PLC0415 (only this level needs it)
-                Analytic, model_raw)
+            from mgpusim.sim.analytic import Analytic, model_raw  # noqa: PLC0415 (only this level needs it)
             model = analytic() if analytic is not None else Analytic(program, costs, chosen)
             return model_raw(model, record_trace, progress)
         engine = Engine(program, costs, record_trace=record_trace or fast_forward, effects=chosen)

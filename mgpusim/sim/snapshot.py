@@ -12,15 +12,20 @@ from __future__ import annotations
 
 import heapq
 from collections import deque
-from typing import Any, Protocol
+from typing import Any, Protocol, cast
 
 import simpy
-from simpy.events import NORMAL, PENDING
+from simpy.core import SimTime
+from simpy.events import NORMAL, PENDING, EventPriority
 
 # looked up once: the hot paths below make an event per call
 _new = object.__new__
 _Timeout, _Event = simpy.Timeout, simpy.Event
 _heappush = heapq.heappush
+
+#: The environment's queue of scheduled events: (time, priority, order, event), the times in
+#: integer ns (SimPy's annotation allows floats: see `Environment._times`).
+Queue = list[tuple[int, EventPriority, int, simpy.Event]]
 
 
 class Unsupported(Exception):
@@ -93,7 +98,9 @@ class StreamProcess(simpy.Process):
                     callbacks.append(self.resume)
                     self._target = event
                     return
-        except BaseException as exc:  # the generator ended or failed: as SimPy does
+        # the generator ended or failed, as in SimPy's Process._resume: not swallowed, the
+        # process event fails with it and the run raises it
+        except BaseException as exc:  # noqa: BLE001
             self._ended(exc)
             return
         simpy.Process._resume(self, event)  # a failed event: thrown into the generator
@@ -123,7 +130,11 @@ class Environment(simpy.Environment):
     stream's inputs met, a transfer done) goes to a first-in first-out list, not the heap.
     Every such event was scheduled after every heap event due at the same time with normal
     priority (those were scheduled at an earlier time), and urgent ones go first anyway: so
-    the heap's events due now run first, then the list in order, then time moves on."""
+    the heap's events due now run first, then the list in order, then time moves on.
+
+    Its clock is integer ns (`now: int`), which the channels and executors rely on, so they
+    are typed with it; a plain simpy.Environment serves them too where every delay is an int
+    (as in the tests)."""
 
     #: The clock, a plain attribute: SimPy's `now` is a property (a call on every read, and
     #: the model reads it several times per event). This class attribute shadows it, so the
@@ -131,7 +142,7 @@ class Environment(simpy.Environment):
     now: int = 0
 
     @property
-    def _now(self) -> int:  # type: ignore[override]
+    def _now(self) -> int:
         return self.now
 
     @_now.setter
@@ -145,6 +156,8 @@ class Environment(simpy.Environment):
         for name, obj in vars(simpy.Environment).items():
             if type(obj) is simpy.core.BoundClass:
                 setattr(self, name, getattr(self, name))
+        # (SimPy's annotations make `timeout`, `event` and `schedule` methods; at run time
+        # SimPy itself sets them on the instance, BoundClass.bind_early, as done here)
         self.timeout = self._timeout  # type: ignore[method-assign]
         self.event = self._event  # type: ignore[method-assign]
         #: the plain `schedule`: timeouts and triggers schedule inline while it is the one
@@ -153,15 +166,18 @@ class Environment(simpy.Environment):
         self.schedule = self._plain  # type: ignore[method-assign]
         self.tracking = True
         self._now_list: deque[simpy.Event] = deque()
+        #: SimPy's `_queue` (the same list) as the model fills it: every delay it schedules is
+        #: integer ns, so every time in it is an int (SimPy's annotation allows floats)
+        self._times = cast(Queue, self._queue)
 
-    def _schedule(self, event: simpy.Event, priority: int = NORMAL, delay: int = 0) -> None:
+    def _schedule(self, event: simpy.Event, priority: EventPriority = NORMAL, delay: SimTime = 0) -> None:
         """SimPy's schedule, events for now at normal priority on the list."""
         if delay or priority != NORMAL:
             heapq.heappush(self._queue, (self.now + delay, priority, next(self._eid), event))
         else:
             self._now_list.append(event)
 
-    def _timeout(self, delay: int, value: Any = None) -> simpy.Timeout:
+    def _timeout(self, delay: SimTime = 0, value: Any = None) -> simpy.Timeout:
         """SimPy's Timeout, made without its constructor's call chain."""
         if delay < 0:
             raise ValueError(f"Negative delay {delay}")
@@ -200,7 +216,7 @@ class Environment(simpy.Environment):
 
     def _next(self) -> simpy.Event:
         """The next event in SimPy's order (see the class doc); IndexError when none is left."""
-        queue, now_list = self._queue, self._now_list
+        queue, now_list = self._times, self._now_list
         if now_list and not (queue and queue[0][0] <= self.now):
             return now_list.popleft()
         self.now, _, _, event = heapq.heappop(queue)
@@ -211,13 +227,13 @@ class Environment(simpy.Environment):
             event = self._next()
         except IndexError:
             raise simpy.core.EmptySchedule from None
-        callbacks, event.callbacks = event.callbacks, None
+        callbacks, event.callbacks = event.callbacks, None  # type: ignore[assignment]  # (see run)
         try:
             for callback in callbacks:
                 callback(event)
         except simpy.core.StopSimulation:
             event.callbacks = callbacks[callbacks.index(callback) + 1:]
-            self.schedule(event, -1)  # (as SimPy's step: before anything else now)
+            self.schedule(event, EventPriority(-1))  # (as SimPy's step: before anything else now)
             raise
         if not event._ok and not hasattr(event, "_defused"):
             exc = type(event._value)(*event._value.args)
@@ -230,7 +246,7 @@ class Environment(simpy.Environment):
         a failed event not defused raised the same way; one method call less per event."""
         if until is not None:
             return super().run(until)
-        queue, now_list, pop, popleft = self._queue, self._now_list, heapq.heappop, self._now_list.popleft
+        queue, now_list, pop, popleft = self._times, self._now_list, heapq.heappop, self._now_list.popleft
         now = self.now  # (only this loop moves the clock)
         while True:
             if now_list and not (queue and queue[0][0] <= now):
@@ -240,7 +256,9 @@ class Environment(simpy.Environment):
                 self.now = now
             else:
                 return None
-            callbacks, event.callbacks = event.callbacks, None
+            # a processed event's callbacks are None (SimPy's annotation says a list; its own
+            # step ignores the assignment the same way)
+            callbacks, event.callbacks = event.callbacks, None  # type: ignore[assignment]
             for callback in callbacks:
                 callback(event)
             if not event._ok and not hasattr(event, "_defused"):
@@ -258,7 +276,7 @@ class Environment(simpy.Environment):
             event.succeed()
             return
         event._ok, event._value = True, None
-        callbacks, event.callbacks = event.callbacks, None
+        callbacks, event.callbacks = event.callbacks, None  # type: ignore[assignment]  # (see run)
         for callback in callbacks:
             callback(event)
 
@@ -267,13 +285,13 @@ class Environment(simpy.Environment):
         refuses from now on."""
         self.tracking = False
 
-    def pending(self) -> list[tuple[int, int, simpy.Event]]:
+    def pending(self) -> list[tuple[int, EventPriority, simpy.Event]]:
         """(time, priority, event) of every scheduled event not processed yet, in the order
         SimPy will process them (time, then priority, then scheduling order): the heap's
         events due now, the list of events for now, then the heap's later ones."""
         if not self.tracking:
             raise Unsupported("the environment stopped keeping its events")
         now = self.now
-        heap = [(t, p, ev) for t, p, _eid, ev in sorted(self._queue)]
+        heap = [(t, p, ev) for t, p, _eid, ev in sorted(self._times)]
         due = [entry for entry in heap if entry[0] <= now]
         return due + [(now, NORMAL, ev) for ev in self._now_list] + heap[len(due):]

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import mgpusim
 from mgpusim.io.defaults import TRACE_FRAMES
-from mgpusim.io.writers import frame_window
 from mgpusim.io.perfetto import chrome_trace_json
 from mgpusim.io.plot import timeline_png
+from mgpusim.io.writers import frame_window
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -5,7 +5,8 @@
 - pipelining_lavapipe.perfetto.json: mgpusim's own Perfetto export (Chrome trace-event JSON)
   of four steady frames of the lavapipe main job's one-GPU pipelining run;
 - pipelining_lavapipe.csv: the same run's steady frames as the CSV format (pass, queue, gpu_ms,
-  reads, writes, bytes, frame, pixel_share: 1 for the runner's fragment loops and filters, 0 for meshes), what each pass reads and writes taken from the recorded scene;
+  reads, writes, bytes, frame, pixel_share: 1 for the runner's fragment loops and filters, 0 for
+  meshes), what each pass reads and writes taken from the recorded scene;
 - xr_two_views_lavapipe.csv: the XR run with both views on one GPU, a row per view (`view`);
 - pipelining_lavapipe.toml: the CSV example imported (`mgpusim frame import`) with the
   lavapipe profile, as the notebook and docs/formats.md use it.
@@ -21,8 +22,8 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mgpusim.io.perfetto import chrome_trace_json  # noqa: E402
 from mgpusim.frames.formats import read_run  # noqa: E402
+from mgpusim.io.perfetto import chrome_trace_json  # noqa: E402
 
 RUNS = ROOT / "data/lavapipe/history/main_job_2026-11-25/runs"
 OUT = ROOT / "examples/frames"

@@ -35,9 +35,9 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mgpusim.model.toml_checks import read_toml  # noqa: E402
 from mgpusim.model.errors import MgpusimError  # noqa: E402
 from mgpusim.model.profile import parse_profile  # noqa: E402
+from mgpusim.model.toml_checks import read_toml  # noqa: E402
 from mgpusim.schedules.experiment import load_experiment, parse_experiment  # noqa: E402
 from mgpusim.sim.simulation import simulate  # noqa: E402
 
@@ -238,8 +238,7 @@ def run_case(case: Case, tmp: Path) -> str:
 
 def run_table_case(case: Case, tmp: Path) -> str:
     """Calibrate from the mutated table and write the profile in memory (checked on load)."""
-    from mgpusim.calibration import (apply, calibrate, lavapipe_base,  # noqa: PLC0415
-                                     read_measurements)
+    from mgpusim.calibration import apply, calibrate, lavapipe_base, read_measurements  # noqa: PLC0415
 
     path = tmp / case.source.name
     case.table.to_csv(path, index=False)

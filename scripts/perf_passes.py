@@ -73,7 +73,7 @@ def main(data: str, run: str, tasks: str | None = None) -> None:
         start, end = r.start_ns + origin, r.end_ns + origin
         idle = " ".join(f"cpu{c}:{overlap_ms(spans[(c, 0)], start, end):.2f}" for c in cpus)
         used = collections.Counter()
-        for (cpu, tid), s in spans.items():
+        for (_cpu, tid), s in spans.items():
             if tid:
                 used[tid] += overlap_ms(s, start, end)
         busy = " ".join(f"{names[t]}/{t}:{ms:.2f}" for t, ms in used.most_common() if ms >= 0.05)

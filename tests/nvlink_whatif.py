@@ -17,8 +17,8 @@ from typing import Any
 
 import pandas as pd
 
-from mgpusim.model.toml_checks import read_toml
 from mgpusim.model.profile import HardwareProfile, parse_profile
+from mgpusim.model.toml_checks import read_toml
 from mgpusim.sim.simulation import simulate
 from mgpusim.studies.study_file import Study
 

@@ -9,9 +9,9 @@ import pandas as pd
 import pytest
 
 from mgpusim import load_experiment
-from mgpusim.cli import main
 from mgpusim.advise.advisor import CHUNKS, LINKS, options, pareto, search
 from mgpusim.advise.report import write_advice
+from mgpusim.cli import main
 from tests.headless_browser import NO_BROWSER, find_browser, open_page
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -44,7 +44,7 @@ def advice(frame):
 def test_every_option_is_there(frame):
     exp = load_experiment(frame)
     opts = options(exp, max_gpus=3, links=LINKS)
-    pcie = [l for l in LINKS if not l.nvlink]
+    pcie = [link for link in LINKS if not link.nvlink]
     families = pd.Series([o.family for o in opts]).value_counts().to_dict()
     assert families["one GPU"] == 1
     assert families["sort-first balanced"] == families["sort-last"] == 2 * len(pcie) * 2  # 2-3 GPUs, 2 stagings

@@ -66,9 +66,9 @@ class Case:
 CASES: list[Case] = []
 
 
-def case(id: str, *expect: str) -> Callable[[Callable[[Path], list[str]]], Callable]:
+def case(name: str, *expect: str) -> Callable[[Callable[[Path], list[str]]], Callable]:
     def wrap(make: Callable[[Path], list[str]]) -> Callable:
-        CASES.append(Case(id, make, expect))
+        CASES.append(Case(name, make, expect))
         return make
     return wrap
 

@@ -10,13 +10,30 @@ import pandas as pd
 import pytest
 
 from mgpusim import cli
+from mgpusim.cases.case_file import (
+    COMPARISON,
+    Case,
+    CaseResult,
+    calibrate,
+    case_names,
+    comparison,
+    comparison_markdown,
+    copy_limited_fps,
+    docs_block,
+    load_case,
+    markdown,
+    metric,
+    parameter_overrides,
+    run_case,
+    sections_rendered,
+    span_ms,
+    steady,
+    table,
+    with_docs_block,
+)
 from mgpusim.model.errors import InputError
 from mgpusim.model.geometry import mesh_placement
 from mgpusim.sim.simulation import simulate
-from mgpusim.cases.case_file import (COMPARISON, Case, CaseResult, calibrate, case_names, comparison,
-                                   comparison_markdown, copy_limited_fps, docs_block, load_case,
-                                   markdown, metric, parameter_overrides, run_case,
-                                   sections_rendered, span_ms, steady, table, with_docs_block)
 from mgpusim.studies.study_file import load_study
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -298,8 +298,8 @@ def test_fidelity_without_the_measured_data_is_one_clear_error(tmp_path: Path, c
 
 
 def test_fidelity_command_writes_the_table(tmp_path: Path):
-    from mgpusim.cli import main
     from mgpusim.bench.accuracy_cost import committed_sources, configurations
+    from mgpusim.cli import main
 
     # the committed H200, H100 and lavapipe runs
     assert len(configurations(committed_sources(ROOT / "data"))) >= 100

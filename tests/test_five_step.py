@@ -56,7 +56,7 @@ def _check_order_and_engines(trace: pd.DataFrame, n: int) -> None:
         assert row.engine == STEP_ENGINE[row.step], row.to_dict()
     assert (trace[trace.step == "h2d"].device == "gpu0").all()
     assert trace[trace.step == "host_copy"].engine.str.startswith("thread").all()
-    for frame, f in trace.groupby("frame"):
+    for _frame, f in trace.groupby("frame"):
         end = f.groupby("task")["end_ns"].max()
         start = f.groupby("task")["start_ns"].min()
         for i in range(1, n):

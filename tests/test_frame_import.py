@@ -10,11 +10,11 @@ import pytest
 
 from mgpusim import load_experiment, simulate
 from mgpusim.cli import main
+from mgpusim.frames.formats import read_chrome, read_csv, read_run
+from mgpusim.frames.importer import frame_from_slices
 from mgpusim.model.errors import InputError
 from mgpusim.model.scene import PassSpec, temporal_reads
 from mgpusim.model.work_terms import pass_work
-from mgpusim.frames.formats import read_chrome, read_csv, read_run
-from mgpusim.frames.importer import frame_from_slices
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples" / "frames"

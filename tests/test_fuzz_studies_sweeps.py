@@ -16,10 +16,10 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from mgpusim.cli import main
-from mgpusim.model.toml_checks import name_problem
 from mgpusim.model.errors import InputError
-from mgpusim.sweeps import grid as sweeps
+from mgpusim.model.toml_checks import name_problem
 from mgpusim.studies.study_file import load_study
+from mgpusim.sweeps import grid as sweeps
 from tests.test_bad_inputs import SWEEP, mini_study
 
 

@@ -13,10 +13,10 @@ from pathlib import Path
 import pytest
 
 from mgpusim.cli import main
+from mgpusim.measure import run_archive
 from mgpusim.studies import load_study, validate
 from mgpusim.studies.measuring import measured_folder
 from tests.nvlink_whatif import nvlink_whatif
-from mgpusim.measure import run_archive
 
 ROOT = Path(__file__).resolve().parents[1]
 STUDY = ROOT / "experiments" / "h200" / "study.toml"

@@ -129,9 +129,9 @@ def test_the_calibration_sums_the_rates_of_the_gpus_copying_at_once():
 
     from mgpusim.calibration.recipe import _host_pcie
     rows = [("copy_d2h", 1, "gpu0", "graphics", 1000, 10)]  # alone: not the host side
-    for gpu, ns in (("gpu0", 40), ("gpu1", 50)):  # 2 GPUs at once, the largest size counts
-        rows += [("copy_d2h", 2, gpu, "graphics", 1000, ns), ("copy_d2h", 2, gpu, "transfer", 1000, ns * 2),
-                 ("copy_d2h", 2, gpu, "graphics", 100, 1)]
+    for name, ns in (("gpu0", 40), ("gpu1", 50)):  # 2 GPUs at once, the largest size counts
+        rows += [("copy_d2h", 2, name, "graphics", 1000, ns), ("copy_d2h", 2, name, "transfer", 1000, ns * 2),
+                 ("copy_d2h", 2, name, "graphics", 100, 1)]
     df = pd.DataFrame(rows, columns=["pass", "gpus", "gpu", "queue", "bytes", "duration_ns"])
     data: dict = {"host": {}}
     line = _host_pcie(data, df)

@@ -37,7 +37,7 @@ def test_sets_from_many_threads_release_once():
         latch = Latch()
         errors: list[BaseException] = []
 
-        def both() -> None:
+        def both(latch: Latch = latch, errors: list[BaseException] = errors) -> None:
             try:
                 latch.set()
                 assert latch.wait(1)

@@ -46,9 +46,10 @@ def test_largest_data_set_sort_last_vs_one_gpu():
 
 
 def test_sort_first_cannot_hold_more_than_one_gpu():
-    exp = lambda n: experiment(profile([gpu(count=2, memory=10_000)]), "sort_first",
-                               [{"name": "f", "kind": "fragment_loop", "iterations": 1}],
-                               gpus=n, width=8, height=4, frames=4)
+    def exp(n: int):
+        return experiment(profile([gpu(count=2, memory=10_000)]), "sort_first",
+                          [{"name": "f", "kind": "fragment_loop", "iterations": 1}],
+                          gpus=n, width=8, height=4, frames=4)
     assert max_dataset_bytes(exp(2)) <= max_dataset_bytes(exp(1))
 
 

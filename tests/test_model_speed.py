@@ -6,10 +6,9 @@ from pathlib import Path
 
 import pytest
 
+from mgpusim.bench.model_speed import events_per_frame, hand_written_sort_first, sort_first_experiment
 from mgpusim.schedules.experiment import load_experiment
 from mgpusim.sim.simulation import simulate
-from mgpusim.bench.model_speed import (events_per_frame, hand_written_sort_first,
-                                         sort_first_experiment)
 
 ROOT = Path(__file__).resolve().parents[1]
 SORT_FIRST = ROOT / "experiments" / "sort_first_tc1.toml"

@@ -9,10 +9,10 @@ import pandas as pd
 import pytest
 
 from mgpusim import load_experiment
-from mgpusim.studies.measuring import measured_folder
 from mgpusim.measure import run_archive
-from mgpusim.validation.measured import read_measured
 from mgpusim.measure.repeated_runs import run_spread
+from mgpusim.studies.measuring import measured_folder
+from mgpusim.validation.measured import read_measured
 
 ROOT = Path(__file__).resolve().parents[1]
 TRACE = ("frame,device,engine,step,task,start_ns,end_ns,bytes,waits_for\n"

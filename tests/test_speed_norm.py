@@ -14,15 +14,15 @@ import pytest
 
 from mgpusim import load_profile
 from mgpusim.commands.main_job import LAVAPIPE_STUDY
+from mgpusim.measure import run_speed
+from mgpusim.measure import speed_norm as sn
 from mgpusim.model.costs import CostModel
 from mgpusim.model.errors import InputError
 from mgpusim.model.speed_scale import at_speed
 from mgpusim.sim.simulation import simulate
 from mgpusim.studies import load_study
-from mgpusim.measure import run_speed
 from mgpusim.studies import pipeline as pipeline
 from mgpusim.studies.measuring import measured_folder
-from mgpusim.measure import speed_norm as sn
 from mgpusim.validation.crossvalidate import validate_experiment
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -6,8 +6,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from mgpusim.model.errors import InputError, UnsteadyMachineError
 from mgpusim.measure import speed_probe as speed
+from mgpusim.model.errors import InputError, UnsteadyMachineError
 
 
 def probes(mesh_ms: list[float]) -> pd.DataFrame:

@@ -4,9 +4,9 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
+from mgpusim.measure import steady_window as sw
 from mgpusim.model.errors import InputError
 from mgpusim.results.summary import frames_from_trace
-from mgpusim.measure import steady_window as sw
 from mgpusim.validation.compare import steady_summary
 
 MS = 1_000_000
@@ -65,8 +65,8 @@ def test_the_steady_folder_keeps_the_window_of_the_host_side_too(tmp_path):
     same frames, renumbered as the trace is, so the two still join row by row."""
     from types import SimpleNamespace
 
-    from mgpusim.results.trace import make_submissions
     from mgpusim.measure.repeated_runs import write_steady_window
+    from mgpusim.results.trace import make_submissions
 
     def result(periods):
         trace = run_trace(periods)

@@ -18,7 +18,6 @@ import pytest
 
 from mgpusim.real.vulkan import device
 
-
 SLOT = "slot"  # the calls below take it as it is
 
 

@@ -1,4 +1,5 @@
-"""Particle sweep of the DX12 thesis (docs/sources.md: particles on a secondary GPU): 256 .. 1M particles, one vs two GPUs.
+"""Particle sweep of the DX12 thesis (docs/sources.md: particles on a secondary GPU): 256 .. 1M
+particles, one vs two GPUs.
 
 For each count it runs experiments/particles_machine.toml (100 frames per point) as
   1gpu       the update on the GTX 1080's compute queue, the draw waits for it;

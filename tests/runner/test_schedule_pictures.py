@@ -14,11 +14,11 @@ import pytest
 
 from mgpusim.model.errors import ScheduleError
 from mgpusim.model.profile import parse_profile
+from mgpusim.real.passes.particle_update import initial_state, reference_update
+from mgpusim.real.passes.standalone import FragmentLoop, Mesh
 from mgpusim.real.runner import run_experiment
 from mgpusim.real.vulkan.copies import download
 from mgpusim.real.vulkan.machine import close_gpus, make_gpus
-from mgpusim.real.passes.particle_update import initial_state, reference_update
-from mgpusim.real.passes.standalone import FragmentLoop, Mesh
 from mgpusim.schedules.experiment import parse_experiment
 
 from .conftest import lavapipe_profile

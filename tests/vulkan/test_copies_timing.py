@@ -7,11 +7,10 @@ import time
 import numpy as np
 import pytest
 
-from mgpusim.real.vulkan.copies import (CopyD2D, CopyD2H, CopyH2D, copy_image_to_buffer, download,
-                                        upload)
-from mgpusim.real.vulkan.machine import close_gpus, make_gpus
 from mgpusim.real.host.memcpy import MIN_CHUNK, HostCopier
 from mgpusim.real.passes.standalone import FragmentLoop, Mesh
+from mgpusim.real.vulkan.copies import CopyD2D, CopyD2H, CopyH2D, copy_image_to_buffer, download, upload
+from mgpusim.real.vulkan.machine import close_gpus, make_gpus
 
 pytestmark = pytest.mark.vulkan
 

@@ -10,11 +10,11 @@ import pytest
 
 from mgpusim.cli import main
 from mgpusim.model.errors import InputError
-from mgpusim.real.runner import executor
 from mgpusim.real.host import priority as host_priority
+from mgpusim.real.runner import executor
 from mgpusim.real.vulkan.device import Gpu
-from mgpusim.real.vulkan.machine import machine_record
 from mgpusim.real.vulkan.instance import Instance
+from mgpusim.real.vulkan.machine import machine_record
 
 pytestmark = pytest.mark.vulkan
 

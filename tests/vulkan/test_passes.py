@@ -4,11 +4,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from mgpusim.real.passes.particle_update import ParticleUpdate, initial_state, reference_update
+from mgpusim.real.passes.standalone import (
+    CompositeSortFirst,
+    CompositeSortLast,
+    FragmentLoop,
+    Mesh,
+    ParticleRender,
+    torus_mesh,
+)
 from mgpusim.real.vulkan.buffers import DEPTH_FORMAT
 from mgpusim.real.vulkan.copies import download, upload
-from mgpusim.real.passes.particle_update import ParticleUpdate, initial_state, reference_update
-from mgpusim.real.passes.standalone import (CompositeSortFirst, CompositeSortLast, FragmentLoop, Mesh,
-                                        ParticleRender, torus_mesh)
 
 pytestmark = pytest.mark.vulkan
 

@@ -59,7 +59,7 @@ def test_two_threads_waiting_recycle_the_slot_once(gpu):
     for i in range(50):
         sub = gpu.submit("graphics", _empty, label=f"twice {i}", key="twice")
         ticks: list = []
-        threads = [threading.Thread(target=lambda: ticks.append(sub.wait().raw_ticks()))
+        threads = [threading.Thread(target=lambda ticks=ticks, sub=sub: ticks.append(sub.wait().raw_ticks()))
                    for _ in range(2)]
         for t in threads:
             t.start()

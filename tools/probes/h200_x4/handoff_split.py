@@ -26,8 +26,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from mgpusim.results.waits import host_split
 from mgpusim.measure import run_archive
+from mgpusim.results.waits import host_split
 from mgpusim.validation.measured import read_submissions
 from mgpusim.validation.measured_check import read_table
 

@@ -298,9 +298,8 @@ def main(argv: list[str] | None = None) -> int:
     from mgpusim.io.writers import write_measured
     from mgpusim.model.toml_checks import int_list
     from mgpusim.real.runner.execute import run_experiment
-    from mgpusim.schedules.experiment import load_experiment, parse_overrides
-
     from mgpusim.real.runner.executor import Executor
+    from mgpusim.schedules.experiment import load_experiment, parse_overrides
 
     exp = load_experiment(args.experiment, parse_overrides(args.overrides))
     devices = int_list(args.devices, "--devices")

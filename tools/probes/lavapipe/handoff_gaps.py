@@ -9,9 +9,10 @@ after the one before it in the same frame (`out.d2h => out.h2d`), it prints how 
 consumer started after its producer ended (count, mean, median, 90th percentile, max, in ms),
 then the wait of each task from the moment it was ready by what ended last (mgpusim.results.waits,
 which `mgpusim validate` reports too), each task's duration and the share of time with 0, 1,
-2... render passes running. Frames before `--from-frame` (default 40) are left out. Why: the two traces name the same tasks, so a
-gap that is 0.3 ms in the model and 2 ms on the machine points at the hand-off that the model
-gets wrong, where the frame time alone only says that something does.
+2... render passes running. Frames before `--from-frame` (default 40) are left out. Why: the two
+traces name the same tasks, so a gap that is 0.3 ms in the model and 2 ms on the machine points
+at the hand-off that the model gets wrong, where the frame time alone only says that something
+does.
 """
 from __future__ import annotations
 
@@ -21,8 +22,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from mgpusim.validation.compare import steady_summary
 from mgpusim.results.waits import parse_waits_for, ready_waits
+from mgpusim.validation.compare import steady_summary
 
 
 def load(folder: Path, from_frame: int) -> pd.DataFrame:

@@ -10,7 +10,7 @@ the window at the QUANTILE of frame time is taken (not the fastest, which a few 
 could set). Between the saved
 runs of two full jobs this estimate moved by 2.7 % (median) and 12.8 % (worst), the fastest
 whole run by 4.0 % and 23 %; over two other pairs of jobs 2.2 / 21.6 % against 2.7 / 27.2 %
-and 1.7 / 7.3 % against 2.1 / 6.3 % (experiments/lavapipe/steady_repeatability.py).
+and 1.7 / 7.3 % against 2.1 / 6.3 % (docs/validation.md: how those were computed).
 
 The window's frames, with the warm-up frames just before it, are written as a measured trace
 in the runner's schema (frames renumbered from 0), so calibration and validation read it like

@@ -291,7 +291,7 @@ def test_comparison_is_each_figure_beside_its_prediction(results):
     cr = results["vulkan_thesis"]
     df = comparison(cr).set_index("quantity")
     assert df.loc["sf_gain_2", "predicted"] == cr.derived["sf_gain_2_as_built"]
-    assert df.loc["sf_util_2", "predicted"] == cr.columns["sf_2gpu_as_built"]["graphics_busy"]
+    assert "sf_util_2" not in df.index  # gain / N in the thesis: it would be met by construction
     assert df.loc["terrain_sections", "predicted"] == 3  # one GTX 1080 holds 3 of the 12 sections
 
 

@@ -14,12 +14,15 @@ from mgpusim.cases.case_file import (
     COMPARISON,
     Case,
     CaseResult,
+    amdahl_gain,
     calibrate,
     case_names,
     comparison,
     comparison_markdown,
     copy_limited_fps,
     docs_block,
+    extrapolation,
+    extrapolation_markdown,
     load_case,
     markdown,
     metric,
@@ -330,3 +333,23 @@ def test_bad_parameters_and_figures_name_the_field(tmp_path, extra, field):
     with pytest.raises(InputError) as exc:
         load_case(_case_file(tmp_path, extra))
     assert re.sub(r"\[\d+\]", "", exc.value.field or "") == field
+
+
+def test_amdahl_gain_through_the_two_gpu_point():
+    assert amdahl_gain(1.5, 2) == pytest.approx(1.5)
+    assert amdahl_gain(2.0, 3) == pytest.approx(3.0)  # p = 1: linear
+    assert amdahl_gain(1.5, 3) == pytest.approx(1.0 / (1.0 / 3 + 2.0 / 9))  # p = 2/3
+    assert amdahl_gain(0.8, 3) < 0.8  # two GPUs slower than one: three slower still
+
+
+def test_each_three_gpu_gain_stands_beside_amdahl(results):
+    """The thesis case's as-built and fully pipelined families (over their own 1-GPU runs) each
+    have a 1 -> 2 and a 1 -> 3 GPU gain: four rows, each the derived 3-GPU gain and the line."""
+    cr = results["vulkan_thesis"]
+    df = extrapolation(cr).set_index("quantity")
+    assert len(df) == 4 and set(df.gpus) == {3}
+    row = df.loc["sort-first frame-rate gain 1 -> 3 GPUs, as built"]
+    assert row.predicted == cr.derived["sf_gain_3_as_built"]
+    assert row.gain_2 == cr.derived["sf_gain_2_as_built"]
+    assert row.amdahl == pytest.approx(amdahl_gain(row.gain_2, 3))
+    assert "Amdahl" in extrapolation_markdown(cr)

@@ -614,6 +614,48 @@ def markdown(cr: CaseResult) -> str:
     return "\n".join(lines) + "\n"
 
 
+def amdahl_gain(gain_2: float, gpus: int) -> float:
+    """The gain at `gpus` GPUs on the Amdahl line through a 1 -> 2 GPU gain: 1 / ((1 - p) + p / N)
+    with p = 2 (1 - 1 / gain_2) (p < 0 where two GPUs are slower than one)."""
+    p = 2.0 * (1.0 - 1.0 / gain_2)
+    return 1.0 / ((1.0 - p) + p / gpus)
+
+
+def extrapolation(cr: CaseResult) -> pd.DataFrame:
+    """Beyond the fitted point: for every family of frame-rate gains over one 1-GPU run (the
+    derived fps ratios that share their denominator), each gain at 3 or more GPUs as the model
+    predicts it beside the Amdahl line through the same family's 1 -> 2 GPU gain. A model whose
+    overhead does not grow with each added GPU predicts more than the line."""
+    gains: dict[str, dict[int, tuple[str, float]]] = {}
+    for d in cr.case.derived:
+        if d.kind != "ratio" or d.metric != "fps" or d.name not in cr.derived:
+            continue
+        top, base = (cr.experiments[r].schedule.gpus for r in d.runs)
+        if base == 1:
+            gains.setdefault(d.runs[1], {})[top] = (d.label, cr.derived[d.name])
+    rows = []
+    for family in gains.values():
+        if 2 not in family:
+            continue
+        two = family[2][1]
+        for gpus, (label, value) in sorted(family.items()):
+            if gpus >= 3:
+                rows.append({"quantity": label, "gpus": gpus, "gain_2": two, "predicted": value,
+                             "amdahl": amdahl_gain(two, gpus)})
+    return pd.DataFrame(rows, columns=["quantity", "gpus", "gain_2", "predicted", "amdahl"])
+
+
+def extrapolation_markdown(cr: CaseResult) -> str:
+    """:func:`extrapolation` as a table ('' when the case has no such family)."""
+    df = extrapolation(cr)
+    if df.empty:
+        return ""
+    lines = ["| quantity | 1 -> 2 GPUs | predicted | Amdahl through 1 -> 2 |", "|---|---|---|---|"]
+    lines += [f"| {r.quantity} | {r.gain_2:.2f}x | {r.predicted:.2f}x | {r.amdahl:.2f}x |"
+              for r in df.itertuples()]
+    return "\n".join(lines) + "\n"
+
+
 #: The predicted table in a docs page sits between these lines (docs/cases/refresh.py fills it).
 BLOCK_START, BLOCK_END = "<!-- predictions:start -->", "<!-- predictions:end -->"
 #: The comparison with the published figures sits between these.

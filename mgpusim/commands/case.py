@@ -40,6 +40,7 @@ def run(args: argparse.Namespace) -> int:
         case_names,
         comparison,
         comparison_markdown,
+        extrapolation_markdown,
         load_case,
         markdown,
         run_case,
@@ -71,6 +72,11 @@ def run(args: argparse.Namespace) -> int:
         text = f"# {case.title}\n\n{case.description}\n\n{markdown(result)}"
         if case.published:
             text += f"\n## Compared with the published figures\n\n{comparison_markdown(result)}"
+        beyond = extrapolation_markdown(result)
+        if beyond:
+            text += ("\n## Beyond the fitted point: 3 GPUs and more beside Amdahl's line\n\n"
+                     "Each gain at 3 or more GPUs as predicted, beside the Amdahl line through "
+                     f"the same schedule's 1 -> 2 GPU gain.\n\n{beyond}")
         files = [write_text(text, out / "predictions.md"), write_table(table(result), out / "predictions.csv")]
         if case.published:
             files.append(write_table(comparison(result), out / "comparison.csv"))

@@ -116,3 +116,12 @@ def test_a_runs_table_without_its_columns_is_refused(tmp_path: Path) -> None:
                                                                   f'runs = "{tmp_path / "none"}"'))
     with pytest.raises(InputError, match="no measured runs table"):
         fts.measured(fts.load_study(empty))
+
+
+def test_the_idle_gap_is_measured_beside_the_model_s(validation: fts.Validation) -> None:
+    """vmgpu's frames are 5.15-5.26 ms apart when idle (Qt's 5 ms timer and its event loop):
+    the page says so beside the experiment's update gap."""
+    line = fts.gap_line(validation)
+    assert "the model's 5.00 ms" in line and "busy part" in line
+    both = pd.concat(validation.halves.values())
+    assert 5.0 < both.gap_ms.median() < 5.5

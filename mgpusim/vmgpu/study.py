@@ -119,9 +119,12 @@ def measured(study: FrameTimeStudy) -> pd.DataFrame:
         raise InputError(f"{runs_file} lacks the columns {missing}", file=str(study.path), field="runs")
     keys = ["config", "half", "strategy", "gpus", "triangles", "width", "height"]
     runs = runs.assign(quiet=runs.other_cores <= QUIET_OTHER_CORES)
-    table = runs.groupby(keys, as_index=False).agg(
-        measured_ms=("median_ms", "median"), lo_ms=("median_ms", "min"), hi_ms=("median_ms", "max"),
-        repeats=("repeat", "nunique"), quiet=("quiet", "sum"))
+    aggregates: dict[str, Any] = {"measured_ms": ("median_ms", "median"), "lo_ms": ("median_ms", "min"),
+                                  "hi_ms": ("median_ms", "max"), "repeats": ("repeat", "nunique"),
+                                  "quiet": ("quiet", "sum")}
+    if "gap_median_ms" in runs.columns:  # the idle time between two frames (Qt's update timer)
+        aggregates["gap_ms"] = ("gap_median_ms", "median")
+    table = runs.groupby(keys, as_index=False).agg(**aggregates)
     return table.sort_values(["strategy", "triangles", "width", "gpus"]).reset_index(drop=True)
 
 
@@ -263,7 +266,9 @@ def markdown(v: Validation) -> str:
              "only (in this order, the earlier ones in place):", ""]
     lines += [f"- `{f.key}` = {v.values[f.key]:.4g} on the {f.strategy} runs on {f.gpus} GPU(s): "
               f"{f.why}" for f in s.fits]
-    lines += ["", "Replay level: none (vmgpu writes no per-task timestamps).", ""]
+    lines += ["", "Replay level: none (vmgpu writes no per-task timestamps)."]
+    gap = gap_line(v)
+    lines += ([gap] if gap else []) + [""]
     for half, table in v.halves.items():
         lines += [f"## {half}", ""] + [f"- {line}" for line in verdict(s, table)] + [""]
         shown = table[SHOWN].copy()
@@ -273,6 +278,21 @@ def markdown(v: Validation) -> str:
             shown[col] = shown[col].map(lambda x: "" if pd.isna(x) else f"{x:.2f}")
         lines += [_pipe_table(shown), ""]
     return "\n".join(lines)
+
+
+def gap_line(v: Validation) -> str:
+    """The measured idle time between frames beside the model's (the part of a frame no render
+    cost moves), or '' when the runs table does not hold it."""
+    both = pd.concat(v.halves.values())
+    if "gap_ms" not in both.columns:
+        return ""
+    model_ms = load_experiment(v.study.experiment).schedule.options.get("update_gap_ns", 0) / 1e6
+    off = abs(both.gap_ms.median() - model_ms) / both.measured_ms.median()
+    where = ("what the model misses is in the frame's busy part" if off < 0.02 else
+             f"the gap alone is {off:.0%} of the median frame off")
+    return (f"Idle time between two frames (Qt's update timer and its event loop): measured "
+            f"{both.gap_ms.median():.2f} ms (median; {both.gap_ms.min():.2f}-{both.gap_ms.max():.2f} "
+            f"over the configurations), the model's {model_ms:.2f} ms: {where}.")
 
 
 def _pipe_table(table: pd.DataFrame) -> str:

@@ -2,6 +2,10 @@
 
 Each command module exposes ``register(subparsers)`` which adds its parser and sets
 ``func(args) -> int``. Errors meant for users (:class:`MgpusimError`) print as one line.
+
+A command's module is imported only when that command is used (or its parser is asked for):
+`mgpusim --version` and `mgpusim --help` list the commands from :data:`COMMAND_HELP` and import
+none of them, so they start in about the time of a bare interpreter (benchmarks/startup.py).
 """
 from __future__ import annotations
 
@@ -10,7 +14,7 @@ import importlib
 import math
 import re
 import sys
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from mgpusim import __version__
 from mgpusim.model.errors import MgpusimError
@@ -21,6 +25,27 @@ VULKAN_PACKAGES = ("vulkan", "cffi")
 #: Command modules, in the order `mgpusim --help` lists them.
 COMMANDS = ("simulate", "sweep", "examples", "case", "run", "bench", "fidelity", "devices", "measure", "calibrate",
             "validate", "study", "main_job", "frame", "advise")
+
+#: What `mgpusim --help` says of each command before its module is loaded: the help its
+#: `register` gives (a test checks they are the same).
+COMMAND_HELP = {
+    "simulate": "run an experiment in the model and write its results",
+    "sweep": "run an experiment over a grid of overrides into one Parquet table",
+    "examples": "list the shipped experiments (their names work as EXPERIMENT)",
+    "case": "run a case study (a source system's own setup) and write its predictions",
+    "run": "run an experiment's schedule on Vulkan devices (measured)",
+    "bench": "simulated frames per second against a hand-written SimPy model of the same frame, cost per "
+             "event and per resource use vs raw SimPy",
+    "fidelity": "error vs measured runs and simulation time, per fidelity level",
+    "devices": "list Vulkan devices, queues and extensions",
+    "measure": "time Vulkan passes over parameter sweeps",
+    "calibrate": "fit profile coefficients to measurement tables",
+    "validate": "run a schedule for real and in the model, report the errors",
+    "study": "measure, calibrate and validate a study (a set of configurations)",
+    "main": "the main job: the lavapipe study (measure, calibrate, validate, report)",
+    "frame": "bring your own frame: import a profiler capture as an experiment",
+    "advise": "search schedules, GPU counts and links for a frame; an HTML report",
+}
 
 
 class _Parser(argparse.ArgumentParser):
@@ -42,28 +67,117 @@ _ESCAPES = {c: repr(chr(c))[1:-1] if c < 0x2028 else f"\\u{c:04x}"
             for c in (*range(32), *range(127, 160), 0x2028, 0x2029) if c != 9}
 
 
+def command_name(module: str) -> str:
+    """The command a module of :mod:`mgpusim.commands` registers (`main_job` -> `main`)."""
+    return module.replace("_job", "").replace("_", "-")
+
+
 def build_parser() -> argparse.ArgumentParser:
+    """The whole command line; each command's own parser is built from its module on first
+    use (see :class:`_Commands`)."""
     parser = _Parser(prog="mgpusim", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"mgpusim {__version__}",
                         help="print the version and exit")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name in COMMANDS:
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", action=_Commands)
+    assert isinstance(sub, _Commands)
+    for module in COMMANDS:
+        sub.add_lazy(command_name(module), module)
+    _strict_numbers(parser)
+    return parser
+
+
+class _Commands(argparse._SubParsersAction):
+    """The sub-commands, each listed (name and help) at once and built by its module's
+    `register` only when argparse looks it up: parsing `mgpusim simulate ...` imports
+    :mod:`mgpusim.commands.simulate` alone, and `--help` or `--version` none of them. Asking
+    for every parser (`choices.items()`, as a walk over the whole command line does) builds
+    them all."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._lazy: dict[str, str] = {}  # command -> module, until built
+        self._listed: dict[str, argparse.Action] = {}  # command -> its line in --help
+        self._name_parser_map = self.choices = _LazyParsers(self)
+
+    def add_lazy(self, name: str, module: str) -> None:
+        """List `name` with its help; its module is imported when it is first looked up."""
+        line = self._ChoicesPseudoAction(name, (), COMMAND_HELP.get(name))
+        self._choices_actions.append(line)
+        self._listed[name] = line
+        self._lazy[name] = module
+
+    def add_parser(self, name: str, **kwargs: Any) -> argparse.ArgumentParser:
+        """As argparse's, except that a command listed already keeps its place in --help
+        (its line takes the help its module gives)."""
+        line = self._listed.get(name)
+        parser = super().add_parser(name, **kwargs)
+        if line is not None and "help" in kwargs:
+            line.help = self._choices_actions.pop().help
+        self._lazy.pop(name, None)
+        return parser
+
+    def load(self, name: str) -> None:
+        """Build the parser of command `name` from its module (or one that says, in one line
+        when used, why the module cannot load here)."""
+        module = self._lazy.pop(name)
         try:
-            module = importlib.import_module(f"mgpusim.commands.{name}")
-        except ModuleNotFoundError as exc:  # a command not written yet, or a missing dependency
-            if exc.name != f"mgpusim.commands.{name}":
+            loaded = importlib.import_module(f"mgpusim.commands.{module}")
+        except ModuleNotFoundError as exc:  # a missing dependency, or a command not written yet
+            if exc.name == f"mgpusim.commands.{module}":
+                _unavailable(self, module, "not installed", "this installation lacks the command")
+            else:
                 package = (exc.name or "?").split(".")[0]
                 install = "'mgpusim[vulkan]'" if package in VULKAN_PACKAGES else package
                 # e.g. no scipy on a device machine: the other commands still run
-                _unavailable(sub, name, f"needs {exc.name}",
+                _unavailable(self, module, f"needs {exc.name}",
                              f"needs the Python package {package!r} (pip install {install})")
-            continue
         except MgpusimError as exc:  # e.g. an installation without its shipped experiments
-            _unavailable(sub, name, "cannot start here", one_line(str(exc)))
-            continue
-        module.register(sub)
-    _strict_numbers(parser)
-    return parser
+            _unavailable(self, module, "cannot start here", one_line(str(exc)))
+        else:
+            loaded.register(self)
+        if name in self._lazy:  # the module registered another name: nothing answers to it
+            del self._lazy[name]
+            _unavailable(self, module, "not registered", "the command's module did not register it")
+        _strict_numbers(dict.__getitem__(self._name_parser_map, name))
+
+
+class _LazyParsers(dict):
+    """Command name -> parser, building each on first look-up (:meth:`_Commands.load`); its
+    names (iteration, `in`, the list in an error) are every command's, built or not."""
+
+    def __init__(self, owner: _Commands):
+        super().__init__()
+        self._owner = owner
+
+    def __missing__(self, name: str) -> argparse.ArgumentParser:
+        if name not in self._owner._lazy:
+            raise KeyError(name)
+        self._owner.load(name)
+        return dict.__getitem__(self, name)
+
+    def __contains__(self, name: object) -> bool:
+        return dict.__contains__(self, name) or name in self._owner._lazy
+
+    def _names(self) -> list[str]:
+        return [*self._owner._listed, *(n for n in dict.keys(self) if n not in self._owner._listed)]
+
+    def __iter__(self):
+        return iter(self._names())
+
+    def __len__(self) -> int:
+        return len(self._names())
+
+    def keys(self):
+        return self._names()
+
+    def get(self, name: str, default: object = None) -> object:
+        return self[name] if name in self else default
+
+    def items(self):
+        return [(n, self[n]) for n in self._names()]
+
+    def values(self):
+        return [self[n] for n in self._names()]
 
 
 def _strict_numbers(parser: argparse.ArgumentParser) -> None:
@@ -75,6 +189,8 @@ def _strict_numbers(parser: argparse.ArgumentParser) -> None:
             action.type = whole_number
         elif action.type is float:
             action.type = finite_number
+        if isinstance(action, _Commands):
+            continue  # each command's parser is made strict as it is built
         for sub in (action.choices or {}).values() if isinstance(action.choices, dict) else ():
             if isinstance(sub, argparse.ArgumentParser):
                 _strict_numbers(sub)
@@ -103,7 +219,7 @@ def finite_number(text: str) -> float:
 
 def _unavailable(sub: argparse._SubParsersAction, name: str, why: str, message: str) -> None:
     """A command whose module cannot load here: listed (`why`), and one line if used."""
-    command = name.replace("_job", "").replace("_", "-")
+    command = command_name(name)
     p = sub.add_parser(command, help=f"(unavailable here: {why})", add_help=False)
     p.add_argument("rest", nargs=argparse.REMAINDER, help="ignored")
 

@@ -11,7 +11,7 @@ from mgpusim.model.errors import InputError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from mgpusim.sim.effects import EFFECTS, FIDELITIES  # noqa: PLC0415
+    from mgpusim.sim.effect_names import EFFECT_NAMES, FIDELITIES  # noqa: PLC0415 - names only: no model
     p = sub.add_parser("simulate", help="run an experiment in the model and write its results")
     p.add_argument("experiment", help="experiment TOML file, or a shipped name (`mgpusim examples`)")
     p.add_argument("--set", dest="overrides", action="append", metavar="KEY=VALUE",
@@ -22,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="analytic (no event simulation), queues (fixed-rate links, no shared executor) "
                         "or full (default); see docs/fidelity.md")
     p.add_argument("--effects", default=None, metavar="+X,-Y",
-                   help=f"force effects on (+) or off (-): {', '.join(EFFECTS)}")
+                   help=f"force effects on (+) or off (-): {', '.join(EFFECT_NAMES)}")
     p.add_argument("--no-fast-forward", dest="fast_forward", action="store_false",
                    help="simulate every frame even once the model's state repeats (same results, slower)")
     p.add_argument("--frames", metavar="A:B", default=None,

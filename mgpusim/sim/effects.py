@@ -26,9 +26,8 @@ from mgpusim.model.errors import InputError
 from mgpusim.model.profile import HardwareProfile
 from mgpusim.model.tasks import CopyTask, CpuTask, HostCopyTask, Task
 from mgpusim.schedules.base import FrameProgram
+from mgpusim.sim.effect_names import FIDELITIES
 from mgpusim.sim.executors import shared_gpu_groups
-
-FIDELITIES: tuple[str, ...] = ("analytic", "queues", "full")
 
 Needed = Callable[[FrameProgram, HardwareProfile], bool]
 

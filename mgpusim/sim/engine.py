@@ -623,18 +623,24 @@ class Engine:
         elif st.at in (RUN, TRANSFER):
             out += (rel.t(st.start),)
         if not st.host:
-            out += (self._submit_clock(st.submitted, rel),)
+            out += (self._submit_clock(st.submitted, rel, st.frame),)
         return out
 
-    def _submit_clock(self, value: int, rel: Relative) -> int | None:
-        """A queue's submit-thread clock. Without a submit cost it only ever matters through
-        max(clock, input end + dispatch), with every such input end at least the earliest one
-        still pending (or now): all clocks below that bound are the same state."""
+    def _submit_clock(self, value: int, rel: Relative, frame: int) -> int | None:
+        """A queue's submit-thread clock. It only ever matters through max(clock, input end +
+        dispatch), with every such input end at least the earliest one still pending (or now),
+        and through the wait while it is ahead of now. Without a submit cost all clocks below
+        that floor are the same state. With one, a clock so far behind the floor that every
+        task left in the run (from the stream's `frame` on) could not bring it up to it never
+        delays a task again, and the next input from elsewhere resets it: all such clocks are
+        the same state too (a queue whose submit thread runs ahead of it, as on one GPU)."""
         if not self._host_timeline:
             return None
+        floor = min([self.env.now] + [d + self._dispatch_ns for d in self._cross_done.values()])
         if self._submit_ns == 0:
-            floor = min([self.env.now] + [d + self._dispatch_ns for d in self._cross_done.values()])
             value = max(value, floor)
+        elif value + self._submit_ns * self._tasks_in(frame, self.horizon) <= floor:
+            return None
         return rel.t(value)
 
     # ----- run ---------------------------------------------------------------------------

@@ -1,5 +1,5 @@
-"""The vmgpu study (mgpusim/vmgpu/study.py), offline from the committed frame times: the one
-fitted parameter, both halves compared, the Amdahl line, and the refusals of bad study files."""
+"""The vmgpu study (mgpusim/vmgpu/frame_times.py), offline from the committed frame times: the
+fitted parameters, both halves compared, the Amdahl line, and the refusals of bad study files."""
 from __future__ import annotations
 
 import shutil
@@ -10,7 +10,7 @@ import pytest
 
 from mgpusim.cli import main
 from mgpusim.model.errors import InputError
-from mgpusim.vmgpu import study as fts
+from mgpusim.vmgpu import frame_times as fts
 
 ROOT = Path(__file__).resolve().parents[1]
 STUDY = ROOT / "experiments" / "vmgpu" / "study.toml"

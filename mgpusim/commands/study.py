@@ -157,7 +157,7 @@ def validate(args: argparse.Namespace) -> int:
 
     from mgpusim.studies import pipeline as pipeline  # noqa: PLC0415
     from mgpusim.studies.study_file import load_study  # noqa: PLC0415
-    from mgpusim.vmgpu import study as frame_times  # noqa: PLC0415
+    from mgpusim.vmgpu import frame_times  # noqa: PLC0415
     if frame_times.is_frame_time_study(resolve_experiment(args.study)):
         return validate_frame_times(args)
     study = load_study(resolve_experiment(args.study))
@@ -193,7 +193,7 @@ def validate_frame_times(args: argparse.Namespace) -> int:
     its one parameter fitted on the calibration half, then each half compared (no replay:
     such a renderer writes no per-task timestamps)."""
     from mgpusim.io.writers import write_text  # noqa: PLC0415
-    from mgpusim.vmgpu import study as frame_times  # noqa: PLC0415
+    from mgpusim.vmgpu import frame_times  # noqa: PLC0415
     for flag in ("runs", "profile"):
         if getattr(args, flag, None) is not None:
             raise InputError(f"--{flag} is for studies of our own runner's runs; a frame-time study "

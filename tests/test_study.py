@@ -7,9 +7,14 @@ import pytest
 
 from mgpusim.model.errors import InputError
 from mgpusim.studies import load_study
+from mgpusim.vmgpu.frame_times import is_frame_time_study
+from mgpusim.vmgpu.frame_times import load_study as load_frame_time_study
 
 ROOT = Path(__file__).resolve().parents[1]
-STUDIES = sorted((ROOT / "experiments").glob("*/study.toml"))
+ALL_STUDIES = sorted((ROOT / "experiments").glob("*/study.toml"))
+#: Studies of an external renderer's frame times (their own loader, mgpusim/vmgpu/frame_times.py)
+FRAME_TIME_STUDIES = [p for p in ALL_STUDIES if is_frame_time_study(p)]
+STUDIES = [p for p in ALL_STUDIES if p not in FRAME_TIME_STUDIES]
 
 
 @pytest.mark.parametrize("path", STUDIES, ids=lambda p: p.parent.name)
@@ -18,6 +23,19 @@ def test_shipped_studies_load_and_their_entries_build(path: Path) -> None:
     for entry in study.entries():
         exp = entry.load(study.profile)
         assert exp.schedule.gpus >= 1
+
+
+@pytest.mark.parametrize("path", FRAME_TIME_STUDIES, ids=lambda p: p.parent.name)
+def test_frame_time_studies_load_and_the_runner_s_steps_refuse_them(path: Path) -> None:
+    study = load_frame_time_study(path)
+    assert study.fits and (study.runs / "runs.parquet").is_file()
+    with pytest.raises(InputError, match="study validate") as err:
+        load_study(path)
+    assert err.value.field == "kind"
+
+
+def test_the_vmgpu_study_is_a_frame_time_study() -> None:
+    assert [p.parent.name for p in FRAME_TIME_STUDIES] == ["vmgpu"]
 
 
 def test_lavapipe_study_keeps_held_out_apart() -> None:

@@ -157,6 +157,10 @@ def load_study(path: Path | str) -> Study:
     the study's profile). Every error names the file and the field."""
     path = Path(path)
     top = Table(read_toml(path), str(path))
+    if top.has("kind"):  # another kind of study (a frame-time study of an external renderer)
+        raise top.error("kind", f"{top.data['kind']!r}: this study's measurements are not our "
+                                "runner's runs; `mgpusim study validate` compares them, the other "
+                                "steps do not apply")
     base = path.parent
     cal, held = top.table("calibration", {}), top.table("held_out", {})
     study = Study(

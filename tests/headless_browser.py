@@ -4,10 +4,12 @@ Speaks the DevTools protocol over a pipe (`--remote-debugging-pipe`: JSON messag
 NUL byte on file descriptors 3 and 4), so no driver package is needed: only the `chromium`
 binary (Debian package `chromium`). :func:`open_page` loads a file, waits for its load event
 and returns the console errors, uncaught exceptions, failed loads and every <img> with
-whether it decoded.
+whether it decoded; :func:`screenshot` loads one at a given window size and returns the picture
+(PNG) with what a script evaluated in the page found (element positions, say).
 """
 from __future__ import annotations
 
+import base64
 import fcntl
 import json
 import os
@@ -153,3 +155,26 @@ def _errors(events: list[dict[str, Any]]) -> list[str]:
         elif method == "Network.loadingFailed":
             out.append(f"load failed: {params.get('errorText')}")
     return out
+
+
+def screenshot(path: Path, browser: str, expression: str = "null", width: int = 1280,
+               height: int = 900, timeout: float = 60.0) -> tuple[bytes, Any]:
+    """Load `path` in a `width` x `height` window; return a PNG of that first screen and the
+    JSON value of `expression` evaluated in the loaded page (e.g. element rectangles)."""
+    with tempfile.TemporaryDirectory(prefix="mgpusim-chromium-") as profile:
+        pipe = _Pipe(browser, profile)
+        try:
+            target = pipe.send("Target.createTarget", {"url": "about:blank"}, timeout=timeout)["targetId"]
+            session = pipe.send("Target.attachToTarget", {"targetId": target, "flatten": True})["sessionId"]
+            pipe.send("Page.enable", session=session)
+            pipe.send("Emulation.setDeviceMetricsOverride", {"width": width, "height": height,
+                                                             "deviceScaleFactor": 1, "mobile": False},
+                      session=session)
+            pipe.send("Page.navigate", {"url": path.resolve().as_uri()}, session=session)
+            pipe.wait_event("Page.loadEventFired", timeout)
+            value = pipe.send("Runtime.evaluate", {"expression": f"JSON.stringify({expression})",
+                                                   "returnByValue": True}, session=session)["result"]["value"]
+            shot = pipe.send("Page.captureScreenshot", {"format": "png"}, session=session, timeout=timeout)
+            return base64.b64decode(shot["data"]), json.loads(value)
+        finally:
+            pipe.close()

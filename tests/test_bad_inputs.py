@@ -1219,11 +1219,11 @@ def test_bad_input_is_one_line_exit_2(bad: Case, tmp_path: Path, capsys, monkeyp
 
 def test_the_mini_study_loads_and_lists_its_configurations_without_runs(tmp_path: Path, capsys,
                                                                        monkeypatch):
-    """The positive control of the study cases: the unbroken study validates (exit 0), and its
-    two configurations, which have no measured runs, are listed in the output and the report
-    rather than left out."""
+    """The positive control of the study cases: the unbroken study validates (not the bad
+    input's exit 2, but 3: nothing to compare), and its two configurations, which have no
+    measured runs, are listed in the output and the report rather than left out."""
     monkeypatch.chdir(tmp_path)
-    assert main(_mini(lambda d: None)(tmp_path) + ["--held-out"]) == 0
+    assert main(_mini(lambda d: None)(tmp_path) + ["--held-out"]) == 3
     printed = capsys.readouterr().out
     assert "no measured run (not compared): a" in printed and "no measured run (not compared): b" in printed
     report = (tmp_path / "out" / "report.md").read_text()

@@ -10,7 +10,7 @@ import tomli_w
 
 from mgpusim import load_profile
 from mgpusim.cli import main
-from mgpusim.commands.main_job import LAVAPIPE_STUDY, REFUSED
+from mgpusim.commands.main_job import LAVAPIPE_STUDY
 from mgpusim.model.toml_checks import read_toml
 from mgpusim.studies import load_study
 
@@ -35,8 +35,8 @@ def test_main_job_measures_calibrates_validates_and_reports(tmp_path, short_stud
     out = tmp_path / "main"
     status = main(["main", "--out", str(out), "--repeats", "1", "--run-seconds", "0.1",
                    "--study", str(short_study)])
-    # 3: the speed rule refused the verdict (a loaded or moving machine), with the report written
-    assert status in (0, REFUSED)
+    # a verdict either way: 0 every target met, 1 one missed or not shown met (a noisy machine)
+    assert status in (0, 1)
     profile = load_profile(out / "profile.toml")
     assert profile.host.gpus_share_cpu and profile.gpus[0].task_gap_ns > 0
     threads = load_study(LAVAPIPE_STUDY).lavapipe_threads()
@@ -50,7 +50,7 @@ def test_main_job_measures_calibrates_validates_and_reports(tmp_path, short_stud
         assert (out / "validation" / name / "timelines.png").is_file()
         assert (out / "validation" / name / "measured.perfetto.json").is_file()
     report = (out / "report.md").read_text()
-    assert "| sort_first_2gpu |" in report and "### xr" in report
+    assert "| sort_first_2gpu |" in report and "### Calibration runs: xr" in report
     assert "| step most off (simulated - measured) |" in report and " ms (" in report
     # the machine's speed, probed before and after the microbenchmarks and around the runs
     probes = pd.concat([pd.read_csv(out / f / "speed_probe.csv") for f in ("measurements", "runs")])
@@ -66,4 +66,5 @@ def test_main_job_measures_calibrates_validates_and_reports(tmp_path, short_stud
     row = runs.set_index("config").loc["afr_2gpu"]
     assert summary["speed"]["probe_before_ms"] == pytest.approx(row["before_ms"])
     assert summary["speed"]["probe_ratio"] > 0 and "normalized error" in report
-    assert status == 0 or "**Refused:" in report
+    assert report.splitlines()[2].startswith("**Verdict on the") and "band" in report.splitlines()[2]
+    assert json.loads((out / "verdict.json").read_text())["exit_status"] == status

@@ -50,22 +50,32 @@ def report(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_the_page_shows_every_configuration_with_its_error_and_pictures(report: Path) -> None:
     page = (report / "report.html").read_text()
     assert "<script" not in page and page.startswith("<!DOCTYPE html>")
+    assert '<p class="verdict" id="verdict"><strong>Verdict on the 1 held-out configuration: no target set.' in page
     for half, name in (("calibration", "Calibration runs"), ("held-out", "Held-out runs")):
         table = pd.read_csv(report / f"errors_{half}.csv")
         assert f"<h2>{name}" in page and f"errors_{half}.png" in page
         for row in table.itertuples():
-            # the row of the page's table: the configuration, its measured frame time, its error in %
-            cells = re.search(rf"<tr><td class=\"text\">{row.config}</td>(.*?)</tr>", page)
+            # the frame-time table's row: the configuration, its measured frame time, its error
+            cells = re.search(rf"<tr>\s*<td>{row.config}</td>(.*?)</tr>", page, re.S)
             assert cells, row.config
-            values = re.findall(r"<td class=\"num\">([^<]*)</td>", cells.group(1))
-            assert values[0] == f"{row.measured_frame_ms:.3f}"
-            assert values[2] == f"{100 * row.frame_time_error:.3f}"
+            values = re.findall(r"<td[^>]*>([^<]*)</td>", cells.group(1))
+            assert values[0] == f"{row.measured_frame_ms:.2f}"
+            assert values[2] == f"{row.frame_time_error:+.1%}"
             assert f"validation/{row.config}/timelines.png" in page
             assert f"validation/{row.config}/measured.perfetto.json" in page
     refs = re.findall(r"(?:src|href)=\"([^\"]+)\"", page)
     local = [html.unescape(r) for r in refs if not r.startswith("http")]
     assert local and all((report / r).is_file() for r in local), [r for r in local if not (report / r).is_file()]
-    assert {"afr", "xr"} <= set(re.findall(r"<h2>Calibration runs: (\w+)</h2>", page))
+    assert {"afr", "xr"} <= set(re.findall(r"<h3>Calibration runs: (\w+)</h3>", page))
+
+
+def test_the_page_is_report_md_rendered(report: Path) -> None:
+    """One source: every heading of report.md is a heading of the page, in the same order."""
+    text = (report / "report.md").read_text()
+    page = (report / "report.html").read_text()
+    md_heads = [line.lstrip("#").strip() for line in text.splitlines() if line.startswith("#")]
+    page_heads = [html.unescape(h) for h in re.findall(r"<h[123]>(.*?)</h[123]>", page)]
+    assert md_heads == page_heads
 
 
 @pytest.mark.skipif(find_browser() is None, reason=NO_BROWSER)

@@ -1,22 +1,19 @@
 """`mgpusim main [--out DIR] [--held-out] [--repeats R] [--run-seconds S] [--steady-check F]`:
-the lavapipe study (measure, calibrate, validate, report), the README's main command. Exits 3
-with one `refused:` line (report written) when the speed rule refuses a half's verdict: too
-many runs measured while the machine changed speed or was loaded (:mod:`mgpusim.measure.speed_norm`)."""
+the lavapipe study (measure, calibrate, validate, report), the README's main command. It ends
+with the verdict line and exits as `mgpusim study run` does (:mod:`mgpusim.studies.verdict`):
+0 every target met, 1 a target missed or not shown met (the prediction's band too wide), 2 bad
+input, 3 nothing could be measured."""
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from dataclasses import replace
 from pathlib import Path
 
-from mgpusim.commands.study import add_steady_check, progress_printer, steady_check
+from mgpusim.commands.study import add_steady_check, finish, measuring, progress_printer, steady_check
 from mgpusim.io.out_folder import check_out_dir
 from mgpusim.io.shipped import shipped_dir
 
-#: The exit status of a job whose verdict the speed rule refused (report written, no verdict):
-#: too many runs were measured while the machine changed speed or was loaded.
-REFUSED = 3
 #: The lavapipe study, shipped beside the package's experiments.
 LAVAPIPE_STUDY = shipped_dir("experiments") / "lavapipe" / "study.toml"
 
@@ -47,15 +44,17 @@ def run(args: argparse.Namespace) -> int:
     if args.run_seconds is not None:
         runs = replace(runs, run_seconds=args.run_seconds)
     progress = progress_printer()
-    steady_check(args, study, args.out, progress)
-    path = pipeline.run(replace(study, runs=runs), args.out, progress, args.held_out)
+
+    def job() -> Path:
+        steady_check(args, study, args.out, progress)
+        return pipeline.run(replace(study, runs=runs), args.out, progress, args.held_out)
+    path = measuring(job)
+    if isinstance(path, int):
+        return path
     print(path.read_text())
     warning = speed.drift_warning(pipeline.probes_of(args.out / "runs"))
     if warning is not None:
         print(f"warning: {warning}: the raw errors include it, the speed-normalized ones scale "
-              f"it out; see the report's first sections", file=sys.stderr)
-    refused = pipeline.refusals(json.loads((args.out / "errors.json").read_text()))
-    if refused:
-        print(f"refused: {' | '.join(refused)}; see {path}", file=sys.stderr)
-        return REFUSED
-    return 0
+              f"it out and the prediction's band shows what is left; see the report's first "
+              f"sections", file=sys.stderr)
+    return finish(args.out)

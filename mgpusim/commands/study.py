@@ -4,6 +4,9 @@
 - calibrate: fit a profile from the tables and the calibration runs (no device needed);
 - validate: compare each configuration's measured run with the model (no device needed);
 - run: all of it, and report.md (`mgpusim main` runs the lavapipe study this way);
+  `validate`, `run` and `mgpusim main` end with the verdict line and one exit status rule
+  (:mod:`mgpusim.studies.verdict`: 0 targets met, 1 a target missed or not shown met, 2 bad
+  input, 3 nothing could be measured or compared);
 - floor: replay several sets of the study's runs and say how far each configuration's replay
   error moves between them (no device needed).
 """
@@ -15,12 +18,14 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Callable, TypeVar
 
 from mgpusim.io.out_folder import check_out_dir
 from mgpusim.io.shipped import resolve_experiment
-from mgpusim.model.errors import InputError
+from mgpusim.model.errors import InputError, MgpusimError
 from mgpusim.model.toml_checks import int_list
+
+T = TypeVar("T")
 
 if TYPE_CHECKING:  # annotations only: loaded when the command runs
     import pandas as pd
@@ -106,6 +111,31 @@ def progress_printer() -> Callable[[str], None]:
     return progress
 
 
+def measuring(step: Callable[[], T]) -> T | int:
+    """`step()` (measuring on the device), or the exit status 3 with one `could not measure:`
+    line where it could not: an error that is not bad input (no Vulkan driver or device, a
+    Vulkan call failing, `--steady-check` finding the machine moving). Bad input stays an
+    InputError (exit 2)."""
+    from mgpusim.studies.verdict import NOT_MEASURED  # noqa: PLC0415
+    try:
+        return step()
+    except InputError:
+        raise
+    except MgpusimError as exc:
+        print(f"could not measure: {' '.join(str(exc).split())}", file=sys.stderr)  # one line
+        return NOT_MEASURED
+
+
+def finish(out: Path) -> int:
+    """The verdict line (stdout, last) and the exit status of a report written into `out`."""
+    import json  # noqa: PLC0415
+
+    from mgpusim.studies import verdict  # noqa: PLC0415
+    stats = json.loads((out / "errors.json").read_text())
+    print(verdict.verdict_line(stats))
+    return verdict.exit_status(stats)
+
+
 def _out(args: argparse.Namespace, study: Study) -> Path:
     """The output folder, checked before any work."""
     out = args.out or Path("out") / study.name
@@ -185,7 +215,7 @@ def validate(args: argparse.Namespace) -> int:
                 print(f"no measured run (not compared): {', '.join(missing[title])}")
     print((out / "errors.json").read_text())
     print(f"wrote {path}")
-    return 0
+    return finish(out)
 
 
 def validate_frame_times(args: argparse.Namespace) -> int:
@@ -219,10 +249,16 @@ def run(args: argparse.Namespace) -> int:
     from mgpusim.studies.study_file import load_study  # noqa: PLC0415
     study = _filtered(load_study(resolve_experiment(args.study)), args)
     out, progress = _out(args, study), progress_printer()
-    steady_check(args, study, out, progress)
-    path = pipeline.run(study, out, progress, args.held_out, int_list(args.devices, "--devices"))
+    devices = int_list(args.devices, "--devices")
+
+    def job() -> Path:
+        steady_check(args, study, out, progress)
+        return pipeline.run(study, out, progress, args.held_out, devices)
+    path = measuring(job)
+    if isinstance(path, int):
+        return path
     print(path.read_text())
-    return 0
+    return finish(out)
 
 
 def floor(args: argparse.Namespace) -> int:

@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 from matplotlib import patheffects
 from matplotlib.figure import Figure
+from matplotlib.layout_engine import ConstrainedLayoutEngine
 
 from mgpusim.results.summary import link_track
 
@@ -123,21 +124,30 @@ def timeline_png(trace: pd.DataFrame, path: str | Path, links: pd.DataFrame | No
 
 def comparison_png(measured: pd.DataFrame, simulated: pd.DataFrame, path: str | Path, title: str = "",
                    frames: Sequence[int] | None = None, sim_links: pd.DataFrame | None = None) -> Path:
-    """Measured and simulated timelines one above the other, same frames, same time axis. A
-    measured steady window of frames the (shorter) simulation does not have is drawn beside the
-    simulation's last frames, as many of them: both in steady state."""
+    """Measured and simulated timelines one above the other: the same frames, one time axis
+    (each from its window's first start, on the same scale and range), both with their own
+    tick labels and frame ends, laid out so that no label overlaps another (constrained
+    layout). A measured steady window of frames the (shorter) simulation does not have is
+    drawn beside the simulation's last frames, as many of them: both in steady state."""
     frames, sim_frames = comparison_frames(measured, simulated, frames)
     rows = max(len(_rows(measured)), len(_rows(simulated)), 3)
-    fig = Figure(figsize=(12, 2.5 + 0.6 * rows))
+    # constrained layout, with room for the lower panel's frame-end axis under the upper's labels
+    fig = Figure(figsize=(12, 3.2 + 0.6 * rows), layout=ConstrainedLayoutEngine(h_pad=0.12, hspace=0.08))
     top, bottom = fig.subplots(2, 1, sharex=True)
     lo_m = measured[measured["frame"].isin(list(frames))]
     lo_s = simulated[simulated["frame"].isin(sim_frames)]
-    draw_timeline(top, lo_m, None, f"measured: {title}", frames)
-    draw_timeline(bottom, lo_s, sim_links, f"simulated: {title}", sim_frames)
+    draw_timeline(top, lo_m, None, f"measured: {title}, {_frames_text(frames)}", frames)
+    same = "" if sim_frames == frames else f" (the run's last {len(sim_frames)})"
+    draw_timeline(bottom, lo_s, sim_links, f"simulated: {title}, {_frames_text(sim_frames)}{same}", sim_frames)
+    top.tick_params(labelbottom=True)  # sharex hides an upper panel's tick labels: keep them
     span = max(_span(lo_m), _span(lo_s))
     bottom.set_xlim(0, span * 1.02 if span else 1)
     fig.savefig(path, dpi=110, bbox_inches="tight")
     return Path(path)
+
+
+def _frames_text(frames: Sequence[int]) -> str:
+    return f"frames {frames[0]}-{frames[-1]}" if len(frames) > 1 else f"frame {frames[0]}" if frames else "no frames"
 
 
 def comparison_frames(measured: pd.DataFrame, simulated: pd.DataFrame,

@@ -83,8 +83,8 @@ def report_lines(table: pd.DataFrame) -> list[str]:
             f"{table['load_1min'].min():.2f}-{table['load_1min'].max():.2f}. Each run is also "
             f"predicted at its own speed: the profile scaled by the run's probe over the median "
             f"probe of the calibration runs (`probe ratio`; passes, copies and the host's CPU "
-            f"work scale, see docs/validation.md). A run is **flagged** and left out of the "
-            f"verdict when its probes before and after differ by more than "
-            f"{sn.DISAGREEMENT_LIMIT:.0%} or other processes used more than "
-            f"{sn.OTHER_CORES_LIMIT:g} cores during it; with more than {sn.REFUSE_SHARE:.0%} of "
-            f"a half's runs flagged that half gets no verdict.", ""]
+            f"work scale, see docs/validation.md). A run is **flagged** when its probes before and "
+            f"after differ by more than {sn.DISAGREEMENT_LIMIT:.0%} or other processes used "
+            f"more than {sn.OTHER_CORES_LIMIT:g} cores during it: its speed is the least known. "
+            f"Every run stays in the verdict, each with its band (how far its probes and repeats "
+            f"let its error move), so a flagged run widens the band rather than being dropped.", ""]

@@ -1,27 +1,28 @@
 """Speed-normalized prediction on lavapipe: each run predicted at the machine's speed of its own
-moment, and the rule that refuses a run (or a whole verdict) whose speed cannot be known.
+moment, and the flag on a run whose speed is the least known.
 
 The scale of a run is its probe over the probe at calibration: the fragment-loop probe
 (:mod:`mgpusim.measure.speed_probe`), the faster of the probes just before and just after the
 run, over the median of the same over the calibration runs the comparison uses (the
-runs whose passes the profile's costs were refitted on; those the rule below trusts). The profile is scaled by it
+runs whose passes the profile's costs were refitted on; those the flag below trusts). The profile is scaled by it
 (:func:`mgpusim.model.speed_scale.at_speed`: passes, copies and the host's CPU work) and the run
 is simulated again (:func:`mgpusim.validation.crossvalidate.normalized`); the raw error stays
 beside the normalized one.
 
-The refusal rule (the thresholds' reasons are at the constants): a run is flagged, and left out
-of the verdict, when
+The speed flag (the thresholds' reasons are at the constants): a run is flagged when
   * its probes before and after disagree by more than DISAGREEMENT_LIMIT: the machine changed
-    speed during the run, and which speed its compared window ran at is unknown; or
+    speed during the run, and which speed its compared window ran at is known only within
+    that; or
   * other processes used more than OTHER_CORES_LIMIT cores on average during it: a process beside
     the run slows its passes unevenly, so no single scale describes the run.
-A half of the study whose flagged runs are more than REFUSE_SHARE of its runs gets no verdict:
-the report says why in one line, and `mgpusim main` exits with that line.
+A flag is shown beside the run; it no longer takes the run out of the verdict. The verdict
+(:mod:`mgpusim.studies.verdict`) keeps every run and gives the prediction a band from each run's
+probe disagreement and its repeats' spread, so a run whose speed moved widens the band.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Iterable, Sequence
+from typing import Iterable
 
 import numpy as np
 import pandas as pd
@@ -31,16 +32,13 @@ import pandas as pd
 #: run whose speed moved by d may lie anywhere between its two probes, up to d from the faster
 #: one: at 10 % the size of the errors the verdict is about (held-out medians of 3-6 %).
 #: Measured since: a run apart, in a quiet job, ~30 % of the probes moved more (the machine's
-#: 0.25-2 s phases), so a quiet job has that share flagged and a half can come out refused
-#: (docs/journal/2026-11-26_speed_normalized.md).
+#: 0.25-2 s phases), so a quiet job has that share flagged
+#: (docs/journal/2026-11-26_speed_normalized.md); their bands are the widest.
 DISAGREEMENT_LIMIT = 0.10
 #: Why 0.25 cores: an idle machine shows 0.01-0.02 cores of other work (the kernel's own); at a
 #: quarter core others hold an eighth of the two cores, enough to slow a pass filling both cores
 #: ~12 % and a one-thread copy not at all, a misscaling of the size of the verdict's points.
 OTHER_CORES_LIMIT = 0.25
-#: Why a quarter: flagged runs are not a random sample (they are the ones measured while the
-#: machine was busy or moving), so a verdict on the rest is only the study's when most remain.
-REFUSE_SHARE = 0.25
 
 
 @dataclass(frozen=True)
@@ -109,21 +107,3 @@ def speed_row(table: pd.DataFrame, config: str, run: str, reference: float) -> R
     r = rows.iloc[-1]
     return RunSpeed(config, run, float(r["before_ms"]), float(r["after_ms"]), reference,
                     float(r["other_cores"]), float(r["steal_cores"]))
-
-
-def verdict(flags: Sequence[str], errors: Sequence[float]) -> dict[str, Any]:
-    """A half's verdict from its runs' flags and normalized frame-time errors: the median |error|
-    over the trusted runs, or the refusal (`refused`, one line) when too many were flagged."""
-    trusted = [abs(e) for f, e in zip(flags, errors) if not f]
-    out: dict[str, Any] = {"runs": len(flags), "trusted_runs": len(trusted)}
-    flagged = len(flags) - len(trusted)
-    if not flags:
-        return out
-    if flagged > REFUSE_SHARE * len(flags) or not trusted:
-        out["refused"] = (f"{flagged} of {len(flags)} runs were measured while the machine "
-                          f"changed speed or was loaded (more than {REFUSE_SHARE:.0%}: a probe "
-                          f"before and after disagreeing by > {DISAGREEMENT_LIMIT:.0%}, or other "
-                          f"processes over {OTHER_CORES_LIMIT:g} cores); no verdict")
-    else:
-        out["median_abs_frame_time_error"] = float(np.median(trusted))
-    return out

@@ -6,25 +6,26 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import pandas as pd
 import tomli_w
 
 from mgpusim.calibration.recipe import profile_from_tables, refine_on_runs
+from mgpusim.io.plot import errors_png
 from mgpusim.io.writers import write_json
 from mgpusim.measure import run_archive, run_speed, speed_norm
 from mgpusim.measure import speed_probe as speed
 from mgpusim.measure.speed_norm import RunSpeed
+from mgpusim.studies import verdict
 from mgpusim.studies.measuring import Progress, measure_microbenchmarks, measure_runs, measured_folder
 from mgpusim.studies.page import stats_line, write_study_page
 from mgpusim.studies.study_file import Entry, Study
+from mgpusim.studies.verdict import CALIBRATION_TITLE, HELD_OUT_TITLE
 from mgpusim.validation.compare import error_stats, error_table
 from mgpusim.validation.crossvalidate import format_report, validate_experiment
 from mgpusim.validation.measured import read_measured
 
-CALIBRATION_TITLE = "Calibration runs (seen by the fit)"
-HELD_OUT_TITLE = "Held-out runs (never seen by the fit)"
 #: Each runs folder's speed record (`runs/run_speed.csv`) as one command read it, by folder.
 SpeedTables = dict[Path, pd.DataFrame]
 
@@ -197,92 +198,174 @@ def probes_of(runs: Path) -> pd.DataFrame:
     return speed.read_probes([runs.parent / "measurements" / speed.FILE, runs / speed.FILE])
 
 
+#: report.md's paragraph on how to read it (after the verdict line).
+INTRO = ("Errors are simulated / measured - 1, at two levels. The *replay* (the verdict's headline) is "
+         "the model's timeline with every task taking the duration the run measured for it: what "
+         "is left is the timeline's own error, which the machine's speed cannot move. The "
+         "*prediction* is the calibrated cost model; on lavapipe each run is also predicted at its "
+         "own probed speed (`normalized`). A prediction's *band* is how far the run's own "
+         "measurements let its error move: the speed probes just before and after the run (the "
+         "machine's speed during it lies between them) and the spread of its interleaved repeats "
+         "(docs/validation.md, \"The verdict\"). The measured side is the steady window of the "
+         "repeats; `spread` is slowest / fastest - 1 of the repeats' frame times, the machine's own "
+         "noise. Each configuration's timelines show the measured run above the simulated one, "
+         "same frames, one time axis (unless `--no-figures`).")
+
+
 def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_text: str,
                  probes: pd.DataFrame | None = None,
                  missing: dict[str, list[str]] | None = None,
                  run_speeds: pd.DataFrame | None = None) -> Path:
-    """report.md: the machine's speed during the job (its probes, when measured, and each run's
-    from `run_speeds`, runs/run_speed.csv); per half, the
-    configurations without a measured run (`missing`), and per schedule the error table, its
-    statistics and the stacked measured/simulated timelines; errors.json (per half, with the
-    configurations without runs) and errors_by_schedule.json; errors_*.csv; report.html, the
-    same as a static page with error plots (mgpusim/studies/page.py)."""
-    lines = [f"# mgpusim study {study.name}: measured vs simulated", "",
-             "Errors are simulated / measured - 1, at two levels: the *prediction* (the calibrated "
-             "cost model) and the *replay* (the model's timeline with every task taking the "
-             "duration the run measured for it: what is left is the timeline's own error, which "
-             "a noisy machine cannot move). With repeated runs the measured side is the "
-             "steady window of the interleaved repeats (the window of >= 200 ms at the 10th "
-             "percentile of frame time over all runs; outside interference only adds time), and "
-             "`spread` is (slowest / fastest - 1) of the whole runs' frame times, the machine's own "
-             "noise. Each configuration's folder under validation/ holds `timelines.png` (measured "
-             "above simulated) and both Perfetto traces (unless `--no-figures`).", ""]
-    speed_lines = speed.report_lines(probes if probes is not None else speed.read_probes([]))
-    speed_lines += run_speed.report_lines(run_speeds if run_speeds is not None else pd.DataFrame())
-    lines += speed_lines
+    """report.md: the verdict first (:mod:`mgpusim.studies.verdict`: the replay against its
+    target, the prediction with its band), the machine's speed during the job (its probes,
+    when measured, and each run's from `run_speeds`, runs/run_speed.csv); per half the
+    configurations without a measured run (`missing`), its error plot, and per schedule the
+    error tables, their statistics and the measured/simulated timelines with both traces;
+    errors.json (per half, with its verdict and the configurations without runs),
+    errors_by_schedule.json (the errors alone, as the committed NVIDIA tables hold them),
+    verdict.json (the job's line and exit status), errors_*.csv,
+    errors_*.png; and report.html, the same Markdown as a static page (mgpusim/studies/page.py)."""
+    out.mkdir(parents=True, exist_ok=True)
     stats: dict[str, Any] = {}
     by_schedule: dict[str, dict[str, Any]] = {}
+    schedule_verdicts: dict[tuple[str, str], dict[str, Any]] = {}  # report.md's, per schedule
     for title, table in tables.items():
         absent = (missing or {}).get(title, [])
         if absent:
             stats.setdefault(title, {})["without_runs"] = absent
-            lines += [f"## {title}", "", f"No measured run, not compared: {', '.join(absent)}.", ""]
         if table.empty:
             continue
-        stats[title] = {**error_stats(table), **stats.get(title, {})}
-        lines += ([] if absent else [f"## {title}", ""]) + [stats_line(stats[title]), ""]
-        groups = table.groupby("schedule", sort=False) if "schedule" in table else [("", table)]
-        for schedule, part in groups:
-            st = by_schedule.setdefault(title, {})[cast(str, schedule)] = error_stats(part)
-            lines += [f"### {schedule}", "", markdown_table(part), "", stats_line(st), ""]
-            lines += [f"![{c}](validation/{c}/timelines.png)" for c in part["config"]
-                      if (out / "validation" / c / "timelines.png").exists()] + [""]  # not --no-figures
-        table.to_csv(out / f"errors_{title.split()[0].lower()}.csv", index=False)
+        stats[title] = {**error_stats(table), "verdict": verdict.half_verdict(table, study.targets),
+                        **stats.get(title, {})}
+        for schedule, part in _groups(table):  # errors_by_schedule.json: the errors alone
+            by_schedule.setdefault(title, {})[schedule] = error_stats(part)
+            schedule_verdicts[(title, schedule)] = verdict.half_verdict(part, study.targets)
+    head, rest = verdict.verdict_parts(stats)
+    lines = [f"# mgpusim study {study.name}: measured vs simulated", "", f"**{head}** {rest}".strip(), "",
+             INTRO, ""]
+    speed_lines = speed.report_lines(probes if probes is not None else speed.read_probes([]))
+    speed_lines += run_speed.report_lines(run_speeds if run_speeds is not None else pd.DataFrame())
+    lines += speed_lines
+    for title, table in tables.items():
+        lines += [f"## {title}", ""]
+        absent = (missing or {}).get(title, [])
+        if absent:
+            lines += [f"No measured run, not compared: {', '.join(absent)}.", ""]
+        if table.empty:
+            continue
+        half = title.split()[0].lower()
+        errors_png(table, out / f"errors_{half}.png", title)
+        lines += [stats_line(stats[title]), "",
+                  f"![frame-time error per configuration: prediction and replay](errors_{half}.png)", ""]
+        for schedule, part in _groups(table):
+            st = {**by_schedule[title][schedule], "verdict": schedule_verdicts[(title, schedule)]}
+            lines += [f"### {title.split(' (')[0]}: {schedule}", "", stats_line(st), "",
+                      markdown_table(part), ""]
+            lines += _figure_lines(out, part)
+        table.to_csv(out / f"errors_{half}.csv", index=False)
     lines += ["## Calibration", "", "```", fit_text, "```", ""]
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / "report.md"
-    path.write_text("\n".join(lines))
     write_json(stats, out / "errors.json")
     write_json(by_schedule, out / "errors_by_schedule.json")
-    write_study_page(out, study.name, tables, stats, by_schedule, fit_text, speed_lines, missing)
+    write_json({"half": verdict.chosen_half(stats), "line": verdict.verdict_line(stats),
+                "exit_status": verdict.exit_status(stats)}, out / verdict.FILE)
+    files = [f.name for f in sorted(out.glob("errors*.json")) + sorted(out.glob("errors_*.csv"))]
+    lines += ["## Files", "", *[f"- [{name}]({name})" for name in [verdict.FILE, *files]],
+              "- [report.md](report.md): this report in Markdown; report.html is the same as a page", ""]
+    text = "\n".join(lines)
+    path = out / "report.md"
+    path.write_text(text)
+    write_study_page(out, text)
     return path
 
 
-def refusals(stats: dict[str, Any]) -> list[str]:
-    """One line per half of a job whose verdict the speed rule refused (errors.json's stats)."""
-    return [f"{title}: {st['verdict']['refused']}" for title, st in stats.items()
-            if isinstance(st, dict) and "refused" in st.get("verdict", {})]
+def _groups(table: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
+    """The table's rows per schedule, in the order they first appear."""
+    if "schedule" not in table:
+        return [("", table)]
+    return [(str(name), part) for name, part in table.groupby("schedule", sort=False)]
+
+
+def _figure_lines(out: Path, part: pd.DataFrame) -> list[str]:
+    """Each configuration's timelines and links to both Perfetto traces (those written: none
+    with `--no-figures`)."""
+    lines = []
+    for config in part["config"]:
+        folder = out / "validation" / str(config)
+        if (folder / "timelines.png").exists():
+            lines += [f"![{config}: measured above, simulated below](validation/{config}/timelines.png)", ""]
+        traces = [f"[{side} trace](validation/{config}/{side}.perfetto.json)" for side in ("measured", "simulated")
+                  if (folder / f"{side}.perfetto.json").exists()]
+        if traces:
+            lines += [f"{config}: {', '.join(traces)} (open in https://ui.perfetto.dev)", ""]
+    return lines
+
+
+#: The frame-time table's columns: (heading, alignment); the speed columns where runs were probed.
+_FRAME_HEAD = ("config", "measured (ms)", "predicted (ms)", "error", "replay error", "spread")
+_SPEED_HEAD = ("probe ratio", "normalized error")
+_LATENCY_HEAD = ("config", "measured latency (ms)", "predicted (ms)", "error", "replay error", "stalls left out",
+                 "step most off (simulated - measured)", "hand-off most off (measured - simulated)")
 
 
 def markdown_table(table: pd.DataFrame) -> str:
-    head = ("| config | measured frame (ms) | simulated | error | replay error | spread | stalls left out | "
-            "measured latency (ms) | simulated | error | replay error | step most off (simulated - measured) | "
-            "hand-off most off (measured - simulated) |")
-    rows = [head, "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    """Two tables narrow enough for a page: the frame time (with the band and, on a lavapipe
+    job, the speed columns and flag), then the latency and where each configuration is most off."""
     probed = "probe_ratio" in table
-    if probed:  # a lavapipe job's runs: the prediction at each run's own machine speed
-        rows = [head + " probe ratio (run / calibration) | normalized error | speed flag |",
-                rows[1] + "---|---|---|"]
-    for r in table.itertuples():
+    head = [*_FRAME_HEAD, *(_SPEED_HEAD if probed else ()), "band", *(("speed flag",) if probed else ())]
+    rows = [_row(head), _rule(head)]
+    bands = verdict.band(table)
+    for r, lo, hi in zip(table.itertuples(), bands["lo"].tolist(), bands["hi"].tolist()):
         spread = getattr(r, "run_to_run_spread", float("nan"))
-        stalls = getattr(r, "stalled_frames", 0)
         rep = getattr(r, "replay_frame_time_error", float("nan"))
+        cells = [str(r.config), f"{r.measured_frame_ms:.2f}", f"{r.simulated_frame_ms:.2f}",
+                 f"{r.frame_time_error:+.1%}", f"{rep:+.1%}", f"{spread:.0%}"]
+        if probed:
+            cells += _speed_cells(r)
+        cells.append(f"{lo:+.1%} to {hi:+.1%}")
+        if probed:
+            cells.append(_flag_cell(r))
+        rows.append(_row(cells))
+    latency = [_row(_LATENCY_HEAD), _rule(_LATENCY_HEAD)]
+    for r in table.itertuples():
+        stalls = getattr(r, "stalled_frames", 0)
         rep_lat = getattr(r, "replay_latency_error", float("nan"))
-        rows.append(f"| {r.config} | {r.measured_frame_ms:.2f} | {r.simulated_frame_ms:.2f} | "
-                    f"{r.frame_time_error:+.1%} | {rep:+.1%} | {spread:.0%} | {stalls or ''} | "
-                    f"{r.measured_latency_ms:.2f} | {r.simulated_latency_ms:.2f} | {r.latency_error:+.1%} | "
-                    f"{rep_lat:+.1%} | {_step_cell(r)} | {_wait_cell(r)} |"
-                    + (_speed_cells(r) if probed else ""))
-    return "\n".join(rows)
+        latency.append(_row([str(r.config), f"{r.measured_latency_ms:.2f}", f"{r.simulated_latency_ms:.2f}",
+                             f"{r.latency_error:+.1%}", f"{rep_lat:+.1%}", str(stalls or ""), _step_cell(r),
+                             _wait_cell(r)]))
+    return "\n".join(rows) + "\n\n" + "\n".join(latency)
 
 
-def _speed_cells(r: Any) -> str:
-    """Probe ratio, normalized frame-time error and flag (blank where the run has no probe)."""
+def _row(cells: Any) -> str:
+    return "| " + " | ".join(cells) + " |"
+
+
+def _rule(head: Any) -> str:
+    """The header rule: text columns left, numbers right."""
+    text = {"config", "speed flag", "band", "stalls left out", "step most off (simulated - measured)",
+            "hand-off most off (measured - simulated)"}
+    return "|" + "|".join("---" if h in text else "---:" for h in head) + "|"
+
+
+def _speed_cells(r: Any) -> list[str]:
+    """Probe ratio and normalized frame-time error (blank where the run has no probe)."""
     if pd.isna(r.probe_ratio):
-        return " | | |"
-    flag = r.speed_flag if isinstance(r.speed_flag, str) and r.speed_flag else ""
-    return (f" {r.probe_ratio:.2f} | {r.normalized_frame_time_error:+.1%} | "
-            f"{'**flagged**: ' + flag if flag else ''} |")
+        return ["", ""]
+    return [f"{r.probe_ratio:.2f}", f"{r.normalized_frame_time_error:+.1%}"]
+
+
+def _flag_cell(r: Any) -> str:
+    """Why the speed rule flagged the run, in a few words ('' where it did not)."""
+    flag = getattr(r, "speed_flag", "")
+    if not isinstance(flag, str) or not flag:
+        return ""
+    words = []
+    moved = getattr(r, "probe_disagreement", float("nan"))
+    others = getattr(r, "other_cores", float("nan"))
+    if moved > speed_norm.DISAGREEMENT_LIMIT:
+        words.append(f"moved {moved:.0%}")
+    if others > speed_norm.OTHER_CORES_LIMIT:
+        words.append(f"others {others:.2f} cores")
+    return "**flagged**: " + (", ".join(words) or flag)
 
 
 def _step_ms(step: dict[str, float]) -> float:

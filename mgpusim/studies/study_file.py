@@ -117,6 +117,24 @@ class Recipe:
 
 
 @dataclass(frozen=True)
+class Target:
+    """A level's target: |simulated / measured - 1| of the frame time, median and worst over
+    the configurations of the half the verdict is on (docs/validation.md, "The verdict")."""
+
+    median: float
+    worst: float
+
+
+@dataclass(frozen=True)
+class Targets:
+    """What the verdict checks (None: that level is reported but not judged): the replay (the
+    model's timeline on each run's own task durations) and the prediction (the cost model)."""
+
+    replay: Target | None = None
+    prediction: Target | None = None
+
+
+@dataclass(frozen=True)
 class Study:
     name: str
     file: Path
@@ -133,6 +151,8 @@ class Study:
     #: lavapipe rasterizer threads per host core for every measurement (None: lavapipe's own
     #: default, one per core)
     lavapipe_threads_per_core: float | None = None
+    #: the verdict's targets (`[targets]`; none: the errors are reported, no target judged)
+    targets: Targets = Targets()
 
     def lavapipe_threads(self) -> int | None:
         """LP_NUM_THREADS of every lavapipe GPU the study measures, from this machine's cores.
@@ -177,6 +197,7 @@ def load_study(path: Path | str) -> Study:
         held_out_runs=_path(held, "runs", base, None, folder=True),
         lavapipe_threads_per_core=top.get("lavapipe_threads_per_core", float, None, minimum=0.25,
                                           maximum=16),
+        targets=_targets(top.table("targets", {})),
     )
     cal.finish()
     held.finish()
@@ -286,6 +307,26 @@ def _runs(t: Table) -> RunSettings:
                      steady_window=t.get("steady_window", bool, False))
     t.finish()
     return rs
+
+
+def _targets(t: Table) -> Targets:
+    """`[targets]`: per level (`replay`, `prediction`) a table `{median = F, worst = F}`, the
+    fractions (0.05 = 5 %) its median and worst |frame-time error| must not pass."""
+    levels: dict[str, Target | None] = {}
+    for level in ("replay", "prediction"):
+        present = t.has(level)
+        sub = t.table(level, {})  # read either way: a misspelt level gets the closest name
+        if not present:
+            levels[level] = None
+            continue
+        median = sub.get("median", float, minimum=0.0, maximum=10.0)
+        worst = sub.get("worst", float, minimum=0.0, maximum=10.0)
+        if worst < median:
+            raise sub.error("worst", f"the worst may not be under the median ({worst} < {median})")
+        sub.finish()
+        levels[level] = Target(median, worst)
+    t.finish()
+    return Targets(**levels)
 
 
 def _pass_kinds(t: Table, key: str) -> tuple[str, ...]:

@@ -20,9 +20,8 @@ from mgpusim.model.costs import CostModel
 from mgpusim.model.errors import InputError
 from mgpusim.model.speed_scale import at_speed
 from mgpusim.sim.simulation import simulate
-from mgpusim.studies import load_study
+from mgpusim.studies import load_study, verdict
 from mgpusim.studies import pipeline as pipeline
-from mgpusim.studies import verdict
 from mgpusim.studies.measuring import measured_folder
 from mgpusim.validation.crossvalidate import validate_experiment
 

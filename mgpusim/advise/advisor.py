@@ -276,7 +276,8 @@ def evaluate(path: str, base: Mapping[str, Any], items: Sequence[tuple[int, Mapp
                    if fidelity != "full" else load_experiment(path, {**base, **overrides}))
             result = simulate(exp, record_trace=False, fidelity=fidelity, band=band)
             s = result.summary
-            row.update(frame_time_ms=s["frame_time_ms"], latency_ms=s["latency_ms"], error=None)
+            row.update(frame_time_ms=s["frame_time_ms"], latency_ms=s["latency_ms"], error=None,
+                       settled=s.get("settled", True))
             if band and "frame_time_ms_lo" in s:
                 row.update({k: s[k] for k in ("frame_time_ms_lo", "frame_time_ms_hi",
                                               "latency_ms_lo", "latency_ms_hi")})
@@ -325,10 +326,28 @@ def search(path: str | Path, overrides: Mapping[str, Any] | None = None, *, max_
     table["speedup"] = baseline["frame_time_ms"] / table["frame_time_ms"]
     notes = [] if bound else [f"the {fast} level is not a bound on this profile (its GPUs share the "
                               "CPU, which it leaves out): options outside the confirmed ones may do better"]
+    notes += settle_notes(table)
     counts = {"options": len(opts), "failed": int(table["error"].notna().sum()),
               "confirmed": int(table["confirmed"].sum()), "workers": workers}
     return Advice(path, opts, table, baseline, bound, _open(table) if bound else -1,
                   {f"{fast}_s": t1 - t0, "full_s": t2 - t1}, counts, notes, base)
+
+
+def settle_notes(table: pd.DataFrame) -> list[str]:
+    """A note when confirmed options had not settled by the end of their run (`settled`,
+    :mod:`mgpusim.results.settled`): their frame time or latency is not yet the steady state's,
+    and the ranking may change with more frames."""
+    confirmed = table[table["confirmed"]]
+    if "settled" not in confirmed:
+        return []
+    short = confirmed[~confirmed["settled"].fillna(True).astype(bool)]
+    if short.empty:
+        return []
+    names = ", ".join(str(label) for label in short["label"].head(3))
+    return [f"{len(short)} of the {len(confirmed)} confirmed options had not settled by the end of "
+            f"their run ({names}{', ...' if len(short) > 3 else ''}): their frame time or latency "
+            "still moved over the last quarter of the frames, so their figures are not the steady "
+            "state's; give the frame more frames (--set schedule.frames=N) before trusting the ranking"]
 
 
 def _start(path: str, base: Mapping[str, Any], max_gpus: int) -> Experiment:

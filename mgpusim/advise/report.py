@@ -28,7 +28,7 @@ from mgpusim.sim.simulation import simulate
 NEAR_BEST = 0.05
 _COLUMNS = ("rank", "label", "family", "gpus", "link", "settings", "fast_frame_time_ms",
             "fast_latency_ms", "frame_time_ms", "latency_ms", "speedup", "frame_time_ms_lo",
-            "frame_time_ms_hi", "latency_ms_lo", "latency_ms_hi", "confirmed", "pareto", "error")
+            "frame_time_ms_hi", "latency_ms_lo", "latency_ms_hi", "confirmed", "settled", "pareto", "error")
 
 
 def write_advice(advice: Advice, out: Path, experiment: str, timelines: int = 3) -> dict[str, Path]:

@@ -99,9 +99,15 @@ def run(args: argparse.Namespace) -> int:
     busiest = sorted(s.get("utilization", {}).items(), key=lambda kv: -kv[1])[:4]
     print("  busiest: " + ", ".join(f"{k} {v:.0%}" for k, v in busiest))
     print(f"  wrote {', '.join(str(p) for p in files.values())}")
-    for note in window_notes(result, args) + effects_notes(exp, result.summary, forced):
+    for note in settle_notes(s) + window_notes(result, args) + effects_notes(exp, result.summary, forced):
         print(f"  note: {note}")
     return 0
+
+
+def settle_notes(summary: dict) -> list[str]:
+    """One line when the run's frame time or latency had not settled by its end (summary.json
+    `settled`, :mod:`mgpusim.results.settled`): its figures are not the steady state's."""
+    return [] if summary.get("settled", True) else [summary["settling"]["note"]]
 
 
 def effects_notes(exp, summary: dict, forced: dict[str, bool] | None) -> list[str]:

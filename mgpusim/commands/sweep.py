@@ -57,6 +57,13 @@ def run(args: argparse.Namespace) -> int:
               + ", ".join(f"{k}={best[k]}" for k in grid))
     for _, row in failed.head(5).iterrows():
         print("  failed " + ", ".join(f"{k}={row[k]}" for k in grid) + f": {row['error']}")
+    if "settled" in ok:
+        short = ok[~ok["settled"].astype(bool)]
+        if len(short):
+            print(f"  note: {len(short)} of {len(ok)} points had not settled by the end of their run "
+                  f"(column `settled`; why in `settling.note`), e.g. "
+                  + ", ".join(f"{k}={short.iloc[0][k]}" for k in grid)
+                  + f": {short.iloc[0]['settling.note']}")
     print(f"  wrote {out / 'sweep.parquet'}, {out / 'sweep.png'}, {out / 'sweep.json'}")
     if len(failed) == len(df):
         print(f"mgpusim sweep: error: every point failed (the first: {failed['error'].iloc[0]})",

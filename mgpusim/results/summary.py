@@ -12,6 +12,7 @@ import pandas as pd
 
 from mgpusim.model.errors import InputError
 from mgpusim.results.periodic import RepeatedIntervals, RepeatedRows, Shift, repeated_list
+from mgpusim.results.settled import settling
 from mgpusim.results.trace import FRAME_COLUMNS, make_trace
 from mgpusim.schedules.base import FrameProgram
 
@@ -245,7 +246,8 @@ def build_result(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
     """A run's Result from what the engine (or the analytic level) observed: the summary from
     arrays at once; the trace, frames and links tables built only when read. A fast-forwarded
     run's logs are kept compact (:mod:`mgpusim.results.periodic`); a run without a repeat is
-    the same form with nothing repeated."""
+    the same form with nothing repeated. `settled` and `settling`: whether the run's frame time
+    and latency had settled by its end (:mod:`mgpusim.results.settled`)."""
     r = raw.repeat
     shift = Shift(r.frames, r.ns, r.copies) if r is not None else Shift(1, 0, 0)
     rows = RepeatedRows(raw.rows, r.rows if r is not None else (len(raw.rows),) * 2, shift, _labels(raw))
@@ -271,6 +273,9 @@ def build_result(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
 
     summary = summarize_arrays(np.arange(len(start), dtype=np.int64), start, present, warmup_frames,
                                busy=busy if len(rows) and raw.recorded else None)
+    summary["settled"] = False
+    summary["settling"] = settling(start, present, warmup_frames)  # mgpusim/results/settled.py
+    summary["settled"] = bool(summary["settling"]["frame_time_settled"] and summary["settling"]["latency_settled"])
     summary["effects"] = raw.effects
     if raw.skipped:
         if r is not None:  # a task first skipped after the repeat was found has all its skips in the rest

@@ -42,9 +42,11 @@ import pandas as pd
 
 from mgpusim.model import limits as L
 from mgpusim.model.costs import CostModel, term_coefficient
-from mgpusim.model.errors import MgpusimError
+from mgpusim.model.errors import InputError, MgpusimError
 from mgpusim.model.profile import HardwareProfile
 from mgpusim.model.tasks import PassTask
+from mgpusim.results.settled import FIELDS as SETTLING_FIELDS
+from mgpusim.results.settled import settling_arrays
 from mgpusim.schedules.experiment import load_experiment
 from mgpusim.schedules.program import build_program
 from mgpusim.sim import analytic_lanes as lanes_mod
@@ -309,7 +311,7 @@ def run_batch(batch: Batch, plan_: Plan) -> tuple[pd.DataFrame, list[Any]]:
     columns) and the points that must run point by point instead."""
     t0 = time.perf_counter()
     built = [group_lanes(g, plan_) for g in batch.groups]
-    result = lanes_mod.run_lanes(batch.model, lanes_mod.concat([b[0] for b in built]))
+    result = _run_lanes(batch.model, lanes_mod.concat([b[0] for b in built]))
     frames, fallback, at = [], [], 0
     for g, (_, ok) in zip(batch.groups, built):
         n = len(g.points)
@@ -329,8 +331,33 @@ def run_batch(batch: Batch, plan_: Plan) -> tuple[pd.DataFrame, list[Any]]:
     return df, fallback
 
 
+def _run_lanes(model: Analytic, lanes: lanes_mod.Lanes) -> dict[str, np.ndarray]:
+    """:func:`mgpusim.sim.analytic_lanes.run_lanes` with each lane's `settled` and `settling.*`
+    (:mod:`mgpusim.results.settled`) beside its summary figures, so that a lane's row says what
+    the point's own run would. Why its chunk loop is repeated here: `run_lanes` keeps only the
+    summary's figures, and the rule needs every frame's start and present."""
+    why = lanes_mod.lanes_refusal(model)
+    if why is not None:
+        raise InputError(f"schedule {model.program.schedule!r} cannot run as lanes: {why}")
+    out: dict[str, list[np.ndarray]] = {}
+    chunk = lanes_mod._chunk(model)
+    for lo in range(0, lanes.n, chunk):
+        run = lanes_mod._Pass(model, lanes.take(slice(lo, lo + chunk)), detect=True, log=True)
+        run.run()
+        summary = lanes_mod._summary(model, run)
+        summary.update(lanes_mod._utilization(run, summary))
+        settle = settling_arrays(run.start, run.present, model.program.warmup_frames)
+        summary["settled"] = settle["frame_time_settled"] & settle["latency_settled"]
+        summary.update({f"settling.{key}": settle[key] for key in SETTLING_FIELDS})
+        for key, values in summary.items():
+            out.setdefault(key, []).append(values)
+    return {k: np.concatenate(v) for k, v in out.items()}
+
+
 def _first_matches(summary: Mapping[str, Any], lane: Mapping[str, np.ndarray]) -> bool:
     """Whether lane 0 (the group's first point) reproduces that point's own summary."""
+    if bool(lane["settled"][0]) != summary.get("settled"):
+        return False
     for key in (*LANE_FIELDS, *(k for k in lane if k.startswith("utilization."))):
         want, got = summary.get(key), lane[key][0]
         if want is None:

@@ -1,17 +1,28 @@
-"""Points per second of `mgpusim sweep --fidelity analytic` through the CLI: the wall time of
-the whole command in a fresh process (imports, points, the table, plot and description
-written), on a 100,000-point grid that runs as lanes, and on a smaller grid whose key cannot
-(it runs point by point: the fallback's rate).
+"""Points per second of `mgpusim sweep` through the CLI: the wall time of the whole command in a
+fresh process (imports, points, the table, plot and description written), on several grids:
 
-    PYTHONPATH=. python benchmarks/sweep_cli.py [--runs 2] [--fallback-points 200]
+- `lanes`: 100,000 points, 10 scene widths (group keys) x 10^4 pass-cost combinations (lanes),
+  TC1 sort-first (60 frames), `--fidelity analytic`;
+- `mixed`: 100,000 points, a scene key and a profile key that is not a pass cost
+  (`profile.host.memcpy_thread_gbps`) as group keys (100 groups) x 1,000 pass-cost lanes;
+- `scene`: 2,000 points over two scene keys only (width x height): every point its own
+  program, built and run as a lane of its own (the rate the group keys alone give);
+- `full`: 400 points at `--fidelity full` (the default) with the fast-forward, 1,000 frames
+  each (TC1 sort-first: the state repeats from frame 92), over a pass cost and the width: one
+  event simulation per point, on every CPU.
 
-The 100k grid: 10 scene widths (group keys: built and run once each with the real code) times
-10^4 combinations of four pass-cost keys (lanes) on TC1 sort-first (60 frames).
+    PYTHONPATH=. python benchmarks/sweep_cli.py [--only lanes mixed ...] [--runs 1]
+
+The machine is a shared 2-core VM whose speed moves 10-130 % within minutes: before and after
+each command a fixed pure-Python reference loop is timed, and each figure is printed as
+measured (wall and CPU seconds, points/s) and scaled to the fastest the reference loop ran in
+this run ("at reference speed": points/s x the loop's time then / its fastest time).
 """
 from __future__ import annotations
 
 import argparse
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -22,51 +33,75 @@ import pandas as pd
 
 ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENT = ROOT / "experiments" / "sort_first_tc1.toml"
-LANE_GRID = [
-    "scene.width=640,800,960,1024,1280,1440,1600,1920,2560,3840",
-    "profile.gpus.*.speed=0.5,0.75,1,1.25,1.5,2,2.5,3,4,5",
-    "profile.gpus.*.costs.fragment_loop.ns_per_pixel_iteration="
-    "0.0008,0.001,0.0012,0.0014,0.0016,0.0018,0.002,0.0024,0.003,0.004",
-    "profile.gpus.*.costs.fragment_loop.fixed_ns=0,5000,10000,20000,30000,40000,50000,60000,80000,100000",
-    "profile.gpus.*.costs.composite_sort_first.fixed_ns=0,2500,5000,10000,15000,20000,30000,40000,60000,80000",
-]
+WIDTHS = "scene.width=640,800,960,1024,1280,1440,1600,1920,2560,3840"
+SPEEDS = "profile.gpus.*.speed=0.5,0.75,1,1.25,1.5,2,2.5,3,4,5"
+PIXEL = ("profile.gpus.*.costs.fragment_loop.ns_per_pixel_iteration="
+         "0.0008,0.001,0.0012,0.0014,0.0016,0.0018,0.002,0.0024,0.003,0.004")
+FIXED = "profile.gpus.*.costs.fragment_loop.fixed_ns=0,5000,10000,20000,30000,40000,50000,60000,80000,100000"
+COMPOSITE = ("profile.gpus.*.costs.composite_sort_first.fixed_ns="
+             "0,2500,5000,10000,15000,20000,30000,40000,60000,80000")
+GRIDS: dict[str, tuple[list[str], list[str]]] = {  # name -> (grids, other arguments)
+    "lanes": ([WIDTHS, SPEEDS, PIXEL, FIXED, COMPOSITE], ["--fidelity", "analytic"]),
+    "mixed": ([WIDTHS, "profile.host.memcpy_thread_gbps=4,5,6,7,8,9,10,11,12,13", SPEEDS, PIXEL, FIXED],
+              ["--fidelity", "analytic"]),
+    "scene": (["scene.width=" + ",".join(str(600 + 8 * i) for i in range(50)),
+               "scene.height=" + ",".join(str(400 + 6 * i) for i in range(40))], ["--fidelity", "analytic"]),
+    "full": (["profile.gpus.*.speed=" + ",".join(f"{0.5 + 0.1 * i:g}" for i in range(10)),
+              "scene.width=" + ",".join(str(700 + 10 * i) for i in range(40))],
+             ["--set", "schedule.frames=1000"]),
+}
 
 
-def fallback_grid(points: int) -> list[str]:
-    """`points` points over a key lanes cannot express (the memcpy threads' speed changes
-    host copies, not pass costs) and the scene width."""
-    gbps = ",".join(f"{4 + 0.5 * i:g}" for i in range(points // 10))
-    return [f"profile.host.memcpy_thread_gbps={gbps}", "scene.width=640,800,960,1024,1280,1440,1600,1920,2560,3840"]
+def reference_loop() -> float:
+    """Seconds of a fixed pure-Python loop (dict and list work, as the model's)."""
+    t0 = time.perf_counter()
+    d: dict[int, int] = {}
+    acc = []
+    for i in range(300_000):
+        d[i & 1023] = d.get(i & 1023, 0) + i
+        acc.append(i ^ (i >> 3))
+    return time.perf_counter() - t0 + 0 * len(acc)
 
 
-def run_cli(grid: list[str], out: Path) -> tuple[float, int, int]:
-    """(wall seconds, points, batch files) of one `mgpusim sweep` into a fresh folder."""
-    args = [sys.executable, "-m", "mgpusim", "sweep", str(EXPERIMENT), "--fidelity", "analytic",
-            "--no-progress", "--out", str(out)]
+def run_cli(grid: list[str], extra: list[str], out: Path) -> tuple[float, float, int]:
+    """(wall seconds, CPU seconds of the command and its workers, points) of one `mgpusim
+    sweep` into a fresh folder."""
+    args = [sys.executable, "-m", "mgpusim", "sweep", str(EXPERIMENT), "--no-progress", "--out", str(out), *extra]
     for item in grid:
         args += ["--grid", item]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     subprocess.run(args, env=env, check=True, capture_output=True)
     wall = time.perf_counter() - t0
-    points = len(pd.read_parquet(out / "sweep.parquet"))
-    batches = sum(1 for n in os.listdir(out / "points") if n.startswith("batch-"))
-    return wall, points, batches
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return wall, cpu, len(pd.read_parquet(out / "sweep.parquet", columns=["point"]))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--runs", type=int, default=2, help="runs of the 100k grid (default 2)")
-    parser.add_argument("--fallback-points", type=int, default=200, help="points of the fallback grid")
+    parser.add_argument("--only", nargs="*", choices=sorted(GRIDS), default=list(GRIDS), help="grids to time")
+    parser.add_argument("--runs", type=int, default=1, help="runs of each grid (default 1)")
     args = parser.parse_args()
+    refs = [min(reference_loop() for _ in range(3))]
+    results = []
     with tempfile.TemporaryDirectory() as tmp:
-        for i in range(args.runs):
-            wall, points, batches = run_cli(LANE_GRID, Path(tmp) / f"lanes{i}")
-            print(f"lanes, run {i + 1}: {points:,} points in {wall:.2f} s = {points / wall:,.0f} points/s "
-                  f"({batches} batch files)")
-        wall, points, batches = run_cli(fallback_grid(args.fallback_points), Path(tmp) / "fallback")
-        print(f"fallback (profile.host.memcpy_thread_gbps x scene.width, point by point): {points:,} "
-              f"points in {wall:.2f} s = {points / wall:,.0f} points/s ({batches} batch files)")
+        for name in args.only:
+            grid, extra = GRIDS[name]
+            for i in range(args.runs):
+                wall, cpu, points = run_cli(grid, extra, Path(tmp) / f"{name}{i}")
+                ref = min(reference_loop() for _ in range(3))
+                refs.append(ref)
+                results.append((name, i, wall, cpu, points, ref))
+    best = min(refs)
+    print(f"reference loop: fastest {best * 1e3:.1f} ms, slowest {max(refs) * 1e3:.1f} ms in this run "
+          f"({os.cpu_count()} CPUs)")
+    for name, i, wall, cpu, points, ref in results:
+        scale = ref / best
+        print(f"{name:5s} run {i + 1}: {points:,} points in {wall:.2f} s wall ({cpu:.2f} s CPU) = "
+              f"{points / wall:,.0f} points/s; at reference speed {points / wall * scale:,.0f} points/s "
+              f"(loop {scale:.2f}x its fastest)")
 
 
 if __name__ == "__main__":

@@ -101,18 +101,25 @@ def _running(out: Path) -> list[int]:
 
 
 def _saved(out: Path) -> dict[str, tuple[int, bytes]]:
+    """The sweep's saved point files (points run one by one are saved a few at a time)."""
     if not (out / "points").is_dir():
         return {}
-    return {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in (out / "points").glob("*.json")}
+    return {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in (out / "points").glob("single-*.parquet")}
+
+
+def _saved_points(out: Path) -> pd.DataFrame:
+    """Every saved point's row (column `id`, error, wall_s, the summary's columns)."""
+    files = sorted((out / "points").glob("single-*.parquet")) if (out / "points").is_dir() else []
+    return pd.concat([pd.read_parquet(f) for f in files], ignore_index=True) if files else pd.DataFrame({"id": []})
 
 
 @pytest.mark.parametrize("workers", [1, 2])
 def test_resume_after_sigkill_loses_and_recomputes_nothing(tmp_path, workers):
     out = tmp_path / "sw"
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "MGPUSIM_SWEEP_SAVE_S": "0"}  # each point saved as it ends
     proc = subprocess.Popen(_sweep_cmd(out, workers), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 60
-    while len(_saved(out)) < 2:
+    while len(_saved_points(out)) < 2:
         assert proc.poll() is None, "the sweep finished before it could be killed: make it longer"
         assert time.monotonic() < deadline
         time.sleep(0.01)
@@ -123,14 +130,16 @@ def test_resume_after_sigkill_loses_and_recomputes_nothing(tmp_path, workers):
     while _running(out):  # the killed sweep's pool workers leave with it
         assert time.monotonic() < deadline, "orphaned sweep workers"
         time.sleep(0.1)
-    assert 2 <= len(before) < 12 and not (out / "sweep.parquet").exists()
-    assert all(json.loads(data)["summary"]["frame_time_ms"] > 0 for _, data in before.values())
+    kept = _saved_points(out)
+    assert 2 <= len(kept) < 12 and not (out / "sweep.parquet").exists()
+    assert (kept["frame_time_ms"] > 0).all()
 
     done = subprocess.run(_sweep_cmd(out, workers), env=env, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     after = _saved(out)
-    assert len(after) == 12
     assert {k: after[k] for k in before} == before  # not one finished point was written again
+    ids = _saved_points(out)["id"]
+    assert len(ids) == 12 and ids.is_unique
     df = pd.read_parquet(out / "sweep.parquet")
     assert len(df) == 12 and df["error"].isna().all()
     assert sorted(zip(df["schedule.gpus"], df["schedule.frames"])) == [
@@ -193,8 +202,8 @@ def test_fidelity_is_checked_once_then_passed_to_every_point(tmp_path, monkeypat
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--fidelity" in err[0] and "analytic" in err[0]
     assert not (tmp_path / "a" / "sweep.parquet").exists() and seen == []
-    assert main([*args, "--fidelity", "analytic", "--out", str(tmp_path / "c")]) == 0
-    assert seen == ["analytic", "analytic"]
+    assert main([*args, "--fidelity", "queues", "--out", str(tmp_path / "c")]) == 0  # (analytic: lanes)
+    assert seen == ["queues", "queues"]
     assert pd.read_parquet(tmp_path / "c" / "sweep.parquet")["frame_time_ms"].tolist() == [2.0, 2.0]
 
 
@@ -234,7 +243,7 @@ def test_a_sweep_into_a_folder_another_sweep_holds_is_refused_and_touches_nothin
         assert len(err) == 1 and "another sweep" in err[0] and f"process {os.getpid()}" in err[0]
         assert not list((out / "points").iterdir()) and not (out / "sweep.parquet").exists()
     assert main(_quick(out)) == 0  # released at the end of the holder's `with`
-    assert len(list((out / "points").iterdir())) == 2
+    assert len(_saved_points(out)) == 2
 
 
 def test_the_lock_ends_with_a_sweep_killed_by_sigkill(tmp_path):
@@ -278,7 +287,8 @@ def test_two_sweeps_started_at_once_into_one_folder_never_corrupt_it(tmp_path):
             assert len(err.strip().splitlines()) == 1 and "another sweep" in err
     assert len(pd.read_parquet(out / "sweep.parquet")) == 12
     saved = _saved(out)
-    assert len(saved) == 12 and all(json.loads(data)["error"] is None for _, data in saved.values())
+    points = _saved_points(out)
+    assert len(points) == 12 and points["id"].is_unique and points["error"].isna().all()
     assert not list(out.rglob(".*.tmp"))
     again = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
     assert again.returncode == 0 and _saved(out) == saved

@@ -35,9 +35,10 @@ def _per_point(monkeypatch, experiment: Path, grid: dict, out: Path, frames: int
 
 
 def _files(out: Path) -> tuple[int, int]:
-    """(batch files, single-point files) in a sweep's folder."""
-    names = os.listdir(out / "points")
-    return sum(n.startswith("batch-") for n in names), sum(n.endswith(".json") for n in names)
+    """(points saved from lanes, points saved as run one by one) in a sweep's folder."""
+    def rows(prefix: str) -> int:
+        return sum(len(pd.read_parquet(f)) for f in (out / "points").glob(f"{prefix}-*.parquet"))
+    return rows("batch"), rows("single") + len(list((out / "points").glob("*.json")))
 
 
 def assert_same_table(a: pd.DataFrame, b: pd.DataFrame) -> None:
@@ -97,15 +98,24 @@ def test_what_becomes_a_lane_key():
     assert p.coefs[SPEED][1] == {(i, "speed"): 2.0 for i in range(3)}
     clash = lanes.plan(path, {SPEED: [1, 2], "profile.gpus.0.speed": [1, 3]}, {})
     assert clash.lane_keys == [] and "same coefficient" in clash.notes[-1]
-    other = lanes.plan(path, grid, {})  # memcpy_threads changes more than pass costs
-    assert other.lane_keys == [] and any("memcpy_threads" in n for n in other.notes)
+    other = lanes.plan(path, grid, {})  # memcpy_threads changes more than pass costs: a group key
+    assert other.lane_keys == [SPEED, "profile.gpus.0.costs.fragment_loop.fixed_ns"]
+    assert other.group_keys == ["scene.width", "profile.host.memcpy_threads"]
+    assert any("memcpy_threads" in n for n in other.notes)
+    more = lanes.plan(path, {SPEED: [1, 2], "profile.gpu_count": [3, 4]}, {})  # a 4th GPU: its own costs
+    assert more.lane_keys == [] and "which pass costs" in more.notes[-1]
+    speeds = lanes.plan(path, {SPEED: [1, 2], "profile.gpus.1.costs.fragment_loop.fixed_ns": [0, 7],
+                               "profile.gpus.*.costs.fragment_loop.fixed_ns": [0, 5]}, {})
+    assert speeds.lane_keys == [] and "same coefficient" in speeds.notes[-1]
     assert lanes.plan(path, {"profile": ["../hardware_profiles/tc2.toml"], SPEED: [1, 2]}, {}).lane_keys == []
 
 
-def test_keys_lanes_cannot_express_run_point_by_point(tmp_path, monkeypatch):
+def test_keys_no_lane_expresses_run_as_groups_of_their_own(tmp_path, monkeypatch):
+    """memcpy_threads changes more than pass costs: every profile key is then a group key,
+    each group one lane (a lane per point), and the table is still the per-point one."""
     grid = {SPEED: [1.0, 2.0], "profile.host.memcpy_threads": [2, 4]}
     df = _sweep(EXP / "sort_first_tc1.toml", grid, tmp_path / "a")
-    assert _files(tmp_path / "a") == (0, 4)
+    assert _files(tmp_path / "a") == (4, 0)
     assert_same_table(df, _per_point(monkeypatch, EXP / "sort_first_tc1.toml", grid, tmp_path / "b"))
 
 

@@ -1,12 +1,15 @@
 """`mgpusim sweep EXPERIMENT --grid KEY=V1,V2,... [--grid ...] --out DIR`: the product of the grid.
 
 Writes DIR/sweep.parquet (one row per point: its keys, every summary field, an error column),
-DIR/sweep.png and DIR/sweep.json; finished points are kept in DIR/points/, so the same command
-run again after an interruption (even SIGKILL) only runs the points still missing.
+DIR/sweep.png and DIR/sweep.json; finished points are kept in DIR/points/ (a file per batch),
+so the same command run again after an interruption (even SIGKILL) only runs the points still
+missing (at most the last batch's, or about half a second's of points run one by one).
 
-With --fidelity analytic, keys that change only pass costs (profile.gpus.<i|*>.speed,
-profile.gpus.<i|*>.costs.<kind>.fixed_ns / .ns_per_<term>) run as numpy lanes, thousands of
-points at once (one file per batch in DIR/points/); other keys and schedules run point by point.
+With --fidelity analytic every grid runs as numpy lanes: keys that change only pass costs
+(profile.gpus.<i|*>.speed, profile.gpus.<i|*>.costs.<kind>.fixed_ns / .ns_per_<term>) as
+lanes of one model, thousands of points at once, and every other key (scene, schedule, other
+profile keys) as groups, each built once and run beside the others of its structure; schedules
+lanes cannot express (skippable tasks, vsync, over 1,000 frames) run point by point.
 """
 from __future__ import annotations
 

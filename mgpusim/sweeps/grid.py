@@ -5,14 +5,19 @@ runs six points and returns one row per point: the point's keys, every summary f
 (flattened to dotted columns: ``utilization.gpu0.graphics``) and an ``error`` column, so that
 a point whose override is invalid is a row, not the end of the sweep.
 
-Points run in local processes, or on a Dask cluster; at the analytic level, points that differ
-only in pass costs run together as numpy lanes (:mod:`mgpusim.sweeps.lanes`, saved one
-batch at a time), the rest as before. Given an output folder, each finished
-point is saved at once (see :mod:`mgpusim.sweeps.store`) and a sweep started again over the
-same folder skips it: a sweep killed at any moment loses no finished point and recomputes none.
-A point is known by a hash of the experiment file's bytes, the base overrides, its keys and
-the fidelity, so editing the experiment file recomputes everything; a changed profile file
-is not noticed (use a fresh folder).
+The experiment file is parsed once and each point's overrides set in memory
+(:mod:`mgpusim.sweeps.loader`). At the analytic level every grid runs as numpy lanes
+(:mod:`mgpusim.sweeps.lanes`: pass-cost keys as lanes, every other key as groups of one
+structure run together, saved one batch at a time); points lanes cannot express, and every
+point at the event-model levels, run one by one, in local processes (a few points handed to a
+worker at once) or on a Dask cluster. Given an output folder, finished points are saved a batch
+file at a time (see :mod:`mgpusim.sweeps.store`: a batch of lanes, or the points run one by one
+in about the last half second) and a sweep started again over the same folder skips them: a
+sweep killed at any moment loses at most the points of the batch it was running (half a
+second of points run one by one) and recomputes no saved point. The table is written once, at
+the end. A point is known by a hash of the experiment file's bytes, the base overrides, its
+keys and the fidelity, so editing the experiment file recomputes everything; a changed profile
+file is not noticed (use a fresh folder).
 """
 from __future__ import annotations
 
@@ -23,11 +28,9 @@ import json
 import math
 import os
 import re
-import threading
 import time
 import warnings
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass
+from concurrent.futures import as_completed
 from pathlib import Path
 from typing import Any, Iterator, Mapping, Sequence
 
@@ -38,16 +41,24 @@ from mgpusim.io.shipped import resolve_experiment
 from mgpusim.model.errors import InputError, MgpusimError
 from mgpusim.model.limits import MAX_SWEEP_POINTS, MAX_SWEEP_WORKERS, WHY_SWEEP
 from mgpusim.model.toml_checks import did_you_mean
-from mgpusim.schedules.experiment import load_experiment, parse_value
+from mgpusim.schedules.experiment import parse_value
 from mgpusim.sim.effects import FIDELITIES
 from mgpusim.sim.simulation import simulate
 from mgpusim.sweeps.lanes import LaneRun, flatten
+from mgpusim.sweeps.loader import shared as loader
+from mgpusim.sweeps.pool import local_pool
 
 #: How long to try reaching a Dask scheduler before giving up.
 DASK_CONNECT_TIMEOUT = "10s"
 
 #: What a point's record holds besides its summary.
 META_COLUMNS = ("point", "error", "wall_s")
+#: Points run one by one are saved together, one batch file about this often (seconds): a
+#: sweep killed at any moment loses at most the points it finished since. (The environment's
+#: MGPUSIM_SWEEP_SAVE_S, when set, is used instead: 0 saves every point as it finishes.)
+SAVE_EVERY_S = 0.5
+#: Most points a pool worker is handed at once (fewer for short sweeps: every worker busy).
+POINTS_PER_TASK = 32
 
 #: Summary fields that are one number at every point (what `--metric` names most often).
 SCALAR_METRICS = ("frame_time_ms", "fps", "latency_ms", "frame_time_jitter_ms", "frame_time_min_ms",
@@ -62,13 +73,22 @@ DASK_ADDRESS = re.compile(r"(?:(tcp|tls|ws|wss|ucx)://)?(\[[0-9A-Fa-f:.]+\]|[A-Z
 DASK_INPROC = re.compile(r"inproc://[A-Za-z0-9_.:\[\]-]+/[0-9]+/[0-9]+")
 
 
-@dataclass(frozen=True)
 class Point:
-    """One combination of grid values, in grid order (`index`), known by `id`."""
+    """One combination of grid values, in grid order (`index`), known by `id`. (A slotted
+    class: a 100k-point grid makes its points in a fraction of a frozen dataclass's time.)"""
 
-    index: int
-    keys: dict[str, Any]
-    id: str
+    __slots__ = ("index", "keys", "id")
+
+    def __init__(self, index: int, keys: dict[str, Any], id: str):  # noqa: A002 - the point's id
+        self.index, self.keys, self.id = index, keys, id
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Point) and (self.index, self.keys, self.id) == (other.index, other.keys, other.id)
+
+    __hash__ = None  # type: ignore[assignment]  # (its keys are a dict, as a dataclass's would be)
+
+    def __repr__(self) -> str:
+        return f"Point(index={self.index}, keys={self.keys!r}, id={self.id!r})"
 
 
 def parse_grid(items: Sequence[str] | None) -> dict[str, list[Any]]:
@@ -94,23 +114,35 @@ def parse_grid(items: Sequence[str] | None) -> dict[str, list[Any]]:
 
 def grid_points(grid: Mapping[str, Sequence[Any]], identity: Mapping[str, Any]) -> list[Point]:
     """The product of the grid (last key fastest); `identity` is what else makes a point's
-    result (experiment bytes, base overrides, fidelity), hashed into every id."""
+    result (experiment bytes, base overrides, fidelity), hashed into every id: the hash of
+    ``json.dumps({**identity, "point": keys}, sort_keys=True, default=str)``."""
     keys = list(grid)
     head = json.dumps(identity, sort_keys=True, default=str)
     if not identity or any(k >= "point" for k in identity):  # "point" is not the last key
         return [Point(i, dict(zip(keys, values)), _point_id({**identity, "point": dict(zip(keys, values))}))
                 for i, values in enumerate(itertools.product(*(grid[k] for k in keys)))]
     # the same text as json.dumps({**identity, "point": point}, sort_keys=True), built from
-    # each value's text once (a 100k-point grid would spend seconds serialising)
+    # each value's text once and joined in the keys' sorted order (a 100k-point grid would
+    # spend seconds serialising); the product is taken in that order, then put in grid order
     by_name = sorted(range(len(keys)), key=lambda j: keys[j])
     frags = [[f"{json.dumps(k)}: {json.dumps(v, sort_keys=True, default=str)}" for v in grid[k]] for k in keys]
     prefix, suffix = head[:-1] + ', "point": {', "}}"
-    points = []
-    for index, choice in enumerate(itertools.product(*(range(len(grid[k])) for k in keys))):
-        blob = prefix + ", ".join([frags[j][choice[j]] for j in by_name]) + suffix
-        point = {k: grid[k][c] for k, c in zip(keys, choice)}
-        points.append(Point(index, point, hashlib.sha256(blob.encode()).hexdigest()[:20]))
-    return points
+    sha = hashlib.sha256
+    named = [sha(f"{prefix}{', '.join(parts)}{suffix}".encode()).hexdigest()[:20]
+             for parts in itertools.product(*(frags[j] for j in by_name))]
+    sizes = [len(grid[k]) for k in keys]
+    # position in the sorted-order product -> index in grid order
+    digits = np.indices([sizes[j] for j in by_name]).reshape(len(keys), -1)
+    index = np.zeros(digits.shape[1], dtype=np.int64)
+    strides = np.concatenate([np.cumprod(np.array(sizes[::-1], dtype=np.int64))[::-1][1:], [1]])
+    for row, j in enumerate(by_name):
+        index += digits[row] * strides[j]
+    ids: list[str] = [""] * len(named)
+    for pos, i in enumerate(index.tolist()):
+        ids[i] = named[pos]
+    values = [grid[k] for k in keys]
+    return [Point(i, dict(zip(keys, combo)), pid)
+            for i, (combo, pid) in enumerate(zip(itertools.product(*values), ids))]
 
 
 def _point_id(blob: Mapping[str, Any]) -> str:
@@ -199,14 +231,21 @@ def simulate_options(fidelity: str) -> dict[str, Any]:
 
 def run_point(experiment: str, overrides: Mapping[str, Any], options: Mapping[str, Any]) -> dict[str, Any]:
     """One point, in whatever process runs it: its flattened summary, or the error that a
-    user would have seen for it (bad overrides, a schedule that cannot run)."""
+    user would have seen for it (bad overrides, a schedule that cannot run). The experiment
+    is loaded by this process's :func:`loader` for its file (parsed once, overridden in
+    memory: the same experiment and errors as `load_experiment`)."""
     t0 = time.perf_counter()
     try:
-        result = simulate(load_experiment(experiment, dict(overrides)), **options)
+        result = simulate(loader(experiment).load(dict(overrides)), **options)
         summary, error = flatten(result.summary), None
     except MgpusimError as exc:
         summary, error = {}, str(exc)
     return {"summary": summary, "error": error, "wall_s": round(time.perf_counter() - t0, 6)}
+
+
+def run_points(args: Sequence[tuple[str, Mapping[str, Any], Mapping[str, Any]]]) -> list[dict[str, Any]]:
+    """:func:`run_point` for each of several points (what a pool worker is handed at once)."""
+    return [run_point(*a) for a in args]
 
 
 def sweep(experiment: str | Path, grid: Mapping[str, Sequence[Any]], out: str | Path | None = None, *,
@@ -246,18 +285,26 @@ def sweep(experiment: str | Path, grid: Mapping[str, Sequence[Any]], out: str | 
         done = set(records).union(*(b["id"] for b in batches))
         todo = [p for p in points if p.id not in done]
         with _bar(len(points), len(points) - len(todo), progress) as bar:
-            lanes = LaneRun(path, base, grid, todo if client is None else [], fidelity)
+            lanes = LaneRun(path, base, grid, todo if client is None else [], fidelity, loader=loader(path),
+                            workers=local_workers(workers), store=store)
             for batch in lanes:  # the analytic level over many points at once, saved per batch
                 if store:
                     store.save_batch(batch)
                 batches.append(batch)
                 bar.update(len(batch))
             rest = lanes.fallback if client is None else todo
-            for point, record in _run(path, base, options, rest, workers, client, store):
-                records[point.id] = record
-                if store:
-                    store.save(point.id, {"keys": point.keys, **record})
-                bar.update(1)
+            unsaved: list[tuple[Point, dict[str, Any]]] = []
+            saved_at, every = time.monotonic(), float(os.environ.get("MGPUSIM_SWEEP_SAVE_S", SAVE_EVERY_S))
+            for finished in _run(path, base, options, rest, workers, client, store):
+                for point, record in finished:
+                    records[point.id] = record
+                unsaved.extend(finished)
+                bar.update(len(finished))
+                if store and time.monotonic() - saved_at >= every:  # one file, not one per point
+                    store.save_batch(records_frame(unsaved), "single")
+                    unsaved, saved_at = [], time.monotonic()
+            if store and unsaved:
+                store.save_batch(records_frame(unsaved), "single")
         df = table(points, records, batches)
         check_metric_column(df, metric)
         if store:
@@ -309,12 +356,13 @@ def check_inputs(path: Path, grid: Mapping[str, Sequence[Any]], overrides: Mappi
     values loads (a misspelt key, a value of the wrong type), is one error: the sweep would
     otherwise fail at every point. A key only some of whose values fail is a sweep whose failing
     points say why."""
-    load_experiment(path, dict(overrides))
+    load = loader(path).load
+    load(dict(overrides))
     for key, values in grid.items():
         first_error = None
         for value in values:
             try:
-                load_experiment(path, {**overrides, key: value})
+                load({**overrides, key: value})
                 break
             except InputError as exc:
                 first_error = first_error or exc
@@ -359,9 +407,22 @@ def table(points: Sequence[Point], records: Mapping[str, Mapping[str, Any]],
     return df
 
 
+def local_workers(workers: int | None) -> int:
+    """The local processes a sweep runs on: as asked, else one per CPU."""
+    return workers or os.cpu_count() or 1
+
+
+def records_frame(finished: Sequence[tuple[Point, Mapping[str, Any]]]) -> pd.DataFrame:
+    """Points run one by one as one table in the form of a batch of lanes (column `id`, then
+    `error`, `wall_s` and the summary's columns): what the store saves them as."""
+    return pd.DataFrame([{"id": p.id, "error": rec["error"], "wall_s": rec["wall_s"], **rec["summary"]}
+                         for p, rec in finished])
+
+
 def _run(path: Path, base: Mapping[str, Any], options: Mapping[str, Any], todo: list[Point],
-         workers: int | None, client: Any, store: Any) -> Iterator[tuple[Point, dict[str, Any]]]:
-    """(point, record) as each point finishes, on Dask, a process pool, or here."""
+         workers: int | None, client: Any, store: Any) -> Iterator[list[tuple[Point, dict[str, Any]]]]:
+    """[(point, record), ...] as points finish, on Dask, a process pool (a few points handed
+    to a worker at once), or here."""
     if not todo:
         return
     where = str(path.resolve()) if client is not None else str(path)  # Dask workers have their own cwd
@@ -370,51 +431,24 @@ def _run(path: Path, base: Mapping[str, Any], options: Mapping[str, Any], todo: 
         futures = {client.submit(run_point, *a, pure=False): p for p, a in zip(todo, args)}
         from distributed import as_completed as dask_completed  # noqa: PLC0415
         for fut in dask_completed(futures):
-            yield futures[fut], fut.result()
+            yield [(futures[fut], fut.result())]
         return
-    workers = min(workers or os.cpu_count() or 1, len(todo))
+    workers = min(local_workers(workers), len(todo))
     if workers == 1:
         for point, a in zip(todo, args):
-            yield point, run_point(*a)
+            yield [(point, run_point(*a))]
         return
-    lock = _lock_identity(store)
-    with ProcessPoolExecutor(max_workers=workers, initializer=_exit_with_parent,
-                             initargs=(os.getpid(), lock)) as pool:
-        futures = {pool.submit(run_point, *a): p for p, a in zip(todo, args)}
+    loader(where)._table()  # read before the workers fork: each inherits it parsed
+    per_task = max(1, min(POINTS_PER_TASK, len(todo) // (4 * workers)))
+    with local_pool(workers, store) as pool:
+        chunks: dict[Any, list[Point]] = {pool.submit(run_points, args[lo:lo + per_task]): todo[lo:lo + per_task]
+                                          for lo in range(0, len(todo), per_task)}
         try:
-            for fut in as_completed(futures):
-                yield futures[fut], fut.result()
+            for fut in as_completed(chunks):
+                yield list(zip(chunks[fut], fut.result()))
         except BaseException:
             pool.shutdown(wait=False, cancel_futures=True)
             raise
-
-
-def _lock_identity(store: Any) -> tuple[int, int, int] | None:
-    """(descriptor, device, inode) of the folder's lock, for the pool workers to close."""
-    if store is None or store.lock_fd is None:
-        return None
-    st = os.fstat(store.lock_fd)
-    return store.lock_fd, st.st_dev, st.st_ino
-
-
-def _exit_with_parent(parent: int, lock: tuple[int, int, int] | None = None) -> None:
-    """In a pool worker: close its inherited copy of the folder's lock descriptor (so that the
-    lock ends with the sweep itself, even with SIGKILL, not with its last worker; closed only
-    if that descriptor is the lock file, as it is where workers are forked), and exit when the
-    sweep's process is gone (killed with SIGKILL, its workers would otherwise wait on their
-    queue forever)."""
-    if lock is not None:
-        fd, dev, ino = lock
-        with contextlib.suppress(OSError):
-            st = os.fstat(fd)
-            if (st.st_dev, st.st_ino) == (dev, ino):
-                os.close(fd)
-
-    def watch() -> None:
-        while os.getppid() == parent:
-            time.sleep(0.5)
-        os._exit(1)
-    threading.Thread(target=watch, daemon=True, name="exit-with-parent").start()
 
 
 @contextlib.contextmanager

@@ -10,18 +10,25 @@ How the grid is split:
   ``profile.gpus.<i|*>.costs.<kind>.fixed_ns`` / ``.ns_per_<term>`` of a cost the profile
   already has. Each value is loaded once (checked like any override) and the coefficients it
   sets read from the loaded profile; a key whose profile differs from the base anywhere else,
-  two keys that set the same coefficient, another ``profile.`` grid key that is not a lane
-  key, or a grid over the experiment's ``profile`` file makes them ordinary keys.
+  two keys that set the same coefficient, or a grid over the experiment's ``profile`` file
+  makes them ordinary keys, and so does another ``profile.`` grid key (a group key) one of
+  whose values changes a coefficient a lane key sets or which pass costs the profile has.
 - Every other key (scene, schedule, other profile keys) is a *group* key: each combination
-  of their values is a group, built once with the real code: its first point runs through
-  :func:`mgpusim.sim.simulation.simulate`, which gives the fields no pass cost changes
-  (memory, effects, fidelity, frames) and checks the lanes (that point's lane must reproduce
-  it, else the group runs point by point).
-
-``MGPUSIM_SWEEP_NO_LANES=1`` in the environment runs every point one by one (to compare).
+  of their values is a group, built once with the real code (its first point loaded in memory,
+  :mod:`mgpusim.sweeps.loader`, its program and the recurrence's model built), with the fields
+  no lane computes (frames, effects, memory, fidelity, modelled effects) worked out as
+  simulate() works them out. The first group of each structure also runs its first point
+  through :func:`mgpusim.sim.simulation.simulate`: that summary is the template whose order
+  of fields the others follow, and its lane must reproduce it (else the group runs point by
+  point); every other group's first lane must reproduce its own model's pass times, the only
+  times the lanes work out themselves.
 - Groups whose programs have one structure (:func:`~mgpusim.sim.analytic_lanes.structure`)
   run as one set of lanes: the pass times of each lane from its coefficients (the cost
-  model's formula and rounding), every other time from its group.
+  model's formula and rounding), every other time from its group. A grid of group keys alone
+  runs so too, one lane per group.
+
+``MGPUSIM_SWEEP_NO_LANES=1`` in the environment runs every point one by one (to compare).
+Groups are built and run in local worker processes where the sweep has several.
 
 Points fall back to the per-point path, transparently and with the same columns, where the
 group cannot run as lanes (skippable tasks, vsync, long runs, a point that fails to load or
@@ -32,10 +39,11 @@ from __future__ import annotations
 import math
 import os
 import time
+from collections import abc
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Iterable, Iterator, Mapping, Sequence
+from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -47,11 +55,12 @@ from mgpusim.model.profile import HardwareProfile
 from mgpusim.model.tasks import PassTask
 from mgpusim.results.settled import FIELDS as SETTLING_FIELDS
 from mgpusim.results.settled import settling_arrays
-from mgpusim.schedules.experiment import load_experiment
+from mgpusim.schedules.experiment import Experiment
 from mgpusim.schedules.program import build_program
 from mgpusim.sim import analytic_lanes as lanes_mod
 from mgpusim.sim.analytic import Analytic
 from mgpusim.sim.effects import choose_effects
+from mgpusim.sweeps.loader import _SHARED, ExperimentLoader, shared
 
 #: A coefficient a lane key sets: (GPU index, "speed") or (GPU index, kind, "fixed_ns" | term).
 Coef = tuple
@@ -73,26 +82,33 @@ class Plan:
     notes: list[str] = field(default_factory=list)
 
 
-def plan(path: Path, grid: Mapping[str, Sequence[Any]], base: Mapping[str, Any]) -> Plan:
-    """Which grid keys run as lanes (see the module doc)."""
+def plan(path: Path, grid: Mapping[str, Sequence[Any]], base: Mapping[str, Any],
+         loader: ExperimentLoader | None = None) -> Plan:
+    """Which grid keys run as lanes (see the module doc). `loader`: loads the experiment
+    (default: one of its own)."""
     profile_keys = [k for k in grid if k.startswith("profile.")]
     lane, notes, coefs = [], [], {}
     if "profile" in grid or "profile" in base:
         return Plan([], list(grid), notes=["the profile file itself changes"])
+    load = (loader or ExperimentLoader(path)).load
     try:
-        start = load_experiment(path, dict(base)).profile
+        start = load(dict(base)).profile
     except MgpusimError:
         return Plan([], list(grid), notes=["the base experiment does not load"])
     for key in profile_keys:
-        found = _lane_coefs(path, base, key, grid[key], start)
+        found = _lane_coefs(load, base, key, grid[key], start)
         if isinstance(found, str):
             notes.append(f"{key}: {found}")
         else:
             lane.append(key)
             coefs[key] = found
-    if len(lane) < len(profile_keys):  # another profile key could change what a lane key sets
-        notes.append("a profile key that is not a lane key makes every profile key a group key")
-        return Plan([], list(grid), notes=notes)
+    others = [k for k in profile_keys if k not in lane]
+    if others and lane:  # another profile key could change what a lane key sets
+        clash = _group_profile_clash(load, base, {k: grid[k] for k in others}, start,
+                                     set().union(*(_touched(coefs[k]) for k in lane)))
+        if clash is not None:
+            notes.append(f"{clash}: every profile key is then a group key")
+            return Plan([], list(grid), notes=notes)
     for i, a in enumerate(lane):
         for b in lane[:i]:
             if _touched(coefs[a]) & _touched(coefs[b]):
@@ -101,8 +117,31 @@ def plan(path: Path, grid: Mapping[str, Sequence[Any]], base: Mapping[str, Any])
     return Plan(lane, [k for k in grid if k not in lane], coefs, notes)
 
 
-def _lane_coefs(path: Path, base: Mapping[str, Any], key: str, values: Sequence[Any],
-                start: HardwareProfile) -> list[dict[Coef, float]] | str:
+def _group_profile_clash(load: Callable[[dict[str, Any]], Experiment], base: Mapping[str, Any],
+                         others: Mapping[str, Sequence[Any]], start: HardwareProfile,
+                         touched: set[Coef]) -> str | None:
+    """Why profile keys that are not lane keys (group keys) keep the lane keys from being
+    lanes, or None: a value of one that changes a coefficient a lane key sets, or which
+    coefficients the profile has (its GPUs, their kinds and terms), would make the lanes'
+    tables wrong in its groups. (Each group's first lane is still checked against its own
+    model: the lanes' coefficients over the group's profile.)"""
+    base_coefs = _all_coefs(start)
+    for key, values in others.items():
+        for value in values:
+            try:
+                prof = load({**base, key: value}).profile
+            except MgpusimError:
+                continue  # its points fail on their own
+            found = _all_coefs(prof)
+            if set(found) != set(base_coefs):
+                return f"{key}={value!r} changes which pass costs the profile has"
+            if any(found[c] != base_coefs[c] for c in touched):
+                return f"{key}={value!r} changes a coefficient a lane key sets"
+    return None
+
+
+def _lane_coefs(load: Callable[[dict[str, Any]], Experiment], base: Mapping[str, Any], key: str,
+                values: Sequence[Any], start: HardwareProfile) -> list[dict[Coef, float]] | str:
     """Per value, the coefficients `key` sets, or why it is not a lane key. Which GPUs a key
     reaches is read from the loaded profiles, not from its path (``gpus.0`` names the first
     ``[[gpus]]`` table, which may stand for several GPUs): the coefficients that differ
@@ -115,7 +154,7 @@ def _lane_coefs(path: Path, base: Mapping[str, Any], key: str, values: Sequence[
     loaded = []
     for value in values:
         try:
-            prof = load_experiment(path, {**base, key: value}).profile
+            prof = load({**base, key: value}).profile
         except MgpusimError:
             return "a value does not load (its points report why)"
         if _strip(prof) != _strip(start):
@@ -155,10 +194,16 @@ def _touched(per_value: list[dict[Coef, float]]) -> set[Coef]:
     return set().union(*per_value) if per_value else set()
 
 
+_LEAVES = frozenset((str, int, float, bool, type(None)))
+
+
 def flatten(value: Any, prefix: str = "") -> dict[str, Any]:
     """Nested dicts and lists as dotted columns: {"a": {"b": 1}, "w": [2, 3]} ->
     {"a.b": 1, "w.0": 2, "w.1": 3}."""
-    if isinstance(value, Mapping):
+    kind = type(value)
+    if kind in _LEAVES:  # (the commonest case, and an abc check costs more than the rest)
+        return {prefix: value}
+    if kind is dict or isinstance(value, abc.Mapping):
         items: Iterable[tuple[Any, Any]] = value.items()
     elif isinstance(value, (list, tuple)):
         items = enumerate(value)
@@ -186,6 +231,10 @@ class Group:
     has_first: bool = True
     #: its first point's lane did not reproduce that point: every slice runs point by point
     failed: bool = False
+    #: `summary` is the first point's simulate() summary, which its lane is checked against
+    #: (else the fields no lane computes, worked out for it, in its structure's template: its
+    #: lane is checked at its pass times, the only times the lanes work out themselves)
+    checked: bool = True
 
 
 def groups(plan_: Plan, todo: Sequence[Any], grid: Mapping[str, Sequence[Any]]) -> list[Group]:
@@ -208,26 +257,88 @@ def groups(plan_: Plan, todo: Sequence[Any], grid: Mapping[str, Sequence[Any]]) 
     return [Group([todo[i] for i in m.tolist()], combos[m]) for m in members]
 
 
-def build(group: Group, path: Path, base: Mapping[str, Any], fidelity: str) -> str | None:
-    """Load and run the group's first point with the real code; the model its lanes share.
-    Returns why the group must run point by point (None: it can run as lanes)."""
+def build(group: Group, path: Path, base: Mapping[str, Any], fidelity: str,
+          loader: ExperimentLoader | None = None, templates: dict[tuple, dict[str, Any]] | None = None
+          ) -> str | None:
+    """Load the group's first point (from `loader`: parsed once, overridden in memory) and
+    build the model its lanes share. Returns why the group must run point by point (None: it
+    can run as lanes).
+
+    The fields of the summary that no lane computes (frames, effects, memory, fidelity,
+    modelled effects) are worked out for the group here, as simulate() works them out. The
+    first group of each structure (and of each set of those fields) runs its first point
+    through :func:`mgpusim.sim.simulation.simulate` as well: its summary is the template
+    (`templates`) whose order of fields the others follow and whose lane is checked against
+    it; a summary field the template has that is neither a lane's nor one worked out here
+    makes every group run simulate() so (nothing is copied from another point)."""
+    from mgpusim.schedules.memory_check import check_memory, memory_report  # noqa: PLC0415
     from mgpusim.sim.simulation import simulate  # noqa: PLC0415
 
     first = group.points[0]
     try:
-        exp = load_experiment(path, {**base, **first.keys})
+        exp = (loader or ExperimentLoader(path)).load({**base, **first.keys})
         program = build_program(exp)
         if program.refresh_hz:
             return "vsync"
-        model = Analytic(program, CostModel(exp.profile), choose_effects(program, exp.profile, fidelity))
+        chosen = choose_effects(program, exp.profile, fidelity)
+        model = Analytic(program, CostModel(exp.profile), chosen)
         refusal = lanes_mod.lanes_refusal(model)
         if refusal is not None:
             return refusal
-        group.summary = flatten(simulate(exp, fidelity=fidelity).summary)
+        signature = lanes_mod.structure(model)
+        if "memory_capacity" in chosen:
+            check_memory(program, exp)  # an overflow is the point's error (simulate's check)
+        static = _static_fields(program, chosen, model, fidelity,
+                                memory_report(program, exp) if "memory_capacity" in chosen else None)
+        key = (signature, tuple(sorted(static)))
+        template = templates.get(key) if templates is not None else None
+        summary = _from_template(template, static) if template is not None else None
+        if summary is None:
+            summary = flatten(simulate(exp, fidelity=fidelity).summary)
+            if templates is not None and _from_template(summary, static) is not None:
+                templates[key] = summary
+        else:
+            group.checked = False
+        group.summary = summary
     except MgpusimError as exc:
         return str(exc)
-    group.model, group.signature = model, lanes_mod.structure(model)
+    group.model, group.signature = model, signature
     return None
+
+
+#: Summary fields every lane computes itself (beside LANE_FIELDS), by prefix or name.
+LANE_PREFIXES = ("utilization.", "fast_forward.", "task_rates_hz.", "settling.")
+LANE_NAMES = frozenset((*LANE_FIELDS, "settled"))
+
+
+def _static_fields(program: Any, chosen: frozenset[str], model: Analytic, fidelity: str,
+                   memory: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The flattened summary fields of a point that no lane computes, as simulate() gives them
+    at the analytic level for a program without skippable tasks (no tied skip decisions)."""
+    out: dict[str, Any] = {"frames": program.frames, "warmup_frames": program.warmup_frames}
+    approximations = list(model.approximations)
+    out["effects"] = {"analytic_exact": not approximations,
+                      **({"analytic_approximations": approximations} if approximations else {})}
+    if memory is not None:
+        out["memory"] = memory
+    out.update(fidelity=fidelity, modelled_effects=sorted(chosen))
+    return flatten(out)
+
+
+def _from_template(template: Mapping[str, Any], static: Mapping[str, Any]) -> dict[str, Any] | None:
+    """The template's fields in its order, those in `static` with static's values (the lane
+    fields are the lanes' own); None if the template has a field that is neither."""
+    if not set(static) <= set(template):
+        return None
+    out = {}
+    for key, value in template.items():
+        if key in static:
+            out[key] = static[key]
+        elif key in LANE_NAMES or key.startswith(LANE_PREFIXES):
+            out[key] = value
+        else:
+            return None
+    return out
 
 
 def _model(group: Group) -> Analytic:
@@ -264,6 +375,8 @@ def group_lanes(group: Group, plan_: Plan) -> tuple[lanes_mod.Lanes, np.ndarray]
                 if ns is not None:
                     lanes.time[ph][i] = ns
                     ok &= good
+                    if group.has_first and not (good[0] and ns[0] == node.time):
+                        (group.origin or group).failed = True  # lane 0 is the model's own point
     return lanes, ok
 
 
@@ -312,20 +425,22 @@ def run_batch(batch: Batch, plan_: Plan) -> tuple[pd.DataFrame, list[Any]]:
     t0 = time.perf_counter()
     built = [group_lanes(g, plan_) for g in batch.groups]
     result = _run_lanes(batch.model, lanes_mod.concat([b[0] for b in built]))
-    frames, fallback, at = [], [], 0
+    parts: list[dict[str, Any]] = []
+    fallback, at = [], 0
     for g, (_, ok) in zip(batch.groups, built):
         n = len(g.points)
         mine = {k: v[at:at + n] for k, v in result.items()}
         at += n
         root = g.origin or g
-        if g.has_first and not _first_matches(_summary(g), mine):
+        if g.has_first and g.checked and not _first_matches(_summary(g), mine):
             root.failed = True
         if root.failed:
             fallback.extend(g.points)
             continue
         fallback.extend(p for p, good in zip(g.points, ok) if not good)
-        frames.append(_records(g, mine, ok))
-    df = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame({"id": []})
+        if ok.any():
+            parts.append(_records(g, mine, ok))
+    df = _joined(parts) if parts else pd.DataFrame({"id": []})
     if len(df):
         df["wall_s"] = round((time.perf_counter() - t0) / len(df), 9)
     return df, fallback
@@ -372,9 +487,47 @@ def _first_matches(summary: Mapping[str, Any], lane: Mapping[str, np.ndarray]) -
                            for k in ("period_frames", "period_ns", "from_frame"))
 
 
-def _records(group: Group, lane: Mapping[str, np.ndarray], ok: np.ndarray) -> pd.DataFrame:
-    """The group's good lanes as records: the first point's summary with each lane's own
-    timing, utilization and fast-forward fields."""
+def _joined(parts: list[dict[str, Any]]) -> pd.DataFrame:
+    """The groups' records (:func:`_records`) as one table: what one table per group joined by
+    `pd.concat` would be (the columns in order of first appearance; a column some groups lack
+    is missing there, NaN; a column of one type keeps it, integers with floats or missing
+    values become floats, anything else objects), made at once (a batch of many one-lane
+    groups would otherwise build a table per point)."""
+    columns = list(dict.fromkeys(c for p in parts for c in p))
+    sizes = [len(p["id"]) for p in parts]
+    out: dict[str, Any] = {}
+    for col in columns:
+        pieces = [_as_array(p[col], n) if col in p else None for p, n in zip(parts, sizes)]
+        kinds = {a.dtype for a in pieces if a is not None}
+        whole = all(a is not None for a in pieces)
+        if whole and len(kinds) == 1:
+            out[col] = pieces[0] if len(pieces) == 1 else np.concatenate(pieces)  # type: ignore[arg-type]
+        elif all(k.kind in "iuf" for k in kinds):
+            out[col] = np.concatenate([a.astype(np.float64) if a is not None else np.full(n, np.nan)
+                                       for a, n in zip(pieces, sizes)])
+        else:
+            out[col] = np.concatenate([a.astype(object) if a is not None else np.full(n, np.nan, dtype=object)
+                                       for a, n in zip(pieces, sizes)])
+    return pd.DataFrame(out)
+
+
+def _as_array(values: Any, n: int) -> np.ndarray:
+    """A record column as the array pd.DataFrame would make of it: an array as it is, a list
+    of one value by that value's type (text and None as objects)."""
+    if isinstance(values, np.ndarray):
+        return values
+    if isinstance(values, list) and values and all(v is values[0] for v in values):
+        v = values[0]
+        if isinstance(v, (bool, int, float)) and not (isinstance(v, int) and not isinstance(v, bool)
+                                                        and not -2**63 <= v < 2**63):
+            return np.full(n, v)
+        return np.full(n, v, dtype=object)
+    return pd.Series(values).to_numpy()
+
+
+def _records(group: Group, lane: Mapping[str, np.ndarray], ok: np.ndarray) -> dict[str, Any]:
+    """The group's good lanes as records (columns): the first point's summary with each
+    lane's own timing, utilization and fast-forward fields."""
     keep = np.flatnonzero(ok)
     n = len(keep)
     cols: dict[str, Any] = {"id": [group.points[i].id for i in keep], "error": [None] * n}
@@ -394,7 +547,7 @@ def _records(group: Group, lane: Mapping[str, np.ndarray], ok: np.ndarray) -> pd
         rate = np.where(span > 0, frames * 1e9 / np.where(span > 0, span, 1), 0.0)
         cols.update({f"task_rates_hz.{name}": rate for name in program.rate_tasks})
         cols["task_rates_hz.frames"] = cols["fps"]
-    return pd.DataFrame(cols)
+    return cols
 
 
 def _fast_forward(lane: Mapping[str, np.ndarray], keep: np.ndarray) -> dict[str, Any]:
@@ -435,37 +588,98 @@ def batches(groups_: list[Group], max_lanes: int = 1 << 16) -> Iterator[Batch]:
 
 class LaneRun:
     """Runs `todo` as lanes where it can: iterate for one records table per batch; afterwards
-    `fallback` holds the points left to run one by one (in grid order)."""
+    `fallback` holds the points left to run one by one (in grid order). `workers`: local
+    processes building and running the groups (1: here), `store`: the sweep's folder, whose
+    lock they must not hold."""
 
     def __init__(self, path: Path, base: Mapping[str, Any], grid: Mapping[str, Sequence[Any]],
-                 todo: Sequence[Any], fidelity: str, max_lanes: int = 1 << 16):
+                 todo: Sequence[Any], fidelity: str, max_lanes: int = 1 << 16,
+                 loader: ExperimentLoader | None = None, workers: int = 1, store: Any = None):
         self.path, self.base, self.grid, self.todo = path, base, grid, list(todo)
         self.fidelity, self.max_lanes = fidelity, max_lanes
+        self.loader = loader or ExperimentLoader(path)
+        self.workers, self.store = workers, store
         self.fallback: list[Any] = []
         self.plan: Plan | None = None
 
     def __iter__(self) -> Iterator[pd.DataFrame]:
+        """Every grid at the analytic level runs as lanes (groups of one structure together,
+        however few lanes each has), unless MGPUSIM_SWEEP_NO_LANES is set."""
         left = self.todo
         if self.fidelity == "analytic" and left and not os.environ.get("MGPUSIM_SWEEP_NO_LANES"):
-            self.plan = plan(self.path, self.grid, self.base)
-            lanes_per_group = math.prod(len(self.grid[k]) for k in self.plan.lane_keys)
-            if lanes_per_group > 1:  # decided on the grid, not on what is left: resume is exact
-                left = []
-                yield from self._lanes()
+            self.plan = plan(self.path, self.grid, self.base, self.loader)
+            left = []
+            yield from self._lanes()
         self.fallback.extend(left)
         self.fallback.sort(key=lambda p: p.index)
 
     def _lanes(self) -> Iterator[pd.DataFrame]:
         plan_ = self.plan
         assert plan_ is not None  # planned by __iter__
-        built = []
-        for g in groups(plan_, self.todo, self.grid):
-            if build(g, self.path, self.base, self.fidelity) is None:
-                built.append(g)
-            else:
-                self.fallback.extend(g.points)
-        for batch in batches(built, self.max_lanes):
-            df, fallback = run_batch(batch, plan_)
-            self.fallback.extend(fallback)
-            if len(df):
-                yield df
+        tasks = split(groups(plan_, self.todo, self.grid), self.workers, self.max_lanes)
+        args = [(str(self.path), self.base, self.fidelity, plan_, t, self.max_lanes) for t in tasks]
+        _SHARED.setdefault(str(self.path), self.loader)  # run_groups' here and in forked workers
+        if self.workers == 1 or len(tasks) == 1:
+            done: Iterator[tuple[list[pd.DataFrame], list[Any]]] = (run_groups(*a) for a in args)
+            for frames, fallback in done:
+                self.fallback.extend(fallback)
+                yield from frames
+            return
+        from concurrent.futures import as_completed  # noqa: PLC0415
+
+        from mgpusim.sweeps.pool import local_pool  # noqa: PLC0415
+
+        self.loader._table()  # parsed before the workers fork: each inherits it
+        with local_pool(min(self.workers, len(tasks)), self.store) as pool:
+            for fut in as_completed([pool.submit(run_groups, *a) for a in args]):
+                frames, fallback = fut.result()
+                self.fallback.extend(fallback)
+                yield from frames
+
+
+def run_groups(path: str, base: Mapping[str, Any], fidelity: str, plan_: Plan, todo: list[Group],
+               max_lanes: int) -> tuple[list[pd.DataFrame], list[Any]]:
+    """Build `todo`'s groups and run them as lanes, in whatever process: the batches' records
+    and the points left to run one by one."""
+    loader = shared(path)
+    built: list[Group] = []
+    fallback: list[Any] = []
+    templates: dict[tuple, dict[str, Any]] = {}
+    for g in todo:
+        if build(g, Path(path), base, fidelity, loader, templates) is None:
+            built.append(g)
+        else:
+            fallback.extend(g.points)
+    frames = []
+    for batch in batches(built, max_lanes):
+        df, left = run_batch(batch, plan_)
+        fallback.extend(left)
+        if len(df):
+            frames.append(df)
+    return frames, fallback
+
+
+#: Most groups one task of a pool builds (it also runs them: a task's batches are its own).
+GROUPS_PER_TASK = 256
+
+
+def split(todo: list[Group], workers: int, max_lanes: int) -> list[list[Group]]:
+    """The groups in consecutive runs, one per task: about four per worker, each at most
+    `max_lanes` lanes and GROUPS_PER_TASK groups (one run for a single worker)."""
+    if workers <= 1:
+        return [todo] if todo else []
+    lanes_total = sum(len(g.points) for g in todo)
+    per_lanes = min(max_lanes, max(4096, -(-lanes_total // (4 * workers))))
+    per_groups = min(GROUPS_PER_TASK, max(1, -(-len(todo) // (4 * workers))))
+    out: list[list[Group]] = []
+    run: list[Group] = []
+    size = 0
+    for g in todo:
+        if run and (size + len(g.points) > per_lanes or len(run) >= per_groups):
+            out.append(run)
+            run, size = [], 0
+        run.append(g)
+        size += len(g.points)
+    if run:
+        out.append(run)
+    return out

@@ -1,10 +1,15 @@
-"""A sweep's folder: one file per finished point, then the table, plot and description.
+"""A sweep's folder: the finished points a few files at a time, then the table, plot and description.
 
-Why one small file per point: a point is saved whole or not at all (written to a temporary
-name, flushed to disk, renamed over its final name; the folder is flushed too), so a sweep
-killed with SIGKILL at any instant leaves only complete points and, at worst, a stray
-temporary file that the next run removes. The table (`sweep.parquet`), plot (`sweep.png`) and
-description (`sweep.json`) are replaced the same way, so a reader never sees half of one.
+Points are saved in batch files: those run together as lanes one file per batch, those run
+one by one one file per half second of work or so (`SAVE_EVERY_S` in
+:mod:`mgpusim.sweeps.grid`; until 2026-12 one JSON file per point, each flushed to disk, which
+cost more than a point at the analytic level: such files are still read). A file is saved
+whole or not at all (written to a temporary name, flushed to disk, renamed over its final
+name; the folder is flushed too), so a sweep killed with SIGKILL at any instant leaves only
+complete files and, at worst, a stray temporary file that the next run removes; what it loses
+is the points finished since its last file (at most about half a second of work), which the
+next run computes again. The table (`sweep.parquet`), plot (`sweep.png`) and description
+(`sweep.json`) are replaced the same way, so a reader never sees half of one.
 
 One sweep at a time writes into a folder: the store holds an exclusive lock (`flock` on
 `DIR/.sweep.lock`, released by the system when the process ends, even by SIGKILL) from before
@@ -14,9 +19,11 @@ with one line instead of removing the first one's temporary files or interleavin
 Layout::
 
     DIR/.sweep.lock        the lock (holds the process id of the sweep that has it)
-    DIR/points/<id>.json   {"keys": {...}, "summary": {...}, "error": null, "wall_s": 0.03}
     DIR/points/batch-<hash>.parquet   points run together as lanes (analytic level): one row
                            per point, column `id` then error, wall_s and the summary's columns
+    DIR/points/single-<hash>.parquet  points run one by one, saved together: the same columns
+    DIR/points/<id>.json   one point run one by one, as sweeps before 2026-12 saved them (read
+                           only): {"keys": {...}, "summary": {...}, "error": null, "wall_s": 0.03}
     DIR/sweep.parquet      one row per point of the current grid
     DIR/sweep.png          the metric against the keys (lines, or a heatmap for two keys)
     DIR/sweep.json         experiment, grid, overrides, fidelity, points, failed
@@ -87,17 +94,18 @@ class PointStore:
         text = json.dumps(record, sort_keys=True, default=str)
         atomic_write(self.points / f"{pid}.json", lambda tmp: tmp.write_text(text))
 
-    def save_batch(self, df: pd.DataFrame) -> Path:
-        """Points run together (a table with column `id`): one file, saved whole or not at all,
-        named by a hash of its points."""
+    def save_batch(self, df: pd.DataFrame, kind: str = "batch") -> Path:
+        """Points run together (a table with column `id`), or run one by one and saved
+        together (`kind` "single"): one file, saved whole or not at all, named by its kind and a
+        hash of its points."""
         digest = hashlib.sha256("\n".join(sorted(df["id"])).encode()).hexdigest()[:20]
-        return atomic_write(self.points / f"batch-{digest}.parquet", lambda tmp: df.to_parquet(tmp, index=False))
+        return atomic_write(self.points / f"{kind}-{digest}.parquet", lambda tmp: df.to_parquet(tmp, index=False))
 
     def load_batches(self, wanted: set[str]) -> list[pd.DataFrame]:
         """The saved batches' rows of the points in `wanted` (a batch file this code did not
         write is refused, naming it)."""
         out = []
-        for path in sorted(self.points.glob("batch-*.parquet")):
+        for path in sorted([*self.points.glob("batch-*.parquet"), *self.points.glob("single-*.parquet")]):
             try:
                 df = pd.read_parquet(path)
             except (OSError, ValueError) as exc:

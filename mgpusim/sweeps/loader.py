@@ -1,0 +1,128 @@
+"""One experiment file loaded under many sets of overrides: parsed once, overridden in memory.
+
+Why: a sweep loads its experiment once per point. :func:`~mgpusim.schedules.experiment.load_experiment`
+reads and parses the experiment's TOML and its profile's every time (about 1.5 ms of a point's
+few at the analytic level). :class:`ExperimentLoader` gives the same :class:`Experiment` for
+the same overrides, checked the same way with the same errors, but reads the experiment file
+once, resolves its profile reference once, and parses each profile (file and ``profile.``
+overrides) once: an experiment's own overrides are set on a copy of the parsed table (a deep
+copy of each top-level table an override reaches, the others shared: validation only reads
+them), which is then validated exactly as `parse_experiment` validates a file's (the same
+steps in the same order; a test checks both give equal experiments, or the same error, over
+every shipped experiment and many overrides). A profile that fails to load fails every later load the same
+way. Files are read when first needed: a file edited during a sweep is not seen (as before, a
+sweep's points are known by the experiment file's bytes when it started).
+"""
+from __future__ import annotations
+
+import copy
+import json
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any, Mapping
+
+from mgpusim.model.errors import InputError
+from mgpusim.model.overrides import set_dotted, split_profile
+from mgpusim.model.profile import HardwareProfile, load_profile, require_gpus
+from mgpusim.model.scene import parse_scene
+from mgpusim.model.toml_checks import Table, read_toml
+from mgpusim.model.work_terms import COMMON_PARAMS, PARAM_BOUNDS, PASS_PARAMS, REQUIRED_PARAMS
+from mgpusim.schedules.experiment import Experiment, _resolve
+from mgpusim.schedules.registry import parse_schedule_config
+
+
+class ExperimentLoader:
+    """``loader.load(overrides)`` is ``load_experiment(path, overrides)``, parsed once (see the
+    module doc)."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.file = str(self.path)
+        self._raw: dict[str, Any] | InputError | None = None
+        self._refs: dict[str, Path | InputError] = {}
+        self._profiles: dict[tuple, HardwareProfile | InputError] = {}
+
+    def load(self, overrides: Mapping[str, Any] | None = None) -> Experiment:
+        raw = self._table()
+        data = dict(raw)
+        experiment_overrides, profile_overrides = split_profile(overrides)
+        for top in {key.split(".", 1)[0] for key in experiment_overrides}:
+            if top in raw:
+                data[top] = copy.deepcopy(raw[top])
+        for key, value in experiment_overrides.items():
+            set_dotted(data, key, value, self.file)
+        return self._parse(data, profile_overrides)
+
+    def profile(self, ref: str, overrides: Mapping[str, Any]) -> HardwareProfile:
+        """The profile `ref` names (relative to the experiment, else the current directory)
+        with `overrides` (keys relative to the profile), parsed once per distinct set."""
+        path = self._resolved(ref)
+        key = (str(path), tuple((k, _canonical(v)) for k, v in overrides.items()))
+        found = self._profiles.get(key)
+        if found is None:
+            try:
+                found = load_profile(path, overrides)
+            except InputError as exc:
+                found = exc
+            self._profiles[key] = found
+        if isinstance(found, InputError):
+            raise found.with_traceback(None)
+        return found
+
+    def _table(self) -> dict[str, Any]:
+        if self._raw is None:
+            try:
+                self._raw = read_toml(self.path)
+            except InputError as exc:
+                self._raw = exc
+        if isinstance(self._raw, InputError):
+            raise self._raw.with_traceback(None)
+        return self._raw
+
+    def _resolved(self, ref: str) -> Path:
+        found = self._refs.get(ref)
+        if found is None:
+            try:
+                found = _resolve(Path(ref), self.path.parent, self.file)
+            except InputError as exc:
+                found = exc
+            self._refs[ref] = found
+        if isinstance(found, InputError):
+            raise found.with_traceback(None)
+        return found
+
+    def _parse(self, data: dict, profile_overrides: Mapping[str, Any]) -> Experiment:
+        """`parse_experiment(data, file, base=path.parent, profile_overrides=...)`, step for
+        step, with the profile from :meth:`profile`."""
+        file = self.file
+        top = Table(data, file)
+        if {"gpus", "host"} <= set(data) and not {"scene", "schedule"} & set(data):
+            raise InputError("a hardware profile, not an experiment: an experiment has [scene] and "
+                             "[schedule] and names its profile (profile = \"...toml\")", file=file)
+        name = top.name("name", Path(file).stem)
+        top.get("description", str, "")
+        prof = self.profile(top.get("profile", str), profile_overrides)
+        scene = parse_scene(top.table("scene"), PASS_PARAMS, COMMON_PARAMS, REQUIRED_PARAMS, PARAM_BOUNDS)
+        sched = parse_schedule_config(top.table("schedule"))
+        top.finish()
+        require_gpus(prof, sched.gpus, file)
+        what_if = MappingProxyType({f"profile.{k}": v for k, v in profile_overrides.items()})
+        return Experiment(name, file, prof, scene, sched, data, what_if)
+
+
+def _canonical(value: Any) -> str:
+    """A value as text that tells apart what TOML tells apart (1, 1.0, true, "1")."""
+    return json.dumps(value, sort_keys=True, default=repr) + type(value).__name__
+
+
+#: One loader per experiment file and process (a pool's forked workers inherit the sweep's).
+_SHARED: dict[str, ExperimentLoader] = {}
+
+
+def shared(experiment: str | Path) -> ExperimentLoader:
+    """This process's :class:`ExperimentLoader` for `experiment` (by its path as given)."""
+    key = str(experiment)
+    found = _SHARED.get(key)
+    if found is None:
+        found = _SHARED[key] = ExperimentLoader(experiment)
+    return found

@@ -6,7 +6,12 @@ has one, so presenting never delays GPU 0's own rendering). With a `temporal_pas
 pass of that name reads frame f-1's result, which is copied from GPU (f-1) % N first
 (F0->F1, F1->F2, ...): the copies that leave idle gaps on both graphics queues in the talk.
 Frame pacing is not averaged away: every present is in the frames table and the summary's
-frame_time_jitter_ms / min / max come from the individual periods.
+frame_time_jitter_ms / min / max come from the individual periods. With `pace_us` the engine
+paces its presents (frame metering): frame f's present is held until `pace_us` after frame
+f-1's was released, so N GPUs that finish their frames together still present at an even
+cadence (two tasks of the application's `pacer` thread, which sleeps: `pace.hold` releases
+the present once the frame is ready and the previous `pace.gap` has run out; `pace.gap`, the
+cadence's timer, starts at that release).
 """
 from __future__ import annotations
 
@@ -17,7 +22,7 @@ from mgpusim.model import limits as L
 from mgpusim.model.errors import InputError
 from mgpusim.model.profile import HardwareProfile
 from mgpusim.model.scene import Scene
-from mgpusim.model.tasks import Dep, PassTask, QueueRef, Resource, Task
+from mgpusim.model.tasks import CpuTask, Dep, PassTask, QueueRef, Resource, Task
 from mgpusim.schedules.base import Footprint, FrameProgram, chain_passes, present_task
 from mgpusim.schedules.binding import Bindings, bind_crossing
 from mgpusim.schedules.crossing import COPY_OPTIONS, Route, cross
@@ -34,7 +39,14 @@ OPTIONS = {
     "present_queue": Option(str, "separate", "'separate': present on GPU 0's second graphics "
                             "queue when it has one; 'graphics': on its main graphics queue",
                             choices=("separate", "graphics")),
+    "pace_us": Option(float, 0.0, "frame pacing: hold each present until this long (us) after "
+                      "the previous one was released, an even cadence (frame metering; simulated "
+                      "only); 0 = present each frame as soon as it is ready", minimum=0.0,
+                      maximum=L.MAX_TASK_NS / 1000, why="a task's time bound"),
 }
+
+#: The application's thread that paces the presents (`pace_us`): it sleeps between them.
+PACER_THREAD = "pacer"
 
 
 def present_queue(profile: HardwareProfile, policy: str) -> QueueRef:
@@ -190,8 +202,27 @@ def _phase(p: int, cfg: ScheduleConfig, scene: Scene, profile: HardwareProfile, 
                     dst_deps=(Dep("present", -n),))
         tasks.extend(out)
         last = out[-1].name
+    if cfg.opt("pace_us"):
+        hold, gap = pacing(last, cfg.opt("pace_us"))
+        tasks += [hold, gap]
+        last = hold.name  # the present waits for the pacer's release
     tasks.append(present_task(present_queue(profile, cfg.opt("present_queue")), scene.pixels, last))
     return tasks
+
+
+def pacing(ready: str, pace_us: float) -> tuple[CpuTask, CpuTask]:
+    """The pacer's two tasks of a frame: the hold that releases its present once `ready` has
+    ended and the previous frame's gap has run out, then this frame's gap (`pace_us`), which
+    the next frame's hold waits for. Both sleep (idle): pacing takes no core."""
+    hold = CpuTask("pace.hold", "pace", PACER_THREAD, deps=(Dep(ready), Dep("pace.gap", -1)), idle=True,
+                   params=_SIM_ONLY)
+    gap = CpuTask("pace.gap", "pace", PACER_THREAD, fixed_ns=pace_us * 1000, deps=(Dep(hold.name),),
+                  idle=True, params=_SIM_ONLY)
+    return hold, gap
+
+
+_SIM_ONLY = MappingProxyType({"unsupported": "frame pacing (schedule.pace_us) is simulated only: "
+                                             "the Vulkan runner presents into an offscreen image"})
 
 
 def _renders(gpu: int, scene: Scene, first_deps: tuple[Dep, ...], temporal: str | None,

@@ -211,3 +211,70 @@ def test_pipelining_waits_only_for_what_a_pass_reads(tmp_path):
     assert frame.loc["render.c", "start_ns"] < frame.loc["render.b", "end_ns"]
     assert frame.loc["render.d", "start_ns"] >= frame.loc["out.b.h2d", "end_ns"]
     assert frame.loc["out.a.d2h", "bytes"] == 1_000_000  # a's output, named by the pass's name
+
+
+# ----- the output folder and the capture's size -----------------------------------------------
+def test_out_is_a_folder_like_every_other_command(tmp_path, capsys):
+    csv = tmp_path / "deferred.csv"
+    csv.write_text("pass,queue,gpu_ms\nshade,graphics,2\n")
+    folder = tmp_path / "frames"
+    assert _import(csv, folder, "--size", "64x64") == 0
+    assert (folder / "deferred.toml").is_file() and load_experiment(folder / "deferred.toml").name == "deferred"
+    assert f"wrote {folder / 'deferred.toml'}" in capsys.readouterr().out
+    assert _import(csv, folder, "--size", "64x64", "--name", "mine") == 0
+    assert load_experiment(folder / "mine.toml").name == "mine"
+    assert _import(csv, tmp_path / "exact.toml", "--size", "64x64") == 0  # the file form still works
+    assert (tmp_path / "exact.toml").is_file()
+
+
+def test_without_out_the_experiment_goes_to_out_stem(tmp_path, monkeypatch):
+    csv = tmp_path / "deferred.csv"
+    csv.write_text("pass,queue,gpu_ms\nshade,graphics,2\n")
+    monkeypatch.chdir(tmp_path)
+    assert main(["frame", "import", str(csv), "--size", "64x64", "--profile", str(PROFILE)]) == 0
+    assert load_experiment(tmp_path / "out" / "deferred" / "deferred.toml").scene.width == 64
+
+
+def test_a_folder_out_that_is_a_file_is_one_line(tmp_path, capsys):
+    csv = tmp_path / "f.csv"
+    csv.write_text("pass,queue,gpu_ms\nshade,graphics,2\n")
+    (tmp_path / "taken").write_text("")
+    assert _import(csv, tmp_path / "taken", "--size", "64x64") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--out" in err[0]
+
+
+def test_a_csv_that_holds_its_size_needs_no_size_option(tmp_path, capsys):
+    csv = tmp_path / "f.csv"
+    csv.write_text("pass,queue,gpu_ms,width,height\nshade,graphics,2,2560,1440\npost,graphics,1,,\n")
+    assert _import(csv, tmp_path) == 0
+    exp = load_experiment(tmp_path / "f.toml")
+    assert (exp.scene.width, exp.scene.height) == (2560, 1440)
+    assert "(the capture's size)" in capsys.readouterr().out
+    assert _import(csv, tmp_path / "g.toml", "--size", "64x32") == 0  # given, --size wins, with a note
+    assert (load_experiment(tmp_path / "g.toml").scene.width, load_experiment(tmp_path / "g.toml").scene.height) == (64, 32)
+    assert "the capture says 2560x1440; --size 64x32 wins" in capsys.readouterr().out
+
+
+def test_a_chrome_trace_that_holds_its_size_needs_no_size_option(tmp_path):
+    events = _meta(1, 1, "GPU", "graphics") + [{"ph": "X", "name": "shade", "pid": 1, "tid": 1, "ts": 0, "dur": 2000}]
+    for meta in ({"width": 1280, "height": 720}, {"resolution": "1280x720"}):
+        trace = tmp_path / "t.json"
+        trace.write_text(json.dumps({"traceEvents": events, "metadata": meta}))
+        assert _import(trace, tmp_path / "t.toml") == 0
+        exp = load_experiment(tmp_path / "t.toml")
+        assert (exp.scene.width, exp.scene.height) == (1280, 720)
+
+
+@pytest.mark.parametrize("header,rows,words", [
+    ("pass,queue,gpu_ms,width", "a,graphics,1,640", "width column without its pair"),
+    ("pass,queue,gpu_ms,width,height", "a,graphics,1,640,480\nb,graphics,1,320,480", "one frame size"),
+    ("pass,queue,gpu_ms,width,height", "a,graphics,1,0,480", "1..65536"),
+])
+def test_a_bad_size_in_the_capture_is_one_line(tmp_path, capsys, header, rows, words):
+    csv = tmp_path / "f.csv"
+    csv.write_text(f"{header}\n{rows}\n")
+    assert _import(csv, tmp_path / "x.toml") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0] and "f.csv" in err[0]
+    assert not (tmp_path / "x.toml").exists()

@@ -81,7 +81,8 @@ def read_chrome(path: Path, cpu_threads: tuple[str, ...] = ("main",)) -> tuple[p
     group: a frame or a pass group); a group named "frame..." numbers the frames of what it
     holds unless the slices' `args.frame` does."""
     file = str(path)
-    events = _chrome_events(path)
+    data = _chrome_data(path)
+    events = _chrome_events(data, file)
     names: dict[tuple[int, int], str] = {}
     procs: dict[int, str] = {}
     spans: dict[tuple[int, int], list[dict[str, Any]]] = {}
@@ -122,13 +123,52 @@ def read_chrome(path: Path, cpu_threads: tuple[str, ...] = ("main",)) -> tuple[p
         raise InputError("a begin event is never ended", file=file,
                          field=f"traceEvents[{first['index']}]")
     rows, left_out = _chrome_rows(spans, procs, names, cpu_threads, file)
-    return slices_table(rows), {"left_out": left_out}
+    return slices_table(rows), {"left_out": left_out, **_chrome_size(data, file)}
 
 
-def _chrome_events(path: Path) -> list[Any]:
+#: The top-level objects of a Chrome trace where its frame's resolution may be: `width` and
+#: `height`, or `resolution` / `size` as "WxH".
+SIZE_KEYS = ("metadata", "otherData")
+
+
+def _chrome_size(data: Any, file: str) -> dict[str, int]:
+    """The frame's resolution where the trace's metadata gives it (:data:`SIZE_KEYS`)."""
+    if not isinstance(data, dict):
+        return {}
+    for key in SIZE_KEYS:
+        meta = data.get(key)
+        if not isinstance(meta, dict):
+            continue
+        if "width" in meta or "height" in meta:
+            return {"width": _side(meta.get("width"), file, f"{key}.width"),
+                    "height": _side(meta.get("height"), file, f"{key}.height")}
+        for name in ("resolution", "size"):
+            if name in meta:
+                return _size_text(meta[name], file, f"{key}.{name}")
+    return {}
+
+
+def _side(value: Any, file: str, field: str) -> int:
+    if isinstance(value, str) and value.strip().isdigit():
+        value = int(value.strip())
+    if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= 65536:
+        raise InputError(f"expected a whole number of pixels 1..65536, got {str(value)[:40]!r}",
+                         file=file, field=field)
+    return value
+
+
+def _size_text(value: Any, file: str, field: str) -> dict[str, int]:
+    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", value) if isinstance(value, str) else None
+    if m is None:
+        raise InputError(f"expected WxH, e.g. 1920x1080, got {str(value)[:40]!r}", file=file, field=field)
+    return {"width": _side(int(m.group(1)), file, field), "height": _side(int(m.group(2)), file, field)}
+
+
+def _chrome_data(path: Path) -> Any:
+    """The trace file's JSON."""
     file = str(path)
     try:
-        data = json.loads(path.read_bytes().decode("utf-8"))
+        return json.loads(path.read_bytes().decode("utf-8"))
     except FileNotFoundError:
         raise InputError("file not found", file=file) from None
     except IsADirectoryError:
@@ -139,6 +179,10 @@ def _chrome_events(path: Path) -> list[Any]:
         raise InputError(f"not UTF-8 text (byte {exc.start}), expected JSON", file=file) from None
     except ValueError as exc:
         raise InputError(f"not valid JSON ({str(exc)[:80]})", file=file) from None
+
+
+def _chrome_events(data: Any, file: str) -> list[Any]:
+    """The trace's events: an object's `traceEvents`, or the bare list."""
     events = data.get("traceEvents") if isinstance(data, dict) else data
     if not isinstance(events, list):
         raise InputError("expected a list of events or an object with a traceEvents list",
@@ -330,7 +374,7 @@ def _share(value: Any, file: str, field: str) -> float:
 
 # ----- CSV ------------------------------------------------------------------------------------
 CSV_REQUIRED = ("pass", "queue", "gpu_ms")
-CSV_OPTIONAL = ("reads", "writes", "bytes", "frame", "view", "pixel_share")
+CSV_OPTIONAL = ("reads", "writes", "bytes", "frame", "view", "pixel_share", "width", "height")
 
 
 def read_csv(path: Path) -> tuple[pd.DataFrame, dict[str, Any]]:
@@ -371,7 +415,28 @@ def read_csv(path: Path) -> tuple[pd.DataFrame, dict[str, Any]]:
                      "bytes": _sizes(row.get("bytes"), len(writes), file, f"bytes (row {i})"),
                      "view": _view(row.get("view"), file, f"view (row {i})"),
                      "pixel_share": _share(row.get("pixel_share"), file, f"pixel_share (row {i})")})
-    return slices_table(rows), {"left_out": {}}
+    return slices_table(rows), {"left_out": {}, **_csv_size(table, file)}
+
+
+def _csv_size(table: pd.DataFrame, file: str) -> dict[str, int]:
+    """The frame's resolution from the `width` and `height` columns (both, one value each
+    over the rows that give one), where the table has them."""
+    have = [c for c in ("width", "height") if c in table.columns]
+    if not have:
+        return {}
+    if len(have) == 1:
+        raise InputError(f"a {have[0]} column without its pair: give both width and height", file=file,
+                         field=have[0])
+    out = {}
+    for col in have:
+        values = {str(v).strip() for v in table[col] if not pd.isna(v) and str(v).strip()}
+        if len(values) != 1:
+            raise InputError(f"expected one frame size over the rows, got {sorted(values)[:4] or 'none'}",
+                             file=file, field=col)
+        text = values.pop()
+        number = float(text) if re.fullmatch(r"\d+(?:\.0*)?", text) else math.nan
+        out[col] = _side(int(number) if number == number else text, file, col)
+    return out
 
 
 # ----- the runner's measured runs -------------------------------------------------------------
@@ -418,7 +483,10 @@ def read_run(folder: Path) -> tuple[pd.DataFrame, dict[str, Any]]:
     rows = _run_rows(trace, specs, io, views, file)
     source = {"experiment": config.get("experiment"), "file": config.get("file"), "schedule": schedule,
               "run": file}
-    return slices_table(rows), {"width": width, "height": height, "source": source, "left_out": {}}
+    why = {str(s["name"]): f"the run's pass kind {s.get('kind')!r}" for s in specs
+           if str(s.get("kind", "")) in RUN_PIXEL_SHARE}
+    return slices_table(rows), {"width": width, "height": height, "source": source, "left_out": {},
+                                "share_why": why}
 
 
 def _run_views(config: dict[str, Any], file: str) -> int:

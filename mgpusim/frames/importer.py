@@ -25,6 +25,7 @@ from typing import Any, Mapping, cast
 
 import pandas as pd
 
+from mgpusim.frames.shares import INFERRED, OPTION, STATED, Share, infer_share, share_comment
 from mgpusim.model.errors import InputError
 from mgpusim.schedules.experiment import Experiment, parse_experiment
 
@@ -45,6 +46,8 @@ class CapturedPass:
     output_bytes: int = 0
     #: the spread of its time over the frames (median absolute deviation, ms)
     spread_ms: float = 0.0
+    #: where its pixel share came from (the capture, --pixel-share, inferred) and why
+    share: Share | None = None
 
 
 @dataclass(frozen=True)
@@ -73,10 +76,13 @@ class CapturedFrame:
 
 
 def frame_from_slices(slices: pd.DataFrame, *, name: str, source: str, width: int, height: int,
-                      pixel_share: float = 1.0, left_out: Mapping[str, float] | None = None,
-                      origin: Mapping[str, Any] | None = None) -> CapturedFrame:
+                      pixel_share: float | None = None, left_out: Mapping[str, float] | None = None,
+                      origin: Mapping[str, Any] | None = None,
+                      share_why: Mapping[str, str] | None = None) -> CapturedFrame:
     """The frame the slices make (see the module doc); `pixel_share` for passes whose capture
-    does not say how much of their time scales with pixels."""
+    does not say how much of their time scales with pixels (None: inferred from the pass,
+    :mod:`mgpusim.frames.shares`); `share_why`: why the capture states a pass's share, where it
+    says (a measured run's pass kinds)."""
     gpu = slices[slices["queue"].isin(["graphics", "compute"])]
     if gpu.empty:
         raise InputError("no GPU passes in the capture (queues graphics or compute)", file=source)
@@ -87,7 +93,7 @@ def frame_from_slices(slices: pd.DataFrame, *, name: str, source: str, width: in
         raise InputError(f"a stereo capture (passes with a view) where pass {bad!r} has none: give "
                          "every GPU pass its view (0 or 1)", file=source, field="view")
     keyed = _occurrences(gpu)
-    passes = _passes(keyed, pixel_share, width * height * DEFAULT_COLOR_BYTES)
+    passes = _passes(keyed, pixel_share, width * height, share_why or {})
     notes = list(_notes(slices, keyed, passes, len(frames), left_out or {}, views))
     cpu = slices[slices["queue"] == "cpu"]
     cpu_ms = float(cpu["ms"].sum()) / len(frames) if len(cpu) else 0.0
@@ -113,9 +119,10 @@ def _occurrences(gpu: pd.DataFrame) -> pd.DataFrame:
     return df
 
 
-def _passes(keyed: pd.DataFrame, default_share: float,
-            default_bytes: int) -> tuple[tuple[CapturedPass, ...], list[str]]:
-    """The passes in frame order, their reads resolved to passes, and notes on assumed sizes."""
+def _passes(keyed: pd.DataFrame, default_share: float | None, pixels: int,
+            share_why: Mapping[str, str]) -> tuple[tuple[CapturedPass, ...], list[str]]:
+    """The passes in frame order, their reads resolved to passes, each one's pixel share and
+    where it came from, and notes on assumed sizes."""
     order = (keyed.groupby("key", sort=False)
              .agg(offset=("offset", "median"), order=("order", "min"), ms=("ms", "median"),
                   frames=("frame", "nunique"), queue=("queue", lambda q: q.mode().iat[0]),
@@ -123,14 +130,21 @@ def _passes(keyed: pd.DataFrame, default_share: float,
              .sort_values(["offset", "order"], na_position="last", kind="stable"))
     spread = keyed.groupby("key")["ms"].apply(lambda s: float((s - s.median()).abs().median()))
     io = _io(keyed, list(order.index))
-    producers, sizes, notes = _producers(list(order.index), io, default_bytes)
+    producers, sizes, notes = _producers(list(order.index), io, pixels * DEFAULT_COLOR_BYTES)
     passes = []
     for index, row in order.iterrows():
         key = cast(str, index)  # a pass's name
-        share = row["share"] if not math.isnan(row["share"]) else default_share
+        if not math.isnan(row["share"]):
+            share = Share(float(row["share"]), STATED, share_why.get(key.split("#")[0], ""))
+        elif default_share is not None:
+            share = Share(default_share, OPTION)
+        else:
+            value, why = infer_share(key.split("#")[0], pixels=pixels, reads_passes=bool(producers[key]),
+                                     written=io[key][1])
+            share = Share(value, INFERRED, why)
         passes.append(CapturedPass(str(key), str(row["queue"]), float(row["ms"]), int(row["frames"]),
-                                   float(share), tuple(producers[key]), int(sizes[key]),
-                                   float(spread[key])))
+                                   share.value, tuple(producers[key]), int(sizes[key]),
+                                   float(spread[key]), share))
     return tuple(passes), notes
 
 
@@ -229,6 +243,9 @@ def experiment_text(frame: CapturedFrame, profile: Path, out: Path, frames: int 
              + (f"; the GPU was busy {frame.gpu_span_ms:.3f} ms per frame." if frame.gpu_span_ms else "."),
              "# pixel_share: the part of a pass's time that scales with the pixels it draws (a",
              "# sort-first tile); the rest scales with the geometry it draws (a sort-last share).",
+             "# Each pass's comment says where its share came from (the capture, --pixel-share, or",
+             "# inferred from its name, targets and reads: docs/frame_captures.md); check the",
+             "# inferred ones: `mgpusim advise` lists them and how its answer moves if they are off.",
              *(f"# note: {n}" for n in frame.notes),
              f"name = {_q(frame.name)}",
              f"description = {_q(f'frame imported from {frame.source}: {len(frame.passes)} passes')}",
@@ -237,7 +254,8 @@ def experiment_text(frame: CapturedFrame, profile: Path, out: Path, frames: int 
         lines += ["", "[[scene.passes]]", f"name = {_q(p.name)}", 'kind = "captured"',
                   f"gpu_ms = {p.gpu_ms:.6g}" + (f"  # +- {p.spread_ms:.3g} ms over {p.frames} frame(s)"
                                                if p.frames > 1 else ""),
-                  f"pixels = {frame.width * frame.height}", f"pixel_share = {p.pixel_share:g}"]
+                  f"pixels = {frame.width * frame.height}",
+                  f"pixel_share = {p.pixel_share:g}" + (f"  {share_comment(p.share)}" if p.share else "")]
         if p.output_bytes:
             lines.append(f"output_bytes = {p.output_bytes}")
         if p.reads:

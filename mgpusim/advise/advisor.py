@@ -6,16 +6,25 @@ buffers or one shared host allocation), alternate-frame rendering (carrying the 
 temporal input, if it has one), frame pipelining over every contiguous split point with 1 to 8
 chunks per copy, and XR stereo (2 or 4 GPUs, weak or strong scaling) where the frame has two
 views; on 2 to 8 GPUs, over PCIe 3/4/5 x8/x16 and NVLink. Each option is a set of overrides of
-the experiment (`mgpusim simulate EXPERIMENT --set ...` reproduces it).
+the experiment (`mgpusim simulate EXPERIMENT --set ...` reproduces it). Every AFR option also
+comes **evenly paced** (:func:`paced`): the engine holds each present to an even cadence
+(`schedule.pace_us`), as engines do to keep AFR's GPUs from presenting in bursts.
+
+**The ranking measure** is the 99th-percentile interval between presents (the mean interval
+where that is larger: :data:`RANK_MEASURE`), from the simulated frames table, so that an option
+that presents eight frames at once and then waits ranks by the wait, not by the mean. Options
+whose measures are within :data:`TIE` of each other tie (the model's own timeline error,
+docs/advise.md): a tie is ordered by latency (again within :data:`TIE`), then fewer GPUs, then
+the cheaper link (the order of :data:`LINKS`).
 
 Every option runs first at the `analytic` level (no event simulation; milliseconds each). The
-best of them by frame time, the best of each GPU count and of each schedule, and those on the
-analytic Pareto front of frame time and latency are confirmed at `full` fidelity; the ranking
-(frame time, then latency, then GPUs) and the Pareto front (frame time against latency) are
-over the confirmed results. Where the analytic level is an optimistic bound (every
-approximation it makes only speeds the model up: docs/fidelity.md), an option whose analytic
-frame time is above the best confirmed frame time cannot beat it: :attr:`Advice.open` counts
-the options below it that were not confirmed, so "the best" is proven when it is 0.
+best of them by the measure and by mean frame time, the best of each GPU count and of each
+schedule, and those on the analytic Pareto front of the measure and latency are confirmed at
+`full` fidelity; the ranking and the Pareto front are over the confirmed results. Where the
+analytic level is an optimistic bound (every approximation it makes only speeds the model up:
+docs/fidelity.md), an option whose analytic mean frame time is above the best confirmed measure
+cannot beat it (its measure is never below its mean): :attr:`Advice.open` counts the options
+below it that were not confirmed, so "the best" is proven when it is 0.
 
 Pure: no file is written here (the command writes the report).
 """
@@ -32,6 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence, cast
 
+import numpy as np
 import pandas as pd
 
 from mgpusim.model.errors import InputError, MgpusimError
@@ -48,8 +58,24 @@ CHUNKS = tuple(range(1, 9))
 COMMON_KEYS = ("frames", "warmup_frames", "frames_in_flight", "refresh_hz", "cpu_frame_us")
 #: Options confirmed at full fidelity by default, besides the analytic Pareto front.
 CONFIRM = 24
-#: Differences smaller than this share do not keep an option on the Pareto front.
-PARETO_TOLERANCE = 0.01
+#: Options whose ranking measures differ by less than this share tie. Why 1 %: it is the
+#: model's own timeline error, the replay's median target, which every held-out schedule's
+#: replay meets on the NVIDIA runs of the native runner core (docs/replay.md). The options of
+#: one frame share its pass costs, so what sets them apart is their timelines, and a difference
+#: below the timeline's own error is not one the model can tell.
+TIE = 0.01
+#: Differences smaller than this share do not keep an option on the Pareto front (a tie).
+PARETO_TOLERANCE = TIE
+#: The percentile of the steady intervals between presents that ranks the options.
+PERCENTILE = 99
+#: What the options are ranked by, in words (the report and docs say it).
+RANK_MEASURE = (f"the {PERCENTILE}th-percentile interval between presents (the mean interval "
+                "where that is larger)")
+#: Even pacing's cadence, as shares above the unpaced option's mean interval: the one that ranks
+#: best is kept (at the mean itself the GPUs have no slack, and the cadence can slip).
+PACE_MARGINS = (0.0, 0.01, 0.02, 0.05)
+#: The family of evenly paced AFR options.
+PACED = "AFR, even pacing"
 
 
 @dataclass(frozen=True)
@@ -71,7 +97,8 @@ def _pcie(gen: int, lanes: int) -> Link:
 
 #: The links searched: PCIe generations and widths of current boards, and NVLink between every
 #: pair of GPUs (a bridge for two workstation cards, NVLink 4 through NVSwitch), beside the
-#: profile's own PCIe link.
+#: profile's own PCIe link. In order of cost, cheapest first (an older PCIe generation, then
+#: fewer lanes, then NVLink: a bridge, then NVSwitch), which orders options that tie.
 LINKS: tuple[Link, ...] = (
     *(_pcie(gen, lanes) for gen in (3, 4, 5) for lanes in (8, 16)),
     Link("NVLink bridge 56 GB/s", {"profile.peer_mesh": {"bandwidth_gbps": 56.25, "latency_ns": 2000}},
@@ -93,13 +120,17 @@ class Option:
     link: str
     settings: str
     overrides: Mapping[str, Any]
+    #: an evenly paced AFR option: the index of the same option unpaced
+    paced_from: int | None = None
+    #: what the label adds to the settings that does not tell options apart (a cadence)
+    detail: str = ""
 
     @property
     def label(self) -> str:
         if self.gpus == 1:
             return self.family
-        return f"{self.family} x{self.gpus}" + (f", {self.settings}" if self.settings else "") + \
-            f", {self.link}"
+        words = ", ".join(w for w in (self.settings, self.detail) if w)
+        return f"{self.family} x{self.gpus}" + (f", {words}" if words else "") + f", {self.link}"
 
 
 @dataclass
@@ -118,6 +149,11 @@ class Advice:
     notes: list[str] = field(default_factory=list)
     #: the overrides every option was given on top of its own (`advise --set`)
     base: dict[str, Any] = field(default_factory=dict)
+    #: the links' places in order of cost, cheapest first (ties go to the cheaper)
+    link_order: dict[str, int] = field(default_factory=dict)
+    #: the passes' pixel shares, where each came from, and the answer with the assumed ones
+    #: moved (:func:`mgpusim.advise.assumptions.check_shares`); empty where not checked
+    assumptions: dict[str, Any] = field(default_factory=dict)
 
     def overrides(self, index: int) -> dict[str, Any]:
         """All overrides of option `index`: the search's own and the option's."""
@@ -125,9 +161,9 @@ class Advice:
 
     @property
     def ranked(self) -> pd.DataFrame:
-        """Confirmed options, best first: frame time, then latency, then GPUs."""
+        """Confirmed options, best first (`rank`, see the module doc)."""
         ok = self.table[self.table["confirmed"]]
-        return ok.sort_values(["frame_time_ms", "latency_ms", "gpus", "option"], kind="stable")
+        return ok.loc[ok["order"].sort_values(kind="stable").index]
 
     @property
     def front(self) -> pd.DataFrame:
@@ -277,19 +313,32 @@ def evaluate(path: str, base: Mapping[str, Any], items: Sequence[tuple[int, Mapp
             result = simulate(exp, record_trace=False, fidelity=fidelity, band=band)
             s = result.summary
             row.update(frame_time_ms=s["frame_time_ms"], latency_ms=s["latency_ms"], error=None,
-                       settled=s.get("settled", True))
+                       settled=s.get("settled", True), **intervals(result.frames, s))
             if band and "frame_time_ms_lo" in s:
                 row.update({k: s[k] for k in ("frame_time_ms_lo", "frame_time_ms_hi",
                                               "latency_ms_lo", "latency_ms_hi")})
         except MgpusimError as exc:
-            row.update(frame_time_ms=math.nan, latency_ms=math.nan, error=str(exc))
+            row.update(frame_time_ms=math.nan, latency_ms=math.nan, error=str(exc),
+                       interval_p99_ms=math.nan, interval_max_ms=math.nan)
         row["wall_s"] = time.perf_counter() - t0
         out.append(row)
     return out
 
 
-def _run(path: str, base: Mapping[str, Any], items: list[tuple[int, Mapping[str, Any]]],
-         fidelity: str, workers: int, band: bool = False) -> list[dict[str, Any]]:
+def intervals(frames: pd.DataFrame, summary: Mapping[str, Any]) -> dict[str, float]:
+    """The steady intervals between presents (those of the frames after the warm-up, as the
+    summary's mean): their :data:`PERCENTILE`th percentile (numpy's linear interpolation) and
+    the worst, in ms."""
+    presents = frames.loc[frames["frame"] >= summary["warmup_frames"], "present_ns"].to_numpy(np.int64)
+    periods = np.diff(presents)
+    if not len(periods):  # one steady frame: its period is the summary's
+        return {"interval_p99_ms": summary["frame_time_ms"], "interval_max_ms": summary["frame_time_ms"]}
+    return {"interval_p99_ms": float(np.percentile(periods, PERCENTILE)) / 1e6,
+            "interval_max_ms": float(periods.max()) / 1e6}
+
+
+def run_options(path: str, base: Mapping[str, Any], items: list[tuple[int, Mapping[str, Any]]],
+                fidelity: str, workers: int, band: bool = False) -> list[dict[str, Any]]:
     """`evaluate` over the items, spread over `workers` processes (1: here)."""
     if workers <= 1 or len(items) < 2 * workers:
         return evaluate(path, base, items, fidelity, band)
@@ -304,33 +353,165 @@ def _run(path: str, base: Mapping[str, Any], items: list[tuple[int, Mapping[str,
 def search(path: str | Path, overrides: Mapping[str, Any] | None = None, *, max_gpus: int = 8,
            links: Sequence[Link] = LINKS, confirm: int = CONFIRM, workers: int | None = None,
            band: bool = True) -> Advice:
-    """Search every option of the experiment at `path` (see the module doc)."""
+    """Search every option of the experiment at `path` (see the module doc). How the answer
+    moves if the passes' assumed pixel shares are off is a second step on the result
+    (:func:`mgpusim.advise.assumptions.check_shares`)."""
     path, base = str(path), dict(overrides or {})
     exp = _start(path, base, max_gpus)
     workers = workers or os.cpu_count() or 1
     opts = options(exp, max_gpus, links)
-    items = [(i, o.overrides) for i, o in enumerate(opts)]
     fast = "queues" if exp.schedule.refresh_hz else "analytic"  # the analytic level has no vsync
     t0 = time.perf_counter()
-    table = _table(opts, pd.DataFrame(_run(path, base, items, fast, workers)).set_index("option"))
+    first = by_option(run_options(path, base, list(enumerate(o.overrides for o in opts)), fast, workers))
+    opts, first = _with_paced(path, base, opts, first, fast, workers)
+    table = _table(opts, first)
     t1 = time.perf_counter()
-    full = _run(path, base, [items[i] for i in _to_confirm(table, confirm)], "full", workers, band)
-    table = _merge_full(table, pd.DataFrame(full).set_index("option"))
+    chosen = _to_confirm(table, confirm)
+    # a paced option's cadence comes from its unpaced option's mean at the same level
+    chosen |= {u for i in chosen if (u := opts[i].paced_from) is not None}
+    plain = [i for i in sorted(chosen) if opts[i].paced_from is None]
+    full = by_option(run_options(path, base, [(i, opts[i].overrides) for i in plain], "full", workers, band))
+    opts, full, refast = _paced_at_full(path, base, opts, full, sorted(chosen - set(plain)), workers, band)
+    if refast:  # the analytic row of a paced option at the cadence it kept
+        again = run_options(path, base, [(i, opts[i].overrides) for i in refast], fast, workers)
+        table = _refresh_fast(table, by_option(again))
+    link_order = {link.name: k for k, link in enumerate(links)}
+    table = _merge_full(table, full, link_order)
+    table["label"] = [opts[i].label for i in table.index]
     t2 = time.perf_counter()
     if not table["confirmed"].any():
         errors = table["error"].dropna()
         raise InputError("no option of this frame could run, not even on one GPU"
                          + (f" (the first error: {errors.iloc[0]})" if len(errors) else ""), file=path)
     bound = fast_level_is_bound(exp)
-    baseline = cast(dict[str, float], table.loc[0, ["frame_time_ms", "latency_ms"]].to_dict())
-    table["speedup"] = baseline["frame_time_ms"] / table["frame_time_ms"]
+    baseline = cast(dict[str, float], table.loc[0, ["frame_time_ms", "latency_ms", "interval_p99_ms",
+                                                    "interval_max_ms", "rank_ms"]].to_dict())
+    table["speedup"] = baseline["rank_ms"] / table["rank_ms"]
     notes = [] if bound else [f"the {fast} level is not a bound on this profile (its GPUs share the "
                               "CPU, which it leaves out): options outside the confirmed ones may do better"]
     notes += settle_notes(table)
     counts = {"options": len(opts), "failed": int(table["error"].notna().sum()),
-              "confirmed": int(table["confirmed"].sum()), "workers": workers}
+              "confirmed": int(table["confirmed"].sum()), "workers": workers,
+              "paced": sum(o.paced_from is not None for o in opts)}
     return Advice(path, opts, table, baseline, bound, _open(table) if bound else -1,
-                  {f"{fast}_s": t1 - t0, "full_s": t2 - t1}, counts, notes, base)
+                  {f"{fast}_s": t1 - t0, "full_s": t2 - t1}, counts, notes, base, link_order)
+
+
+def by_option(rows: list[dict[str, Any]]) -> pd.DataFrame:
+    """`evaluate`'s rows as a table by option index."""
+    return pd.DataFrame(rows).set_index("option")
+
+
+# ----- even pacing ----------------------------------------------------------------------------
+def paced(option: Option, source: int, pace_us: float) -> Option:
+    """`option` (AFR) with its presents held to an even cadence of `pace_us`."""
+    sched = {**option.overrides["schedule"], "pace_us": pace_us}
+    return Option(PACED, option.gpus, option.link, option.settings, {**option.overrides, "schedule": sched},
+                  paced_from=source, detail=f"presents every {pace_us / 1000:.3f} ms")
+
+
+def cadences(mean_ms: float) -> list[float]:
+    """The cadences tried for an AFR option whose presents come every `mean_ms` on average
+    (:data:`PACE_MARGINS` above it), in us, whole ns."""
+    return [math.ceil(mean_ms * 1e6 * (1 + m)) / 1000 for m in PACE_MARGINS]
+
+
+def best_cadence(path: str, base: Mapping[str, Any], opts: Sequence[Option], means: Mapping[int, float],
+                 fidelity: str, workers: int, band: bool = False) -> dict[int, tuple[float, dict[str, Any]]]:
+    """For each unpaced AFR option (index -> its mean interval at `fidelity`): the cadence of
+    :func:`cadences` whose paced run ranks best (measure, then latency, then the slower cadence
+    is not preferred), with that run's row."""
+    tried: list[tuple[int, float]] = [(u, pace) for u, mean in means.items() for pace in cadences(mean)]
+    items = [(k, paced(opts[u], u, pace).overrides) for k, (u, pace) in enumerate(tried)]
+    rows = run_options(path, base, items, fidelity, workers, band)
+    out: dict[int, tuple[float, dict[str, Any]]] = {}
+    for (u, pace), row in zip(tried, sorted(rows, key=lambda r: r["option"])):
+        if row["error"] is not None:
+            out.setdefault(u, (pace, row))
+            continue
+        key = (rank_of(row), row["latency_ms"], pace)
+        held = out.get(u)
+        if held is None or held[1]["error"] is not None or key < (rank_of(held[1]), held[1]["latency_ms"], held[0]):
+            out[u] = (pace, row)
+    return out
+
+
+def rank_of(row: Mapping[str, Any]) -> float:
+    """The ranking measure of a result (:data:`RANK_MEASURE`)."""
+    return max(row["frame_time_ms"], row["interval_p99_ms"])
+
+
+def cell(df: pd.DataFrame, index: int, col: str) -> Any:
+    """One value of a table of options (by option index and column)."""
+    value: Any = df.at[index, col]
+    return value
+
+
+def ran(df: pd.DataFrame, index: int) -> bool:
+    """Whether option `index` is in a table of results and ran without an error."""
+    return index in df.index and not isinstance(cell(df, index, "error"), str)
+
+
+def paced_sources(opts: Sequence[Option], picks: Iterable[int]) -> dict[int, int]:
+    """The paced options among `picks` by the unpaced option each comes from."""
+    return {u: p for p in picks if (u := opts[p].paced_from) is not None}
+
+
+def _pace_sources(opts: Sequence[Option], rows: pd.DataFrame) -> dict[int, float]:
+    """Unpaced AFR options on several GPUs that ran, with their mean intervals."""
+    return {i: float(cell(rows, i, "frame_time_ms")) for i, o in enumerate(opts)
+            if o.family == "AFR" and o.gpus > 1 and o.paced_from is None and ran(rows, i)}
+
+
+def _with_paced(path: str, base: Mapping[str, Any], opts: list[Option], rows: pd.DataFrame, fidelity: str,
+                workers: int) -> tuple[list[Option], pd.DataFrame]:
+    """Every AFR option on several GPUs again, evenly paced at its best cadence (fast level)."""
+    found = best_cadence(path, base, opts, _pace_sources(opts, rows), fidelity, workers)
+    opts = list(opts)
+    extra = []
+    for u, (pace, row) in found.items():
+        extra.append({**row, "option": len(opts)})
+        opts.append(paced(opts[u], u, pace))
+    if not extra:
+        return opts, rows
+    return opts, pd.concat([rows, by_option(extra)])
+
+
+def _paced_at_full(path: str, base: Mapping[str, Any], opts: list[Option], full: pd.DataFrame,
+                   chosen: list[int], workers: int, band: bool
+                   ) -> tuple[list[Option], pd.DataFrame, list[int]]:
+    """The paced options to confirm, their cadence found again from their unpaced option's
+    full-fidelity mean (the fast level's may be shorter); those whose cadence moved, to be run
+    again at the fast level."""
+    sources = paced_sources(opts, chosen)
+    means = {u: float(cell(full, u, "frame_time_ms")) for u in sources if ran(full, u)}
+    found = best_cadence(path, base, opts, means, "full", workers, band)
+    opts, moved = list(opts), []
+    rows: list[dict[str, Any]] = []
+    for u, p in sources.items():
+        if u not in found:  # its unpaced option failed at full fidelity: so does it
+            rows.append({"option": p, "frame_time_ms": math.nan, "latency_ms": math.nan,
+                         "interval_p99_ms": math.nan, "interval_max_ms": math.nan,
+                         "error": cell(full, u, "error") if u in full.index else "not run"})
+            continue
+        pace, row = found[u]
+        if pace != opts[p].overrides["schedule"]["pace_us"]:
+            opts[p] = paced(opts[u], u, pace)
+            moved.append(p)
+        rows.append({**row, "option": p})
+    if not rows:
+        return opts, full, moved
+    return opts, pd.concat([full, by_option(rows)]), moved
+
+
+def _refresh_fast(table: pd.DataFrame, rows: pd.DataFrame) -> pd.DataFrame:
+    """The table with the fast level's columns of `rows`' options replaced."""
+    table = table.copy()
+    fast = _fast_columns(rows)
+    for col in fast.columns:
+        if col in table.columns:
+            table.loc[fast.index, col] = fast[col]
+    return table
 
 
 def settle_notes(table: pd.DataFrame) -> list[str]:
@@ -369,27 +550,40 @@ def fast_level_is_bound(exp: Experiment) -> bool:
     return not exp.profile.host.gpus_share_cpu
 
 
+def _fast_columns(first: pd.DataFrame) -> pd.DataFrame:
+    out = first.rename(columns={"frame_time_ms": "fast_frame_time_ms", "latency_ms": "fast_latency_ms",
+                                "interval_p99_ms": "fast_interval_p99_ms",
+                                "interval_max_ms": "fast_interval_max_ms", "wall_s": "fast_wall_s"})
+    out["fast_rank_ms"] = out[["fast_frame_time_ms", "fast_interval_p99_ms"]].max(axis=1, skipna=False)
+    return out
+
+
 def _table(opts: list[Option], first: pd.DataFrame) -> pd.DataFrame:
     meta = pd.DataFrame([{"option": i, "family": o.family, "gpus": o.gpus, "link": o.link,
-                          "settings": o.settings, "label": o.label} for i, o in enumerate(opts)]).set_index("option")
-    table = meta.join(first.rename(columns={"frame_time_ms": "fast_frame_time_ms",
-                                            "latency_ms": "fast_latency_ms", "wall_s": "fast_wall_s"}))
-    return table
+                          "settings": o.settings, "label": o.label,
+                          "paced_from": o.paced_from if o.paced_from is not None else pd.NA}
+                         for i, o in enumerate(opts)]).set_index("option")
+    meta["paced_from"] = meta["paced_from"].astype("Int64")
+    return meta.join(_fast_columns(first))
 
 
-def _to_confirm(table: pd.DataFrame, confirm: int) -> list[int]:
-    """The baseline, the `confirm` best by the fast level's frame time, the best of each GPU
-    count and of each schedule family, and the fast level's Pareto front of frame time and
-    latency."""
+def _to_confirm(table: pd.DataFrame, confirm: int) -> set[int]:
+    """The baseline, the `confirm` best by the fast level's ranking measure, the best of each
+    GPU count and of each schedule family, up to `confirm` whose fast mean frame time is below
+    the best fast measure (with the fast level a bound, only they could beat it at full
+    fidelity), and the fast level's Pareto front of the measure and latency."""
     ok = table[table["error"].isna()]
-    best = ok.sort_values(["fast_frame_time_ms", "fast_latency_ms", "gpus"], kind="stable")
+    best = ok.sort_values(["fast_rank_ms", "fast_latency_ms", "gpus"], kind="stable")
     chosen = {0, *best.index[:confirm], *best.groupby("gpus").head(1).index,
               *best.groupby("family").head(1).index}
-    chosen |= set(pareto(ok, ("fast_frame_time_ms", "fast_latency_ms")))
-    return sorted(chosen)
+    if len(best):
+        below = ok[ok["fast_frame_time_ms"] < best["fast_rank_ms"].iloc[0]]
+        chosen |= set(below.sort_values(["fast_frame_time_ms", "gpus"], kind="stable").index[:confirm])
+    chosen |= set(pareto(ok, ("fast_rank_ms", "fast_latency_ms")))
+    return {int(i) for i in chosen}
 
 
-def _merge_full(table: pd.DataFrame, full: pd.DataFrame) -> pd.DataFrame:
+def _merge_full(table: pd.DataFrame, full: pd.DataFrame, link_order: Mapping[str, int]) -> pd.DataFrame:
     table = table.copy()
     table["confirmed"] = table.index.isin(full.index) & full.reindex(table.index)["error"].isna()
     for col in full.columns:
@@ -397,17 +591,76 @@ def _merge_full(table: pd.DataFrame, full: pd.DataFrame) -> pd.DataFrame:
             table["error"] = table["error"].where(table["error"].notna(), full["error"].reindex(table.index))
             continue
         table[col] = full[col].reindex(table.index)
+    table["rank_ms"] = table[["frame_time_ms", "interval_p99_ms"]].max(axis=1, skipna=False)
     ok = table[table["confirmed"]]
-    table["pareto"] = table.index.isin(pareto(ok, ("frame_time_ms", "latency_ms")))
-    ranked = ok.sort_values(["frame_time_ms", "latency_ms", "gpus"], kind="stable").index
-    table["rank"] = pd.Series(range(1, len(ranked) + 1), index=ranked).reindex(table.index).astype("Int64")
+    table["pareto"] = table.index.isin(pareto(ok, ("rank_ms", "latency_ms")))
+    order = ranking(ok, link_order)
+    for col in order.columns:
+        table[col] = order[col].reindex(table.index)
+    for col in ("order", "rank"):
+        table[col] = table[col].astype("Int64")
+    # a row of tied options is on the front if one of them is (the cheapest stands for it)
+    on_front = table.loc[table["pareto"], "rank"].dropna().unique()
+    table["pareto"] = table["rank"].isin(on_front).astype(bool)
     return table
 
 
+def ranking(ok: pd.DataFrame, link_order: Mapping[str, int], tie: float = TIE) -> pd.DataFrame:
+    """The confirmed options in order (`order`, 1 = best) and collapsed (`rank`): options whose
+    measures (`rank_ms`) are within `tie` of the first of their group tie, and a tie is ordered
+    by latency (groups within `tie` again), then GPUs, then the cheaper link (`link_order`: a
+    link's place, cheapest first). Options of one tie and latency group that differ only in
+    their link are one row of the table: they share its rank, its first (cheapest) option
+    stands for them and `also_on` names the other links, cheapest first."""
+    cost = ok["link"].map(lambda name: link_order.get(name, len(link_order)) if name else -1)
+    df = ok.assign(_cost=cost)
+    ordered: list[tuple[int, int, int]] = []  # (option, tie group, latency group)
+    groups = 0
+    for group in _ties(df.sort_values(["rank_ms", "latency_ms", "gpus", "_cost"], kind="stable"), "rank_ms", tie):
+        for sub in _ties(group.sort_values(["latency_ms", "gpus", "_cost", "rank_ms"], kind="stable"),
+                         "latency_ms", tie):
+            groups += 1
+            ordered += [(int(i), groups, 0) for i in
+                        sub.sort_values(["gpus", "_cost", "rank_ms", "latency_ms"], kind="stable").index]
+    rank: dict[int, int] = {}
+    rows: dict[tuple, int] = {}  # (group, family, gpus, settings) -> the option that stands for it
+    also: dict[int, list[str]] = {}
+    heads: list[int] = []
+    for i, g, _ in ordered:
+        key = (g, cell(ok, i, "family"), int(cell(ok, i, "gpus")), cell(ok, i, "settings"))
+        head = rows.setdefault(key, i)
+        heads.append(head)
+        if head == i:
+            rank[i] = len(rows)
+            also[i] = []
+        else:
+            rank[i] = rank[head]
+            also[head].append(str(cell(ok, i, "link")))
+    index = [i for i, _, _ in ordered]
+    return pd.DataFrame({"order": range(1, len(index) + 1), "rank": [rank[i] for i in index],
+                         "also_on": [", ".join(also[i]) if i in also else None for i in index],
+                         "stands_for": heads},
+                        index=pd.Index(index, name="option"))
+
+
+def _ties(df: pd.DataFrame, col: str, tie: float) -> Iterable[pd.DataFrame]:
+    """Consecutive groups of rows sorted by `col`: each from its first row to the last within
+    `tie` (a share) of it."""
+    values = df[col].to_numpy(dtype=float)
+    start = 0
+    while start < len(values):
+        end = start + 1
+        while end < len(values) and values[end] <= values[start] * (1 + tie):
+            end += 1
+        yield df.iloc[start:end]
+        start = end
+
+
 def _open(table: pd.DataFrame) -> int:
-    """Options not confirmed whose fast frame time is below the best confirmed frame time:
-    with the fast level an optimistic bound, only these could still beat the best."""
-    best = table.loc[table["confirmed"], "frame_time_ms"].min()
+    """Options not confirmed whose fast mean frame time is below the best confirmed measure:
+    with the fast level an optimistic bound (on the mean, which no measure is below), only these
+    could still beat the best."""
+    best = table.loc[table["confirmed"], "rank_ms"].min()
     rest = table[~table["confirmed"] & table["error"].isna()]
     return int((rest["fast_frame_time_ms"] < best).sum())
 

@@ -154,10 +154,12 @@ def source_overrides(setup: Setup, frame: Frame, schedule: Mapping[str, Any]) ->
 
 def candidates(advice: Advice, least: int = 4) -> list[int]:
     """The baseline and the best confirmed option of each family (runnable: the frame's own
-    scene, not a two-eye copy of it); where that makes fewer than `least` (a stereo frame has
-    only XR), the best of each family and GPU count too, best first, up to `least`."""
+    scene, not a two-eye copy of it, and not paced, which the runner cannot: its pacer is CPU
+    work); where that makes fewer than `least` (a stereo frame has only XR), the best of each
+    family and GPU count too, best first, up to `least`."""
     ranked = advice.ranked
-    ranked = ranked[[("scene.passes" not in advice.options[i].overrides) for i in ranked.index]]
+    ranked = ranked[[("scene.passes" not in advice.options[i].overrides and advice.options[i].paced_from is None)
+                     for i in ranked.index]]
     chosen = {0, *ranked.groupby("family", sort=False).head(1).index}
     for index in ranked.groupby(["family", "gpus"], sort=False).head(1).index:
         if len(chosen) >= least:

@@ -16,19 +16,27 @@ from typing import Any
 
 import pandas as pd
 
-from mgpusim.advise.advisor import Advice, option_command
+from mgpusim.advise.advisor import PACE_MARGINS, PACED, RANK_MEASURE, TIE, Advice, option_command
 from mgpusim.io.plot import pareto_png
 from mgpusim.io.report_page import Section, write_page
 from mgpusim.io.writers import write_json, write_result, write_table
 from mgpusim.schedules.experiment import load_experiment
 from mgpusim.sim.simulation import simulate
 
-#: Options within this share of the best frame time count as as fast (the answer then names
-#: the one with the fewest GPUs among them too).
+#: Options within this share of the best measure count as as fast (the answer then names the
+#: one with the fewest GPUs among them too).
 NEAR_BEST = 0.05
-_COLUMNS = ("rank", "label", "family", "gpus", "link", "settings", "fast_frame_time_ms",
-            "fast_latency_ms", "frame_time_ms", "latency_ms", "speedup", "frame_time_ms_lo",
-            "frame_time_ms_hi", "latency_ms_lo", "latency_ms_hi", "confirmed", "settled", "pareto", "error")
+_COLUMNS = ("rank", "order", "label", "family", "gpus", "link", "settings", "also_on",
+            "fast_frame_time_ms", "fast_interval_p99_ms", "fast_rank_ms", "fast_latency_ms", "rank_ms",
+            "frame_time_ms", "interval_p99_ms", "interval_max_ms", "latency_ms", "speedup",
+            "frame_time_ms_lo", "frame_time_ms_hi", "latency_ms_lo", "latency_ms_hi", "confirmed",
+            "settled", "pareto", "paced_from", "error")
+#: The report's tables: column -> header (the page names no other column).
+HEADERS = {"rank": "rank", "label": "option", "gpus": "GPUs", "interval_p99_ms": "p99 interval ms",
+           "frame_time_ms": "mean interval ms", "interval_max_ms": "worst interval ms",
+           "latency_ms": "latency ms", "speedup": "speedup", "also_on": "tied, also on",
+           "frame_time_ms_lo": "mean, band low ms", "frame_time_ms_hi": "mean, band high ms",
+           "family": "schedule"}
 
 
 def write_advice(advice: Advice, out: Path, experiment: str, timelines: int = 3) -> dict[str, Path]:
@@ -38,8 +46,11 @@ def write_advice(advice: Advice, out: Path, experiment: str, timelines: int = 3)
     table["command"] = [option_command(experiment, advice.overrides(i)) for i in table["option"]]
     files = {"table": write_table(table[["option", *[c for c in _COLUMNS if c in table], "command"]],
                                   out / "advice.csv")}
-    files["pareto"] = pareto_png(advice.table, out / "pareto.png",
-                                 f"{Path(experiment).stem}: {advice.counts['options']} options")
+    plotted = advice.table.assign(frame_time_ms=advice.table["rank_ms"],
+                                  fast_frame_time_ms=advice.table["fast_rank_ms"])
+    files["pareto"] = pareto_png(plotted, out / "pareto.png",
+                                 f"{Path(experiment).stem}: {advice.counts['options']} options; x: the p99 "
+                                 "interval between presents (ms)")
     shown = _timelines(advice, out / "timelines", timelines)
     files["answer"] = write_json(answer(advice, table, shown), out / "advice.json")
     files["report"] = write_page(out / "report.html", f"mgpusim advise: {Path(experiment).stem}",
@@ -50,24 +61,41 @@ def write_advice(advice: Advice, out: Path, experiment: str, timelines: int = 3)
 
 def answer(advice: Advice, table: pd.DataFrame, shown: list[dict[str, Any]]) -> dict[str, Any]:
     """advice.json: the best option, the fewest GPUs near it, the front, the baseline, the search."""
-    ranked = table[table["confirmed"]].sort_values("rank")
+    ranked = table[table["confirmed"]].sort_values("order")
     keep = [c for c in _COLUMNS if c in table and c not in ("confirmed", "error")] + ["command"]
     best = ranked.iloc[0]
-    near = ranked[ranked["frame_time_ms"] <= best["frame_time_ms"] * (1 + NEAR_BEST)]
-    fewest = near.sort_values(["gpus", "frame_time_ms"]).iloc[0]
-    return {"experiment": advice.experiment, "baseline": advice.baseline,
-            "best": best[keep].to_dict(), "fewest_gpus_near_best": fewest[keep].to_dict(),
-            "near_best_share": NEAR_BEST,
-            "pareto_front": ranked[ranked["pareto"]][keep].to_dict("records"),
+    fewest = _fewest(ranked)
+    return {"experiment": advice.experiment, "ranked_by": RANK_MEASURE, "tie_share": TIE,
+            "baseline": advice.baseline, "best": best[keep].to_dict(),
+            "best_by_mean": _by_mean(ranked)[keep].to_dict(),
+            "fewest_gpus_near_best": fewest[keep].to_dict(), "near_best_share": NEAR_BEST,
+            "pareto_front": _rows(ranked[ranked["pareto"]])[keep].to_dict("records"),
             "analytic_is_bound": advice.analytic_bound, "open": advice.open,
             "timings_s": advice.timings, "counts": advice.counts, "notes": advice.notes,
-            "timelines": shown}
+            "assumptions": advice.assumptions, "timelines": shown}
+
+
+def _rows(ranked: pd.DataFrame) -> pd.DataFrame:
+    """One option per row of the ranking (ties of one schedule over several links collapsed:
+    the cheapest link's stands for them)."""
+    return ranked.drop_duplicates("rank", keep="first")
+
+
+def _fewest(ranked: pd.DataFrame) -> pd.Series:
+    best = ranked.iloc[0]
+    near = ranked[ranked["rank_ms"] <= best["rank_ms"] * (1 + NEAR_BEST)]
+    return near.sort_values(["gpus", "order"], kind="stable").iloc[0]
+
+
+def _by_mean(ranked: pd.DataFrame) -> pd.Series:
+    """The option mean frame time alone would put first (the order's first among equals)."""
+    return ranked.sort_values(["frame_time_ms", "order"], kind="stable").iloc[0]
 
 
 def _timelines(advice: Advice, root: Path, count: int) -> list[dict[str, Any]]:
     """The baseline and the `count` best options at full fidelity with their traces."""
-    ranked = advice.ranked
-    picks = [0] + [int(i) for i in ranked.index if i != 0][:count]
+    rows = _rows(advice.ranked)
+    picks = [0] + [int(i) for i in rows.index if i != 0][:count]
     out = []
     for k, index in enumerate(picks):
         option = advice.options[index]
@@ -85,42 +113,73 @@ def _slug(text: str) -> str:
     return re.sub(r"[^a-z0-9]+", "_", text.lower()).strip("_")[:60]
 
 
+def _shown(df: pd.DataFrame, cols: list[str]) -> pd.DataFrame:
+    return df[cols].rename(columns=HEADERS)
+
+
+def _pacing(row: pd.Series) -> str:
+    return (f"p99 interval {row['interval_p99_ms']:.3f} ms, mean {row['frame_time_ms']:.3f} ms, "
+            f"worst {row['interval_max_ms']:.3f} ms")
+
+
 def sections(advice: Advice, table: pd.DataFrame, shown: list[dict[str, Any]],
              experiment: str) -> list[Section]:
-    ranked = table[table["confirmed"]].sort_values("rank")
+    ranked = table[table["confirmed"]].sort_values("order")
+    rows = _rows(ranked)
     best = ranked.iloc[0]
     base = advice.baseline
-    near = ranked[ranked["frame_time_ms"] <= best["frame_time_ms"] * (1 + NEAR_BEST)]
-    fewest = near.sort_values(["gpus", "frame_time_ms"]).iloc[0]
-    text = [f"Best: {best['label']}: frame time {best['frame_time_ms']:.3f} ms "
-            f"({1000 / best['frame_time_ms']:.1f} fps), latency {best['latency_ms']:.3f} ms, "
-            f"{best['speedup']:.2f}x the frame rate of one GPU ({base['frame_time_ms']:.3f} ms, "
-            f"latency {base['latency_ms']:.3f} ms)." + _band(best),
-            f"Fewest GPUs within {NEAR_BEST:.0%} of that frame time: {fewest['label']}: "
-            f"{fewest['frame_time_ms']:.3f} ms, latency {fewest['latency_ms']:.3f} ms."]
+    fewest = _fewest(ranked)
+    text = [f"Ranked by {RANK_MEASURE}, from each option's simulated frames: an option that "
+            "presents several frames at once and then waits ranks by the wait.",
+            f"Best: {best['label']}: {_pacing(best)} ({1000 / best['rank_ms']:.1f} fps at the 99th "
+            f"percentile), latency {best['latency_ms']:.3f} ms, {best['speedup']:.2f}x one GPU "
+            f"({_pacing(pd.Series(base))}, latency {base['latency_ms']:.3f} ms)." + _band(best),
+            f"Fewest GPUs within {NEAR_BEST:.0%} of that measure: {fewest['label']}: {_pacing(fewest)}, "
+            f"latency {fewest['latency_ms']:.3f} ms."]
+    by_mean = _by_mean(ranked)
+    if by_mean["rank"] != best["rank"]:
+        text.append(f"By mean frame time alone the best would be {by_mean['label']} (mean "
+                    f"{by_mean['frame_time_ms']:.3f} ms), but its presents are uneven: p99 interval "
+                    f"{by_mean['interval_p99_ms']:.3f} ms, worst {by_mean['interval_max_ms']:.3f} ms "
+                    f"(rank {by_mean['rank']}).")
+    if advice.counts.get("paced"):
+        text.append(f"\"{PACED}\": AFR with each present held to an even cadence (schedule.pace_us, "
+                    "simulated only), as engines pace AFR; the cadence is the unpaced option's mean "
+                    "interval or " + ", ".join(f"{m:.0%}" for m in PACE_MARGINS[1:])
+                    + " above it, whichever ranks best.")
     if advice.analytic_bound:
         text.append("The analytic level is an optimistic bound on this profile: "
-                    + ("every option it puts below the best confirmed frame time was confirmed, so "
-                       "none of the others is faster." if advice.open == 0 else
-                       f"{advice.open} option(s) it puts below the best confirmed frame time were not "
-                       "confirmed (raise --confirm): one of them may be faster."))
+                    + ("every option whose analytic mean frame time is below the best confirmed measure "
+                       "was confirmed, so none of the others is better." if advice.open == 0 else
+                       f"{advice.open} option(s) whose analytic mean frame time is below the best "
+                       "confirmed measure were not confirmed (raise --confirm): one of them may be better."))
     text += advice.notes
-    cols = ["rank", "label", "gpus", "frame_time_ms", "latency_ms", "speedup"]
+    cols = ["rank", "label", "gpus", "interval_p99_ms", "frame_time_ms", "interval_max_ms", "latency_ms",
+            "speedup"]
     band = [c for c in ("frame_time_ms_lo", "frame_time_ms_hi") if c in table and table[c].notna().any()]
-    per_gpus = ranked.groupby("gpus", sort=True).head(1).sort_values("gpus")
-    per_family = ranked.groupby("family", sort=False).head(1)
-    out = [Section("Answer", text=text),
-           Section("Pareto front: frame time against latency", tables=[(
-               "No other confirmed option has both a shorter frame time and a shorter latency; "
-               "_lo/_hi: every pass cost one calibration standard error lower/higher (where the "
-               "profile has them).", ranked[ranked["pareto"]][cols + band])],
-               images=[("pareto.png", "every option: grey at the analytic level, coloured where "
-                                      "confirmed at full fidelity")]),
-           Section("Ranking", tables=[("Confirmed options, best first (frame time, then latency, "
-                                       "then GPUs); the first 25.", ranked[cols + band].head(25))]),
-           Section("Best of each schedule and each GPU count", tables=[
-               ("By schedule (its best confirmed option):", per_family[cols + ["family"]]),
-               ("By GPU count:", per_gpus[cols])])]
+    tied = ["also_on"] if rows["also_on"].fillna("").astype(bool).any() else []
+    per_gpus = rows.groupby("gpus", sort=True).head(1).sort_values("gpus")
+    per_family = rows.groupby("family", sort=False).head(1)
+    tie_words = (f"Options within {TIE:.0%} of each other tie (the model's own timeline error: "
+                 "docs/advise.md); a tie is ordered by latency, then fewer GPUs, then the cheaper link, "
+                 "and one schedule's ties over several links are one row, under the cheapest link"
+                 + (f" (\"{HEADERS['also_on']}\": the others)" if tied else "") + ".")
+    band_words = (f" \"{HEADERS['frame_time_ms_lo']}\" / \"{HEADERS['frame_time_ms_hi']}\": the mean "
+                  "with every pass cost one calibration standard error lower / higher." if band else "")
+    out = [Section("Answer", text=text + sensitivity_lines(advice, best))]
+    if advice.assumptions.get("passes"):
+        out.append(assumptions_section(advice))
+    out.append(Section("Pareto front: the ranking measure against latency", tables=[(
+        "No other confirmed option has both a shorter p99 interval and a shorter latency "
+        f"(differences under {TIE:.0%} are ties)." + band_words,
+        _shown(_rows(ranked[ranked["pareto"]]), cols + tied + band))],
+        images=[("pareto.png", "every option's p99 interval (the mean where larger) against latency: "
+                               "grey at the analytic level, coloured where confirmed at full fidelity")]))
+    out.append(Section("Ranking", tables=[(f"Confirmed options, best first; the first 25 rows. {tie_words}"
+                                           + band_words, _shown(rows, cols + tied + band).head(25))]))
+    out.append(Section("Best of each schedule and each GPU count", tables=[
+        ("By schedule (its best confirmed option):", _shown(per_family, cols + ["family"])),
+        ("By GPU count:", _shown(per_gpus, cols))]))
     timeline = Section("Timelines", text=["The one-GPU baseline and the best options, simulated at "
                                           "full fidelity (their last four frames). The Perfetto "
                                           "traces open in https://ui.perfetto.dev (Open trace file)."])
@@ -128,8 +187,7 @@ def sections(advice: Advice, table: pd.DataFrame, shown: list[dict[str, Any]],
         timeline.images.append((item["timeline"], item["label"]))
         timeline.links.append((item["perfetto"], f"Perfetto trace: {item['label']}"))
     out.append(timeline)
-    commands = [option_command(experiment, advice.overrides(int(i)))
-                for i in ranked["option"].head(3)]
+    commands = [option_command(experiment, advice.overrides(int(i))) for i in rows["option"].head(3)]
     out.append(Section("Run them yourself", text=["Each option is the experiment with overrides:"],
                        code=commands))
     search = pd.DataFrame([{"options": advice.counts["options"], "failed": advice.counts["failed"],
@@ -144,8 +202,54 @@ def sections(advice: Advice, table: pd.DataFrame, shown: list[dict[str, Any]],
     return out
 
 
+def sensitivity_lines(advice: Advice, best: pd.Series) -> list[str]:
+    """How the best option moves with the assumed pixel shares off (one sentence each way)."""
+    checked = advice.assumptions
+    if not checked.get("passes"):
+        return []
+    assumed = checked["assumed"]
+    if not assumed:
+        return ["Every pass's pixel share was stated in the capture: none was assumed."]
+    lines = [f"{len(assumed)} of {len(checked['passes'])} passes' pixel shares were assumed, not stated "
+             "in the capture (\"Assumptions\" lists them and how each was found)."]
+    for shift in checked["shifts"]:
+        way = f"{abs(shift['delta']):g} {'lower' if shift['delta'] < 0 else 'higher'}"
+        head = (f"With every assumed share {way} (clamped to 0-1; {shift['options']} options re-run at "
+                "full fidelity: the best of each schedule and GPU count and the ranking's first rows): ")
+        moved = [f"{family}'s best {m['now_ms']:.3f} -> {m['shifted_ms']:.3f} ms"
+                 for family, m in shift["families"].items()
+                 if abs(m["shifted_ms"] / m["now_ms"] - 1) > TIE]
+        moved_words = (" (" + "; ".join(moved) + ")") if moved else " (no schedule's best moves by more than a tie)"
+        if shift["same"]:
+            lines.append(head + f"the best stays {best['label']}, p99 interval "
+                         + (f"{shift['best_rank_ms']:.3f} ms" if abs(shift["best_rank_ms"] / best["rank_ms"] - 1) > 1e-9
+                            else "unchanged") + moved_words + ".")
+            continue
+        today = (f"; today's best would take {shift['today_best_rank_ms']:.3f} ms (row "
+                 f"{shift['today_best_rank']})" if shift["today_best_rank_ms"] is not None else "")
+        lines.append(head + f"the best would be {shift['best']} (p99 interval {shift['best_rank_ms']:.3f} ms, "
+                     f"latency {shift['best_latency_ms']:.3f} ms){today}" + moved_words + ".")
+    return lines
+
+
+def assumptions_section(advice: Advice) -> Section:
+    """Every captured pass's pixel share, its geometry share and where it came from."""
+    listed = pd.DataFrame(advice.assumptions["passes"])
+    table = pd.DataFrame({"pass": listed["pass"], "pixel share": listed["pixel_share"],
+                          "geometry share": listed["geometry_share"], "from": listed["source"],
+                          "how": listed["why"]})
+    return Section("Assumptions: each pass's pixel share", text=[
+        "A pass's pixel share is the part of its time that scales with the pixels it draws (a sort-first "
+        "tile draws fewer); the rest, its geometry share, scales with the geometry it draws (a sort-last "
+        "GPU draws less), and every sort-first GPU repeats it in full. `mgpusim frame import` takes it "
+        "from the capture, else from --pixel-share, else infers it from the pass's name, the targets it "
+        "writes and what it reads (docs/frame_captures.md, \"Pixel shares\"), and records which in the "
+        "experiment file; the answer's sensitivity to the assumed ones is above."],
+        tables=[("", table)])
+
+
 def _band(row: pd.Series) -> str:
     if "frame_time_ms_lo" not in row or pd.isna(row.get("frame_time_ms_lo")):
         return ""
-    return (f" Calibration band (pass costs +-1 standard error): {row['frame_time_ms_lo']:.3f}-"
+    return (f" Calibration band of its mean (pass costs +-1 standard error): {row['frame_time_ms_lo']:.3f}-"
             f"{row['frame_time_ms_hi']:.3f} ms.")

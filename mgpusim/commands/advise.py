@@ -1,9 +1,11 @@
 """`mgpusim advise EXPERIMENT [--out DIR]`: the best multi-GPU schedule, GPU count and link
 for a frame (usually one from `mgpusim frame import`).
 
-Searches sort-first (balanced tiles), sort-last, AFR, frame pipelining (every split point, 1-8
-chunks) and XR (a frame with two views) on 1-8 GPUs over PCIe 3/4/5 x8/x16 and NVLink, at the
-analytic level first, then confirms the best at full fidelity. Writes DIR/report.html (tables,
+Searches sort-first (balanced tiles), sort-last, AFR (also evenly paced), frame pipelining
+(every split point, 1-8 chunks) and XR (a frame with two views) on 1-8 GPUs over PCIe 3/4/5
+x8/x16 and NVLink, at the analytic level first, then confirms the best at full fidelity. Ranks
+by the 99th-percentile interval between presents; ties (within 1 %) go to the lower latency,
+fewer GPUs, the cheaper link (docs/advise.md). Writes DIR/report.html (tables,
 the Pareto plot, timelines, Perfetto traces), advice.csv, advice.json and pareto.png.
 """
 from __future__ import annotations
@@ -37,6 +39,7 @@ def run(args: argparse.Namespace) -> int:
     import time  # noqa: PLC0415
 
     from mgpusim.advise.advisor import search  # noqa: PLC0415
+    from mgpusim.advise.assumptions import check_shares  # noqa: PLC0415
     from mgpusim.advise.report import write_advice  # noqa: PLC0415
     from mgpusim.schedules.experiment import parse_overrides  # noqa: PLC0415
     for name, value, low in (("--confirm", args.confirm, 1), ("--timelines", args.timelines, 0),
@@ -49,20 +52,26 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     advice = search(path, parse_overrides(args.overrides), max_gpus=args.max_gpus,
                     confirm=args.confirm, workers=args.workers)
+    check_shares(advice, advice.counts["workers"])
     searched = time.perf_counter() - t0
     files = write_advice(advice, out, str(args.experiment), args.timelines)
-    ranked = advice.ranked
-    best, base = ranked.iloc[0], advice.baseline
+    from mgpusim.advise.advisor import RANK_MEASURE  # noqa: PLC0415
+    rows = advice.ranked.drop_duplicates("rank")
+    best, base = rows.iloc[0], advice.baseline
     print(f"{path.stem}: {advice.counts['options']} options in {searched:.1f} s "
           f"({', '.join(f'{k} {v:.1f}' for k, v in advice.timings.items())}; "
           f"{advice.counts['confirmed']} confirmed at full fidelity, {advice.counts['workers']} worker(s))")
-    print(f"  one GPU: frame time {base['frame_time_ms']:.3f} ms, latency {base['latency_ms']:.3f} ms")
-    print(f"  best: {best['label']}: frame time {best['frame_time_ms']:.3f} ms "
-          f"({best['speedup']:.2f}x), latency {best['latency_ms']:.3f} ms")
-    front = ranked[ranked["pareto"]]
-    print(f"  Pareto front (frame time against latency): {len(front)} option(s)")
+    print(f"  ranked by {RANK_MEASURE}")
+    print(f"  one GPU: p99 interval {base['interval_p99_ms']:.3f} ms (mean {base['frame_time_ms']:.3f}), "
+          f"latency {base['latency_ms']:.3f} ms")
+    print(f"  best: {best['label']}: p99 interval {best['interval_p99_ms']:.3f} ms (mean "
+          f"{best['frame_time_ms']:.3f}, worst {best['interval_max_ms']:.3f}; {best['speedup']:.2f}x), "
+          f"latency {best['latency_ms']:.3f} ms")
+    front = rows[rows["pareto"]]
+    print(f"  Pareto front (p99 interval against latency): {len(front)} option(s)")
     for _, row in front.head(8).iterrows():
-        print(f"    {row['frame_time_ms']:8.3f} ms  latency {row['latency_ms']:8.3f} ms  {row['label']}")
+        print(f"    {row['rank_ms']:8.3f} ms  latency {row['latency_ms']:8.3f} ms  {row['label']}"
+              + (f" (tied: also {row['also_on']})" if isinstance(row["also_on"], str) and row["also_on"] else ""))
     if advice.analytic_bound and advice.open:
         print(f"  {advice.open} option(s) not confirmed could be faster: raise --confirm")
     for note in advice.notes:

@@ -1,0 +1,150 @@
+"""What the advice assumed about the frame, and how far the answer moves if that is off.
+
+A captured pass's `pixel_share` (how much of its time scales with the pixels it draws, the
+rest with its geometry) decides how far sort-first scales, and a capture rarely states it:
+`mgpusim frame import` infers it from the pass's name, targets and reads and records how in the
+experiment file (:mod:`mgpusim.frames.shares`). :func:`check_shares` lists every pass's share
+with where it came from and runs the best options again with every assumed share (those the
+capture did not state) :data:`SHARE_DELTA` lower and higher, clamped to 0..1: the best of each
+schedule and GPU count and the first rows of the ranking, at full fidelity, evenly paced AFR
+with its cadence found again.
+"""
+from __future__ import annotations
+
+import copy
+import time
+from typing import Any, Mapping
+
+import pandas as pd
+
+from mgpusim.advise.advisor import (
+    Advice,
+    best_cadence,
+    by_option,
+    cell,
+    paced,
+    paced_sources,
+    ran,
+    ranking,
+    run_options,
+    two_eye_passes,
+)
+from mgpusim.frames.shares import Share, recorded_shares
+
+#: How far the assumed shares are moved, each way.
+SHARE_DELTA = 0.25
+#: Besides the best of each schedule and GPU count: the first rows of the ranking re-run.
+TOP_ROWS = 10
+
+
+def shares(advice: Advice) -> dict[str, Share]:
+    """The captured passes' shares and where each came from."""
+    passes = [p for p in advice_scene(advice) if p.get("kind") == "captured"]
+    return recorded_shares(advice.experiment, {str(p["name"]): float(p["pixel_share"]) for p in passes})
+
+
+def advice_scene(advice: Advice) -> list[dict[str, Any]]:
+    """The experiment's scene passes as the search ran them (with `advise --set` applied)."""
+    from mgpusim.schedules.experiment import load_experiment  # noqa: PLC0415 - keeps this module light
+    return list(load_experiment(advice.experiment, advice.base).raw["scene"]["passes"])
+
+
+def shifted(passes: list[dict[str, Any]], assumed: set[str], delta: float) -> list[dict[str, Any]]:
+    """The passes with every assumed share moved by `delta`, clamped to 0..1."""
+    out = copy.deepcopy(passes)
+    for p in out:
+        if p.get("kind") == "captured" and p["name"] in assumed:
+            p["pixel_share"] = min(1.0, max(0.0, float(p["pixel_share"]) + delta))
+    return out
+
+
+def candidates(advice: Advice) -> list[int]:
+    """The options re-run: the best row of each schedule and GPU count, and the first
+    :data:`TOP_ROWS` rows of the ranking (the baseline among them)."""
+    rows = advice.ranked.drop_duplicates("rank")
+    chosen = {0, *rows.index[:TOP_ROWS], *rows.groupby(["family", "gpus"], sort=False).head(1).index}
+    return sorted(int(i) for i in chosen)
+
+
+def check_shares(advice: Advice, workers: int = 1, delta: float = SHARE_DELTA) -> dict[str, Any]:
+    """Every captured pass's share and its source (`passes`), and per direction (`shifts`) the
+    best option with the assumed shares moved by -`delta` and +`delta`, where today's best
+    lands then, and each schedule's best measure today and then (`families`). Kept in
+    `advice.assumptions` (which the report shows) and returned; its time in `advice.timings`."""
+    t0 = time.perf_counter()
+    advice.assumptions = _check(advice, workers, delta)
+    advice.timings["shares_s"] = time.perf_counter() - t0
+    return advice.assumptions
+
+
+def _check(advice: Advice, workers: int, delta: float) -> dict[str, Any]:
+    table = shares(advice)
+    listed = [{"pass": name, "pixel_share": s.value, "geometry_share": 1 - s.value, "source": s.source,
+               "why": s.why} for name, s in table.items()]
+    assumed = {name for name, s in table.items() if s.assumed}
+    out: dict[str, Any] = {"passes": listed, "delta": delta, "assumed": sorted(assumed), "shifts": []}
+    if not assumed:
+        return out
+    scene = advice_scene(advice)
+    best = advice.ranked.iloc[0]
+    for sign in (-1, 1):
+        got = _rerun(advice, candidates(advice), shifted(scene, assumed, sign * delta), workers)
+        if got.empty:
+            continue
+        first = got.iloc[0]
+        now = got.loc[got.index == best.name]
+        today = advice.ranked.loc[[i for i in got.index if i in advice.ranked.index]]
+        moved = {str(family): {"now_ms": float(today.loc[today["family"] == family, "rank_ms"].min()),
+                               "shifted_ms": float(group["rank_ms"].min())}
+                 for family, group in got.groupby("family", sort=False)}
+        out["shifts"].append({
+            "delta": sign * delta, "best": str(first["label"]), "best_option": int(got.index[0]),
+            "best_rank_ms": float(first["rank_ms"]), "best_latency_ms": float(first["latency_ms"]),
+            "same": bool(len(now)) and int(now["rank"].iloc[0]) == 1,
+            "today_best_rank_ms": float(now["rank_ms"].iloc[0]) if len(now) else None,
+            "today_best_rank": int(now["rank"].iloc[0]) if len(now) else None,
+            "families": moved, "options": len(got)})
+    return out
+
+
+def _rerun(advice: Advice, picks: list[int], passes: list[dict[str, Any]], workers: int) -> pd.DataFrame:
+    """The picked options at full fidelity on the scene `passes`, ranked as the search ranks."""
+    base = {**advice.base, "scene.passes": passes}
+    opts = list(advice.options)
+    plain = sorted({i for i in picks if opts[i].paced_from is None}
+                   | {u for i in picks if (u := opts[i].paced_from) is not None})
+    items: list[tuple[int, Mapping[str, Any]]] = [(i, _on_scene(opts[i].overrides, passes)) for i in plain]
+    rows = by_option(run_options(advice.experiment, base, items, "full", workers))
+    # evenly paced AFR: its cadence again, from its unpaced option's mean on this scene
+    sources = paced_sources(opts, picks)
+    means = {u: float(cell(rows, u, "frame_time_ms")) for u in sources if ran(rows, u)}
+    shifted_opts = [o if "scene.passes" not in o.overrides else
+                    type(o)(o.family, o.gpus, o.link, o.settings, _on_scene(o.overrides, passes),
+                            o.paced_from, o.detail) for o in opts]
+    found = best_cadence(advice.experiment, base, shifted_opts, means, "full", workers)
+    extra = []
+    labels = {i: opts[i].label for i in picks}
+    for u, (pace, row) in found.items():
+        extra.append({**row, "option": sources[u]})
+        labels[sources[u]] = paced(opts[u], u, pace).label
+    if extra:
+        rows = pd.concat([rows.drop(index=[i for i in sources.values() if i in rows.index]), by_option(extra)])
+    rows = rows.loc[[i for i in picks if i in rows.index]]
+    rows = rows[rows["error"].isna()].copy()
+    if rows.empty:
+        return rows
+    meta = advice.table.loc[rows.index, ["family", "gpus", "link", "settings"]]
+    rows = rows.join(meta)
+    rows["label"] = [labels[int(i)] for i in rows.index]
+    rows["rank_ms"] = rows[["frame_time_ms", "interval_p99_ms"]].max(axis=1)
+    order = ranking(rows, advice.link_order)
+    rows = rows.join(order)
+    return rows.sort_values("order")
+
+
+def _on_scene(overrides: Mapping[str, Any], passes: list[dict[str, Any]]) -> dict[str, Any]:
+    """An option's overrides on another scene: a stereo frame's two-eye copy made from it."""
+    out = dict(overrides)
+    if "scene.passes" in out:
+        out["scene.passes"] = two_eye_passes(passes)
+    return out

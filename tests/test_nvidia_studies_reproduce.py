@@ -91,6 +91,7 @@ def _calibrated_errors(study: Path) -> dict:
     return json.loads((out / "v" / "errors_by_schedule.json").read_text())
 
 
+@pytest.mark.second_step  # two full calibrations of the 4x H200 study (about a minute)
 def test_a_shared_interpreter_fits_the_python_executors_sort_first_replay(tmp_path: Path) -> None:
     """What docs/nvidia_h200_x4.md reports of the what-if on the Python executor's runs:
     calibrated with the runner's threads sharing one interpreter, the grid gives each task

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from mgpusim.bench.model_speed import events_per_frame, hand_written_sort_first, sort_first_experiment
+from mgpusim.bench.model_speed import events_per_frame, sort_first_experiment
+from mgpusim.bench.reference import hand_written_sort_first
 from mgpusim.schedules.experiment import load_experiment
 from mgpusim.sim.simulation import simulate
 

@@ -16,12 +16,12 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from mgpusim.measure import host_load
 from mgpusim.vmgpu.build_folder import Build
 from mgpusim.vmgpu.failures import RunFailedError
 
 STRATEGIES = ("single", "sort-first", "sort-last")
 LAVAPIPE_ICD = Path("/usr/share/vulkan/icd.d/lvp_icd.x86_64.json")
-STAT = Path("/proc/stat")
 
 
 @dataclass(frozen=True)
@@ -120,14 +120,8 @@ class _Sample:
 def _sample(xvfb_pid: int | None) -> _Sample:
     """The machine's busy and steal CPU seconds, the waited-for children's CPU seconds, and
     Xvfb's, now."""
-    busy = steal = 0.0
-    try:
-        fields = [int(v) for v in STAT.read_text().splitlines()[0].split()[1:]]
-        tick = os.sysconf("SC_CLK_TCK")
-        busy = (fields[0] + fields[1] + fields[2] + fields[5] + fields[6]) / tick
-        steal = fields[7] / tick if len(fields) > 7 else 0.0
-    except (OSError, ValueError, IndexError):
-        busy = steal = float("nan")
+    machine = host_load.sample()
+    busy, steal = (machine.busy_s, machine.steal_s) if machine is not None else (math.nan, math.nan)
     usage = resource.getrusage(resource.RUSAGE_CHILDREN)
     return _Sample(wall=time.monotonic(), unix=time.time(), busy=busy, steal=steal,
                    children=usage.ru_utime + usage.ru_stime, xvfb=_process_cpu(xvfb_pid))

@@ -288,7 +288,7 @@ def sweep(experiment: str | Path, grid: Mapping[str, Sequence[Any]], out: str | 
             lanes = LaneRun(path, base, grid, todo if client is None else [], fidelity, loader=loader(path),
                             workers=local_workers(workers), store=store)
             for batch in lanes:  # the analytic level over many points at once, saved per batch
-                if store:
+                if store and not batch.attrs.get("saved"):  # (a worker process saved it)
                     store.save_batch(batch)
                 batches.append(batch)
                 bar.update(len(batch))

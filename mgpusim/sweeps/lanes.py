@@ -61,6 +61,7 @@ from mgpusim.sim import analytic_lanes as lanes_mod
 from mgpusim.sim.analytic import Analytic
 from mgpusim.sim.effects import choose_effects
 from mgpusim.sweeps.loader import _SHARED, ExperimentLoader, shared
+from mgpusim.sweeps.store import save_batch
 
 #: A coefficient a lane key sets: (GPU index, "speed") or (GPU index, kind, "fixed_ns" | term).
 Coef = tuple
@@ -630,17 +631,27 @@ class LaneRun:
         from mgpusim.sweeps.pool import local_pool  # noqa: PLC0415
 
         self.loader._table()  # parsed before the workers fork: each inherits it
+        points = self.store.points if self.store is not None else None
         with local_pool(min(self.workers, len(tasks)), self.store) as pool:
-            for fut in as_completed([pool.submit(run_groups, *a) for a in args]):
+            for fut in as_completed([pool.submit(run_groups, *a, points) for a in args]):
                 frames, fallback = fut.result()
                 self.fallback.extend(fallback)
-                yield from frames
+                for frame in frames:  # saved by the worker: read back (cheaper than pickled)
+                    yield _saved(pd.read_parquet(frame), frame) if isinstance(frame, Path) else frame
+
+
+def _saved(df: pd.DataFrame, path: Path) -> pd.DataFrame:
+    """A batch a worker saved as `path` (`attrs["saved"]`: the sweep saves it no more)."""
+    df.attrs["saved"] = str(path)
+    return df
 
 
 def run_groups(path: str, base: Mapping[str, Any], fidelity: str, plan_: Plan, todo: list[Group],
-               max_lanes: int) -> tuple[list[pd.DataFrame], list[Any]]:
+               max_lanes: int, points: Path | None = None) -> tuple[list[Any], list[Any]]:
     """Build `todo`'s groups and run them as lanes, in whatever process: the batches' records
-    and the points left to run one by one."""
+    and the points left to run one by one. `points`: the sweep's points folder, where a worker
+    saves each batch itself (:meth:`~mgpusim.sweeps.store.PointStore.save_batch`), returning
+    its file instead of its table."""
     loader = shared(path)
     built: list[Group] = []
     fallback: list[Any] = []
@@ -650,12 +661,12 @@ def run_groups(path: str, base: Mapping[str, Any], fidelity: str, plan_: Plan, t
             built.append(g)
         else:
             fallback.extend(g.points)
-    frames = []
+    frames: list[Any] = []
     for batch in batches(built, max_lanes):
         df, left = run_batch(batch, plan_)
         fallback.extend(left)
         if len(df):
-            frames.append(df)
+            frames.append(df if points is None else save_batch(points, df))
     return frames, fallback
 
 

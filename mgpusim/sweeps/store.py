@@ -98,8 +98,7 @@ class PointStore:
         """Points run together (a table with column `id`), or run one by one and saved
         together (`kind` "single"): one file, saved whole or not at all, named by its kind and a
         hash of its points."""
-        digest = hashlib.sha256("\n".join(sorted(df["id"])).encode()).hexdigest()[:20]
-        return atomic_write(self.points / f"{kind}-{digest}.parquet", lambda tmp: df.to_parquet(tmp, index=False))
+        return save_batch(self.points, df, kind)
 
     def load_batches(self, wanted: set[str]) -> list[pd.DataFrame]:
         """The saved batches' rows of the points in `wanted` (a batch file this code did not
@@ -127,6 +126,13 @@ class PointStore:
         desc = json.dumps({**spec, "failed": failed, "metric": metric}, indent=2, sort_keys=True, default=str)
         files["description"] = atomic_write(self.out / "sweep.json", lambda tmp: tmp.write_text(desc + "\n"))
         return files
+
+
+def save_batch(points: Path, df: pd.DataFrame, kind: str = "batch") -> Path:
+    """:meth:`PointStore.save_batch` into a locked store's `points` folder (what the sweep's
+    worker processes call: the sweep itself holds the lock)."""
+    digest = hashlib.sha256("\n".join(sorted(df["id"])).encode()).hexdigest()[:20]
+    return atomic_write(points / f"{kind}-{digest}.parquet", lambda tmp: df.to_parquet(tmp, index=False))
 
 
 def check_record(text: str, path: Path) -> dict[str, Any]:

@@ -44,8 +44,8 @@ def test_each_profile_is_parsed_once(monkeypatch):
     from mgpusim.sweeps import loader as loader_mod
 
     calls = []
-    real = loader_mod.load_profile
-    monkeypatch.setattr(loader_mod, "load_profile", lambda *a: calls.append(a) or real(*a))
+    real = loader_mod.parse_profile
+    monkeypatch.setattr(loader_mod, "parse_profile", lambda *a: calls.append(a) or real(*a))
     loader = ExperimentLoader(ROOT / "experiments" / "sort_first_tc1.toml")
     for width in (800, 900, 1000):
         for speed in (1.0, 2.0):

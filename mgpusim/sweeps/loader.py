@@ -4,14 +4,15 @@ Why: a sweep loads its experiment once per point. :func:`~mgpusim.schedules.expe
 reads and parses the experiment's TOML and its profile's every time (about 1.5 ms of a point's
 few at the analytic level). :class:`ExperimentLoader` gives the same :class:`Experiment` for
 the same overrides, checked the same way with the same errors, but reads the experiment file
-once, resolves its profile reference once, and parses each profile (file and ``profile.``
-overrides) once: an experiment's own overrides are set on a copy of the parsed table (a deep
-copy of each top-level table an override reaches, the others shared: validation only reads
-them), which is then validated exactly as `parse_experiment` validates a file's (the same
-steps in the same order; a test checks both give equal experiments, or the same error, over
-every shipped experiment and many overrides). A profile that fails to load fails every later load the same
-way. Files are read when first needed: a file edited during a sweep is not seen (as before, a
-sweep's points are known by the experiment file's bytes when it started).
+once, resolves its profile reference once, reads each profile file once and validates each
+profile (file and ``profile.`` overrides, set on a copy of its table as `load_profile` sets
+them) once: an experiment's own overrides are set on a copy of the parsed table (a deep copy
+of each top-level table an override reaches, the others shared: validation only reads them),
+which is then validated exactly as `parse_experiment` validates a file's (the same steps in
+the same order; a test checks both give equal experiments, or the same error, over every
+shipped experiment and many overrides). A profile that fails to load fails every later load
+the same way. Files are read when first needed: a file edited during a sweep is not seen (as
+before, a sweep's points are known by the experiment file's bytes when it started).
 """
 from __future__ import annotations
 
@@ -23,7 +24,7 @@ from typing import Any, Mapping
 
 from mgpusim.model.errors import InputError
 from mgpusim.model.overrides import set_dotted, split_profile
-from mgpusim.model.profile import HardwareProfile, load_profile, require_gpus
+from mgpusim.model.profile import HardwareProfile, apply_profile_overrides, parse_profile, require_gpus
 from mgpusim.model.scene import parse_scene
 from mgpusim.model.toml_checks import Table, read_toml
 from mgpusim.model.work_terms import COMMON_PARAMS, PARAM_BOUNDS, PASS_PARAMS, REQUIRED_PARAMS
@@ -41,6 +42,7 @@ class ExperimentLoader:
         self._raw: dict[str, Any] | InputError | None = None
         self._refs: dict[str, Path | InputError] = {}
         self._profiles: dict[tuple, HardwareProfile | InputError] = {}
+        self._profile_tables: dict[str, dict[str, Any] | InputError] = {}
 
     def load(self, overrides: Mapping[str, Any] | None = None) -> Experiment:
         raw = self._table()
@@ -61,13 +63,28 @@ class ExperimentLoader:
         found = self._profiles.get(key)
         if found is None:
             try:
-                found = load_profile(path, overrides)
+                found = self._load_profile(path, overrides)
             except InputError as exc:
                 found = exc
             self._profiles[key] = found
         if isinstance(found, InputError):
             raise found.with_traceback(None)
         return found
+
+    def _load_profile(self, path: Path, overrides: Mapping[str, Any]) -> HardwareProfile:
+        """`load_profile(path, overrides)` with the file's TOML parsed once: its steps (the
+        overrides applied to a copy, then the whole validated)."""
+        table = self._profile_tables.get(str(path))
+        if table is None:
+            try:
+                table = read_toml(path)
+            except InputError as exc:
+                table = exc
+            self._profile_tables[str(path)] = table
+        if isinstance(table, InputError):
+            raise table.with_traceback(None)
+        data = apply_profile_overrides(table, overrides, str(path)) if overrides else table
+        return parse_profile(data, str(path))
 
     def _table(self) -> dict[str, Any]:
         if self._raw is None:

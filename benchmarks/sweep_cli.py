@@ -9,7 +9,9 @@ fresh process (imports, points, the table, plot and description written), on sev
   program, built and run as a lane of its own (the rate the group keys alone give);
 - `full`: 400 points at `--fidelity full` (the default) with the fast-forward, 1,000 frames
   each (TC1 sort-first: the state repeats from frame 92), over a pass cost and the width: one
-  event simulation per point, on every CPU.
+  event simulation per point, on every CPU;
+- `full-afr`: 4,000 points at `--fidelity full`, 10,000 frames each of TC1 AFR on one GPU
+  (the state repeats from frame 1): what a point costs besides its event simulation.
 
     PYTHONPATH=. python benchmarks/sweep_cli.py [--only lanes mixed ...] [--runs 1]
 
@@ -49,7 +51,12 @@ GRIDS: dict[str, tuple[list[str], list[str]]] = {  # name -> (grids, other argum
     "full": (["profile.gpus.*.speed=" + ",".join(f"{0.5 + 0.1 * i:g}" for i in range(10)),
               "scene.width=" + ",".join(str(700 + 10 * i) for i in range(40))],
              ["--set", "schedule.frames=1000"]),
+    "full-afr": (["profile.gpus.*.speed=" + ",".join(f"{0.5 + 0.01 * i:g}" for i in range(100)),
+                  "scene.width=" + ",".join(str(700 + 10 * i) for i in range(40))],
+                 ["--set", "schedule.gpus=1", "--set", "schedule.frames=10000"]),
 }
+#: The experiment of each grid (default: EXPERIMENT).
+EXPERIMENTS = {"full-afr": ROOT / "experiments" / "afr_tc1.toml"}
 
 
 def reference_loop() -> float:
@@ -63,10 +70,10 @@ def reference_loop() -> float:
     return time.perf_counter() - t0 + 0 * len(acc)
 
 
-def run_cli(grid: list[str], extra: list[str], out: Path) -> tuple[float, float, int]:
+def run_cli(grid: list[str], extra: list[str], out: Path, experiment: Path = EXPERIMENT) -> tuple[float, float, int]:
     """(wall seconds, CPU seconds of the command and its workers, points) of one `mgpusim
     sweep` into a fresh folder."""
-    args = [sys.executable, "-m", "mgpusim", "sweep", str(EXPERIMENT), "--no-progress", "--out", str(out), *extra]
+    args = [sys.executable, "-m", "mgpusim", "sweep", str(experiment), "--no-progress", "--out", str(out), *extra]
     for item in grid:
         args += ["--grid", item]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
@@ -90,7 +97,7 @@ def main() -> None:
         for name in args.only:
             grid, extra = GRIDS[name]
             for i in range(args.runs):
-                wall, cpu, points = run_cli(grid, extra, Path(tmp) / f"{name}{i}")
+                wall, cpu, points = run_cli(grid, extra, Path(tmp) / f"{name}{i}", EXPERIMENTS.get(name, EXPERIMENT))
                 ref = min(reference_loop() for _ in range(3))
                 refs.append(ref)
                 results.append((name, i, wall, cpu, points, ref))
@@ -99,7 +106,7 @@ def main() -> None:
           f"({os.cpu_count()} CPUs)")
     for name, i, wall, cpu, points, ref in results:
         scale = ref / best
-        print(f"{name:5s} run {i + 1}: {points:,} points in {wall:.2f} s wall ({cpu:.2f} s CPU) = "
+        print(f"{name:8s} run {i + 1}: {points:,} points in {wall:.2f} s wall ({cpu:.2f} s CPU) = "
               f"{points / wall:,.0f} points/s; at reference speed {points / wall * scale:,.0f} points/s "
               f"(loop {scale:.2f}x its fastest)")
 

@@ -1296,12 +1296,15 @@ def finished_sweep(tmp_path_factory) -> Path:
 @pytest.mark.parametrize("name, content, words", POINT_FILES, ids=[p[0] for p in POINT_FILES])
 def test_a_point_file_of_another_shape_is_refused_naming_it(finished_sweep: Path, tmp_path: Path, capsys,
                                                            name: str, content: bytes, words: str):
-    """Valid JSON of the wrong shape (or not JSON) in points/: one line naming the file and
-    what is wrong, exit 2; the file is left for its owner and the table is not rewritten."""
+    """Valid JSON of the wrong shape (or not JSON) in points/, named as one of the sweep's
+    points (as sweeps before 2026-12 saved each point, and still read): one line naming the
+    file and what is wrong, exit 2; the file is left for its owner and the table is not
+    rewritten."""
     import shutil
     out = tmp_path / "out"
     shutil.copytree(finished_sweep, out)
-    point = sorted((out / "points").iterdir())[0]
+    (saved,) = (out / "points").glob("single-*.parquet")  # the points run one by one, saved together
+    point = out / "points" / f"{pd.read_parquet(saved)['id'][0]}.json"
     point.write_bytes(content)
     table = (out / "sweep.parquet").read_bytes()
     capsys.readouterr()
@@ -1321,7 +1324,8 @@ def test_a_metric_no_point_has_is_refused_once_the_points_ran_and_they_are_kept(
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and "did you mean 'utilization.gpu1.graphics'" in lines[0]
     saved = {p.name: p.stat().st_mtime_ns for p in (tmp_path / "out" / "points").iterdir()}
-    assert len(saved) == 2 and not (tmp_path / "out" / "sweep.parquet").exists()
+    rows = sum(len(pd.read_parquet(p)) for p in (tmp_path / "out" / "points").glob("single-*.parquet"))
+    assert rows == 2 and not (tmp_path / "out" / "sweep.parquet").exists()
     assert main([*argv, "--metric", "utilization.gpu1.graphics"]) == 0
     assert {p.name: p.stat().st_mtime_ns for p in (tmp_path / "out" / "points").iterdir()} == saved
 

@@ -20,7 +20,7 @@ import copy
 import json
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping, TypeVar
 
 from mgpusim.model.errors import InputError
 from mgpusim.model.overrides import set_dotted, split_profile
@@ -31,6 +31,22 @@ from mgpusim.model.work_terms import COMMON_PARAMS, PARAM_BOUNDS, PASS_PARAMS, R
 from mgpusim.schedules.experiment import Experiment, _resolve
 from mgpusim.schedules.registry import parse_schedule_config
 
+T = TypeVar("T")
+
+
+def _once(cache: dict[Any, Any], key: Any, compute: Callable[[], T]) -> T:
+    """`compute()` once per `key`: its value, or the InputError it raised, kept and given
+    again (raised again) every later time."""
+    if key not in cache:
+        try:
+            cache[key] = compute()
+        except InputError as exc:
+            cache[key] = exc
+    found = cache[key]
+    if isinstance(found, InputError):
+        raise found.with_traceback(None)
+    return found
+
 
 class ExperimentLoader:
     """``loader.load(overrides)`` is ``load_experiment(path, overrides)``, parsed once (see the
@@ -39,7 +55,7 @@ class ExperimentLoader:
     def __init__(self, path: str | Path):
         self.path = Path(path)
         self.file = str(self.path)
-        self._raw: dict[str, Any] | InputError | None = None
+        self._raw: dict[str, dict[str, Any] | InputError] = {}
         self._refs: dict[str, Path | InputError] = {}
         self._profiles: dict[tuple, HardwareProfile | InputError] = {}
         self._profile_tables: dict[str, dict[str, Any] | InputError] = {}
@@ -60,53 +76,20 @@ class ExperimentLoader:
         with `overrides` (keys relative to the profile), parsed once per distinct set."""
         path = self._resolved(ref)
         key = (str(path), tuple((k, _canonical(v)) for k, v in overrides.items()))
-        found = self._profiles.get(key)
-        if found is None:
-            try:
-                found = self._load_profile(path, overrides)
-            except InputError as exc:
-                found = exc
-            self._profiles[key] = found
-        if isinstance(found, InputError):
-            raise found.with_traceback(None)
-        return found
+        return _once(self._profiles, key, lambda: self._load_profile(path, overrides))
 
     def _load_profile(self, path: Path, overrides: Mapping[str, Any]) -> HardwareProfile:
         """`load_profile(path, overrides)` with the file's TOML parsed once: its steps (the
         overrides applied to a copy, then the whole validated)."""
-        table = self._profile_tables.get(str(path))
-        if table is None:
-            try:
-                table = read_toml(path)
-            except InputError as exc:
-                table = exc
-            self._profile_tables[str(path)] = table
-        if isinstance(table, InputError):
-            raise table.with_traceback(None)
+        table = _once(self._profile_tables, str(path), lambda: read_toml(path))
         data = apply_profile_overrides(table, overrides, str(path)) if overrides else table
         return parse_profile(data, str(path))
 
     def _table(self) -> dict[str, Any]:
-        if self._raw is None:
-            try:
-                self._raw = read_toml(self.path)
-            except InputError as exc:
-                self._raw = exc
-        if isinstance(self._raw, InputError):
-            raise self._raw.with_traceback(None)
-        return self._raw
+        return _once(self._raw, "", lambda: read_toml(self.path))
 
     def _resolved(self, ref: str) -> Path:
-        found = self._refs.get(ref)
-        if found is None:
-            try:
-                found = _resolve(Path(ref), self.path.parent, self.file)
-            except InputError as exc:
-                found = exc
-            self._refs[ref] = found
-        if isinstance(found, InputError):
-            raise found.with_traceback(None)
-        return found
+        return _once(self._refs, ref, lambda: _resolve(Path(ref), self.path.parent, self.file))
 
     def _parse(self, data: dict, profile_overrides: Mapping[str, Any]) -> Experiment:
         """`parse_experiment(data, file, base=path.parent, profile_overrides=...)`, step for

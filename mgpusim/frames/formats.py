@@ -11,7 +11,6 @@ and the field (or row) at fault.
 """
 from __future__ import annotations
 
-import json
 import math
 import re
 from pathlib import Path
@@ -19,6 +18,7 @@ from typing import Any, Iterable, cast
 
 import pandas as pd
 
+from mgpusim.io import table_files
 from mgpusim.measure import run_archive
 from mgpusim.model.errors import InputError
 from mgpusim.validation.measured import TRACE_FILES
@@ -164,21 +164,14 @@ def _size_text(value: Any, file: str, field: str) -> dict[str, int]:
     return {"width": _side(int(m.group(1)), file, field), "height": _side(int(m.group(2)), file, field)}
 
 
+#: The largest capture read (a Chrome trace of 10^6 events is about 150 MiB): what lies beyond
+#: is a disk image or an endless device given by mistake, refused before memory runs out.
+MAX_CAPTURE_BYTES = 1 << 30
+
+
 def _chrome_data(path: Path) -> Any:
-    """The trace file's JSON."""
-    file = str(path)
-    try:
-        return json.loads(path.read_bytes().decode("utf-8"))
-    except FileNotFoundError:
-        raise InputError("file not found", file=file) from None
-    except IsADirectoryError:
-        raise InputError("is a folder, expected a Chrome trace (JSON)", file=file) from None
-    except OSError as exc:
-        raise InputError(f"cannot read the file ({exc.strerror or exc})", file=file) from None
-    except UnicodeDecodeError as exc:
-        raise InputError(f"not UTF-8 text (byte {exc.start}), expected JSON", file=file) from None
-    except ValueError as exc:
-        raise InputError(f"not valid JSON ({str(exc)[:80]})", file=file) from None
+    """The trace file's JSON (a capture may be far larger than a record: up to MAX_CAPTURE_BYTES)."""
+    return table_files.read_json(path, "a Chrome trace (JSON)", MAX_CAPTURE_BYTES)
 
 
 def _chrome_events(data: Any, file: str) -> list[Any]:

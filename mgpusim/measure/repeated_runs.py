@@ -9,7 +9,6 @@ the spread of the whole runs says how far the machine itself moved.
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import replace
 from pathlib import Path
@@ -86,6 +85,9 @@ def run_spread(folder: Path) -> tuple[float, int]:
     runs_json = folder.parent / "runs.json"
     if folder.name != "steady" or not run_archive.is_file(runs_json):
         return float("nan"), 1
-    times = json.loads(run_archive.read_text(runs_json))["frame_time_ms"]
+    record = run_archive.read_json(runs_json)
+    times = record.get("frame_time_ms") if isinstance(record, dict) else None
+    if not isinstance(times, list) or not all(isinstance(t, (int, float)) for t in times):
+        raise InputError("expected a list of numbers", file=str(runs_json), field="frame_time_ms")
     spread = float(max(times) / min(times) - 1) if times and min(times) > 0 else float("nan")
     return spread, len(times)

@@ -12,13 +12,15 @@ files back, byte for byte.
 """
 from __future__ import annotations
 
-import io
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 from typing import Any, Iterable, cast
 
 import pandas as pd
+
+from mgpusim.io import table_files as checked
+from mgpusim.model.errors import InputError
 
 #: The archive's two tables, in the packed folder.
 TRACES = "runs.parquet"
@@ -29,7 +31,7 @@ LOGS = "logs.parquet"
 #: The one file of a run stored as columns (the trace schema); the rest are kept as text.
 TRACE_NAME = "trace.csv"
 #: How measured CSV tables are parsed (an empty cell is missing, "NA" is a string).
-CSV_OPTIONS: dict[str, Any] = {"keep_default_na": False, "na_values": [""], "encoding": "utf-8"}
+CSV_OPTIONS: dict[str, Any] = checked.CSV_OPTIONS
 
 
 @dataclass(frozen=True)
@@ -52,11 +54,12 @@ def _rel(path: Path, root: Path) -> str:
 
 @lru_cache(maxsize=16)
 def _load(root: Path, stamp: tuple[int, int]) -> Archive:
-    """The archive of `root` (cached while its tables are unchanged: `stamp` is their mtimes)."""
-    table = pd.read_parquet(root / TRACES)
+    """The archive of `root` (cached while its tables are unchanged: `stamp` is their mtimes);
+    a table cut short, damaged or of another layout is one InputError naming it."""
+    table = checked.read_parquet(root / TRACES, ["run"])
     traces = {cast(str, run): rows.drop(columns="run").reset_index(drop=True)  # the run column: names
               for run, rows in table.groupby("run", sort=False)}
-    files = pd.read_parquet(root / FILES)
+    files = checked.read_parquet(root / FILES, ["path", "text"])
     return Archive(root, traces, dict(zip(files["path"], files["text"])))
 
 
@@ -124,7 +127,32 @@ def archived_table(path: Path) -> pd.DataFrame | None:
         trace = archive.traces.get(_rel(path.parent, archive.root))
         return None if trace is None else trace.copy()
     text = archive.files.get(rel)
-    return None if text is None else pd.read_csv(io.StringIO(text), **CSV_OPTIONS)
+    return None if text is None else checked.parse_csv(text, str(path))
+
+
+def read_table(path: Path, columns: Iterable[str] = ()) -> pd.DataFrame:
+    """A CSV or Parquet table (by extension) from the disk, else from its archive; missing,
+    unreadable, empty or corrupt tables are one InputError naming the file."""
+    if path.is_file():
+        if path.suffix in (".parquet", ".pq"):
+            return checked.read_parquet(path, columns)
+        return checked.read_csv(path, columns)
+    archived = archived_table(path)
+    if archived is None:
+        raise InputError("not found (or not a file)", file=str(path))
+    return checked.require_columns(archived, columns, str(path))
+
+
+def read_json(path: Path) -> Any:
+    """A JSON file's value from the disk, else from its archive; one InputError naming the
+    file where it is missing or not JSON."""
+    if path.is_file():
+        return checked.read_json(path)
+    try:
+        text = read_text(path)
+    except OSError as exc:
+        raise InputError(f"cannot read ({exc.strerror or exc})", file=str(path)) from None
+    return checked.parse_json(text, str(path))
 
 
 # ----- packing -----------------------------------------------------------------------------------

@@ -8,8 +8,6 @@ by it and flags the runs it cannot trust); a probe per round of runs is minutes 
 """
 from __future__ import annotations
 
-import io
-import json
 import os
 import time
 from pathlib import Path
@@ -54,7 +52,7 @@ def read(path: Path) -> pd.DataFrame:
     """The table at `path` (empty, with its columns, where there is none)."""
     if not run_archive.is_file(path):
         return pd.DataFrame(columns=COLUMNS)
-    return pd.read_csv(io.StringIO(run_archive.read_text(path)))
+    return run_archive.read_table(path)
 
 
 def compared_run(root: Path, name: str) -> str:
@@ -62,7 +60,8 @@ def compared_run(root: Path, name: str) -> str:
     window came from (`runs.json`), else the first."""
     choice = root / name / "runs.json"
     if run_archive.is_file(choice):  # on disk, or in the folder's packed archive
-        return str(json.loads(run_archive.read_text(choice)).get("run", "run0"))
+        record = run_archive.read_json(choice)
+        return str(record.get("run", "run0")) if isinstance(record, dict) else "run0"
     return "run0"
 
 

@@ -11,7 +11,6 @@ last; the report shows how far it moved and warns when it moved more than `DRIFT
 """
 from __future__ import annotations
 
-import io
 import time
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -199,7 +198,7 @@ def append_probe(path: Path, rows: Sequence[dict[str, Any]]) -> None:
 def read_probes(paths: Sequence[Path]) -> pd.DataFrame:
     """The probe rows of every existing table among `paths` (on disk, or in a packed folder
     above it), in order."""
-    frames = [pd.read_csv(io.StringIO(run_archive.read_text(p))) for p in paths if run_archive.is_file(p)]
+    frames = [run_archive.read_table(p) for p in paths if run_archive.is_file(p)]
     frames = [f for f in frames if not f.empty]
     if not frames:
         return pd.DataFrame(columns=COLUMNS)

@@ -41,13 +41,13 @@ def read_toml(path: Path) -> dict[str, Any]:
         raise InputError("not valid TOML here: arrays or tables nested too deeply", file=file) from None
 
 
-def read_input_bytes(path: Path, expected: str) -> bytes:
-    """The bytes of an input file, read up to MAX_INPUT_FILE_BYTES: a missing file, a folder,
-    an unreadable one, or an endless or huge one (/dev/zero, a disk image) is one InputError."""
+def read_input_bytes(path: Path, expected: str, limit: int = MAX_INPUT_FILE_BYTES) -> bytes:
+    """The bytes of an input file, read up to `limit`: a missing file, a folder, an unreadable
+    one, or an endless or huge one (/dev/zero, a disk image) is one InputError."""
     file = str(path)
     try:
         with open(path, "rb") as fh:
-            raw = fh.read(MAX_INPUT_FILE_BYTES + 1)
+            raw = fh.read(limit + 1)
     except FileNotFoundError:
         raise InputError("file not found", file=file) from None
     except IsADirectoryError:
@@ -55,9 +55,10 @@ def read_input_bytes(path: Path, expected: str) -> bytes:
     except (OSError, ValueError) as exc:  # ValueError: a NUL in the name
         raise InputError(f"cannot read the file ({getattr(exc, 'strerror', None) or exc})",
                          file=file) from None
-    if len(raw) > MAX_INPUT_FILE_BYTES:
-        raise InputError(f"larger than {MAX_INPUT_FILE_BYTES >> 20} MiB (or endless), expected "
-                         f"{expected} of a few KB", file=file)
+    if len(raw) > limit:
+        size = "a few KB" if limit == MAX_INPUT_FILE_BYTES else f"at most {limit >> 20} MiB"
+        raise InputError(f"larger than {limit >> 20} MiB (or endless), expected {expected} of "
+                         f"{size}", file=file)
     return raw
 
 

@@ -15,6 +15,7 @@ from typing import Any, Iterable, Mapping, cast
 import numpy as np
 import pandas as pd
 
+from mgpusim.io import table_files
 from mgpusim.measure import run_archive
 from mgpusim.model.errors import InputError
 from mgpusim.model.profile import CalibratedOn
@@ -35,41 +36,15 @@ FIRST_KEYS = ("schedule", "gpus", "width", "height", "host_copy", "inputs")
 
 
 def read_table(path: Path) -> pd.DataFrame:
-    """A CSV or Parquet table (by extension); unreadable, empty or corrupt files are one
-    InputError naming the file."""
-    file = str(path)
-    try:
-        if not path.is_file():
-            archived = run_archive.archived_table(path)
-            if archived is None:
-                raise InputError("not found (or not a file)", file=file)
-            return archived
-        if path.suffix in (".parquet", ".pq"):
-            return pd.read_parquet(path)
-        return pd.read_csv(path, **run_archive.CSV_OPTIONS)
-    except pd.errors.EmptyDataError:
-        raise InputError("the file is empty, expected a table with a header row", file=file) from None
-    except UnicodeDecodeError:
-        raise InputError("not UTF-8 text, expected a CSV table", file=file) from None
-    except (ValueError, OSError, TypeError, NotImplementedError) as exc:  # parser and Arrow errors
-        kind = "Parquet" if path.suffix in (".parquet", ".pq") else "CSV"
-        raise InputError(f"cannot read as {kind} ({_short(exc)})", file=file) from None
+    """A CSV or Parquet table (by extension), on disk or in a packed runs folder; unreadable,
+    empty or corrupt files are one InputError naming the file (:mod:`mgpusim.io.table_files`)."""
+    return run_archive.read_table(path)
 
 
 def read_json_object(path: Path) -> dict[str, Any]:
-    """A JSON file holding one object (summary.json, machine.json)."""
-    file = str(path)
-    try:
-        data = json.loads(run_archive.read_text(path).removeprefix("\ufeff"))
-    except OSError as exc:
-        raise InputError(f"cannot read ({exc.strerror or exc})", file=file) from None
-    except (UnicodeDecodeError, ValueError) as exc:  # JSONDecodeError is a ValueError
-        raise InputError(f"not valid JSON ({_short(exc)})", file=file) from None
-    except RecursionError:
-        raise InputError("not valid JSON here: nested too deeply", file=file) from None
-    if not isinstance(data, dict):
-        raise InputError(f"expected a JSON object, got {type(data).__name__}", file=file)
-    return data
+    """A JSON file holding one object (summary.json, machine.json), on disk or in a packed
+    runs folder."""
+    return table_files.json_object(run_archive.read_json(path), str(path))
 
 
 def check_trace(df: pd.DataFrame, file: str) -> pd.DataFrame:

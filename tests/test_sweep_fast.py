@@ -80,8 +80,7 @@ def test_an_older_folders_point_files_are_still_read(tmp_path):
     points = tmp_path / "a" / "points"
     (saved,) = points.glob("single-*.parquet")
     rows = pd.read_parquet(saved)
-    identity = {"experiment": hashlib.sha256((EXP / "sort_first_tc1.toml").read_bytes()).hexdigest(),
-                "overrides": kw["overrides"], "fidelity": "full"}
+    identity = sweeps.point_identity(EXP / "sort_first_tc1.toml", grid, kw["overrides"], "full")
     for p in sweeps.grid_points(grid, identity):  # one JSON file per point, as sweeps wrote them
         record = whole.iloc[p.index]
         summary = {k: (v.item() if hasattr(v, "item") else v) for k, v in rows[rows["id"] == p.id].iloc[0].items()

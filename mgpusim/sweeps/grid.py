@@ -15,9 +15,10 @@ file at a time (see :mod:`mgpusim.sweeps.store`: a batch of lanes, or the points
 in about the last half second) and a sweep started again over the same folder skips them: a
 sweep killed at any moment loses at most the points of the batch it was running (half a
 second of points run one by one) and recomputes no saved point. The table is written once, at
-the end. A point is known by a hash of the experiment file's bytes, the base overrides, its
-keys and the fidelity, so editing the experiment file recomputes everything; a changed profile
-file is not noticed (use a fresh folder).
+the end. A point is known by a hash of the bytes of every file its load reads (the experiment
+and the profile files it names, :func:`input_files`), the package version, the base overrides,
+its keys and the fidelity: editing the experiment or a profile it reads, or upgrading mgpusim,
+makes new points that run again (the old ones stay on disk unused, never mixed into the table).
 """
 from __future__ import annotations
 
@@ -37,6 +38,7 @@ from typing import Any, Iterator, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from mgpusim import __version__
 from mgpusim.io.shipped import resolve_experiment
 from mgpusim.model.errors import InputError, MgpusimError
 from mgpusim.model.limits import MAX_SWEEP_POINTS, MAX_SWEEP_WORKERS, WHY_SWEEP
@@ -45,6 +47,7 @@ from mgpusim.schedules.experiment import parse_value
 from mgpusim.sim.effects import FIDELITIES
 from mgpusim.sim.simulation import simulate
 from mgpusim.sweeps.lanes import LaneRun, flatten
+from mgpusim.sweeps.loader import fresh as fresh_loader
 from mgpusim.sweeps.loader import shared as loader
 from mgpusim.sweeps.pool import local_pool
 
@@ -260,6 +263,7 @@ def sweep(experiment: str | Path, grid: Mapping[str, Sequence[Any]], out: str | 
     before any point runs or any file is written.
     """
     path = resolve_experiment(experiment)
+    fresh_loader(path)
     if workers is not None and not 1 <= workers <= MAX_SWEEP_WORKERS:
         raise InputError(f"must be in 1..{MAX_SWEEP_WORKERS}, got {workers}", field="--workers")
     grid = {k: list(v) for k, v in grid.items()}
@@ -275,8 +279,8 @@ def sweep(experiment: str | Path, grid: Mapping[str, Sequence[Any]], out: str | 
         from mgpusim.io.out_folder import check_out_dir  # noqa: PLC0415 - files stay at the edge
         check_out_dir(Path(out))
     check_inputs(path, grid, base)
-    identity = {"experiment": hashlib.sha256(path.read_bytes()).hexdigest(), "overrides": base,
-                "fidelity": fidelity}
+    identity = point_identity(path, grid, base, fidelity)
+    inputs = identity["inputs"]
     points = grid_points(grid, identity)
     with _dask_client(dask) as client, _store(out) as store:
         wanted = {p.id for p in points}
@@ -309,7 +313,8 @@ def sweep(experiment: str | Path, grid: Mapping[str, Sequence[Any]], out: str | 
         check_metric_column(df, metric)
         if store:
             store.finish(df, list(grid), metric, {"experiment": str(path), "grid": grid, "overrides": base,
-                                                  "fidelity": fidelity, "points": len(points)})
+                                                  "fidelity": fidelity, "points": len(points),
+                                                  "inputs": inputs, "mgpusim": __version__})
     return df
 
 
@@ -348,6 +353,24 @@ def _dask_client(dask: Any) -> Iterator[Any]:
         yield client
     finally:
         client.close()
+
+
+def point_identity(path: Path, grid: Mapping[str, Sequence[Any]], overrides: Mapping[str, Any],
+                   fidelity: str) -> dict[str, Any]:
+    """What besides its keys makes a point's result, hashed into its id (:func:`grid_points`):
+    the input files' hashes (:func:`input_files`), the package version, the base overrides and
+    the fidelity."""
+    return {"inputs": input_files(path, grid, overrides), "mgpusim": __version__, "overrides": dict(overrides),
+            "fidelity": fidelity}
+
+
+def input_files(path: Path, grid: Mapping[str, Sequence[Any]], overrides: Mapping[str, Any]) -> dict[str, str]:
+    """{file: sha256} of every file the sweep's points read: the experiment and the profiles
+    it, --set or a `profile` grid key names. Why: with the package version, these are the
+    resume key's inputs, so a point saved before one of them changed is not reused."""
+    load = loader(path)
+    refs = [load._table().get("profile"), overrides.get("profile"), *grid.get("profile", ())]
+    return load.inputs(ref for ref in refs if isinstance(ref, str))
 
 
 def check_inputs(path: Path, grid: Mapping[str, Sequence[Any]], overrides: Mapping[str, Any]) -> None:

@@ -6,27 +6,32 @@ few at the analytic level). :class:`ExperimentLoader` gives the same :class:`Exp
 the same overrides, checked the same way with the same errors, but reads the experiment file
 once, resolves its profile reference once, reads each profile file once and validates each
 profile (file and ``profile.`` overrides, set on a copy of its table as `load_profile` sets
-them) once: an experiment's own overrides are set on a copy of the parsed table (a deep copy
-of each top-level table an override reaches, the others shared: validation only reads them),
+them) once, and keeps a hash of each file's bytes as read (:meth:`ExperimentLoader.inputs`:
+what a sweep's points are known by, so that an edited profile is a new point). An
+experiment's own overrides are set on a copy of the parsed table (a deep copy of each
+top-level table an override reaches, the others shared: validation only reads them),
 which is then validated exactly as `parse_experiment` validates a file's (the same steps in
 the same order; a test checks both give equal experiments, or the same error, over every
 shipped experiment and many overrides). A profile that fails to load fails every later load
-the same way. Files are read when first needed: a file edited during a sweep is not seen (as
-before, a sweep's points are known by the experiment file's bytes when it started).
+the same way. Files are read when first needed: a file edited during a sweep is not seen (a
+sweep's points are known by the bytes of the files it read before its first point ran).
 """
 from __future__ import annotations
 
+import contextlib
 import copy
+import hashlib
 import json
+import os
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Callable, Mapping, TypeVar
+from typing import Any, Callable, Iterable, Mapping, TypeVar
 
 from mgpusim.model.errors import InputError
 from mgpusim.model.overrides import set_dotted, split_profile
 from mgpusim.model.profile import HardwareProfile, apply_profile_overrides, parse_profile, require_gpus
 from mgpusim.model.scene import parse_scene
-from mgpusim.model.toml_checks import Table, read_toml
+from mgpusim.model.toml_checks import Table, read_input_bytes, read_toml
 from mgpusim.model.work_terms import COMMON_PARAMS, PARAM_BOUNDS, PASS_PARAMS, REQUIRED_PARAMS
 from mgpusim.schedules.experiment import Experiment, _resolve
 from mgpusim.schedules.registry import parse_schedule_config
@@ -59,6 +64,8 @@ class ExperimentLoader:
         self._refs: dict[str, Path | InputError] = {}
         self._profiles: dict[tuple, HardwareProfile | InputError] = {}
         self._profile_tables: dict[str, dict[str, Any] | InputError] = {}
+        #: file -> sha256 of its bytes, for every input file read (experiment, profiles)
+        self._digests: dict[str, str] = {}
 
     def load(self, overrides: Mapping[str, Any] | None = None) -> Experiment:
         raw = self._table()
@@ -81,12 +88,39 @@ class ExperimentLoader:
     def _load_profile(self, path: Path, overrides: Mapping[str, Any]) -> HardwareProfile:
         """`load_profile(path, overrides)` with the file's TOML parsed once: its steps (the
         overrides applied to a copy, then the whole validated)."""
-        table = _once(self._profile_tables, str(path), lambda: read_toml(path))
+        table = _once(self._profile_tables, str(path), lambda: self._read(path))
         data = apply_profile_overrides(table, overrides, str(path)) if overrides else table
         return parse_profile(data, str(path))
 
     def _table(self) -> dict[str, Any]:
-        return _once(self._raw, "", lambda: read_toml(self.path))
+        return _once(self._raw, "", lambda: self._read(self.path))
+
+    def _read(self, path: Path) -> dict[str, Any]:
+        """`read_toml(path)`, with the hash of the file's bytes kept (read first: a file
+        edited between the two reads is known by its older bytes, and read again next sweep)."""
+        with contextlib.suppress(InputError):  # read_toml says what is wrong with it
+            self._digests[str(path)] = hashlib.sha256(read_input_bytes(path, "a TOML file")).hexdigest()
+        return read_toml(path)
+
+    def _input_name(self, path: Path) -> str:
+        """How :meth:`inputs` names a profile file: its path relative to the experiment's
+        folder (the same wherever the sweep is started from)."""
+        return os.path.relpath(path.resolve(), self.path.resolve().parent)
+
+    def inputs(self, refs: Iterable[str] = ()) -> dict[str, str]:
+        """{file: sha256 of its bytes as read} of the experiment and each profile file `refs`
+        name (read now if no load has yet; a reference that does not resolve or parse is left
+        to the point that names it). Why: a point's result depends on them all, so a sweep's
+        resume key holds them (an edited profile is a new point, not an old one reused)."""
+        self._table()
+        out = {"experiment": self._digests[str(self.path)]} if str(self.path) in self._digests else {}
+        for ref in refs:
+            with contextlib.suppress(InputError):
+                path = self._resolved(ref)
+                _once(self._profile_tables, str(path), lambda at=path: self._read(at))  # type: ignore[misc]
+                if str(path) in self._digests:
+                    out[self._input_name(path)] = self._digests[str(path)]
+        return dict(sorted(out.items()))
 
     def _resolved(self, ref: str) -> Path:
         return _once(self._refs, ref, lambda: _resolve(Path(ref), self.path.parent, self.file))
@@ -126,3 +160,11 @@ def shared(experiment: str | Path) -> ExperimentLoader:
     if found is None:
         found = _SHARED[key] = ExperimentLoader(experiment)
     return found
+
+
+def fresh(experiment: str | Path) -> ExperimentLoader:
+    """A new :func:`shared` loader for `experiment`, files read again: what a sweep starts
+    with, so that one run after a profile was edited (in the same process: a notebook, a
+    test) reads the edited bytes and hashes those into its points."""
+    _SHARED.pop(str(experiment), None)
+    return shared(experiment)

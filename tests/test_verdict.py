@@ -195,12 +195,13 @@ def test_met_targets_and_no_targets_exit_0(tmp_path: Path, capsys, targets, stat
                                   + ("every target met" if targets else "no target set"))
 
 
-def test_a_study_with_no_run_to_compare_exits_3(tmp_path: Path, capsys):
+def test_an_empty_runs_folder_is_refused_as_bad_input(tmp_path: Path, capsys):
     empty = tmp_path / "runs"
     empty.mkdir()
     assert main(["study", "validate", str(mini_study(tmp_path)), "--held-out", "--runs", str(empty),
-                 "--out", str(tmp_path / "out")]) == 3
-    assert capsys.readouterr().out.strip().splitlines()[-1].startswith("No verdict")
+                 "--out", str(tmp_path / "out")]) == 2
+    assert "holds no measured run" in capsys.readouterr().err
+    assert not (tmp_path / "out" / "report.md").exists()
 
 
 # ----- main and study run: the same rule (the measuring replaced by the committed job) -----

@@ -170,7 +170,7 @@ def long_run(experiment: Path = DEFAULT_EXPERIMENT, frames: int = 1_000_000, fid
     streaming its whole trace, frames and links tables to Parquet."""
     out = subprocess.run([sys.executable, "-c", _LONG_RUN, str(experiment), str(frames), fidelity],
                          capture_output=True, text=True, check=True)
-    return json.loads(out.stdout)
+    return json.loads(out.stdout)  # text, not a file: the child's printed result
 
 
 def analytic_speed(experiment: Path = DEFAULT_EXPERIMENT, configurations: int = 100_000) -> dict[str, Any]:

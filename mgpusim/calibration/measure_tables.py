@@ -31,6 +31,16 @@ MEASURED_PASSES: dict[str, tuple[str, ...]] = {
 NUMERIC_COLUMNS = ("width", "height", "iterations", "triangles", "inputs", "particles", "bytes",
                    "threads", "gpus", "lp_threads", "cpu_ns", "alone_a_ns", "alone_b_ns")
 
+#: Every other column the measure library and its probes write: what a row identifies (the
+#: device, GPU, pass and repetition), where a copy or mesh ran, the overlap probe's pair, and
+#: the file a row came from once tables are read together (`source`).
+RECORD_COLUMNS = ("device", "gpu", "pass", "repetition", "duration_ns", "queue", "place", "pair",
+                  "queue_a", "queue_b", "copy", "graphics", "efficiency", "missing", "source")
+#: The columns a measure table may have: a column beyond these is a renamed or mistyped one,
+#: whose values the fit would otherwise ignore without a word.
+KNOWN_COLUMNS = tuple(dict.fromkeys((*RECORD_COLUMNS, *NUMERIC_COLUMNS,
+                                     *(c for needs in MEASURED_PASSES.values() for c in needs))))
+
 
 def check_measure_table(df: pd.DataFrame, file: str) -> pd.DataFrame:
     """Refuse a table with no rows, no pass or duration column, unknown passes, missing
@@ -41,6 +51,11 @@ def check_measure_table(df: pd.DataFrame, file: str) -> pd.DataFrame:
                              f"{', '.join(map(str, df.columns)) or 'none'})", file=file)
     if df.empty:
         raise InputError("the table has a header but no rows", file=file)
+    strange = [str(c) for c in df.columns if c not in KNOWN_COLUMNS]
+    if strange:
+        raise InputError(f"unknown column {strange[0]!r}{did_you_mean(strange[0], KNOWN_COLUMNS)} "
+                         f"(a measure table's columns: {', '.join(KNOWN_COLUMNS)})", file=file,
+                         field=strange[0])
     unknown = unknown_names(df["pass"], MEASURED_PASSES)
     if unknown:
         raise InputError(f"unknown pass {unknown[0]!r}{did_you_mean(unknown[0], MEASURED_PASSES)} "

@@ -61,7 +61,7 @@ def read_measurements(paths: list[Path]) -> tuple[pd.DataFrame, dict[str, Any]]:
     frames: list[pd.DataFrame] = []
     machine: dict[str, Any] = {}
     for path in paths:
-        df = check_measure_table(read_table(path), str(path))
+        df = check_measure_table(read_table(path, ends_whole=True), str(path))
         df["source"] = path.name
         frames.append(df)
         record = path.with_name(path.name + ".machine.json")

@@ -53,6 +53,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         if name in ("calibrate", "validate"):
             s.add_argument("--runs", type=Path, help="measured runs folder (default: the study's "
                            "committed runs, else OUT/runs)")
+            s.add_argument("--allow-missing", action="store_true", help="compare the configurations "
+                           "that have runs and list the rest first in the report (default: a half "
+                           "without every run is refused)")
         if name == "validate":
             s.add_argument("--no-figures", dest="figures", action="store_false",
                            help="tables only: no timelines or Perfetto traces per configuration (5x faster)")
@@ -128,10 +131,9 @@ def measuring(step: Callable[[], T]) -> T | int:
 
 def finish(out: Path) -> int:
     """The verdict line (stdout, last) and the exit status of a report written into `out`."""
-    import json  # noqa: PLC0415
-
+    from mgpusim.io.table_files import read_json_object  # noqa: PLC0415
     from mgpusim.studies import verdict  # noqa: PLC0415
-    stats = json.loads((out / "errors.json").read_text())
+    stats = read_json_object(out / "errors.json")
     print(verdict.verdict_line(stats))
     return verdict.exit_status(stats)
 
@@ -176,7 +178,8 @@ def calibrate(args: argparse.Namespace) -> int:
     from mgpusim.studies.study_file import load_study  # noqa: PLC0415
     study = load_study(resolve_experiment(args.study))
     out = _out(args, study)
-    profile, text = pipeline.calibrate(study, out, progress_printer(), runs_dir=args.runs)
+    profile, text = pipeline.calibrate(study, out, progress_printer(), runs_dir=args.runs,
+                                       allow_missing=args.allow_missing)
     print(text)
     print(f"wrote {profile}")
     return 0
@@ -186,6 +189,7 @@ def validate(args: argparse.Namespace) -> int:
     import pandas as pd  # noqa: PLC0415
 
     from mgpusim.studies import pipeline as pipeline  # noqa: PLC0415
+    from mgpusim.studies import run_sets  # noqa: PLC0415
     from mgpusim.studies.study_file import load_study  # noqa: PLC0415
     from mgpusim.vmgpu import frame_times  # noqa: PLC0415
     if frame_times.is_frame_time_study(resolve_experiment(args.study)):
@@ -196,15 +200,17 @@ def validate(args: argparse.Namespace) -> int:
     tables, missing = {}, {}
     speeds: pipeline.SpeedTables = {}  # each runs folder's run_speed.csv, read once for both halves
     calibration_root = args.runs or pipeline.runs_root(study, False, out)
-    for title, entries, held in ((pipeline.CALIBRATION_TITLE, study.calibration, False),
-                                 (pipeline.HELD_OUT_TITLE, study.held_out, True)):
-        if held and not args.held_out:
-            continue
+    halves = [(pipeline.CALIBRATION_TITLE, study.calibration, False),
+              (pipeline.HELD_OUT_TITLE, study.held_out, True)][:2 if args.held_out else 1]
+    for title, entries, held in halves:  # every half checked before any is compared
+        root = args.runs or pipeline.runs_root(study, held, out)
+        missing[title] = list(run_sets.check_half(study, entries, root, "--runs" if args.runs else "",
+                                                  args.allow_missing, title.split()[0].lower()).missing)
+    for title, entries, held in halves:
         root = args.runs or pipeline.runs_root(study, held, out)
         tables[title] = pipeline.validate(study, entries, root, profile, out / "validation",
                                           progress, tuple(args.extra), args.figures, calibration_root,
                                           speeds)
-        missing[title] = pipeline.without_runs(entries, root)
     path = pipeline.write_report(out, study, tables, f"profile: {profile}",  # also errors.json
                                  pipeline.probes_of(calibration_root), missing,
                                  pipeline.speed_table(speeds, calibration_root))
@@ -271,7 +277,9 @@ def floor(args: argparse.Namespace) -> int:
     missing = [str(runs) for runs in args.runs if not runs.is_dir()]
     if missing:
         raise InputError(f"no such runs folder: {', '.join(missing)}", field="--runs")
-    study = _filtered(load_study(resolve_experiment(args.study)), args)
+    whole = load_study(resolve_experiment(args.study))
+    replay_floor.check_sets(whole, args.runs)  # the study's own runs, each set measured apart
+    study = _filtered(whole, args)
     out = args.out or Path("out") / f"{study.name}-floor"
     check_out_dir(out)
     profiles = [replay_floor.set_profile(runs, args.profile) for runs in args.runs]  # all checked first

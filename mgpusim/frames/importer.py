@@ -297,4 +297,4 @@ def check_experiment(text: str, out: Path) -> Experiment:
     """The written experiment as `simulate` will read it: an import that would not load is an
     error here, before any file is written."""
     import tomllib  # noqa: PLC0415
-    return parse_experiment(tomllib.loads(text), str(out), base=out.resolve().parent)
+    return parse_experiment(tomllib.loads(text), str(out), base=out.resolve().parent)  # text, not a file

@@ -140,7 +140,7 @@ def recorded_shares(path: str | Path, shares: Mapping[str, float]) -> dict[str, 
             current = None
             continue
         if current is None and (m := _NAME.match(line)):
-            current = json.loads(m.group(1))
+            current = json.loads(m.group(1))  # text, not a file: a quoted name in a comment
             continue
         if current is not None and (m := _SHARE.match(line)):
             notes[current] = (m.group("note") or "").strip()

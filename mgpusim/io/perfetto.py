@@ -36,7 +36,7 @@ _PATH_STEPS = ("d2h", "h2d", "d2d")
 def chrome_trace(trace: pd.DataFrame, links: pd.DataFrame | None = None,
                  title: str = "mgpusim") -> dict[str, Any]:
     """The trace (and the links' busy intervals) as a Chrome trace-event document."""
-    return json.loads(chrome_trace_json(trace, links, title))
+    return json.loads(chrome_trace_json(trace, links, title))  # text, not a file
 
 
 def chrome_trace_json(trace: pd.DataFrame, links: pd.DataFrame | None = None, title: str = "mgpusim") -> str:

@@ -28,9 +28,12 @@ from mgpusim.model.toml_checks import read_toml as _read_toml
 
 #: How measured CSV tables are parsed (an empty cell is missing, "NA" is a string).
 CSV_OPTIONS: dict[str, Any] = {"keep_default_na": False, "na_values": [""], "encoding": "utf-8"}
+#: The largest CSV table read (a capture of 10^6 passes is about 100 MiB): beyond it lies a
+#: disk image or an endless device given by mistake, refused before memory runs out.
+MAX_TABLE_BYTES = 1 << 30
 #: Whole-row field counts are checked on tables up to this size (a cut-short row shows as a
 #: row with fewer fields, which pandas would fill with missing values without a word).
-_ROW_CHECK_BYTES = 32 << 20
+_ROW_CHECK_BYTES = 64 << 20
 #: Errors the Parquet and CSV readers raise for a file that is not what it claims to be.
 _LIBRARY_ERRORS = (pa.ArrowException, ValueError, TypeError, NotImplementedError, KeyError,
                    IndexError, OverflowError)
@@ -50,24 +53,30 @@ def read_parquet(path: Path, columns: Iterable[str] = ()) -> pd.DataFrame:
     return require_columns(table, columns, str(path))
 
 
-def read_csv(path: Path, columns: Iterable[str] = ()) -> pd.DataFrame:
-    """A CSV table with a header row (UTF-8); with `columns`, each must be there."""
+def read_csv(path: Path, columns: Iterable[str] = (), ends_whole: bool = False) -> pd.DataFrame:
+    """A CSV table with a header row (UTF-8); with `columns`, each must be there; `ends_whole`:
+    see :func:`parse_csv`."""
     _existing_file(path, "a CSV table")
-    raw = read_input_bytes(path, "a CSV table")
+    raw = read_input_bytes(path, "a CSV table", MAX_TABLE_BYTES)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise InputError(f"not UTF-8 text (byte {exc.start}), expected a CSV table", file=str(path)) from None
-    return parse_csv(text, str(path), columns)
+    return parse_csv(text, str(path), columns, ends_whole)
 
 
-def parse_csv(text: str, file: str, columns: Iterable[str] = ()) -> pd.DataFrame:
-    """A CSV table from its text (`file`: the path it has or had, for messages)."""
+def parse_csv(text: str, file: str, columns: Iterable[str] = (), ends_whole: bool = False) -> pd.DataFrame:
+    """A CSV table from its text (`file`: the path it has or had, for messages). `ends_whole`:
+    the table was written by this tool, whose tables end with a newline, so one that does not
+    was cut short, maybe inside its last number (which no field count would show)."""
     text = text.removeprefix("\ufeff")
     if not text.strip():
         raise InputError("the file is empty, expected a table with a header row", file=file)
     if "\0" in text:
         raise InputError("a binary file (NUL bytes), expected a CSV table", file=file)
+    if ends_whole and not text.endswith("\n"):
+        raise InputError("the last line does not end: the table was cut short (a table "
+                         "mgpusim writes ends with a newline)", file=file)
     try:
         table = pd.read_csv(io.StringIO(text), **CSV_OPTIONS)
     except pd.errors.EmptyDataError:

@@ -130,13 +130,14 @@ def archived_table(path: Path) -> pd.DataFrame | None:
     return None if text is None else checked.parse_csv(text, str(path))
 
 
-def read_table(path: Path, columns: Iterable[str] = ()) -> pd.DataFrame:
+def read_table(path: Path, columns: Iterable[str] = (), ends_whole: bool = False) -> pd.DataFrame:
     """A CSV or Parquet table (by extension) from the disk, else from its archive; missing,
-    unreadable, empty or corrupt tables are one InputError naming the file."""
+    unreadable, empty or corrupt tables are one InputError naming the file. `ends_whole`: a
+    table this tool wrote, refused where it does not end with a newline (cut short)."""
     if path.is_file():
         if path.suffix in (".parquet", ".pq"):
             return checked.read_parquet(path, columns)
-        return checked.read_csv(path, columns)
+        return checked.read_csv(path, columns, ends_whole)
     archived = archived_table(path)
     if archived is None:
         raise InputError("not found (or not a file)", file=str(path))
@@ -183,7 +184,7 @@ def pack(root: Path) -> int:
     for f in files:
         rel = _rel(f, root)
         if f.name == TRACE_NAME:
-            trace = pd.read_csv(f, **CSV_OPTIONS)
+            trace = checked.read_csv(f)
             traces.append(trace.assign(run=_rel(f.parent, root))[["run", *trace.columns]])
         else:
             texts.append((rel, f.read_bytes().decode("utf-8")))
@@ -222,7 +223,7 @@ def _check_round_trip(root: Path, files: list[Path]) -> None:
     for f in files:
         if f.name == TRACE_NAME:
             stored = archive.traces[_rel(f.parent, root)]
-            pd.testing.assert_frame_equal(stored, pd.read_csv(f, **CSV_OPTIONS), obj=str(f))
+            pd.testing.assert_frame_equal(stored, checked.read_csv(f), obj=str(f))
         else:
             assert archive.files[_rel(f, root)] == f.read_bytes().decode("utf-8"), str(f)
 
@@ -273,7 +274,7 @@ def pack_logs(root: Path) -> int:
         raise ValueError(f"{root / LOGS} exists: unpack it first")
     texts = [(_rel(f, root), f.read_bytes().decode("utf-8")) for f in files]
     pd.DataFrame(texts, columns=["path", "text"]).to_parquet(root / LOGS, index=False, compression="zstd")
-    stored = pd.read_parquet(root / LOGS)
+    stored = checked.read_parquet(root / LOGS, ["path", "text"])
     if list(zip(stored["path"], stored["text"])) != texts:
         (root / LOGS).unlink()
         raise AssertionError(f"{root / LOGS} does not read back as the logs")
@@ -283,7 +284,7 @@ def pack_logs(root: Path) -> int:
 
 def unpack_logs(root: Path) -> int:
     """Write `root/logs.parquet`'s logs back byte for byte and remove the table."""
-    table = pd.read_parquet(root / LOGS)
+    table = checked.read_parquet(root / LOGS, ["path", "text"])
     _write_texts(root, zip(table["path"], table["text"]))
     (root / LOGS).unlink()
     return len(table)

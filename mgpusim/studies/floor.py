@@ -14,6 +14,7 @@ the command writes and prints them.
 """
 from __future__ import annotations
 
+import hashlib
 import tempfile
 from pathlib import Path
 
@@ -21,11 +22,35 @@ import pandas as pd
 
 from mgpusim.model.errors import InputError
 from mgpusim.studies import pipeline as pipeline
+from mgpusim.studies import run_sets
 from mgpusim.studies.study_file import Study
 
 #: (title, held out) of the study's two halves
 HALVES = ((pipeline.CALIBRATION_TITLE, False), (pipeline.HELD_OUT_TITLE, True))
 ERROR_COLUMNS = ["set", "half", "config", "replay", "prediction"]
+
+
+def check_sets(study: Study, sets: list[Path]) -> None:
+    """Every set is a runs folder of `study`'s own (:func:`mgpusim.studies.run_sets.check_set`)
+    and no two hold the same runs: a set given twice, or a copy of one, would show a floor of
+    0 % that no measurement made."""
+    seen: dict[str, Path] = {}
+    for runs in sets:
+        run_sets.check_set(study, runs, "--runs")
+        digest = content_digest(runs)
+        if digest in seen:
+            raise InputError(f"{seen[digest]} and {runs} hold the same runs: a floor needs sets "
+                             f"measured apart", field="--runs")
+        seen[digest] = runs
+
+
+def content_digest(root: Path) -> str:
+    """A hash of every file below `root`, by path and bytes (the profile beside it is not in)."""
+    digest = hashlib.sha256()
+    for path in sorted(p for p in root.rglob("*") if p.is_file()):
+        digest.update(path.relative_to(root).as_posix().encode() + b"\0")
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
 
 
 def set_profile(runs: Path, profile: Path | None) -> Path:

@@ -26,6 +26,11 @@ from mgpusim.validation.measured import TRACE_FILES
 Progress = Callable[[str], None]
 
 
+#: A runs folder's record of the study that measured it, which a study checks before using
+#: the runs (:mod:`mgpusim.studies.run_sets`).
+RECORD = "study.json"
+
+
 def measure_microbenchmarks(study: Study, out: Path, progress: Progress) -> list[Path]:
     """Run every sweep on one simulated GPU, and every pair sweep alone and on two at once, in
     `rounds` rounds; one table (+ machine record) per pass. Each row has the pass's time, and a
@@ -109,6 +114,7 @@ def measure_runs(study: Study, entries: tuple[Entry, ...], profile: Path, out: P
     exps = {e.name: with_run_length(e.load(profile), rs.run_seconds, rs.max_frames) for e in entries}
     runs: dict[str, list[tuple[str, Any]]] = {e.name: [] for e in entries}
     out.mkdir(parents=True, exist_ok=True)
+    write_json({"study": study.name, "file": str(study.file)}, out / RECORD)
     with _run_prober(threads) as prober:
         before: list[dict[str, Any]] = []
         for rep in range(rs.repeats):

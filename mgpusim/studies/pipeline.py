@@ -17,7 +17,7 @@ from mgpusim.io.writers import write_json
 from mgpusim.measure import run_archive, run_speed, speed_norm
 from mgpusim.measure import speed_probe as speed
 from mgpusim.measure.speed_norm import RunSpeed
-from mgpusim.studies import verdict
+from mgpusim.studies import run_sets, verdict
 from mgpusim.studies.measuring import Progress, measure_microbenchmarks, measure_runs, measured_folder
 from mgpusim.studies.page import stats_line, write_study_page
 from mgpusim.studies.study_file import Entry, Study
@@ -55,14 +55,19 @@ def load_runs(study: Study, entries: tuple[Entry, ...], root: Path,
 
 
 def calibrate(study: Study, out: Path, progress: Progress, tables: list[Path] | None = None,
-              runs_dir: Path | None = None) -> tuple[Path, str]:
+              runs_dir: Path | None = None, allow_missing: bool = False) -> tuple[Path, str]:
     """Fit the study's profile on its tables, then on its calibration runs (committed, under
-    `runs_dir`, or under `out/runs`); write `out/profile.toml`; return it and the fit text."""
+    `runs_dir`, or under `out/runs`); write `out/profile.toml`; return it and the fit text.
+    The runs are checked to be the study's own and complete (unless `allow_missing`) before
+    any fit."""
+    root = runs_dir or runs_root(study, False, out)
+    run_sets.check_half(study, study.calibration, root, "--runs" if runs_dir else "",
+                        allow_missing, "calibration")
     tables = tables or study.microbenchmarks.tables(out / "measurements")
     data, lines = profile_from_tables(study.recipe, tables, study.profile,
                                       f"mgpusim study calibrate {study.file}")
     progress(f"calibrate from {len(tables)} tables")
-    return fit_on_runs(study, data, lines, runs_dir or runs_root(study, False, out), out)
+    return fit_on_runs(study, data, lines, root, out)
 
 
 def fit_on_runs(study: Study, data: dict[str, Any], lines: list[str], root: Path, out: Path,
@@ -179,6 +184,7 @@ def run(study: Study, out: Path, progress: Progress, held_out: bool = True,
                                       study.profile, command)
     base = write_profile(data, out / "profile_microbenchmarks.toml", lines)
     measure_runs(study, study.entries(held_out), base, out / "runs", progress, devices)
+    run_sets.check_half(study, study.calibration, out / "runs", "", False, "calibration")
     progress("calibrate from runs")
     profile, fit_text = fit_on_runs(study, data, lines, out / "runs", out, base)
     speeds: SpeedTables = {}  # after the runs are measured: read once, shared below
@@ -242,7 +248,7 @@ def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_t
             schedule_verdicts[(title, schedule)] = verdict.half_verdict(part, study.targets)
     head, rest = verdict.verdict_parts(stats)
     lines = [f"# mgpusim study {study.name}: measured vs simulated", "", f"**{head}** {rest}".strip(), "",
-             INTRO, ""]
+             *_missing_lines(missing or {}), INTRO, ""]
     speed_lines = speed.report_lines(probes if probes is not None else speed.read_probes([]))
     speed_lines += run_speed.report_lines(run_speeds if run_speeds is not None else pd.DataFrame())
     lines += speed_lines
@@ -276,6 +282,17 @@ def write_report(out: Path, study: Study, tables: dict[str, pd.DataFrame], fit_t
     path.write_text(text)
     write_study_page(out, text)
     return path
+
+
+def _missing_lines(missing: dict[str, list[str]]) -> list[str]:
+    """The configurations left out for want of a run, right under the verdict: a verdict on
+    part of a study must say so before anything else."""
+    absent = [(title, names) for title, names in missing.items() if names]
+    if not absent:
+        return []
+    parts = "; ".join(f"{title.split(' (')[0].lower()}: {len(names)} ({', '.join(names)})"
+                      for title, names in absent)
+    return [f"**Not every configuration was compared** (no measured run): {parts}.", ""]
 
 
 def _groups(table: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:

@@ -41,7 +41,7 @@ def read_measured(folder: Path, exp: Experiment) -> pd.DataFrame:
     for name in TRACE_FILES:
         path = folder / name
         if run_archive.is_file(path):
-            trace = check_trace(read_table(path), str(path))
+            trace = check_trace(read_table(path, ends_whole=True), str(path))
             break
     else:
         raise InputError("no trace.parquet or trace.csv in the measured folder", file=str(folder))

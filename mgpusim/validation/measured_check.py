@@ -35,10 +35,12 @@ UNCOMPARED_KEYS = ("experiment", "file", "profile", "measured", "profile_overrid
 FIRST_KEYS = ("schedule", "gpus", "width", "height", "host_copy", "inputs")
 
 
-def read_table(path: Path) -> pd.DataFrame:
+def read_table(path: Path, ends_whole: bool = False) -> pd.DataFrame:
     """A CSV or Parquet table (by extension), on disk or in a packed runs folder; unreadable,
-    empty or corrupt files are one InputError naming the file (:mod:`mgpusim.io.table_files`)."""
-    return run_archive.read_table(path)
+    empty or corrupt files are one InputError naming the file (:mod:`mgpusim.io.table_files`).
+    `ends_whole`: a table this tool wrote (a measured trace, a measure table), which ends
+    with a newline unless it was cut short."""
+    return run_archive.read_table(path, ends_whole=ends_whole)
 
 
 def read_json_object(path: Path) -> dict[str, Any]:

@@ -36,10 +36,10 @@ import json
 import math
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence, cast
+from typing import Any, Callable, Iterable, Mapping, Sequence, cast
 
 import numpy as np
 import pandas as pd
@@ -76,6 +76,15 @@ RANK_MEASURE = (f"the {PERCENTILE}th-percentile interval between presents (the m
 PACE_MARGINS = (0.0, 0.01, 0.02, 0.05)
 #: The family of evenly paced AFR options.
 PACED = "AFR, even pacing"
+#: The most passes a frame may have (a stereo frame's passes counted for both eyes): frame
+#: pipelining tries every split point with every chunk count on every link, so its options
+#: grow with the passes, and each costs more to model the more passes it has. On 2 cores with
+#: 2 workers (benchmarks/advise_passes.py): 20 passes take 20-40 s, 50 passes 1-2 minutes; 200
+#: passes (12,800 pipelining options at 70-230 ms each on one core) would take 10-25 minutes,
+#: so such a frame is refused before any work rather than left to run.
+MAX_PASSES = 64
+#: `progress(stage, done, total)`: how far the search has come (a command draws it).
+Progress = Callable[[str, int, int], None]
 
 
 @dataclass(frozen=True)
@@ -337,43 +346,72 @@ def intervals(frames: pd.DataFrame, summary: Mapping[str, Any]) -> dict[str, flo
             "interval_max_ms": float(periods.max()) / 1e6}
 
 
+#: The most options one task of a worker evaluates: small enough that progress moves often
+#: on a long search, large enough that handing tasks out costs nothing next to running them.
+TASK_OPTIONS = 32
+
+
 def run_options(path: str, base: Mapping[str, Any], items: list[tuple[int, Mapping[str, Any]]],
-                fidelity: str, workers: int, band: bool = False) -> list[dict[str, Any]]:
-    """`evaluate` over the items, spread over `workers` processes (1: here)."""
+                fidelity: str, workers: int, band: bool = False, progress: Progress | None = None,
+                stage: str = "") -> list[dict[str, Any]]:
+    """`evaluate` over the items, spread over `workers` processes (1: here), in the items'
+    order; `progress(stage, done, total)` after each task."""
+    report = _reporter(progress, stage, len(items))
     if workers <= 1 or len(items) < 2 * workers:
-        return evaluate(path, base, items, fidelity, band)
-    size = max(1, math.ceil(len(items) / (4 * workers)))
+        size = min(TASK_OPTIONS, max(1, len(items)))
+        out: list[dict[str, Any]] = []
+        for start in range(0, len(items), size):
+            out += evaluate(path, base, items[start:start + size], fidelity, band)
+            report(len(out))
+        return out
+    size = max(1, min(TASK_OPTIONS, math.ceil(len(items) / (4 * workers))))
     chunks = [items[i:i + size] for i in range(0, len(items), size)]
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        parts = pool.map(evaluate, [path] * len(chunks), [base] * len(chunks), chunks,
-                         [fidelity] * len(chunks), [band] * len(chunks))
-        return [row for part in parts for row in part]
+        tasks = [pool.submit(evaluate, path, base, chunk, fidelity, band) for chunk in chunks]
+        done = 0
+        for task in as_completed(tasks):
+            done += len(task.result())
+            report(done)
+        return [row for task in tasks for row in task.result()]
+
+
+def _reporter(progress: Progress | None, stage: str, total: int) -> Callable[[int], None]:
+    """`report(done)` for one stage of `total` options (nothing where no one listens)."""
+    if progress is None:
+        return lambda done: None
+    progress(stage, 0, total)
+    return lambda done: progress(stage, done, total)
 
 
 def search(path: str | Path, overrides: Mapping[str, Any] | None = None, *, max_gpus: int = 8,
            links: Sequence[Link] = LINKS, confirm: int = CONFIRM, workers: int | None = None,
-           band: bool = True) -> Advice:
+           band: bool = True, progress: Progress | None = None) -> Advice:
     """Search every option of the experiment at `path` (see the module doc). How the answer
     moves if the passes' assumed pixel shares are off is a second step on the result
-    (:func:`mgpusim.advise.assumptions.check_shares`)."""
+    (:func:`mgpusim.advise.assumptions.check_shares`). `progress(stage, done, total)`: the
+    options evaluated so far in each stage of the search."""
     path, base = str(path), dict(overrides or {})
-    exp = _start(path, base, max_gpus)
+    exp = check_frame(path, base, max_gpus)
     workers = workers or os.cpu_count() or 1
     opts = options(exp, max_gpus, links)
     fast = "queues" if exp.schedule.refresh_hz else "analytic"  # the analytic level has no vsync
     t0 = time.perf_counter()
-    first = by_option(run_options(path, base, list(enumerate(o.overrides for o in opts)), fast, workers))
-    opts, first = _with_paced(path, base, opts, first, fast, workers)
+    first = by_option(run_options(path, base, list(enumerate(o.overrides for o in opts)), fast, workers,
+                                  progress=progress, stage=f"{fast} level"))
+    opts, first = _with_paced(path, base, opts, first, fast, workers, progress)
     table = _table(opts, first)
     t1 = time.perf_counter()
     chosen = _to_confirm(table, confirm)
     # a paced option's cadence comes from its unpaced option's mean at the same level
     chosen |= {u for i in chosen if (u := opts[i].paced_from) is not None}
     plain = [i for i in sorted(chosen) if opts[i].paced_from is None]
-    full = by_option(run_options(path, base, [(i, opts[i].overrides) for i in plain], "full", workers, band))
-    opts, full, refast = _paced_at_full(path, base, opts, full, sorted(chosen - set(plain)), workers, band)
+    full = by_option(run_options(path, base, [(i, opts[i].overrides) for i in plain], "full", workers, band,
+                                 progress, "full fidelity"))
+    opts, full, refast = _paced_at_full(path, base, opts, full, sorted(chosen - set(plain)), workers, band,
+                                        progress)
     if refast:  # the analytic row of a paced option at the cadence it kept
-        again = run_options(path, base, [(i, opts[i].overrides) for i in refast], fast, workers)
+        again = run_options(path, base, [(i, opts[i].overrides) for i in refast], fast, workers,
+                            progress=progress, stage=f"{fast} level, paced again")
         table = _refresh_fast(table, by_option(again))
     link_order = {link.name: k for k, link in enumerate(links)}
     table = _merge_full(table, full, link_order)
@@ -417,13 +455,14 @@ def cadences(mean_ms: float) -> list[float]:
 
 
 def best_cadence(path: str, base: Mapping[str, Any], opts: Sequence[Option], means: Mapping[int, float],
-                 fidelity: str, workers: int, band: bool = False) -> dict[int, tuple[float, dict[str, Any]]]:
+                 fidelity: str, workers: int, band: bool = False, progress: Progress | None = None,
+                 stage: str = "even pacing") -> dict[int, tuple[float, dict[str, Any]]]:
     """For each unpaced AFR option (index -> its mean interval at `fidelity`): the cadence of
     :func:`cadences` whose paced run ranks best (measure, then latency, then the slower cadence
     is not preferred), with that run's row."""
     tried: list[tuple[int, float]] = [(u, pace) for u, mean in means.items() for pace in cadences(mean)]
     items = [(k, paced(opts[u], u, pace).overrides) for k, (u, pace) in enumerate(tried)]
-    rows = run_options(path, base, items, fidelity, workers, band)
+    rows = run_options(path, base, items, fidelity, workers, band, progress, stage)
     out: dict[int, tuple[float, dict[str, Any]]] = {}
     for (u, pace), row in zip(tried, sorted(rows, key=lambda r: r["option"])):
         if row["error"] is not None:
@@ -464,9 +503,10 @@ def _pace_sources(opts: Sequence[Option], rows: pd.DataFrame) -> dict[int, float
 
 
 def _with_paced(path: str, base: Mapping[str, Any], opts: list[Option], rows: pd.DataFrame, fidelity: str,
-                workers: int) -> tuple[list[Option], pd.DataFrame]:
+                workers: int, progress: Progress | None = None) -> tuple[list[Option], pd.DataFrame]:
     """Every AFR option on several GPUs again, evenly paced at its best cadence (fast level)."""
-    found = best_cadence(path, base, opts, _pace_sources(opts, rows), fidelity, workers)
+    found = best_cadence(path, base, opts, _pace_sources(opts, rows), fidelity, workers,
+                         progress=progress, stage=f"even pacing, {fidelity} level")
     opts = list(opts)
     extra = []
     for u, (pace, row) in found.items():
@@ -478,14 +518,14 @@ def _with_paced(path: str, base: Mapping[str, Any], opts: list[Option], rows: pd
 
 
 def _paced_at_full(path: str, base: Mapping[str, Any], opts: list[Option], full: pd.DataFrame,
-                   chosen: list[int], workers: int, band: bool
+                   chosen: list[int], workers: int, band: bool, progress: Progress | None = None
                    ) -> tuple[list[Option], pd.DataFrame, list[int]]:
     """The paced options to confirm, their cadence found again from their unpaced option's
     full-fidelity mean (the fast level's may be shorter); those whose cadence moved, to be run
     again at the fast level."""
     sources = paced_sources(opts, chosen)
     means = {u: float(cell(full, u, "frame_time_ms")) for u in sources if ran(full, u)}
-    found = best_cadence(path, base, opts, means, "full", workers, band)
+    found = best_cadence(path, base, opts, means, "full", workers, band, progress, "even pacing, full fidelity")
     opts, moved = list(opts), []
     rows: list[dict[str, Any]] = []
     for u, p in sources.items():
@@ -531,15 +571,27 @@ def settle_notes(table: pd.DataFrame) -> list[str]:
             "state's; give the frame more frames (--set schedule.frames=N) before trusting the ranking"]
 
 
-def _start(path: str, base: Mapping[str, Any], max_gpus: int) -> Experiment:
-    """The experiment, checked: one GPU (the frame as captured), a GPU count in range."""
-    exp = load_experiment(path, base)
+def check_frame(path: str | Path, base: Mapping[str, Any] | None = None, max_gpus: int = 8) -> Experiment:
+    """The experiment, checked before any work: one GPU (the frame as captured), a GPU count in
+    range, at most :data:`MAX_PASSES` passes. A command calls it before it touches its output
+    folder, so that bad input leaves that folder as it was."""
+    path = str(path)
+    exp = load_experiment(path, base or {})
     if exp.schedule.gpus != 1:
         raise InputError(f"advise starts from the frame on one GPU; this experiment runs "
                          f"{exp.schedule.name} on {exp.schedule.gpus} (set schedule.gpus = 1)",
                          file=path, field="schedule.gpus")
     if not 1 <= max_gpus <= 64:
         raise InputError(f"must be 1..64, got {max_gpus}", field="--max-gpus")
+    passes = len(exp.scene.passes) * (2 if exp.schedule.name == "xr" else 1)
+    if passes > MAX_PASSES:
+        raise InputError(f"advise takes frames of up to {MAX_PASSES} passes, this one has {passes}: "
+                         f"frame pipelining alone would be {passes * len(CHUNKS) * len(LINKS):,} options "
+                         f"(every split point x {len(CHUNKS)} chunk counts x {len(LINKS)} links), each "
+                         "slower to model the more passes there are (on 2 cores 50 passes take 1-2 "
+                         "minutes, 200 would take over 10); merge small passes in the capture "
+                         "before `mgpusim frame import`",
+                         file=path, field="scene.passes")
     return exp
 
 

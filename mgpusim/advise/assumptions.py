@@ -19,6 +19,7 @@ import pandas as pd
 
 from mgpusim.advise.advisor import (
     Advice,
+    Progress,
     best_cadence,
     by_option,
     cell,
@@ -66,18 +67,19 @@ def candidates(advice: Advice) -> list[int]:
     return sorted(int(i) for i in chosen)
 
 
-def check_shares(advice: Advice, workers: int = 1, delta: float = SHARE_DELTA) -> dict[str, Any]:
+def check_shares(advice: Advice, workers: int = 1, delta: float = SHARE_DELTA,
+                 progress: Progress | None = None) -> dict[str, Any]:
     """Every captured pass's share and its source (`passes`), and per direction (`shifts`) the
     best option with the assumed shares moved by -`delta` and +`delta`, where today's best
     lands then, and each schedule's best measure today and then (`families`). Kept in
     `advice.assumptions` (which the report shows) and returned; its time in `advice.timings`."""
     t0 = time.perf_counter()
-    advice.assumptions = _check(advice, workers, delta)
+    advice.assumptions = _check(advice, workers, delta, progress)
     advice.timings["shares_s"] = time.perf_counter() - t0
     return advice.assumptions
 
 
-def _check(advice: Advice, workers: int, delta: float) -> dict[str, Any]:
+def _check(advice: Advice, workers: int, delta: float, progress: Progress | None) -> dict[str, Any]:
     table = shares(advice)
     listed = [{"pass": name, "pixel_share": s.value, "geometry_share": 1 - s.value, "source": s.source,
                "why": s.why} for name, s in table.items()]
@@ -88,7 +90,8 @@ def _check(advice: Advice, workers: int, delta: float) -> dict[str, Any]:
     scene = advice_scene(advice)
     best = advice.ranked.iloc[0]
     for sign in (-1, 1):
-        got = _rerun(advice, candidates(advice), shifted(scene, assumed, sign * delta), workers)
+        got = _rerun(advice, candidates(advice), shifted(scene, assumed, sign * delta), workers,
+                     progress, f"assumed shares {sign * delta:+g}")
         if got.empty:
             continue
         first = got.iloc[0]
@@ -107,21 +110,23 @@ def _check(advice: Advice, workers: int, delta: float) -> dict[str, Any]:
     return out
 
 
-def _rerun(advice: Advice, picks: list[int], passes: list[dict[str, Any]], workers: int) -> pd.DataFrame:
+def _rerun(advice: Advice, picks: list[int], passes: list[dict[str, Any]], workers: int,
+           progress: Progress | None = None, stage: str = "assumed shares") -> pd.DataFrame:
     """The picked options at full fidelity on the scene `passes`, ranked as the search ranks."""
     base = {**advice.base, "scene.passes": passes}
     opts = list(advice.options)
     plain = sorted({i for i in picks if opts[i].paced_from is None}
                    | {u for i in picks if (u := opts[i].paced_from) is not None})
     items: list[tuple[int, Mapping[str, Any]]] = [(i, _on_scene(opts[i].overrides, passes)) for i in plain]
-    rows = by_option(run_options(advice.experiment, base, items, "full", workers))
+    rows = by_option(run_options(advice.experiment, base, items, "full", workers, progress=progress, stage=stage))
     # evenly paced AFR: its cadence again, from its unpaced option's mean on this scene
     sources = paced_sources(opts, picks)
     means = {u: float(cell(rows, u, "frame_time_ms")) for u in sources if ran(rows, u)}
     shifted_opts = [o if "scene.passes" not in o.overrides else
                     type(o)(o.family, o.gpus, o.link, o.settings, _on_scene(o.overrides, passes),
                             o.paced_from, o.detail) for o in opts]
-    found = best_cadence(advice.experiment, base, shifted_opts, means, "full", workers)
+    found = best_cadence(advice.experiment, base, shifted_opts, means, "full", workers, progress=progress,
+                         stage=f"{stage}, even pacing")
     extra = []
     labels = {i: opts[i].label for i in picks}
     for u, (pace, row) in found.items():

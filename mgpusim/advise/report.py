@@ -7,16 +7,23 @@ timelines and Perfetto traces of the best options, and one static HTML page over
     OUT/timelines/K_*/  the one-GPU baseline and the best options simulated at full fidelity
                         (summary.json, trace.parquet, timeline.png, trace.perfetto.json)
     OUT/report.html     the page (docs/outputs.md, "Advice")
+
+The set is written into OUT/.advice-partial and moved into place at the end, the report last,
+and an earlier advice in OUT is removed before, its report first (:func:`discard_stale`): a run
+killed at any point leaves either one frame's complete advice or no report at all, never an old
+report beside a new table.
 """
 from __future__ import annotations
 
+import os
 import re
+import shutil
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
-from mgpusim.advise.advisor import PACE_MARGINS, PACED, RANK_MEASURE, TIE, Advice, option_command
+from mgpusim.advise.advisor import PACE_MARGINS, PACED, RANK_MEASURE, TIE, Advice, Progress, option_command
 from mgpusim.io.plot import pareto_png
 from mgpusim.io.report_page import Section, write_page
 from mgpusim.io.writers import write_json, write_result, write_table
@@ -37,11 +44,46 @@ HEADERS = {"rank": "rank", "label": "option", "gpus": "GPUs", "interval_p99_ms":
            "latency_ms": "latency ms", "speedup": "speedup", "also_on": "tied, also on",
            "frame_time_ms_lo": "mean, band low ms", "frame_time_ms_hi": "mean, band high ms",
            "family": "schedule"}
+#: What one advice is in its folder, the report last (the order they are moved into place).
+OUTPUTS = ("advice.csv", "advice.json", "pareto.png", "timelines", "report.html")
+#: The folder inside OUT that a run writes its advice into before moving it into place.
+STAGING = ".advice-partial"
 
 
-def write_advice(advice: Advice, out: Path, experiment: str, timelines: int = 3) -> dict[str, Path]:
-    """Everything in `out` (see the module doc); `experiment` is how the user named it."""
+def discard_stale(out: Path) -> None:
+    """Remove an earlier advice from `out`, the report first, and a killed run's staging
+    folder. Why before the search: a run killed after this leaves no report at all, where an
+    old one would read as the answer for the new frame. Other files in `out` stay."""
+    for name in (OUTPUTS[-1], *OUTPUTS[:-1], STAGING):
+        _remove(out / name)
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path)
+    elif path.exists() or path.is_symlink():
+        path.unlink()
+
+
+def write_advice(advice: Advice, out: Path, experiment: str, timelines: int = 3,
+                 progress: Progress | None = None) -> dict[str, Path]:
+    """Everything in `out` (see the module doc); `experiment` is how the user named it.
+    `progress(stage, done, total)`: the timelines drawn so far."""
     out.mkdir(parents=True, exist_ok=True)
+    discard_stale(out)
+    staging = out / STAGING
+    staging.mkdir()
+    files = _write_set(advice, staging, experiment, timelines, progress)
+    for name in OUTPUTS:  # the report last: until it is there, the folder has no answer
+        if (staging / name).exists():
+            os.replace(staging / name, out / name)
+    staging.rmdir()
+    return {key: out / path.relative_to(staging) for key, path in files.items()}
+
+
+def _write_set(advice: Advice, out: Path, experiment: str, timelines: int,
+               progress: Progress | None) -> dict[str, Path]:
+    """The advice's files in `out` (the staging folder)."""
     table = advice.table.reset_index()
     table["command"] = [option_command(experiment, advice.overrides(i)) for i in table["option"]]
     files = {"table": write_table(table[["option", *[c for c in _COLUMNS if c in table], "command"]],
@@ -51,7 +93,7 @@ def write_advice(advice: Advice, out: Path, experiment: str, timelines: int = 3)
     files["pareto"] = pareto_png(plotted, out / "pareto.png",
                                  f"{Path(experiment).stem}: {advice.counts['options']} options; x: the p99 "
                                  "interval between presents (ms)")
-    shown = _timelines(advice, out / "timelines", timelines)
+    shown = _timelines(advice, out / "timelines", timelines, progress)
     files["answer"] = write_json(answer(advice, table, shown), out / "advice.json")
     files["report"] = write_page(out / "report.html", f"mgpusim advise: {Path(experiment).stem}",
                                  sections(advice, table, shown, experiment),
@@ -92,12 +134,14 @@ def _by_mean(ranked: pd.DataFrame) -> pd.Series:
     return ranked.sort_values(["frame_time_ms", "order"], kind="stable").iloc[0]
 
 
-def _timelines(advice: Advice, root: Path, count: int) -> list[dict[str, Any]]:
+def _timelines(advice: Advice, root: Path, count: int, progress: Progress | None = None) -> list[dict[str, Any]]:
     """The baseline and the `count` best options at full fidelity with their traces."""
     rows = _rows(advice.ranked)
     picks = [0] + [int(i) for i in rows.index if i != 0][:count]
-    out = []
+    out: list[dict[str, Any]] = []
     for k, index in enumerate(picks):
+        if progress is not None:
+            progress("timelines", k, len(picks))
         option = advice.options[index]
         exp = load_experiment(advice.experiment, advice.overrides(index))
         result = simulate(exp, fidelity="full")

@@ -7,15 +7,24 @@ x8/x16 and NVLink, at the analytic level first, then confirms the best at full f
 by the 99th-percentile interval between presents; ties (within 1 %) go to the lower latency,
 fewer GPUs, the cheaper link (docs/advise.md). Writes DIR/report.html (tables,
 the Pareto plot, timelines, Perfetto traces), advice.csv, advice.json and pareto.png.
+
+Progress on stderr while it searches. DIR is held by one mgpusim at a time (a second is
+refused); an earlier advice in it is removed first, the new one moved in at the end, the
+report last, so a killed run leaves no report rather than an old one beside a new table.
+Frames of up to 64 passes (frame pipelining's options grow with them).
 """
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
-from mgpusim.io.out_folder import check_out_dir
+from mgpusim.io.out_folder import check_out_dir, locked_out_dir
 from mgpusim.io.shipped import resolve_experiment
 from mgpusim.model.errors import InputError
+
+if TYPE_CHECKING:  # annotations only: loaded when the command runs
+    from mgpusim.advise.advisor import Advice
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -36,11 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import time  # noqa: PLC0415
-
-    from mgpusim.advise.advisor import search  # noqa: PLC0415
-    from mgpusim.advise.assumptions import check_shares  # noqa: PLC0415
-    from mgpusim.advise.report import write_advice  # noqa: PLC0415
+    from mgpusim.advise.advisor import check_frame  # noqa: PLC0415
     from mgpusim.schedules.experiment import parse_overrides  # noqa: PLC0415
     for name, value, low in (("--confirm", args.confirm, 1), ("--timelines", args.timelines, 0),
                              ("--workers", args.workers, 1)):
@@ -49,12 +54,34 @@ def run(args: argparse.Namespace) -> int:
     path = resolve_experiment(args.experiment)
     out = args.out or Path("out") / f"{path.stem}-advice"
     check_out_dir(out)
+    overrides = parse_overrides(args.overrides)
+    check_frame(path, overrides, args.max_gpus)  # bad input leaves the folder as it was
+    with locked_out_dir(out):
+        return _advise(args, path, overrides, out)
+
+
+def _advise(args: argparse.Namespace, path: Path, overrides: dict[str, Any], out: Path) -> int:
+    """The search, the report and the summary lines, with `out` held by this process."""
+    import time  # noqa: PLC0415
+
+    from mgpusim.advise.advisor import search  # noqa: PLC0415
+    from mgpusim.advise.assumptions import check_shares  # noqa: PLC0415
+    from mgpusim.advise.report import discard_stale, write_advice  # noqa: PLC0415
+    from mgpusim.io.progress import Stages  # noqa: PLC0415
+    discard_stale(out)
     t0 = time.perf_counter()
-    advice = search(path, parse_overrides(args.overrides), max_gpus=args.max_gpus,
-                    confirm=args.confirm, workers=args.workers)
-    check_shares(advice, advice.counts["workers"])
-    searched = time.perf_counter() - t0
-    files = write_advice(advice, out, str(args.experiment), args.timelines)
+    with Stages("advise", unit="option") as progress:
+        advice = search(path, overrides, max_gpus=args.max_gpus, confirm=args.confirm,
+                        workers=args.workers, progress=progress)
+        check_shares(advice, advice.counts["workers"], progress=progress)
+        searched = time.perf_counter() - t0
+        files = write_advice(advice, out, str(args.experiment), args.timelines, progress)
+    _summary(advice, path, out, files, searched)
+    return 0
+
+
+def _summary(advice: Advice, path: Path, out: Path, files: dict[str, Path], searched: float) -> None:
+    """What the command prints: the search, the baseline, the best, the front, the notes."""
     from mgpusim.advise.advisor import RANK_MEASURE  # noqa: PLC0415
     rows = advice.ranked.drop_duplicates("rank")
     best, base = rows.iloc[0], advice.baseline
@@ -77,4 +104,3 @@ def run(args: argparse.Namespace) -> int:
     for note in advice.notes:
         print(f"  note: {note}")
     print(f"  wrote {files['report']} (and {out / 'advice.csv'}, {out / 'advice.json'}, {out / 'pareto.png'})")
-    return 0

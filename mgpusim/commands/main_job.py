@@ -11,7 +11,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from mgpusim.commands.study import add_steady_check, finish, measuring, progress_printer, steady_check
-from mgpusim.io.out_folder import check_out_dir
+from mgpusim.io.out_folder import locked_out_dir
 from mgpusim.io.shipped import shipped_dir
 
 #: The lavapipe study, shipped beside the package's experiments.
@@ -33,10 +33,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    with locked_out_dir(args.out):  # a second main job into the folder is refused
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     from mgpusim.measure import speed_probe as speed  # noqa: PLC0415
     from mgpusim.studies import pipeline as pipeline  # noqa: PLC0415
     from mgpusim.studies.study_file import load_study  # noqa: PLC0415
-    check_out_dir(args.out)
     study = load_study(args.study)
     runs = study.runs
     if args.repeats is not None:

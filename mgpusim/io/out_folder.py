@@ -1,8 +1,13 @@
 """Output paths checked before any work: a run that cannot write its results should fail in
-the first second, not after the simulation or measurement."""
+the first second, not after the simulation or measurement; and an output folder held by one
+process at a time (:func:`locked_out_dir`), so that two runs into one folder cannot interleave
+their files.
+"""
 from __future__ import annotations
 
+import fcntl
 import os
+import shutil
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -68,3 +73,50 @@ def _check_writable(folder: Path, path: Path, option: str) -> None:
                          f"({exc.strerror or exc})", field=option) from None
     os.close(fd)
     os.unlink(probe)
+
+
+#: The lock file a writing command holds in its output folder (left in place: see locked_out_dir).
+LOCK_FILE = ".mgpusim.lock"
+
+
+@contextmanager
+def locked_out_dir(path: Path, option: str = "--out") -> Iterator[Path]:
+    """The output folder `path`, checked, created and held by this process until the block
+    ends: a second mgpusim writing it meanwhile is refused at once with an InputError naming
+    this process (not left to wait, nor to mix its files with ours). Why flock: the kernel
+    drops the lock when the holder dies, even by SIGKILL, so no stale lock needs clearing.
+    The lock file stays in the folder after the block: removing it would let a process that
+    opened it just before lock a file no one else sees. Where the block fails and the folder
+    was made here and holds only the lock, the folder goes too (nothing half-written)."""
+    check_out_dir(path, option)
+    made = not path.exists()
+    with _os_errors(path, option):
+        path.mkdir(parents=True, exist_ok=True)
+        fd = os.open(path / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        _take(fd, path, option)
+        try:
+            yield path
+        except BaseException:
+            if made:
+                _remove_if_only_lock(path)
+            raise
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def _take(fd: int, path: Path, option: str) -> None:
+    """Lock `fd` without waiting and write our pid into it; a holder's pid in the error."""
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+        raise InputError(f"another mgpusim is writing {path} (pid {holder})", field=option) from None
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+
+
+def _remove_if_only_lock(path: Path) -> None:
+    """Remove a folder this process made whose only file is the lock (a run that failed)."""
+    if [p.name for p in path.iterdir()] == [LOCK_FILE]:
+        shutil.rmtree(path, ignore_errors=True)

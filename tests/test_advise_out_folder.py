@@ -1,0 +1,136 @@
+"""`mgpusim advise` and its output folder: one advise at a time in a folder, a killed run leaves
+no report that reads as complete, a rerun gives the same advice; frames past the pass limit
+refused before any work; progress reported in every stage of the search."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from mgpusim.advise.advisor import LINKS, MAX_PASSES, run_options, search
+from mgpusim.advise.report import OUTPUTS, STAGING
+from mgpusim.cli import main
+from mgpusim.io.out_folder import LOCK_FILE
+
+ROOT = Path(__file__).resolve().parents[1]
+PROFILE = ROOT / "hardware_profiles" / "pcie4_pair.toml"
+#: A small search (two GPUs, no timelines but the baseline's), a few seconds on one worker.
+SMALL = ["--max-gpus", "2", "--timelines", "0", "--workers", "1", "--confirm", "4"]
+
+
+def import_frame(folder: Path, rows: list[str], name: str = "f") -> Path:
+    """A frame imported from CSV rows (pass,queue,gpu_ms,reads,writes,bytes,pixel_share)."""
+    csv = folder / f"{name}.csv"
+    csv.write_text("pass,queue,gpu_ms,reads,writes,bytes,pixel_share\n" + "".join(r + "\n" for r in rows))
+    out = folder / f"{name}.toml"
+    assert main(["frame", "import", str(csv), "--size", "1920x1080", "--profile", str(PROFILE),
+                 "--out", str(out)]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def frames(tmp_path_factory) -> tuple[Path, Path]:
+    """Two different frames: each advice says which it was."""
+    tmp = tmp_path_factory.mktemp("frames")
+    first = import_frame(tmp, ["shadow,graphics,1.5,,shadowmap,4194304,0",
+                               "light,graphics,2.0,shadowmap,hdr,16588800,1",
+                               "post,graphics,0.8,hdr,ldr,8294400,1"], "first")
+    second = import_frame(tmp, ["gbuffer,graphics,3.0,,gb,16588800,0.6",
+                                "light,graphics,1.0,gb,hdr,16588800,1"], "second")
+    return first, second
+
+
+def advise(frame: Path, out: Path) -> list[str]:
+    """The advise command line of `frame` into `out`, as a subprocess runs it."""
+    return [sys.executable, "-m", "mgpusim", "advise", str(frame), "--out", str(out), *SMALL]
+
+
+def visible(out: Path) -> list[str]:
+    """The files of `out` a reader sees (not the lock, not a run's staging folder)."""
+    return sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
+
+
+def holding(out: Path, proc: subprocess.Popen, timeout_s: float = 120) -> None:
+    """Wait until `proc` holds `out` and has removed the earlier advice (what it does first,
+    before its search)."""
+    lock, deadline = out / LOCK_FILE, time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, "the advise ended before it was seen holding its folder"
+        if lock.is_file() and lock.read_text().strip() == str(proc.pid) and not visible(out):
+            return
+        time.sleep(0.01)
+    pytest.fail(f"advise did not take {out} within {timeout_s} s")
+
+
+def test_a_second_advise_is_refused_a_killed_one_leaves_no_report_a_rerun_the_same(frames, tmp_path, capsys):
+    first, second = frames
+    out = tmp_path / "advice"
+    assert main(["advise", str(first), "--out", str(out), *SMALL]) == 0
+    reference = (out / "advice.csv").read_bytes()
+    assert visible(out) == sorted(OUTPUTS)
+    capsys.readouterr()
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen(advise(second, out), env=env, cwd=ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        holding(out, proc)
+        # a second advise into the same folder meanwhile: refused at once, in one line
+        assert main(["advise", str(first), "--out", str(out), *SMALL]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"another mgpusim is writing {out} (pid {proc.pid})" in err[0], err
+        proc.send_signal(signal.SIGKILL)  # mid-search: no handler runs
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+    # neither the first frame's report nor any file of either set is left to read as the answer
+    assert visible(out) == []
+    assert main(["advise", str(first), "--out", str(out), *SMALL]) == 0
+    assert (out / "advice.csv").read_bytes() == reference
+    assert visible(out) == sorted(OUTPUTS) and not (out / STAGING).exists()
+
+
+def test_a_frame_past_the_pass_limit_is_refused_before_any_work(tmp_path, capsys):
+    rows = [f"p{k},graphics,0.05,{f'p{k - 1}' if k else ''},p{k},8294400,1" for k in range(MAX_PASSES + 1)]
+    frame = import_frame(tmp_path, rows, "many")
+    capsys.readouterr()
+    out = tmp_path / "advice"
+    assert main(["advise", str(frame), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"up to {MAX_PASSES} passes, this one has {MAX_PASSES + 1}" in err[0], err
+    assert "scene.passes" in err[0] and not out.exists()
+
+
+def test_an_earlier_advice_is_kept_when_the_input_is_bad(frames, tmp_path, capsys):
+    first, _ = frames
+    out = tmp_path / "advice"
+    assert main(["advise", str(first), "--out", str(out), *SMALL]) == 0
+    before = (out / "report.html").read_bytes()
+    assert main(["advise", str(first), "--out", str(out), "--max-gpus", "0"]) == 2
+    assert (out / "report.html").read_bytes() == before
+
+
+def test_every_stage_reports_its_progress_to_the_end(frames):
+    first, _ = frames
+    seen: dict[str, list[tuple[int, int]]] = {}
+    search(first, max_gpus=2, links=LINKS[:1], workers=1, confirm=2,
+           progress=lambda stage, done, total: seen.setdefault(stage, []).append((done, total)))
+    assert {"analytic level", "full fidelity"} <= set(seen)
+    for stage, calls in seen.items():
+        dones = [d for d, _ in calls]
+        assert dones == sorted(dones) and calls[0][0] == 0 and calls[-1][0] == calls[-1][1] > 0, stage
+
+
+def test_spread_over_workers_the_rows_come_back_in_order(frames):
+    first, _ = frames
+    items = [(k, {"schedule.frames": 20 + k}) for k in range(9)]
+    one = run_options(str(first), {}, items, "analytic", 1)
+    two = run_options(str(first), {}, items, "analytic", 2)
+    strip = lambda rows: [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]  # noqa: E731
+    assert strip(two) == strip(one) and [r["option"] for r in two] == list(range(9))

@@ -13,6 +13,8 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import functools
 import re
 import sys
 import time
@@ -20,7 +22,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, TypeVar
 
-from mgpusim.io.out_folder import check_out_dir
+from mgpusim.io.out_folder import check_out_dir, locked_out_dir
 from mgpusim.io.shipped import resolve_experiment
 from mgpusim.model.errors import InputError, MgpusimError
 from mgpusim.model.toml_checks import int_list
@@ -73,7 +75,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "profile.toml beside each runs folder, as a main job writes it)")
     f.add_argument("--only", help="only the configurations whose name this regular expression matches")
     f.add_argument("--out", type=Path, default=None, help="output folder (default out/<study name>-floor)")
-    f.set_defaults(func=floor)
+    f.set_defaults(func=_held(floor))
 
 
 def add_steady_check(p: argparse.ArgumentParser) -> None:
@@ -139,9 +141,28 @@ def finish(out: Path) -> int:
 
 
 def _out(args: argparse.Namespace, study: Study) -> Path:
-    """The output folder, checked before any work."""
+    """The output folder, checked and held (:func:`_hold`) before any work."""
     out = args.out or Path("out") / study.name
-    check_out_dir(out)
+    return _hold(args, out)
+
+
+def _held(step: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
+    """`step` with the output folder it names through :func:`_hold` locked until it returns."""
+    @functools.wraps(step)
+    def run(args: argparse.Namespace) -> int:
+        with contextlib.ExitStack() as args.held:
+            return step(args)
+    return run
+
+
+def _hold(args: argparse.Namespace, out: Path) -> Path:
+    """`out` checked and, for the rest of the step (:func:`_held`), held by this process: a
+    second mgpusim writing it meanwhile is refused, not left to mix its files with ours."""
+    held = getattr(args, "held", None)
+    if held is None:  # a step called directly, not through the command line
+        check_out_dir(out)
+        return out
+    held.enter_context(locked_out_dir(out))
     return out
 
 
@@ -238,7 +259,7 @@ def validate_frame_times(args: argparse.Namespace) -> int:
         raise InputError("--set is for studies of our own runner's runs", field="--set")
     study = frame_times.load_study(resolve_experiment(args.study))
     out, progress = args.out or Path("out") / study.name, progress_printer()
-    check_out_dir(out)
+    _hold(args, out)
     result = frame_times.validate(study, args.held_out, progress)
     page = frame_times.markdown(result)
     out.mkdir(parents=True, exist_ok=True)
@@ -281,7 +302,7 @@ def floor(args: argparse.Namespace) -> int:
     replay_floor.check_sets(whole, args.runs)  # the study's own runs, each set measured apart
     study = _filtered(whole, args)
     out = args.out or Path("out") / f"{study.name}-floor"
-    check_out_dir(out)
+    _hold(args, out)
     profiles = [replay_floor.set_profile(runs, args.profile) for runs in args.runs]  # all checked first
     rows = []
     for runs, name, profile in zip(args.runs, replay_floor.set_names(args.runs), profiles):
@@ -312,4 +333,5 @@ def _print_floor(table: pd.DataFrame, per_set: pd.DataFrame) -> None:
         print((per_set * 100).round(1).to_string())
 
 
-_STEPS = {"measure": measure, "calibrate": calibrate, "validate": validate, "run": run}
+_STEPS = {name: _held(step) for name, step in
+          {"measure": measure, "calibrate": calibrate, "validate": validate, "run": run}.items()}

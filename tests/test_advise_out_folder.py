@@ -12,10 +12,11 @@ from pathlib import Path
 
 import pytest
 
-from mgpusim.advise.advisor import LINKS, MAX_PASSES, run_options, search
+from mgpusim.advise.advisor import LINKS, MAX_PASSES, check_frame, run_options, search
 from mgpusim.advise.report import OUTPUTS, STAGING
 from mgpusim.cli import main
 from mgpusim.io.out_folder import LOCK_FILE
+from mgpusim.io.progress import Stages
 
 ROOT = Path(__file__).resolve().parents[1]
 PROFILE = ROOT / "hardware_profiles" / "pcie4_pair.toml"
@@ -105,6 +106,7 @@ def test_a_frame_past_the_pass_limit_is_refused_before_any_work(tmp_path, capsys
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"up to {MAX_PASSES} passes, this one has {MAX_PASSES + 1}" in err[0], err
     assert "scene.passes" in err[0] and not out.exists()
+    assert check_frame(frame, max_gpus=1).scene.passes  # one GPU: no pipelining, nothing refused
 
 
 def test_an_earlier_advice_is_kept_when_the_input_is_bad(frames, tmp_path, capsys):
@@ -134,3 +136,17 @@ def test_spread_over_workers_the_rows_come_back_in_order(frames):
     two = run_options(str(first), {}, items, "analytic", 2)
     strip = lambda rows: [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]  # noqa: E731
     assert strip(two) == strip(one) and [r["option"] for r in two] == list(range(9))
+
+
+def test_the_progress_has_one_bar_per_stage_each_to_its_end():
+    stages = Stages("advise")  # drawn only after a second: nothing shows here
+    stages("analytic level", 0, 10)
+    first = stages.bar
+    stages("analytic level", 10, 10)
+    assert stages.bar is first and (first.n, first.total) == (10, 10)
+    stages("full fidelity", 3, 4)  # a new stage: the last bar closed, a new one drawn
+    assert stages.bar is not first and (stages.bar.n, stages.bar.total) == (3, 4)
+    assert stages.bar.desc == "advise: full fidelity"
+    with stages:
+        pass
+    assert stages.bar is None and stages.stage is None

@@ -573,8 +573,8 @@ def settle_notes(table: pd.DataFrame) -> list[str]:
 
 def check_frame(path: str | Path, base: Mapping[str, Any] | None = None, max_gpus: int = 8) -> Experiment:
     """The experiment, checked before any work: one GPU (the frame as captured), a GPU count in
-    range, at most :data:`MAX_PASSES` passes. A command calls it before it touches its output
-    folder, so that bad input leaves that folder as it was."""
+    range, at most :data:`MAX_PASSES` passes where several GPUs are searched. A command calls
+    it before it touches its output folder, so that bad input leaves that folder as it was."""
     path = str(path)
     exp = load_experiment(path, base or {})
     if exp.schedule.gpus != 1:
@@ -584,7 +584,7 @@ def check_frame(path: str | Path, base: Mapping[str, Any] | None = None, max_gpu
     if not 1 <= max_gpus <= 64:
         raise InputError(f"must be 1..64, got {max_gpus}", field="--max-gpus")
     passes = len(exp.scene.passes) * (2 if exp.schedule.name == "xr" else 1)
-    if passes > MAX_PASSES:
+    if passes > MAX_PASSES and max_gpus > 1:  # (on one GPU only the frame itself runs)
         raise InputError(f"advise takes frames of up to {MAX_PASSES} passes, this one has {passes}: "
                          f"frame pipelining alone would be {passes * len(CHUNKS) * len(LINKS):,} options "
                          f"(every split point x {len(CHUNKS)} chunk counts x {len(LINKS)} links), each "

@@ -13,8 +13,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from mgpusim.vmgpu import campaign, tables
-from mgpusim.vmgpu.__main__ import main
+from mgpusim.vmgpu import campaign, launch, provenance, tables
+from mgpusim.vmgpu.__main__ import main, parser
 from mgpusim.vmgpu.build_folder import check_build
 from mgpusim.vmgpu.failures import NotABuildError, RunFailedError, VmgpuMeasureError
 from mgpusim.vmgpu.launch import Config
@@ -197,3 +197,98 @@ def test_the_real_vmgpu_measures_one_small_grid(tmp_path):
     assert len(runs) == 4 and (runs["median_ms"] > 0).all()
     assert len(pd.read_parquet(out / tables.FRAMES)) == 4 * 30
     assert "vmgpu commit" in (out / tables.PROVENANCE).read_text()
+
+
+def test_the_driver_and_device_switches_default_to_lavapipe_and_simulated_gpus():
+    args = parser().parse_args(["--build", "b", "--out", "o"])
+    assert args.driver == "lavapipe" and args.real_devices is False
+    args = parser().parse_args(["--build", "b", "--out", "o", "--driver", "native",
+                                "--real-devices"])
+    assert args.driver == "native" and args.real_devices is True
+    with pytest.raises(SystemExit):
+        parser().parse_args(["--build", "b", "--out", "o", "--driver", "radv"])
+
+
+def test_real_devices_drop_simulate_mgpu_from_every_config():
+    grid = campaign.Grid(("single", "sort-last"), (1, 2), (10_000,), ((64, 48),), simulate=False)
+    assert all(not c.simulate for c in grid.configs())
+    args = Config("sort-last", 2, 10_000, 64, 48, simulate=False).arguments(Path("/m.obj"))
+    assert args == ["-b", "-s", "sort-last", "-c", "2", "-r", "64x48", "-p", "/m.obj"]
+
+
+def test_lavapipe_sets_its_icd_and_native_leaves_the_drivers_variables(tmp_path, monkeypatch):
+    icd = tmp_path / "lvp_icd.json"
+    icd.write_text("{}")
+    monkeypatch.setattr(launch, "LAVAPIPE_ICD", icd)
+    monkeypatch.setenv("VK_ICD_FILENAMES", "/mine/nvidia_icd.json")
+    monkeypatch.setenv("VK_DRIVER_FILES", "/mine/nvidia_icd.json")
+    lavapipe = launch.environment(":5", 10, tmp_path)
+    assert lavapipe["VK_ICD_FILENAMES"] == str(icd)
+    native = launch.environment(":5", 10, tmp_path, driver="native")
+    assert native["VK_ICD_FILENAMES"] == "/mine/nvidia_icd.json"
+    assert native["VK_DRIVER_FILES"] == "/mine/nvidia_icd.json"
+    assert native["DISPLAY"] == ":5" and native["VMGPU_EXIT_AFTER_FRAMES"] == "10"
+    with pytest.raises(ValueError, match="driver must be one of"):
+        launch.environment(":5", 10, tmp_path, driver="radv")
+
+
+@pytest.mark.parametrize(("driver", "simulate", "icd", "flag"), [
+    ("lavapipe", True, "lavapipe", "--simulate-mgpu"),
+    ("native", False, "/mine/nvidia_icd.json", ""),
+])
+def test_the_switches_reach_vmgpus_command_line_and_environment(tmp_path, monkeypatch, driver,
+                                                                 simulate, icd, flag):
+    """A fake vmgpu that writes down its arguments and Vulkan driver variable, then fails."""
+    lvp = tmp_path / "lvp_icd.json"
+    lvp.write_text("{}")
+    monkeypatch.setattr(launch, "LAVAPIPE_ICD", lvp)
+    monkeypatch.setenv("VK_ICD_FILENAMES", "/mine/nvidia_icd.json")
+    seen = tmp_path / "seen.txt"
+    build = check_build(fake_build(tmp_path / "build", f'echo "$@" > {seen}; '
+                                                       f'echo "$VK_ICD_FILENAMES" >> {seen}; exit 3'))
+    grid = campaign.Grid(("sort-first",), (2,), (10_000,), ((64, 48),), simulate=simulate)
+    settings = campaign.Settings(frames=5, warmup=1, repeats=1, timeout_s=30, driver=driver)
+    with pytest.raises(RunFailedError, match="exited with status 3"):
+        campaign.run_campaign(build, grid, settings, ":99999", tmp_path / "m", NoProbe(),
+                              progress=lambda _: None)
+    argv, env_icd = seen.read_text().splitlines()
+    assert argv.startswith("-b -s sort-first -c 2 ")
+    assert ("--simulate-mgpu" in argv.split()) == bool(flag)
+    assert env_icd == (str(lvp) if icd == "lavapipe" else icd)
+
+
+def summary_tables() -> tuple[pd.DataFrame, pd.DataFrame]:
+    runs = pd.DataFrame({"strategy": ["single"], "gpus": [1], "triangles": [10_000],
+                         "width": [64], "height": [48], "half": ["calibration"],
+                         "median_ms": [1.0], "iqr_ms": [0.1], "stalls": [0]})
+    return runs, pd.DataFrame({"run": [0], "period_ms": [1.0]})
+
+
+def test_the_native_provenance_records_nvidia_smis_card_and_driver(tmp_path, monkeypatch):
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    smi = bin_dir / "nvidia-smi"
+    smi.write_text('#!/bin/sh\nif [ "$1" = -L ]; then echo "GPU 0: NVIDIA H200 (UUID: GPU-1)"; '
+                   'else echo "name, driver_version"; echo "NVIDIA H200, 580.159.04"; fi\n')
+    smi.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{bin_dir}{os.pathsep}{os.environ['PATH']}")
+    build = check_build(fake_build(tmp_path / "build", "exit 0"))
+    grid = campaign.Grid(("single",), (1,), (10_000,), ((64, 48),), simulate=False)
+    settings = campaign.Settings(frames=5, warmup=1, repeats=1, timeout_s=30, driver="native")
+    ctx = provenance.context(build, None, "none", ["python", "-m", "mgpusim.vmgpu"], "native")
+    assert "NVIDIA H200, 580.159.04" in ctx.gpu_report and "GPU 0: NVIDIA H200" in ctx.gpu_report
+    doc = provenance.text(ctx, grid, settings, *summary_tables(), {}, [])
+    assert doc.startswith("# vmgpu on native: provenance")
+    assert "NVIDIA H200, 580.159.04" in doc and "no `--simulate-mgpu`" in doc
+    lavapipe = provenance.context(build, None, "none", ["x"])
+    assert lavapipe.gpu_report == ""
+    doc = provenance.text(lavapipe, campaign.Grid(("single",), (1,), (10_000,), ((64, 48),)),
+                          campaign.Settings(frames=5, warmup=1, repeats=1, timeout_s=30),
+                          *summary_tables(), {}, [])
+    assert doc.startswith("# vmgpu on lavapipe") and "nvidia-smi" not in doc
+    assert "lavapipe, simulated GPUs (`--simulate-mgpu`" in doc
+
+
+def test_nvidia_smi_missing_is_said_in_the_report(monkeypatch, tmp_path):
+    monkeypatch.setenv("PATH", str(tmp_path))
+    assert provenance.nvidia_smi().startswith("no nvidia-smi report")

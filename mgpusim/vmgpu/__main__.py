@@ -1,5 +1,6 @@
-"""`python -m mgpusim.vmgpu --build DIR --out DIR`: measure an already-built vmgpu on lavapipe
-over a grid of strategy x simulated GPUs x triangles x resolution, and write the tables.
+"""`python -m mgpusim.vmgpu --build DIR --out DIR`: measure an already-built vmgpu (on lavapipe
+unless `--driver native`) over a grid of strategy x GPUs x triangles x resolution, and write the
+tables.
 
 Why a command of its own: the measurement runs for half an hour on a shared machine and must be
 repeatable from one line; PROVENANCE.md records that line.
@@ -17,7 +18,7 @@ from mgpusim.vmgpu import campaign, provenance, tables
 from mgpusim.vmgpu.build_folder import check_build
 from mgpusim.vmgpu.display import Xvfb
 from mgpusim.vmgpu.failures import VmgpuMeasureError
-from mgpusim.vmgpu.launch import STRATEGIES
+from mgpusim.vmgpu.launch import DRIVERS, STRATEGIES
 from mgpusim.vmgpu.speed import NoProbe, ProjectProbe
 
 
@@ -37,8 +38,9 @@ def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="python -m mgpusim.vmgpu",
         description="Measure an already-built vmgpu (patched with the VMGPU_FRAME_LOG measuring "
-                    "aid) on lavapipe under Xvfb; write runs.parquet, frames.parquet and "
-                    "PROVENANCE.md to --out once every run has finished.")
+                    "aid) under Xvfb, on lavapipe or the machine's own Vulkan driver; write "
+                    "runs.parquet, frames.parquet and PROVENANCE.md to --out once every run has "
+                    "finished.")
     p.add_argument("--build", type=Path, required=True, help="vmgpu's build folder (holds the "
                    "vmgpu executable and spv/)")
     p.add_argument("--out", type=Path, required=True, help="output folder (must not hold a "
@@ -64,6 +66,14 @@ def parser() -> argparse.ArgumentParser:
                    "temporary folder)")
     p.add_argument("--keep-logs", type=Path, help="also keep each run's raw output here")
     p.add_argument("--no-probe", action="store_true", help="no speed probe between runs")
+    p.add_argument("--driver", choices=DRIVERS, default="lavapipe",
+                   help="Vulkan driver: 'lavapipe' (default; its ICD is set as the only one) or "
+                        "'native' (the machine's own: VK_ICD_FILENAMES / VK_DRIVER_FILES left as "
+                        "they are; the speed probe measures lavapipe, so add --no-probe)")
+    p.add_argument("--real-devices", action="store_true",
+                   help="run vmgpu without --simulate-mgpu: each GPU is a physical device of its "
+                        "own (a machine with several GPUs); by default the GPUs are VkDevices "
+                        "on one physical device")
     return p
 
 
@@ -86,18 +96,19 @@ def measure(args: argparse.Namespace, argv: list[str]) -> Path:
     build = check_build(args.build)
     tables.check_out_folder(args.out)
     grid = campaign.Grid(strategies=tuple(args.strategies), gpus=tuple(args.gpus),
-                         triangles=tuple(args.triangles), resolutions=tuple(args.resolutions))
+                         triangles=tuple(args.triangles), resolutions=tuple(args.resolutions),
+                         simulate=not args.real_devices)
     grid.configs()  # a grid with nothing to run fails here, before Xvfb starts
     settings = campaign.Settings(frames=args.frames, warmup=args.warmup, repeats=args.repeats,
                                  timeout_s=args.run_timeout, stall_factor=args.stall_factor,
-                                 seed=args.seed, log_dir=args.keep_logs)
+                                 seed=args.seed, log_dir=args.keep_logs, driver=args.driver)
     width = max(w for w, _ in grid.resolutions)
     height = max(h for _, h in grid.resolutions)
     with tempfile.TemporaryDirectory(prefix="vmgpu-meshes-") as tmp:
         mesh_dir = args.mesh_dir or Path(tmp)
         probe = NoProbe() if args.no_probe else ProjectProbe()
         try:
-            ctx = provenance.context(build, args.patch, probe.module_name, argv)
+            ctx = provenance.context(build, args.patch, probe.module_name, argv, args.driver)
             server = Xvfb(width, height)
             with server as display:
                 results = campaign.run_campaign(build, grid, settings, display, mesh_dir, probe,

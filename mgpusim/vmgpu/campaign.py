@@ -38,6 +38,7 @@ class Grid:
     gpus: tuple[int, ...]
     triangles: tuple[int, ...]
     resolutions: tuple[tuple[int, int], ...]
+    simulate: bool = True
 
     def configs(self) -> list[Config]:
         """Every configuration to run, in a fixed order."""
@@ -47,7 +48,7 @@ class Grid:
             for gpus in counts:
                 for tris in self.triangles:
                     for width, height in self.resolutions:
-                        out.append(Config(strategy, gpus, tris, width, height))
+                        out.append(Config(strategy, gpus, tris, width, height, self.simulate))
         if not out:
             raise VmgpuMeasureError("the grid has no configuration to run (sort-first and "
                                     "sort-last need --gpus of 2 or more)")
@@ -86,6 +87,7 @@ class Settings:
     stall_factor: float = logs.STALL_FACTOR
     seed: int = 0
     log_dir: Path | None = None
+    driver: str = "lavapipe"
 
 
 @dataclass
@@ -133,7 +135,7 @@ def _one_run(build: Build, config: Config, mesh: meshes.MeshFile, display: str,
              ) -> tuple[dict[str, object], pd.DataFrame]:
     """One checked run: its summary row and its per-frame table."""
     record = launch.run(build, config, mesh.path, display, settings.frames, settings.timeout_s,
-                        label, xvfb_pid)
+                        label, xvfb_pid, settings.driver)
     if settings.log_dir is not None:
         settings.log_dir.mkdir(parents=True, exist_ok=True)
         (settings.log_dir / f"{label.split()[0].replace('/', '_of_')}_{config.key}.log").write_text(
@@ -148,7 +150,8 @@ def _one_run(build: Build, config: Config, mesh: meshes.MeshFile, display: str,
     measured_s = float(frames["period_ms"].sum()) / 1000
     row: dict[str, object] = {
         "strategy": config.strategy, "gpus": config.gpus, "triangles": config.triangles,
-        "width": config.width, "height": config.height, "frames": settings.frames,
+        "width": config.width, "height": config.height, "driver": settings.driver,
+        "simulate_mgpu": config.simulate, "frames": settings.frames,
         "warmup": settings.warmup, **stats,
         "startup_s": record.wall_s - measured_s, "wall_s": record.wall_s,
         "vmgpu_cpu_s": record.vmgpu_cpu_s, "vmgpu_cores": record.vmgpu_cpu_s / record.wall_s,

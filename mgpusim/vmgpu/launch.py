@@ -21,27 +21,32 @@ from mgpusim.vmgpu.build_folder import Build
 from mgpusim.vmgpu.failures import RunFailedError
 
 STRATEGIES = ("single", "sort-first", "sort-last")
+DRIVERS = ("lavapipe", "native")
 LAVAPIPE_ICD = Path("/usr/share/vulkan/icd.d/lvp_icd.x86_64.json")
 
 
 @dataclass(frozen=True)
 class Config:
-    """One point of the grid: strategy, simulated GPUs, triangles of the sphere, resolution."""
+    """One point of the grid: strategy, GPUs, triangles of the sphere, resolution; `simulate`:
+    the GPUs are VkDevices on one physical device (`--simulate-mgpu`), else each is a GPU."""
 
     strategy: str
     gpus: int
     triangles: int
     width: int
     height: int
+    simulate: bool = True
 
     @property
     def key(self) -> str:
         return f"{self.strategy}-x{self.gpus}-{self.triangles}-{self.width}x{self.height}"
 
     def arguments(self, mesh: Path) -> list[str]:
-        """vmgpu's options: basic mode (positions + normals), the strategy, the GPU count as
-        simulated devices on the one lavapipe, the window size and the mesh."""
-        return ["-b", "-s", self.strategy, "-c", str(self.gpus), "--simulate-mgpu",
+        """vmgpu's options: basic mode (positions + normals), the strategy, the GPU count (as
+        simulated devices on one physical device unless `simulate` is off), the window size and
+        the mesh."""
+        simulate = ["--simulate-mgpu"] if self.simulate else []
+        return ["-b", "-s", self.strategy, "-c", str(self.gpus), *simulate,
                 "-r", f"{self.width}x{self.height}", "-p", str(mesh)]
 
 
@@ -61,24 +66,29 @@ class RunRecord:
     unix_start: float
 
 
-def environment(display: str, frames: int, runtime_dir: Path) -> dict[str, str]:
-    """The run's environment: this process's, plus the X display, lavapipe as the only Vulkan
-    driver, Qt's xcb platform, and the measuring aid's frame log and frame count."""
+def environment(display: str, frames: int, runtime_dir: Path,
+                driver: str = "lavapipe") -> dict[str, str]:
+    """The run's environment: this process's, plus the X display, Qt's xcb platform, and the
+    measuring aid's frame log and frame count. Driver 'lavapipe': lavapipe as the only Vulkan
+    driver (where its ICD is installed); 'native': the Vulkan driver variables (VK_ICD_FILENAMES,
+    VK_DRIVER_FILES) are left as this process has them, so the loader finds the machine's own."""
+    if driver not in DRIVERS:
+        raise ValueError(f"driver must be one of {DRIVERS}, got {driver!r}")
     env = dict(os.environ)
     env.update({"DISPLAY": display, "QT_QPA_PLATFORM": "xcb", "VMGPU_FRAME_LOG": "1",
                 "VMGPU_EXIT_AFTER_FRAMES": str(frames), "XDG_RUNTIME_DIR": str(runtime_dir)})
-    if LAVAPIPE_ICD.is_file():
+    if driver == "lavapipe" and LAVAPIPE_ICD.is_file():
         env["VK_ICD_FILENAMES"] = str(LAVAPIPE_ICD)
     return env
 
 
 def run(build: Build, config: Config, mesh: Path, display: str, frames: int, timeout_s: float,
-        run_label: str, xvfb_pid: int | None = None) -> RunRecord:
-    """Run vmgpu once for `frames` frames in its build folder (it loads `spv/` from there);
-    RunFailedError naming `run_label` if it does not finish within `timeout_s`."""
+        run_label: str, xvfb_pid: int | None = None, driver: str = "lavapipe") -> RunRecord:
+    """Run vmgpu once for `frames` frames in its build folder (it loads `spv/` from there) on
+    `driver`; RunFailedError naming `run_label` if it does not finish within `timeout_s`."""
     with tempfile.TemporaryDirectory(prefix="vmgpu-xdg-") as runtime:
         os.chmod(runtime, 0o700)
-        env = environment(display, frames, Path(runtime))
+        env = environment(display, frames, Path(runtime), driver)
         before = _sample(xvfb_pid)
         load_before = os.getloadavg()[0]
         done = _run_process([str(build.executable), *config.arguments(mesh)], build.folder,

@@ -42,6 +42,8 @@ class Context:
     command: str
     started: str
     probe_module: str
+    driver: str = "lavapipe"
+    gpu_report: str = ""
 
 
 def sha256(path: Path | None) -> str:
@@ -76,20 +78,43 @@ def cpu_model() -> str:
     return platform.processor() or "unknown"
 
 
-def context(build: Build, patch: Path | None, probe_module: str, argv: list[str]) -> Context:
-    """The context now (read before the runs start)."""
+def nvidia_smi() -> str:
+    """The card and driver as nvidia-smi reports them (its GPU list and a CSV of name, driver,
+    memory and clocks), or why there is no report."""
+    parts = []
+    for args in (["-L"], ["--query-gpu=name,driver_version,memory.total,clocks.max.graphics,"
+                          "pci.bus_id", "--format=csv"]):
+        try:
+            done = subprocess.run(["nvidia-smi", *args], capture_output=True, text=True,
+                                  timeout=60, check=False)
+        except (OSError, subprocess.TimeoutExpired) as error:
+            return f"no nvidia-smi report ({error})"
+        if done.returncode != 0:
+            return f"no nvidia-smi report (exit status {done.returncode}: {done.stderr.strip()})"
+        parts.append(done.stdout.strip())
+    return "\n".join(parts)
+
+
+def context(build: Build, patch: Path | None, probe_module: str, argv: list[str],
+            driver: str = "lavapipe") -> Context:
+    """The context now (read before the runs start); with the native driver, nvidia-smi's
+    report of the card and driver too."""
     return Context(build=build, vmgpu_commit=build_folder.commit(build.source),
                    bp_commit=build_folder.commit(build.source / "bp" if build.source else None),
                    patch=patch.resolve() if patch else None, patch_sha256=sha256(patch),
                    packages=package_versions(), cpu_model=cpu_model(), cores=os.cpu_count() or 0,
                    load_start=os.getloadavg(), command=" ".join(shlex.quote(a) for a in argv),
-                   started=time.strftime("%Y-%m-%d %H:%M:%S %Z"), probe_module=probe_module)
+                   started=time.strftime("%Y-%m-%d %H:%M:%S %Z"), probe_module=probe_module,
+                   driver=driver, gpu_report=nvidia_smi() if driver == "native" else "")
 
 
 def text(ctx: Context, grid: Grid, settings: Settings, runs: pd.DataFrame, frames: pd.DataFrame,
          end_probe: dict[str, float], probe_errors: list[str]) -> str:
     """The whole PROVENANCE.md."""
-    lines = ["# vmgpu on lavapipe: provenance", "",
+    on = "lavapipe" if ctx.driver == "lavapipe" else "the machine's own Vulkan driver"
+    simulate = "simulated GPUs (`--simulate-mgpu`: VkDevices on one physical device)" \
+        if grid.simulate else "real GPUs (no `--simulate-mgpu`: one physical device each)"
+    lines = [f"# vmgpu on {ctx.driver}: provenance", "",
              f"Measured {ctx.started} to {time.strftime('%Y-%m-%d %H:%M:%S %Z')} by "
              "`python -m mgpusim.vmgpu`.", "", "## What ran", "",
              f"- vmgpu commit: `{ctx.vmgpu_commit}`; bp (its submodule) commit: `{ctx.bp_commit}`"
@@ -98,7 +123,8 @@ def text(ctx: Context, grid: Grid, settings: Settings, runs: pd.DataFrame, frame
              "repository)",
              f"- build folder: `{ctx.build.folder}` (CMake build type {ctx.build.build_type})",
              "- Debian packages: " + ", ".join(f"{k} {v}" for k, v in ctx.packages.items()),
-             f"- Python {sys.version.split()[0]}, kernel {platform.release()}", "",
+             f"- Python {sys.version.split()[0]}, kernel {platform.release()}",
+             f"- Vulkan driver (`--driver {ctx.driver}`): {on}; {simulate}", "",
              "## Machine", "",
              f"- CPU: {ctx.cpu_model}, {ctx.cores} cores",
              f"- load average at start: {' / '.join(f'{v:.2f}' for v in ctx.load_start)} "
@@ -107,24 +133,27 @@ def text(ctx: Context, grid: Grid, settings: Settings, runs: pd.DataFrame, frame
              "vmgpu's own rendering threads too), other_cores (other processes' mean CPU use: "
              "the machine's busy time less vmgpu's and Xvfb's), steal_cores, vmgpu_cores, "
              "xvfb_cpu_s",
+             *([] if not ctx.gpu_report else
+               ["- GPU (nvidia-smi):", "", "```", ctx.gpu_report, "```", ""]),
              f"- speed probe: `{ctx.probe_module}` (Prober, fragment loop + mesh on one lavapipe "
              f"GPU) before each run (probe_fragment_ms, probe_mesh_ms); after the last run: "
              + ", ".join(f"{k} {v:.3f} ms" for k, v in end_probe.items()), ""]
     lines += [f"- probe failures: {e}" for e in probe_errors]
-    lines += _method(grid, settings, ctx.command)
+    lines += _method(grid, settings, ctx.command, on, simulate)
     lines += _summary(runs, frames)
     return "\n".join(lines) + "\n"
 
 
-def _method(grid: Grid, settings: Settings, command: str) -> list[str]:
+def _method(grid: Grid, settings: Settings, command: str, on: str = "lavapipe",
+            simulate: str = "`--simulate-mgpu`") -> list[str]:
     res = ", ".join(f"{w}x{h}" for w, h in grid.resolutions)
     return ["## Method", "",
-            f"- grid: strategies {', '.join(grid.strategies)}; simulated GPUs "
+            f"- grid: strategies {', '.join(grid.strategies)}; GPUs "
             f"{', '.join(map(str, grid.gpus))} (single runs on 1, sort-first and sort-last on "
             f"2 or more: vmgpu runs them as single on 1); triangles "
             f"{', '.join(map(str, grid.triangles))} (a unit sphere, positions + normals, `-b`); "
             f"resolutions {res}",
-            f"- each run: a fresh vmgpu process under one Xvfb, lavapipe, `--simulate-mgpu`, "
+            f"- each run: a fresh vmgpu process under one Xvfb, {on}, {simulate}, "
             f"{settings.frames} frames (VMGPU_EXIT_AFTER_FRAMES), the first {settings.warmup} "
             f"left out of the statistics (frames.parquet marks them `warmup`)",
             "- frame time: the patch's `frame_ms` line; period_ms = steady clock from the end of "

@@ -31,7 +31,7 @@ def test_scene_and_schedule_keys_run_as_lanes_and_give_the_per_point_table(tmp_p
 @pytest.mark.parametrize("experiment", ["sort_last_tc1.toml", "afr_tc1.toml", "xr_quest3_pcie4.toml",
                                         "pipelining_miniengine_pcie3x8.toml"])
 def test_a_profile_group_key_beside_pass_cost_lanes_gives_the_per_point_table(experiment, tmp_path, monkeypatch):
-    grid = {"profile.host.memcpy_thread_gbps": [4.0, 9.0], "scene.width": [800, 1024], SPEED: [0.5, 1.0, 2.0]}
+    grid = {"profile.gpus.*.task_gap_ns": [0, 2000], "scene.width": [800, 1024], SPEED: [0.5, 1.0, 2.0]}
     plan = lanes.plan(EXP / experiment, grid, {"schedule.frames": 24})
     assert plan.lane_keys == [SPEED]
     df = _sweep(EXP / experiment, grid, tmp_path / "a")

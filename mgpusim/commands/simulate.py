@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from mgpusim.io.defaults import PERFETTO_SLICES, TRACE_FRAMES, TRACE_ROWS
@@ -53,6 +54,18 @@ def parse_frames(text: str) -> range:
     return range(int(lo), int(hi))
 
 
+def clip_frames(frames: range | None, total: int) -> tuple[range | None, list[str]]:
+    """`--frames A:B` within a run of `total` frames: past its end is refused, a window that
+    runs over it is clipped to it with a note (the timeline draws what exists and says so)."""
+    if frames is None or frames.stop <= total:
+        return frames, []
+    if frames.start >= total:
+        raise InputError(f"frames {frames.start}:{frames.stop} lie past the run's {total} frames "
+                         f"(give A < {total})", field="--frames")
+    return range(frames.start, total), [f"--frames {frames.start}:{frames.stop} runs past the run's "
+                                        f"{total} frames: timeline.png draws frames {frames.start}-{total - 1}"]
+
+
 def run(args: argparse.Namespace) -> int:
     from mgpusim.io.writers import write_result  # noqa: PLC0415
     from mgpusim.schedules.experiment import load_experiment, parse_overrides  # noqa: PLC0415
@@ -64,9 +77,7 @@ def run(args: argparse.Namespace) -> int:
         if value is not None and value < 0:
             raise InputError(f"must be >= 0, got {value}", field="--" + name.replace("_", "-"))
     exp = load_experiment(resolve_experiment(args.experiment), parse_overrides(args.overrides))
-    if frames is not None and frames.start >= exp.schedule.frames:
-        raise InputError(f"frames {frames.start}:{frames.stop} lie past the run's {exp.schedule.frames} frames",
-                         field="--frames")
+    frames, clipped = clip_frames(frames, exp.schedule.frames)
     out = args.out or Path("out") / exp.name
     check_out_dir(out)
     from mgpusim.io.progress import bar, reporter  # noqa: PLC0415
@@ -83,6 +94,8 @@ def run(args: argparse.Namespace) -> int:
                              frames=frames, trace_frames=args.trace_frames, trace_rows=args.trace_rows,
                              progress=writing)
     s = result.summary
+    for warning in s.get("warnings", []):
+        print(f"mgpusim simulate: warning: {warning} (summary.json `warnings`)", file=sys.stderr)
     print(f"{exp.name}: {exp.schedule.name} on {exp.schedule.gpus} GPU(s) of {exp.profile.name}, "
           f"{exp.scene.width}x{exp.scene.height}")
     print(f"  frame time {s['frame_time_ms']:.3f} ms ({s['fps']:.1f} fps), latency {s['latency_ms']:.3f} ms, "
@@ -96,10 +109,13 @@ def run(args: argparse.Namespace) -> int:
     ff = s.get("fast_forward", {})
     print(f"  fidelity {s['fidelity']}; effects {', '.join(s['modelled_effects']) or 'none'}"
           + (f"; fast-forward: {ff['why']}" if ff.get("used") else ""))
+    if "approximations" in s:
+        print("  approximations (summary.json `approximations`): "
+              + ("; ".join(s["approximations"]) or "none: this scene needs no effect the level omits"))
     busiest = sorted(s.get("utilization", {}).items(), key=lambda kv: -kv[1])[:4]
     print("  busiest: " + ", ".join(f"{k} {v:.0%}" for k, v in busiest))
     print(f"  wrote {', '.join(str(p) for p in files.values())}")
-    for note in settle_notes(s) + window_notes(result, args) + effects_notes(exp, result.summary, forced):
+    for note in clipped + settle_notes(s) + window_notes(result, args) + effects_notes(exp, result.summary, forced):
         print(f"  note: {note}")
     return 0
 

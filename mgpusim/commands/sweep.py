@@ -67,6 +67,11 @@ def run(args: argparse.Namespace) -> int:
                   f"(column `settled`; why in `settling.note`), e.g. "
                   + ", ".join(f"{k}={short.iloc[0][k]}" for k in grid)
                   + f": {short.iloc[0]['settling.note']}")
+    warned = [c for c in ok.columns if c.startswith("warnings.")]
+    if warned:
+        rows = ok[ok[warned].notna().any(axis=1)]
+        print(f"mgpusim sweep: warning: {len(rows)} of {len(ok)} points depend on a value outside every "
+              f"shipped profile's (columns warnings.*), e.g. {rows.iloc[0][warned[0]]}", file=sys.stderr)
     print(f"  wrote {out / 'sweep.parquet'}, {out / 'sweep.png'}, {out / 'sweep.json'}")
     if len(failed) == len(df):
         print(f"mgpusim sweep: error: every point failed (the first: {failed['error'].iloc[0]})",

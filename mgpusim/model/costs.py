@@ -150,9 +150,8 @@ class CostModel:
         uncached memory (and `uncached`, the uncached_reads effect, is on) the slower
         `host.uncached_read_gbps`."""
         cap = self.memcpy_thread_cap()
-        slow = self.profile.host.uncached_read_gbps
-        if uncached and task.uncached and slow:
-            cap = min(cap, gbps_fraction(slow))
+        if uncached and task.uncached and self.profile.host.uncached_read_gbps:  # read only if it applies
+            cap = min(cap, gbps_fraction(self.profile.host.uncached_read_gbps))
         return cap
 
     def cpu_task_ns(self, task: CpuTask, frame_work: bool = True) -> int:

@@ -9,9 +9,11 @@ from __future__ import annotations
 #: Simulated time is int64 ns: 2^63 - 1 ns is about 292 years.
 INT64_MAX = 2 ** 63 - 1
 
-#: One task (a pass, a copy, a host copy part) and every fixed time in a profile (latency,
-#: fixed cost, dispatch, submit, gap) may last at most this: 10^12 ns = 1000 s. With at most
-#: MAX_FRAMES frames a run stays far from int64 unless thousands of such tasks follow each other.
+#: One task (a pass, a copy, a host copy: its bytes at the slower of a memcpy thread and host
+#: memory) and every fixed time in a profile (latency, fixed cost, dispatch, submit, gap) may
+#: last at most this: 10^12 ns = 1000 s. With at most MAX_FRAMES frames a run stays far from
+#: int64 unless thousands of such tasks follow each other. A task an override pushes past it is
+#: refused naming that override.
 MAX_TASK_NS = 10 ** 12
 WHY_TIME = "keeps simulated time within int64 ns"
 

@@ -103,9 +103,10 @@ def _frame_work(program: FrameProgram, profile: HardwareProfile) -> bool:
 
 def _uncached(program: FrameProgram, profile: HardwareProfile) -> bool:
     """A host copy reads uncached memory, more slowly than a memcpy thread copies."""
+    if not any(isinstance(t, HostCopyTask) and t.uncached for t in _all_tasks(program)):
+        return False  # (the rates are not read: an override of them would change nothing)
     slow = profile.host.uncached_read_gbps
-    return bool(slow) and slow < profile.host.memcpy_thread_gbps and any(
-        isinstance(t, HostCopyTask) and t.uncached for t in _all_tasks(program))
+    return bool(slow) and slow < profile.host.memcpy_thread_gbps
 
 
 def _gaps(program: FrameProgram, profile: HardwareProfile) -> bool:
@@ -194,6 +195,15 @@ QUEUES_OMITS = frozenset({"link_sharing", "host_pcie", "host_memory_sharing", "s
 #: Effects the `analytic` level has no mechanism for (:mod:`mgpusim.sim.analytic` takes them as
 #: unshared and lists them as approximations): they cannot be forced on there.
 ANALYTIC_OMITS = QUEUES_OMITS
+
+
+def approximations(program: FrameProgram, profile: HardwareProfile, chosen: frozenset[str]) -> list[str]:
+    """What a run with effects `chosen` leaves out that this scene needs (``full`` with no
+    effect forced off would model it), each as ``name: what the model does instead``: the
+    summary's `approximations`. Why: a level that approximates says so beside its figures,
+    rather than reading like the full model's."""
+    left = sorted(choose_effects(program, profile) - chosen)
+    return [f"{name}: {EFFECTS[name].doc.partition('off: ')[2] or 'left out'}" for name in left]
 
 
 def parse_effects(text: str | None, option: str = "--effects") -> dict[str, bool]:

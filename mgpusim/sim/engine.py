@@ -17,6 +17,7 @@ Dependencies are counted, not stored as events per task, so memory stays flat ov
 """
 from __future__ import annotations
 
+import contextlib
 import heapq
 from array import array
 from collections import defaultdict, deque
@@ -31,6 +32,7 @@ from mgpusim.model.costs import CostModel, gbps_fraction, round_half_up
 from mgpusim.model.errors import InputError, ScheduleError
 from mgpusim.model.geometry import even_split
 from mgpusim.model.limits import INT64_MAX
+from mgpusim.model.profile_reads import not_reading
 from mgpusim.model.tasks import CopyTask, CpuTask, HostCopyTask, QueueRef, Task
 from mgpusim.schedules.base import FrameProgram, leads_chain, wakes_host
 from mgpusim.schedules.skipping import GivenSkips, SkipChains
@@ -211,7 +213,9 @@ class Engine:
             self._part_sizes: dict[Op, list[int]] = {}  # a host copy's part sizes, per task
             self._free_threads = list(range(host.memcpy_threads))
             self._part_queue: deque = deque()
-            memory = self.builder.host_memory()
+            # where memcpys are core work the channel is only reported: its rate is unused
+            with not_reading() if host_ex.copies_on_cores else contextlib.nullcontext():
+                memory = self.builder.host_memory()
             # a part runs at its copy's cap (its op's): a memcpy thread's speed, or slower
             # where it reads uncached memory (the uncached_reads effect)
             if host_ex.copies_on_cores:  # a memcpy thread is one core's work

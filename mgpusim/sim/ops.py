@@ -144,9 +144,8 @@ class OpBuilder:
         gap, gap_run = 0, None
         if isinstance(task, HostCopyTask):
             host_cap = self.costs.host_copy_cap(task, "uncached_reads" in self.effects)
-            self.costs.check_transfer(task.name, task.bytes, host_cap, duration,
-                                      "host.uncached_read_gbps" if host_cap < self.costs.memcpy_thread_cap()
-                                      else "host.memcpy_thread_gbps")
+            rate, rate_field = self.host_copy_bound(host_cap)
+            self.costs.check_transfer(task.name, task.bytes, rate, duration, rate_field)
             return Op(task, duration, None, host_cap, 0, "host", "memcpy", self._waits_for[phase][task.name],
                       task.name == self.program.present_task)
         if isinstance(task, CpuTask):  # one host thread's time (a core's, on emulated GPUs)
@@ -179,6 +178,19 @@ class OpBuilder:
         return Op(task, duration, channel, cap, nbytes, task.queue.device_name, task.queue.engine,
                   self._waits_for[phase][task.name], task.name == self.program.present_task,
                   run, amount, gap, gap_run, fill_cores=fills)
+
+    def host_copy_bound(self, cap: Fraction) -> tuple[Fraction, str]:
+        """The slowest rate a host copy can cross at alone, and the profile field that sets
+        it, for the per-task time bound: a part's cap (a memcpy thread, or uncached reads),
+        or host memory where it is slower and the copy goes through it (not where memcpys are
+        work on the shared cores). Why: a copy slowed by host memory alone must be bounded
+        like any other task, else its end leaves int64 ns."""
+        if not self.executors["host"].copies_on_cores:
+            memory = self.costs.host_memory_bandwidth()
+            if memory < cap:
+                return memory, "host.memory_bandwidth_gbps"
+        return cap, ("host.uncached_read_gbps" if cap < self.costs.memcpy_thread_cap()
+                     else "host.memcpy_thread_gbps")
 
     def measured_op(self, phase: int, task: Task, duration: int) -> Op:
         """A task that takes the given `duration` (ns) on its queue, thread or memcpy threads,

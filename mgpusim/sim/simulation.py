@@ -1,13 +1,15 @@
 """`simulate(experiment)`: build the schedule, check it, run the engine, tabulate results."""
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import replace
 from typing import Any, Callable, Mapping
 
 from mgpusim.model.costs import CostModel
-from mgpusim.model.errors import TimeBoundError
+from mgpusim.model.errors import InputError, TimeBoundError
 from mgpusim.model.profile import has_cost_stderr, with_cost_band
+from mgpusim.model.profile_reads import outside_shipped, reading, recording, shipped_profiles, unused
 from mgpusim.model.tasks import QueueRef
 from mgpusim.results.summary import Result, build_result, task_rates
 from mgpusim.schedules.base import FrameProgram
@@ -15,7 +17,7 @@ from mgpusim.schedules.experiment import Experiment
 from mgpusim.schedules.memory_check import check_memory, memory_report
 from mgpusim.schedules.program import build_program, on_queues, run_config
 from mgpusim.sim import fastforward
-from mgpusim.sim.effects import choose_effects
+from mgpusim.sim.effects import approximations, choose_effects
 from mgpusim.sim.engine import Engine
 from mgpusim.sim.prepared import cached
 
@@ -25,7 +27,7 @@ __all__ = ["build_program", "run_config", "simulate"]
 def simulate(exp: Experiment, record_trace: bool = True, fidelity: str = "full",
              effects: dict[str, bool] | None = None, fast_forward: bool = True,
              band: bool = False, queues: Mapping[QueueRef, QueueRef] | None = None,
-             progress: Callable[[int, int], None] | None = None) -> Result:
+             progress: Callable[[int, int], None] | None = None, check_unused: bool = True) -> Result:
     """Run `exp` in the model. Same experiment, same result, bit for bit.
 
     `fidelity`: "full", "queues" or "analytic" (mgpusim.sim.effects); `effects`: effects forced
@@ -38,17 +40,31 @@ def simulate(exp: Experiment, record_trace: bool = True, fidelity: str = "full",
     `queues`: queues whose tasks run on another queue (where a measured run ran them, see
     :func:`mgpusim.schedules.program.on_queues`). `progress(done, total)`: called now and then
     with the frames simulated so far and the frames the run will simulate (a fast-forward
-    shortens it), for a command's progress bar."""
-    program, chosen, analytic = _prepare(exp, queues, fidelity, effects)
-    if "memory_capacity" in chosen:
-        check_memory(program, exp)  # overflow is an input error, reported before time 0
-    t0 = time.perf_counter()
-    raw = _run_model(exp, program, chosen, fidelity, record_trace, fast_forward, progress, analytic)
-    model_s = time.perf_counter() - t0
+    shortens it), for a command's progress bar. `check_unused`: refuse a ``profile.``
+    override the model never reads for this experiment (an InputError naming it); False for a
+    caller that sets one value on a family of runs, some of which have no use for it (a case's
+    parameters)."""
+    exp, reads = _watched(exp, fidelity, effects) if check_unused else (exp, None)
+    with reading() if reads is not None else contextlib.nullcontext():
+        program, chosen, analytic = _prepare(exp, queues, fidelity, effects)
+        if "memory_capacity" in chosen:
+            check_memory(program, exp)  # overflow is an input error, reported before time 0
+        t0 = time.perf_counter()
+        raw = _run_model(exp, program, chosen, fidelity, record_trace, fast_forward, progress, analytic)
+        model_s = time.perf_counter() - t0
+    if reads is not None:
+        _check_used(exp, reads, fidelity)
     result = build_result(raw, program.warmup_frames, run_config(exp, program))
     if "memory_capacity" in chosen:
         result.summary["memory"] = memory_report(program, exp)
     result.summary.update(fidelity=fidelity, modelled_effects=sorted(chosen), fast_forward=raw.fast_forward)
+    left = cached(exp, ("approximations", chosen), lambda: approximations(program, exp.profile, chosen))
+    if left or fidelity != "full":  # (full with nothing forced off is the reference: no field)
+        result.summary["approximations"] = left
+    if exp.profile_overrides:  # a what-if beyond every shipped machine says so
+        warnings = outside_shipped(exp.profile_overrides, shipped_profiles())
+        if warnings:
+            result.summary["warnings"] = warnings
     rates = task_rates(program, raw.skipped_frames, result.summary)
     if rates:
         result.summary["task_rates_hz"] = rates
@@ -56,6 +72,33 @@ def simulate(exp: Experiment, record_trace: bool = True, fidelity: str = "full",
     if band and has_cost_stderr(exp.profile):
         result.summary.update(_band(exp, program, chosen, fidelity))
     return result
+
+
+def _watched(exp: Experiment, fidelity: str, effects: dict[str, bool] | None
+             ) -> tuple[Experiment, set[str] | None]:
+    """With ``profile.`` overrides: the experiment on a copy of its profile that notes what the
+    model reads (:mod:`mgpusim.model.profile_reads`), one per level and forced effects (kept
+    with the experiment, so that its program and effects stay cached), and the reads."""
+    if not exp.profile_overrides:
+        return exp, None
+    force = tuple(sorted(effects.items())) if effects else ()
+
+    def make() -> tuple[Experiment, set[str]]:
+        profile, reads = recording(exp.profile)
+        return replace(exp, profile=profile), reads
+    return cached(exp, ("watched", fidelity, force), make)
+
+
+def _check_used(exp: Experiment, reads: set[str], fidelity: str) -> None:
+    """Every ``profile.`` override is a value the model read for this experiment, or one
+    InputError naming the first that is not: its run would report the profile's own figures
+    as the what-if's."""
+    left = unused(exp.profile_overrides, reads)
+    if left:
+        raise InputError(f"unused by this experiment: the model reads no such value for its schedule "
+                         f"({exp.schedule.name}) and scene at --fidelity {fidelity}, so its results would "
+                         "be the profile's own; drop it, or set a value this experiment uses",
+                         file=exp.file, field=left[0])
 
 
 def _prepare(exp: Experiment, queues: Mapping[QueueRef, QueueRef] | None, fidelity: str,
@@ -108,6 +151,38 @@ def _run_model(exp: Experiment, program: FrameProgram, chosen: frozenset[str], f
             return model_raw(model, record_trace, progress)
         engine = Engine(program, costs, record_trace=record_trace or fast_forward, effects=chosen)
     except TimeBoundError as exc:  # the profile's rates times the experiment's work
-        raise TimeBoundError(f"{exc.detail} (with the work of {exp.file})", file=exc.file,
-                             field=exc.field) from None
+        raise _bound_error(exp, program, chosen, fidelity, exc) from None
     return fastforward.run(engine, fast_forward, record_trace, progress)
+
+
+def _bound_error(exp: Experiment, program: FrameProgram, chosen: frozenset[str], fidelity: str,
+                 exc: TimeBoundError) -> TimeBoundError:
+    """The time-bound error as the user should read it: naming the ``profile.`` overrides
+    without which the task would fit (those the user set, not the coefficient they scaled),
+    else the profile field that sets the task's time."""
+    culprits = [key for key in exp.profile_overrides if _fits_without(exp, program, chosen, fidelity, key)]
+    detail = f"{exc.detail} (with the work of {exp.file})"
+    if not culprits:
+        return TimeBoundError(detail, file=exc.file, field=exc.field)
+    shown = ", ".join(f"{k}={exp.profile_overrides[k]!r}" for k in culprits)
+    return TimeBoundError(f"{exc.field}: {detail}; caused by the override {shown}: give a value "
+                          "nearer the profile's", field=", ".join(culprits))
+
+
+def _fits_without(exp: Experiment, program: FrameProgram, chosen: frozenset[str], fidelity: str,
+                  key: str) -> bool:
+    """Whether every task fits the time bound with the profile overrides but `key` (the model
+    built, not run: each task's time is checked as it is built)."""
+    from mgpusim.model.profile import load_profile  # noqa: PLC0415
+    rest = {k.removeprefix("profile."): v for k, v in exp.profile_overrides.items() if k != key}
+    try:
+        other = replace(exp, profile=load_profile(exp.profile.source, rest))
+        costs = CostModel(other.profile)
+        if fidelity == "analytic":
+            from mgpusim.sim.analytic import Analytic  # noqa: PLC0415
+            Analytic(build_program(other), costs, chosen)
+        else:
+            Engine(build_program(other), costs, record_trace=False, effects=chosen)
+    except InputError:  # TimeBoundError included: still too long, or not loadable without it
+        return False
+    return True

@@ -70,7 +70,8 @@ SCALAR_METRICS = ("frame_time_ms", "fps", "latency_ms", "frame_time_jitter_ms", 
 #: members a point has depends on its experiment, so a metric under them is checked on the table.
 METRIC_GROUPS = ("utilization", "memory", "task_rates_hz", "skipped_tasks", "window_ns", "fast_forward")
 #: Summary fields that are not numbers: no metric, and, like every output column, no grid key.
-TEXT_FIELDS = ("fidelity", "modelled_effects", "effects", "fast_forward.used", "fast_forward.why")
+TEXT_FIELDS = ("fidelity", "modelled_effects", "approximations", "warnings", "effects", "fast_forward.used",
+               "fast_forward.why")
 #: A Dask scheduler address: [scheme://]host:port (or a scheduler in this process: inproc://).
 DASK_ADDRESS = re.compile(r"(?:(tcp|tls|ws|wss|ucx)://)?(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):([0-9]{1,5})")
 DASK_INPROC = re.compile(r"inproc://[A-Za-z0-9_.:\[\]-]+/[0-9]+/[0-9]+")

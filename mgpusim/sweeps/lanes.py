@@ -52,6 +52,7 @@ from mgpusim.model import limits as L
 from mgpusim.model.costs import CostModel, term_coefficient
 from mgpusim.model.errors import InputError, MgpusimError
 from mgpusim.model.profile import HardwareProfile
+from mgpusim.model.profile_reads import outside_shipped, shipped_profiles
 from mgpusim.model.tasks import PassTask
 from mgpusim.results.settled import FIELDS as SETTLING_FIELDS
 from mgpusim.results.settled import settling_arrays
@@ -59,6 +60,7 @@ from mgpusim.schedules.experiment import Experiment
 from mgpusim.schedules.program import build_program
 from mgpusim.sim import analytic_lanes as lanes_mod
 from mgpusim.sim.analytic import Analytic
+from mgpusim.sim.effects import approximations as left_out
 from mgpusim.sim.effects import choose_effects
 from mgpusim.sweeps.loader import _SHARED, ExperimentLoader, shared
 from mgpusim.sweeps.store import save_batch
@@ -323,6 +325,7 @@ def _static_fields(program: Any, chosen: frozenset[str], model: Analytic, fideli
     if memory is not None:
         out["memory"] = memory
     out.update(fidelity=fidelity, modelled_effects=sorted(chosen))
+    out["approximations"] = left_out(program, model.costs.profile, chosen)  # (never full here)
     return flatten(out)
 
 
@@ -535,11 +538,13 @@ def _records(group: Group, lane: Mapping[str, np.ndarray], ok: np.ndarray) -> di
     lane_cols = {k: v[keep] for k, v in lane.items() if not k.startswith("fast_forward.")}
     lane_cols = {k: v for k, v in lane_cols.items()
                  if not (k.startswith("utilization.") and np.isnan(v).all())}
-    summary = {k: v for k, v in _summary(group).items()
-               if not k.startswith(("utilization.", "fast_forward.", "task_rates_hz."))}
+    first = _summary(group)
+    summary = {k: v for k, v in first.items()
+               if not k.startswith(("utilization.", "fast_forward.", "task_rates_hz.", "warnings."))}
     for key, value in summary.items():
         cols[key] = lane_cols.pop(key) if key in lane_cols else [value] * n
     cols.update(lane_cols)
+    cols.update(_warnings(first, [group.points[i].keys for i in keep]))
     cols.update(_fast_forward(lane, keep))
     program = _model(group).program
     if program.rate_tasks:  # none skipped (lanes have no skippable tasks): every frame counts
@@ -549,6 +554,18 @@ def _records(group: Group, lane: Mapping[str, np.ndarray], ok: np.ndarray) -> di
         cols.update({f"task_rates_hz.{name}": rate for name in program.rate_tasks})
         cols["task_rates_hz.frames"] = cols["fps"]
     return cols
+
+
+def _warnings(first: Mapping[str, Any], keys: Sequence[Mapping[str, Any]]) -> dict[str, list[Any]]:
+    """Each point's `warnings.<i>` columns, as its own simulate() would give them: the first
+    point's warnings about the base overrides, then those about this point's grid values (a
+    lane's pass costs differ from the first point's)."""
+    grid = tuple(keys[0]) if keys else ()
+    base = [w for k, w in first.items() if k.startswith("warnings.")
+            and not any(str(w).startswith(f"{g} = ") for g in grid)]
+    per_point = [base + outside_shipped(k, shipped_profiles()) for k in keys]
+    width = max((len(w) for w in per_point), default=0)
+    return {f"warnings.{j}": [w[j] if j < len(w) else None for w in per_point] for j in range(width)}
 
 
 def _fast_forward(lane: Mapping[str, np.ndarray], keep: np.ndarray) -> dict[str, Any]:

@@ -27,7 +27,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-fast-forward", dest="fast_forward", action="store_false",
                    help="simulate every frame even once the model's state repeats (same results, slower)")
     p.add_argument("--frames", metavar="A:B", default=None,
-                   help="frames A to B-1 drawn in timeline.png (default: the last four)")
+                   help="frames A to B-1 drawn in timeline.png (default: the last four; a window past "
+                        "the run's end is clipped to it, with a note)")
     p.add_argument("--trace-frames", type=int, default=None, metavar="N",
                    help=f"the last N frames go into trace.perfetto.json (default: {TRACE_FRAMES}, "
                         f"fewer where they hold over {PERFETTO_SLICES:,} tasks; 0: all)")

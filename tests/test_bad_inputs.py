@@ -546,7 +546,7 @@ MEASURED_CASES: list[tuple[str, Callable[[Path], list[str]], tuple[str, ...]]] =
     ("trace-negative-frame", _edit_trace(_set_col("frame", 1, -3)), ("frame", ">= 0")),
     ("trace-huge-time", _edit_trace(_set_col("end_ns", 1, "99999999999999999999999")), ("end_ns",)),
     ("summary-not-json", _write("summary.json", b"{not json"), ("summary.json", "not valid JSON")),
-    ("summary-binary", _write("summary.json", b"\xff\x00\x01"), ("summary.json", "not valid JSON")),
+    ("summary-binary", _write("summary.json", b"\xff\x00\x01"), ("summary.json", "not UTF-8")),
     ("summary-list", _write("summary.json", b"[1, 2]"), ("summary.json", "JSON object")),
     ("summary-config-list", _write("summary.json", b'{"config": [1]}'), ("summary.json", "config")),
 ]
@@ -1217,19 +1217,15 @@ def test_bad_input_is_one_line_exit_2(bad: Case, tmp_path: Path, capsys, monkeyp
     assert not [p for p in tmp_path.rglob("*.tmp")]
 
 
-def test_the_mini_study_loads_and_lists_its_configurations_without_runs(tmp_path: Path, capsys,
-                                                                       monkeypatch):
-    """The positive control of the study cases: the unbroken study validates (not the bad
-    input's exit 2, but 3: nothing to compare), and its two configurations, which have no
-    measured runs, are listed in the output and the report rather than left out."""
+def test_the_mini_study_loads_and_is_refused_for_want_of_runs(tmp_path: Path, capsys, monkeypatch):
+    """The positive control of the study cases: the unbroken study loads, and with no runs
+    measured yet it is refused saying where runs were looked for and how to measure them
+    (not the bad input of a broken study file: the file's error would name the file)."""
     monkeypatch.chdir(tmp_path)
-    assert main(_mini(lambda d: None)(tmp_path) + ["--held-out"]) == 3
-    printed = capsys.readouterr().out
-    assert "no measured run (not compared): a" in printed and "no measured run (not compared): b" in printed
-    report = (tmp_path / "out" / "report.md").read_text()
-    assert "No measured run, not compared: a." in report and "No measured run, not compared: b." in report
-    errors = json.loads((tmp_path / "out" / "errors.json").read_text())
-    assert [v["without_runs"] for v in errors.values()] == [["a"], ["b"]]
+    assert main(_mini(lambda d: None)(tmp_path) + ["--held-out"]) == 2
+    err = capsys.readouterr().err
+    assert "no such runs folder" in err and "mgpusim study measure" in err and "s.toml" not in err
+    assert not (tmp_path / "out" / "report.md").exists()
 
 
 def test_a_matching_measured_run_validates(tmp_path: Path, capsys, monkeypatch):

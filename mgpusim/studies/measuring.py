@@ -146,7 +146,10 @@ def measure_runs(study: Study, entries: tuple[Entry, ...], profile: Path, out: P
 def measured_folder(root: Path, name: str) -> Path:
     """Where entry `name`'s compared run lies under `root`: its steady window if it has one,
     else the one run in the folder itself, else the first of its repeated runs."""
-    for folder in (root / name / "steady", root / name, root / name / "run0"):
+    steady = root / name / "steady"
+    if run_archive.is_folder(steady):  # a steady window kept: that, whole or not (never a fallback)
+        return steady
+    for folder in (root / name, root / name / "run0"):
         if any(run_archive.is_file(folder / f) for f in TRACE_FILES):
             return folder
     return root / name

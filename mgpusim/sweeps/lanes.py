@@ -48,6 +48,7 @@ from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from mgpusim.io import table_files
 from mgpusim.model import limits as L
 from mgpusim.model.costs import CostModel, term_coefficient
 from mgpusim.model.errors import InputError, MgpusimError
@@ -654,7 +655,7 @@ class LaneRun:
                 frames, fallback = fut.result()
                 self.fallback.extend(fallback)
                 for frame in frames:  # saved by the worker: read back (cheaper than pickled)
-                    yield _saved(pd.read_parquet(frame), frame) if isinstance(frame, Path) else frame
+                    yield _saved(table_files.read_parquet(frame), frame) if isinstance(frame, Path) else frame
 
 
 def _saved(df: pd.DataFrame, path: Path) -> pd.DataFrame:

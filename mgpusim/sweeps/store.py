@@ -39,6 +39,7 @@ from typing import Any, Callable, Iterable
 
 import pandas as pd
 
+from mgpusim.io import table_files
 from mgpusim.model.errors import InputError
 
 try:
@@ -106,8 +107,8 @@ class PointStore:
         out = []
         for path in sorted([*self.points.glob("batch-*.parquet"), *self.points.glob("single-*.parquet")]):
             try:
-                df = pd.read_parquet(path)
-            except (OSError, ValueError) as exc:
+                df = table_files.read_parquet(path)
+            except InputError as exc:
                 raise _foreign(path, f"cannot read it as Parquet ({exc})") from None
             if not {"id", "error", "wall_s"} <= set(df.columns):
                 raise _foreign(path, "no id, error and wall_s columns (a batch has them)")
@@ -139,8 +140,8 @@ def check_record(text: str, path: Path) -> dict[str, Any]:
     """A saved point: a JSON object with `summary` (an object), `error` (text or null) and
     `wall_s` (a number), as :meth:`PointStore.save` writes it."""
     try:
-        record = json.loads(text)
-    except (ValueError, RecursionError):
+        record = table_files.parse_json(text, str(path))
+    except InputError:
         raise _foreign(path, "not valid JSON") from None
     if not isinstance(record, dict):
         raise _foreign(path, f"a JSON {type(record).__name__}, expected an object")

@@ -266,11 +266,83 @@ def case_cases() -> list[Case]:
     ]
 
 
-CASES = override_cases() + window_cases() + sweep_cases() + case_cases()
+# ----- advise: refused before the search, never a hang or a mixed folder -----------------------------
+def _frame(passes: int, extra: str = "") -> Callable[[Path], Path]:
+    """A one-GPU experiment of `passes` passes, imported from a CSV capture."""
+    def make(tmp: Path) -> Path:
+        rows = "".join(f"p{i},graphics,{0.1 + i % 7 * 0.05:.2f},{extra}\n" for i in range(passes))
+        (tmp / "frame.csv").write_text(f"pass,queue,gpu_ms,pixel_share\n{rows}".replace(",\n", ",1\n"))
+        from mgpusim.cli import main
+        assert main(["frame", "import", str(tmp / "frame.csv"), "--size", "1280x720", "--out", str(tmp / "f")]) == 0
+        return tmp / "f" / "frame.toml"
+    return make
+
+
+def _advise(*argv: str, frame: Callable[[Path], Path] = _frame(4)) -> Callable[[Path], list[str]]:
+    return lambda tmp: ["advise", str(frame(tmp)), "--out", str(tmp / "out"), "--workers", "1", *argv]
+
+
+def _advise_while_locked(tmp: Path) -> list[str]:
+    """advise into a folder another writer holds (the lock taken here, as a second mgpusim would)."""
+    import contextlib
+
+    from mgpusim.io.out_folder import locked_out_dir
+    stack = contextlib.ExitStack()
+    stack.enter_context(locked_out_dir(tmp / "out"))
+    _HELD.append(stack)  # released by the test after the case
+    return _advise()(tmp)
+
+
+_HELD: list = []
+
+
+def _advise_over_earlier(tmp: Path) -> list[str]:
+    """An advice of a 6-pass frame already in the folder; then the 3-pass frame's into it."""
+    from mgpusim.cli import main
+    first = tmp / "first"
+    first.mkdir()
+    assert main(["advise", str(_frame(6)(first)), "--out", str(tmp / "out"), "--workers", "1", "--max-gpus", "1"]) == 0
+    return ["advise", str(_frame(3)(tmp)), "--out", str(tmp / "out"), "--workers", "1", "--max-gpus", "1"]
+
+
+def _only_the_new_advice(tmp: Path, _out: str) -> bool:
+    """The folder holds the second frame's advice alone: its report, table and timelines."""
+    advice = json.loads((tmp / "out" / "advice.json").read_text())
+    text = json.dumps(advice)
+    listed = sorted(p.name for p in (tmp / "out").iterdir() if not p.name.startswith("."))
+    return ("p5" not in text and "p2" in text and (tmp / "out" / "report.html").is_file()
+            and "advice.csv" in listed and not (tmp / "out" / ".advice-partial").exists())
+
+
+def advise_cases() -> list[Case]:
+    return [
+        Case("advise-missing-experiment", lambda tmp: ["advise", str(tmp / "none.toml")], ("none.toml",)),
+        Case("advise-two-gpu-experiment", lambda tmp: ["advise", EXP, "--out", str(tmp / "out")], ("gpus",)),
+        Case("advise-max-gpus-zero", _advise("--max-gpus", "0"), ("--max-gpus",)),
+        Case("advise-max-gpus-text", _advise("--max-gpus", "all"), ("--max-gpus",)),
+        Case("advise-max-gpus-beyond", _advise("--max-gpus", "99"), ("--max-gpus",)),
+        Case("advise-confirm-negative", _advise("--confirm", "-1"), ("--confirm",)),
+        Case("advise-timelines-negative", _advise("--timelines", "-2"), ("--timelines",)),
+        Case("advise-workers-zero", _advise("--workers", "0"), ("--workers",)),
+        Case("advise-out-is-a-file", lambda tmp: [*_advise()(tmp)[:2], "--out",
+                                                  str((tmp / "f.txt").write_text("x") and tmp / "f.txt")], ("f.txt",)),
+        Case("advise-folder-held-by-another", _advise_while_locked, ("another mgpusim",)),
+        Case("advise-frame-past-the-limit", _advise(frame=_frame(65)), ("65",)),
+        Case("advise-bad-override", _advise("--set", "profile.gpus.*.speed=-1"), ("speed",)),
+        Case("advise-unknown-override", _advise("--set", "scene.widht=5"), ("widht",)),
+        Case("advise-over-an-earlier-advice", _advise_over_earlier, check=_only_the_new_advice),
+    ]
+
+
+CASES = override_cases() + window_cases() + sweep_cases() + case_cases() + advise_cases()
 
 
 @pytest.mark.parametrize("case", CASES, ids=list(names(CASES)))
 def test_case(case: Case, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    outcome = run_case(case, tmp_path, lambda: tuple(capsys.readouterr()))  # type: ignore[arg-type,return-value]
+    try:
+        outcome = run_case(case, tmp_path, lambda: tuple(capsys.readouterr()))  # type: ignore[arg-type,return-value]
+    finally:
+        while _HELD:
+            _HELD.pop().close()
     expected = (CLEAN_ERROR, CORRECT) if case.either else (CORRECT,) if case.check else (CLEAN_ERROR,)
     assert outcome.kind in expected, f"{outcome.kind}: {outcome.detail}"

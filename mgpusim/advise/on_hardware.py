@@ -39,6 +39,7 @@ from typing import Any, Callable, Mapping, Sequence, cast
 import pandas as pd
 
 from mgpusim.advise.advisor import Advice, Link, evaluate, search
+from mgpusim.io import table_files
 from mgpusim.io.writers import write_measured, write_text
 from mgpusim.model.errors import MgpusimError
 from mgpusim.schedules.binding import COLOUR_PIXEL_BYTES
@@ -310,7 +311,7 @@ def validate(setup: Setup, out: Path, *, only: str | None = None, deadline_s: fl
 
 def collect(setup: Setup, out: Path, log: Callable[[str], None] = print) -> pd.DataFrame:
     """The finished frames' tables as results.csv, and the summary line in summary.txt."""
-    parts = [pd.read_csv(out / "frames" / f"{f.slug}.csv") for f in setup.frames
+    parts = [table_files.read_csv(out / "frames" / f"{f.slug}.csv", ends_whole=True) for f in setup.frames
              if (out / "frames" / f"{f.slug}.csv").exists()]
     if not parts:
         log("no frame finished")

@@ -23,6 +23,7 @@ from typing import Any, Callable
 
 import pandas as pd
 
+from mgpusim.io import table_files
 from mgpusim.model.errors import InputError
 from mgpusim.model.toml_checks import Table, read_toml
 from mgpusim.schedules.experiment import Experiment, load_experiment, parse_overrides
@@ -113,7 +114,7 @@ def measured(study: FrameTimeStudy) -> pd.DataFrame:
     runs_file = study.runs / "runs.parquet"
     if not runs_file.is_file():
         raise InputError(f"no measured runs table at {runs_file}", file=str(study.path), field="runs")
-    runs = pd.read_parquet(runs_file)
+    runs = table_files.read_parquet(runs_file)
     missing = [c for c in RUN_COLUMNS if c not in runs.columns]
     if missing:
         raise InputError(f"{runs_file} lacks the columns {missing}", file=str(study.path), field="runs")

@@ -3,6 +3,7 @@ particle sweep and the device-group listing. Each is loaded from its file as a u
 from __future__ import annotations
 
 import importlib.util
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -61,3 +62,25 @@ def test_device_groups_lists_lavapipe() -> None:
     lines = run.stdout.splitlines()
     assert lines[0].endswith("physical-device group(s)") and int(lines[0].split()[0]) >= 1
     assert any("llvmpipe" in line for line in lines[1:])
+
+
+def test_main_job_runs_tabulates_each_runs_verdict(tmp_path: Path) -> None:
+    """The table of repeated main jobs: a run with a verdict gives its half, statuses and band;
+    a run that wrote none says so (not dropped)."""
+    tool = _load(TOOLS / "main_job_runs.py")
+    (tmp_path / "index.txt").write_text("1 1764633600 371 1 1.50\n2 1764634000 400 3 2.00\n")
+    run = tmp_path / "run1"
+    run.mkdir()
+    half = "Held-out runs (never seen by the fit)"
+    (run / "verdict.json").write_text(json.dumps({"half": half, "line": "Replay met; prediction missed", "exit_status": 1}))
+    verdict = {"replay": {"status": "met"}, "prediction": {"status": "missed", "band": {"median": [0.04, 0.06],
+                                                                                          "worst": [0.2, 0.3]}}}
+    (run / "errors.json").write_text(json.dumps({half: {"verdict": verdict}}))
+    table = tool.collect(tmp_path)
+    assert table["run"].tolist() == [1, 2] and table["exit"].tolist() == [1, 3]
+    first, second = table.iloc[0], table.iloc[1]
+    assert (first.replay, first.prediction, first.prediction_median_band) == ("met", "missed", "4.0% to 6.0%")
+    assert first.start_utc == "2025-12-02 00:00" and first.wall_s == 371
+    assert second.line == "no verdict written" and second.half == ""
+    assert tool.main(["--collect", str(tmp_path), "--table", str(tmp_path / "t.csv")]) == 0
+    assert len(pd.read_csv(tmp_path / "t.csv")) == 2

@@ -49,15 +49,14 @@ def unpacked(tmp_path_factory: pytest.TempPathFactory) -> Path:
 _SOURCE: dict[str, Path] = {}
 
 
-def _study_file(tmp: Path, runs: Path) -> Path:
+def _study_file(tmp: Path) -> Path:
     """The subset study in `tmp` (its paths relative, as a study's must be), both halves
-    reading `runs` (a copy of the subset's runs is made there first)."""
-    _runs(tmp)
+    reading the subset's runs (read only: a case's damaged copy is given with --runs)."""
     data = tomllib.loads(STUDY.read_text())
     base = STUDY.parent
     data["profile"] = _rel(base / data["profile"], tmp)
     data["microbenchmarks"]["tables"] = _rel(base / data["microbenchmarks"]["tables"], tmp)
-    data["calibration"]["runs"] = data["held_out"]["runs"] = _rel(runs, tmp)
+    data["calibration"]["runs"] = data["held_out"]["runs"] = _rel(_SOURCE["runs"], tmp)
     data["calibration"]["host_grid"] = {"dispatch_ns": [0, 400000]}
     for half, kept in (("calibration", CALIBRATION), ("held_out", HELD_OUT)):
         configs = [c for c in data[half]["config"] if c["name"] in kept]
@@ -271,7 +270,7 @@ def _cell(text: str, column: str, value: str) -> str:
 def _study_argv(step: str, damage: Damage, *extra: str) -> Callable[[Path], list[str]]:
     def make(tmp: Path) -> list[str]:
         runs = damage(tmp)
-        study = _study_file(tmp, tmp / "runs")
+        study = _study_file(tmp)
         return ["study", step, str(study), "--runs", str(runs), "--out", str(tmp / "out"), *extra]
     return make
 
@@ -419,7 +418,7 @@ def table_cases() -> list[Case]:
 # ----- study floor ---------------------------------------------------------------------------------
 def _floor_argv(*sets: Callable[[Path], Path], profile: bool = True) -> Callable[[Path], list[str]]:
     def make(tmp: Path) -> list[str]:
-        study = _study_file(tmp, tmp / "runs")
+        study = _study_file(tmp)
         argv = ["study", "floor", str(study), "--out", str(tmp / "out")]
         for s in sets:
             argv += ["--runs", str(s(tmp))]
@@ -469,7 +468,7 @@ def floor_cases() -> list[Case]:
 # ----- study measure: refused before any device is touched -------------------------------------------
 def _measure_argv(*extra: str, edit: Callable[[dict], None] | None = None) -> Callable[[Path], list[str]]:
     def make(tmp: Path) -> list[str]:
-        study = _study_file(tmp, tmp / "runs")
+        study = _study_file(tmp)
         if edit is not None:
             data = tomllib.loads(study.read_text())
             edit(data)

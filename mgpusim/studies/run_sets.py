@@ -60,7 +60,7 @@ def check_half(study: Study, entries: tuple[Entry, ...], root: Path, option: str
 def check_set(study: Study, root: Path, option: str) -> set[str]:
     """The names of `study`'s configurations that `root` holds runs of; one InputError where
     `root` is not a runs folder, was measured for another study (its `study.json`), holds
-    mostly other configurations, or a run records another experiment or card."""
+    none of the study's configurations, or a run records another experiment or card."""
     names = folder_names(root, option)
     _check_record(study, root, option)
     own = {e.name for e in (*study.calibration, *study.held_out)}

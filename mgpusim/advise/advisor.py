@@ -37,7 +37,7 @@ import math
 import os
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence, cast
 
@@ -46,11 +46,11 @@ import pandas as pd
 
 from mgpusim.model.errors import InputError, MgpusimError
 from mgpusim.model.overrides import set_dotted, split_profile
-from mgpusim.model.profile import HardwareProfile, load_profile
+from mgpusim.model.profile import HardwareProfile, load_profile, require_gpus
 from mgpusim.model.scene import temporal_reads
 from mgpusim.model.toml_checks import read_toml
 from mgpusim.schedules.experiment import Experiment, load_experiment, parse_experiment
-from mgpusim.sim.simulation import simulate
+from mgpusim.sim.simulation import prepare_like, simulate
 
 #: Pipelining's chunks per copy, searched at every split point.
 CHUNKS = tuple(range(1, 9))
@@ -290,6 +290,8 @@ class _Loader:
         self.path, self.raw = path, read_toml(Path(path))
         self.profile_file = load_experiment(path).profile.source
         self.profiles: dict[str, HardwareProfile] = {}
+        #: the options loaded last, by their overrides but the profile's (see `load_like`)
+        self.last: dict[str, list[Experiment]] = {}
 
     def load(self, overrides: Mapping[str, Any]) -> Experiment:
         ours, theirs = split_profile(overrides)
@@ -300,6 +302,30 @@ class _Loader:
         if key not in self.profiles:
             self.profiles[key] = load_profile(self.profile_file, theirs)
         return parse_experiment(data, self.path, base=Path(self.path).parent, profile=self.profiles[key])
+
+    def load_like(self, overrides: Mapping[str, Any], fidelity: str) -> Experiment:
+        """`load(overrides)`, sharing the program and model of an option loaded before with the
+        same overrides but for the profile's (another link: :func:`prepare_like`). Why: the
+        options of one schedule over eight links would otherwise build one program each. The
+        options of the last such overrides are kept (one per program: PCIe, NVLink)."""
+        ours, theirs = split_profile(overrides)
+        key = json.dumps(ours, sort_keys=True, default=str)
+        sources = self.last.get(key)
+        if sources is None:
+            self.last = {key: [self.load(overrides)]}
+            return self.last[key][0]
+        pkey = json.dumps(theirs, sort_keys=True, default=str)
+        if pkey not in self.profiles:
+            self.profiles[pkey] = load_profile(self.profile_file, theirs)
+        profile = self.profiles[pkey]
+        for source in sources:
+            if profile is source.profile:
+                return source
+        require_gpus(profile, sources[0].schedule.gpus, self.path)
+        exp = replace(sources[0], profile=profile)
+        if not any(prepare_like(exp, source, fidelity) for source in sources):
+            sources.append(exp)
+        return exp
 
 
 @functools.lru_cache(maxsize=4)
@@ -317,12 +343,12 @@ def evaluate(path: str, base: Mapping[str, Any], items: Sequence[tuple[int, Mapp
         t0 = time.perf_counter()
         row: dict[str, Any] = {"option": index}
         try:
-            exp = (_loader(path, Path(path).stat().st_mtime_ns).load({**base, **overrides})
+            exp = (_loader(path, Path(path).stat().st_mtime_ns).load_like({**base, **overrides}, fidelity)
                    if fidelity != "full" else load_experiment(path, {**base, **overrides}))
             result = simulate(exp, record_trace=False, fidelity=fidelity, band=band)
             s = result.summary
             row.update(frame_time_ms=s["frame_time_ms"], latency_ms=s["latency_ms"], error=None,
-                       settled=s.get("settled", True), **intervals(result.frames, s))
+                       settled=s.get("settled", True), **_intervals(result, s))
             if band and "frame_time_ms_lo" in s:
                 row.update({k: s[k] for k in ("frame_time_ms_lo", "frame_time_ms_hi",
                                               "latency_ms_lo", "latency_ms_hi")})
@@ -334,11 +360,25 @@ def evaluate(path: str, base: Mapping[str, Any], items: Sequence[tuple[int, Mapp
     return out
 
 
+def _intervals(result: Any, summary: Mapping[str, Any]) -> dict[str, float]:
+    """:func:`intervals` of a simulated result, from its presents array where it has one (the
+    frames table costs more to build than a short analytic run)."""
+    if result.frame_arrays is None:
+        return intervals(result.frames, summary)
+    present = np.asarray(result.frame_arrays[1], dtype=np.int64)
+    return steady_intervals(present[max(int(summary["warmup_frames"]), 0):], summary)
+
+
 def intervals(frames: pd.DataFrame, summary: Mapping[str, Any]) -> dict[str, float]:
     """The steady intervals between presents (those of the frames after the warm-up, as the
     summary's mean): their :data:`PERCENTILE`th percentile (numpy's linear interpolation) and
     the worst, in ms."""
     presents = frames.loc[frames["frame"] >= summary["warmup_frames"], "present_ns"].to_numpy(np.int64)
+    return steady_intervals(presents, summary)
+
+
+def steady_intervals(presents: np.ndarray, summary: Mapping[str, Any]) -> dict[str, float]:
+    """:func:`intervals` of the steady frames' presents (ns, in frame order)."""
     periods = np.diff(presents)
     if not len(periods):  # one steady frame: its period is the summary's
         return {"interval_p99_ms": summary["frame_time_ms"], "interval_max_ms": summary["frame_time_ms"]}
@@ -356,6 +396,25 @@ def run_options(path: str, base: Mapping[str, Any], items: list[tuple[int, Mappi
                 stage: str = "") -> list[dict[str, Any]]:
     """`evaluate` over the items, spread over `workers` processes (1: here), in the items'
     order; `progress(stage, done, total)` after each task."""
+    if fidelity != "full":  # the options of one schedule over every link side by side (load_like)
+        order = sorted(range(len(items)), key=lambda k: _without_profile(items[k][1]))
+        rows = _run_in_order(path, base, [items[k] for k in order], fidelity, workers, band, progress, stage)
+        back: list[dict[str, Any]] = [{}] * len(items)
+        for k, row in zip(order, rows):
+            back[k] = row
+        return back
+    return _run_in_order(path, base, items, fidelity, workers, band, progress, stage)
+
+
+def _without_profile(overrides: Mapping[str, Any]) -> str:
+    """An option's overrides but the profile's, as text: the options of one schedule on every link."""
+    return json.dumps(split_profile(overrides)[0], sort_keys=True, default=str)
+
+
+def _run_in_order(path: str, base: Mapping[str, Any], items: list[tuple[int, Mapping[str, Any]]],
+                  fidelity: str, workers: int, band: bool = False, progress: Progress | None = None,
+                  stage: str = "") -> list[dict[str, Any]]:
+    """`evaluate` over the items in their order, spread over `workers` processes (1: here)."""
     report = _reporter(progress, stage, len(items))
     if workers <= 1 or len(items) < 2 * workers:
         size = min(TASK_OPTIONS, max(1, len(items)))

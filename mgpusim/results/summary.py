@@ -40,6 +40,9 @@ class Result:
         self.link_logs = link_logs
         #: seconds the model itself took (engine or recurrence), set by simulate()
         self.model_wall_s: float | None = None
+        #: every frame's start and present (ns), the arrays `.frames` is built from (None: a
+        #: result that was not built from arrays); a search reads them without the table
+        self.frame_arrays: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def trace(self) -> pd.DataFrame:
@@ -285,8 +288,11 @@ def build_result(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
         else:
             summary["skipped_tasks"] = raw.skipped
     if not raw.recorded:
-        return Result(summary, lambda: make_trace([]), frames, whole_links, config, link_logs=links)
-    return Result(summary, rows.frame, frames, whole_links, config, repeated=rows, link_logs=links)
+        result = Result(summary, lambda: make_trace([]), frames, whole_links, config, link_logs=links)
+    else:
+        result = Result(summary, rows.frame, frames, whole_links, config, repeated=rows, link_logs=links)
+    result.frame_arrays = (start, present)
+    return result
 
 
 def task_rates(program: FrameProgram, skipped_frames: Mapping[str, Sequence[int]],

@@ -184,18 +184,24 @@ def balanced_rows(scene: Scene, profile: HardwareProfile, n: int) -> list[int]:
     can render within T cover the screen, found by bisection on integer ns. Copies run on
     other queues and overlap the next frame, so they do not enter the balance."""
     costs, h = CostModel(profile), scene.height
+    known: dict[tuple[int, int], int] = {}  # (gpu, rows) -> load: the bisections revisit rows
+
+    def load(gpu: int, rows: int) -> int:
+        if (gpu, rows) not in known:
+            known[gpu, rows] = _graphics_load(scene, costs, gpu, rows, n)
+        return known[gpu, rows]
 
     def rows_within(gpu: int, t: int) -> int:
         lo, hi = -1, h  # largest r in [0, h] with load <= t, or -1
         while lo < hi:
             mid = (lo + hi + 1) // 2
-            if _graphics_load(scene, costs, gpu, mid, n) <= t:
+            if load(gpu, mid) <= t:
                 lo = mid
             else:
                 hi = mid - 1
         return lo
 
-    lo, hi = 0, max(_graphics_load(scene, costs, g, h, n) for g in range(n))
+    lo, hi = 0, max(load(g, h) for g in range(n))
     while lo < hi:
         mid = (lo + hi) // 2
         if sum(max(rows_within(g, mid), 0) for g in range(n)) >= h:

@@ -24,6 +24,7 @@ configurations of one program at once with numpy (one array lane per configurati
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from fractions import Fraction
 from typing import Callable
@@ -34,9 +35,10 @@ from mgpusim.model.costs import CostModel
 from mgpusim.model.errors import InputError, ScheduleError
 from mgpusim.model.geometry import even_split
 from mgpusim.model.profile import HostProfile
-from mgpusim.model.tasks import CpuTask, HostCopyTask, Task
+from mgpusim.model.tasks import CopyTask, CpuTask, HostCopyTask, Task
 from mgpusim.schedules.base import FrameProgram, leads_chain, wakes_host
 from mgpusim.schedules.skipping import SkipChains
+from mgpusim.schedules.task_inputs import TaskInputs
 from mgpusim.sim.channel import FixedRateChannel
 from mgpusim.sim.effects import choose_effects
 from mgpusim.sim.engine import RawResult
@@ -107,13 +109,15 @@ UNSHARED = frozenset({"shared_executor", "shared_gpu", "link_sharing", "host_pci
                       "host_memory_sharing", "busy_wake"})
 
 
-def _builder(program: FrameProgram, costs: CostModel, effects: frozenset[str]) -> OpBuilder:
+def _builder(program: FrameProgram, costs: CostModel, effects: frozenset[str],
+             inputs: TaskInputs | None = None) -> OpBuilder:
     """The engine's own rules for durations, rates and labels (:class:`.ops.OpBuilder`), on an
     environment that never runs: every device on its own executor and every link at its fixed
     rate (the recurrence takes everything as unshared), so each op's channel only says its
     bandwidth. Why not the engine itself: the recurrence needs none of its run state."""
     env = Environment()
-    return OpBuilder(program, costs, effects - UNSHARED, env, make_executors(env, costs, shared=False))
+    return OpBuilder(program, costs, effects - UNSHARED, env, make_executors(env, costs, shared=False),
+                     inputs=inputs)
 
 
 class Analytic:
@@ -156,6 +160,11 @@ class Analytic:
         task = op.task
         deps = tuple((d.task, d.offset, self._crosses(task, d.task, (phase + d.offset) % len(self.task_of), phase))
                      for d in task.deps)
+        return self._timed(op, deps)
+
+    def _timed(self, op: Op, deps: tuple[tuple[str, int, bool], ...]) -> _Node:
+        """The node of `op` with its dependencies `deps` (see `_node`) and its times."""
+        task = op.task
         if isinstance(task, HostCopyTask):
             parts = tuple(even_split(task.bytes, task.parts(self.threads)))
             cap = op.cap
@@ -176,6 +185,36 @@ class Analytic:
         return _Node(task.name, task, str(task.queue), deps, op.duration, op.nbytes, rate, op.gap, (),
                      op.device, op.engine, op.waits_for, time=op.duration + moved)
 
+    def retimed(self, costs: CostModel, needed: frozenset[str] | None = None) -> "Analytic":
+        """This model on `costs`, a cost model whose profile differs from this one's only in its
+        links' rates and latencies (the caller checks that: same GPUs, costs, host and peer
+        topology). Why: `advise` runs one program over many links, and only the copies' times
+        change with the link; the task graph, its order, the frame lag and the skip chains are
+        kept, and each copy's node is built again by the engine's own rules on `costs` (so its
+        time, and the time bound it is checked against, are those a fresh model would have;
+        copies alike in queue, path, peer and size are built once). Host copies stay: host
+        memory and memcpy threads set their times, not a link. `needed`:
+        `choose_effects(program, costs.profile)` where the caller has it already."""
+        builder = _builder(self.program, costs, self.effects, self.inputs)
+        alike: dict[tuple, _Node] = {}
+
+        def timed(phase: int, node: _Node) -> _Node:
+            task = node.task
+            if not isinstance(task, CopyTask):
+                return node
+            key = (task.queue, task.path, task.peer, task.bytes)
+            done = alike.get(key)
+            if done is None:
+                done = alike[key] = self._timed(builder.op(phase, task), node.deps)
+            return _Node(node.name, task, node.stream, node.deps, done.fixed, done.nbytes, done.rate, done.gap,
+                         node.parts, node.device, node.engine, node.waits_for, node.cpu, done.time,
+                         node.part_times)
+        new = copy.copy(self)
+        new.costs = costs
+        new.phases = [[timed(ph, n) for n in phase] for ph, phase in enumerate(self.phases)]
+        new.approximations = new._approximations(needed)
+        return new
+
     def _crosses(self, task: Task, dep: str, dep_phase: int, phase: int) -> bool:
         """Whether a host thread must wake to act on this input (as the engine decides): the
         input's producer, in its own frame phase, is on another device or the host, or the
@@ -195,16 +234,18 @@ class Analytic:
             stream_prev[n.stream] = n.name
         out: list[_Node] = []
         done: set[str] = set()
-        while len(out) < len(nodes):
-            ready = [n for n in nodes if n.name not in done and before[n.name] <= done]
-            if not ready:
+        left = list(nodes)
+        while left:  # the first node left (in submission order) whose inputs are done
+            k = next((k for k, n in enumerate(left) if before[n.name] <= done), None)
+            if k is None:
                 raise ScheduleError("a frame's tasks depend on each other in a cycle")
-            out.append(ready[0])
-            done.add(ready[0].name)
+            out.append(left.pop(k))
+            done.add(out[-1].name)
         return [by_name[n.name] for n in out]
 
-    def _approximations(self) -> list[str]:
-        needed = choose_effects(self.program, self.costs.profile)
+    def _approximations(self, needed: frozenset[str] | None = None) -> list[str]:
+        if needed is None:
+            needed = choose_effects(self.program, self.costs.profile)
         out = [f"{name}: taken as unshared (an optimistic bound)"
                for name in ("link_sharing", "host_pcie", "host_memory_sharing") if name in needed]
         if "shared_gpu" in needed:

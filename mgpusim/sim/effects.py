@@ -189,6 +189,21 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            lambda p, prof: True),
 )}
 
+#: The effects whose `needed` test reads a link's rate (every other test reads the program,
+#: the GPUs, the host and which peer links there are): between two profiles that differ only
+#: in their links' rates and latencies, only these can change (:func:`needed_on_links`).
+READS_LINK_RATES = frozenset({"copy_engine_caps"})
+
+
+def needed_on_links(program: FrameProgram, profile: HardwareProfile, needed: frozenset[str]) -> frozenset[str]:
+    """`choose_effects(program, profile)`, given `needed`, what it is on a profile that differs
+    from `profile` only in its links' rates and latencies (the caller checks that): only the
+    tests of :data:`READS_LINK_RATES` are run again. Why: a search over links would run every
+    test once per link, on the same program."""
+    again = {name for name in READS_LINK_RATES if EFFECTS[name].needed(program, profile)}
+    return frozenset((needed - READS_LINK_RATES) | again)
+
+
 #: Effects the `queues` level leaves out.
 QUEUES_OMITS = frozenset({"link_sharing", "host_pcie", "host_memory_sharing", "shared_executor", "shared_gpu",
                           "busy_wake"})
@@ -197,12 +212,14 @@ QUEUES_OMITS = frozenset({"link_sharing", "host_pcie", "host_memory_sharing", "s
 ANALYTIC_OMITS = QUEUES_OMITS
 
 
-def approximations(program: FrameProgram, profile: HardwareProfile, chosen: frozenset[str]) -> list[str]:
+def approximations(program: FrameProgram, profile: HardwareProfile, chosen: frozenset[str],
+                   needed: frozenset[str] | None = None) -> list[str]:
     """What a run with effects `chosen` leaves out that this scene needs (``full`` with no
     effect forced off would model it), each as ``name: what the model does instead``: the
     summary's `approximations`. Why: a level that approximates says so beside its figures,
-    rather than reading like the full model's."""
-    left = sorted(choose_effects(program, profile) - chosen)
+    rather than reading like the full model's. `needed`: `choose_effects(program, profile)`
+    where the caller has it already."""
+    left = sorted((choose_effects(program, profile) if needed is None else needed) - chosen)
     return [f"{name}: {EFFECTS[name].doc.partition('off: ')[2] or 'left out'}" for name in left]
 
 

@@ -110,16 +110,18 @@ class OpBuilder:
 
     def __init__(self, program: FrameProgram, costs: CostModel, effects: frozenset[str],
                  env: Environment, executors: Mapping[str, Executor],
-                 durations: Mapping[Key, int] | None = None, busy_wake: BusyWake | None = None):
+                 durations: Mapping[Key, int] | None = None, busy_wake: BusyWake | None = None,
+                 inputs: TaskInputs | None = None):
         """`durations`: (frame phase, task name) -> ns the task takes there instead of its
         cost (see :meth:`measured_op`). `busy_wake`: the busy_wake effect's state (None: off),
-        which says which passes keep every host core busy."""
+        which says which passes keep every host core busy. `inputs`: `task_inputs(program)`
+        where the caller has it already (a model retimed on other links)."""
         self.program, self.costs, self.effects, self.env = program, costs, effects, env
         self.executors = executors
         self._durations = durations or {}
         self._busy_wake = busy_wake
         #: every task's id and the inputs its trace row lists; rows log the id
-        self.inputs: TaskInputs = task_inputs(program)
+        self.inputs: TaskInputs = inputs if inputs is not None else task_inputs(program)
         self._waits_for = self.inputs.ids
         self.channels: dict[str, RunChannel] = {}
         for ex in dict.fromkeys(executors.values()):  # a shared pool is one channel

@@ -7,8 +7,8 @@ from dataclasses import replace
 from typing import Any, Callable, Mapping
 
 from mgpusim.model.costs import CostModel
-from mgpusim.model.errors import InputError, TimeBoundError
-from mgpusim.model.profile import has_cost_stderr, with_cost_band
+from mgpusim.model.errors import InputError, MgpusimError, TimeBoundError
+from mgpusim.model.profile import HardwareProfile, LinkProfile, has_cost_stderr, with_cost_band
 from mgpusim.model.profile_reads import outside_shipped, reading, recording, shipped_profiles, unused
 from mgpusim.model.tasks import QueueRef
 from mgpusim.results.summary import Result, build_result, task_rates
@@ -17,7 +17,7 @@ from mgpusim.schedules.experiment import Experiment
 from mgpusim.schedules.memory_check import check_memory, memory_report
 from mgpusim.schedules.program import build_program, on_queues, run_config
 from mgpusim.sim import fastforward
-from mgpusim.sim.effects import approximations, choose_effects
+from mgpusim.sim.effects import QUEUES_OMITS, approximations, choose_effects, needed_on_links
 from mgpusim.sim.engine import Engine
 from mgpusim.sim.prepared import cached
 
@@ -116,6 +116,51 @@ def _prepare(exp: Experiment, queues: Mapping[QueueRef, QueueRef] | None, fideli
     if fidelity != "analytic" or program.refresh_hz:  # (the analytic level refuses vsync itself)
         return program, chosen, None
     return program, chosen, lambda: cached(exp, ("analytic", chosen), lambda: _analytic_model(exp, program, chosen))
+
+
+def link_free(profile: HardwareProfile) -> HardwareProfile:
+    """The profile with every GPU's PCIe link and every peer link's rate and latency zeroed:
+    what builds a program (which copies a schedule makes, over which path) and every cost but
+    a copy's. Two profiles with the same link-free profile differ only in their copies' times."""
+    bare = LinkProfile(pcie_gen=0, lanes=0, latency_ns=0)
+    return replace(profile, gpus=tuple(replace(g, link=bare) for g in profile.gpus),
+                   peer_links=tuple(replace(p, bandwidth_gbps=0.0, latency_ns=0) for p in profile.peer_links))
+
+
+def prepare_like(exp: Experiment, source: Experiment, fidelity: str) -> bool:
+    """Give `exp` the program of `source` and (analytic level) `source`'s recurrence model
+    retimed on `exp`'s links, where the two differ only in their links (:func:`link_free`) and
+    choose the same effects; else leave `exp` to be prepared as usual. True where it gave them.
+    Why: a search over links (`mgpusim advise`) would build the same program and task graph
+    once per link. The effects are chosen on `exp`'s own profile, and a copy's node is built
+    again on `exp`'s costs (with its time bound), so a run of `exp` is the one it would be on
+    its own. Where building any of it fails here, nothing is given: `simulate(exp)` then
+    builds it and reports the error."""
+    if exp.profile is source.profile or exp.profile_overrides or source.profile_overrides:
+        return False
+    if exp.raw != source.raw or link_free(exp.profile) != link_free(source.profile):
+        return False
+    try:
+        program = cached(source, "program", lambda: build_program(source))
+        needed = needed_on_links(program, exp.profile,
+                                 cached(source, ("needed",), lambda: choose_effects(program, source.profile)))
+        chosen = needed if fidelity == "full" else needed - QUEUES_OMITS  # (choose_effects' rule)
+        model = None
+        if fidelity == "analytic" and not program.refresh_hz:
+            theirs = cached(source, ("effects", fidelity, ()),
+                            lambda: choose_effects(program, source.profile, fidelity))
+            if theirs != chosen:
+                return False
+            model = cached(source, ("analytic", chosen),
+                           lambda: _analytic_model(source, program, chosen)).retimed(CostModel(exp.profile), needed)
+    except MgpusimError:
+        return False
+    cached(exp, "program", lambda: program)
+    cached(exp, ("effects", fidelity, ()), lambda: chosen)
+    cached(exp, ("approximations", chosen), lambda: approximations(program, exp.profile, chosen, needed))
+    if model is not None:
+        cached(exp, ("analytic", chosen), lambda: model)
+    return True
 
 
 def _analytic_model(exp: Experiment, program: FrameProgram, chosen: frozenset[str]) -> Any:

@@ -1,0 +1,87 @@
+"""`advise`'s fast level shares one program and one recurrence model among the options that
+differ only in their link (:meth:`Analytic.retimed`, :func:`prepare_like`): every row must be
+the one the option gives loaded and simulated on its own."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from mgpusim import load_experiment
+from mgpusim.advise import advisor
+from mgpusim.advise.advisor import LINKS, evaluate, options, run_options
+from mgpusim.cli import main
+from mgpusim.model.costs import CostModel
+from mgpusim.schedules.program import build_program
+from mgpusim.sim.analytic import Analytic
+from mgpusim.sim.effects import choose_effects, needed_on_links
+from mgpusim.sim.simulation import link_free
+
+ROOT = Path(__file__).resolve().parents[1]
+PROFILE = ROOT / "hardware_profiles" / "pcie4_pair.toml"
+
+
+@pytest.fixture(scope="module")
+def frame(tmp_path_factory) -> Path:
+    """Four passes, one reading the last frame (AFR carries it), on GTX-class GPUs."""
+    tmp = tmp_path_factory.mktemp("frame")
+    csv = tmp / "f.csv"
+    csv.write_text("pass,queue,gpu_ms,reads,writes,bytes,pixel_share\n"
+                   "shadow,graphics,1.5,,shadowmap,4194304,0\n"
+                   "gbuffer,graphics,3.0,,gb,16588800,0.6\n"
+                   "light,graphics,2.0,gb;shadowmap,hdr,16588800,1\n"
+                   "taa,graphics,0.6,hdr;out,out,8294400,1\n")
+    out = tmp / "f.toml"
+    assert main(["frame", "import", str(csv), "--size", "1920x1080", "--profile", str(PROFILE),
+                 "--out", str(out)]) == 0
+    return out
+
+
+def _same(a: dict, b: dict) -> bool:
+    keys = set(a) - {"wall_s"}
+    return keys == set(b) - {"wall_s"} and all(
+        a[k] == b[k] or (isinstance(a[k], float) and math.isnan(a[k]) and math.isnan(b[k])) for k in keys)
+
+
+def test_rows_shared_over_links_are_each_options_own(frame):
+    opts = options(load_experiment(frame), max_gpus=3, links=LINKS)
+    items = [(i, o.overrides) for i, o in enumerate(opts)]
+    shared = run_options(str(frame), {}, items, "analytic", 1)
+    assert [r["option"] for r in shared] == [i for i, _ in items]  # in the items' order
+    for item, row in zip(items, shared):
+        advisor._loader.cache_clear()  # nothing shared: the option alone
+        alone = evaluate(str(frame), {}, [item], "analytic")[0]
+        assert _same(row, alone), (opts[item[0]].label, row, alone)
+
+
+def _experiments(frame: Path, schedule: dict) -> list:
+    return [load_experiment(frame, {"schedule": schedule, "profile.gpu_count": 2, **link.overrides})
+            for link in LINKS]
+
+
+@pytest.mark.parametrize("schedule", [
+    {"name": "pipelining", "gpus": 2, "split_at": 2, "chunks": 3},
+    {"name": "sort_first", "gpus": 2, "balance": True, "host_copy": True},
+    {"name": "afr", "gpus": 2, "frames_in_flight": 2},
+])
+def test_one_program_and_retimed_model_per_link_family(frame, schedule):
+    exps = _experiments(frame, schedule)
+    first: list = []  # (link-free profile, experiment, program)
+    for exp in exps:  # the program does not read a link's rate: one per link-free profile
+        shape = link_free(exp.profile)
+        program = build_program(exp)
+        seen = next((f for f in first if f[0] == shape), None)
+        if seen is None:
+            first.append((shape, exp, program))
+            continue
+        _, source, theirs = seen
+        assert program == theirs
+        needed = choose_effects(program, exp.profile)
+        assert needed_on_links(program, exp.profile, choose_effects(program, source.profile)) == needed
+        chosen = choose_effects(program, exp.profile, "analytic")
+        own = Analytic(program, CostModel(exp.profile), chosen)
+        retimed = Analytic(program, CostModel(source.profile), chosen).retimed(CostModel(exp.profile))
+        assert retimed.phases == own.phases
+        assert retimed.approximations == own.approximations
+    assert len(first) == 2  # PCIe (through host memory) and NVLink (a peer link)

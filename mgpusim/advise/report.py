@@ -18,6 +18,7 @@ from __future__ import annotations
 import os
 import re
 import shutil
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
@@ -135,22 +136,40 @@ def _by_mean(ranked: pd.DataFrame) -> pd.Series:
 
 
 def _timelines(advice: Advice, root: Path, count: int, progress: Progress | None = None) -> list[dict[str, Any]]:
-    """The baseline and the `count` best options at full fidelity with their traces."""
+    """The baseline and the `count` best options at full fidelity with their traces, written
+    by the search's worker processes side by side (drawing a timeline costs more than
+    simulating it; each goes to a folder of its own, so the files are those one process
+    writes)."""
     rows = _rows(advice.ranked)
     picks = [0] + [int(i) for i in rows.index if i != 0][:count]
-    out: list[dict[str, Any]] = []
-    for k, index in enumerate(picks):
-        if progress is not None:
-            progress("timelines", k, len(picks))
-        option = advice.options[index]
-        exp = load_experiment(advice.experiment, advice.overrides(index))
-        result = simulate(exp, fidelity="full")
-        folder = root / f"{k}_{_slug(option.label)}"
-        files = write_result(result, folder, title=option.label)
-        out.append({"option": index, "label": option.label, "folder": folder.relative_to(root.parent).as_posix(),
-                    "timeline": files["timeline"].relative_to(root.parent).as_posix(),
-                    "perfetto": files["perfetto"].relative_to(root.parent).as_posix()})
-    return out
+    jobs = [(advice.experiment, advice.overrides(index), advice.options[index].label,
+             root / f"{k}_{_slug(advice.options[index].label)}") for k, index in enumerate(picks)]
+    workers = min(int(advice.counts.get("workers", 1)), len(jobs))
+    if progress is not None:
+        progress("timelines", 0, len(jobs))
+    if workers <= 1:
+        written = []
+        for k, job in enumerate(jobs):
+            written.append(_timeline(*job))
+            if progress is not None:
+                progress("timelines", k + 1, len(jobs))
+    else:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            tasks = [pool.submit(_timeline, *job) for job in jobs]
+            for k, _ in enumerate(as_completed(tasks)):
+                if progress is not None:
+                    progress("timelines", k + 1, len(jobs))
+            written = [task.result() for task in tasks]
+    return [{"option": index, "label": advice.options[index].label,
+             "folder": folder.relative_to(root.parent).as_posix(),
+             "timeline": files["timeline"].relative_to(root.parent).as_posix(),
+             "perfetto": files["perfetto"].relative_to(root.parent).as_posix()}
+            for index, (_, _, _, folder), files in zip(picks, jobs, written)]
+
+
+def _timeline(experiment: str, overrides: dict[str, Any], label: str, folder: Path) -> dict[str, Path]:
+    """One option simulated at full fidelity and its result folder written (in a worker)."""
+    return write_result(simulate(load_experiment(experiment, overrides), fidelity="full"), folder, title=label)
 
 
 def _slug(text: str) -> str:

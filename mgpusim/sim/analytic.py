@@ -123,7 +123,10 @@ def _builder(program: FrameProgram, costs: CostModel, effects: frozenset[str],
 class Analytic:
     """The recurrence for one program and cost model (see the module doc)."""
 
-    def __init__(self, program: FrameProgram, costs: CostModel, effects: frozenset[str]):
+    def __init__(self, program: FrameProgram, costs: CostModel, effects: frozenset[str],
+                 needed: frozenset[str] | None = None):
+        """`needed`: `choose_effects(program, costs.profile)` where the caller has it already
+        (for the approximations the model lists)."""
         if program.refresh_hz:
             raise InputError("the analytic fidelity level does not model vsync: use --fidelity "
                              "queues or full", field="schedule.refresh_hz")
@@ -149,7 +152,7 @@ class Analytic:
         self.lag = max([1] + [-d[1] for ph in self.phases for n in ph for d in n.deps])
         #: per phase, skippable task -> (its chain's leader, its same-frame skippable inputs)
         self.chains = [_skip_chains(ph) for ph in self.phases]
-        self.approximations = self._approximations()
+        self.approximations = self._approximations(needed)
         #: the present is a task on a GPU queue, as the rows' per-frame presents count it (a
         #: present on the host would leave the rows' present unset): the recurrence's own
         #: per-frame presents then stand for the rows'

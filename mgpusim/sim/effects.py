@@ -241,13 +241,15 @@ def parse_effects(text: str | None, option: str = "--effects") -> dict[str, bool
 
 
 def choose_effects(program: FrameProgram, profile: HardwareProfile, fidelity: str = "full",
-                   force: Mapping[str, bool] | None = None) -> frozenset[str]:
+                   force: Mapping[str, bool] | None = None, needed: frozenset[str] | None = None) -> frozenset[str]:
     """The effects to instantiate: those the scene needs, less what the fidelity level leaves
-    out, with `force` applied last."""
+    out, with `force` applied last. `needed`: `choose_effects(program, profile)` where the
+    caller has it already (the tests read the whole program)."""
     if fidelity not in FIDELITIES:
         raise InputError(f"fidelity must be one of {', '.join(FIDELITIES)}, got {fidelity!r}",
                          field="fidelity")
-    chosen = {name for name, e in EFFECTS.items() if e.needed(program, profile)}
+    chosen = ({name for name, e in EFFECTS.items() if e.needed(program, profile)} if needed is None
+              else set(needed))
     if fidelity != "full":
         chosen -= QUEUES_OMITS
     for name, on in (force or {}).items():

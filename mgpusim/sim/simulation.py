@@ -17,7 +17,7 @@ from mgpusim.schedules.experiment import Experiment
 from mgpusim.schedules.memory_check import check_memory, memory_report
 from mgpusim.schedules.program import build_program, on_queues, run_config
 from mgpusim.sim import fastforward
-from mgpusim.sim.effects import QUEUES_OMITS, approximations, choose_effects, needed_on_links
+from mgpusim.sim.effects import approximations, choose_effects, needed_on_links
 from mgpusim.sim.engine import Engine
 from mgpusim.sim.prepared import cached
 
@@ -58,7 +58,8 @@ def simulate(exp: Experiment, record_trace: bool = True, fidelity: str = "full",
     if "memory_capacity" in chosen:
         result.summary["memory"] = memory_report(program, exp)
     result.summary.update(fidelity=fidelity, modelled_effects=sorted(chosen), fast_forward=raw.fast_forward)
-    left = cached(exp, ("approximations", chosen), lambda: approximations(program, exp.profile, chosen))
+    left = cached(exp, ("approximations", chosen),
+                  lambda: approximations(program, exp.profile, chosen, _needed(exp, program)))
     if left or fidelity != "full":  # (full with nothing forced off is the reference: no field)
         result.summary["approximations"] = left
     if exp.profile_overrides:  # a what-if beyond every shipped machine says so
@@ -112,10 +113,17 @@ def _prepare(exp: Experiment, queues: Mapping[QueueRef, QueueRef] | None, fideli
         return program, chosen, None
     program = cached(exp, "program", lambda: build_program(exp))
     force = tuple(sorted(effects.items())) if effects else ()
-    chosen = cached(exp, ("effects", fidelity, force), lambda: choose_effects(program, exp.profile, fidelity, effects))
+    chosen = cached(exp, ("effects", fidelity, force),
+                    lambda: choose_effects(program, exp.profile, fidelity, effects, _needed(exp, program)))
     if fidelity != "analytic" or program.refresh_hz:  # (the analytic level refuses vsync itself)
         return program, chosen, None
     return program, chosen, lambda: cached(exp, ("analytic", chosen), lambda: _analytic_model(exp, program, chosen))
+
+
+def _needed(exp: Experiment, program: FrameProgram) -> frozenset[str]:
+    """The effects the experiment's scene needs (every effect's test, run once per experiment:
+    the effects of each level, the approximations and the recurrence's notes start from it)."""
+    return cached(exp, ("needed",), lambda: choose_effects(program, exp.profile))
 
 
 def link_free(profile: HardwareProfile) -> HardwareProfile:
@@ -142,13 +150,12 @@ def prepare_like(exp: Experiment, source: Experiment, fidelity: str) -> bool:
         return False
     try:
         program = cached(source, "program", lambda: build_program(source))
-        needed = needed_on_links(program, exp.profile,
-                                 cached(source, ("needed",), lambda: choose_effects(program, source.profile)))
-        chosen = needed if fidelity == "full" else needed - QUEUES_OMITS  # (choose_effects' rule)
+        needed = needed_on_links(program, exp.profile, _needed(source, program))
+        chosen = choose_effects(program, exp.profile, fidelity, None, needed)
         model = None
         if fidelity == "analytic" and not program.refresh_hz:
             theirs = cached(source, ("effects", fidelity, ()),
-                            lambda: choose_effects(program, source.profile, fidelity))
+                            lambda: choose_effects(program, source.profile, fidelity, None, _needed(source, program)))
             if theirs != chosen:
                 return False
             model = cached(source, ("analytic", chosen),
@@ -156,6 +163,7 @@ def prepare_like(exp: Experiment, source: Experiment, fidelity: str) -> bool:
     except MgpusimError:
         return False
     cached(exp, "program", lambda: program)
+    cached(exp, ("needed",), lambda: needed)
     cached(exp, ("effects", fidelity, ()), lambda: chosen)
     cached(exp, ("approximations", chosen), lambda: approximations(program, exp.profile, chosen, needed))
     if model is not None:
@@ -165,7 +173,7 @@ def prepare_like(exp: Experiment, source: Experiment, fidelity: str) -> bool:
 
 def _analytic_model(exp: Experiment, program: FrameProgram, chosen: frozenset[str]) -> Any:
     from mgpusim.sim.analytic import Analytic  # noqa: PLC0415 (only this level needs it)
-    return Analytic(program, CostModel(exp.profile), chosen)
+    return Analytic(program, CostModel(exp.profile), chosen, _needed(exp, program))
 
 
 def _band(exp: Experiment, program: FrameProgram, chosen: frozenset[str], fidelity: str) -> dict[str, float]:

@@ -66,7 +66,8 @@ def test_repeated_calls_give_the_same_result_and_reuse_the_program() -> None:
 
 
 def test_an_entry_goes_with_its_experiment() -> None:
-    exp = load_experiment(ROOT / "experiments" / "afr_tc1.toml")
+    # a copy of its own: load_experiment keeps the experiment it loaded while the file is unchanged
+    exp = replace(load_experiment(ROOT / "experiments" / "afr_tc1.toml"), name="afr_tc1 copy")
     simulate(exp, fidelity="analytic")
     key = id(exp)
     assert key in prepared._STORE

@@ -7,6 +7,8 @@ like values written in the file.
 from __future__ import annotations
 
 import copy
+import hashlib
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -33,11 +35,66 @@ class Experiment:
     profile_overrides: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
 
 
+#: The most experiments :func:`load_experiment` keeps to hand back while their files are unchanged.
+LOADED_KEPT = 64
+#: (file, cwd, overrides, profile argument) -> (profile reference, its resolved file, each file
+#: read and the digest of its bytes, the experiment)
+_LOADED: dict[tuple, tuple[Path, Path, tuple[tuple[Path, bytes], ...], "Experiment"]] = {}
+
+
 def load_experiment(path: str | Path, overrides: Mapping[str, Any] | None = None,
                     profile: HardwareProfile | str | Path | None = None) -> Experiment:
     """Read an experiment file, apply `overrides` (dotted key -> value) and validate it all.
-    Keys under ``profile.`` change the hardware profile it names (hardware what-ifs)."""
-    path = Path(path)
+    Keys under ``profile.`` change the hardware profile it names (hardware what-ifs).
+
+    The same call on files whose bytes are unchanged (a digest of each, the experiment's and
+    its profile's, the profile found again where the experiment names it) returns the
+    experiment it returned before. Why: an experiment is a frozen value, and simulate() keeps
+    what it derives from one (program, effects, the recurrence's model) per experiment object,
+    so a script that loads a file again and simulates it pays only for the run."""
+    key = _loaded_key(path, overrides, profile)
+    held = _LOADED.get(key) if key is not None else None
+    if held is not None and _unchanged(*held[:3], Path(path).parent):
+        return held[3]
+    exp = _load_experiment(Path(path), overrides, profile)
+    if key is not None:
+        ref = Path(profile) if isinstance(profile, (str, Path)) else Path(str(exp.raw.get("profile", "")))
+        source = Path(exp.profile.source)
+        files = tuple((f, _digest(f)) for f in (Path(path), source))
+        if len(_LOADED) >= LOADED_KEPT:
+            _LOADED.pop(next(iter(_LOADED)))
+        _LOADED[key] = (ref, source, files, exp)
+    return exp
+
+
+def _loaded_key(path: str | Path, overrides: Mapping[str, Any] | None, profile: Any) -> tuple | None:
+    """What a loaded experiment is kept under (None: not kept, e.g. a profile object given)."""
+    if profile is not None and not isinstance(profile, (str, Path)):
+        return None
+    try:
+        return (str(path), os.getcwd(), repr(sorted((overrides or {}).items())), str(profile))
+    except (OSError, TypeError):  # no working folder; overrides whose keys do not sort
+        return None
+
+
+def _unchanged(ref: Path, source: Path, files: tuple[tuple[Path, bytes], ...], base: Path) -> bool:
+    """Whether the files an experiment was read from are as they were, its profile still the
+    file its reference finds."""
+    try:
+        if _resolve(ref, base, "") != source:
+            return False
+        return all(_digest(f) == digest for f, digest in files)
+    except (InputError, OSError):
+        return False
+
+
+def _digest(path: Path) -> bytes:
+    return hashlib.blake2b(path.read_bytes(), digest_size=16).digest()
+
+
+def _load_experiment(path: Path, overrides: Mapping[str, Any] | None,
+                     profile: HardwareProfile | str | Path | None) -> Experiment:
+    """load_experiment's reading and validation, with nothing kept."""
     data = copy.deepcopy(read_toml(path))
     experiment_overrides, profile_overrides = split_profile(overrides)
     for key, value in experiment_overrides.items():

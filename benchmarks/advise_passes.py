@@ -16,7 +16,6 @@ With --frame-only it writes the experiment to --out and stops (to compare advice
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 import tempfile
@@ -26,24 +25,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.advise_speed import PASSES  # noqa: E402
+from mgpusim.bench.advise_frame import frame_csv  # noqa: E402
 from mgpusim.cli import main as cli  # noqa: E402
-
-
-def _tagged(names: str, copy: int) -> str:
-    """A ;-separated list of resource names, each of copy `copy` of the frame."""
-    return ";".join(f"{n}_{copy}" for n in names.split(";") if n)
-
-
-def frame_csv(passes: int) -> str:
-    """A capture table of `passes` passes: copies of the 20-pass frame, the last one cut short."""
-    copies = math.ceil(passes / len(PASSES))
-    rows = []
-    for k in range(copies):
-        for name, ms, reads, writes, size, share in PASSES:
-            rows.append(f"{name}_{k},graphics,{ms / copies:.5f},{_tagged(reads, k)},{_tagged(writes, k)},"
-                        f"{size},{share}\n")
-    return "pass,queue,gpu_ms,reads,writes,bytes,pixel_share\n" + "".join(rows[:passes])
 
 
 def make_frame(passes: int, folder: Path, out: Path | None = None) -> Path:

@@ -154,3 +154,16 @@ def hand_written_sort_first(exp: Any, frames: int | None = None,
         env.process(secondary_transfer(i))
     env.run()
     return presents
+
+
+def reference_loop() -> float:
+    """CPU seconds of a fixed pure-Python loop (dict and list work, as the model's): the figure
+    every speed is divided by, so that a speed measured on a shared machine whose speed moves
+    within minutes can be compared across runs (the benchmarks time the same loop)."""
+    t0 = time.process_time()
+    d: dict[int, int] = {}
+    acc = []
+    for i in range(300_000):
+        d[i & 1023] = d.get(i & 1023, 0) + i
+        acc.append(i ^ (i >> 3))
+    return time.process_time() - t0 + 0 * len(acc)

@@ -1,6 +1,8 @@
-"""`mgpusim bench [--frames N] [--json]`: model speed against SimPy on this machine: per
-simulated frame against a hand-written SimPy model of the same frame, per event and per
-resource use against raw SimPy."""
+"""`mgpusim bench [--frames N] [--json] [--advise]`: model speed against SimPy on this machine:
+per simulated frame against a hand-written SimPy model of the same frame, per event and per
+resource use against raw SimPy; and the speeds a user feels (`--what figures`: sweeps, start-up,
+one simulate() call, AFR with the fast-forward, `--advise`: advise on a 20-pass frame), each
+with its ratio to a fixed reference loop timed in the same run (docs/bench.md)."""
 from __future__ import annotations
 
 import argparse
@@ -20,24 +22,29 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=int, default=5000, help="simulated frames per timed run (default: 5000)")
     p.add_argument("--repeats", type=int, default=3, help="best of this many interleaved runs")
     p.add_argument("--json", action="store_true", help="print the figures as one JSON object")
-    p.add_argument("--what", choices=("all", "simpy", "long", "analytic", "effects"), default="all",
+    p.add_argument("--what", choices=("all", "simpy", "long", "analytic", "effects", "figures"), default="all",
                    help="simpy: per simulated frame against a hand-written SimPy model, per event and per "
                         "resource use vs raw SimPy; long: a 10^6-frame run with fast-forward "
                         "(wall, peak memory); analytic: configurations/s; effects: time saved by leaving "
-                        "unneeded effects out (default: all)")
+                        "unneeded effects out; figures: sweep points/s, start-up, simulate() calls, AFR "
+                        "with the fast-forward, each against a reference loop (default: all)")
+    p.add_argument("--advise", action="store_true",
+                   help="figures: also time `mgpusim advise` on a 20-pass frame (about 10-30 s)")
     p.add_argument("--long-frames", type=int, default=1_000_000, help="frames of the long run")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar on stderr")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from mgpusim.bench.figures import figures  # noqa: PLC0415
     from mgpusim.bench.model_speed import analytic_speed, effect_costs, effects_saving, long_run, run_bench  # noqa: PLC0415
     if args.frames < 2 or args.repeats < 1:
         raise InputError(f"need --frames >= 2 and --repeats >= 1, got {args.frames} and {args.repeats}")
     from mgpusim.io.progress import bar  # noqa: PLC0415
     experiment = resolve_experiment(args.experiment)
-    wanted = {w: args.what in ("all", w) for w in ("simpy", "long", "analytic", "effects")}
-    steps = (2 * args.repeats + 2) * wanted["simpy"] + wanted["long"] + wanted["analytic"] + 2 * wanted["effects"]
+    wanted = {w: args.what in ("all", w) for w in ("simpy", "long", "analytic", "effects", "figures")}
+    steps = ((2 * args.repeats + 2) * wanted["simpy"] + wanted["long"] + wanted["analytic"] + 2 * wanted["effects"]
+             + (4 + args.advise) * wanted["figures"])
     out: dict = {}
     with bar(steps, "bench", "step", args.progress) as shown:
         def step(name: str) -> None:
@@ -56,6 +63,8 @@ def run(args: argparse.Namespace) -> int:
             out["effects"] = effects_saving(experiment, repeats=args.repeats)
             step("each needed effect")
             out["effect_costs"] = effect_costs(repeats=args.repeats)
+        if wanted["figures"]:
+            out["figures"] = figures(args.advise, lambda s: step(f"figures: {s}"))
     if args.json:
         print(json.dumps(out, sort_keys=True))
         return 0
@@ -73,6 +82,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"analytic: {fig['sweep_configurations_per_s']:,.0f} configurations/s in a "
               f"{fig['sweep_configurations']:,}-point sweep ({fig['sweep_s']:.2f} s); "
               f"{fig['simulate_analytic_per_s']:,.0f}/s one at a time through simulate()")
+    if "figures" in out:
+        _print_figures(out["figures"])
     if "effects" in out:
         fig = out["effects"]
         print(f"effects: {fig['frames']} frames with only the needed effects ({', '.join(fig['needed'])}) "
@@ -101,3 +112,17 @@ def _print_simpy(out: dict) -> None:
               f"{fig['link_uses_per_frame']} on links): {fig['uses_per_s']:,.0f}/s, "
               f"{fig['cost_ratio_vs_raw_simpy']:.2f}x raw SimPy's cost (per task, copies counted once: "
               f"{fig['cost_ratio_per_task_vs_raw_simpy']:.2f}x)")
+
+
+def _print_figures(figs: dict, prefix: str = "") -> None:
+    """Each figure on a line: its name, value and ratio to the reference loop."""
+    if not prefix:
+        print(f"figures (reference loop {figs['reference_loop_s'] * 1e3:.1f} ms CPU, {figs['cpus']} CPUs):")
+    for key, value in figs.items():
+        if not isinstance(value, dict):
+            continue
+        if "reference_ratio" not in value:
+            _print_figures(value, f"{prefix}{key}.")
+            continue
+        kind = "per reference loop" if value["unit"].endswith("/s") else "reference loops"
+        print(f"  {prefix}{key}: {value['value']:,.6g} {value['unit']} ({value['reference_ratio']:,.4g} {kind})")

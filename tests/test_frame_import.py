@@ -105,7 +105,8 @@ def test_our_own_perfetto_export_imports_as_the_run_it_came_from(tmp_path):
     trace = trace[trace["run"] == "pipe_1gpu/steady"]
     trace = trace[(trace["frame"] < trace["frame"].min() + 4) & (trace["step"] == "render")]
     want = ((trace["end_ns"] - trace["start_ns"]) / 1e6).groupby(trace["task"]).median()
-    assert {p.name: round(p.gpu_ms, 6) for p in frame.passes} == {k: round(v, 6) for k, v in want.items()}
+    got = {p.name: p.gpu_ms for p in frame.passes}  # medians of whole ns: half a ns apart at most
+    assert got == pytest.approx(dict(want.items()), abs=1e-9)
     assert any("present" in n for n in frame.notes)
 
 
@@ -278,3 +279,96 @@ def test_a_bad_size_in_the_capture_is_one_line(tmp_path, capsys, header, rows, w
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and words in err[0] and "f.csv" in err[0]
     assert not (tmp_path / "x.toml").exists()
+
+
+# ----- what the capture corpus found (tests/test_corpus_captures.py has the whole corpus) -------
+def test_epoch_microseconds_keep_every_nanosecond(tmp_path):
+    """Times since 1970 in µs (1.7e15) are 1.7e18 ns, where a double is 256 ns coarse: the
+    reader keeps times from the trace's first one, so a 1 µs pass stays 1 µs."""
+    t0 = 1_700_000_000_000_000
+    events = _meta(1, 1, "GPU", "graphics") + [
+        {"ph": "B", "name": "a", "pid": 1, "tid": 1, "ts": t0}, {"ph": "E", "pid": 1, "tid": 1, "ts": t0 + 1},
+        {"ph": "X", "name": "b", "pid": 1, "tid": 1, "ts": t0 + 1, "dur": 1.001}]
+    slices, _ = read_chrome(_chrome(tmp_path / "t.json", events))
+    assert list(slices["ms"]) == [0.001, 0.001001]
+    bad = _meta(1, 1, "GPU", "graphics") + [{"ph": "X", "name": "a", "pid": 1, "tid": 1, "ts": 1.7e18, "dur": 1}]
+    with pytest.raises(InputError, match=r"traceEvents\[2\].ts: .*written in ns"):
+        read_chrome(_chrome(tmp_path / "ns.json", bad))
+
+
+def test_gpu_ms_is_written_to_the_nanosecond(tmp_path):
+    csv = tmp_path / "f.csv"
+    csv.write_text("pass,queue,gpu_ms\na,graphics,13.944869\nb,graphics,2\n")
+    assert _import(csv, tmp_path / "f.toml", "--size", "8x8") == 0
+    text = (tmp_path / "f.toml").read_text()
+    assert "gpu_ms = 13.944869\n" in text and "gpu_ms = 2\n" in text  # six digits where they hold it
+
+
+def test_a_repeated_pass_never_takes_the_name_of_a_captured_one(tmp_path):
+    csv = tmp_path / "f.csv"
+    csv.write_text("pass,queue,gpu_ms\na,graphics,1\na,graphics,2\na#2,graphics,4\n")
+    assert _import(csv, tmp_path / "f.toml", "--size", "8x8") == 0
+    assert {n: p.params["gpu_ms"] for n, p in _passes(tmp_path / "f.toml").items()} == {
+        "a": 1, "a#2_2": 2, "a#2": 4}
+
+
+def test_names_and_paths_with_line_breaks_stay_inside_their_comments(tmp_path):
+    """A newline in the capture's path, a track's name or a pass's name would end a comment
+    of the experiment file and start a line of TOML."""
+    events = _meta(1, 1, "GPU\nname = 1", "graphics\x7f") + _meta(2, 3, "Game", 'worker\n[scene]') + [
+        {"ph": "X", "name": "p\nq\x7f", "pid": 1, "tid": 1, "ts": 0, "dur": 5},
+        {"ph": "X", "name": "w", "pid": 2, "tid": 3, "ts": 0, "dur": 5}]
+    trace = _chrome(tmp_path / "a\nb.json", events)
+    assert _import(trace, tmp_path / "t.toml", "--size", "8x8") == 0
+    assert list(_passes(tmp_path / "t.toml")) == ["p\nq\x7f"]
+    assert "worker\\u000a[scene]" in (tmp_path / "t.toml").read_text()
+
+
+def test_a_lone_surrogate_in_a_pass_name_is_refused_naming_the_event(tmp_path):
+    trace = tmp_path / "t.json"
+    trace.write_text(json.dumps({"traceEvents": _meta(1, 1, "GPU", "graphics") + [
+        {"ph": "X", "name": "a\ud800", "pid": 1, "tid": 1, "ts": 0, "dur": 5}]}))
+    with pytest.raises(InputError, match=r"traceEvents\[2\].name: .*surrogate"):
+        read_chrome(trace)
+
+
+def test_a_zero_length_slice_is_an_instant_not_a_group(tmp_path):
+    events = _meta(1, 1, "GPU", "graphics") + [{"ph": "X", "name": "a", "pid": 1, "tid": 1, "ts": 0, "dur": 1000},
+                                              {"ph": "X", "name": "mark", "pid": 1, "tid": 1, "ts": 0, "dur": 0}]
+    slices, meta = read_chrome(_chrome(tmp_path / "t.json", events))
+    assert list(slices["name"]) == ["a"] and "GPU/graphics: 1 zero-length slice(s)" in meta["left_out"]
+
+
+@pytest.mark.parametrize("rows,words", [
+    ("a,graphics,1,0\nb,graphics,1,0\n", "only view 0"),
+    ("a,graphics,1,0\na,graphics,1,1\nb,graphics,1,0\n", "'b' of frame 0 is in view 0 but not in view 1"),
+    ("a,graphics,1,0\na,graphics,1,0\nb,graphics,1,1\nb,graphics,1,1\n", "is in view 0 but not in view 1"),
+])
+def test_a_stereo_capture_needs_both_eyes_alike(tmp_path, capsys, rows, words):
+    """The schedule runs each pass once per eye: a capture of one eye, or of eyes with other
+    passes, would be run as if both eyes had them all."""
+    csv = tmp_path / "f.csv"
+    csv.write_text("pass,queue,gpu_ms,view\n" + rows)
+    assert _import(csv, tmp_path / "x.toml", "--size", "8x8") == 2
+    assert words in capsys.readouterr().err
+    assert not (tmp_path / "x.toml").exists()
+
+
+def test_csv_names_are_their_text_and_a_long_row_is_refused(tmp_path, capsys):
+    csv = tmp_path / "f.csv"
+    csv.write_text("pass,queue,gpu_ms\n007,graphics,1\n7,graphics,1\nnan,graphics,1\n")
+    assert _import(csv, tmp_path / "f.toml", "--size", "8x8") == 0
+    assert list(_passes(tmp_path / "f.toml")) == ["007", "7", "nan"]
+    csv.write_text("pass,queue,gpu_ms\na,graphics,1,5\n")  # pandas would shift it: pass 'graphics'
+    assert _import(csv, tmp_path / "g.toml", "--size", "8x8") == 2
+    assert "more fields than the header" in capsys.readouterr().err
+
+
+def test_an_example_capture_is_found_from_any_folder(tmp_path, monkeypatch):
+    """The README's `mgpusim frame import examples/frames/...` from a wheel install, where
+    no checkout is around: the shipped copy (mgpusim/frames/examples) is read."""
+    from mgpusim.frames.formats import EXAMPLES, resolve_capture
+    monkeypatch.chdir(tmp_path)
+    got = resolve_capture(Path("examples/frames/pipelining_lavapipe.csv"))
+    assert got == EXAMPLES / "pipelining_lavapipe.csv" and got.is_file()
+    assert resolve_capture(Path("examples/frames/none.csv")) == Path("examples/frames/none.csv")

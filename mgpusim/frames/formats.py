@@ -11,16 +11,22 @@ and the field (or row) at fault.
 """
 from __future__ import annotations
 
+import csv
+import io
+import itertools
 import math
 import re
+from array import array
 from pathlib import Path
 from typing import Any, Iterable, cast
 
+import numpy as np
 import pandas as pd
 
-from mgpusim.io import table_files
+from mgpusim.frames import trace_json
 from mgpusim.measure import run_archive
 from mgpusim.model.errors import InputError
+from mgpusim.model.limits import MAX_BYTES, MAX_SIDE, MAX_TASK_NS
 from mgpusim.validation.measured import TRACE_FILES
 from mgpusim.validation.measured_check import check_trace, number_column, read_json_object, read_table
 
@@ -58,6 +64,7 @@ def read_capture(path: Path, fmt: str, cpu_threads: Iterable[str] = ("main",)
                  ) -> tuple[pd.DataFrame, dict[str, Any]]:
     """The capture's slices and what else it says (`width`/`height` where it knows them, the
     `source` experiment of a measured run, `left_out`: work that is no pass of the frame)."""
+    path = resolve_capture(path)
     if fmt == "chrome":
         return read_chrome(path, tuple(cpu_threads))
     if fmt == "csv":
@@ -65,6 +72,27 @@ def read_capture(path: Path, fmt: str, cpu_threads: Iterable[str] = ("main",)
     if fmt == "run":
         return read_run(path)
     raise InputError(f"must be one of {', '.join(FORMATS)}, got {fmt!r}", field="--format")
+
+
+#: The example captures: the checkout's examples/frames (through a link), or the wheel's copy.
+EXAMPLES = Path(__file__).resolve().parent / "examples"
+
+
+def resolve_capture(path: Path) -> Path:
+    """`path` where anything is there; else, for a checkout's example path
+    (`examples/frames/<file>`), the shipped example, so that the README's import runs from a
+    wheel install too."""
+    try:
+        if path.exists() or path.is_symlink():
+            return path
+    except OSError:  # a name too long: the reader says so
+        return path
+    text = path.as_posix()
+    if "examples/frames/" in text:
+        shipped = EXAMPLES / text.split("examples/frames/", 1)[1]
+        if shipped.is_file():
+            return shipped
+    return path
 
 
 def slices_table(rows: list[dict[str, Any]]) -> pd.DataFrame:
@@ -79,51 +107,16 @@ def read_chrome(path: Path, cpu_threads: tuple[str, ...] = ("main",)) -> tuple[p
     """Complete ("X") events and begin/end ("B"/"E") pairs; tracks named by the metadata
     events. On each track only the innermost slices are work (a slice holding others is a
     group: a frame or a pass group); a group named "frame..." numbers the frames of what it
-    holds unless the slices' `args.frame` does."""
+    holds unless the slices' `args.frame` does. A slice of no length is an instant: no work,
+    no group. Events are decoded one at a time (:mod:`.trace_json`) and kept as columns."""
     file = str(path)
-    data = _chrome_data(path)
-    events = _chrome_events(data, file)
-    names: dict[tuple[int, int], str] = {}
-    procs: dict[int, str] = {}
-    spans: dict[tuple[int, int], list[dict[str, Any]]] = {}
-    open_: dict[tuple[int, int], list[dict[str, Any]]] = {}
-    for i, ev in enumerate(events):
-        if not isinstance(ev, dict):
-            raise InputError(f"expected an event object, got {type(ev).__name__}", file=file,
-                             field=f"traceEvents[{i}]")
-        ph = ev.get("ph")
-        if ph == "M":
-            _metadata(ev, procs, names)
-            continue
-        if ph not in ("X", "B", "E"):
-            continue
-        track = (_int_field(ev, "pid", i, file), _int_field(ev, "tid", i, file))
-        if ph == "E":
-            stack = open_.get(track)
-            if not stack:
-                raise InputError("an end event with no begin event open on its track", file=file,
-                                 field=f"traceEvents[{i}]")
-            begun = stack.pop()
-            begun["end"] = _time_field(ev, "ts", i, file)
-            if begun["end"] < begun["start"]:
-                raise InputError("ends before its begin event", file=file, field=f"traceEvents[{i}].ts")
-            spans.setdefault(track, []).append(begun)
-            continue
-        start = _time_field(ev, "ts", i, file)
-        item: dict[str, Any] = {"name": str(ev.get("name", "")), "cat": str(ev.get("cat", "")), "start": start,
-                                "args": ev.get("args") if isinstance(ev.get("args"), dict) else {}, "index": i}
-        if ph == "B":
-            open_.setdefault(track, []).append(item)
-            continue
-        item["end"] = start + _time_field(ev, "dur", i, file)
-        spans.setdefault(track, []).append(item)
-    unclosed = [t for t, stack in open_.items() if stack]
-    if unclosed:
-        first = open_[unclosed[0]][0]
-        raise InputError("a begin event is never ended", file=file,
-                         field=f"traceEvents[{first['index']}]")
-    rows, left_out = _chrome_rows(spans, procs, names, cpu_threads, file)
-    return slices_table(rows), {"left_out": left_out, **_chrome_size(data, file)}
+    tracks = _Tracks(file)
+    text = trace_json.read_text(path, "a Chrome trace (JSON)", MAX_CAPTURE_BYTES)
+    top = trace_json.stream_events(text, file, tracks.add)
+    del text
+    tracks.finish()
+    columns, left_out = _chrome_rows(tracks, cpu_threads, file)
+    return _columns_table(columns), {"left_out": left_out, **_chrome_size(top, file)}
 
 
 #: The top-level objects of a Chrome trace where its frame's resolution may be: `width` and
@@ -151,7 +144,7 @@ def _chrome_size(data: Any, file: str) -> dict[str, int]:
 def _side(value: Any, file: str, field: str) -> int:
     if isinstance(value, str) and value.strip().isdigit():
         value = int(value.strip())
-    if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= 65536:
+    if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= MAX_SIDE:
         raise InputError(f"expected a whole number of pixels 1..65536, got {str(value)[:40]!r}",
                          file=file, field=field)
     return value
@@ -167,20 +160,199 @@ def _size_text(value: Any, file: str, field: str) -> dict[str, int]:
 #: The largest capture read (a Chrome trace of 10^6 events is about 150 MiB): what lies beyond
 #: is a disk image or an endless device given by mistake, refused before memory runs out.
 MAX_CAPTURE_BYTES = 1 << 30
+#: The latest time read, in the format's microseconds (2^53: 285 years after 1970, where a
+#: double still holds a whole microsecond): beyond it a trace was written in ns or ps.
+MAX_TS_US = float(2 ** 53)
+#: The longest slice read (the model's longest task, 1000 s).
+MAX_DUR_US = MAX_TASK_NS / 1000
+#: The largest frame number (a double holds it exactly).
+MAX_FRAME = 2 ** 53
 
 
-def _chrome_data(path: Path) -> Any:
-    """The trace file's JSON (a capture may be far larger than a record: up to MAX_CAPTURE_BYTES)."""
-    return table_files.read_json(path, "a Chrome trace (JSON)", MAX_CAPTURE_BYTES)
+class _Track:
+    """One track's slices, as columns: times in ns from the trace's first event, the event's
+    index, its name and category, and its `args` read (or the InputError they make, raised
+    only if the slice turns out to be work)."""
+
+    def __init__(self) -> None:
+        self.start: array[float] = array("d")
+        self.end: array[float] = array("d")
+        self.ms: array[float] = array("d")
+        self.index: array[int] = array("q")
+        self.frame: array[int] = array("q")
+        self.name: list[str] = []
+        self.cat: list[str] = []
+        self.fields: list[tuple[Any, ...] | InputError] = []
+
+    def append(self, start: float, end: float, ms: float,
+               item: tuple[int, str, str, int, tuple | InputError]) -> None:
+        index, name, cat, frame, fields = item
+        self.start.append(start)
+        self.end.append(end)
+        self.ms.append(ms)
+        self.index.append(index)
+        self.frame.append(frame)
+        self.name.append(name)
+        self.cat.append(cat)
+        self.fields.append(fields)
 
 
-def _chrome_events(data: Any, file: str) -> list[Any]:
-    """The trace's events: an object's `traceEvents`, or the bare list."""
-    events = data.get("traceEvents") if isinstance(data, dict) else data
-    if not isinstance(events, list):
-        raise InputError("expected a list of events or an object with a traceEvents list",
-                         file=file, field="traceEvents")
-    return events
+class _Tracks:
+    """The trace's events gathered by track as they are decoded (:meth:`add`)."""
+
+    def __init__(self, file: str) -> None:
+        self.file = file
+        self.procs: dict[int, str] = {}
+        self.names: dict[tuple[int, int], str] = {}
+        self.tracks: dict[tuple[int, int], _Track] = {}
+        self.open: dict[tuple[int, int], list[tuple[float, float, tuple[Any, ...]]]] = {}
+        self.origin: float | None = None
+        self.shared: dict[str, str] = {}  # one object for equal names (memory)
+        self.args: dict[str, tuple[Any, ...]] = {}  # args read, by their text
+
+    def add(self, ev: Any, i: int) -> None:
+        if not isinstance(ev, dict):
+            raise InputError(f"expected an event object, got {type(ev).__name__}", file=self.file,
+                             field=f"traceEvents[{i}]")
+        ph = ev.get("ph")
+        if ph == "M":
+            _metadata(ev, self.procs, self.names)
+        elif ph in ("X", "B", "E"):
+            self._slice(ev, ph, i)
+
+    def _slice(self, ev: dict[str, Any], ph: str, i: int) -> None:
+        # the hot path of a large capture: plain values checked inline, the rest (and every
+        # error) by the field readers
+        pid, tid, ts = ev.get("pid", 0), ev.get("tid", 0), cast(Any, ev.get("ts"))
+        track = (pid if type(pid) is int else _int_field(ev, "pid", i, self.file),
+                 tid if type(tid) is int else _int_field(ev, "tid", i, self.file))
+        if not (type(ts) in _NUMBERS and 0 <= ts <= MAX_TS_US):
+            ts = _time_field(ev, "ts", i, self.file, MAX_TS_US)
+        if self.origin is None:
+            self.origin = ts
+        if ph == "E":
+            self._end(track, ts, i)
+        elif ph == "B":
+            self.open.setdefault(track, []).append((ts, self._ns(ts), self._item(ev, i)))
+        else:
+            dur = cast(Any, ev.get("dur"))
+            if not (type(dur) in _NUMBERS and 0 <= dur <= MAX_DUR_US):
+                dur = _time_field(ev, "dur", i, self.file, MAX_DUR_US)
+            start = (ts - cast(float, self.origin)) * 1000.0
+            self._track(track).append(start, start + dur * 1000.0, dur / 1000, self._item(ev, i))
+
+    def _end(self, track: tuple[int, int], ts: float, i: int) -> None:
+        stack = self.open.get(track)
+        if not stack:
+            raise InputError("an end event with no begin event open on its track", file=self.file,
+                             field=f"traceEvents[{i}]")
+        begun, start, item = stack.pop()
+        if ts < begun:
+            raise InputError("ends before its begin event", file=self.file, field=f"traceEvents[{i}].ts")
+        if ts - begun > MAX_DUR_US:
+            raise InputError(f"a slice longer than {MAX_DUR_US:g} microseconds (the longest task "
+                             "the model runs)", file=self.file, field=f"traceEvents[{i}].ts")
+        self._track(track).append(start, self._ns(ts), (ts - begun) / 1000, item)
+
+    def _track(self, track: tuple[int, int]) -> _Track:
+        found = self.tracks.get(track)
+        if found is None:
+            found = self.tracks[track] = _Track()
+        return found
+
+    def _ns(self, ts_us: float) -> float:
+        """A time as ns after the trace's first one: exact for whole microseconds since 1970
+        (whose ns would lose 256 ns to a double's rounding)."""
+        if self.origin is None:
+            self.origin = ts_us
+        return (ts_us - self.origin) * 1000.0
+
+    def _item(self, ev: dict[str, Any], i: int) -> tuple[int, str, str, int, tuple | InputError]:
+        shared = self.shared
+        name = ev.get("name")
+        if not (type(name) is str and name and name.isascii()):
+            name = _event_name(ev, i, self.file)
+        name = shared.setdefault(name, name)
+        cat = ev.get("cat", "")
+        cat = shared.setdefault(cat, cat) if type(cat) is str else str(cat)
+        args = ev.get("args")
+        if type(args) is not dict or not args:
+            return i, name, cat, -1, ()
+        frame = args.pop("frame", None)
+        if frame is None:
+            frame = -1
+        elif not (type(frame) is int and 0 <= frame <= MAX_FRAME):
+            frame = _frame_arg(frame, self.file, f"traceEvents[{i}].args.frame", lazy=True)
+        key = repr(args)  # equal args read once: a capture repeats its passes' args every frame
+        fields = self.args.get(key)
+        if fields is None:
+            try:
+                fields = self.args[key] = _chrome_args(args, self.file, f"traceEvents[{i}].args")
+            except InputError as exc:
+                return i, name, cat, -1, exc
+        if isinstance(frame, InputError):
+            return i, name, cat, -1, frame
+        return i, name, cat, frame, fields
+
+    def _shared(self, value: Any) -> Any:
+        return self.shared.setdefault(value, value)
+
+    def finish(self) -> None:
+        unclosed = [(items[0][2][0], t) for t, items in self.open.items() if items]
+        if unclosed:
+            raise InputError("a begin event is never ended", file=self.file,
+                             field=f"traceEvents[{min(unclosed)[0]}]")
+
+
+def _event_name(ev: dict[str, Any], i: int, file: str) -> str:
+    """The slice's name: a string (a number as its text; none: "(unnamed)"), valid Unicode."""
+    name = ev.get("name")
+    if name is None:
+        return "(unnamed)"
+    if isinstance(name, (int, float)) and not isinstance(name, bool):
+        return str(name)
+    if not isinstance(name, str):
+        raise InputError(f"expected a name (a string), got {str(name)[:40]!r}", file=file,
+                         field=f"traceEvents[{i}].name")
+    if not name.isascii() and _SURROGATE.search(name):
+        raise InputError("not valid Unicode: a lone surrogate (\\ud800-\\udfff) in the name", file=file,
+                         field=f"traceEvents[{i}].name")
+    return name or "(unnamed)"
+
+
+_NUMBERS = (int, float)
+_SURROGATE = re.compile(r"[\ud800-\udfff]")
+#: The args a slice's row reads; a NaN in one of them is no value the format has.
+_ARGS = ("reads", "writes", "bytes", "view", "pixel_share")
+
+
+def _chrome_args(args: dict[str, Any], file: str, where: str) -> tuple[Any, ...]:
+    """(reads, writes, bytes, view, pixel_share) of a slice."""
+    for key in _ARGS:
+        value = args.get(key)
+        if isinstance(value, float) and math.isnan(value):
+            raise InputError("expected a value, got NaN", file=file, field=f"{where}.{key}")
+    reads = _names(args.get("reads"), file, f"{where}.reads")
+    writes = _names(args.get("writes"), file, f"{where}.writes")
+    sizes = _sizes(args.get("bytes") if writes else None, len(writes), file, f"{where}.bytes")
+    return (reads, writes, sizes, _view(args.get("view"), file, f"{where}.view"),
+            _share(args.get("pixel_share"), file, f"{where}.pixel_share"))
+
+
+def _frame_arg(value: Any, file: str, field: str, lazy: bool = False) -> Any:
+    """A slice's frame number (-1: none given); `lazy`: its error returned, not raised (the
+    slice may be no work)."""
+    if value is None:
+        return -1
+    if isinstance(value, str) and value.strip().isdigit():
+        value = int(value)
+    if not isinstance(value, int) or isinstance(value, bool) or not 0 <= value <= MAX_FRAME:
+        error = InputError(f"expected a frame number (a whole number 0..2^53), got {str(value)[:40]!r}",
+                           file=file, field=field)
+        if lazy:
+            return error
+        raise error
+    return value
 
 
 def _metadata(ev: dict[str, Any], procs: dict[int, str], names: dict[tuple[int, int], str]) -> None:
@@ -207,14 +379,15 @@ def _int_field(ev: dict[str, Any], key: str, i: int, file: str) -> int:
     return value
 
 
-def _time_field(ev: dict[str, Any], key: str, i: int, file: str) -> float:
-    """A time in microseconds (the format's unit), as ns."""
+def _time_field(ev: dict[str, Any], key: str, i: int, file: str, most: float) -> float:
+    """A time in microseconds (the format's unit), 0..`most`."""
     value = ev.get(key)
-    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value) \
-            or value < 0:
-        raise InputError(f"expected a finite number of microseconds >= 0, got {str(value)[:40]!r}",
-                         file=file, field=f"traceEvents[{i}].{key}")
-    return float(value) * 1000.0
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not 0 <= value <= most:
+        unit = " (was the trace written in ns?)" if isinstance(value, (int, float)) and value > most \
+            and not isinstance(value, bool) and math.isfinite(value) else ""
+        raise InputError(f"expected a finite number of microseconds 0..{most:.4g}, got "
+                         f"{str(value)[:40]!r}{unit}", file=file, field=f"traceEvents[{i}].{key}")
+    return value
 
 
 def queue_of_track(process: str, thread: str, cpu_threads: tuple[str, ...]) -> str | None:
@@ -231,77 +404,101 @@ def queue_of_track(process: str, thread: str, cpu_threads: tuple[str, ...]) -> s
     return None
 
 
-def _chrome_rows(spans: dict[tuple[int, int], list[dict[str, Any]]], procs: dict[int, str],
-                 names: dict[tuple[int, int], str], cpu_threads: tuple[str, ...], file: str
-                 ) -> tuple[list[dict[str, Any]], dict[str, float]]:
-    rows: list[dict[str, Any]] = []
+def _chrome_rows(tracks: _Tracks, cpu_threads: tuple[str, ...], file: str
+                 ) -> tuple[dict[str, list[Any]], dict[str, float]]:
+    """The work slices as the slice table's columns, and what was left out (ms by track)."""
+    columns: dict[str, list[Any]] = {c: [] for c in SLICE_COLUMNS}
     left_out: dict[str, float] = {}
     gpus: set[str] = set()
-    for (pid, tid), items in spans.items():
-        process, thread = procs.get(pid, f"pid {pid}"), names.get((pid, tid), "")
+    for (pid, tid), track in tracks.tracks.items():
+        process, thread = tracks.procs.get(pid, f"pid {pid}"), tracks.names.get((pid, tid), "")
         queue = queue_of_track(process, thread, cpu_threads)
         if queue is None or thread.startswith("link"):
-            left_out[f"{process}/{thread or tid}"] = sum(s["end"] - s["start"] for s in items) / 1e6
+            left_out[f"{process}/{thread or tid}"] = float(np.asarray(track.ms).sum())
             continue
         if queue != "cpu":
             gpus.add(process)
-        for item, frame in _leaves(items):
-            if item["cat"] in _SKIPPED_CATEGORIES:
-                key = f"{process}/{thread}: {item['cat']}"
-                left_out[key] = left_out.get(key, 0.0) + (item["end"] - item["start"]) / 1e6
-                continue
-            rows.append(_chrome_row(item, queue, frame, file))
+        _track_rows(track, queue, f"{process}/{thread}", columns, left_out)
     if len(gpus) > 1:
         raise InputError(f"GPU work on {len(gpus)} processes ({', '.join(sorted(gpus))}): a frame is "
                          "imported from a one-GPU capture", file=file)
-    if not any(r["queue"] in ("graphics", "compute") for r in rows):
+    if not any(chunk[0] in ("graphics", "compute") for chunk in columns["queue"] if chunk):
         raise InputError("no GPU work found: no track's thread or process name says graphics, "
                          "compute, gpu or queue (docs/frame_captures.md)", file=file)
-    return rows, left_out
+    return columns, left_out
 
 
-def _leaves(items: list[dict[str, Any]]) -> list[tuple[dict[str, Any], int]]:
-    """The innermost slices of one track, each with its frame: `args.frame`, else the number of
-    the enclosing group named frame* (in order of start), else -1."""
-    items = sorted(items, key=lambda s: (s["start"], -s["end"], s["index"]))
-    out: list[tuple[dict[str, Any], int]] = []
-    stack: list[dict[str, Any]] = []
+def _track_rows(track: _Track, queue: str, where: str, columns: dict[str, list[Any]],
+                left_out: dict[str, float]) -> None:
+    """One track's work slices appended to `columns` (as chunks, :func:`_columns_table`); its
+    present slices and instants to `left_out`."""
+    start, end = np.asarray(track.start), np.asarray(track.end)
+    instants = int((end <= start).sum())
+    if instants:
+        left_out[f"{where}: {instants} zero-length slice(s)"] = 0.0
+    leaves, frames = _leaves(start, end, np.asarray(track.index), track)
+    if not set(track.cat).isdisjoint(_SKIPPED_CATEGORIES):
+        kept = [n for n, k in enumerate(leaves) if track.cat[k] not in _SKIPPED_CATEGORIES]
+        for k in leaves:
+            if track.cat[k] in _SKIPPED_CATEGORIES:
+                key = f"{where}: {track.cat[k]}"
+                left_out[key] = left_out.get(key, 0.0) + track.ms[k]
+        leaves, frames = [leaves[n] for n in kept], [frames[n] for n in kept]
+    fields = [track.fields[k] or _NO_FIELDS for k in leaves]
+    error = next((f for f in fields if isinstance(f, InputError)), None)
+    if error is not None:
+        raise error
+    at = np.asarray(leaves, dtype=np.int64)
+    chunk = {"frame": np.asarray(frames, dtype=np.int64), "queue": [queue] * len(leaves),
+             "name": [track.name[k] for k in leaves], "ms": np.asarray(track.ms)[at],
+             "start_ns": start[at], "end_ns": end[at]}
+    chunk.update(zip(("reads", "writes", "bytes", "view", "pixel_share"),
+                     (list(c) for c in zip(*fields)) if fields else ([],) * 5))
+    for column in SLICE_COLUMNS:
+        columns[column].append(chunk[column])
+
+
+#: The args of a slice that gives none.
+_NO_FIELDS = ((), (), (), -1, math.nan)
+
+
+def _leaves(start: np.ndarray, end: np.ndarray, index: np.ndarray, track: _Track) -> tuple[list[int], list[int]]:
+    """The innermost slices of one track (positions in it), each with its frame: `args.frame`,
+    else the number of the enclosing group named frame* (in order of start), else -1.
+    Instants (no length) are neither work nor groups."""
+    order = np.lexsort((index, -end, start))
+    order = order[end[order] > start[order]]
+    s, e = start[order], end[order]
+    holds = np.zeros(len(order), dtype=bool)
+    holds[:-1] = (s[1:] < e[:-1]) & (e[1:] <= e[:-1])
+    leaves: list[int] = []
+    frames_of: list[int] = []
+    stack: list[tuple[float, int]] = []  # (end, frame number or -1) of the open groups
     frames = 0
-    for i, item in enumerate(items):
-        while stack and stack[-1]["end"] <= item["start"]:
+    for k, begins, ends, group in zip(order.tolist(), s.tolist(), e.tolist(), holds.tolist()):
+        while stack and stack[-1][0] <= begins:
             stack.pop()
-        nxt = items[i + 1] if i + 1 < len(items) else None
-        holds = nxt is not None and nxt["start"] < item["end"] and nxt["end"] <= item["end"]
-        if holds:
-            if item["name"].lower().startswith("frame"):
-                item["frame_no"] = frames
-                frames += 1
-            stack.append(item)
+        if group:
+            numbered = track.name[k].lower().startswith("frame")
+            stack.append((ends, frames if numbered else -1))
+            frames += numbered
             continue
-        out.append((item, _frame_of(item, stack)))
-    return out
+        frame = track.frame[k]
+        if frame < 0 and stack:
+            frame = next((f for _, f in reversed(stack) if f >= 0), -1)
+        leaves.append(k)
+        frames_of.append(frame)
+    return leaves, frames_of
 
 
-def _frame_of(item: dict[str, Any], stack: list[dict[str, Any]]) -> int:
-    frame = item["args"].get("frame")
-    if isinstance(frame, int) and not isinstance(frame, bool) and frame >= 0:
-        return frame
-    for group in reversed(stack):
-        if "frame_no" in group:
-            return group["frame_no"]
-    return -1
-
-
-def _chrome_row(item: dict[str, Any], queue: str, frame: int, file: str) -> dict[str, Any]:
-    args, where = item["args"], f"traceEvents[{item['index']}].args"
-    reads = _names(args.get("reads"), file, f"{where}.reads")
-    writes = _names(args.get("writes"), file, f"{where}.writes")
-    sizes = _sizes(args.get("bytes") if writes else None, len(writes), file, f"{where}.bytes")
-    return {"frame": frame, "queue": queue, "name": item["name"] or "(unnamed)",
-            "ms": (item["end"] - item["start"]) / 1e6, "start_ns": item["start"], "end_ns": item["end"],
-            "reads": reads, "writes": writes, "bytes": sizes,
-            "view": _view(args.get("view"), file, f"{where}.view"),
-            "pixel_share": _share(args.get("pixel_share"), file, f"{where}.pixel_share")}
+def _columns_table(columns: dict[str, list[Any]]) -> pd.DataFrame:
+    """The slice table from its columns, each a list of chunks (one a track), as
+    :func:`slices_table` makes it from rows."""
+    whole = {c: np.concatenate(chunks) if chunks and isinstance(chunks[0], np.ndarray)
+             else list(itertools.chain.from_iterable(chunks)) for c, chunks in columns.items()}
+    df = pd.DataFrame(whole, columns=list(SLICE_COLUMNS))
+    return df.astype({"frame": "int64", "ms": "float64", "start_ns": "float64", "end_ns": "float64",
+                      "view": "int64", "pixel_share": "float64"})
 
 
 # ----- field values shared by the formats -----------------------------------------------------
@@ -319,25 +516,35 @@ def _names(value: Any, file: str, field: str) -> tuple[str, ...]:
 
 def _sizes(value: Any, writes: int, file: str, field: str) -> tuple[int, ...]:
     """Bytes of each written resource: one number per write (a list or 'a;b'), or one number
-    for a single write; nothing when not given."""
+    for a single write; nothing when not given. Each a whole number 0..2^50 (the model's bound
+    on a buffer), read exactly (an integer past 2^53 is no double)."""
     if value is None or (isinstance(value, float) and math.isnan(value)) or value == "":
         return ()
     items: list[Any] = value.split(";") if isinstance(value, str) else \
         value if isinstance(value, list) else [value]
-    out = []
-    for item in items:
-        try:
-            number = float(item)
-        except (TypeError, ValueError):
-            number = math.nan
-        if isinstance(item, bool) or not math.isfinite(number) or number < 0 or number != int(number):
-            raise InputError(f"expected whole byte counts >= 0, got {str(item)[:40]!r}", file=file,
-                             field=field)
-        out.append(int(number))
+    out = [_byte_count(item, file, field) for item in items]
     if len(out) != writes:
         raise InputError(f"{len(out)} byte count(s) for {writes} written resource(s): give one per "
                          "write", file=file, field=field)
     return tuple(out)
+
+
+def _byte_count(item: Any, file: str, field: str) -> int:
+    number: Any = None
+    if isinstance(item, int) and not isinstance(item, bool):
+        number = item
+    elif isinstance(item, float) and item.is_integer():
+        number = int(item)
+    elif isinstance(item, str):
+        text = item.strip()
+        try:
+            number = int(text) if text.isdigit() else int(float(text)) if float(text).is_integer() else None
+        except (ValueError, OverflowError):
+            number = None
+    if number is None or not 0 <= number <= MAX_BYTES:
+        raise InputError(f"expected whole byte counts 0..2^50, got {str(item)[:40]!r}", file=file,
+                         field=field)
+    return number
 
 
 def _view(value: Any, file: str, field: str) -> int:
@@ -388,12 +595,13 @@ def read_csv(path: Path) -> tuple[pd.DataFrame, dict[str, Any]]:
                          file=file)
     if table.empty:
         raise InputError("the table has no rows", file=file)
+    _check_csv_shape(table, path)
     ms = number_column(table["gpu_ms"], file, "gpu_ms", minimum=0.0, maximum=1e6)
-    frames = number_column(table["frame"], file, "frame", minimum=0) if "frame" in table else None
+    frames = number_column(table["frame"], file, "frame", minimum=0, maximum=MAX_FRAME) if "frame" in table else None
     rows = []
     for i, row in enumerate(table.to_dict("records")):
         name, queue = str(row["pass"]).strip(), str(row["queue"]).strip().lower()
-        if not name or name == "nan":
+        if pd.isna(row["pass"]) or not name:
             raise InputError(f"row {i}: a pass needs a name", file=file, field="pass")
         if queue not in QUEUES:
             raise InputError(f"row {i}: expected one of {', '.join(QUEUES)}, got {str(row['queue'])[:40]!r}",
@@ -409,6 +617,38 @@ def read_csv(path: Path) -> tuple[pd.DataFrame, dict[str, Any]]:
                      "view": _view(row.get("view"), file, f"view (row {i})"),
                      "pixel_share": _share(row.get("pixel_share"), file, f"pixel_share (row {i})")})
     return slices_table(rows), {"left_out": {}, **_csv_size(table, file)}
+
+
+#: Columns of names: read as the text the file has ("007" stays "007", not 7).
+_CSV_TEXT = ("pass", "reads", "writes")
+
+
+def _check_csv_shape(table: pd.DataFrame, path: Path) -> None:
+    """Rows no longer than the header (pandas would make the extra field the row's index and
+    shift every field by one), numbers that are no true/false column, names as their text."""
+    file = str(path)
+    if not isinstance(table.index, pd.RangeIndex):
+        raise InputError(f"a row has more fields than the header's {len(table.columns)}", file=file)
+    for col in ("gpu_ms", "frame"):
+        if col in table and table[col].dtype == bool:
+            raise InputError("expected numbers, got true/false", file=file, field=col)
+    numeric = [c for c in _CSV_TEXT if c in table and table[c].dtype != object and table[c].notna().any()]
+    if numeric:
+        texts = _csv_text_columns(path, numeric, len(table))
+        for col in numeric:
+            table[col] = texts[col] if col in texts else table[col].astype(str)
+
+
+def _csv_text_columns(path: Path, columns: list[str], rows: int) -> dict[str, list[str | float]]:
+    """The cells of `columns` as the file writes them (an empty cell: NaN), where the file's
+    rows are the table's."""
+    text = trace_json.read_text(path, "a CSV table", MAX_CAPTURE_BYTES)
+    lines = [r for r in csv.reader(io.StringIO(text)) if r]
+    header = [c.strip() for c in lines[0]]
+    if len(lines) - 1 != rows:
+        return {}
+    return {c: [r[header.index(c)] if r[header.index(c)] != "" else math.nan for r in lines[1:]]
+            for c in columns}
 
 
 def _csv_size(table: pd.DataFrame, file: str) -> dict[str, int]:
@@ -469,11 +709,13 @@ def read_run(folder: Path) -> tuple[pd.DataFrame, dict[str, Any]]:
     specs = config["inputs"].get("passes")
     if not isinstance(specs, list) or not specs or not all(isinstance(s, dict) and "name" in s for s in specs):
         raise InputError("expected the scene's passes", file=str(summary), field="config.inputs.passes")
-    width, height = config.get("width"), config.get("height")
-    if not isinstance(width, int) or not isinstance(height, int) or width < 1 or height < 1:
-        raise InputError("expected the frame's width and height", file=str(summary), field="config.width")
-    io = _run_io(specs, config, width * height * 4)
-    rows = _run_rows(trace, specs, io, views, file)
+    for i, spec in enumerate(specs):
+        if not isinstance(spec["name"], str) or not spec["name"]:
+            raise InputError(f"expected a pass's name, got {str(spec['name'])[:40]!r}", file=str(summary),
+                             field=f"config.inputs.passes[{i}].name")
+    width, height = (_run_side(config.get(k), str(summary), f"config.{k}") for k in ("width", "height"))
+    resources = _run_io(specs, config, width * height * 4, str(summary))
+    rows = _run_rows(trace, specs, resources, views, file)
     source = {"experiment": config.get("experiment"), "file": config.get("file"), "schedule": schedule,
               "run": file}
     why = {str(s["name"]): f"the run's pass kind {s.get('kind')!r}" for s in specs
@@ -492,8 +734,25 @@ def _run_views(config: dict[str, Any], file: str) -> int:
     return 2
 
 
+def _run_side(value: Any, file: str, field: str) -> int:
+    if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= MAX_SIDE:
+        raise InputError(f"expected the frame's side, a whole number of pixels 1..{MAX_SIDE}, got "
+                         f"{str(value)[:40]!r}", file=file, field=field)
+    return value
+
+
+def _run_count(value: Any, file: str, field: str) -> int:
+    """A count the recorded scene gives (a filter's inputs): a whole number >= 0 (JSON may
+    hold it as 2.0)."""
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+        raise InputError(f"expected a whole number >= 0, got {str(value)[:40]!r}", file=file, field=field)
+    return value
+
+
 def _run_io(specs: list[dict[str, Any]], config: dict[str, Any],
-            image_bytes: int) -> dict[str, tuple[tuple[str, ...], int]]:
+            image_bytes: int, file: str) -> dict[str, tuple[tuple[str, ...], int]]:
     """Pass -> (the passes it reads, bytes of its output image): each pass renders one RGBA8
     image (`output_bytes` where the scene gives it), a filter samples the `inputs` passes
     before it, AFR's temporal pass also its own output of the previous frame, and pipelining's
@@ -503,17 +762,22 @@ def _run_io(specs: list[dict[str, Any]], config: dict[str, Any],
     listed = schedule_inputs.get("reads")
     if not isinstance(listed, dict):
         listed = {}
+    for name, reads_of in listed.items():
+        if not isinstance(reads_of, list) or not all(isinstance(r, str) for r in reads_of):
+            raise InputError(f"expected a list of pass names, got {str(reads_of)[:40]!r}", file=file,
+                             field=f"config.inputs.schedule.reads.{name}")
     temporal = schedule_inputs.get("temporal_pass") or config.get("temporal_pass") or ""
     out = {}
     for i, spec in enumerate(specs):
         reads: list[str] = []
         if spec.get("kind") == "filter":
-            k = int(spec.get("inputs", 1))
+            k = _run_count(spec.get("inputs", 1), file, f"config.inputs.passes[{i}].inputs")
             reads = names[max(0, i - k):i]
         reads += [r for r in listed.get(names[i], []) if r in names and r not in reads]
         if names[i] == temporal and names[i] not in reads:
             reads.append(names[i])
-        out[names[i]] = (tuple(reads), int(spec.get("output_bytes") or image_bytes))
+        size = spec.get("output_bytes") or image_bytes
+        out[names[i]] = (tuple(reads), _byte_count(size, file, f"config.inputs.passes[{i}].output_bytes"))
     return out
 
 

@@ -16,12 +16,14 @@ target of the frame, which the import notes), and the last pass's image is prese
 """
 from __future__ import annotations
 
+import bisect
 import json
 import math
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, cast
+from typing import Any, Mapping
 
 import pandas as pd
 
@@ -93,6 +95,8 @@ def frame_from_slices(slices: pd.DataFrame, *, name: str, source: str, width: in
         raise InputError(f"a stereo capture (passes with a view) where pass {bad!r} has none: give "
                          "every GPU pass its view (0 or 1)", file=source, field="view")
     keyed = _occurrences(gpu)
+    if views == 2:
+        _check_views(keyed, source)
     passes = _passes(keyed, pixel_share, width * height, share_why or {})
     notes = list(_notes(slices, keyed, passes, len(frames), left_out or {}, views))
     cpu = slices[slices["queue"] == "cpu"]
@@ -108,55 +112,107 @@ def frame_from_slices(slices: pd.DataFrame, *, name: str, source: str, width: in
 
 def _occurrences(gpu: pd.DataFrame) -> pd.DataFrame:
     """Each slice keyed by its pass: its name, with '#k' for the k-th slice of that name in its
-    frame and view (a pass run twice a frame is two passes), and its start within its frame."""
+    frame and view (a pass run twice a frame is two passes; where the capture has a pass named
+    so already, '#k_2', '#k_3', ...), and its start within its frame."""
     df = gpu.copy()
     df["order"] = range(len(df))
     df = df.sort_values(["frame", "view", "start_ns", "order"], kind="stable", na_position="last")
     nth = df.groupby(["frame", "view", "name"], sort=False).cumcount()
-    df["key"] = df["name"].where(nth == 0, df["name"] + "#" + (nth + 1).astype(str))
-    first = df.groupby(["frame", "view"], sort=False)["start_ns"].transform("min")
-    df["offset"] = df["start_ns"] - first
+    df["key"] = df["name"]
+    again = nth > 0
+    if again.any():
+        pairs = pd.DataFrame({"name": df["name"][again], "nth": nth[again]})
+        first = pairs.drop_duplicates()
+        keys = _repeat_keys(list(zip(first["name"], first["nth"])), set(df["name"]))
+        df.loc[again, "key"] = [keys[p] for p in zip(pairs["name"], pairs["nth"])]
+    first_start = df.groupby(["frame", "view"], sort=False)["start_ns"].transform("min")
+    df["offset"] = df["start_ns"] - first_start
     return df
+
+
+def _repeat_keys(pairs: list[tuple[str, int]], taken: set[str]) -> dict[tuple[str, int], str]:
+    """The key of the (nth + 1)-th slice of a name, for each (name, nth) in order of first
+    appearance: `name#k`, made unique against the capture's names and the keys before it."""
+    taken = set(taken)
+    out = {}
+    for name, nth in pairs:
+        base = key = f"{name}#{nth + 1}"
+        j = 2
+        while key in taken:
+            key, j = f"{base}_{j}", j + 1
+        taken.add(key)
+        out[(name, nth)] = key
+    return out
+
+
+def _check_views(keyed: pd.DataFrame, source: str) -> None:
+    """A stereo capture has both views, and each view of a frame the same passes: what the
+    schedule runs once per eye (an uneven capture would be run as if both eyes had the
+    passes of either)."""
+    seen = set(keyed["view"].unique())
+    if seen != {0, 1}:
+        raise InputError(f"a stereo capture with only view {min(seen)}: give both views (0 and 1, left and "
+                         "right), or no view for a one-view frame", file=source, field="view")
+    by_view = {v: set(zip(g["frame"], g["key"])) for v, g in keyed.groupby("view")}
+    odd = sorted(by_view[0] ^ by_view[1], key=str)
+    if odd:
+        frame, key = odd[0]
+        has = 0 if (frame, key) in by_view[0] else 1
+        raise InputError(f"pass {key!r} of frame {frame} is in view {has} but not in view {1 - has}: a "
+                         "stereo capture gives each eye the same passes", file=source, field="view")
 
 
 def _passes(keyed: pd.DataFrame, default_share: float | None, pixels: int,
             share_why: Mapping[str, str]) -> tuple[tuple[CapturedPass, ...], list[str]]:
     """The passes in frame order, their reads resolved to passes, each one's pixel share and
     where it came from, and notes on assumed sizes."""
-    order = (keyed.groupby("key", sort=False)
-             .agg(offset=("offset", "median"), order=("order", "min"), ms=("ms", "median"),
-                  frames=("frame", "nunique"), queue=("queue", lambda q: q.mode().iat[0]),
-                  share=("pixel_share", "median"))
+    by_key = keyed.groupby("key", sort=False)
+    order = (by_key.agg(offset=("offset", "median"), order=("order", "min"), ms=("ms", "median"),
+                        frames=("frame", "nunique"), share=("pixel_share", "median"), name=("name", "first"))
              .sort_values(["offset", "order"], na_position="last", kind="stable"))
-    spread = keyed.groupby("key")["ms"].apply(lambda s: float((s - s.median()).abs().median()))
-    io = _io(keyed, list(order.index))
-    producers, sizes, notes = _producers(list(order.index), io, pixels * DEFAULT_COLOR_BYTES)
+    order["queue"] = _queue_mode(keyed)
+    spread = (keyed["ms"] - by_key["ms"].transform("median")).abs().groupby(keyed["key"]).median()
+    keys = list(order.index)
+    io = _io(keyed, keys)
+    producers, sizes, notes = _producers(keys, io, pixels * DEFAULT_COLOR_BYTES)
     passes = []
-    for index, row in order.iterrows():
-        key = cast(str, index)  # a pass's name
-        if not math.isnan(row["share"]):
-            share = Share(float(row["share"]), STATED, share_why.get(key.split("#")[0], ""))
-        elif default_share is not None:
-            share = Share(default_share, OPTION)
-        else:
-            value, why = infer_share(key.split("#")[0], pixels=pixels, reads_passes=bool(producers[key]),
-                                     written=io[key][1])
-            share = Share(value, INFERRED, why)
-        passes.append(CapturedPass(str(key), str(row["queue"]), float(row["ms"]), int(row["frames"]),
-                                   share.value, tuple(producers[key]), int(sizes[key]),
-                                   float(spread[key]), share))
+    for key, name, queue, ms, frames, stated, spread_ms in zip(
+            keys, order["name"], order["queue"], order["ms"], order["frames"], order["share"],
+            spread.reindex(order.index)):
+        share = _share_of(str(name), float(stated), default_share, share_why, pixels,
+                          bool(producers[key]), io[key][1])
+        passes.append(CapturedPass(str(key), str(queue), float(ms), int(frames), share.value,
+                                   tuple(producers[key]), int(sizes[key]), float(spread_ms), share))
     return tuple(passes), notes
+
+
+def _queue_mode(keyed: pd.DataFrame) -> pd.Series:
+    """Each pass's most frequent queue (of a tie, the first in alphabetical order)."""
+    counts = keyed.groupby(["key", "queue"], sort=False).size().reset_index(name="n")
+    counts = counts.sort_values(["key", "n", "queue"], ascending=[True, False, True], kind="stable")
+    return counts.drop_duplicates("key").set_index("key")["queue"]
+
+
+def _share_of(name: str, stated: float, default: float | None, why: Mapping[str, str], pixels: int,
+              reads_passes: bool, written: Mapping[str, int | None]) -> Share:
+    """A pass's share: the capture's, else --pixel-share, else inferred from its name (the
+    capture's, without the '#k' of a repeat), targets and reads."""
+    if not math.isnan(stated):
+        return Share(stated, STATED, why.get(name, ""))
+    if default is not None:
+        return Share(default, OPTION)
+    value, reason = infer_share(name, pixels=pixels, reads_passes=reads_passes, written=written)
+    return Share(value, INFERRED, reason)
 
 
 def _io(keyed: pd.DataFrame, keys: list[str]) -> dict[str, tuple[tuple[str, ...], dict[str, int | None]]]:
     """Per pass: the resources it reads and those it writes with their bytes (None: unknown),
     from its first slice that names any (captures repeat them every frame)."""
+    named = (keyed["reads"].map(len) > 0) | (keyed["writes"].map(len) > 0)
+    first = pd.concat([keyed[named], keyed[~named]]).drop_duplicates("key")
     out: dict[str, tuple[tuple[str, ...], dict[str, int | None]]] = {}
-    for key, group in keyed.groupby("key", sort=False):
-        named = group[(group["reads"].map(len) > 0) | (group["writes"].map(len) > 0)]
-        row = named.iloc[0] if len(named) else group.iloc[0]
-        sizes = list(row["bytes"]) or [None] * len(row["writes"])
-        out[str(key)] = (tuple(row["reads"]), dict(zip(row["writes"], sizes)))
+    for key, reads, writes, sizes in zip(first["key"], first["reads"], first["writes"], first["bytes"]):
+        out[str(key)] = (tuple(reads), dict(zip(writes, list(sizes) or [None] * len(writes))))
     for key in keys:
         out.setdefault(key, ((), {}))
     return out
@@ -168,11 +224,13 @@ def _producers(keys: list[str], io: dict[str, tuple[tuple[str, ...], dict[str, i
     output bytes: what it writes that some pass reads, plus the last pass's image."""
     reads: dict[str, list[str]] = {k: [] for k in keys}
     read_from: dict[str, set[str]] = {k: set() for k in keys}
+    writers: dict[str, list[int]] = {}  # resource -> the positions of the passes writing it
+    for j, key in enumerate(keys):
+        for res in io[key][1]:
+            writers.setdefault(res, []).append(j)
     for i, key in enumerate(keys):
         for res in io[key][0]:
-            writer = next((keys[j] for j in range(i - 1, -1, -1) if res in io[keys[j]][1]), None)
-            if writer is None:  # the previous frame's, from the last writer of the frame
-                writer = next((keys[j] for j in range(len(keys) - 1, i - 1, -1) if res in io[keys[j]][1]), None)
+            writer = _writer(writers.get(res), i, keys)
             if writer is None and res in reads:
                 writer, res = res, "*"  # a pass's name: all it writes
             if writer is None:
@@ -201,6 +259,15 @@ def _producers(keys: list[str], io: dict[str, tuple[tuple[str, ...], dict[str, i
         notes.append(f"output sizes not in the capture, taken as one colour target of the frame "
                      f"({default_bytes} bytes): {shown}")
     return reads, sizes, notes
+
+
+def _writer(positions: list[int] | None, i: int, keys: list[str]) -> str | None:
+    """The pass that wrote what the i-th pass reads: the last writer before it, else (the
+    previous frame's) the last writer of the frame; None where no pass writes it."""
+    if not positions:
+        return None
+    before = bisect.bisect_left(positions, i)
+    return keys[positions[before - 1] if before else positions[-1]]
 
 
 def _notes(slices: pd.DataFrame, keyed: pd.DataFrame, passes: tuple, frames: int,
@@ -236,7 +303,7 @@ def experiment_text(frame: CapturedFrame, profile: Path, out: Path, frames: int 
                     warmup: int = 10) -> str:
     """The experiment file of `frame` (TOML), naming `profile` relative to `out`'s folder."""
     ref = _profile_ref(profile, out)
-    lines = [f"# Imported by `mgpusim frame import` from {frame.source}",
+    lines = [f"# Imported by `mgpusim frame import` from {_c(frame.source)}",
              f"# {frame.frames} captured frame(s); every pass's gpu_ms is its median over them "
              f"({'one eye of two views' if frame.views == 2 else 'one view'}).",
              f"# The passes sum to {frame.gpu_ms:.3f} ms of GPU time per frame"
@@ -246,16 +313,16 @@ def experiment_text(frame: CapturedFrame, profile: Path, out: Path, frames: int 
              "# Each pass's comment says where its share came from (the capture, --pixel-share, or",
              "# inferred from its name, targets and reads: docs/frame_captures.md); check the",
              "# inferred ones: `mgpusim advise` lists them and how its answer moves if they are off.",
-             *(f"# note: {n}" for n in frame.notes),
+             *(f"# note: {_c(n)}" for n in frame.notes),
              f"name = {_q(frame.name)}",
              f"description = {_q(f'frame imported from {frame.source}: {len(frame.passes)} passes')}",
              f"profile = {_q(ref)}", "", "[scene]", f"width = {frame.width}", f"height = {frame.height}"]
     for p in frame.passes:
         lines += ["", "[[scene.passes]]", f"name = {_q(p.name)}", 'kind = "captured"',
-                  f"gpu_ms = {p.gpu_ms:.6g}" + (f"  # +- {p.spread_ms:.3g} ms over {p.frames} frame(s)"
+                  f"gpu_ms = {ms_text(p.gpu_ms)}" + (f"  # +- {p.spread_ms:.3g} ms over {p.frames} frame(s)"
                                                if p.frames > 1 else ""),
                   f"pixels = {frame.width * frame.height}",
-                  f"pixel_share = {p.pixel_share:g}" + (f"  {share_comment(p.share)}" if p.share else "")]
+                  f"pixel_share = {p.pixel_share:g}" + (f"  {_c(share_comment(p.share))}" if p.share else "")]
         if p.output_bytes:
             lines.append(f"output_bytes = {p.output_bytes}")
         if p.reads:
@@ -288,9 +355,28 @@ def schedule_lines(frame: CapturedFrame, frames: int, warmup: int) -> list[str]:
     return lines
 
 
+def ms_text(ms: float) -> str:
+    """A pass's time as the file writes it: six digits where they hold it to 0.05 ns, else to
+    0.1 ns (a capture's times are whole ns; six digits alone would move a 13.944869 ms pass by
+    131 ns, and the frame's sum with it)."""
+    short = f"{ms:.6g}"
+    return short if abs(float(short) - ms) <= 5e-8 else repr(round(ms, 7))
+
+
 def _q(text: str) -> str:
-    """A TOML basic string (JSON's escapes are TOML's)."""
-    return json.dumps(text, ensure_ascii=False)
+    """A TOML basic string (JSON's escapes are TOML's, and DEL, which JSON leaves, escaped)."""
+    return json.dumps(text, ensure_ascii=False).replace("\x7f", "\\u007f")
+
+
+#: What a TOML comment cannot hold (control characters but tab, and line breaks a reader may
+#: take for the end of the comment), and lone surrogates, which UTF-8 cannot write.
+_NOT_IN_COMMENT = re.compile(r"[\x00-\x08\x0a-\x1f\x7f-\x9f\u2028\u2029\ud800-\udfff]")
+
+
+def _c(text: str) -> str:
+    """Text for a comment: one line, each character a TOML comment cannot hold as \\uXXXX
+    (a pass or track name or a path with a newline would otherwise end the comment)."""
+    return _NOT_IN_COMMENT.sub(lambda m: f"\\u{ord(m.group()):04x}", text)
 
 
 def check_experiment(text: str, out: Path) -> Experiment:

@@ -1,7 +1,7 @@
-"""Packaging and the command line's surface: the wheel ships the experiments, profiles and
-shaders; `mgpusim examples`, `--version`, `python -m mgpusim`; help on every option; the
-Vulkan backend's packages as an extra. The full `pip install .` into a fresh virtual
-environment is slow (it downloads the dependencies): `pytest -m slow tests/test_packaging.py`."""
+"""Packaging and the command line's surface: the wheel ships the experiments, profiles,
+shaders and example frame captures; `mgpusim examples`, `--version`, `python -m mgpusim`; help
+on every option; the Vulkan backend's packages as an extra. The full `pip install .` into a
+fresh virtual environment is slow (it downloads the dependencies): `pytest -m slow tests/test_packaging.py`."""
 from __future__ import annotations
 
 import argparse
@@ -46,6 +46,10 @@ def test_wheel_ships_experiments_profiles_and_shaders(tmp_path):
         assert f"mgpusim/hardware_profiles/{path.name}" in names
     for path in (ROOT / "mgpusim" / "real" / "passes" / "shaders").iterdir():
         assert f"mgpusim/real/passes/shaders/{path.name}" in names
+    frames = sorted((ROOT / "examples" / "frames").iterdir())  # the README's `mgpusim frame import`
+    assert {p.suffix for p in frames} == {".csv", ".json", ".toml"}
+    for path in frames:
+        assert f"mgpusim/frames/examples/{path.name}" in names
     meta = next(n for n in names if n.endswith(".dist-info/METADATA"))
     text = zipfile.ZipFile(wheel).read(meta).decode()
     assert f"Version: {mgpusim.__version__}" in text

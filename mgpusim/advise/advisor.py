@@ -78,10 +78,11 @@ PACE_MARGINS = (0.0, 0.01, 0.02, 0.05)
 PACED = "AFR, even pacing"
 #: The most passes a frame may have (a stereo frame's passes counted for both eyes): frame
 #: pipelining tries every split point with every chunk count on every link, so its options
-#: grow with the passes, and each costs more to model the more passes it has. On 2 cores with
-#: 2 workers (benchmarks/advise_passes.py): 20 passes take 20-40 s, 50 passes 1-2 minutes; 200
-#: passes (12,800 pipelining options at 70-230 ms each on one core) would take 10-25 minutes,
-#: so such a frame is refused before any work rather than left to run.
+#: grow with the passes, and each costs more to model the more passes it has (one program and
+#: one model per split point and chunk count, shared by the links). On the shared 2-core
+#: machine with 2 workers (benchmarks/advise_passes.py, other jobs running): 20 passes take
+#: 25-32 s, 64 passes about 100 s; 200 passes (12,800 pipelining options) would take over
+#: 10 minutes, so such a frame is refused before any work rather than left to run.
 MAX_PASSES = 64
 #: `progress(stage, done, total)`: how far the search has come (a command draws it).
 Progress = Callable[[str, int, int], None]
@@ -647,8 +648,8 @@ def check_frame(path: str | Path, base: Mapping[str, Any] | None = None, max_gpu
         raise InputError(f"advise takes frames of up to {MAX_PASSES} passes, this one has {passes}: "
                          f"frame pipelining alone would be {passes * len(CHUNKS) * len(LINKS):,} options "
                          f"(every split point x {len(CHUNKS)} chunk counts x {len(LINKS)} links), each "
-                         "slower to model the more passes there are (on 2 cores 50 passes take 1-2 "
-                         "minutes, 200 would take over 10); merge small passes in the capture "
+                         "slower to model the more passes there are (on 2 cores 64 passes take about "
+                         "100 s, 200 would take over 10 minutes); merge small passes in the capture "
                          "before `mgpusim frame import`",
                          file=path, field="scene.passes")
     return exp

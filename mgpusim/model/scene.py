@@ -88,13 +88,14 @@ def parse_scene(t: Table, pass_params: Mapping[str, tuple[str, ...]],
     names: set[str] = set()
     tables = t.tables("passes")
     every = [pt.data.get("name") for pt in tables]
+    known_names = frozenset(n for n in every if isinstance(n, str))  # a set: 10^5 passes read fast
     for pt in tables:
         name = pt.get("name", str)
         if name in names:
             raise pt.error("name", f"duplicate pass name {name!r}")
         names.add(name)
         kind = pt.get("kind", str, choices=pass_params.keys())
-        reads = _reads(pt, every)
+        reads = _reads(pt, every, known_names)
         known = (*pass_params[kind], *common_params)
         params = {}
         for key in pt.rest():
@@ -129,11 +130,12 @@ def parse_scene(t: Table, pass_params: Mapping[str, tuple[str, ...]],
     return scene
 
 
-def _reads(pt: Table, names: list) -> tuple[str, ...]:
-    """A pass's `reads`: a list of the scene's pass names (each once)."""
+def _reads(pt: Table, names: list, known: frozenset[str]) -> tuple[str, ...]:
+    """A pass's `reads`: a list of the scene's pass names (each once; `known`: those names as
+    a set, for the lookup, `names` as written, for the hint)."""
     reads = pt.get("reads", list, [])
     for item in reads:
-        if not isinstance(item, str) or item not in names:
+        if not isinstance(item, str) or item not in known:
             hint = did_you_mean(item, map(str, names)) if isinstance(item, str) else ""
             raise pt.error("reads", f"expected names of this scene's passes, got {show_value(item)}{hint}")
     if len(set(reads)) != len(reads):

@@ -54,3 +54,15 @@ def test_the_profile_is_found_again_from_the_working_folder(tmp_path):
         assert again is not first and Path(again.profile.source).resolve() == (tmp_path / "cwd" / "p.toml").resolve()
     finally:
         os.chdir(before)
+
+
+def test_read_toml_parses_the_same_bytes_once_and_hands_out_copies(tmp_path):
+    from mgpusim.model.toml_checks import read_toml
+
+    path = tmp_path / "t.toml"
+    path.write_text("[a]\nb = [1, 2]\n")
+    first = read_toml(path)
+    first["a"]["b"].append(3)  # a caller's change stays its own
+    assert read_toml(path) == {"a": {"b": [1, 2]}}
+    path.write_text("[a]\nb = [4]\n")
+    assert read_toml(path) == {"a": {"b": [4]}}

@@ -5,6 +5,7 @@ clear message (missing field, wrong type, out-of-range value, unknown key).
 """
 from __future__ import annotations
 
+import copy
 import difflib
 import math
 import tomllib
@@ -19,12 +20,34 @@ _TYPE_NAMES = {int: "an integer", float: "a number", str: "a string", bool: "tru
                list: "a list", dict: "a table"}
 
 
+#: The most parsed files :func:`read_toml` keeps, by their bytes, and the largest it keeps (a
+#: generated frame of 10^5 passes is parsed each time rather than held).
+PARSED_KEPT = 128
+PARSED_MAX_BYTES = 1 << 20
+_PARSED: dict[bytes, dict[str, Any]] = {}
+
+
 def read_toml(path: Path) -> dict[str, Any]:
     """Parse a TOML file; a missing, unreadable, empty, binary, oversized, too deeply nested
     or malformed file is one InputError naming it. A UTF-8 byte-order mark (which some
-    editors write) is skipped."""
-    file = str(path)
+    editors write) is skipped. The file is read every time; the same bytes are parsed once
+    (a copy of the tables is returned, which the caller may change). Why: a search loads one
+    experiment and one profile file hundreds of times, and parsing cost more than the rest of
+    loading."""
     raw = read_input_bytes(Path(path), "a TOML file")
+    if len(raw) > PARSED_MAX_BYTES:
+        return _parse(raw, str(path))
+    parsed = _PARSED.get(raw)
+    if parsed is None:
+        parsed = _parse(raw, str(path))
+        if len(_PARSED) >= PARSED_KEPT:
+            _PARSED.pop(next(iter(_PARSED)))
+        _PARSED[raw] = parsed
+    return copy.deepcopy(parsed)
+
+
+def _parse(raw: bytes, file: str) -> dict[str, Any]:
+    """The tables of a TOML file's bytes (see :func:`read_toml`)."""
     if not raw.strip():
         raise InputError("the file is empty, expected TOML", file=file)
     if b"\0" in raw:

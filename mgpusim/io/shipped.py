@@ -12,18 +12,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from mgpusim.model.errors import InputError
+from mgpusim.model.shipped_files import shipped_dir
 from mgpusim.model.toml_checks import read_toml
-
-_PACKAGE = Path(__file__).resolve().parents[1]  # mgpusim/, this module being in mgpusim/io/
-
-
-def shipped_dir(name: str) -> Path:
-    """`experiments` or `hardware_profiles`: inside the package when installed from a wheel,
-    else the checkout's folder beside the package."""
-    for candidate in (_PACKAGE / name, _PACKAGE.parent / name):
-        if candidate.is_dir():
-            return candidate
-    raise InputError(f"the shipped {name}/ folder is missing from this installation ({_PACKAGE})")
 
 
 @dataclass(frozen=True)

@@ -216,9 +216,9 @@ def shipped_profiles() -> tuple[HardwareProfile, ...]:
     """The shipped hardware profiles (`hardware_profiles/*.toml`), parsed once per process:
     the ranges :func:`outside_shipped` judges against, read from the files at run time so that
     a profile added there widens them (one that does not load is left out)."""
-    from mgpusim.io.shipped import shipped_dir  # noqa: PLC0415 - files stay at the edge
     from mgpusim.model.errors import InputError  # noqa: PLC0415
     from mgpusim.model.profile import load_profile  # noqa: PLC0415
+    from mgpusim.model.shipped_files import shipped_dir  # noqa: PLC0415 - read only when judged
 
     out = []
     for path in sorted(shipped_dir("hardware_profiles").glob("*.toml")):

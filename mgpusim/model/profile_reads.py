@@ -185,12 +185,30 @@ def outside_shipped(overrides: Mapping[str, Any], profiles: Sequence[HardwarePro
         paths = read_paths(key.removeprefix("profile.")) if key.startswith("profile.") else None
         if not paths or not _number(value):
             continue
-        known = [v for p in profiles for v in _values(p, paths[0].split(".")) if _number(v)]
-        if known and min(known) < max(known) and not min(known) <= value <= max(known):
+        span = _span(profiles, paths[0])
+        if span is not None and not span[0] <= value <= span[1]:
             out.append(f"{key} = {value:g} lies outside every shipped profile's value "
-                       f"({min(known):g} to {max(known):g} in hardware_profiles/): the results "
+                       f"({span[0]:g} to {span[1]:g} in hardware_profiles/): the results "
                        "extrapolate beyond any machine a profile describes")
     return out
+
+
+#: Each read path's span over a sequence of profiles, by the sequence's identity (profiles
+#: hold mappings, so they cannot be hashed): a sweep judges one key at each of 10^4 points.
+_SPANS: dict[tuple[int, str], tuple[Sequence[HardwareProfile], tuple[float, float] | None]] = {}
+
+
+def _span(profiles: Sequence[HardwareProfile], path: str) -> tuple[float, float] | None:
+    """(lowest, highest) of the values at `path` over `profiles`, None where they give none or
+    all alike; kept while the same sequence is asked again (the shipped profiles, read once)."""
+    key = (id(profiles), path)
+    held = _SPANS.get(key)
+    if held is not None and held[0] is profiles:
+        return held[1]
+    known = [v for p in profiles for v in _values(p, path.split(".")) if _number(v)]
+    span = (min(known), max(known)) if known and min(known) < max(known) else None
+    _SPANS[key] = (profiles, span)
+    return span
 
 
 def _number(value: Any) -> bool:

@@ -86,8 +86,9 @@ def locked_out_dir(path: Path, option: str = "--out") -> Iterator[Path]:
     this process (not left to wait, nor to mix its files with ours). Why flock: the kernel
     drops the lock when the holder dies, even by SIGKILL, so no stale lock needs clearing.
     The lock file stays in the folder after the block: removing it would let a process that
-    opened it just before lock a file no one else sees. Where the block fails and the folder
-    was made here and holds only the lock, the folder goes too (nothing half-written)."""
+    opened it just before lock a file no one else sees. Where the folder was made here and holds
+    only the lock when the block ends (it failed, or stopped before writing anything), the
+    folder goes too: nothing is left that looks like output."""
     check_out_dir(path, option)
     made = not path.exists()
     with _os_errors(path, option):
@@ -97,10 +98,9 @@ def locked_out_dir(path: Path, option: str = "--out") -> Iterator[Path]:
         _take(fd, path, option)
         try:
             yield path
-        except BaseException:
+        finally:  # failed, or ended without writing (a job that stopped before any work)
             if made:
                 _remove_if_only_lock(path)
-            raise
     finally:
         os.close(fd)  # releases the lock
 

@@ -4,6 +4,7 @@ says what was expected, before any fit or comparison."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -107,3 +108,18 @@ def test_the_commands_refuse_before_any_work(step: str, tmp_path: Path) -> None:
     assert done.returncode == 2, done.stderr
     assert "another study" in done.stderr and "Traceback" not in done.stderr
     assert not (tmp_path / "out" / "profile.toml").exists()
+
+
+def test_a_missing_data_folder_says_an_installed_package_lacks_it(tmp_path: Path, monkeypatch) -> None:
+    """From an installed wheel (no data/ beside the package) a shipped study's committed runs
+    are missing: the error says why, not only which folder."""
+    from mgpusim.studies import study_file
+    text = STUDY.read_text()  # its data paths (../../data/...) lead nowhere from tmp_path
+    (tmp_path / "experiments" / "h100_x2").mkdir(parents=True)
+    moved = tmp_path / "experiments" / "h100_x2" / "study.toml"
+    moved.write_text(text.replace('"../../hardware_profiles/', f'"{os.path.relpath(ROOT, moved.parent)}/hardware_profiles/'))
+    monkeypatch.setattr(study_file, "PACKAGE", tmp_path / "mgpusim")
+    message = _refused(load_study, moved)
+    assert "data/nvidia/h100_x2" in message and "checkout" in message
+    monkeypatch.setattr(study_file, "PACKAGE", ROOT / "mgpusim")
+    assert "checkout" not in _refused(load_study, moved)

@@ -20,6 +20,7 @@ from mgpusim.measure import run_archive
 from mgpusim.model.errors import InputError
 from mgpusim.model.limits import MAX_GPUS
 from mgpusim.model.profile import HardwareProfile, HostProfile
+from mgpusim.model.shipped_files import PACKAGE
 from mgpusim.model.toml_checks import Table, did_you_mean, read_toml
 from mgpusim.model.work_terms import WORK_TERMS, work_terms
 from mgpusim.schedules.experiment import Experiment, load_experiment, parse_overrides
@@ -224,8 +225,18 @@ def _path(t: Table, key: str, base: Path, default: Any = _REQUIRED, *, folder: b
         raise t.error(key, f"must be relative to the study file, got the absolute path {text!r}")
     p = base / text
     if not (run_archive.is_folder(p) if folder else p.exists() or run_archive.is_file(p)):
-        raise t.error(key, f"{str(p)!r} does not exist{' (or is not a folder)' if folder else ''}")
+        raise t.error(key, f"{str(p)!r} does not exist{' (or is not a folder)' if folder else ''}"
+                           f"{_checkout_hint(text)}")
     return p
+
+
+def _checkout_hint(text: str) -> str:
+    """Why a shipped study's committed data can be missing: an installed wheel carries the
+    experiments and profiles but not the repository's `data/` (measured runs, tables)."""
+    if "data" in Path(text).parts and not (PACKAGE.parent / "data").is_dir():
+        return ("; the measured data lies in the repository's data/ folder, which an installed "
+                "package does not carry: run from a checkout of the repository")
+    return ""
 
 
 def _strings(t: Table, key: str, default: Any = _REQUIRED, *, empty: bool = False) -> Any:

@@ -73,13 +73,15 @@ def test_main_job_runs_tabulates_each_runs_verdict(tmp_path: Path) -> None:
     run.mkdir()
     half = "Held-out runs (never seen by the fit)"
     (run / "verdict.json").write_text(json.dumps({"half": half, "line": "Replay met; prediction missed", "exit_status": 1}))
-    verdict = {"replay": {"status": "met"}, "prediction": {"status": "missed", "band": {"median": [0.04, 0.06],
-                                                                                          "worst": [0.2, 0.3]}}}
+    verdict = {"replay": {"status": "met", "median": 0.004, "worst": 0.02},
+               "prediction": {"status": "missed", "median": 0.05, "worst": 0.25, "flagged_runs": 3,
+                              "band": {"median": [0.04, 0.06], "worst": [0.2, 0.3]}}}
     (run / "errors.json").write_text(json.dumps({half: {"verdict": verdict}}))
     table = tool.collect(tmp_path)
     assert table["run"].tolist() == [1, 2] and table["exit"].tolist() == [1, 3]
     first, second = table.iloc[0], table.iloc[1]
     assert (first.replay, first.prediction, first.prediction_median_band) == ("met", "missed", "4.0% to 6.0%")
+    assert (first.replay_worst, first.prediction_worst, first.flagged_runs) == ("2.0%", "25.0%", 3)
     assert first.start_utc == "2025-12-02 00:00" and first.wall_s == 371
     assert second.line == "no verdict written" and second.half == ""
     assert tool.main(["--collect", str(tmp_path), "--table", str(tmp_path / "t.csv")]) == 0

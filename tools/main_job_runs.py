@@ -27,8 +27,9 @@ from typing import Any
 import pandas as pd
 
 INDEX = "index.txt"
-COLUMNS = ["run", "start_utc", "wall_s", "exit", "load_before", "half", "replay", "prediction",
-           "prediction_median_band", "prediction_worst_band", "line"]
+COLUMNS = ["run", "start_utc", "wall_s", "exit", "load_before", "half", "replay", "replay_median",
+           "replay_worst", "prediction", "prediction_median", "prediction_median_band",
+           "prediction_worst", "prediction_worst_band", "flagged_runs", "line"]
 
 
 def run_jobs(out: Path, runs: int, extra: list[str]) -> None:
@@ -55,25 +56,32 @@ def collect(folder: Path) -> pd.DataFrame:
         run, start, wall, code, load = line.split()
         rows.append({"run": int(run), "start_utc": _utc(int(start)), "wall_s": int(wall), "exit": int(code),
                      "load_before": float(load), **verdict_fields(folder / f"run{run}")})
-    return pd.DataFrame(rows, columns=COLUMNS)
+    return pd.DataFrame(rows, columns=COLUMNS).fillna("")
 
 
 def verdict_fields(run: Path) -> dict[str, Any]:
     """The verdict of one run's report (verdict.json and errors.json), empty where it wrote none."""
     verdict_file, errors_file = run / "verdict.json", run / "errors.json"
     if not verdict_file.is_file():
-        return {"half": "", "replay": "", "prediction": "", "prediction_median_band": "",
-                "prediction_worst_band": "", "line": "no verdict written"}
+        return {"line": "no verdict written"}
     verdict = json.loads(verdict_file.read_text())
     half = verdict.get("half") or ""
     stats = json.loads(errors_file.read_text()).get(half, {}) if errors_file.is_file() else {}
     chosen = stats.get("verdict", {}) if isinstance(stats, dict) else {}
     prediction = chosen.get("prediction", {})
     band = prediction.get("band", {})
-    return {"half": half, "replay": chosen.get("replay", {}).get("status", ""),
-            "prediction": prediction.get("status", ""),
+    replay = chosen.get("replay", {})
+    return {"half": half, "replay": replay.get("status", ""), "replay_median": _share(replay.get("median")),
+            "replay_worst": _share(replay.get("worst")), "prediction": prediction.get("status", ""),
+            "prediction_median": _share(prediction.get("median")),
             "prediction_median_band": _band(band.get("median")),
-            "prediction_worst_band": _band(band.get("worst")), "line": verdict.get("line", "")}
+            "prediction_worst": _share(prediction.get("worst")),
+            "prediction_worst_band": _band(band.get("worst")),
+            "flagged_runs": prediction.get("flagged_runs", 0), "line": verdict.get("line", "")}
+
+
+def _share(value: Any) -> str:
+    return f"{value:.1%}" if isinstance(value, (int, float)) else ""
 
 
 def _band(pair: Any) -> str:
@@ -100,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.table:
         args.table.parent.mkdir(parents=True, exist_ok=True)
         table.to_csv(args.table, index=False)
-    print(table.drop(columns="line").to_string(index=False))
+    print(table.drop(columns=["line", "half"]).to_string(index=False))
     return 0
 
 

@@ -56,14 +56,14 @@ def collect(folder: Path) -> pd.DataFrame:
         run, start, wall, code, load = line.split()
         rows.append({"run": int(run), "start_utc": _utc(int(start)), "wall_s": int(wall), "exit": int(code),
                      "load_before": float(load), **verdict_fields(folder / f"run{run}")})
-    return pd.DataFrame(rows, columns=COLUMNS).fillna("")
+    return pd.DataFrame(rows, columns=COLUMNS)
 
 
 def verdict_fields(run: Path) -> dict[str, Any]:
     """The verdict of one run's report (verdict.json and errors.json), empty where it wrote none."""
     verdict_file, errors_file = run / "verdict.json", run / "errors.json"
     if not verdict_file.is_file():
-        return {"line": "no verdict written"}
+        return {**{c: "" for c in COLUMNS[5:-1]}, "flagged_runs": 0, "line": "no verdict written"}
     verdict = json.loads(verdict_file.read_text())
     half = verdict.get("half") or ""
     stats = json.loads(errors_file.read_text()).get(half, {}) if errors_file.is_file() else {}

@@ -25,17 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from mgpusim import load_experiment, simulate  # noqa: E402
-
-
-def reference_loop() -> float:
-    """CPU seconds of a fixed pure-Python loop (dict and list work, as the model's)."""
-    t0 = time.process_time()
-    d: dict[int, int] = {}
-    acc = []
-    for i in range(300_000):
-        d[i & 1023] = d.get(i & 1023, 0) + i
-        acc.append(i ^ (i >> 3))
-    return time.process_time() - t0 + 0 * len(acc)
+from mgpusim.bench.reference import reference_loop  # noqa: E402 - the loop every speed is divided by
 
 
 def experiment(gpus: int, frames: int):

@@ -212,10 +212,8 @@ class Channel(FluidChannel):
 
     def _reshare(self) -> None:
         """Max-min fair shares with per-flow caps (water-filling), all in integers."""
-        capacity = self._capacity_now()  # (may grow the scale: read it after)
+        left = self._left_now()  # (may grow the scale: read it after)
         scale = self._scale
-        # floored to 1/S byte per ns where an oversubscribed capacity has other denominators
-        left = capacity.numerator * scale // capacity.denominator
         for f in self.flows:
             if f.cap is not None and f.cap_s is None:
                 f.cap_s = f.cap.numerator * (scale // f.cap.denominator)
@@ -226,41 +224,46 @@ class Channel(FluidChannel):
             flow.rate = fair if flow.cap_s is None or flow.cap_s >= fair else flow.cap_s
             left -= flow.rate
 
-    def _capacity_now(self) -> Fraction:
-        """What the channel delivers to the flows it has now."""
+    def _left_now(self) -> int:
+        """What the channel delivers to the flows it has now, in 1/S bytes per ns, floored
+        where an oversubscribed capacity has other denominators.
+
+        The capacity: all of `bandwidth` while the flows' demand (the sum of their caps; an
+        uncapped flow takes everything) fits it, or while they are passes of one kind alone
+        (their threads take turns without loss); beyond it, less as threads of different work
+        outnumber cores (context switches, each evicting the other's caches), `oversubscribed`
+        from twice it, only the demand of work that is not `lossless` losing. Computed on the
+        scaled integers (S divides into every cap, the bandwidth and `oversubscribed`): exactly
+        floor(capacity x S), without a Fraction per reshare (the solver's hottest line)."""
+        scale = self._scale
+        bw = self.bandwidth
+        b_s = bw.numerator * (scale // bw.denominator)
         if self.oversubscribed is None:
-            return self.bandwidth
-        demand = self._demand()
-        if demand <= self.bandwidth:
-            return self.bandwidth  # the threads fit the cores: nothing to lose
-        first = self.flows[0].tag
-        if isinstance(first, PassWork) and all(f.tag == first for f in self.flows):
-            return self.bandwidth  # one kind of pass alone: its threads take turns without loss
-        lossless = sum((f.cap for f in self.flows
-                        if isinstance(f.tag, PassWork) and f.tag.lossless and f.cap is not None), _ZERO)
-        return self._capacity(demand, demand - lossless if lossless else None)
-
-    def _capacity(self, demand: Fraction, lossy: Fraction | None = None) -> Fraction:
-        """What the cores deliver under `demand`: all of `bandwidth` up to it, then less as
-        threads of different work outnumber cores (context switches, each evicting the other's
-        caches), `oversubscribed` from twice it; only the `lossy` part of the demand loses
-        (default all of it)."""
-        assert self.oversubscribed is not None
-        excess = min(max(demand - self.bandwidth, _ZERO), self.bandwidth)
-        loss = (self.bandwidth - self.oversubscribed) * excess / self.bandwidth
-        if lossy is not None and demand > 0:
-            loss = loss * min(lossy, demand) / demand
-        return self.bandwidth - loss
-
-    def _demand(self) -> Fraction:
-        """What the flows would take if alone together: the sum of their caps (an uncapped
-        flow takes everything)."""
-        total = _ZERO
+            return b_s
+        demand, lossless, uncapped = 0, 0, False
         for f in self.flows:
             if f.cap is None:
-                return 2 * self.bandwidth
-            total += f.cap
-        return total
+                uncapped = True
+                continue
+            if f.cap_s is None:
+                f.cap_s = f.cap.numerator * (scale // f.cap.denominator)
+            demand += f.cap_s
+            if isinstance(f.tag, PassWork) and f.tag.lossless:
+                lossless += f.cap_s
+        if uncapped:
+            demand = 2 * b_s
+        if demand <= b_s:
+            return b_s  # the threads fit the cores: nothing to lose
+        first = self.flows[0].tag
+        if isinstance(first, PassWork) and all(f.tag == first for f in self.flows):
+            return b_s  # one kind of pass alone: its threads take turns without loss
+        over = self.oversubscribed
+        o_s = over.numerator * (scale // over.denominator)
+        excess = min(demand - b_s, b_s)
+        num, den = (b_s - o_s) * excess, b_s  # the loss, x S
+        if lossless:
+            num, den = num * min(demand - lossless, demand), den * demand
+        return b_s - (-(-num // den))
 
     def _idle(self) -> bool:
         # released empty (an occupant), maybe on the fast path since: nothing to share
@@ -363,13 +366,13 @@ class GpuChannel(Channel):
         self._capacity_of = capacity_of
         self._capacities: dict[tuple, Fraction] = {}
 
-    def _capacity_now(self) -> Fraction:
+    def _left_now(self) -> int:
         tags = tuple(sorted((f.tag for f in self.flows), key=str))
         found = self._capacities.get(tags)
         if found is None:
             found = self._capacities[tags] = self._capacity_of(tags)
         self._grow_scale(found.denominator)  # shares of it stay exact integers
-        return found
+        return found.numerator * self._scale // found.denominator
 
 
 def _add(total: tuple[int, int], value: Fraction) -> tuple[int, int]:

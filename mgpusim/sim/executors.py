@@ -85,9 +85,12 @@ class SharedCores:
         cores = Fraction(host.cpu_cores)
         eff = Fraction(repr(host.oversubscribed_efficiency))
         self.channel = Channel(env, "host.cpu", cores, cores * eff if eff != 1 else None)
+        #: each task's (cores, tag, overhead), by identity (a run builds an op per task and
+        #: frame of its period: a replay one per measured frame)
+        self._of_task: dict[int, tuple[Task, Fraction, object, int]] = {}
 
     def runner(self, ns: int, cores: Fraction | int = 1, tag: object = None) -> tuple[Runner | None, int]:
-        cores = Fraction(cores)
+        cores = cores if type(cores) is Fraction else Fraction(cores)  # (the task's own: a cache hit)
         transfer = self.channel.transfer
 
         def run(amount: int) -> simpy.Event:
@@ -97,8 +100,8 @@ class SharedCores:
     def task_runner(self, task: Task, ns: int) -> tuple[Runner | None, int]:
         """The task's work at its cores; a pass with a `cpu_overhead_ns` also puts that much
         of one core's work on the pool when it starts, which nobody waits on."""
-        run, amount = self.runner(ns, self.cores(task), self._tag(task))
-        overhead = self._overhead(task)
+        _task, cores, tag, overhead = self._task_terms(task)
+        run, amount = self.runner(ns, cores, tag)
         if not overhead or run is None:
             return run, amount
         transfer, main = self.channel.transfer, run
@@ -107,6 +110,14 @@ class SharedCores:
             transfer(overhead, ONE_CORE)
             return main(amount)
         return with_overhead, amount
+
+    def _task_terms(self, task: Task) -> tuple[Task, Fraction, object, int]:
+        """The task's cores, sharing tag and driver overhead, worked out once per task."""
+        found = self._of_task.get(id(task))
+        if found is None or found[0] is not task:
+            found = self._of_task[id(task)] = (task, task_cores(self.costs.profile, task),
+                                               self._tag(task), self._overhead(task))
+        return found
 
     def _tag(self, task: Task) -> object:
         """What the cores share: a pass's kind (lossless where its cores were measured two at
@@ -133,7 +144,7 @@ class SharedCores:
 
     def cores(self, task: Task) -> Fraction:
         """Cores a task keeps busy (see `task_cores`)."""
-        return task_cores(self.costs.profile, task)
+        return self._task_terms(task)[1]
 
 
 class MeasuredCores(SharedCores):
@@ -147,7 +158,8 @@ class MeasuredCores(SharedCores):
     def runner(self, ns: int, cores: Fraction | int = 1, tag: object = None) -> tuple[Runner | None, int]:
         if not ns:
             return None, 0
-        channel, env, share = self.channel, self.channel.env, Fraction(cores)
+        channel, env = self.channel, self.channel.env
+        share = cores if type(cores) is Fraction else Fraction(cores)
 
         def run(amount: int) -> simpy.Event:
             held = channel.occupy(share, tag)

@@ -15,7 +15,6 @@ from __future__ import annotations
 import copy
 import itertools
 import multiprocessing
-import os
 from collections import defaultdict
 from dataclasses import replace
 from typing import Any, Iterable, Iterator, Mapping, Sequence, cast
@@ -25,6 +24,7 @@ import pandas as pd
 
 from mgpusim.calibration.fit import Fit, fit_nonnegative
 from mgpusim.calibration.profile_out import cost_table
+from mgpusim.io.workers import worker_count
 from mgpusim.model.costs import CostModel
 from mgpusim.model.profile import HardwareProfile, parse_profile
 from mgpusim.model.tasks import CopyTask, PassTask, QueueRef, Task
@@ -131,14 +131,15 @@ def _alone_instances(runs: Sequence[Run]) -> Iterator[tuple[Task, int]]:
         tasks = tasks_by_name(exp)
         steady = trace[(trace["frame"] >= exp.schedule.warmup_frames) & (trace["device"] != "host")]
         passes = steady[steady["task"].isin({n for n, t in tasks.items() if isinstance(t, PassTask)})]
-        row: Any  # a row's fields (pandas-stubs types each as any scalar)
-        for row in steady.itertuples():
-            task = tasks.get(row.task)
-            if task is None or not passes[(passes["device"] != row.device)
-                                          & (passes["start_ns"] < row.end_ns)
-                                          & (passes["end_ns"] > row.start_ns)].empty:
+        # the passes as arrays: one overlap test per row in numpy, not a DataFrame filter
+        p_device = passes["device"].to_numpy()
+        p_start, p_end = passes["start_ns"].to_numpy(), passes["end_ns"].to_numpy()
+        for name, device, start, end in zip(steady["task"], steady["device"], steady["start_ns"],
+                                            steady["end_ns"]):
+            task = tasks.get(name)
+            if task is None or ((p_device != device) & (p_start < end) & (p_end > start)).any():
                 continue
-            yield task, row.end_ns - row.start_ns
+            yield task, end - start
 
 
 def with_alone_scales(profile_data: dict[str, Any], scales: Mapping[str, tuple[float, int]]) -> dict[str, Any]:
@@ -310,13 +311,12 @@ def _trial_scores(profile_data: dict[str, Any], exps: list[Experiment], measured
                   trials: list[dict[str, Any]], queues: Sequence[Queues],
                   replays: list[Any] | None = None) -> list[float]:
     """Mean |frame-time error| of each trial, in trial order, on up to all cores (forked
-    workers where the platform forks; else one process)."""
+    workers, at most `MGPUSIM_WORKERS`: :func:`mgpusim.io.workers.worker_count`)."""
     global _GRID
-    workers = min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1,
-                  len(trials))
+    workers = worker_count(len(trials))
     _GRID = (profile_data, exps, measured, queues, replays)
     try:
-        if workers < 2 or "fork" not in multiprocessing.get_all_start_methods():
+        if workers < 2:
             return [_trial_score(t) for t in trials]
         ctx = multiprocessing.get_context("fork")
         with ctx.Pool(workers) as pool:

@@ -2,12 +2,18 @@
 from __future__ import annotations
 
 import copy
+import os
 from typing import Any
 
 import pytest
 
 from mgpusim.model.profile import parse_profile
 from mgpusim.schedules.experiment import parse_experiment
+
+# The suite runs one process per core (pytest-xdist): a command under test forks no workers of
+# its own beside them (tests of the workers clear this themselves)
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    os.environ.setdefault("MGPUSIM_WORKERS", "1")
 
 
 def gpu_dict(transfer: int = 1, h2d: float = 1.0, d2h: float = 1.0, latency: int = 0,

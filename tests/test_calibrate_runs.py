@@ -54,6 +54,7 @@ def test_host_grid_gives_the_same_answer_on_one_process_and_on_several(monkeypat
     prof = truth()
     multi = runs(prof, [(2, 32, 16, 40), (1, 16, 16, 10)])
     grid = {"dispatch_ns": (0, 100, 200, 300, 400, 600, 800), "submit_ns": (0, 50, 100)}
+    monkeypatch.delenv("MGPUSIM_WORKERS", raising=False)
     monkeypatch.setattr("os.sched_getaffinity", lambda _pid: {0, 1, 2}, raising=False)
     several = fit_host_effects(copy.deepcopy(prof), multi, grid)
     monkeypatch.setattr("os.sched_getaffinity", lambda _pid: {0}, raising=False)

@@ -5,14 +5,17 @@
 """
 from __future__ import annotations
 
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, Iterator, TypeVar
 
 import pandas as pd
 import tomli_w
 
 from mgpusim.calibration.recipe import profile_from_tables, refine_on_runs
 from mgpusim.io.plot import errors_png
+from mgpusim.io.workers import worker_count
 from mgpusim.io.writers import write_json
 from mgpusim.measure import run_archive, run_speed, speed_norm
 from mgpusim.measure import speed_probe as speed
@@ -25,6 +28,8 @@ from mgpusim.studies.verdict import CALIBRATION_TITLE, HELD_OUT_TITLE
 from mgpusim.validation.compare import error_stats, error_table
 from mgpusim.validation.crossvalidate import format_report, validate_experiment
 from mgpusim.validation.measured import read_measured
+
+T = TypeVar("T")
 
 #: Each runs folder's speed record (`runs/run_speed.csv`) as one command read it, by folder.
 SpeedTables = dict[Path, pd.DataFrame]
@@ -109,21 +114,41 @@ def validate(study: Study, entries: tuple[Entry, ...], root: Path, profile: Path
     if missing:
         progress(f"no measured run under {root} for {len(missing)} configuration(s): {', '.join(missing)}")
     speeds = run_speeds(study, entries, root, calibration_root or root, speed_tables)
-    for e in entries:
-        folder = measured_folder(root, e.name)
-        if e.name in missing:
-            continue
-        exp = e.load(profile, extra)
-        report = validate_experiment(exp, out / e.name, folder, speed=speeds.get(e.name), figures=figures)
-        report["config"] = e.name
-        progress(format_report(exp, report))
-        rows.append((exp.schedule.name, report))
+    jobs = [(e, profile, extra, measured_folder(root, e.name), out / e.name, speeds.get(e.name), figures)
+            for e in entries if e.name not in missing]
+    for name, report, text in _in_workers(_validate_entry, jobs):
+        progress(text)
+        rows.append((name, report))
     table = error_table([r for _, r in rows])
     if rows:
         table["schedule"] = [name for name, _ in rows]
         table["run_to_run_spread"] = [r["measured_spread"] for _, r in rows]
         table = table.join(pd.DataFrame([most_off(r) for _, r in rows], index=table.index))
     return table
+
+
+def _validate_entry(e: Entry, profile: Path, extra: tuple[str, ...], folder: Path, out: Path,
+                    speed: RunSpeed | None, figures: bool) -> tuple[str, dict[str, Any], str]:
+    """One entry's comparison written to `out`: its schedule's name, report and text."""
+    exp = e.load(profile, extra)
+    report = validate_experiment(exp, out, folder, speed=speed, figures=figures)
+    report["config"] = e.name
+    return exp.schedule.name, report, format_report(exp, report)
+
+
+def _in_workers(work: Callable[..., T], jobs: list[tuple]) -> Iterator[T]:
+    """`work(*job)` of every job, yielded in the jobs' order, on up to every core the process
+    may use, at most `MGPUSIM_WORKERS` (forked workers; :func:`mgpusim.io.workers.worker_count`).
+    Why: a study's comparisons are independent, and their timelines (matplotlib) take most of
+    a validation's time; each writes only its own folder, so the outputs are the same."""
+    workers = worker_count(len(jobs))
+    if workers < 2:
+        for job in jobs:
+            yield work(*job)
+        return
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
+        for task in [pool.submit(work, *job) for job in jobs]:
+            yield task.result()
 
 
 def speed_table(tables: SpeedTables, root: Path) -> pd.DataFrame:

@@ -8,4 +8,5 @@ bash scripts/setup.sh
   || { echo "test.sh: ruff found the problems above; tests not run" >&2; exit 1; }
 .venv/bin/mypy \
   || { echo "test.sh: mypy found the problems above; tests not run" >&2; exit 1; }
-exec .venv/bin/python -m pytest -q "$@"
+# on every core (pytest-xdist; `-n 0` in the arguments runs them in one process)
+exec .venv/bin/python -m pytest -q -n auto "$@"

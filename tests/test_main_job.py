@@ -3,6 +3,7 @@ configurations and one short round of microbenchmarks, with one run per configur
 from __future__ import annotations
 
 import json
+import os
 
 import pandas as pd
 import pytest
@@ -24,7 +25,7 @@ def short_study():
     data = read_toml(LAVAPIPE_STUDY)
     data["microbenchmarks"].update(rounds=1, reps=2, warmup=1)
     data["calibration"]["config"] = [c for c in data["calibration"]["config"] if c["name"] in KEEP]
-    path = LAVAPIPE_STUDY.with_name("short_study_tmp.toml")  # beside it: its paths are relative
+    path = LAVAPIPE_STUDY.with_name(f"short_study_{os.getpid()}_tmp.toml")  # beside it: its paths are relative
     path.write_text(tomli_w.dumps(data))
     yield path
     path.unlink()

@@ -1,6 +1,7 @@
 """Study files: the shipped ones load, and bad ones fail with one error naming file and field."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -54,7 +55,7 @@ def test_lavapipe_study_keeps_held_out_apart() -> None:
 ])
 def test_bad_study_is_one_error_naming_the_field(tmp_path: Path, edit: tuple[str, str], field: str | None) -> None:
     src = ROOT / "experiments" / "lavapipe" / "study.toml"
-    bad = src.parent / "bad_study_tmp.toml"
+    bad = src.parent / f"bad_study_{os.getpid()}_tmp.toml"  # one per test process (xdist)
     bad.write_text(src.read_text().replace(*edit, 1))
     try:
         with pytest.raises(InputError) as err:
@@ -77,7 +78,7 @@ def test_lavapipe_threads_follow_the_cores_this_process_may_use(monkeypatch: pyt
 
 def test_bad_lavapipe_threads_per_core_names_the_field(tmp_path: Path) -> None:
     src = ROOT / "experiments" / "lavapipe" / "study.toml"
-    bad = src.parent / "bad_study_threads_tmp.toml"
+    bad = src.parent / f"bad_study_threads_{os.getpid()}_tmp.toml"
     bad.write_text(src.read_text().replace("lavapipe_threads_per_core = 4", "lavapipe_threads_per_core = 0", 1))
     try:
         with pytest.raises(InputError, match="lavapipe_threads_per_core"):

@@ -232,3 +232,39 @@ def test_as_built_host_copy_parts_follow_bp_parallel_copy():
     small = build_program(make_experiment(prof, gpus=2, width=320, height=640, iterations=10,
                                           host_work="as_built"))
     assert next(t for t in small.templates[0] if t.name == "host_copy1").parts(12) == 1
+
+
+def _three_gpu_as_built(mem_gbps: float, fidelity: str = "full"):
+    prof = profile_dict(gpus=3, mem_gbps=mem_gbps)
+    prof["host"].update(dispatch_ns=5, thread_start_ns=3, record_ns=2)
+    exp = make_experiment(prof, gpus=3, width=8, height=6, frames=3, iterations=10, host_work="as_built")
+    return simulate(exp, fidelity=fidelity)
+
+
+def test_as_built_host_copies_of_every_secondary_run_at_once():
+    """bp's hostCopyStep starts every secondary's parallelCopy at once, each on threads of its
+    own, although the host has one memcpy thread: 3 GPUs on 8x6, two 64 B contributions (8x2
+    px). Frame 1: the present of frame 0 at 333, the loop's launch 5 ns later starts 5 threads
+    (338-353); both copies start 5 ns after it (358) and, host memory (2 B/ns) holding both at
+    a thread's 1 B/ns, both end at 422; the upload is recorded 5 ns after them (427-429). On the
+    pool of one thread the second copy would start at 422. The analytic level agrees."""
+    r = _three_gpu_as_built(2.0)
+    assert rows(r, "host_copy1", 1) == rows(r, "host_copy2", 1) == [(358, 422)]
+    assert rows(r, "cpu.record_upload", 1) == [(427, 429)]
+    engines = r.trace[r.trace.task.str.startswith("host_copy")].groupby("task").engine.unique()
+    assert {k: list(v) for k, v in engines.items()} == {"host_copy1": ["host_copy1.thread0"],
+                                                       "host_copy2": ["host_copy2.thread0"]}
+    analytic = _three_gpu_as_built(2.0, "analytic")
+    assert analytic.frames.present_ns.tolist() == r.frames.present_ns.tolist() == [333, 671, 1009]
+
+
+def test_copies_on_threads_of_their_own_share_host_memory():
+    """The same loop with host memory at 1 B/ns: the two copies at once cross at 0.5 B/ns each,
+    128 ns (frame 1: present 358, launch 363-378, copies 383-511). The analytic level takes each
+    copy alone (64 ns) and says so."""
+    r = _three_gpu_as_built(1.0)
+    assert rows(r, "host_copy1", 1) == rows(r, "host_copy2", 1) == [(383, 511)]
+    assert "host_memory_sharing" in r.summary["modelled_effects"]
+    analytic = _three_gpu_as_built(1.0, "analytic")
+    assert rows(analytic, "host_copy1", 1) == [(358, 422)]
+    assert any(a.startswith("host_memory_sharing") for a in analytic.summary["approximations"])

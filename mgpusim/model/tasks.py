@@ -116,7 +116,8 @@ class CopyTask:
 
 @dataclass(frozen=True, slots=True)
 class HostCopyTask:
-    """A host-to-host memcpy, split into chunks (>= chunk_min_bytes) over the memcpy threads."""
+    """A host-to-host memcpy, split into chunks (>= chunk_min_bytes) over the memcpy threads
+    (the host's pool, or threads of the copy's own: `own_threads`)."""
 
     name: str
     step: str
@@ -127,6 +128,11 @@ class HostCopyTask:
     #: The source is host-visible memory the CPU does not cache (a write-combined staging
     #: buffer): its parts read at `host.uncached_read_gbps` (the uncached_reads effect).
     uncached: bool = False
+    #: The copy starts threads of its own, one per part (the thesis's `parallelCopy`: a new
+    #: std::thread per chunk, every call), instead of queueing its parts for the host's pool of
+    #: memcpy threads: two such copies at once run side by side, sharing host memory (and, on
+    #: CPU-emulated GPUs, the cores), not one after the other.
+    own_threads: bool = False
 
     #: Host-visible buffers copied from and to (the Vulkan runner's binding).
     src: str | None = None

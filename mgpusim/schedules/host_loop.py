@@ -9,9 +9,11 @@ the thesis's library and the `bpQt` window loop) does per frame, on the applicat
    (`vkQueueWaitIdle`); a secondary's thread then records the download of its contribution
    to a staging buffer on its transfer queue, submits it and waits idle again;
 3. meanwhile the main thread copies the previous frame's contributions from the secondaries'
-   staging buffers to the primary's on every hardware thread (`parallelCopy`: the copy split
-   into one part per hardware thread, each part a thread of its own; the source is a
-   `CPU_ONLY` buffer, host-coherent and not cached), then records the upload, submits it and
+   staging buffers to the primary's on every hardware thread (`Compositor::hostCopyStep`: every
+   secondary's copy at once, each a `parallelCopy` of its own, split into one part per hardware
+   thread, each part a new thread; the source is a `CPU_ONLY` buffer, host-coherent and not
+   cached): the copies run side by side (`HostCopyTask.own_threads`), sharing host memory
+   and the cores, not one after another on a pool; then it records the upload, submits it and
    waits idle;
 4. it joins the primary's thread, records the composite of every contribution (the primary's
    own included), joins the secondaries' threads, submits the composite, waits idle and
@@ -98,7 +100,8 @@ def as_built(tasks: Sequence[Task], gpus: int, renders: Sequence[str], depth: bo
         if f"host_copy{i}" in by_name:
             hc = _of_kind(by_name, f"host_copy{i}", HostCopyTask)
             out.append(dataclasses.replace(hc, deps=(Dep(f"d2h{i}", -1), Dep(launch.name)) + hc.deps[1:],
-                                           chunk_min_bytes=PARALLEL_COPY_MIN_BYTES, uncached=True))
+                                           chunk_min_bytes=PARALLEL_COPY_MIN_BYTES, uncached=True,
+                                           own_threads=True))
             staged.append(Dep(hc.name))
         else:
             staged += [Dep(f"d2h{i}", -1), Dep(launch.name)]

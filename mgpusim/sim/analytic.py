@@ -436,6 +436,8 @@ class _Recurrence:
         self.host_prev = t
         end, threads, names = NEG, self.threads, self.m.thread_names
         rows = self.rows if self.record else None
+        if isinstance(node.task, HostCopyTask) and node.task.own_threads:
+            return self._own_threads(node, f, t, first)
         for size, took in node.part_times:
             for tid, s in enumerate(threads):  # noqa: B007 - `tid`, the thread found, is read after the loop
                 if s <= t:
@@ -452,6 +454,17 @@ class _Recurrence:
             if rows is not None:
                 rows.append((f, "host", names[tid], node.step, node.name, s, e, size, node.waits_for))
         return end, first
+
+    def _own_threads(self, node: _Node, f: int, t: int, first: int) -> tuple[int, int]:
+        """A copy on threads of its own: every part starts at `t`, each alone (host memory
+        as if unshared, as for the pool's parts). Returns its end and the frame's first start."""
+        end = NEG
+        for k, (size, took) in enumerate(node.part_times):
+            end = max(end, t + took)
+            if self.record:
+                self.rows.append((f, "host", f"{node.name}.thread{k}", node.step, node.name, t, t + took, size,
+                                  node.waits_for))
+        return end, min(first, t)
 
     def forget_before(self, f: int) -> None:
         if f > 0:

@@ -74,6 +74,12 @@ def _host_copies(program: FrameProgram) -> bool:
     return any(isinstance(t, HostCopyTask) for t in _all_tasks(program))
 
 
+def _own_thread_copies(program: FrameProgram) -> int:
+    """The most host copies of one frame phase that start threads of their own."""
+    return max((sum(isinstance(t, HostCopyTask) and t.own_threads for t in tasks)
+                for tasks in program.templates), default=0)
+
+
 def _copy_caps_bind(program: FrameProgram, profile: HardwareProfile) -> bool:
     """A copy whose queue family has a rate cap below its path's bandwidth."""
     costs = CostModel(profile)
@@ -135,8 +141,9 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
     Effect("host_memory_sharing",
            "host-copy parts share host memory bandwidth (fluid solver); off: each part at one "
            "memcpy thread's speed",
-           "the schedule has host copies and the host has more than one memcpy thread",
-           lambda p, prof: _host_copies(p) and prof.host.memcpy_threads > 1),
+           "the schedule has host copies and the host has more than one memcpy thread, or "
+           "several host copies start threads of their own",
+           lambda p, prof: _host_copies(p) and (prof.host.memcpy_threads > 1 or _own_thread_copies(p) > 1)),
     Effect("shared_executor",
            "the GPUs' passes and copies, host copies and submit threads are work on one pool of "
            "host cores (CPU-emulated GPUs); off: every device runs its own work",

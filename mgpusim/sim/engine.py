@@ -532,20 +532,24 @@ class Engine:
         return v
 
     def _dispatch_host_copy(self, frame: int, op: Op) -> None:
-        """Split into parts of >= chunk_min_bytes, at most one per memcpy thread."""
+        """Split into parts of >= chunk_min_bytes, at most one per memcpy thread; each part on
+        a free thread of the pool (else queued for the first one free), or, for a copy that
+        starts threads of its own, on a new thread at once."""
+        task: HostCopyTask = op.task  # type: ignore[assignment]
         sizes = self._part_sizes.get(op)
         if sizes is None:
-            task: HostCopyTask = op.task  # type: ignore[assignment]
             sizes = self._part_sizes[op] = even_split(task.bytes, task.parts(len(self._threads_all)))
         state = [len(sizes)]
-        for size in sizes:
+        for k, size in enumerate(sizes):
             part = (frame, op, size, state)
-            if self._free_threads:
+            if task.own_threads:  # a thread of its own, started now: named after the copy's part
+                self._start_part(f"{task.name}.thread{k}", part)
+            elif self._free_threads:
                 self._start_part(_heappop(self._free_threads), part)
             else:
                 self._part_queue.append(part)
 
-    def _start_part(self, tid: int, part: tuple) -> None:
+    def _start_part(self, tid: int | str, part: tuple) -> None:
         start = self.env.now
         op = part[1]
         if op.measured:  # its whole time, measured
@@ -556,21 +560,25 @@ class Engine:
         else:
             self._part_copy(tid, part, start)
 
-    def _part_copy(self, tid: int, part: tuple, start: int) -> None:
+    def _part_copy(self, tid: int | str, part: tuple, start: int) -> None:
         ev = self._part_event(part[2], part[1].cap)
         ev.callbacks.append(_PartDone((self, tid, part, start)))
 
-    def _part_done(self, tid: int, part: tuple, start: int) -> None:
+    def _part_done(self, tid: int | str, part: tuple, start: int) -> None:
+        """A part has crossed: its pool thread takes the next part waiting (a thread of the
+        copy's own, named by a string, ends)."""
         frame, op, size, state = part
-        if self._part_queue:
-            self._start_part(tid, self._part_queue.popleft())
-        else:
-            _heappush(self._free_threads, tid)
+        if not isinstance(tid, str):
+            if self._part_queue:
+                self._start_part(tid, self._part_queue.popleft())
+            else:
+                _heappush(self._free_threads, tid)
         state[0] -= 1
         if start < self.frame_start[frame]:
             self.frame_start[frame] = start
         if self.record:
-            self.rows.append((frame, "host", self._threads_all[tid], op.task.step, op.task.name, start,
+            self.rows.append((frame, "host", tid if isinstance(tid, str) else self._threads_all[tid],
+                              op.task.step, op.task.name, start,
                               self.env.now, size, op.waits_for))
         if state[0] == 0:
             self._complete(frame, op.task, False, op.dependents)

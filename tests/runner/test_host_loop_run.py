@@ -53,3 +53,20 @@ def test_the_picture_is_the_overlapped_runs(as_built):
 def test_dependencies_honoured(as_built):
     exp, measured = as_built
     assert_dependencies_honoured(build_program(exp), measured.trace)
+
+
+def test_every_secondary_s_host_copy_runs_on_threads_of_its_own():
+    """bp's hostCopyStep: each secondary's copy is a parallelCopy of its own, its parts on new
+    threads, not the runner's memcpy pool: the rows name the copy's own threads, as the
+    simulator's do, and the picture is the overlapped loop's."""
+    exp = experiment("sort_first", 3, frames=4, host_work="as_built")
+    measured = run_experiment(exp)
+    copies = measured.trace[measured.trace["step"] == "host_copy"]
+    simulated = simulate(exp).trace
+    want = set(simulated.loc[simulated["step"] == "host_copy", "engine"])
+    assert set(copies["engine"]) == want
+    assert want == {f"host_copy{i}.thread{k}" for i in (1, 2)
+                    for k in range(len(simulated[(simulated.task == f"host_copy{i}") & (simulated.frame == 0)]))}
+    assert_dependencies_honoured(build_program(exp), measured.trace)
+    ref = run_experiment(experiment("sort_first", 3, frames=4))
+    assert np.array_equal(measured.image, ref.image)

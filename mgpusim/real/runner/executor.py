@@ -88,6 +88,8 @@ class Executor:
         self._sem_lock = threading.Lock()
         #: the memcpy threads' parts to copy (a SimpleQueue: put and get are C, no Python lock)
         self._parts: queue_mod.SimpleQueue = queue_mod.SimpleQueue()
+        #: the threads host copies started of their own (`HostCopyTask.own_threads`), joined last
+        self._own_threads: list[threading.Thread] = []
         self._by_key = {(n.frame, n.task.name): n for n in nodes}
         self._skip_lock = threading.Lock()
         #: skippable GPU nodes submitted and not yet known to be finished (see `_skipped`), by id
@@ -311,8 +313,16 @@ class Executor:
             node.parts_left = len(parts)
             node.submitted.set()
             call = time.monotonic_ns()
-            for dst, src in parts:
-                self._parts.put((node, dst, src))
+            if node.work.task.own_threads:  # a new thread per part, as parallelCopy starts them
+                for k, (dst, src) in enumerate(parts):
+                    part = threading.Thread(target=self._guard, args=(self._copy_part, node, dst, src,
+                                                                      f"{node.task.name}.thread{k}"),
+                                            name=f"{node.task.name}-part{k}")
+                    part.start()
+                    self._own_threads.append(part)
+            else:
+                for dst, src in parts:
+                    self._parts.put((node, dst, src))
             with self._rows_lock:
                 self.submissions.append((node.frame, "host", "memcpy", node.task.name, seen, call,
                                          time.monotonic_ns()))
@@ -352,16 +362,21 @@ class Executor:
             if item is None:
                 return
             node, dst, src = item
-            start = time.monotonic_ns()
-            np.copyto(dst, src)
-            end = time.monotonic_ns()
-            with self._rows_lock:
-                self.rows.append((node.frame, "host", f"thread{k}", node.task.step, node.task.name,
-                                  start, end, int(dst.size), node.waits_for))
-                node.parts_left -= 1
-                last = node.parts_left == 0
-            if last:
-                self._done(node)
+            self._copy_part(node, dst, src, f"thread{k}")
+
+    def _copy_part(self, node: Node, dst: np.ndarray, src: np.ndarray, thread: str) -> None:
+        """One part of a host copy on `thread` (the trace's engine); the last part done ends
+        the copy."""
+        start = time.monotonic_ns()
+        np.copyto(dst, src)
+        end = time.monotonic_ns()
+        with self._rows_lock:
+            self.rows.append((node.frame, "host", thread, node.task.step, node.task.name,
+                              start, end, int(dst.size), node.waits_for))
+            node.parts_left -= 1
+            last = node.parts_left == 0
+        if last:
+            self._done(node)
 
     def execute(self) -> list[tuple]:
         """Run every node; raise the first error any thread hit."""
@@ -390,6 +405,8 @@ class Executor:
             for t in threads:
                 t.start()
             for t in threads:
+                t.join()
+            for t in self._own_threads:  # (done by now: every copy has a task that waits on it)
                 t.join()
         finally:
             sys.setswitchinterval(old)

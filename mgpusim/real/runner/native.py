@@ -86,6 +86,8 @@ def unsupported(program: FrameProgram, nodes: list[Node]) -> str | None:
     for node in nodes:
         if isinstance(node.work, CpuWork):
             return f"task {node.task.name!r} is a CPU task of the as-built host loop"
+        if isinstance(node.work, HostWork) and node.work.task.own_threads:
+            return f"host copy {node.task.name!r} starts threads of its own"
         if isinstance(node.work, GpuWork) and node.work.choose is not None:
             return f"task {node.task.name!r} chooses its input at submit time"
         if sum(kind == "semaphore" for _p, kind in node.deps) > MAX_WAITS:

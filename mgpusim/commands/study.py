@@ -268,7 +268,7 @@ def validate_frame_times(args: argparse.Namespace) -> int:
     write_text(page, out / "report.md")
     print(page)
     print(f"wrote {out}")
-    return 0
+    return 0 if result.met else 1  # the exit rule of every study command (README)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -216,6 +216,15 @@ def compared(study: FrameTimeStudy, table: pd.DataFrame, values: dict[str, float
     return out
 
 
+def targets_met(study: FrameTimeStudy, table: pd.DataFrame) -> bool:
+    """Whether `table` (one half) meets every target: the median and worst |error|, and every
+    3- and 4-GPU prediction closer than the Amdahl line through the same 1 -> 2 point."""
+    abs_err = table.error.abs()
+    far = table[table.gpus >= 3].dropna(subset=["amdahl_error"])
+    return bool(abs_err.median() <= study.targets["median_error"] and abs_err.max() <= study.targets["worst_error"]
+                and (far.error.abs() < far.amdahl_error.abs()).all())
+
+
 def verdict(study: FrameTimeStudy, table: pd.DataFrame) -> list[str]:
     """Lines that state each target met or missed on `table` (one half)."""
     abs_err = table.error.abs()
@@ -248,6 +257,12 @@ class Validation:
     study: FrameTimeStudy
     values: dict[str, float]
     halves: dict[str, pd.DataFrame]
+
+    @property
+    def met(self) -> bool:
+        """Every target met on the verdict's half: the held-out one where it was compared,
+        else the calibration half."""
+        return targets_met(self.study, list(self.halves.values())[-1])
 
 
 def validate(study: FrameTimeStudy, held_out: bool,

@@ -268,3 +268,20 @@ def test_copies_on_threads_of_their_own_share_host_memory():
     analytic = _three_gpu_as_built(1.0, "analytic")
     assert rows(analytic, "host_copy1", 1) == [(358, 422)]
     assert any(a.startswith("host_memory_sharing") for a in analytic.summary["approximations"])
+
+
+@pytest.mark.parametrize("fidelity", ["full", "analytic"])
+def test_a_parallel_copy_starts_its_part_threads_one_after_another(fidelity):
+    """A 1024x384 sort-first tile (1.5 MiB) on 3 hardware threads is 3 parts of 512 KiB, each on
+    a thread parallelCopy starts in turn (host.thread_start_ns = 1000 each): part k starts
+    (k + 1) us after the copy's thread wakes (launch end + 5 ns hand-off), and takes 524,288 ns
+    at a thread's 1 B/ns (host memory wide enough for all three)."""
+    prof = profile_dict(gpus=2, mem_gbps=100.0, threads=3)
+    prof["host"].update(dispatch_ns=5, thread_start_ns=1000)
+    exp = make_experiment(prof, gpus=2, width=1024, height=768, frames=3, iterations=1, host_work="as_built")
+    r = simulate(exp, fidelity=fidelity)
+    launch_end = rows(r, "cpu.launch", 1)[0][1]
+    parts = sorted(rows(r, "host_copy1", 1))
+    assert parts == [(launch_end + 5 + k * 1000, launch_end + 5 + k * 1000 + 524_288) for k in (1, 2, 3)]
+    copies = r.trace[(r.trace.task == "host_copy1") & (r.trace.frame == 1)]
+    assert sorted(copies.engine) == [f"host_copy1.thread{k}" for k in range(3)]

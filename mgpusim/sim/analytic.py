@@ -145,6 +145,8 @@ class Analytic:
         builder = _builder(program, costs, effects)
         self.inputs = builder.inputs  # the ids the rows log, and what each lists
         self.threads = host.memcpy_threads
+        #: a thread start before each part of a copy on threads of its own (host_frame_work)
+        self.part_thread_ns = host.thread_start_ns if "host_frame_work" in effects else 0
         self.thread_names = [f"thread{i}" for i in range(self.threads)]
         self.host_memory = costs.host_memory_bandwidth()
         self.phases = [self._order([self._node(op, phase) for op in ops])
@@ -456,15 +458,20 @@ class _Recurrence:
         return end, first
 
     def _own_threads(self, node: _Node, f: int, t: int, first: int) -> tuple[int, int]:
-        """A copy on threads of its own: every part starts at `t`, each alone (host memory
-        as if unshared, as for the pool's parts). Returns its end and the frame's first start."""
+        """A copy on threads of its own: part k starts k + 1 thread starts after `t` (none
+        without host_frame_work, or for a copy of one part: bp's memmove on the calling
+        thread), each alone (host memory as if unshared, as for the pool's parts). Returns its
+        end and the frame's first start."""
         end = NEG
+        step = self.m.part_thread_ns if len(node.part_times) > 1 else 0  # one part: on the caller
         for k, (size, took) in enumerate(node.part_times):
-            end = max(end, t + took)
+            s = t + (k + 1) * step  # started one after another by the copy's caller
+            end = max(end, s + took)
+            first = min(first, s)
             if self.record:
-                self.rows.append((f, "host", f"{node.name}.thread{k}", node.step, node.name, t, t + took, size,
+                self.rows.append((f, "host", f"{node.name}.thread{k}", node.step, node.name, s, s + took, size,
                                   node.waits_for))
-        return end, min(first, t)
+        return end, first
 
     def forget_before(self, f: int) -> None:
         if f > 0:

@@ -100,10 +100,12 @@ def _copy_caps_bind(program: FrameProgram, profile: HardwareProfile) -> bool:
 
 
 def _frame_work(program: FrameProgram, profile: HardwareProfile) -> bool:
-    """A CPU task starts threads or records command buffers that cost host time."""
+    """A CPU task starts threads or records command buffers, or a host copy starts threads of
+    its own, that cost host time."""
     host = profile.host
     return any(isinstance(t, CpuTask) and (t.threads and host.thread_start_ns
                                             or t.command_buffers and host.record_ns)
+               or isinstance(t, HostCopyTask) and t.own_threads and host.thread_start_ns
                for t in _all_tasks(program))
 
 
@@ -176,9 +178,10 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
     Effect("host_frame_work",
            "the application's per-frame host work: a CPU task that starts (and joins) threads "
            "costs host.thread_start_ns each, one that records and submits command buffers "
-           "host.record_ns each; off: they cost only their own time",
-           "a CPU task starts threads or records command buffers and host.thread_start_ns or "
-           "host.record_ns is non-zero",
+           "host.record_ns each, and a host copy on threads of its own starts its parts one "
+           "after another, host.thread_start_ns apart; off: they cost only their own time",
+           "a CPU task starts threads or records command buffers, or a host copy starts threads "
+           "of its own, and host.thread_start_ns or host.record_ns is non-zero",
            _frame_work),
     Effect("uncached_reads",
            "a host copy whose source is uncached (write-combined) host memory reads it at "

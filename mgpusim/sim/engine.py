@@ -213,6 +213,8 @@ class Engine:
             self._part_sizes: dict[Op, list[int]] = {}  # a host copy's part sizes, per task
             self._free_threads = list(range(host.memcpy_threads))
             self._part_queue: deque = deque()
+            #: a thread start, before each part of a copy on threads of its own (host_frame_work)
+            self._part_thread_ns = host.thread_start_ns if "host_frame_work" in self.effects else 0
             # where memcpys are core work the channel is only reported: its rate is unused
             with not_reading() if host_ex.copies_on_cores else contextlib.nullcontext():
                 memory = self.builder.host_memory()
@@ -542,8 +544,14 @@ class Engine:
         state = [len(sizes)]
         for k, size in enumerate(sizes):
             part = (frame, op, size, state)
-            if task.own_threads:  # a thread of its own, started now: named after the copy's part
-                self._start_part(f"{task.name}.thread{k}", part)
+            if task.own_threads:  # a thread of its own, named after the copy's part
+                name = f"{task.name}.thread{k}"
+                if self._part_thread_ns and len(sizes) > 1:  # the caller starts them in turn
+                    # (one part is a memmove on the calling thread: no thread to start)
+                    self.env.timeout((k + 1) * self._part_thread_ns).callbacks.append(
+                        _PartStart((self, name, part)))
+                else:
+                    self._start_part(name, part)
             elif self._free_threads:
                 self._start_part(_heappop(self._free_threads), part)
             else:
@@ -734,6 +742,18 @@ class _PartCopy(Callback, tuple):
 
     def state(self, rel: Relative) -> tuple:
         return ("part copy", self[1], rel.part(self[2]), rel.t(self[3]))
+
+
+class _PartStart(Callback, tuple):
+    """(engine, thread, part): the thread its copy started for a part is up; the part starts."""
+
+    __slots__ = ()
+
+    def __call__(self, _event: simpy.Event) -> None:
+        self[0]._start_part(self[1], self[2])
+
+    def state(self, rel: Relative) -> tuple:
+        return ("part start", self[1], rel.part(self[2]))
 
 
 class _PartDone(_PartCopy):

@@ -536,7 +536,8 @@ class Engine:
     def _dispatch_host_copy(self, frame: int, op: Op) -> None:
         """Split into parts of >= chunk_min_bytes, at most one per memcpy thread; each part on
         a free thread of the pool (else queued for the first one free), or, for a copy that
-        starts threads of its own, on a new thread at once."""
+        starts threads of its own, on a new thread: the copy's caller starts them one after
+        another, `host.thread_start_ns` apart (host_frame_work), where there are several."""
         task: HostCopyTask = op.task  # type: ignore[assignment]
         sizes = self._part_sizes.get(op)
         if sizes is None:

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import platform
 import shutil
 import statistics
@@ -28,6 +27,11 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from mgpusim.io.workers import usable_cores  # noqa: E402
 
 SOURCE = r"""
 #include <pthread.h>
@@ -86,9 +90,8 @@ def measure(trials: int, batch: int) -> dict[str, object]:
         per_thread_ns(exe, max(1, trials // 10), 1)  # warm-up: the loader, the first stacks
         single = per_thread_ns(exe, trials, 1)
         batched = per_thread_ns(exe, trials, batch)
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     return {"single_ns": round(single), "batch_ns": round(batched), "batch": batch,
-            "trials": trials, "cores": cores, "machine": platform.node(),
+            "trials": trials, "cores": usable_cores(), "machine": platform.node(),
             "processor": platform.processor() or platform.machine()}
 
 
@@ -101,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.trials < 1 or (args.batch is not None and args.batch < 1):
         ap.error("--trials and --batch must be >= 1")
-    batch = args.batch or (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1)
+    batch = args.batch or usable_cores()
     result = measure(args.trials, batch)
     if args.json:
         print(json.dumps(result))

@@ -5,9 +5,8 @@ import os
 
 import pytest
 
-from mgpusim.io.workers import worker_count
+from mgpusim.io.workers import in_workers, worker_count
 from mgpusim.model.errors import InputError
-from mgpusim.studies.pipeline import _in_workers
 
 
 def test_workers_follow_the_cores_the_jobs_and_the_cap(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -36,9 +35,9 @@ def _square_and_pid(x: int) -> tuple[int, int]:
 def test_work_in_workers_comes_back_in_the_jobs_order(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr("os.sched_getaffinity", lambda _pid: {0, 1})
     monkeypatch.delenv("MGPUSIM_WORKERS", raising=False)
-    spread = list(_in_workers(_square_and_pid, [(x,) for x in range(12)]))
+    spread = list(in_workers(_square_and_pid, [(x,) for x in range(12)]))
     assert [r for r, _ in spread] == [x * x for x in range(12)]
     assert os.getpid() not in {pid for _, pid in spread}  # forked workers did it
     monkeypatch.setenv("MGPUSIM_WORKERS", "1")
-    here = list(_in_workers(_square_and_pid, [(x,) for x in range(12)]))
+    here = list(in_workers(_square_and_pid, [(x,) for x in range(12)]))
     assert [r for r, _ in here] == [r for r, _ in spread] and {pid for _, pid in here} == {os.getpid()}

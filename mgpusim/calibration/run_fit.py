@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import copy
 import itertools
-import multiprocessing
 from collections import defaultdict
 from dataclasses import replace
 from typing import Any, Iterable, Iterator, Mapping, Sequence, cast
@@ -24,7 +23,7 @@ import pandas as pd
 
 from mgpusim.calibration.fit import Fit, fit_nonnegative
 from mgpusim.calibration.profile_out import cost_table
-from mgpusim.io.workers import worker_count
+from mgpusim.io.workers import in_workers
 from mgpusim.model.costs import CostModel
 from mgpusim.model.profile import HardwareProfile, parse_profile
 from mgpusim.model.tasks import CopyTask, PassTask, QueueRef, Task
@@ -311,16 +310,11 @@ def _trial_scores(profile_data: dict[str, Any], exps: list[Experiment], measured
                   trials: list[dict[str, Any]], queues: Sequence[Queues],
                   replays: list[Any] | None = None) -> list[float]:
     """Mean |frame-time error| of each trial, in trial order, on up to all cores (forked
-    workers, at most `MGPUSIM_WORKERS`: :func:`mgpusim.io.workers.worker_count`)."""
+    workers, at most `MGPUSIM_WORKERS`: :func:`mgpusim.io.workers.in_workers`)."""
     global _GRID
-    workers = worker_count(len(trials))
     _GRID = (profile_data, exps, measured, queues, replays)
     try:
-        if workers < 2:
-            return [_trial_score(t) for t in trials]
-        ctx = multiprocessing.get_context("fork")
-        with ctx.Pool(workers) as pool:
-            return pool.map(_trial_score, trials, chunksize=max(1, len(trials) // (4 * workers)))
+        return list(in_workers(_trial_score, [(t,) for t in trials]))
     finally:
         _GRID = None
 

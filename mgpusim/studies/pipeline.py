@@ -5,17 +5,15 @@
 """
 from __future__ import annotations
 
-import multiprocessing
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from typing import Any, Callable, Iterator, TypeVar
+from typing import Any
 
 import pandas as pd
 import tomli_w
 
 from mgpusim.calibration.recipe import profile_from_tables, refine_on_runs
 from mgpusim.io.plot import errors_png
-from mgpusim.io.workers import worker_count
+from mgpusim.io.workers import in_workers
 from mgpusim.io.writers import write_json
 from mgpusim.measure import run_archive, run_speed, speed_norm
 from mgpusim.measure import speed_probe as speed
@@ -28,8 +26,6 @@ from mgpusim.studies.verdict import CALIBRATION_TITLE, HELD_OUT_TITLE
 from mgpusim.validation.compare import error_stats, error_table
 from mgpusim.validation.crossvalidate import format_report, validate_experiment
 from mgpusim.validation.measured import read_measured
-
-T = TypeVar("T")
 
 #: Each runs folder's speed record (`runs/run_speed.csv`) as one command read it, by folder.
 SpeedTables = dict[Path, pd.DataFrame]
@@ -116,7 +112,8 @@ def validate(study: Study, entries: tuple[Entry, ...], root: Path, profile: Path
     speeds = run_speeds(study, entries, root, calibration_root or root, speed_tables)
     jobs = [(e, profile, extra, measured_folder(root, e.name), out / e.name, speeds.get(e.name), figures)
             for e in entries if e.name not in missing]
-    for name, report, text in _in_workers(_validate_entry, jobs):
+    # independent, each writing its own folder; their timelines (matplotlib) take most of the time
+    for name, report, text in in_workers(_validate_entry, jobs):
         progress(text)
         rows.append((name, report))
     table = error_table([r for _, r in rows])
@@ -134,21 +131,6 @@ def _validate_entry(e: Entry, profile: Path, extra: tuple[str, ...], folder: Pat
     report = validate_experiment(exp, out, folder, speed=speed, figures=figures)
     report["config"] = e.name
     return exp.schedule.name, report, format_report(exp, report)
-
-
-def _in_workers(work: Callable[..., T], jobs: list[tuple]) -> Iterator[T]:
-    """`work(*job)` of every job, yielded in the jobs' order, on up to every core the process
-    may use, at most `MGPUSIM_WORKERS` (forked workers; :func:`mgpusim.io.workers.worker_count`).
-    Why: a study's comparisons are independent, and their timelines (matplotlib) take most of
-    a validation's time; each writes only its own folder, so the outputs are the same."""
-    workers = worker_count(len(jobs))
-    if workers < 2:
-        for job in jobs:
-            yield work(*job)
-        return
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
-        for task in [pool.submit(work, *job) for job in jobs]:
-            yield task.result()
 
 
 def speed_table(tables: SpeedTables, root: Path) -> pd.DataFrame:

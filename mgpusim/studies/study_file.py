@@ -9,13 +9,13 @@ adding a study file.
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Mapping, Sequence
 
 from mgpusim.calibration.measure_tables import MEASURED_PASSES
+from mgpusim.io.workers import usable_cores
 from mgpusim.measure import run_archive
 from mgpusim.model.errors import InputError
 from mgpusim.model.limits import MAX_GPUS
@@ -164,8 +164,7 @@ class Study:
         many threads the bins spread evenly and every run lands in the fast mode."""
         if self.lavapipe_threads_per_core is None:
             return None
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-        return max(1, round(self.lavapipe_threads_per_core * (cores or 1)))
+        return max(1, round(self.lavapipe_threads_per_core * usable_cores()))
 
     def entries(self, held_out: bool = True) -> tuple[Entry, ...]:
         return self.calibration + (self.held_out if held_out else ())

@@ -143,6 +143,15 @@ class HostCopyTask:
         (the reference renderer's rule; the simulator and the runner both use it)."""
         return max(1, min(threads, self.bytes // self.chunk_min_bytes))
 
+    def part_start_ns(self, part: int, parts: int, thread_start_ns: int) -> int:
+        """When part `part` of `parts` starts, after the copy is dispatched: on threads of its
+        own the caller starts them one after another (bp's parallelCopy), `thread_start_ns`
+        each; a single part is its memmove on the calling thread, and the pool's threads are
+        running already: no start."""
+        if not self.own_threads or parts < 2:
+            return 0
+        return (part + 1) * thread_start_ns
+
 
 @dataclass(frozen=True, slots=True)
 class CpuTask:

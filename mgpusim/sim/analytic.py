@@ -436,10 +436,10 @@ class _Recurrence:
         if self.m.timeline and cross > NEG:
             t = max(t, cross + self.m.copy_wake + self.m.dispatch)
         self.host_prev = t
+        if isinstance(node.task, HostCopyTask) and node.task.own_threads:
+            return self._own_threads(node, node.task, f, t, first)
         end, threads, names = NEG, self.threads, self.m.thread_names
         rows = self.rows if self.record else None
-        if isinstance(node.task, HostCopyTask) and node.task.own_threads:
-            return self._own_threads(node, f, t, first)
         for size, took in node.part_times:
             for tid, s in enumerate(threads):  # noqa: B007 - `tid`, the thread found, is read after the loop
                 if s <= t:
@@ -457,15 +457,13 @@ class _Recurrence:
                 rows.append((f, "host", names[tid], node.step, node.name, s, e, size, node.waits_for))
         return end, first
 
-    def _own_threads(self, node: _Node, f: int, t: int, first: int) -> tuple[int, int]:
-        """A copy on threads of its own: part k starts k + 1 thread starts after `t` (none
-        without host_frame_work, or for a copy of one part: bp's memmove on the calling
-        thread), each alone (host memory as if unshared, as for the pool's parts). Returns its
-        end and the frame's first start."""
-        end = NEG
-        step = self.m.part_thread_ns if len(node.part_times) > 1 else 0  # one part: on the caller
+    def _own_threads(self, node: _Node, task: HostCopyTask, f: int, t: int, first: int) -> tuple[int, int]:
+        """A copy on threads of its own: each part from its start (`HostCopyTask.part_start_ns`,
+        the thread starts only with host_frame_work), each alone (host memory as if unshared,
+        as for the pool's parts). Returns its end and the frame's first start."""
+        end, parts = NEG, len(node.part_times)
         for k, (size, took) in enumerate(node.part_times):
-            s = t + (k + 1) * step  # started one after another by the copy's caller
+            s = t + task.part_start_ns(k, parts, self.m.part_thread_ns)
             end = max(end, s + took)
             first = min(first, s)
             if self.record:

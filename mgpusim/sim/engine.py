@@ -547,10 +547,9 @@ class Engine:
             part = (frame, op, size, state)
             if task.own_threads:  # a thread of its own, named after the copy's part
                 name = f"{task.name}.thread{k}"
-                if self._part_thread_ns and len(sizes) > 1:  # the caller starts them in turn
-                    # (one part is a memmove on the calling thread: no thread to start)
-                    self.env.timeout((k + 1) * self._part_thread_ns).callbacks.append(
-                        _PartStart((self, name, part)))
+                delay = task.part_start_ns(k, len(sizes), self._part_thread_ns)
+                if delay:
+                    self.env.timeout(delay).callbacks.append(_PartStart((self, name, part)))
                 else:
                     self._start_part(name, part)
             elif self._free_threads:

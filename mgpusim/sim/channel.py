@@ -212,11 +212,8 @@ class Channel(FluidChannel):
 
     def _reshare(self) -> None:
         """Max-min fair shares with per-flow caps (water-filling), all in integers."""
-        left = self._left_now()  # (may grow the scale: read it after)
-        scale = self._scale
-        for f in self.flows:
-            if f.cap is not None and f.cap_s is None:
-                f.cap_s = f.cap.numerator * (scale // f.cap.denominator)
+        left = self._left_now()  # (may grow the scale, which drops the scaled caps)
+        self._scale_caps()
         flows = self.flows if len(self.flows) == 1 else sorted(self.flows, key=_cap_key)
         n = len(flows)
         for k, flow in enumerate(flows):
@@ -240,13 +237,12 @@ class Channel(FluidChannel):
         b_s = bw.numerator * (scale // bw.denominator)
         if self.oversubscribed is None:
             return b_s
+        self._scale_caps()
         demand, lossless, uncapped = 0, 0, False
         for f in self.flows:
-            if f.cap is None:
+            if f.cap_s is None:  # uncapped
                 uncapped = True
                 continue
-            if f.cap_s is None:
-                f.cap_s = f.cap.numerator * (scale // f.cap.denominator)
             demand += f.cap_s
             if isinstance(f.tag, PassWork) and f.tag.lossless:
                 lossless += f.cap_s
@@ -264,6 +260,13 @@ class Channel(FluidChannel):
         if lossless:
             num, den = num * min(demand - lossless, demand), den * demand
         return b_s - (-(-num // den))
+
+    def _scale_caps(self) -> None:
+        """Each capped flow's cap in 1/S bytes per ns, for those not yet scaled at the current S."""
+        scale = self._scale
+        for f in self.flows:
+            if f.cap is not None and f.cap_s is None:
+                f.cap_s = f.cap.numerator * (scale // f.cap.denominator)
 
     def _idle(self) -> bool:
         # released empty (an occupant), maybe on the fast path since: nothing to share

@@ -216,20 +216,25 @@ def compared(study: FrameTimeStudy, table: pd.DataFrame, values: dict[str, float
     return out
 
 
+def _checks(table: pd.DataFrame) -> tuple[pd.Series, pd.DataFrame, pd.Series]:
+    """What the targets read on `table` (one half): every row's |error|, the 3- and 4-GPU rows
+    with an Amdahl line, and which of those the model predicts closer than the line."""
+    abs_err = table.error.abs()
+    far = table[table.gpus >= 3].dropna(subset=["amdahl_error"])
+    return abs_err, far, far.error.abs() < far.amdahl_error.abs()
+
+
 def targets_met(study: FrameTimeStudy, table: pd.DataFrame) -> bool:
     """Whether `table` (one half) meets every target: the median and worst |error|, and every
     3- and 4-GPU prediction closer than the Amdahl line through the same 1 -> 2 point."""
-    abs_err = table.error.abs()
-    far = table[table.gpus >= 3].dropna(subset=["amdahl_error"])
+    abs_err, _far, beats = _checks(table)
     return bool(abs_err.median() <= study.targets["median_error"] and abs_err.max() <= study.targets["worst_error"]
-                and (far.error.abs() < far.amdahl_error.abs()).all())
+                and beats.all())
 
 
 def verdict(study: FrameTimeStudy, table: pd.DataFrame) -> list[str]:
     """Lines that state each target met or missed on `table` (one half)."""
-    abs_err = table.error.abs()
-    far = table[table.gpus >= 3].dropna(subset=["amdahl_error"])
-    beats = (far.error.abs() < far.amdahl_error.abs())
+    abs_err, far, beats = _checks(table)
     lines = [f"median |error| {abs_err.median():.1%} (target {study.targets['median_error']:.0%}): "
              f"{'met' if abs_err.median() <= study.targets['median_error'] else 'missed'}",
              f"worst |error| {abs_err.max():.1%} (target {study.targets['worst_error']:.0%}): "

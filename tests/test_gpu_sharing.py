@@ -209,3 +209,31 @@ def test_h100_queues_study_configurations_model_the_sharing():
     assert seen["p2m_graphics"] == (False, False) and seen["p4m_graphics"] == (False, False)
     assert seen["p2m_compute"] == (True, False) and seen["p4m_compute"] == (True, False)
     assert all(seen[n] == (True, True) for n in ("p2m_2dev_wait", "p2m_2dev_new_wait", "p2m_2dev_nohost"))
+
+
+def test_work_that_takes_turns_is_not_sped_up_by_a_copy_beside_it():
+    # three VkDevices' renders on one GPU take turns at their pair's 0.5; a copy on the copy
+    # engine (graphics_transfer 2: another unit) runs beside them at full speed and leaves the
+    # renders' turn-taking as it was (the mean over mixed pairs would have given every piece
+    # 1 + 3 x mean(-0.5, -0.5, -0.5, 1, 1, 1) / 4 = 1.75 / 4, the renders 2.6x faster)
+    from mgpusim.sim.executors import shares
+    prof = parse_profile(_profile({"devices": 0.5, "graphics_transfer": 2.0}, physical=0, gpus=3), "p")
+    renders = tuple((QueueRef(d, "graphics"), "mesh") for d in range(3))
+    up = (QueueRef(0, "transfer"), "copy")
+    assert shares(prof, renders) == (Fraction(1, 6),) * 3
+    assert shares(prof, (*renders, up)) == (Fraction(1, 6),) * 3 + (Fraction(1),)
+    assert capacity(prof, (*renders, up)) == Fraction(3, 2)
+    # a copy that halves what a render does beside it (1.5): both classes at 3/4 of their own
+    half = parse_profile(_profile({"devices": 0.5, "graphics_transfer": 1.5}, physical=0, gpus=3), "p")
+    assert shares(half, (*renders, up)) == (Fraction(1, 8),) * 3 + (Fraction(3, 4),)
+
+
+def test_a_render_beside_a_copy_keeps_its_turn_taking_speed():
+    # sort-first on 2 logical GPUs of one GPU (devices 1: they take turns): 2 tiles of 1600 ns
+    # each take 3200 together; the primary's upload of the previous frame's tile on the copy
+    # engine (graphics_transfer 2) overlaps them and must not shorten them
+    prof = _profile({"devices": 1.0, "graphics_transfer": 2.0}, physical=0)
+    r = simulate(make_experiment(prof, gpus=2, iterations=100, frames=6))
+    t = r.trace[r.trace.frame == 4].set_index("task")
+    renders = [int(t.loc[name].end_ns - t.loc[name].start_ns) for name in ("render0", "render1")]
+    assert renders == [3200, 3200]

@@ -357,25 +357,33 @@ class GpuChannel(Channel):
     """The execution throughput of one physical GPU, shared by the work of its queues.
 
     Amounts are ns of work at full speed and the bandwidth is 1 (one ns of work per ns): a
-    piece of work alone runs at full speed. With several at once the channel delivers
-    `capacity_of(tags)` in all (the tags of the flows running: their queues), shared equally;
-    `capacity_of` must stay within [0, n] for n flows, so that none runs faster than alone."""
+    piece of work alone runs at full speed. With several at once each runs at the speed
+    `shares_of(tags)` gives it (the tags of the flows running, sorted: their queues and kinds;
+    one speed per tag, in units of its speed alone, none above 1, so that none runs faster
+    than alone)."""
 
     shares_caps_freely = False  # the capacity depends on whose work shares the GPU
 
     def __init__(self, env: Environment, name: str,
-                 capacity_of: Callable[[tuple], Fraction]):
+                 shares_of: Callable[[tuple], tuple[Fraction, ...]]):
         super().__init__(env, name, Fraction(1))
-        self._capacity_of = capacity_of
-        self._capacities: dict[tuple, Fraction] = {}
+        self._shares_of = shares_of
+        self._shares: dict[tuple, tuple[tuple, tuple[Fraction, ...], int]] = {}
 
-    def _left_now(self) -> int:
-        tags = tuple(sorted((f.tag for f in self.flows), key=str))
-        found = self._capacities.get(tags)
+    def _reshare(self) -> None:
+        """Each flow at its tag's share (exact: the scale is grown to every share's denominator)."""
+        key = tuple(sorted((f.tag for f in self.flows), key=str))
+        found = self._shares.get(key)
         if found is None:
-            found = self._capacities[tags] = self._capacity_of(tags)
-        self._grow_scale(found.denominator)  # shares of it stay exact integers
-        return found.numerator * self._scale // found.denominator
+            speeds = self._shares_of(key)
+            found = self._shares[key] = (key, speeds, math.lcm(*(s.denominator for s in speeds)))
+        tags, speeds, denominator = found
+        self._grow_scale(denominator)
+        scale = self._scale
+        by_tag = dict(zip(tags, speeds))
+        for flow in self.flows:
+            speed = by_tag[flow.tag]
+            flow.rate = speed.numerator * (scale // speed.denominator)
 
 
 def _add(total: tuple[int, int], value: Fraction) -> tuple[int, int]:

@@ -214,7 +214,7 @@ class SharedGpu(Dedicated):
     def __init__(self, env: Environment, profile: HardwareProfile, physical: int):
         super().__init__(env)
         self.profile = profile
-        self.channel = GpuChannel(env, f"gpu{physical}.exec", lambda tags: capacity(profile, tags))
+        self.channel = GpuChannel(env, f"gpu{physical}.exec", lambda tags: shares(profile, tags))
 
     def task_runner(self, task: Task, ns: int) -> tuple[Runner | None, int]:
         if not ns:
@@ -263,16 +263,58 @@ def pair_efficiency(profile: HardwareProfile, a: WorkTag, b: WorkTag) -> float:
 
 
 def capacity(profile: HardwareProfile, tags: tuple[WorkTag, ...]) -> Fraction:
-    """What n pieces of work (tagged by queue and kind) deliver together, in units of one alone: 1 for
-    one; for two their pair's efficiency; for more, each extra one adds the pairs' mean gain,
-    1 + (n - 1) x mean(e - 1), kept within [min(1, the worst pair), n]."""
+    """What n pieces of work (tagged by queue and kind) deliver together, in units of one alone
+    (the sum of their :func:`shares`)."""
+    return sum(shares(profile, tags), Fraction(0))
+
+
+def shares(profile: HardwareProfile, tags: tuple[WorkTag, ...]) -> tuple[Fraction, ...]:
+    """Each piece's speed, in units of its speed alone, while the pieces `tags` run at once on
+    one physical GPU.
+
+    Why classes: pieces whose pair efficiency is at most 1 contend for one unit (two VkDevices'
+    contexts, which the GPU time-slices; two queues that gain nothing from overlap) and take
+    turns; a piece on another unit (a copy on the copy engine) runs beside them. So the pieces
+    fall into classes joined by such pairs. A class of k takes turns at its worst pair's
+    efficiency c (each switch costs the same however many take turns: three contexts deliver
+    what two do), each of its pieces at c / k. The m classes overlap as single pieces do:
+    together 1 + (m - 1) x mean(e - 1) over the pairs between classes (within [1, m]), each
+    class an equal part of that. One piece per class (every pair above 1) is the rule for
+    pieces that overlap: n deliver 1 + (n - 1) x mean(e - 1), each an equal share. A copy
+    beside the classes' turn-taking never speeds them up: it adds its own unit's work."""
     n = len(tags)
     if n < 2:
-        return Fraction(1)
-    effs = [Fraction(repr(pair_efficiency(profile, a, b))).limit_denominator(1000)
-            for i, a in enumerate(tags) for b in tags[i + 1:]]
-    mean_gain = sum((e - 1 for e in effs), Fraction(0)) / len(effs)
-    return min(Fraction(n), max(min(Fraction(1), min(effs)), 1 + (n - 1) * mean_gain))
+        return (Fraction(1),) * n
+    eff = {(i, j): Fraction(repr(pair_efficiency(profile, tags[i], tags[j]))).limit_denominator(1000)
+           for i in range(n) for j in range(i + 1, n)}
+    classes = _turn_taking_classes(n, [pair for pair, e in eff.items() if e <= 1])
+    cross = [e - 1 for (i, j), e in eff.items() if classes[i] != classes[j]]
+    m = len(set(classes))
+    together = Fraction(1) if m == 1 else min(Fraction(m), max(
+        Fraction(1), 1 + (m - 1) * sum(cross, Fraction(0)) / len(cross)))
+    out = []
+    for i in range(n):
+        members = [k for k in range(n) if classes[k] == classes[i]]
+        inner = [eff[(a, b)] for a in members for b in members if a < b]
+        turns = min(Fraction(1), min(inner)) if inner else Fraction(1)
+        out.append(together / m * turns / len(members))
+    return tuple(out)
+
+
+def _turn_taking_classes(n: int, pairs: list[tuple[int, int]]) -> list[int]:
+    """For pieces 0..n-1, the class each is in: pieces joined (directly or through others) by a
+    pair in `pairs` share a class, named by its lowest piece."""
+    label = list(range(n))
+
+    def root(k: int) -> int:
+        while label[k] != k:
+            k = label[k]
+        return k
+
+    for a, b in pairs:
+        ra, rb = root(a), root(b)
+        label[max(ra, rb)] = min(ra, rb)
+    return [root(k) for k in range(n)]
 
 
 def shared_gpu_groups(program: FrameProgram, profile: HardwareProfile) -> dict[int, tuple[WorkTag, ...]]:

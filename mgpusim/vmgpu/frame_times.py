@@ -147,21 +147,37 @@ def predict(study: FrameTimeStudy, table: pd.DataFrame, values: dict[str, float]
                       for row in table.itertuples()], index=table.index)
 
 
+@dataclass(frozen=True)
+class Fitted:
+    """A fitted parameter's value; `bound_error`: where no value in the fit's range brings the
+    median error to zero, the median error at the bound it stopped at (else None)."""
+
+    value: float
+    bound_error: float | None = None
+
+
 def fit_values(study: FrameTimeStudy, table: pd.DataFrame,
-               progress: Callable[[str], None] | None = None) -> dict[str, float]:
+               progress: Callable[[str], None] | None = None) -> dict[str, Fitted]:
     """Every fitted parameter, in the study file's order, each with the earlier ones in place."""
-    values: dict[str, float] = {}
+    fitted: dict[str, Fitted] = {}
     for fit in study.fits:
-        values[fit.key] = fit_value(study, fit, table, values, progress)
-    return values
+        fitted[fit.key] = fit_value(study, fit, table, values_of(fitted), progress)
+    return fitted
+
+
+def values_of(fitted: dict[str, Fitted]) -> dict[str, float]:
+    """The fitted values by key."""
+    return {key: f.value for key, f in fitted.items()}
 
 
 def fit_value(study: FrameTimeStudy, fit: Fit, table: pd.DataFrame, known: dict[str, float],
-              progress: Callable[[str], None] | None = None) -> float:
+              progress: Callable[[str], None] | None = None) -> Fitted:
     """One fitted parameter: a geometric bisection on [low, high] until the calibration runs of
     the fit's strategy and GPU count have a median signed error of zero (to 0.1 % of the
     value), the `known` values in place. The frame time must move one way with the value over
-    the range (a cost up, a speed down)."""
+    the range (a cost up, a speed down). Where the range holds no such value (the model cannot
+    reach the measured frame times with that parameter), the bound with the smaller error,
+    marked: the comparison then shows what the model misses instead of stopping."""
     rows = table[(table.half == "calibration") & (table.strategy == fit.strategy) & (table.gpus == fit.gpus)]
     if rows.empty:
         raise InputError(f"no calibration run of {fit.strategy!r} on {fit.gpus} GPU(s) to fit {fit.key}",
@@ -174,9 +190,7 @@ def fit_value(study: FrameTimeStudy, fit: Fit, table: pd.DataFrame, known: dict[
     low, high = fit.low, fit.high
     e_low, e_high = error(low), error(high)
     if (e_low > 0) == (e_high > 0):
-        raise InputError(f"{fit.key} in [{low:g}, {high:g}] does not bracket the measured "
-                         f"frame times (median errors {e_low:+.1%} and {e_high:+.1%})",
-                         file=str(study.path), field="fit")
+        return Fitted(low, e_low) if abs(e_low) <= abs(e_high) else Fitted(high, e_high)
     rising = e_high > 0  # a cost: the prediction grows with the value
     while high / low > 1.001:
         mid = math.sqrt(low * high)
@@ -186,7 +200,7 @@ def fit_value(study: FrameTimeStudy, fit: Fit, table: pd.DataFrame, known: dict[
             high = mid
         else:
             low = mid
-    return math.sqrt(low * high)
+    return Fitted(math.sqrt(low * high))
 
 
 def amdahl_ms(t1: float, t2: float, gpus: int) -> float:
@@ -260,14 +274,20 @@ class Validation:
     """A frame-time study checked: the fitted values (by key) and each half's comparison."""
 
     study: FrameTimeStudy
-    values: dict[str, float]
+    fitted: dict[str, Fitted]
     halves: dict[str, pd.DataFrame]
 
     @property
+    def values(self) -> dict[str, float]:
+        """The fitted values by key."""
+        return values_of(self.fitted)
+
+    @property
     def met(self) -> bool:
-        """Every target met on the verdict's half: the held-out one where it was compared,
-        else the calibration half."""
-        return targets_met(self.study, list(self.halves.values())[-1])
+        """Every target met on the verdict's half (the held-out one where it was compared, else
+        the calibration half), and every fit found inside its range."""
+        return (targets_met(self.study, list(self.halves.values())[-1])
+                and all(f.bound_error is None for f in self.fitted.values()))
 
 
 def validate(study: FrameTimeStudy, held_out: bool,
@@ -275,11 +295,12 @@ def validate(study: FrameTimeStudy, held_out: bool,
     """Fit the study's parameters on the calibration half, then compare the calibration half
     and (`held_out`) the held-out half with the model."""
     table = measured(study)
-    values = fit_values(study, table, progress)
+    fitted = fit_values(study, table, progress)
+    values = values_of(fitted)
     halves = {"calibration": compared(study, table[table.half == "calibration"], values)}
     if held_out:
         halves["held-out"] = compared(study, table[table.half == "held-out"], values)
-    return Validation(study, values, halves)
+    return Validation(study, fitted, halves)
 
 
 def markdown(v: Validation) -> str:
@@ -288,8 +309,8 @@ def markdown(v: Validation) -> str:
     lines = [f"# {s.name}: measured vs predicted frame times", "", s.description, "",
              "Named in the study file before any comparison, each fitted on the calibration half "
              "only (in this order, the earlier ones in place):", ""]
-    lines += [f"- `{f.key}` = {v.values[f.key]:.4g} on the {f.strategy} runs on {f.gpus} GPU(s): "
-              f"{f.why}" for f in s.fits]
+    lines += [f"- `{f.key}` = {v.values[f.key]:.4g}{_bound_note(f, v.fitted[f.key])} on the "
+              f"{f.strategy} runs on {f.gpus} GPU(s): {f.why}" for f in s.fits]
     lines += ["", "Replay level: none (vmgpu writes no per-task timestamps)."]
     gap = gap_line(v)
     lines += ([gap] if gap else []) + [""]
@@ -302,6 +323,14 @@ def markdown(v: Validation) -> str:
             shown[col] = shown[col].map(lambda x: "" if pd.isna(x) else f"{x:.2f}")
         lines += [_pipe_table(shown), ""]
     return "\n".join(lines)
+
+
+def _bound_note(fit: Fit, fitted: Fitted) -> str:
+    """What a value stopped at its range's bound says: the model cannot reach the runs with it."""
+    if fitted.bound_error is None:
+        return ""
+    return (f" (its bound: no value in [{fit.low:g}, {fit.high:g}] reaches the measured frame "
+            f"times; median error there {fitted.bound_error:+.1%}: a fit missed)")
 
 
 def gap_line(v: Validation) -> str:

@@ -1,6 +1,7 @@
 """The mesh's coverage (what a view of the torus rasterizes) and the placed mesh work terms."""
 import math
 from dataclasses import replace
+from pathlib import Path
 from types import MappingProxyType
 
 import pytest
@@ -126,3 +127,63 @@ def test_schedules_place_their_meshes_where_the_runner_draws_them():
 def test_a_placement_renders_its_rectangle_or_the_whole_frame():
     assert Placement(FRAME).pixels == 256 * 192
     assert Placement(FRAME, (128, 0, 128, 96)).pixels == 128 * 96
+
+
+@pytest.mark.parametrize("frame", [(640, 480), (1920, 1080)])
+def test_vmgpus_sphere_fills_the_frames_height_and_culling_keeps_its_front(frame):
+    """The unit sphere seen from twice its radius with a 60-degree vertical field of view: its
+    silhouette is a disc of the frame's height (pi/4 x H^2 pixels). Culled, only the faces
+    turned to the camera are rasterized, and they cover that disc once; unculled, the far side
+    too (twice the disc)."""
+    w, h = frame
+    disc = math.pi / 4 * h * h
+    back = coverage(MeshView(100_000, frame, shape="sphere", cull="back"))
+    none = coverage(MeshView(100_000, frame, shape="sphere"))
+    assert back.fragments == pytest.approx(disc, rel=0.005)
+    assert none.fragments == pytest.approx(2 * disc, rel=0.005)
+    assert none.triangles == 100_000
+    # the faces turned to a camera at twice the radius: a cap within 60 degrees of the view axis,
+    # a quarter of the area; the UV sphere's triangles are largest there, so fewer by count
+    assert 0.15 * 100_000 < back.triangles < 0.25 * 100_000
+    assert back.edge < none.edge / 2
+
+
+def test_culled_triangles_still_cost_their_vertex_work():
+    spec = PassSpec("m", "mesh", MappingProxyType({"triangles": 50_000.0}), (),
+                    MappingProxyType({"shape": "sphere", "cull": "back"}))
+    culled = pass_work(spec, 256 * 192, 1.0, Placement(FRAME))
+    drawn = pass_work(replace(spec, options=MappingProxyType({"shape": "sphere"})), 256 * 192, 1.0,
+                      Placement(FRAME))
+    assert culled["triangle"] == drawn["triangle"] == 50_000
+    assert culled["visible_triangle"] < drawn["visible_triangle"] / 4
+    assert culled["fragment"] == pytest.approx(drawn["fragment"] / 2, rel=0.01)
+
+
+def test_the_torus_keeps_its_coverage_by_default():
+    plain = coverage(MeshView(20_000, FRAME))
+    assert coverage(MeshView(20_000, FRAME, shape="torus", cull="none")) == plain
+    # culled, the torus loses the faces turned away from the runner's camera
+    culled = coverage(MeshView(20_000, FRAME, cull="back"))
+    assert 0.3 * plain.triangles < culled.triangles < 0.7 * plain.triangles
+
+
+def test_shape_and_cull_are_read_and_checked_from_the_scene(tmp_path):
+    exp = load_experiment("experiments/vmgpu/vmgpu.toml")
+    mesh = exp.scene.passes[0]
+    assert (mesh.option("shape"), mesh.option("cull")) == ("sphere", "back")
+    plain = load_experiment("experiments/lavapipe/sort_last.toml").scene.passes[0]
+    assert (plain.option("shape"), plain.option("cull")) == ("torus", "none")
+    bad = tmp_path / "bad.toml"
+    text = Path("experiments/vmgpu/vmgpu.toml").read_text().replace('shape = "sphere"', 'shape = "cube"')
+    bad.write_text(text.replace('"../../hardware_profiles/', f'"{Path.cwd()}/hardware_profiles/'))
+    with pytest.raises(InputError, match="shape"):
+        load_experiment(bad)
+
+
+def test_the_runner_refuses_a_mesh_it_would_not_draw():
+    """The runner draws its torus unculled: an experiment of vmgpu's sphere is refused before
+    any GPU opens, not measured as if it were the torus."""
+    from mgpusim.model.errors import ScheduleError
+    from mgpusim.real.runner.execute import run_experiment
+    with pytest.raises(ScheduleError, match="model only"):
+        run_experiment(load_experiment("experiments/vmgpu/vmgpu.toml"))

@@ -18,12 +18,30 @@ from typing import Any, Mapping
 import numpy as np
 
 from mgpusim.model.errors import InputError
+from mgpusim.model.sphere import sphere_arrays, sphere_layout
 
 #: Half the distance between the eyes of the stereo camera (scene units; the torus is ~1.7 wide).
 EYE_HALF_SEPARATION = 0.08
-#: Above this many triangles, coverage is measured on a torus of this many and scaled (the
+#: Our runner's camera: this far from the torus, which is tilted this much about x.
+RUNNER_CAMERA_DISTANCE = 2.5
+TORUS_TILT_DEGREES = 35
+#: vmgpu's camera distance for the unit sphere: twice its largest z (src/Vmgpu.cpp).
+BOUNDS_CAMERA_DISTANCE = 2.0
+#: Above this many triangles, coverage is measured on a mesh of this many and scaled (the
 #: covered area does not depend on the tessellation; a triangle's size goes as 1/sqrt(T)).
 COVERAGE_SAMPLE_TRIANGLES = 200_000
+#: The meshes a mesh pass may draw (its `shape`), each with the camera that views it:
+#: `torus`, our runner's tilted torus and its fixed camera (:func:`mvp`); `sphere`, the unit
+#: sphere the vmgpu tool writes (:mod:`.sphere`) as vmgpu views a mesh (:func:`bounds_mvp`).
+SHAPES = ("torus", "sphere")
+#: What a mesh pass's pipeline culls (its `cull`): `none` rasterizes every triangle (our
+#: runner), `back` drops the triangles that face away from the camera after their setup and
+#: before they are binned or rasterized (Vulkan's VK_CULL_MODE_BACK_BIT, bp's default).
+CULLS = ("none", "back")
+#: A pass's options that are names, not amounts: for each pass kind, option -> (default, the
+#: names it takes). A mesh pass's mesh and what its pipeline culls; our runner draws only the
+#: defaults.
+PASS_OPTIONS: dict[str, dict[str, tuple[str, ...]]] = {"mesh": {"shape": SHAPES, "cull": CULLS}}
 
 
 def even_split(total: int, parts: int) -> list[int]:
@@ -59,19 +77,51 @@ def mvp(eye: int | None = None) -> np.ndarray:
     proj = np.array([[f, 0, 0, 0], [0, f, 0, 0], [0, 0, far / (near - far), near * far / (near - far)],
                      [0, 0, -1, 0]], dtype=np.float32)
     view = np.eye(4, dtype=np.float32)
-    view[2, 3] = -2.5
-    if eye is not None:
-        view[0, 3] = EYE_HALF_SEPARATION if eye == 0 else -EYE_HALF_SEPARATION
+    view[2, 3] = -RUNNER_CAMERA_DISTANCE
+    view[0, 3] = _eye_shift(eye)
     tilt = np.eye(4, dtype=np.float32)
-    ang = math.radians(35)
+    ang = math.radians(TORUS_TILT_DEGREES)
     tilt[1:3, 1:3] = [[math.cos(ang), -math.sin(ang)], [math.sin(ang), math.cos(ang)]]
     return (proj @ view @ tilt).astype(np.float32)
 
 
+def bounds_mvp(aspect: float, eye: int | None = None) -> np.ndarray:
+    """How vmgpu views a mesh (src/Vmgpu.cpp): from twice the mesh's largest z on the z axis (2
+    for the unit sphere), a 60-degree vertical field of view at the window's `aspect` (glm's
+    perspective, near 0.1, far three times the mesh's size), y flipped in the vertex shader
+    (shaders/basic.vert). Float64; `eye` as in :func:`mvp`."""
+    f, near, far = 1.0 / math.tan(math.radians(30)), 0.1, 6.0
+    proj = np.array([[f / aspect, 0, 0, 0], [0, -f, 0, 0],
+                     [0, 0, (far + near) / (near - far), 2 * far * near / (near - far)],
+                     [0, 0, -1, 0]])
+    view = np.eye(4)
+    view[2, 3] = -BOUNDS_CAMERA_DISTANCE
+    view[0, 3] = _eye_shift(eye)
+    return proj @ view
+
+
+def _eye_shift(eye: int | None) -> float:
+    """How far the view moves the world along x for camera `eye` (0 for mono)."""
+    return 0.0 if eye is None else EYE_HALF_SEPARATION if eye == 0 else -EYE_HALF_SEPARATION
+
+
+def _camera_at(shape: str, eye: int | None) -> np.ndarray:
+    """Where `shape`'s camera `eye` sits in the mesh's own coordinates: back where its view
+    moved the origin from (and, for the torus, its tilt undone)."""
+    distance = BOUNDS_CAMERA_DISTANCE if shape == "sphere" else RUNNER_CAMERA_DISTANCE
+    at = np.array([-_eye_shift(eye), 0.0, distance])
+    if shape == "sphere":
+        return at
+    ang = math.radians(TORUS_TILT_DEGREES)
+    untilt = np.array([[1, 0, 0], [0, math.cos(ang), math.sin(ang)], [0, -math.sin(ang), math.cos(ang)]])
+    return untilt @ at
+
+
 @dataclass(frozen=True)
 class MeshView:
-    """What one mesh pass draws: triangles [first, first + count) of the scene's torus of
-    `triangles`, seen by camera `eye`, into pixels `rect` = (x, y, w, h) of a `frame` (w, h)."""
+    """What one mesh pass draws: triangles [first, first + count) of a mesh of `triangles`
+    (`shape`, one of :data:`SHAPES`), seen by camera `eye`, into pixels `rect` = (x, y, w, h)
+    of a `frame` (w, h), `cull` one of :data:`CULLS`."""
 
     triangles: int
     frame: tuple[int, int]
@@ -79,11 +129,13 @@ class MeshView:
     first: int = 0
     count: int | None = None
     eye: int | None = None
+    shape: str = "torus"
+    cull: str = "none"
 
     def key(self) -> tuple:
         rect = self.rect or (0, 0, *self.frame)
         count = self.triangles - self.first if self.count is None else self.count
-        return (self.triangles, self.frame, rect, self.first, count, self.eye)
+        return (self.triangles, self.frame, rect, self.first, count, self.eye, self.shape, self.cull)
 
 
 @dataclass(frozen=True)
@@ -105,11 +157,11 @@ class Placement:
         w, h = self.rect[2:] if self.rect else self.frame
         return w * h
 
-    def mesh_view(self, triangles: int) -> MeshView:
+    def mesh_view(self, triangles: int, shape: str = "torus", cull: str = "none") -> MeshView:
         k, n = self.share
         first = triangles * k // n
         return MeshView(triangles, self.frame, self.rect, first,
-                        triangles * (k + self.span) // n - first, self.eye)
+                        triangles * (k + self.span) // n - first, self.eye, shape, cull)
 
 
 #: Where a measured mesh draws: `whole`, or `;`-separated items `share=K/N` (sort-last share
@@ -170,7 +222,8 @@ def coverage(view: MeshView) -> Coverage:
 
 @lru_cache(maxsize=4096)
 def _coverage(triangles: int, frame: tuple[int, int], rect: tuple[int, int, int, int],
-              first: int, count: int, eye: int | None) -> Coverage:
+              first: int, count: int, eye: int | None, shape: str = "torus",
+              cull: str = "none") -> Coverage:
     if count <= 0:
         return Coverage(0.0, 0.0, 0.0)
     scale = 1.0
@@ -178,8 +231,13 @@ def _coverage(triangles: int, frame: tuple[int, int], rect: tuple[int, int, int,
         scale = triangles / COVERAGE_SAMPLE_TRIANGLES
         first, count = round(first / scale), max(1, round(count / scale))
         triangles = COVERAGE_SAMPLE_TRIANGLES
-    pos = _projected(triangles, eye)[first:first + count]  # (n, 3, 2) pixels of a 1x1 frame
     w, h = frame
+    # the torus's camera ignores the frame's shape (our runner's); vmgpu's has its aspect
+    aspect = None if shape == "torus" else w / h
+    pos, front = _projected(triangles, eye, shape, aspect)
+    pos = pos[first:first + count]  # (n, 3, 2) pixels of a 1x1 frame
+    if cull == "back":
+        pos = pos[front[first:first + count]]
     px = pos * np.array([w, h], dtype=np.float64)
     x0, y0, rw, rh = rect
     lo, hi = px.min(axis=1), px.max(axis=1)
@@ -195,9 +253,22 @@ def _coverage(triangles: int, frame: tuple[int, int], rect: tuple[int, int, int,
 
 
 @lru_cache(maxsize=16)
-def _projected(triangles: int, eye: int | None) -> np.ndarray:
-    """The torus's triangles in frame coordinates (0..1 across and down, Vulkan's viewport)."""
-    verts = torus_mesh(triangles)[:, :3].astype(np.float64)
-    clip = np.c_[verts, np.ones(len(verts))] @ mvp(eye).astype(np.float64).T
+def _projected(triangles: int, eye: int | None, shape: str = "torus",
+               aspect: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh's triangles in frame coordinates (0..1 across and down, Vulkan's viewport), and
+    which of them face the camera (their outward normal towards it)."""
+    if shape == "sphere":
+        positions, faces = sphere_arrays(sphere_layout(triangles))
+        verts = positions[faces].reshape(-1, 3)
+        outward = positions[faces].mean(axis=1)  # a unit sphere's normal is its position
+        matrix = bounds_mvp(aspect or 1.0, eye)
+    else:
+        mesh = torus_mesh(triangles).astype(np.float64)
+        verts = mesh[:, :3]
+        outward = mesh[:, 3:].reshape(-1, 3, 3).mean(axis=1)
+        matrix = mvp(eye).astype(np.float64)
+    clip = np.c_[verts, np.ones(len(verts))] @ matrix.T
     ndc = clip[:, :2] / clip[:, 3:4]
-    return ((ndc + 1.0) / 2.0).reshape(-1, 3, 2)
+    centres = verts.reshape(-1, 3, 3).mean(axis=1)
+    front = np.einsum("ij,ij->i", outward, _camera_at(shape, eye) - centres) > 0
+    return ((ndc + 1.0) / 2.0).reshape(-1, 3, 2), front

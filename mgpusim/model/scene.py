@@ -11,7 +11,7 @@ from types import MappingProxyType
 from typing import Any, Mapping
 
 from mgpusim.model import limits as L
-from mgpusim.model.geometry import Placement
+from mgpusim.model.geometry import PASS_OPTIONS, Placement
 from mgpusim.model.toml_checks import Table, did_you_mean, show_value
 
 
@@ -24,9 +24,15 @@ class PassSpec:
     #: a later pass (their output of the previous frame: a temporal input). Schedules that move
     #: outputs between GPUs wait only for what is read (pipelining's consumer_waits = "reads").
     reads: tuple[str, ...] = ()
+    #: Options that are names (a mesh's `shape` and `cull`; geometry.PASS_OPTIONS), as given.
+    options: Mapping[str, str] = field(default_factory=lambda: MappingProxyType({}))
 
     def param(self, key: str, default: float = 0.0) -> float:
         return float(self.params.get(key, default))
+
+    def option(self, key: str) -> str:
+        """The named option `key` as given, else its default (the first name it takes)."""
+        return self.options.get(key) or PASS_OPTIONS[self.kind][key][0]
 
 
 @dataclass(frozen=True)
@@ -96,9 +102,13 @@ def parse_scene(t: Table, pass_params: Mapping[str, tuple[str, ...]],
         names.add(name)
         kind = pt.get("kind", str, choices=pass_params.keys())
         reads = _reads(pt, every, known_names)
-        known = (*pass_params[kind], *common_params)
-        params = {}
+        named = PASS_OPTIONS.get(kind, {})
+        known = (*pass_params[kind], *named, *common_params)
+        params, options = {}, {}
         for key in pt.rest():
+            if key in named:
+                options[key] = pt.get(key, str, choices=named[key])
+                continue
             if key not in known:
                 raise pt.error(key, f"unknown parameter of a {kind} pass{did_you_mean(key, known)} "
                                     f"(it takes {', '.join(known)})")
@@ -110,7 +120,7 @@ def parse_scene(t: Table, pass_params: Mapping[str, tuple[str, ...]],
             raise pt.error(missing[0], f"missing: a {kind} pass needs {' and '.join(missing)} "
                                        f"(its work is 0 without)")
         pt.finish()
-        passes.append(PassSpec(name, kind, MappingProxyType(params), reads))
+        passes.append(PassSpec(name, kind, MappingProxyType(params), reads, MappingProxyType(options)))
     sections = _sections(t) if t.has("sections") else ()
     side: dict[str, Any] = {"minimum": 1, "maximum": L.MAX_SIDE, "why": L.WHY_IMAGE}
     per_pixel: dict[str, Any] = {"maximum": L.MAX_BYTES_PER_PIXEL, "why": L.WHY_IMAGE}

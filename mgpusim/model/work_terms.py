@@ -116,7 +116,8 @@ def pass_work(spec: PassSpec, pixels: float, geometry_share: float = 1.0,
         if param in spec.params:
             work[term] = spec.param(param) * geometry_share
     if place is not None and spec.kind == "mesh":
-        seen = coverage(place.mesh_view(int(spec.param("triangles"))))
+        seen = coverage(place.mesh_view(int(spec.param("triangles")), spec.option("shape"),
+                                        spec.option("cull")))
         work.update(visible_triangle=seen.triangles, triangle_edge=seen.edge,
                     fragment=seen.fragments)
     return work

@@ -353,3 +353,14 @@ def test_each_three_gpu_gain_stands_beside_amdahl(results):
     assert row.gain_2 == cr.derived["sf_gain_2_as_built"]
     assert row.amdahl == pytest.approx(amdahl_gain(row.gain_2, 3))
     assert "Amdahl" in extrapolation_markdown(cr)
+
+
+def test_weak_and_strong_over_one_single_gpu_run_are_two_families(results):
+    """XR's weak and strong gains divide the same 1-GPU run: each 4-GPU gain stands beside the
+    line through its own scaling's 1 -> 2 GPU gain, not the other's."""
+    cr = results["xr_stereo"]
+    df = extrapolation(cr).set_index("quantity")
+    weak = df.loc["Quest 3, PCIe 4.0: frame-rate gain 1 -> 4 GPUs, weak"]
+    strong = df.loc["Quest 3, PCIe 4.0: frame-rate gain 1 -> 4 GPUs, strong"]
+    assert weak.gain_2 == cr.derived["q4_weak_gain"] and strong.gain_2 == cr.derived["q4_strong_gain"]
+    assert weak.predicted == cr.derived["q4_weak_gain_4gpu"] and weak.gpus == 4

@@ -627,13 +627,13 @@ def extrapolation(cr: CaseResult) -> pd.DataFrame:
     derived fps ratios that share their denominator), each gain at 3 or more GPUs as the model
     predicts it beside the Amdahl line through the same family's 1 -> 2 GPU gain. A model whose
     overhead does not grow with each added GPU predicts more than the line."""
-    gains: dict[str, dict[int, tuple[str, float]]] = {}
+    gains: dict[tuple, dict[int, tuple[str, float]]] = {}
     for d in cr.case.derived:
         if d.kind != "ratio" or d.metric != "fps" or d.name not in cr.derived:
             continue
         top, base = (cr.experiments[r].schedule.gpus for r in d.runs)
         if base == 1:
-            gains.setdefault(d.runs[1], {})[top] = (d.label, cr.derived[d.name])
+            gains.setdefault(_family(cr, d.runs), {})[top] = (d.label, cr.derived[d.name])
     rows = []
     for family in gains.values():
         if 2 not in family:
@@ -644,6 +644,15 @@ def extrapolation(cr: CaseResult) -> pd.DataFrame:
                 rows.append({"quantity": label, "gpus": gpus, "gain_2": two, "predicted": value,
                              "amdahl": amdahl_gain(two, gpus)})
     return pd.DataFrame(rows, columns=["quantity", "gpus", "gain_2", "predicted", "amdahl"])
+
+
+def _family(cr: CaseResult, runs: tuple[str, ...] | list[str]) -> tuple:
+    """Which family a gain over a 1-GPU run belongs to: that run, and the schedule of the run
+    it divides (its name and options but the GPU count), so weak and strong scaling over one
+    1-GPU run are two families."""
+    schedule = cr.experiments[runs[0]].schedule
+    options = tuple(sorted((k, repr(v)) for k, v in schedule.options.items() if k != "gpus"))
+    return (runs[1], schedule.name, options)
 
 
 def extrapolation_markdown(cr: CaseResult) -> str:

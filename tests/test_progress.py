@@ -45,8 +45,8 @@ def test_a_level_that_leaves_needed_effects_out_says_so(tmp_path: Path, capsys):
                  "--no-progress", "--out", str(tmp_path / "b")]) == 0
     notes = [line for line in capsys.readouterr().out.splitlines() if "note:" in line]
     assert len(notes) == 1 and "left out shared_executor," in notes[0]  # the one forced off is no news
-    assert main(["simulate", "lavapipe/pipelining", "--out", str(tmp_path / "c")]) == 0
+    assert main(["simulate", "lavapipe/pipelining", "--no-progress", "--out", str(tmp_path / "c")]) == 0
     captured = capsys.readouterr()
     # full leaves nothing out (its 24 frames are too short to settle: that note is another's);
-    # a quick run draws no bar
+    # no bar asked for (on a loaded machine the run can pass the second after which one shows)
     assert "left out" not in captured.out and captured.err == ""

@@ -545,7 +545,16 @@ def track_cases() -> list[Case]:
             {"ph": "X", "name": "u", "pid": 2, "tid": 7, "ts": 0, "dur": 4000}]), 3, 6.0),
         _good("compute-queue", _trace(_good_events() + [
             {"ph": "M", "name": "thread_name", "pid": 1, "tid": 2, "args": {"name": "Async compute"}},
-            {"ph": "X", "name": "ssao", "pid": 1, "tid": 2, "ts": 500, "dur": 500}]), 4, 6.5),
+            {"ph": "X", "name": "ssao", "pid": 1, "tid": 2, "ts": 500, "dur": 500}]), 4, 6.0),  # hidden by a
+        _good("compute-queue-sticks-out", _trace(_good_events() + [
+            {"ph": "M", "name": "thread_name", "pid": 1, "tid": 2, "args": {"name": "Async compute"}},
+            {"ph": "X", "name": "ssao", "pid": 1, "tid": 2, "ts": 5500, "dur": 1500}]), 4, 7.0),  # 1 ms after c
+        _good("compute-queue-alone", _trace(_meta(thread="Async compute") + [_x("a", 0, 1000), _x("b", 1000, 2000)]),
+              2, 3.0),
+        _good("compute-queue-frames-from-graphics", _trace(frames + [
+            {"ph": "M", "name": "thread_name", "pid": 1, "tid": 2, "args": {"name": "Async compute"}}] + [
+            {"ph": "X", "name": "sim", "pid": 1, "tid": 2, "ts": f * 10_000 + 2500, "dur": 1000} for f in range(4)]),
+              3, 3.5),  # sim: 0.5 ms of it beside b
         _good("transfer-queue-left-out", _trace(_good_events() + [
             {"ph": "M", "name": "thread_name", "pid": 1, "tid": 3, "args": {"name": "Copy queue"}},
             {"ph": "X", "name": "up", "pid": 1, "tid": 3, "ts": 0, "dur": 500}]), 3, 6.0),

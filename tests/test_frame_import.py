@@ -372,3 +372,53 @@ def test_an_example_capture_is_found_from_any_folder(tmp_path, monkeypatch):
     got = resolve_capture(Path("examples/frames/pipelining_lavapipe.csv"))
     assert got == EXAMPLES / "pipelining_lavapipe.csv" and got.is_file()
     assert resolve_capture(Path("examples/frames/none.csv")) == Path("examples/frames/none.csv")
+
+
+# ----- async compute --------------------------------------------------------------------------
+def _async_capture(path: Path, frames: int = 3) -> Path:
+    """A graphics queue of gbuffer 4 ms, lighting 6 ms, post 2 ms back to back (frames marked
+    there only) and an async-compute queue beside it: ssao 3 ms inside gbuffer + lighting,
+    a simulation 4 ms of which 2 ms run after lighting, before post. The GPU is busy 14 ms a
+    frame; the passes sum to 19 ms."""
+    events = _meta(1, 1, "GPU", "Graphics queue") + _meta(1, 2, "GPU", "Async compute queue")
+    for f in range(frames):
+        t = f * 20_000
+        events += [{"ph": "X", "name": f"Frame {f}", "pid": 1, "tid": 1, "ts": t, "dur": 14_000},
+                   {"ph": "X", "name": "gbuffer", "pid": 1, "tid": 1, "ts": t, "dur": 4000},
+                   {"ph": "X", "name": "lighting", "pid": 1, "tid": 1, "ts": t + 4000, "dur": 6000},
+                   {"ph": "X", "name": "post", "pid": 1, "tid": 1, "ts": t + 12_000, "dur": 2000},
+                   {"ph": "X", "name": "ssao", "pid": 1, "tid": 2, "ts": t + 3000, "dur": 3000},
+                   {"ph": "X", "name": "sim", "pid": 1, "tid": 2, "ts": t + 8000, "dur": 4000}]
+    return _chrome(path, events)
+
+
+def test_async_compute_keeps_the_captures_frame_time_on_one_gpu(tmp_path, capsys):
+    out = tmp_path / "a.toml"
+    assert _import(_async_capture(tmp_path / "a.json"), out, "--size", "640x480") == 0
+    printed = capsys.readouterr().out
+    assert "async compute: 2 compute pass(es) overlapped graphics work (5.000 ms per frame hidden)" in printed
+    passes = _passes(out)
+    assert [(n, p.params["gpu_ms"]) for n, p in passes.items()] == [
+        ("gbuffer", 4.0), ("ssao", 0.0), ("lighting", 6.0), ("sim", 2.0), ("post", 2.0)]
+    assert "# ran 4 ms on the compute queue in the capture" in out.read_text()
+    result = simulate(load_experiment(out))
+    trace = result.trace
+    present = trace[trace["step"] == "present"]
+    present_ms = float((present["end_ns"] - present["start_ns"]).median()) / 1e6
+    assert result.summary["frame_time_ms"] == pytest.approx(14.0 + present_ms, abs=1e-6)  # not 19
+
+
+def test_an_async_compute_track_takes_its_frames_from_the_graphics_queue(tmp_path):
+    slices, _ = read_chrome(_async_capture(tmp_path / "a.json", frames=4))
+    compute = slices[slices["queue"] == "compute"]
+    assert sorted(compute["frame"]) == [0, 0, 1, 1, 2, 2, 3, 3]
+    frame = frame_from_slices(slices, name="a", source="a", width=64, height=64)
+    assert frame.frames == 4 and all(p.frames == 4 for p in frame.passes)
+
+
+def test_compute_rows_without_times_are_not_cut(tmp_path):
+    csv = tmp_path / "f.csv"
+    csv.write_text("pass,queue,gpu_ms\ngbuffer,graphics,4\nssao,compute,3\n")
+    slices, _ = read_csv(csv)
+    frame = frame_from_slices(slices, name="f", source="f", width=64, height=64)
+    assert [(p.name, p.gpu_ms, p.ran_ms) for p in frame.passes] == [("gbuffer", 4.0, None), ("ssao", 3.0, None)]

@@ -410,6 +410,8 @@ def _chrome_rows(tracks: _Tracks, cpu_threads: tuple[str, ...], file: str
     columns: dict[str, list[Any]] = {c: [] for c in SLICE_COLUMNS}
     left_out: dict[str, float] = {}
     gpus: set[str] = set()
+    frame_groups: list[tuple[np.ndarray, np.ndarray]] = []  # (starts, numbers) of a GPU track's frames
+    unframed: list[tuple[np.ndarray, np.ndarray]] = []  # (frames, starts) of GPU tracks without any
     for (pid, tid), track in tracks.tracks.items():
         process, thread = tracks.procs.get(pid, f"pid {pid}"), tracks.names.get((pid, tid), "")
         queue = queue_of_track(process, thread, cpu_threads)
@@ -418,7 +420,13 @@ def _chrome_rows(tracks: _Tracks, cpu_threads: tuple[str, ...], file: str
             continue
         if queue != "cpu":
             gpus.add(process)
-        _track_rows(track, queue, f"{process}/{thread}", columns, left_out)
+        groups = _track_rows(track, queue, f"{process}/{thread}", columns, left_out)
+        if queue != "cpu" and len(groups[0]):
+            frame_groups.append(groups)
+        elif queue != "cpu" and len(columns["frame"][-1]):
+            unframed.append((columns["frame"][-1], columns["start_ns"][-1]))
+    if frame_groups:
+        _frames_from_other_tracks(max(frame_groups, key=lambda g: len(g[0])), unframed)
     if len(gpus) > 1:
         raise InputError(f"GPU work on {len(gpus)} processes ({', '.join(sorted(gpus))}): a frame is "
                          "imported from a one-GPU capture", file=file)
@@ -428,15 +436,31 @@ def _chrome_rows(tracks: _Tracks, cpu_threads: tuple[str, ...], file: str
     return columns, left_out
 
 
+def _frames_from_other_tracks(groups: tuple[np.ndarray, np.ndarray],
+                              unframed: list[tuple[np.ndarray, np.ndarray]]) -> None:
+    """A GPU track without frame groups (an async-compute queue, whose profiler marks frames on
+    the graphics queue only) takes its frames from the track that has them: a slice without a
+    frame of its own is in the frame that began last at or before its start (the first, before
+    any). Changes the tracks' frame columns in place."""
+    starts, numbers = groups
+    order = np.argsort(starts, kind="stable")
+    starts, numbers = starts[order], numbers[order]
+    for frames, begins in unframed:
+        free = frames < 0
+        at = np.searchsorted(starts, begins[free], side="right") - 1
+        frames[free] = numbers[np.maximum(at, 0)]
+
+
 def _track_rows(track: _Track, queue: str, where: str, columns: dict[str, list[Any]],
-                left_out: dict[str, float]) -> None:
+                left_out: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
     """One track's work slices appended to `columns` (as chunks, :func:`_columns_table`); its
-    present slices and instants to `left_out`."""
+    present slices and instants to `left_out`. Returns the track's frame groups (starts and
+    frame numbers)."""
     start, end = np.asarray(track.start), np.asarray(track.end)
     instants = int((end <= start).sum())
     if instants:
         left_out[f"{where}: {instants} zero-length slice(s)"] = 0.0
-    leaves, frames = _leaves(start, end, np.asarray(track.index), track)
+    leaves, frames, groups = _leaves(start, end, np.asarray(track.index), track)
     if not set(track.cat).isdisjoint(_SKIPPED_CATEGORIES):
         kept = [n for n, k in enumerate(leaves) if track.cat[k] not in _SKIPPED_CATEGORIES]
         for k in leaves:
@@ -456,16 +480,18 @@ def _track_rows(track: _Track, queue: str, where: str, columns: dict[str, list[A
                      (list(c) for c in zip(*fields)) if fields else ([],) * 5))
     for column in SLICE_COLUMNS:
         columns[column].append(chunk[column])
+    return groups
 
 
 #: The args of a slice that gives none.
 _NO_FIELDS = ((), (), (), -1, math.nan)
 
 
-def _leaves(start: np.ndarray, end: np.ndarray, index: np.ndarray, track: _Track) -> tuple[list[int], list[int]]:
+def _leaves(start: np.ndarray, end: np.ndarray, index: np.ndarray,
+            track: _Track) -> tuple[list[int], list[int], tuple[np.ndarray, np.ndarray]]:
     """The innermost slices of one track (positions in it), each with its frame: `args.frame`,
-    else the number of the enclosing group named frame* (in order of start), else -1.
-    Instants (no length) are neither work nor groups."""
+    else the number of the enclosing group named frame* (in order of start), else -1; and the
+    frame groups (their starts and numbers). Instants (no length) are neither work nor groups."""
     order = np.lexsort((index, -end, start))
     order = order[end[order] > start[order]]
     s, e = start[order], end[order]
@@ -475,12 +501,15 @@ def _leaves(start: np.ndarray, end: np.ndarray, index: np.ndarray, track: _Track
     frames_of: list[int] = []
     stack: list[tuple[float, int]] = []  # (end, frame number or -1) of the open groups
     frames = 0
+    group_starts: list[float] = []
     for k, begins, ends, group in zip(order.tolist(), s.tolist(), e.tolist(), holds.tolist()):
         while stack and stack[-1][0] <= begins:
             stack.pop()
         if group:
             numbered = track.name[k].lower().startswith("frame")
             stack.append((ends, frames if numbered else -1))
+            if numbered:
+                group_starts.append(begins)
             frames += numbered
             continue
         frame = track.frame[k]
@@ -488,7 +517,7 @@ def _leaves(start: np.ndarray, end: np.ndarray, index: np.ndarray, track: _Track
             frame = next((f for _, f in reversed(stack) if f >= 0), -1)
         leaves.append(k)
         frames_of.append(frame)
-    return leaves, frames_of
+    return leaves, frames_of, (np.asarray(group_starts), np.arange(len(group_starts), dtype=np.int64))
 
 
 def _columns_table(columns: dict[str, list[Any]]) -> pd.DataFrame:

@@ -23,8 +23,9 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, cast
 
+import numpy as np
 import pandas as pd
 
 from mgpusim.frames.shares import INFERRED, OPTION, STATED, Share, infer_share, share_comment
@@ -50,6 +51,9 @@ class CapturedPass:
     spread_ms: float = 0.0
     #: where its pixel share came from (the capture, --pixel-share, inferred) and why
     share: Share | None = None
+    #: what it ran (median, ms) where that is more than `gpu_ms`: a compute-queue pass that
+    #: overlapped graphics work, whose `gpu_ms` is only what it added to the frame
+    ran_ms: float | None = None
 
 
 @dataclass(frozen=True)
@@ -94,6 +98,7 @@ def frame_from_slices(slices: pd.DataFrame, *, name: str, source: str, width: in
         bad = gpu.loc[gpu["view"] < 0, "name"].iloc[0]
         raise InputError(f"a stereo capture (passes with a view) where pass {bad!r} has none: give "
                          "every GPU pass its view (0 or 1)", file=source, field="view")
+    gpu = exposed_times(gpu)
     keyed = _occurrences(gpu)
     if views == 2:
         _check_views(keyed, source)
@@ -168,7 +173,8 @@ def _passes(keyed: pd.DataFrame, default_share: float | None, pixels: int,
     where it came from, and notes on assumed sizes."""
     by_key = keyed.groupby("key", sort=False)
     order = (by_key.agg(offset=("offset", "median"), order=("order", "min"), ms=("ms", "median"),
-                        frames=("frame", "nunique"), share=("pixel_share", "median"), name=("name", "first"))
+                        frames=("frame", "nunique"), share=("pixel_share", "median"), name=("name", "first"),
+                        ran=("ran_ms", "median"))
              .sort_values(["offset", "order"], na_position="last", kind="stable"))
     order["queue"] = _queue_mode(keyed)
     spread = (keyed["ms"] - by_key["ms"].transform("median")).abs().groupby(keyed["key"]).median()
@@ -176,13 +182,14 @@ def _passes(keyed: pd.DataFrame, default_share: float | None, pixels: int,
     io = _io(keyed, keys)
     producers, sizes, notes = _producers(keys, io, pixels * DEFAULT_COLOR_BYTES)
     passes = []
-    for key, name, queue, ms, frames, stated, spread_ms in zip(
+    for key, name, queue, ms, frames, stated, spread_ms, ran in zip(
             keys, order["name"], order["queue"], order["ms"], order["frames"], order["share"],
-            spread.reindex(order.index)):
+            spread.reindex(order.index), order["ran"]):
         share = _share_of(str(name), float(stated), default_share, share_why, pixels,
                           bool(producers[key]), io[key][1])
         passes.append(CapturedPass(str(key), str(queue), float(ms), int(frames), share.value,
-                                   tuple(producers[key]), int(sizes[key]), float(spread_ms), share))
+                                   tuple(producers[key]), int(sizes[key]), float(spread_ms), share,
+                                   float(ran) if ran > ms + 5e-7 else None))
     return tuple(passes), notes
 
 
@@ -283,12 +290,80 @@ def _notes(slices: pd.DataFrame, keyed: pd.DataFrame, passes: tuple, frames: int
     if partial:
         out.append(f"passes missing from some frames (their median is over the frames they ran in): "
                    f"{', '.join(partial[:5])}{' ...' if len(partial) > 5 else ''}")
-    compute = [p.name for p in passes[0] if p.queue == "compute"]
-    if compute:
-        out.append(f"ran on the compute queue in the capture: {', '.join(compute[:5])}"
-                   f"{' ...' if len(compute) > 5 else ''}; the schedules run every pass on the "
-                   "graphics queue, in order")
+    out += _queue_notes(passes[0])
     return out
+
+
+def _queue_notes(passes: tuple[CapturedPass, ...]) -> list[str]:
+    """What the import made of compute-queue passes: run in order on the graphics queue, and
+    those that overlapped graphics work cut to the time they added (:func:`exposed_times`)."""
+    compute = [p.name for p in passes if p.queue == "compute"]
+    if not compute:
+        return []
+    out = [f"ran on the compute queue in the capture: {', '.join(compute[:5])}"
+           f"{' ...' if len(compute) > 5 else ''}; the schedules run every pass on the graphics "
+           "queue, in order"]
+    cut = [p for p in passes if p.ran_ms is not None]
+    if cut:
+        hidden = sum(cast(float, p.ran_ms) - p.gpu_ms for p in cut)
+        shown = ", ".join(f"{p.name} {p.ran_ms:.3f} -> {p.gpu_ms:.3f} ms" for p in cut[:5])
+        out.append(f"async compute: {len(cut)} compute pass(es) overlapped graphics work ({hidden:.3f} ms "
+                   f"per frame hidden); each is written as the time it added to the frame ({shown}"
+                   f"{' ...' if len(cut) > 5 else ''}), so one GPU runs the capture's frame time; "
+                   "split across GPUs the overlap is assumed to survive (approximated: the model has "
+                   "no queue per scene pass)")
+    return out
+
+
+# ----- async compute ---------------------------------------------------------------------------
+def exposed_times(gpu: pd.DataFrame) -> pd.DataFrame:
+    """The slices with each compute-queue slice's `ms` cut to the time it added to its frame:
+    the part of it when no graphics slice of its frame, nor a compute slice that started
+    before it, was running (whole ns); `ran_ms` keeps what it ran.
+
+    Why: the schedules run a frame's passes one after the other on one queue (the scene has no
+    queue per pass), so a pass that overlapped graphics work on an async-compute queue would add
+    its whole time to the frame. Cut to what it added, the one-GPU frame takes the capture's
+    busy time; split across GPUs, the pass keeps only that part of its cost (the overlap is
+    assumed to survive the split), which the import notes. Without start times (a CSV) nothing
+    is cut: a CSV's compute rows are taken as run in turn."""
+    compute = (gpu["queue"] == "compute").to_numpy()
+    out = gpu.assign(ran_ms=gpu["ms"])
+    if not compute.any() or compute.all() or gpu["start_ns"].isna().any():
+        return out
+    ms = out["ms"].to_numpy(copy=True)
+    starts, ends = out["start_ns"].to_numpy(), out["end_ns"].to_numpy()
+    frames = out["frame"].to_numpy()
+    by_frame = np.argsort(frames, kind="stable")
+    for rows in np.split(by_frame, np.flatnonzero(np.diff(frames[by_frame])) + 1):
+        picked = rows[compute[rows]]
+        if not len(picked):
+            continue
+        shown = rows[~compute[rows]]
+        covered = _merged(list(zip(starts[shown], ends[shown])))
+        for k in picked[np.lexsort((picked, starts[picked]))]:
+            hidden = round(_overlap(covered, starts[k], ends[k]))
+            if hidden > 0:
+                ms[k] = max(0.0, ms[k] - hidden / 1e6)
+            covered = _merged(covered + [(starts[k], ends[k])])
+    out["ms"] = ms
+    return out
+
+
+def _merged(spans: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """Intervals as their union: sorted, disjoint."""
+    out: list[tuple[float, float]] = []
+    for lo, hi in sorted(spans):
+        if out and lo <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], hi))
+        else:
+            out.append((lo, hi))
+    return out
+
+
+def _overlap(covered: list[tuple[float, float]], lo: float, hi: float) -> float:
+    """How much of [lo, hi] the disjoint intervals `covered` hold."""
+    return sum(max(0.0, min(hi, b) - max(lo, a)) for a, b in covered if a < hi and b > lo)
 
 
 def _gpu_span(gpu: pd.DataFrame) -> float | None:
@@ -327,7 +402,10 @@ def experiment_text(frame: CapturedFrame, profile: Path, out: Path, frames: int 
             lines.append(f"output_bytes = {p.output_bytes}")
         if p.reads:
             lines.append("reads = [" + ", ".join(_q(r) for r in p.reads) + "]")
-        if p.queue != "graphics":
+        if p.ran_ms is not None:
+            lines.append(f"# ran {ms_text(p.ran_ms)} ms on the {p.queue} queue in the capture, overlapping "
+                         f"graphics work; gpu_ms is the {ms_text(p.gpu_ms)} ms it added to the frame")
+        elif p.queue != "graphics":
             lines.append(f"# ran on the {p.queue} queue in the capture")
     lines += ["", "[schedule]"] + schedule_lines(frame, frames, warmup)
     return "\n".join(lines) + "\n"

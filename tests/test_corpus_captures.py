@@ -700,6 +700,20 @@ def _run(edit: Callable[[Path, pd.DataFrame, dict], None] | None = None) -> Call
     return make
 
 
+def _study(*runs: str) -> Callable[[Path], list[str]]:
+    """A study's folder of one configuration: the committed run in each of `runs` below
+    tmp/study (run0, steady, ...)."""
+    def make(tmp: Path) -> list[str]:
+        study = tmp / "study"
+        study.mkdir()
+        for name in runs:
+            (study / name).parent.mkdir(parents=True, exist_ok=True)
+            _run()(tmp)
+            (tmp / "run").rename(study / name)
+        return [a for a in _argv(study, tmp) if a not in ("--size", "64x64")]
+    return make
+
+
 def _parquet(damage: Callable[[bytes], bytes]) -> Callable[[Path, pd.DataFrame, dict], None]:
     def edit(folder: Path, _t: pd.DataFrame, _s: dict) -> None:
         path = folder / "trace.parquet"
@@ -773,7 +787,20 @@ def run_cases() -> list[Case]:
         run("run-summary-binary", lambda f, t, s: (f / "summary.json").write_bytes(b"\0\xff" * 20), "summary.json"),
         run("run-summary-list", lambda f, t, s: (f / "summary.json").write_text("[]"), "summary.json"),
         run("run-no-inputs", _summary(_set("config.inputs", _DELETE)), "config.inputs"),
-        run("run-two-gpus", _summary(_set("config.gpus", 2)), "config"),
+        run("run-sort-first-two-gpus", _summary(lambda s: s["config"].update(schedule="sort_first", gpus=2)),
+            "config.gpus", "one-GPU run"),
+        run("run-sort-last-three-gpus", _summary(lambda s: s["config"].update(schedule="sort_last", gpus=3)),
+            "config.gpus"),
+        run("run-gpus-bool", _summary(_set("config.gpus", True)), "config.gpus"),
+        run("run-gpus-zero", _summary(_set("config.gpus", 0)), "config.gpus"),
+        run("run-gpus-text", _summary(_set("config.gpus", "two")), "config.gpus"),
+        run("run-gpus-missing", _summary(_set("config.gpus", _DELETE)), "config.gpus"),
+        Case("run-pipelining-two-gpus-recorded", _run(_summary(_set("config.gpus", 2))),
+             check=_loaded(4, _run_ms()), exits=(0,)),
+        Case("run-study-folder-run0", _study("run0"), check=_loaded(4, _run_ms()), exits=(0,)),
+        Case("run-study-folder-steady", _study("run0", "steady"), check=_loaded(4, _run_ms()), exits=(0,)),
+        _bad("run-study-folder-other-names", _study("a/x", "b/y"), "2 run(s) below", "a/x"),
+        _bad("run-empty-folder", _study(), "no trace.parquet"),
         run("run-unknown-schedule", _summary(_set("config.schedule", "magic")), "config"),
         run("run-no-passes", _summary(_set("config.inputs.passes", [])), "config.inputs.passes"),
         run("run-width-bool", _summary(_set("config.width", True)), "config.width"),

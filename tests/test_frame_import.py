@@ -12,6 +12,7 @@ from mgpusim import load_experiment, simulate
 from mgpusim.cli import main
 from mgpusim.frames.formats import read_chrome, read_csv, read_run
 from mgpusim.frames.importer import frame_from_slices
+from mgpusim.measure import run_archive
 from mgpusim.model.errors import InputError
 from mgpusim.model.scene import PassSpec, temporal_reads
 from mgpusim.model.work_terms import pass_work
@@ -180,14 +181,70 @@ def test_a_bad_capture_is_one_line_and_writes_nothing(case, tmp_path, capsys):
     assert not out.exists()
 
 
-def test_a_multi_gpu_run_and_a_missing_size_are_refused(tmp_path, capsys):
-    run = RUN.parents[0].parent / "pipe_2gpu" / "steady"
+def test_a_sort_first_run_on_two_gpus_and_a_missing_size_are_refused(tmp_path, capsys):
+    run = NATIVE / "sort_first_2gpu"
     assert _import(run, tmp_path / "x.toml") == 2
-    assert "one-GPU run" in capsys.readouterr().err
+    assert "times each GPU's part of a pass" in capsys.readouterr().err
     csv = tmp_path / "f.csv"
     csv.write_text("pass,queue,gpu_ms\na,graphics,1\n")
     assert _import(csv, tmp_path / "x.toml") == 2
     assert "--size" in capsys.readouterr().err
+
+
+# ----- measured runs: several GPUs, a study's folders ----------------------------------------
+#: A study's committed runs (packed): per configuration run0/, run1/ and steady/.
+NATIVE = ROOT / "data/lavapipe/main_job_2026-11-27_native/runs"
+
+
+def _run_pass_ms(run: Path) -> dict[str, tuple[str, float]]:
+    """Each render task's GPU and median time in a committed run, from its trace."""
+    trace = run_archive.read_table(run / "trace.csv")
+    renders = trace[trace["step"] == "render"]
+    ms = ((renders["end_ns"] - renders["start_ns"]) / 1e6).groupby(renders["task"]).median()
+    gpu = renders.groupby("task")["device"].first()
+    return {str(t).removeprefix("render."): (str(gpu[t]), float(ms[t])) for t in ms.index}
+
+
+def test_a_two_gpu_pipelining_run_imports_every_pass_where_it_ran(tmp_path, capsys):
+    """The committed 2-GPU pipelining run (a and b on GPU 1, c and d on GPU 0): each pass at its
+    median time on the GPU it ran on, the study's folder read as its steady window."""
+    out = tmp_path / "p.toml"
+    assert _import(NATIVE / "pipe_2gpu", out) == 0
+    printed = capsys.readouterr().out
+    assert "read steady/ of the study's run folder pipe_2gpu" in printed
+    assert "gpu0: c, d; gpu1: a, b" in printed
+    want = _run_pass_ms(NATIVE / "pipe_2gpu" / "steady")
+    assert {n: p.params["gpu_ms"] for n, p in _passes(out).items()} == pytest.approx(
+        {n: ms for n, (_, ms) in want.items()}, abs=1e-6)
+    assert {g for g, _ in want.values()} == {"gpu0", "gpu1"}
+    assert "a run of pipelining on 2 GPUs" in out.read_text()  # the note is in the file too
+
+
+def test_a_two_gpu_afr_run_takes_each_gpus_frames(tmp_path):
+    slices, meta = read_run(NATIVE / "afrt_2gpu" / "run0")
+    trace = run_archive.read_table(NATIVE / "afrt_2gpu" / "run0" / "trace.csv")
+    assert set(trace.loc[trace["step"] == "render", "device"]) == {"gpu0", "gpu1"}
+    frame = frame_from_slices(slices, name="a", source="a", width=meta["width"], height=meta["height"])
+    renders = trace[trace["step"] == "render"]
+    assert frame.frames == renders["frame"].nunique()
+    assert [p.name for p in frame.passes] == ["fragment_loop", "taa"]
+    assert [p.reads for p in frame.passes] == [(), ("fragment_loop", "taa")]  # taa: its previous output
+    assert not any("steady" in n for n in meta["notes"])  # run0 named: read as given
+
+
+def test_a_study_folder_without_steady_reads_run0_and_one_of_many_is_asked_for(tmp_path, capsys):
+    study = tmp_path / "study"
+    for name in ("run0", "run1"):
+        folder = study / name
+        folder.mkdir(parents=True)
+        run_archive.read_table(RUN / "trace.csv").to_parquet(folder / "trace.parquet")
+        (folder / "summary.json").write_text(run_archive.read_text(RUN / "summary.json"))
+    out = tmp_path / "s.toml"
+    assert _import(study, out) == 0
+    assert "read run0/ of the study's run folder study: its first run" in capsys.readouterr().out
+    assert _import(NATIVE, tmp_path / "all.toml") == 2
+    err = capsys.readouterr().err
+    assert "run(s) below" in err and "afr_2gpu/run0" in err and len(err.strip().splitlines()) == 1
 
 
 def test_scene_reads_must_name_scene_passes(tmp_path):

@@ -2,7 +2,9 @@
 
 The capture is a Chrome trace-event JSON file (Perfetto, browsers, engine profilers, mgpusim's
 own trace.perfetto.json), a CSV table (pass, queue, gpu_ms, reads, writes, bytes) or a measured
-run of the Vulkan runner (a folder with trace.parquet and summary.json). docs/frame_captures.md
+run of the Vulkan runner (a folder with trace.parquet and summary.json; a study's folder of
+repeated runs reads its steady/ window, else run0/; AFR and pipelining runs on several GPUs give
+each pass where it ran). docs/frame_captures.md
 says what each must hold. The experiment is written into the output folder as <name>.toml (the
 capture's stem unless --name), or to the file --out names where it ends in .toml. Each pass's
 pixel share comes from the capture, else --pixel-share, else is inferred from the pass's name,
@@ -97,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     frame = frame_from_slices(slices, name=args.name or out.stem, source=str(args.capture),
                               width=width, height=height, pixel_share=args.pixel_share,
                               left_out=meta.get("left_out"), origin=meta.get("source"),
-                              share_why=meta.get("share_why"))
+                              share_why=meta.get("share_why"), read_notes=meta.get("notes", ()))
     text = experiment_text(frame, profile, out)
     exp = check_experiment(text, out)
     out.parent.mkdir(parents=True, exist_ok=True)

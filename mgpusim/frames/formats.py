@@ -711,15 +711,16 @@ _RUN_SCHEDULES = ("sort_first", "sort_last", "afr", "pipelining", "xr")
 
 
 def read_run(folder: Path) -> tuple[pd.DataFrame, dict[str, Any]]:
-    """A one-GPU measured run: its render tasks are the passes (the schedule's present is not
-    one); what each reads and writes comes from the recorded scene (a filter samples the passes
-    before it, AFR's temporal pass its own previous output)."""
+    """A measured run: its render tasks are the passes (the schedule's present is not one);
+    what each reads and writes comes from the recorded scene (a filter samples the passes
+    before it, AFR's temporal pass its own previous output). A study's folder of repeated runs
+    is read as the run it compares (:func:`run_of_folder`); a run on several GPUs where each
+    pass of a frame runs whole on one GPU (AFR, pipelining) gives every pass where it ran
+    (:data:`MULTI_GPU_SCHEDULES`). Returns `notes` on what was read."""
+    folder, notes = run_of_folder(folder)
     file = str(folder)
-    trace = None
-    for name in TRACE_FILES:
-        if run_archive.is_file(folder / name):
-            trace = check_trace(read_table(folder / name), str(folder / name))
-            break
+    trace = next((check_trace(read_table(folder / name), str(folder / name)) for name in TRACE_FILES
+                  if run_archive.is_file(folder / name)), None)
     if trace is None:
         raise InputError("no trace.parquet or trace.csv: expected a measured run's folder", file=file)
     summary = folder / "summary.json"
@@ -731,10 +732,7 @@ def read_run(folder: Path) -> tuple[pd.DataFrame, dict[str, Any]]:
                          file=str(summary), field="config.inputs")
     schedule, gpus = config.get("schedule"), config.get("gpus")
     views = _run_views(config, str(summary))
-    if schedule not in _RUN_SCHEDULES or (gpus != 1 and views == 1):
-        raise InputError(f"a frame is imported from a one-GPU run of {', '.join(_RUN_SCHEDULES)} "
-                         f"(or XR's simulated mode); this is {schedule} on {gpus} GPU(s)",
-                         file=str(summary), field="config")
+    _check_run_gpus(schedule, gpus, views, str(summary))
     specs = config["inputs"].get("passes")
     if not isinstance(specs, list) or not specs or not all(isinstance(s, dict) and "name" in s for s in specs):
         raise InputError("expected the scene's passes", file=str(summary), field="config.inputs.passes")
@@ -745,12 +743,90 @@ def read_run(folder: Path) -> tuple[pd.DataFrame, dict[str, Any]]:
     width, height = (_run_side(config.get(k), str(summary), f"config.{k}") for k in ("width", "height"))
     resources = _run_io(specs, config, width * height * 4, str(summary))
     rows = _run_rows(trace, specs, resources, views, file)
+    if gpus != 1:
+        notes.append(_gpus_note(trace, schedule, cast(int, gpus)))
     source = {"experiment": config.get("experiment"), "file": config.get("file"), "schedule": schedule,
-              "run": file}
+              "run": file, "gpus": gpus}
     why = {str(s["name"]): f"the run's pass kind {s.get('kind')!r}" for s in specs
            if str(s.get("kind", "")) in RUN_PIXEL_SHARE}
     return slices_table(rows), {"width": width, "height": height, "source": source, "left_out": {},
-                                "share_why": why}
+                                "share_why": why, "notes": notes}
+
+
+#: Schedules whose runs on several GPUs time every pass of a frame whole, on one GPU: AFR (a
+#: frame's passes on the GPU whose turn it is), pipelining (each pass on the GPU it is split
+#: to). Sort-first and sort-last time each GPU's part of a pass (a tile, a share of the
+#: geometry), which is not the pass.
+MULTI_GPU_SCHEDULES = ("afr", "pipelining")
+#: The subfolder of a study's repeated runs that is read: the steady window the study compares
+#: (`steady`), else the first run.
+RUN_CHOICES = ("steady", "run0")
+
+
+def run_of_folder(folder: Path) -> tuple[Path, list[str]]:
+    """The run folder to read: `folder` where it holds a trace; else, a study's folder of one
+    configuration's repeated runs (run0/, run1/, ... and steady/, on disk or packed), its
+    :data:`RUN_CHOICES` subfolder, with a note saying which; else `folder` (whose reader says
+    what is missing, naming the runs below it where it holds several)."""
+    if _has_trace(folder):
+        return folder, []
+    for name in RUN_CHOICES:
+        if _has_trace(folder / name):
+            what = "the steady window of its repeated runs, what the study compares" if name == "steady" \
+                else "its first run"
+            return folder / name, [f"read {name}/ of the study's run folder {folder.name}: {what}"]
+    below = _runs_below(folder)
+    if below:
+        shown = ", ".join(below[:3]) + (" ..." if len(below) > 3 else "")
+        raise InputError(f"no trace here, but {len(below)} run(s) below ({shown}): give one run's folder",
+                         file=str(folder))
+    return folder, []
+
+
+def _has_trace(folder: Path) -> bool:
+    return any(run_archive.is_file(folder / name) for name in TRACE_FILES)
+
+
+def _runs_below(folder: Path) -> list[str]:
+    """The run folders below `folder` (relative), on disk or in the archive holding it."""
+    try:
+        if folder.is_dir() and (folder / run_archive.TRACES).is_file():
+            return [r.relative_to(folder).as_posix() for r in run_archive.runs_in(folder) if r != folder]
+        if folder.is_dir():  # two levels down: a study's runs/<config>/<run>, not a whole disk
+            return sorted({t.parent.relative_to(folder).as_posix() for name in TRACE_FILES
+                           for pattern in (f"*/{name}", f"*/*/{name}") for t in folder.glob(pattern)})
+    except (OSError, InputError):  # a folder that cannot be listed, a damaged archive: the reader says so
+        return []
+    found = run_archive.archive_of(folder)
+    if found is None:
+        return []
+    archive, rel = found
+    return sorted(run[len(rel) + 1:] for run in archive.traces if run.startswith(f"{rel}/"))
+
+
+def _check_run_gpus(schedule: Any, gpus: Any, views: int, file: str) -> None:
+    """A run of a schedule the import reads, on one GPU (any of :data:`_RUN_SCHEDULES`, XR in
+    its simulated mode) or, for :data:`MULTI_GPU_SCHEDULES`, on several."""
+    if schedule not in _RUN_SCHEDULES:
+        raise InputError(f"a frame is imported from a run of {', '.join(_RUN_SCHEDULES)}; this is "
+                         f"{str(schedule)[:40]!r}", file=file, field="config.schedule")
+    if not isinstance(gpus, int) or isinstance(gpus, bool) or gpus < 1:
+        raise InputError(f"expected the run's GPU count, got {str(gpus)[:40]!r}", file=file, field="config.gpus")
+    if gpus != 1 and views == 1 and schedule not in MULTI_GPU_SCHEDULES:
+        raise InputError(f"a {schedule} run on {gpus} GPUs times each GPU's part of a pass (a tile or a "
+                         f"share of the geometry), not the pass: import its one-GPU run, or an "
+                         f"{' or '.join(MULTI_GPU_SCHEDULES)} run", file=file, field="config.gpus")
+
+
+def _gpus_note(trace: pd.DataFrame, schedule: Any, gpus: int) -> str:
+    """Where a multi-GPU run's passes ran, for the import's notes."""
+    renders = trace[trace["step"] == "render"]
+    where = renders.groupby("device", sort=True)["task"].unique()
+    shown = "; ".join(f"{device}: {', '.join(str(t).removeprefix('render.') for t in tasks)}"
+                      for device, tasks in where.items())
+    how = "each frame on one GPU, in turn" if schedule == "afr" else "each pass on the GPU it was split to"
+    return (f"a run of {schedule} on {gpus} GPUs ({how}; {shown}): every pass is timed whole where it ran, "
+            "with the other GPUs busy beside it (on lavapipe they share the host's cores)")
 
 
 def _run_views(config: dict[str, Any], file: str) -> int:

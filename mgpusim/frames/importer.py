@@ -23,7 +23,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, cast
+from typing import Any, Mapping, Sequence, cast
 
 import numpy as np
 import pandas as pd
@@ -84,11 +84,12 @@ class CapturedFrame:
 def frame_from_slices(slices: pd.DataFrame, *, name: str, source: str, width: int, height: int,
                       pixel_share: float | None = None, left_out: Mapping[str, float] | None = None,
                       origin: Mapping[str, Any] | None = None,
-                      share_why: Mapping[str, str] | None = None) -> CapturedFrame:
+                      share_why: Mapping[str, str] | None = None, read_notes: Sequence[str] = ()) -> CapturedFrame:
     """The frame the slices make (see the module doc); `pixel_share` for passes whose capture
     does not say how much of their time scales with pixels (None: inferred from the pass,
     :mod:`mgpusim.frames.shares`); `share_why`: why the capture states a pass's share, where it
-    says (a measured run's pass kinds)."""
+    says (a measured run's pass kinds); `read_notes`: what the reader noted (which run of a
+    study's folder, where a multi-GPU run's passes ran), first among the frame's notes."""
     gpu = slices[slices["queue"].isin(["graphics", "compute"])]
     if gpu.empty:
         raise InputError("no GPU passes in the capture (queues graphics or compute)", file=source)
@@ -103,7 +104,7 @@ def frame_from_slices(slices: pd.DataFrame, *, name: str, source: str, width: in
     if views == 2:
         _check_views(keyed, source)
     passes = _passes(keyed, pixel_share, width * height, share_why or {})
-    notes = list(_notes(slices, keyed, passes, len(frames), left_out or {}, views))
+    notes = list(read_notes) + _notes(slices, keyed, passes, len(frames), left_out or {}, views)
     cpu = slices[slices["queue"] == "cpu"]
     cpu_ms = float(cpu["ms"].sum()) / len(frames) if len(cpu) else 0.0
     span = _gpu_span(gpu)

@@ -828,8 +828,36 @@ def run_cases() -> list[Case]:
     return cases
 
 
+# ----- RenderDoc captures -----------------------------------------------------------------------------
+RDC = ROOT / "tests/data/renderdoc/deferred_lavapipe.rdc"
+
+
+def _rdc(body: Callable[[bytes], bytes], name: str = "t.rdc") -> Callable[[Path], list[str]]:
+    """A file made from the committed capture's bytes (RenderDoc refuses what is left of
+    them, or the import does before RenderDoc starts)."""
+    return lambda tmp: _text(body(RDC.read_bytes()), name)(tmp)
+
+
+def rdc_cases() -> list[Case]:
+    cases = [_bad(f"rdc-cut-at-{n}", _rdc(lambda b, n=n: b[:n]), "t.rdc") for n in (0, 3, 4, 8, 100, 1000, 100_000)]
+    cases += [
+        _bad("rdc-cut-at-half", _rdc(lambda b: b[: len(b) // 2]), "t.rdc"),
+        _bad("rdc-cut-last-byte", _rdc(lambda b: b[:-1]), "t.rdc"),
+        _bad("rdc-magic-then-zeros", _rdc(lambda b: b"RDOC" + bytes(4096)), "t.rdc"),
+        _bad("rdc-text", _text("not a capture\n", "t.rdc"), "t.rdc", "not a RenderDoc capture"),
+        _bad("rdc-chrome-trace-named-rdc", _text(json.dumps({"traceEvents": _good_events()}), "t.rdc"),
+             "not a RenderDoc capture"),
+        _bad("rdc-folder", lambda tmp: ((tmp / "t.rdc").mkdir(), _argv(tmp / "t.rdc", tmp))[1], "t.rdc", "folder"),
+        _bad("rdc-missing", lambda tmp: _argv(tmp / "t.rdc", tmp), "t.rdc", "not found"),
+        _bad("rdc-format-forced-on-csv", lambda tmp: _csv(f"{CSV_HEAD}\na,graphics,1\n")(tmp) + ["--format", "renderdoc"],
+             "t.csv", "not a RenderDoc capture"),
+        _bad("rdc-unknown-suffix", _rdc(lambda b: b, "t.capture"), "t.capture", "--format"),
+    ]
+    return cases
+
+
 CASES = (file_cases() + path_cases() + value_cases() + phase_cases() + time_cases() + name_cases() + view_cases()
-         + track_cases() + csv_cases() + run_cases())
+         + track_cases() + csv_cases() + run_cases() + rdc_cases())
 
 
 def test_the_corpus_is_large_and_has_both_kinds():

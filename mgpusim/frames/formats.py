@@ -1,9 +1,10 @@
 """Reading a frame capture into one table of slices, whatever format it came in.
 
-Three formats (docs/frame_captures.md): Chrome trace-event JSON (what Perfetto, the
+Four formats (docs/frame_captures.md): Chrome trace-event JSON (what Perfetto, the
 browsers and several engines' profilers export, and mgpusim's own `trace.perfetto.json`), a
-plain CSV (one row per pass), and a measured run of the Vulkan runner (a folder with
-`trace.parquet` or `trace.csv` and `summary.json`, packed or not). Each becomes a
+plain CSV (one row per pass), a measured run of the Vulkan runner (a folder with
+`trace.parquet` or `trace.csv` and `summary.json`, packed or not), and a RenderDoc capture
+(`.rdc`, timed by replaying it: :mod:`.rdc`). Each becomes a
 :data:`SLICE_COLUMNS` table: one row per piece of GPU or CPU work with its frame, the queue it
 ran on, its time and what it read and wrote. :mod:`mgpusim.frames.importer` turns that
 table into a frame. A file that cannot be read as its format is one InputError naming the file
@@ -23,7 +24,7 @@ from typing import Any, Iterable, cast
 import numpy as np
 import pandas as pd
 
-from mgpusim.frames import trace_json
+from mgpusim.frames import rdc, trace_json
 from mgpusim.measure import run_archive
 from mgpusim.model.errors import InputError
 from mgpusim.model.limits import MAX_BYTES, MAX_SIDE, MAX_TASK_NS
@@ -37,7 +38,7 @@ from mgpusim.validation.measured_check import check_trace, number_column, read_j
 SLICE_COLUMNS = ("frame", "queue", "name", "ms", "start_ns", "end_ns", "reads", "writes", "bytes",
                  "view", "pixel_share")
 QUEUES = ("graphics", "compute", "transfer", "cpu")
-FORMATS = ("chrome", "csv", "run")
+FORMATS = ("chrome", "csv", "run", "renderdoc")
 
 #: Track names (thread, else process) that mean a GPU queue, checked in this order.
 _QUEUE_WORDS = (("compute", ("compute", "async")), ("transfer", ("transfer", "copy", "dma")),
@@ -56,8 +57,11 @@ def detect_format(path: Path) -> str:
         return "chrome"
     if path.suffix.lower() == ".csv":
         return "csv"
+    if path.suffix.lower() == ".rdc":
+        return "renderdoc"
     raise InputError("cannot tell the capture's format from its name (expected a .json Chrome "
-                     "trace, a .csv table or a measured run's folder): give --format", file=str(path))
+                     "trace, a .csv table, a .rdc RenderDoc capture or a measured run's folder): give "
+                     "--format", file=str(path))
 
 
 def read_capture(path: Path, fmt: str, cpu_threads: Iterable[str] = ("main",)
@@ -71,6 +75,8 @@ def read_capture(path: Path, fmt: str, cpu_threads: Iterable[str] = ("main",)
         return read_csv(path)
     if fmt == "run":
         return read_run(path)
+    if fmt == "renderdoc":
+        return read_renderdoc(path)
     raise InputError(f"must be one of {', '.join(FORMATS)}, got {fmt!r}", field="--format")
 
 
@@ -100,6 +106,13 @@ def slices_table(rows: list[dict[str, Any]]) -> pd.DataFrame:
     df = pd.DataFrame(rows, columns=list(SLICE_COLUMNS))
     return df.astype({"frame": "int64", "ms": "float64", "start_ns": "float64", "end_ns": "float64",
                       "view": "int64", "pixel_share": "float64"})
+
+
+# ----- RenderDoc ----------------------------------------------------------------------------
+def read_renderdoc(path: Path, replays: int = rdc.REPLAYS) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """A RenderDoc capture's passes, timed over `replays` replays of its frame (:mod:`.rdc`)."""
+    rows, meta = rdc.read_rows(path, replays)
+    return slices_table(rows), meta
 
 
 # ----- Chrome trace-event JSON ----------------------------------------------------------------

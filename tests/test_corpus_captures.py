@@ -814,6 +814,12 @@ def run_cases() -> list[Case]:
         run("run-pass-name-list", _summary(_set("config.inputs.passes.0.name", ["a"])), "name"),
         run("run-xr-real-mode", _summary(lambda s: s["config"].update(schedule="xr", mode="real", views=2)),
             "config.mode"),
+        run("run-xr-multi-three-gpus", _summary(lambda s: s["config"].update(schedule="xr", mode="multi", views=2,
+                                                                             gpus=3)), "config.mode"),
+        run("run-xr-multi-half-eyes", _summary(lambda s: s["config"].update(
+            schedule="xr", mode="multi", views=2, gpus=2, view_pixels=[100, 100])), "config.mode"),
+        run("run-xr-multi-width-text", _summary(lambda s: s["config"].update(
+            schedule="xr", mode="multi", views=2, gpus=2, width="wide", view_pixels=[1, 1])), "config"),
         run("run-reads-not-a-list", _summary(lambda s: s["config"]["inputs"].update(
             schedule={"reads": {"c": "a"}})), "reads"),
         run("run-trace-folder", lambda f, t, s: ((f / "trace.parquet").unlink(), (f / "trace.parquet").mkdir()),

@@ -232,6 +232,21 @@ def test_a_two_gpu_afr_run_takes_each_gpus_frames(tmp_path):
     assert not any("steady" in n for n in meta["notes"])  # run0 named: read as given
 
 
+def test_a_two_gpu_xr_run_is_a_stereo_frame_of_one_eye_per_gpu(tmp_path, capsys):
+    out = tmp_path / "xr.toml"
+    assert _import(NATIVE / "xr_2gpu", out) == 0
+    assert "each eye on a GPU of its own; gpu0: tori; gpu1: tori" in capsys.readouterr().out
+    exp = load_experiment(out)
+    assert (exp.schedule.name, exp.schedule.options["views"]) == ("xr", 2)
+    trace = run_archive.read_table(NATIVE / "xr_2gpu" / "steady" / "trace.csv")
+    renders = trace[trace["step"] == "render"]
+    assert set(renders["device"]) == {"gpu0", "gpu1"}
+    eye_ms = ((renders["end_ns"] - renders["start_ns"]) / 1e6).median()  # both eyes' slices
+    assert exp.scene.passes[0].params["gpu_ms"] == pytest.approx(eye_ms, abs=1e-6)
+    assert _import(NATIVE / "xr_4gpu_strong", tmp_path / "x4.toml") == 2  # a part of an eye per GPU
+    assert "config.mode" in capsys.readouterr().err
+
+
 def test_a_study_folder_without_steady_reads_run0_and_one_of_many_is_asked_for(tmp_path, capsys):
     study = tmp_path / "study"
     for name in ("run0", "run1"):

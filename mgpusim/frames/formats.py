@@ -835,21 +835,27 @@ def _gpus_note(trace: pd.DataFrame, schedule: Any, gpus: int) -> str:
     """Where a multi-GPU run's passes ran, for the import's notes."""
     renders = trace[trace["step"] == "render"]
     where = renders.groupby("device", sort=True)["task"].unique()
-    shown = "; ".join(f"{device}: {', '.join(str(t).removeprefix('render.') for t in tasks)}"
+    shown = "; ".join(f"{device}: {', '.join(_RENDER_PREFIX.sub('', str(t)) for t in tasks)}"
                       for device, tasks in where.items())
-    how = "each frame on one GPU, in turn" if schedule == "afr" else "each pass on the GPU it was split to"
+    how = {"afr": "each frame on one GPU, in turn", "xr": "each eye on a GPU of its own"}.get(
+        str(schedule), "each pass on the GPU it was split to")
     return (f"a run of {schedule} on {gpus} GPUs ({how}; {shown}): every pass is timed whole where it ran, "
             "with the other GPUs busy beside it (on lavapipe they share the host's cores)")
 
 
 def _run_views(config: dict[str, Any], file: str) -> int:
-    """2 for an XR run of both views on one GPU, else 1."""
+    """2 for an XR run of both eyes, each whole: both on one GPU (simulated mode) or each on a
+    GPU of its own (multi mode on 2 GPUs); else 1."""
     if config.get("schedule") != "xr":
         return 1
-    if config.get("mode") != "simulated" or config.get("views") != 2:
-        raise InputError("an XR run is imported from its simulated mode with 2 views (both eyes on "
-                         "one GPU)", file=file, field="config.mode")
-    return 2
+    mode, views, gpus = config.get("mode"), config.get("views"), config.get("gpus")
+    pixels, width, height = config.get("view_pixels"), config.get("width"), config.get("height")
+    frame = width * height if type(width) is int and type(height) is int else None
+    whole = not isinstance(pixels, list) or all(p == frame for p in pixels)  # not a part of an eye each
+    if views == 2 and (mode == "simulated" or (mode == "multi" and gpus == 2 and whole)):
+        return 2
+    raise InputError("an XR run is imported with 2 views, each eye whole: both on one GPU (its simulated "
+                     "mode) or one per GPU (multi mode on 2 GPUs)", file=file, field="config.mode")
 
 
 def _run_side(value: Any, file: str, field: str) -> int:
@@ -899,6 +905,7 @@ def _run_io(specs: list[dict[str, Any]], config: dict[str, Any],
     return out
 
 
+_RENDER_PREFIX = re.compile(r"^render\d*\.")
 _RENDER_TASK = re.compile(r"^render(?P<view>\d*)(?:\.(?P<name>.+))?$")
 
 

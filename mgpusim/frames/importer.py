@@ -23,7 +23,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence, cast
+from typing import Any, Callable, Mapping, Sequence, cast
 
 import numpy as np
 import pandas as pd
@@ -318,9 +318,10 @@ def _queue_notes(passes: tuple[CapturedPass, ...]) -> list[str]:
 
 # ----- async compute ---------------------------------------------------------------------------
 def exposed_times(gpu: pd.DataFrame) -> pd.DataFrame:
-    """The slices with each compute-queue slice's `ms` cut to the time it added to its frame:
-    the part of it when no graphics slice of its frame, nor a compute slice that started
-    before it, was running (whole ns); `ran_ms` keeps what it ran.
+    """The slices with each compute-queue slice's `ms` cut to the time it added to the GPU's
+    busy time: the part of it when no graphics slice (of any frame: async work may run on into
+    the next frame's), nor a compute slice that started before it, was running (whole ns);
+    `ran_ms` keeps what it ran.
 
     Why: the schedules run a frame's passes one after the other on one queue (the scene has no
     queue per pass), so a pass that overlapped graphics work on an async-compute queue would add
@@ -332,39 +333,41 @@ def exposed_times(gpu: pd.DataFrame) -> pd.DataFrame:
     out = gpu.assign(ran_ms=gpu["ms"])
     if not compute.any() or compute.all() or gpu["start_ns"].isna().any():
         return out
-    ms = out["ms"].to_numpy(copy=True)
     starts, ends = out["start_ns"].to_numpy(), out["end_ns"].to_numpy()
-    frames = out["frame"].to_numpy()
-    by_frame = np.argsort(frames, kind="stable")
-    for rows in np.split(by_frame, np.flatnonzero(np.diff(frames[by_frame])) + 1):
-        picked = rows[compute[rows]]
-        if not len(picked):
-            continue
-        shown = rows[~compute[rows]]
-        covered = _merged(list(zip(starts[shown], ends[shown])))
-        for k in picked[np.lexsort((picked, starts[picked]))]:
-            hidden = round(_overlap(covered, starts[k], ends[k]))
-            if hidden > 0:
-                ms[k] = max(0.0, ms[k] - hidden / 1e6)
-            covered = _merged(covered + [(starts[k], ends[k])])
+    lo, hi = _union(starts[~compute], ends[~compute])
+    below = _covered_below(lo, hi)
+    rows = np.flatnonzero(compute)
+    rows = rows[np.argsort(starts[rows], kind="stable")]  # in start order (ties: capture order)
+    s, e = starts[rows], ends[rows]
+    reach = np.maximum.accumulate(np.concatenate(([-np.inf], e[:-1])))  # latest end of those before
+    c = np.clip(reach, s, e)  # [s, c): under an earlier compute slice
+    hidden = np.round((c - s) + below(e) - below(c))
+    ms = out["ms"].to_numpy(copy=True)
+    ms[rows] = np.where(hidden > 0, np.maximum(0.0, ms[rows] - hidden / 1e6), ms[rows])
     out["ms"] = ms
     return out
 
 
-def _merged(spans: list[tuple[float, float]]) -> list[tuple[float, float]]:
-    """Intervals as their union: sorted, disjoint."""
-    out: list[tuple[float, float]] = []
-    for lo, hi in sorted(spans):
-        if out and lo <= out[-1][1]:
-            out[-1] = (out[-1][0], max(out[-1][1], hi))
-        else:
-            out.append((lo, hi))
-    return out
+def _union(starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Intervals as their union: sorted, disjoint (starts, ends)."""
+    order = np.argsort(starts, kind="stable")
+    s, e = starts[order], np.maximum.accumulate(ends[order])
+    new = np.concatenate(([True], s[1:] > e[:-1]))  # starts after all before it ended
+    first = np.flatnonzero(new)
+    last = np.concatenate((first[1:] - 1, [len(s) - 1]))
+    return s[first], e[last]
 
 
-def _overlap(covered: list[tuple[float, float]], lo: float, hi: float) -> float:
-    """How much of [lo, hi] the disjoint intervals `covered` hold."""
-    return sum(max(0.0, min(hi, b) - max(lo, a)) for a, b in covered if a < hi and b > lo)
+def _covered_below(lo: np.ndarray, hi: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """x -> how much of the disjoint sorted intervals [lo, hi) lies below x (vectorised)."""
+    before = np.concatenate(([0.0], np.cumsum(hi - lo)))
+
+    def below(x: np.ndarray) -> np.ndarray:
+        i = np.searchsorted(lo, x, side="right") - 1  # the last interval starting at or before x
+        at = np.maximum(i, 0)
+        inside = np.clip(x - lo[at], 0.0, hi[at] - lo[at])
+        return np.where(i >= 0, before[at] + inside, 0.0)
+    return below
 
 
 def _gpu_span(gpu: pd.DataFrame) -> float | None:

@@ -16,6 +16,7 @@ from mgpusim.cli import main
 from mgpusim.frames import rdc, rdc_replay
 from mgpusim.frames.formats import slices_table
 from mgpusim.frames.importer import frame_from_slices
+from mgpusim.model.errors import InputError
 
 DATA = Path(__file__).resolve().parent / "data" / "renderdoc"
 DEFERRED, CUBE = DATA / "deferred_lavapipe.rdc", DATA / "vkcube_frame100.rdc"
@@ -101,3 +102,22 @@ def test_the_committed_capture_replays_to_its_record(tmp_path, capsys):
     got = rdc.replay_record(CUBE, replays=2)
     assert {k: v for k, v in got.items() if k not in ("actions", "replays", "replay_gpu")} == \
         {k: v for k, v in _record(CUBE).items() if k not in ("actions", "replays", "replay_gpu")}
+
+
+def test_without_markers_passes_are_render_passes_and_a_dispatch_its_own():
+    """The deferred capture's record with its labels taken away: the grouping rules alone."""
+    record = _record(DEFERRED)
+    for action in record["actions"]:
+        action["markers"] = []
+    frame, _ = _frame(record)
+    assert [p.name for p in frame.passes] == ["Render pass 1", "Render pass 2", "Render pass 3",
+                                              "vkCmdDispatch() (event 41)", "Render pass 4", "Render pass 5"]
+
+
+def test_a_label_met_again_later_is_a_second_pass_and_no_work_is_refused():
+    record = _record(DEFERRED)
+    record["actions"][-1]["markers"] = ["Lighting"]  # Post's draw under a second Lighting label
+    frame, _ = _frame(record)
+    assert [p.name for p in frame.passes][-2:] == ["Particles", "Lighting#2"]
+    with pytest.raises(InputError, match="no GPU work"):
+        rdc.rows_from_record({**record, "actions": []}, "x.rdc")

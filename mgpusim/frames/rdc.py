@@ -164,7 +164,8 @@ def _resource_name(rid: int, resources: dict[str, Any]) -> str:
 
 def _size(passes: list[tuple[str, list[dict[str, Any]]]], resources: dict[str, Any]) -> dict[str, int]:
     """The frame's resolution: the swapchain image a pass draws into, else the last pass's
-    colour target (the first written texture of the last pass that writes one)."""
+    colour target (the first texture of the last pass that writes one: an action lists its
+    colour targets first)."""
     textures = {int(k): v for k, v in resources.items() if isinstance(v, dict) and "width" in v}
     written = [r for _, group in passes for r in _ids(group, "writes") if r in textures]
     swap = [r for r in written if textures[r].get("swapchain")]

@@ -22,7 +22,6 @@ import importlib.util
 import json
 import os
 import re
-import statistics
 import sys
 from pathlib import Path
 from typing import Any
@@ -111,7 +110,7 @@ def _record(rd: Any, cap: Any, ctl: Any, replays: int) -> dict[str, Any]:
     return {"tool": f"RenderDoc {rd.GetVersionString()}", "api": cap.DriverName(),
             "machine": cap.RecordedMachineIdent().strip(), "frame": None if frame >= 2 ** 32 - 1 else frame,
             "replays": replays, "replay_gpu": gpus[0] if gpus else "",
-            "actions": [a for a in actions if statistics.fmean(a["seconds"]) > 0 or a["kind"] != "other"],
+            "actions": actions,
             "resources": _resources(rd, ctl)}
 
 
@@ -169,7 +168,8 @@ def _bindings(rd: Any, ctl: Any, action: Any, kind: str) -> dict[str, list[int]]
         reads += [_rid(b.resourceId) for i, b in enumerate(ps.GetVBuffers()) if i in used]
         if action.flags & rd.ActionFlags.Indexed:
             reads.append(_rid(ps.GetIBuffer().resourceId))
-    return {"writes": sorted({w for w in writes if w}), "reads": sorted({r for r in reads if r})}
+    return {"writes": list(dict.fromkeys(w for w in writes if w)),  # colour targets first, then depth, storage
+            "reads": list(dict.fromkeys(r for r in reads if r))}
 
 
 def _resources(rd: Any, ctl: Any) -> dict[str, dict[str, Any]]:

@@ -14,6 +14,7 @@ targets and reads; the file says which, pass by pass.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import re
 from pathlib import Path
 
@@ -104,11 +105,13 @@ def run(args: argparse.Namespace) -> int:
                               width=width, height=height, pixel_share=args.pixel_share,
                               left_out=meta.get("left_out"), origin=meta.get("source"),
                               share_why=meta.get("share_why"), read_notes=meta.get("notes", ()))
+    if "frames_are" in meta:  # a RenderDoc capture: replays of its one frame
+        frame = dataclasses.replace(frame, frames_are=meta["frames_are"])
     text = experiment_text(frame, profile, out)
     exp = check_experiment(text, out)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_text(text, out)
-    print(f"{args.capture}: {len(frame.passes)} pass(es) over {frame.frames} frame(s), "
+    print(f"{args.capture}: {len(frame.passes)} pass(es) over {frame.frames} {frame.frames_are}, "
           f"{frame.gpu_ms:.3f} ms of GPU time per frame"
           + (f" per eye ({frame.views} views)" if frame.views == 2 else "")
           + (f", {frame.cpu_ms:.3f} ms CPU" if frame.cpu_ms else "") + f", {width}x{height}"

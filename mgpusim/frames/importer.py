@@ -74,6 +74,8 @@ class CapturedFrame:
     notes: tuple[str, ...] = ()
     #: where a measured run came from (experiment name and file, schedule)
     origin: Mapping[str, Any] = field(default_factory=dict)
+    #: what its `frames` are: frames of the capture, or replays of its one frame (RenderDoc)
+    frames_are: str = "captured frame(s)"
 
     @property
     def gpu_ms(self) -> float:
@@ -383,7 +385,7 @@ def experiment_text(frame: CapturedFrame, profile: Path, out: Path, frames: int 
     """The experiment file of `frame` (TOML), naming `profile` relative to `out`'s folder."""
     ref = _profile_ref(profile, out)
     lines = [f"# Imported by `mgpusim frame import` from {_c(frame.source)}",
-             f"# {frame.frames} captured frame(s); every pass's gpu_ms is its median over them "
+             f"# {frame.frames} {frame.frames_are}; every pass's gpu_ms is its median over them "
              f"({'one eye of two views' if frame.views == 2 else 'one view'}).",
              f"# The passes sum to {frame.gpu_ms:.3f} ms of GPU time per frame"
              + (f"; the GPU was busy {frame.gpu_span_ms:.3f} ms per frame." if frame.gpu_span_ms else "."),

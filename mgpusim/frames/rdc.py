@@ -119,7 +119,8 @@ def rows_from_record(record: dict[str, Any], file: str) -> tuple[list[dict[str, 
                          "ms": sum(a["seconds"][frame] for a in group) * 1000.0,
                          "start_ns": math.nan, "end_ns": math.nan, "reads": reads, "writes": writes,
                          "bytes": _bytes(_ids(group, "writes"), resources), "view": -1, "pixel_share": math.nan})
-    meta: dict[str, Any] = {"left_out": {}, "notes": [_replay_note(record, len(passes))], **_size(passes, resources)}
+    meta: dict[str, Any] = {"left_out": {}, "notes": [_replay_note(record, len(passes))],
+                            "frames_are": "replay(s) of its one frame", **_size(passes, resources)}
     return rows, meta
 
 
@@ -178,8 +179,8 @@ def _replay_note(record: dict[str, Any], passes: int) -> str:
     frame = record.get("frame")
     what = f"frame {frame}" if frame is not None else "its frame"
     replays = len(record["actions"][0]["seconds"])
-    per_replay = statistics.fmean(sum(a["seconds"][r] for a in record["actions"]) for r in range(replays)) * 1e3
+    per_replay = statistics.median(sum(a["seconds"][r] for a in record["actions"]) for r in range(replays)) * 1e3
     return (f"a {record.get('api', '')} capture by {record.get('tool', 'RenderDoc')}: {what} replayed {replays} "
             f"time(s) on {record.get('replay_gpu') or 'this machine'}, {passes} pass(es), {per_replay:.3f} ms of GPU "
-            "time per replay; each pass is the sum of its actions' GPU Duration (RenderDoc times each action "
+            "time in the median replay; each pass is the sum of its actions' GPU Duration (RenderDoc times each action "
             "alone, in order), its median over the replays: times of the replaying GPU, not the captured run")

@@ -11,9 +11,8 @@ event order with their debug-marker path, render pass, targets, what they read a
 their GPU durations (seconds, one list per replay); the resources' sizes; what replayed it.
 On a failure it prints `{"error": ...}` and exits 3.
 
-RenderDoc's Python module (`renderdoc.so`) is found as `import renderdoc`, else in the
-folders of `RENDERDOC_PYTHON_PATH` where that is set, else where Debian's python3-renderdoc
-puts it. It is built for one Python version (Debian 12's: 3.11).
+RenderDoc's Python module (`renderdoc.so`) is found in the folders of `RENDERDOC_PYTHON_PATH`
+where that is set, else as `import renderdoc`, else where Debian's python3-renderdoc puts it. It is built for one Python version (Debian 12's: 3.11).
 """
 from __future__ import annotations
 
@@ -46,13 +45,15 @@ def module_path() -> Path | None:
 
 
 def load_renderdoc() -> Any:
-    """RenderDoc's Python module: `import renderdoc` where this Python has it, else
-    :func:`module_path`; ImportError naming where it was looked for."""
-    try:
-        import renderdoc  # type: ignore[import-not-found]  # noqa: PLC0415
-        return renderdoc
-    except ImportError:
-        pass
+    """RenderDoc's Python module: from RENDERDOC_PYTHON_PATH where that is set, else `import
+    renderdoc` where this Python has it, else :data:`MODULE_FOLDERS`; ImportError naming where
+    it was looked for."""
+    if "RENDERDOC_PYTHON_PATH" not in os.environ:
+        try:
+            import renderdoc  # type: ignore[import-not-found]  # noqa: PLC0415
+            return renderdoc
+        except ImportError:
+            pass
     path = module_path()
     if path is None:
         raise ImportError(f"RenderDoc's Python module (renderdoc.so) is not in this Python's path, nor in "

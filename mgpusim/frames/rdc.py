@@ -80,7 +80,7 @@ def replay_record(path: Path, replays: int = REPLAYS) -> dict[str, Any]:
         raise InputError(f"RenderDoc's replay took longer than {REPLAY_TIMEOUT_S} s", file=file) from None
     lines = done.stdout.strip().splitlines()
     try:
-        record = json.loads(lines[-1]) if lines else None
+        record = json.loads(lines[-1]) if lines else None  # text, not a file: the child's stdout
     except json.JSONDecodeError:
         record = None
     if done.returncode == rdc_replay.FAILED and isinstance(record, dict) and "error" in record:

@@ -12,7 +12,8 @@ their GPU durations (seconds, one list per replay); the resources' sizes; what r
 On a failure it prints `{"error": ...}` and exits 3.
 
 RenderDoc's Python module (`renderdoc.so`) is found in the folders of `RENDERDOC_PYTHON_PATH`
-where that is set, else as `import renderdoc`, else where Debian's python3-renderdoc puts it. It is built for one Python version (Debian 12's: 3.11).
+where that is set, else as `import renderdoc`, else where Debian's python3-renderdoc puts it.
+It is built for one Python version (Debian 12's: 3.11).
 """
 from __future__ import annotations
 

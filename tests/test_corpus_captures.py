@@ -545,7 +545,16 @@ def track_cases() -> list[Case]:
             {"ph": "X", "name": "u", "pid": 2, "tid": 7, "ts": 0, "dur": 4000}]), 3, 6.0),
         _good("compute-queue", _trace(_good_events() + [
             {"ph": "M", "name": "thread_name", "pid": 1, "tid": 2, "args": {"name": "Async compute"}},
-            {"ph": "X", "name": "ssao", "pid": 1, "tid": 2, "ts": 500, "dur": 500}]), 4, 6.5),
+            {"ph": "X", "name": "ssao", "pid": 1, "tid": 2, "ts": 500, "dur": 500}]), 4, 6.0),  # hidden by a
+        _good("compute-queue-sticks-out", _trace(_good_events() + [
+            {"ph": "M", "name": "thread_name", "pid": 1, "tid": 2, "args": {"name": "Async compute"}},
+            {"ph": "X", "name": "ssao", "pid": 1, "tid": 2, "ts": 5500, "dur": 1500}]), 4, 7.0),  # 1 ms after c
+        _good("compute-queue-alone", _trace(_meta(thread="Async compute") + [_x("a", 0, 1000), _x("b", 1000, 2000)]),
+              2, 3.0),
+        _good("compute-queue-frames-from-graphics", _trace(frames + [
+            {"ph": "M", "name": "thread_name", "pid": 1, "tid": 2, "args": {"name": "Async compute"}}] + [
+            {"ph": "X", "name": "sim", "pid": 1, "tid": 2, "ts": f * 10_000 + 2500, "dur": 1000} for f in range(4)]),
+              3, 3.5),  # sim: 0.5 ms of it beside b
         _good("transfer-queue-left-out", _trace(_good_events() + [
             {"ph": "M", "name": "thread_name", "pid": 1, "tid": 3, "args": {"name": "Copy queue"}},
             {"ph": "X", "name": "up", "pid": 1, "tid": 3, "ts": 0, "dur": 500}]), 3, 6.0),
@@ -691,6 +700,20 @@ def _run(edit: Callable[[Path, pd.DataFrame, dict], None] | None = None) -> Call
     return make
 
 
+def _study(*runs: str) -> Callable[[Path], list[str]]:
+    """A study's folder of one configuration: the committed run in each of `runs` below
+    tmp/study (run0, steady, ...)."""
+    def make(tmp: Path) -> list[str]:
+        study = tmp / "study"
+        study.mkdir()
+        for name in runs:
+            (study / name).parent.mkdir(parents=True, exist_ok=True)
+            _run()(tmp)
+            (tmp / "run").rename(study / name)
+        return [a for a in _argv(study, tmp) if a not in ("--size", "64x64")]
+    return make
+
+
 def _parquet(damage: Callable[[bytes], bytes]) -> Callable[[Path, pd.DataFrame, dict], None]:
     def edit(folder: Path, _t: pd.DataFrame, _s: dict) -> None:
         path = folder / "trace.parquet"
@@ -764,7 +787,20 @@ def run_cases() -> list[Case]:
         run("run-summary-binary", lambda f, t, s: (f / "summary.json").write_bytes(b"\0\xff" * 20), "summary.json"),
         run("run-summary-list", lambda f, t, s: (f / "summary.json").write_text("[]"), "summary.json"),
         run("run-no-inputs", _summary(_set("config.inputs", _DELETE)), "config.inputs"),
-        run("run-two-gpus", _summary(_set("config.gpus", 2)), "config"),
+        run("run-sort-first-two-gpus", _summary(lambda s: s["config"].update(schedule="sort_first", gpus=2)),
+            "config.gpus", "one-GPU run"),
+        run("run-sort-last-three-gpus", _summary(lambda s: s["config"].update(schedule="sort_last", gpus=3)),
+            "config.gpus"),
+        run("run-gpus-bool", _summary(_set("config.gpus", True)), "config.gpus"),
+        run("run-gpus-zero", _summary(_set("config.gpus", 0)), "config.gpus"),
+        run("run-gpus-text", _summary(_set("config.gpus", "two")), "config.gpus"),
+        run("run-gpus-missing", _summary(_set("config.gpus", _DELETE)), "config.gpus"),
+        Case("run-pipelining-two-gpus-recorded", _run(_summary(_set("config.gpus", 2))),
+             check=_loaded(4, _run_ms()), exits=(0,)),
+        Case("run-study-folder-run0", _study("run0"), check=_loaded(4, _run_ms()), exits=(0,)),
+        Case("run-study-folder-steady", _study("run0", "steady"), check=_loaded(4, _run_ms()), exits=(0,)),
+        _bad("run-study-folder-other-names", _study("a/x", "b/y"), "2 run(s) below", "a/x"),
+        _bad("run-empty-folder", _study(), "no trace.parquet"),
         run("run-unknown-schedule", _summary(_set("config.schedule", "magic")), "config"),
         run("run-no-passes", _summary(_set("config.inputs.passes", [])), "config.inputs.passes"),
         run("run-width-bool", _summary(_set("config.width", True)), "config.width"),
@@ -778,6 +814,12 @@ def run_cases() -> list[Case]:
         run("run-pass-name-list", _summary(_set("config.inputs.passes.0.name", ["a"])), "name"),
         run("run-xr-real-mode", _summary(lambda s: s["config"].update(schedule="xr", mode="real", views=2)),
             "config.mode"),
+        run("run-xr-multi-three-gpus", _summary(lambda s: s["config"].update(schedule="xr", mode="multi", views=2,
+                                                                             gpus=3)), "config.mode"),
+        run("run-xr-multi-half-eyes", _summary(lambda s: s["config"].update(
+            schedule="xr", mode="multi", views=2, gpus=2, view_pixels=[100, 100])), "config.mode"),
+        run("run-xr-multi-width-text", _summary(lambda s: s["config"].update(
+            schedule="xr", mode="multi", views=2, gpus=2, width="wide", view_pixels=[1, 1])), "config"),
         run("run-reads-not-a-list", _summary(lambda s: s["config"]["inputs"].update(
             schedule={"reads": {"c": "a"}})), "reads"),
         run("run-trace-folder", lambda f, t, s: ((f / "trace.parquet").unlink(), (f / "trace.parquet").mkdir()),
@@ -792,8 +834,36 @@ def run_cases() -> list[Case]:
     return cases
 
 
+# ----- RenderDoc captures -----------------------------------------------------------------------------
+RDC = ROOT / "tests/data/renderdoc/deferred_lavapipe.rdc"
+
+
+def _rdc(body: Callable[[bytes], bytes], name: str = "t.rdc") -> Callable[[Path], list[str]]:
+    """A file made from the committed capture's bytes (RenderDoc refuses what is left of
+    them, or the import does before RenderDoc starts)."""
+    return lambda tmp: _text(body(RDC.read_bytes()), name)(tmp)
+
+
+def rdc_cases() -> list[Case]:
+    cases = [_bad(f"rdc-cut-at-{n}", _rdc(lambda b, n=n: b[:n]), "t.rdc") for n in (0, 3, 4, 8, 100, 1000, 100_000)]
+    cases += [
+        _bad("rdc-cut-at-half", _rdc(lambda b: b[: len(b) // 2]), "t.rdc"),
+        _bad("rdc-cut-last-byte", _rdc(lambda b: b[:-1]), "t.rdc"),
+        _bad("rdc-magic-then-zeros", _rdc(lambda b: b"RDOC" + bytes(4096)), "t.rdc"),
+        _bad("rdc-text", _text("not a capture\n", "t.rdc"), "t.rdc", "not a RenderDoc capture"),
+        _bad("rdc-chrome-trace-named-rdc", _text(json.dumps({"traceEvents": _good_events()}), "t.rdc"),
+             "not a RenderDoc capture"),
+        _bad("rdc-folder", lambda tmp: ((tmp / "t.rdc").mkdir(), _argv(tmp / "t.rdc", tmp))[1], "t.rdc", "folder"),
+        _bad("rdc-missing", lambda tmp: _argv(tmp / "t.rdc", tmp), "t.rdc", "not found"),
+        _bad("rdc-format-forced-on-csv", lambda tmp: _csv(f"{CSV_HEAD}\na,graphics,1\n")(tmp) + ["--format", "renderdoc"],
+             "t.csv", "not a RenderDoc capture"),
+        _bad("rdc-unknown-suffix", _rdc(lambda b: b, "t.capture"), "t.capture", "--format"),
+    ]
+    return cases
+
+
 CASES = (file_cases() + path_cases() + value_cases() + phase_cases() + time_cases() + name_cases() + view_cases()
-         + track_cases() + csv_cases() + run_cases())
+         + track_cases() + csv_cases() + run_cases() + rdc_cases())
 
 
 def test_the_corpus_is_large_and_has_both_kinds():

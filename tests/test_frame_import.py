@@ -3,15 +3,18 @@ that every schedule runs; bad captures are one line naming the file and the fiel
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
 from mgpusim import load_experiment, simulate
 from mgpusim.cli import main
-from mgpusim.frames.formats import read_chrome, read_csv, read_run
-from mgpusim.frames.importer import frame_from_slices
+from mgpusim.frames.formats import read_chrome, read_csv, read_run, slices_table
+from mgpusim.frames.importer import exposed_times, frame_from_slices
+from mgpusim.measure import run_archive
 from mgpusim.model.errors import InputError
 from mgpusim.model.scene import PassSpec, temporal_reads
 from mgpusim.model.work_terms import pass_work
@@ -180,14 +183,85 @@ def test_a_bad_capture_is_one_line_and_writes_nothing(case, tmp_path, capsys):
     assert not out.exists()
 
 
-def test_a_multi_gpu_run_and_a_missing_size_are_refused(tmp_path, capsys):
-    run = RUN.parents[0].parent / "pipe_2gpu" / "steady"
+def test_a_sort_first_run_on_two_gpus_and_a_missing_size_are_refused(tmp_path, capsys):
+    run = NATIVE / "sort_first_2gpu"
     assert _import(run, tmp_path / "x.toml") == 2
-    assert "one-GPU run" in capsys.readouterr().err
+    assert "times each GPU's part of a pass" in capsys.readouterr().err
     csv = tmp_path / "f.csv"
     csv.write_text("pass,queue,gpu_ms\na,graphics,1\n")
     assert _import(csv, tmp_path / "x.toml") == 2
     assert "--size" in capsys.readouterr().err
+
+
+# ----- measured runs: several GPUs, a study's folders ----------------------------------------
+#: A study's committed runs (packed): per configuration run0/, run1/ and steady/.
+NATIVE = ROOT / "data/lavapipe/main_job_2026-11-27_native/runs"
+
+
+def _run_pass_ms(run: Path) -> dict[str, tuple[str, float]]:
+    """Each render task's GPU and median time in a committed run, from its trace."""
+    trace = run_archive.read_table(run / "trace.csv")
+    renders = trace[trace["step"] == "render"]
+    ms = ((renders["end_ns"] - renders["start_ns"]) / 1e6).groupby(renders["task"]).median()
+    gpu = renders.groupby("task")["device"].first()
+    return {str(t).removeprefix("render."): (str(gpu[t]), float(ms[t])) for t in ms.index}
+
+
+def test_a_two_gpu_pipelining_run_imports_every_pass_where_it_ran(tmp_path, capsys):
+    """The committed 2-GPU pipelining run (a and b on GPU 1, c and d on GPU 0): each pass at its
+    median time on the GPU it ran on, the study's folder read as its steady window."""
+    out = tmp_path / "p.toml"
+    assert _import(NATIVE / "pipe_2gpu", out) == 0
+    printed = capsys.readouterr().out
+    assert "read steady/ of the study's run folder pipe_2gpu" in printed
+    assert "gpu0: c, d; gpu1: a, b" in printed
+    want = _run_pass_ms(NATIVE / "pipe_2gpu" / "steady")
+    assert {n: p.params["gpu_ms"] for n, p in _passes(out).items()} == pytest.approx(
+        {n: ms for n, (_, ms) in want.items()}, abs=1e-6)
+    assert {g for g, _ in want.values()} == {"gpu0", "gpu1"}
+    assert "a run of pipelining on 2 GPUs" in out.read_text()  # the note is in the file too
+
+
+def test_a_two_gpu_afr_run_takes_each_gpus_frames(tmp_path):
+    slices, meta = read_run(NATIVE / "afrt_2gpu" / "run0")
+    trace = run_archive.read_table(NATIVE / "afrt_2gpu" / "run0" / "trace.csv")
+    assert set(trace.loc[trace["step"] == "render", "device"]) == {"gpu0", "gpu1"}
+    frame = frame_from_slices(slices, name="a", source="a", width=meta["width"], height=meta["height"])
+    renders = trace[trace["step"] == "render"]
+    assert frame.frames == renders["frame"].nunique()
+    assert [p.name for p in frame.passes] == ["fragment_loop", "taa"]
+    assert [p.reads for p in frame.passes] == [(), ("fragment_loop", "taa")]  # taa: its previous output
+    assert not any("steady" in n for n in meta["notes"])  # run0 named: read as given
+
+
+def test_a_two_gpu_xr_run_is_a_stereo_frame_of_one_eye_per_gpu(tmp_path, capsys):
+    out = tmp_path / "xr.toml"
+    assert _import(NATIVE / "xr_2gpu", out) == 0
+    assert "each eye on a GPU of its own; gpu0: tori; gpu1: tori" in capsys.readouterr().out
+    exp = load_experiment(out)
+    assert (exp.schedule.name, exp.schedule.options["views"]) == ("xr", 2)
+    trace = run_archive.read_table(NATIVE / "xr_2gpu" / "steady" / "trace.csv")
+    renders = trace[trace["step"] == "render"]
+    assert set(renders["device"]) == {"gpu0", "gpu1"}
+    eye_ms = ((renders["end_ns"] - renders["start_ns"]) / 1e6).median()  # both eyes' slices
+    assert exp.scene.passes[0].params["gpu_ms"] == pytest.approx(eye_ms, abs=1e-6)
+    assert _import(NATIVE / "xr_4gpu_strong", tmp_path / "x4.toml") == 2  # a part of an eye per GPU
+    assert "config.mode" in capsys.readouterr().err
+
+
+def test_a_study_folder_without_steady_reads_run0_and_one_of_many_is_asked_for(tmp_path, capsys):
+    study = tmp_path / "study"
+    for name in ("run0", "run1"):
+        folder = study / name
+        folder.mkdir(parents=True)
+        run_archive.read_table(RUN / "trace.csv").to_parquet(folder / "trace.parquet")
+        (folder / "summary.json").write_text(run_archive.read_text(RUN / "summary.json"))
+    out = tmp_path / "s.toml"
+    assert _import(study, out) == 0
+    assert "read run0/ of the study's run folder study: its first run" in capsys.readouterr().out
+    assert _import(NATIVE, tmp_path / "all.toml") == 2
+    err = capsys.readouterr().err
+    assert "run(s) below" in err and "afr_2gpu/run0" in err and len(err.strip().splitlines()) == 1
 
 
 def test_scene_reads_must_name_scene_passes(tmp_path):
@@ -372,3 +446,84 @@ def test_an_example_capture_is_found_from_any_folder(tmp_path, monkeypatch):
     got = resolve_capture(Path("examples/frames/pipelining_lavapipe.csv"))
     assert got == EXAMPLES / "pipelining_lavapipe.csv" and got.is_file()
     assert resolve_capture(Path("examples/frames/none.csv")) == Path("examples/frames/none.csv")
+
+
+# ----- async compute --------------------------------------------------------------------------
+def _async_capture(path: Path, frames: int = 3) -> Path:
+    """A graphics queue of gbuffer 4 ms, lighting 6 ms, post 2 ms back to back (frames marked
+    there only) and an async-compute queue beside it: ssao 3 ms inside gbuffer + lighting,
+    a simulation 4 ms of which 2 ms run after lighting, before post. The GPU is busy 14 ms a
+    frame; the passes sum to 19 ms."""
+    events = _meta(1, 1, "GPU", "Graphics queue") + _meta(1, 2, "GPU", "Async compute queue")
+    for f in range(frames):
+        t = f * 20_000
+        events += [{"ph": "X", "name": f"Frame {f}", "pid": 1, "tid": 1, "ts": t, "dur": 14_000},
+                   {"ph": "X", "name": "gbuffer", "pid": 1, "tid": 1, "ts": t, "dur": 4000},
+                   {"ph": "X", "name": "lighting", "pid": 1, "tid": 1, "ts": t + 4000, "dur": 6000},
+                   {"ph": "X", "name": "post", "pid": 1, "tid": 1, "ts": t + 12_000, "dur": 2000},
+                   {"ph": "X", "name": "ssao", "pid": 1, "tid": 2, "ts": t + 3000, "dur": 3000},
+                   {"ph": "X", "name": "sim", "pid": 1, "tid": 2, "ts": t + 8000, "dur": 4000}]
+    return _chrome(path, events)
+
+
+def test_async_compute_keeps_the_captures_frame_time_on_one_gpu(tmp_path, capsys):
+    out = tmp_path / "a.toml"
+    assert _import(_async_capture(tmp_path / "a.json"), out, "--size", "640x480") == 0
+    printed = capsys.readouterr().out
+    assert "async compute: 2 compute pass(es) overlapped graphics work (5.000 ms per frame hidden)" in printed
+    passes = _passes(out)
+    assert [(n, p.params["gpu_ms"]) for n, p in passes.items()] == [
+        ("gbuffer", 4.0), ("ssao", 0.0), ("lighting", 6.0), ("sim", 2.0), ("post", 2.0)]
+    assert "# ran 4 ms on the compute queue in the capture" in out.read_text()
+    result = simulate(load_experiment(out))
+    trace = result.trace
+    present = trace[trace["step"] == "present"]
+    present_ms = float((present["end_ns"] - present["start_ns"]).median()) / 1e6
+    assert result.summary["frame_time_ms"] == pytest.approx(14.0 + present_ms, abs=1e-6)  # not 19
+
+
+def test_an_async_compute_track_takes_its_frames_from_the_graphics_queue(tmp_path):
+    slices, _ = read_chrome(_async_capture(tmp_path / "a.json", frames=4))
+    compute = slices[slices["queue"] == "compute"]
+    assert sorted(compute["frame"]) == [0, 0, 1, 1, 2, 2, 3, 3]
+    frame = frame_from_slices(slices, name="a", source="a", width=64, height=64)
+    assert frame.frames == 4 and all(p.frames == 4 for p in frame.passes)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_graphics_and_cut_compute_slices_add_up_to_the_gpus_busy_time(seed):
+    """Random slices on a graphics and a compute queue, each queue's in turn with gaps (the two
+    overlapping anyhow, across frames too): the graphics slices keep their time, and with the
+    compute slices cut they add up to the length of the union of all slices, to 1 ns a slice."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 40))
+    queue = rng.choice(["graphics", "compute"], n)
+    start, end = np.zeros(n), np.zeros(n)
+    for q in ("graphics", "compute"):
+        on = np.flatnonzero(queue == q)
+        gaps, lengths = rng.integers(0, 3_000_000, len(on)), rng.integers(0, 8_000_000, len(on))
+        start[on] = np.cumsum(gaps + np.concatenate(([0], lengths[:-1])))
+        end[on] = start[on] + lengths
+    slices = slices_table([{"frame": int(rng.integers(0, 3)), "queue": q, "name": f"p{i}", "ms": (b - a) / 1e6,
+                            "start_ns": a, "end_ns": b, "reads": (), "writes": (), "bytes": (), "view": -1,
+                            "pixel_share": math.nan} for i, (q, a, b) in enumerate(zip(queue, start, end))])
+    cut = exposed_times(slices)
+    graphics = cut["queue"] == "graphics"
+    assert (cut.loc[graphics, "ms"] == slices.loc[graphics, "ms"]).all()
+    assert (cut["ms"] <= cut["ran_ms"]).all() and (cut["ms"] >= 0).all()
+    busy, reach = 0.0, -math.inf
+    for a, b in sorted(zip(start, end)):  # the union, by a sweep
+        busy += max(0.0, b - max(a, reach))
+        reach = max(reach, b)
+    if graphics.any():
+        assert cut["ms"].sum() * 1e6 == pytest.approx(busy, abs=n)
+    else:  # nothing to hide behind: a compute-only capture runs as captured
+        assert (cut["ms"] == slices["ms"]).all()
+
+
+def test_compute_rows_without_times_are_not_cut(tmp_path):
+    csv = tmp_path / "f.csv"
+    csv.write_text("pass,queue,gpu_ms\ngbuffer,graphics,4\nssao,compute,3\n")
+    slices, _ = read_csv(csv)
+    frame = frame_from_slices(slices, name="f", source="f", width=64, height=64)
+    assert [(p.name, p.gpu_ms, p.ran_ms) for p in frame.passes] == [("gbuffer", 4.0, None), ("ssao", 3.0, None)]

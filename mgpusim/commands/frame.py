@@ -1,8 +1,11 @@
 """`mgpusim frame import CAPTURE [--out DIR]`: a measured frame as an experiment.
 
 The capture is a Chrome trace-event JSON file (Perfetto, browsers, engine profilers, mgpusim's
-own trace.perfetto.json), a CSV table (pass, queue, gpu_ms, reads, writes, bytes) or a measured
-run of the Vulkan runner (a folder with trace.parquet and summary.json). docs/frame_captures.md
+own trace.perfetto.json), a CSV table (pass, queue, gpu_ms, reads, writes, bytes), a RenderDoc
+capture (.rdc: its frame replayed with RenderDoc's Python module, which times each action on the
+replaying GPU) or a measured run of the Vulkan runner (a folder with trace.parquet and
+summary.json; a study's folder of repeated runs reads its steady/ window, else run0/; AFR and
+pipelining runs on several GPUs give each pass where it ran). docs/frame_captures.md
 says what each must hold. The experiment is written into the output folder as <name>.toml (the
 capture's stem unless --name), or to the file --out names where it ends in .toml. Each pass's
 pixel share comes from the capture, else --pixel-share, else is inferred from the pass's name,
@@ -11,6 +14,7 @@ targets and reads; the file says which, pass by pass.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import re
 from pathlib import Path
 
@@ -25,17 +29,20 @@ DEFAULT_PROFILE = "hardware_profiles/pcie4_pair.toml"
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("frame", help="bring your own frame: import a profiler capture as an experiment")
     steps = p.add_subparsers(dest="step", required=True, metavar="STEP")
-    s = steps.add_parser("import", help="a captured frame (Chrome trace, CSV, measured run) as an experiment",
+    s = steps.add_parser("import", help="a captured frame (Chrome trace, CSV, RenderDoc, measured run) as "
+                                            "an experiment",
                          description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    s.add_argument("capture", type=Path, help="a .json Chrome trace, a .csv table or a measured run's folder")
+    s.add_argument("capture", type=Path,
+                   help="a .json Chrome trace, a .csv table, a .rdc RenderDoc capture or a measured run's folder")
     s.add_argument("--out", type=Path, default=None,
                    help="output folder: the experiment is DIR/<name>.toml (default: out/<capture's stem>); "
                         "a path ending in .toml is the experiment file itself")
-    s.add_argument("--format", choices=("auto", "chrome", "csv", "run"), default="auto",
+    s.add_argument("--format", choices=("auto", "chrome", "csv", "run", "renderdoc"), default="auto",
                    help="the capture's format (default: from its name)")
     s.add_argument("--size", metavar="WxH", default=None,
                    help="the frame's resolution (required unless the capture records it: a measured run, a "
-                        "CSV's width and height columns, a Chrome trace's metadata; given, it wins)")
+                        "CSV's width and height columns, a Chrome trace's metadata, a RenderDoc capture's "
+                        "targets; given, it wins)")
     s.add_argument("--profile", type=Path, default=None,
                    help=f"the hardware profile the experiment names (default: the shipped {DEFAULT_PROFILE})")
     s.add_argument("--pixel-share", type=float, default=None, metavar="F",
@@ -97,12 +104,14 @@ def run(args: argparse.Namespace) -> int:
     frame = frame_from_slices(slices, name=args.name or out.stem, source=str(args.capture),
                               width=width, height=height, pixel_share=args.pixel_share,
                               left_out=meta.get("left_out"), origin=meta.get("source"),
-                              share_why=meta.get("share_why"))
+                              share_why=meta.get("share_why"), read_notes=meta.get("notes", ()))
+    if "frames_are" in meta:  # a RenderDoc capture: replays of its one frame
+        frame = dataclasses.replace(frame, frames_are=meta["frames_are"])
     text = experiment_text(frame, profile, out)
     exp = check_experiment(text, out)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_text(text, out)
-    print(f"{args.capture}: {len(frame.passes)} pass(es) over {frame.frames} frame(s), "
+    print(f"{args.capture}: {len(frame.passes)} pass(es) over {frame.frames} {frame.frames_are}, "
           f"{frame.gpu_ms:.3f} ms of GPU time per frame"
           + (f" per eye ({frame.views} views)" if frame.views == 2 else "")
           + (f", {frame.cpu_ms:.3f} ms CPU" if frame.cpu_ms else "") + f", {width}x{height}"

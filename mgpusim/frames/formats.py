@@ -1,9 +1,10 @@
 """Reading a frame capture into one table of slices, whatever format it came in.
 
-Three formats (docs/frame_captures.md): Chrome trace-event JSON (what Perfetto, the
+Four formats (docs/frame_captures.md): Chrome trace-event JSON (what Perfetto, the
 browsers and several engines' profilers export, and mgpusim's own `trace.perfetto.json`), a
-plain CSV (one row per pass), and a measured run of the Vulkan runner (a folder with
-`trace.parquet` or `trace.csv` and `summary.json`, packed or not). Each becomes a
+plain CSV (one row per pass), a measured run of the Vulkan runner (a folder with
+`trace.parquet` or `trace.csv` and `summary.json`, packed or not), and a RenderDoc capture
+(`.rdc`, timed by replaying it: :mod:`.rdc`). Each becomes a
 :data:`SLICE_COLUMNS` table: one row per piece of GPU or CPU work with its frame, the queue it
 ran on, its time and what it read and wrote. :mod:`mgpusim.frames.importer` turns that
 table into a frame. A file that cannot be read as its format is one InputError naming the file
@@ -23,7 +24,7 @@ from typing import Any, Iterable, cast
 import numpy as np
 import pandas as pd
 
-from mgpusim.frames import trace_json
+from mgpusim.frames import rdc, trace_json
 from mgpusim.measure import run_archive
 from mgpusim.model.errors import InputError
 from mgpusim.model.limits import MAX_BYTES, MAX_SIDE, MAX_TASK_NS
@@ -37,7 +38,7 @@ from mgpusim.validation.measured_check import check_trace, number_column, read_j
 SLICE_COLUMNS = ("frame", "queue", "name", "ms", "start_ns", "end_ns", "reads", "writes", "bytes",
                  "view", "pixel_share")
 QUEUES = ("graphics", "compute", "transfer", "cpu")
-FORMATS = ("chrome", "csv", "run")
+FORMATS = ("chrome", "csv", "run", "renderdoc")
 
 #: Track names (thread, else process) that mean a GPU queue, checked in this order.
 _QUEUE_WORDS = (("compute", ("compute", "async")), ("transfer", ("transfer", "copy", "dma")),
@@ -56,8 +57,11 @@ def detect_format(path: Path) -> str:
         return "chrome"
     if path.suffix.lower() == ".csv":
         return "csv"
+    if path.suffix.lower() == ".rdc":
+        return "renderdoc"
     raise InputError("cannot tell the capture's format from its name (expected a .json Chrome "
-                     "trace, a .csv table or a measured run's folder): give --format", file=str(path))
+                     "trace, a .csv table, a .rdc RenderDoc capture or a measured run's folder): give "
+                     "--format", file=str(path))
 
 
 def read_capture(path: Path, fmt: str, cpu_threads: Iterable[str] = ("main",)
@@ -71,6 +75,8 @@ def read_capture(path: Path, fmt: str, cpu_threads: Iterable[str] = ("main",)
         return read_csv(path)
     if fmt == "run":
         return read_run(path)
+    if fmt == "renderdoc":
+        return read_renderdoc(path)
     raise InputError(f"must be one of {', '.join(FORMATS)}, got {fmt!r}", field="--format")
 
 
@@ -100,6 +106,13 @@ def slices_table(rows: list[dict[str, Any]]) -> pd.DataFrame:
     df = pd.DataFrame(rows, columns=list(SLICE_COLUMNS))
     return df.astype({"frame": "int64", "ms": "float64", "start_ns": "float64", "end_ns": "float64",
                       "view": "int64", "pixel_share": "float64"})
+
+
+# ----- RenderDoc ----------------------------------------------------------------------------
+def read_renderdoc(path: Path, replays: int = rdc.REPLAYS) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """A RenderDoc capture's passes, timed over `replays` replays of its frame (:mod:`.rdc`)."""
+    rows, meta = rdc.read_rows(path, replays)
+    return slices_table(rows), meta
 
 
 # ----- Chrome trace-event JSON ----------------------------------------------------------------
@@ -410,6 +423,8 @@ def _chrome_rows(tracks: _Tracks, cpu_threads: tuple[str, ...], file: str
     columns: dict[str, list[Any]] = {c: [] for c in SLICE_COLUMNS}
     left_out: dict[str, float] = {}
     gpus: set[str] = set()
+    frame_groups: list[tuple[np.ndarray, np.ndarray]] = []  # (starts, numbers) of a GPU track's frames
+    unframed: list[tuple[np.ndarray, np.ndarray]] = []  # (frames, starts) of GPU tracks without any
     for (pid, tid), track in tracks.tracks.items():
         process, thread = tracks.procs.get(pid, f"pid {pid}"), tracks.names.get((pid, tid), "")
         queue = queue_of_track(process, thread, cpu_threads)
@@ -418,7 +433,13 @@ def _chrome_rows(tracks: _Tracks, cpu_threads: tuple[str, ...], file: str
             continue
         if queue != "cpu":
             gpus.add(process)
-        _track_rows(track, queue, f"{process}/{thread}", columns, left_out)
+        groups = _track_rows(track, queue, f"{process}/{thread}", columns, left_out)
+        if queue != "cpu" and len(groups[0]):
+            frame_groups.append(groups)
+        elif queue != "cpu" and len(columns["frame"][-1]):
+            unframed.append((columns["frame"][-1], columns["start_ns"][-1]))
+    if frame_groups:
+        _frames_from_other_tracks(max(frame_groups, key=lambda g: len(g[0])), unframed)
     if len(gpus) > 1:
         raise InputError(f"GPU work on {len(gpus)} processes ({', '.join(sorted(gpus))}): a frame is "
                          "imported from a one-GPU capture", file=file)
@@ -428,15 +449,31 @@ def _chrome_rows(tracks: _Tracks, cpu_threads: tuple[str, ...], file: str
     return columns, left_out
 
 
+def _frames_from_other_tracks(groups: tuple[np.ndarray, np.ndarray],
+                              unframed: list[tuple[np.ndarray, np.ndarray]]) -> None:
+    """A GPU track without frame groups (an async-compute queue, whose profiler marks frames on
+    the graphics queue only) takes its frames from the track that has them: a slice without a
+    frame of its own is in the frame that began last at or before its start (the first, before
+    any). Changes the tracks' frame columns in place."""
+    starts, numbers = groups
+    order = np.argsort(starts, kind="stable")
+    starts, numbers = starts[order], numbers[order]
+    for frames, begins in unframed:
+        free = frames < 0
+        at = np.searchsorted(starts, begins[free], side="right") - 1
+        frames[free] = numbers[np.maximum(at, 0)]
+
+
 def _track_rows(track: _Track, queue: str, where: str, columns: dict[str, list[Any]],
-                left_out: dict[str, float]) -> None:
+                left_out: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
     """One track's work slices appended to `columns` (as chunks, :func:`_columns_table`); its
-    present slices and instants to `left_out`."""
+    present slices and instants to `left_out`. Returns the track's frame groups (starts and
+    frame numbers)."""
     start, end = np.asarray(track.start), np.asarray(track.end)
     instants = int((end <= start).sum())
     if instants:
         left_out[f"{where}: {instants} zero-length slice(s)"] = 0.0
-    leaves, frames = _leaves(start, end, np.asarray(track.index), track)
+    leaves, frames, groups = _leaves(start, end, np.asarray(track.index), track)
     if not set(track.cat).isdisjoint(_SKIPPED_CATEGORIES):
         kept = [n for n, k in enumerate(leaves) if track.cat[k] not in _SKIPPED_CATEGORIES]
         for k in leaves:
@@ -456,16 +493,18 @@ def _track_rows(track: _Track, queue: str, where: str, columns: dict[str, list[A
                      (list(c) for c in zip(*fields)) if fields else ([],) * 5))
     for column in SLICE_COLUMNS:
         columns[column].append(chunk[column])
+    return groups
 
 
 #: The args of a slice that gives none.
 _NO_FIELDS = ((), (), (), -1, math.nan)
 
 
-def _leaves(start: np.ndarray, end: np.ndarray, index: np.ndarray, track: _Track) -> tuple[list[int], list[int]]:
+def _leaves(start: np.ndarray, end: np.ndarray, index: np.ndarray,
+            track: _Track) -> tuple[list[int], list[int], tuple[np.ndarray, np.ndarray]]:
     """The innermost slices of one track (positions in it), each with its frame: `args.frame`,
-    else the number of the enclosing group named frame* (in order of start), else -1.
-    Instants (no length) are neither work nor groups."""
+    else the number of the enclosing group named frame* (in order of start), else -1; and the
+    frame groups (their starts and numbers). Instants (no length) are neither work nor groups."""
     order = np.lexsort((index, -end, start))
     order = order[end[order] > start[order]]
     s, e = start[order], end[order]
@@ -475,12 +514,15 @@ def _leaves(start: np.ndarray, end: np.ndarray, index: np.ndarray, track: _Track
     frames_of: list[int] = []
     stack: list[tuple[float, int]] = []  # (end, frame number or -1) of the open groups
     frames = 0
+    group_starts: list[float] = []
     for k, begins, ends, group in zip(order.tolist(), s.tolist(), e.tolist(), holds.tolist()):
         while stack and stack[-1][0] <= begins:
             stack.pop()
         if group:
             numbered = track.name[k].lower().startswith("frame")
             stack.append((ends, frames if numbered else -1))
+            if numbered:
+                group_starts.append(begins)
             frames += numbered
             continue
         frame = track.frame[k]
@@ -488,7 +530,7 @@ def _leaves(start: np.ndarray, end: np.ndarray, index: np.ndarray, track: _Track
             frame = next((f for _, f in reversed(stack) if f >= 0), -1)
         leaves.append(k)
         frames_of.append(frame)
-    return leaves, frames_of
+    return leaves, frames_of, (np.asarray(group_starts), np.arange(len(group_starts), dtype=np.int64))
 
 
 def _columns_table(columns: dict[str, list[Any]]) -> pd.DataFrame:
@@ -682,15 +724,16 @@ _RUN_SCHEDULES = ("sort_first", "sort_last", "afr", "pipelining", "xr")
 
 
 def read_run(folder: Path) -> tuple[pd.DataFrame, dict[str, Any]]:
-    """A one-GPU measured run: its render tasks are the passes (the schedule's present is not
-    one); what each reads and writes comes from the recorded scene (a filter samples the passes
-    before it, AFR's temporal pass its own previous output)."""
+    """A measured run: its render tasks are the passes (the schedule's present is not one);
+    what each reads and writes comes from the recorded scene (a filter samples the passes
+    before it, AFR's temporal pass its own previous output). A study's folder of repeated runs
+    is read as the run it compares (:func:`run_of_folder`); a run on several GPUs where each
+    pass of a frame runs whole on one GPU (AFR, pipelining) gives every pass where it ran
+    (:data:`MULTI_GPU_SCHEDULES`). Returns `notes` on what was read."""
+    folder, notes = run_of_folder(folder)
     file = str(folder)
-    trace = None
-    for name in TRACE_FILES:
-        if run_archive.is_file(folder / name):
-            trace = check_trace(read_table(folder / name), str(folder / name))
-            break
+    trace = next((check_trace(read_table(folder / name), str(folder / name)) for name in TRACE_FILES
+                  if run_archive.is_file(folder / name)), None)
     if trace is None:
         raise InputError("no trace.parquet or trace.csv: expected a measured run's folder", file=file)
     summary = folder / "summary.json"
@@ -702,10 +745,7 @@ def read_run(folder: Path) -> tuple[pd.DataFrame, dict[str, Any]]:
                          file=str(summary), field="config.inputs")
     schedule, gpus = config.get("schedule"), config.get("gpus")
     views = _run_views(config, str(summary))
-    if schedule not in _RUN_SCHEDULES or (gpus != 1 and views == 1):
-        raise InputError(f"a frame is imported from a one-GPU run of {', '.join(_RUN_SCHEDULES)} "
-                         f"(or XR's simulated mode); this is {schedule} on {gpus} GPU(s)",
-                         file=str(summary), field="config")
+    _check_run_gpus(schedule, gpus, views, str(summary))
     specs = config["inputs"].get("passes")
     if not isinstance(specs, list) or not specs or not all(isinstance(s, dict) and "name" in s for s in specs):
         raise InputError("expected the scene's passes", file=str(summary), field="config.inputs.passes")
@@ -716,22 +756,106 @@ def read_run(folder: Path) -> tuple[pd.DataFrame, dict[str, Any]]:
     width, height = (_run_side(config.get(k), str(summary), f"config.{k}") for k in ("width", "height"))
     resources = _run_io(specs, config, width * height * 4, str(summary))
     rows = _run_rows(trace, specs, resources, views, file)
+    if gpus != 1:
+        notes.append(_gpus_note(trace, schedule, cast(int, gpus)))
     source = {"experiment": config.get("experiment"), "file": config.get("file"), "schedule": schedule,
-              "run": file}
+              "run": file, "gpus": gpus}
     why = {str(s["name"]): f"the run's pass kind {s.get('kind')!r}" for s in specs
            if str(s.get("kind", "")) in RUN_PIXEL_SHARE}
     return slices_table(rows), {"width": width, "height": height, "source": source, "left_out": {},
-                                "share_why": why}
+                                "share_why": why, "notes": notes}
+
+
+#: Schedules whose runs on several GPUs time every pass of a frame whole, on one GPU: AFR (a
+#: frame's passes on the GPU whose turn it is), pipelining (each pass on the GPU it is split
+#: to). Sort-first and sort-last time each GPU's part of a pass (a tile, a share of the
+#: geometry), which is not the pass.
+MULTI_GPU_SCHEDULES = ("afr", "pipelining")
+#: The subfolder of a study's repeated runs that is read: the steady window the study compares
+#: (`steady`), else the first run.
+RUN_CHOICES = ("steady", "run0")
+
+
+def run_of_folder(folder: Path) -> tuple[Path, list[str]]:
+    """The run folder to read: `folder` where it holds a trace; else, a study's folder of one
+    configuration's repeated runs (run0/, run1/, ... and steady/, on disk or packed), its
+    :data:`RUN_CHOICES` subfolder, with a note saying which; else `folder` (whose reader says
+    what is missing, naming the runs below it where it holds several)."""
+    if _has_trace(folder):
+        return folder, []
+    for name in RUN_CHOICES:
+        if _has_trace(folder / name):
+            what = "the steady window of its repeated runs, what the study compares" if name == "steady" \
+                else "its first run"
+            return folder / name, [f"read {name}/ of the study's run folder {folder.name}: {what}"]
+    below = _runs_below(folder)
+    if below:
+        shown = ", ".join(below[:3]) + (" ..." if len(below) > 3 else "")
+        raise InputError(f"no trace here, but {len(below)} run(s) below ({shown}): give one run's folder",
+                         file=str(folder))
+    return folder, []
+
+
+def _has_trace(folder: Path) -> bool:
+    return any(run_archive.is_file(folder / name) for name in TRACE_FILES)
+
+
+def _runs_below(folder: Path) -> list[str]:
+    """The run folders below `folder` (relative), on disk or in the archive holding it."""
+    try:
+        if folder.is_dir() and (folder / run_archive.TRACES).is_file():
+            return [r.relative_to(folder).as_posix() for r in run_archive.runs_in(folder) if r != folder]
+        if folder.is_dir():  # two levels down: a study's runs/<config>/<run>, not a whole disk
+            return sorted({t.parent.relative_to(folder).as_posix() for name in TRACE_FILES
+                           for pattern in (f"*/{name}", f"*/*/{name}") for t in folder.glob(pattern)})
+    except (OSError, InputError):  # a folder that cannot be listed, a damaged archive: the reader says so
+        return []
+    found = run_archive.archive_of(folder)
+    if found is None:
+        return []
+    archive, rel = found
+    return sorted(run[len(rel) + 1:] for run in archive.traces if run.startswith(f"{rel}/"))
+
+
+def _check_run_gpus(schedule: Any, gpus: Any, views: int, file: str) -> None:
+    """A run of a schedule the import reads, on one GPU (any of :data:`_RUN_SCHEDULES`, XR in
+    its simulated mode) or, for :data:`MULTI_GPU_SCHEDULES`, on several."""
+    if schedule not in _RUN_SCHEDULES:
+        raise InputError(f"a frame is imported from a run of {', '.join(_RUN_SCHEDULES)}; this is "
+                         f"{str(schedule)[:40]!r}", file=file, field="config.schedule")
+    if not isinstance(gpus, int) or isinstance(gpus, bool) or gpus < 1:
+        raise InputError(f"expected the run's GPU count, got {str(gpus)[:40]!r}", file=file, field="config.gpus")
+    if gpus != 1 and views == 1 and schedule not in MULTI_GPU_SCHEDULES:
+        raise InputError(f"a {schedule} run on {gpus} GPUs times each GPU's part of a pass (a tile or a "
+                         f"share of the geometry), not the pass: import its one-GPU run, or an "
+                         f"{' or '.join(MULTI_GPU_SCHEDULES)} run", file=file, field="config.gpus")
+
+
+def _gpus_note(trace: pd.DataFrame, schedule: Any, gpus: int) -> str:
+    """Where a multi-GPU run's passes ran, for the import's notes."""
+    renders = trace[trace["step"] == "render"]
+    where = renders.groupby("device", sort=True)["task"].unique()
+    shown = "; ".join(f"{device}: {', '.join(_RENDER_PREFIX.sub('', str(t)) for t in tasks)}"
+                      for device, tasks in where.items())
+    how = {"afr": "each frame on one GPU, in turn", "xr": "each eye on a GPU of its own"}.get(
+        str(schedule), "each pass on the GPU it was split to")
+    return (f"a run of {schedule} on {gpus} GPUs ({how}; {shown}): every pass is timed whole where it ran, "
+            "with the other GPUs busy beside it (on lavapipe they share the host's cores)")
 
 
 def _run_views(config: dict[str, Any], file: str) -> int:
-    """2 for an XR run of both views on one GPU, else 1."""
+    """2 for an XR run of both eyes, each whole: both on one GPU (simulated mode) or each on a
+    GPU of its own (multi mode on 2 GPUs); else 1."""
     if config.get("schedule") != "xr":
         return 1
-    if config.get("mode") != "simulated" or config.get("views") != 2:
-        raise InputError("an XR run is imported from its simulated mode with 2 views (both eyes on "
-                         "one GPU)", file=file, field="config.mode")
-    return 2
+    mode, views, gpus = config.get("mode"), config.get("views"), config.get("gpus")
+    pixels, width, height = config.get("view_pixels"), config.get("width"), config.get("height")
+    frame = width * height if type(width) is int and type(height) is int else None
+    whole = not isinstance(pixels, list) or all(p == frame for p in pixels)  # not a part of an eye each
+    if views == 2 and (mode == "simulated" or (mode == "multi" and gpus == 2 and whole)):
+        return 2
+    raise InputError("an XR run is imported with 2 views, each eye whole: both on one GPU (its simulated "
+                     "mode) or one per GPU (multi mode on 2 GPUs)", file=file, field="config.mode")
 
 
 def _run_side(value: Any, file: str, field: str) -> int:
@@ -781,6 +905,7 @@ def _run_io(specs: list[dict[str, Any]], config: dict[str, Any],
     return out
 
 
+_RENDER_PREFIX = re.compile(r"^render\d*\.")
 _RENDER_TASK = re.compile(r"^render(?P<view>\d*)(?:\.(?P<name>.+))?$")
 
 

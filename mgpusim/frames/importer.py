@@ -23,8 +23,9 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping, Sequence, cast
 
+import numpy as np
 import pandas as pd
 
 from mgpusim.frames.shares import INFERRED, OPTION, STATED, Share, infer_share, share_comment
@@ -50,6 +51,9 @@ class CapturedPass:
     spread_ms: float = 0.0
     #: where its pixel share came from (the capture, --pixel-share, inferred) and why
     share: Share | None = None
+    #: what it ran (median, ms) where that is more than `gpu_ms`: a compute-queue pass that
+    #: overlapped graphics work, whose `gpu_ms` is only what it added to the frame
+    ran_ms: float | None = None
 
 
 @dataclass(frozen=True)
@@ -70,6 +74,8 @@ class CapturedFrame:
     notes: tuple[str, ...] = ()
     #: where a measured run came from (experiment name and file, schedule)
     origin: Mapping[str, Any] = field(default_factory=dict)
+    #: what its `frames` are: frames of the capture, or replays of its one frame (RenderDoc)
+    frames_are: str = "captured frame(s)"
 
     @property
     def gpu_ms(self) -> float:
@@ -80,11 +86,12 @@ class CapturedFrame:
 def frame_from_slices(slices: pd.DataFrame, *, name: str, source: str, width: int, height: int,
                       pixel_share: float | None = None, left_out: Mapping[str, float] | None = None,
                       origin: Mapping[str, Any] | None = None,
-                      share_why: Mapping[str, str] | None = None) -> CapturedFrame:
+                      share_why: Mapping[str, str] | None = None, read_notes: Sequence[str] = ()) -> CapturedFrame:
     """The frame the slices make (see the module doc); `pixel_share` for passes whose capture
     does not say how much of their time scales with pixels (None: inferred from the pass,
     :mod:`mgpusim.frames.shares`); `share_why`: why the capture states a pass's share, where it
-    says (a measured run's pass kinds)."""
+    says (a measured run's pass kinds); `read_notes`: what the reader noted (which run of a
+    study's folder, where a multi-GPU run's passes ran), first among the frame's notes."""
     gpu = slices[slices["queue"].isin(["graphics", "compute"])]
     if gpu.empty:
         raise InputError("no GPU passes in the capture (queues graphics or compute)", file=source)
@@ -94,11 +101,12 @@ def frame_from_slices(slices: pd.DataFrame, *, name: str, source: str, width: in
         bad = gpu.loc[gpu["view"] < 0, "name"].iloc[0]
         raise InputError(f"a stereo capture (passes with a view) where pass {bad!r} has none: give "
                          "every GPU pass its view (0 or 1)", file=source, field="view")
+    gpu = exposed_times(gpu)
     keyed = _occurrences(gpu)
     if views == 2:
         _check_views(keyed, source)
     passes = _passes(keyed, pixel_share, width * height, share_why or {})
-    notes = list(_notes(slices, keyed, passes, len(frames), left_out or {}, views))
+    notes = list(read_notes) + _notes(slices, keyed, passes, len(frames), left_out or {}, views)
     cpu = slices[slices["queue"] == "cpu"]
     cpu_ms = float(cpu["ms"].sum()) / len(frames) if len(cpu) else 0.0
     span = _gpu_span(gpu)
@@ -168,7 +176,8 @@ def _passes(keyed: pd.DataFrame, default_share: float | None, pixels: int,
     where it came from, and notes on assumed sizes."""
     by_key = keyed.groupby("key", sort=False)
     order = (by_key.agg(offset=("offset", "median"), order=("order", "min"), ms=("ms", "median"),
-                        frames=("frame", "nunique"), share=("pixel_share", "median"), name=("name", "first"))
+                        frames=("frame", "nunique"), share=("pixel_share", "median"), name=("name", "first"),
+                        ran=("ran_ms", "median"))
              .sort_values(["offset", "order"], na_position="last", kind="stable"))
     order["queue"] = _queue_mode(keyed)
     spread = (keyed["ms"] - by_key["ms"].transform("median")).abs().groupby(keyed["key"]).median()
@@ -176,13 +185,14 @@ def _passes(keyed: pd.DataFrame, default_share: float | None, pixels: int,
     io = _io(keyed, keys)
     producers, sizes, notes = _producers(keys, io, pixels * DEFAULT_COLOR_BYTES)
     passes = []
-    for key, name, queue, ms, frames, stated, spread_ms in zip(
+    for key, name, queue, ms, frames, stated, spread_ms, ran in zip(
             keys, order["name"], order["queue"], order["ms"], order["frames"], order["share"],
-            spread.reindex(order.index)):
+            spread.reindex(order.index), order["ran"]):
         share = _share_of(str(name), float(stated), default_share, share_why, pixels,
                           bool(producers[key]), io[key][1])
         passes.append(CapturedPass(str(key), str(queue), float(ms), int(frames), share.value,
-                                   tuple(producers[key]), int(sizes[key]), float(spread_ms), share))
+                                   tuple(producers[key]), int(sizes[key]), float(spread_ms), share,
+                                   float(ran) if ran > ms + 5e-7 else None))
     return tuple(passes), notes
 
 
@@ -283,12 +293,83 @@ def _notes(slices: pd.DataFrame, keyed: pd.DataFrame, passes: tuple, frames: int
     if partial:
         out.append(f"passes missing from some frames (their median is over the frames they ran in): "
                    f"{', '.join(partial[:5])}{' ...' if len(partial) > 5 else ''}")
-    compute = [p.name for p in passes[0] if p.queue == "compute"]
-    if compute:
-        out.append(f"ran on the compute queue in the capture: {', '.join(compute[:5])}"
-                   f"{' ...' if len(compute) > 5 else ''}; the schedules run every pass on the "
-                   "graphics queue, in order")
+    out += _queue_notes(passes[0])
     return out
+
+
+def _queue_notes(passes: tuple[CapturedPass, ...]) -> list[str]:
+    """What the import made of compute-queue passes: run in order on the graphics queue, and
+    those that overlapped graphics work cut to the time they added (:func:`exposed_times`)."""
+    compute = [p.name for p in passes if p.queue == "compute"]
+    if not compute:
+        return []
+    out = [f"ran on the compute queue in the capture: {', '.join(compute[:5])}"
+           f"{' ...' if len(compute) > 5 else ''}; the schedules run every pass on the graphics "
+           "queue, in order"]
+    cut = [p for p in passes if p.ran_ms is not None]
+    if cut:
+        hidden = sum(cast(float, p.ran_ms) - p.gpu_ms for p in cut)
+        shown = ", ".join(f"{p.name} {p.ran_ms:.3f} -> {p.gpu_ms:.3f} ms" for p in cut[:5])
+        out.append(f"async compute: {len(cut)} compute pass(es) overlapped graphics work ({hidden:.3f} ms "
+                   f"per frame hidden); each is written as the time it added to the frame ({shown}"
+                   f"{' ...' if len(cut) > 5 else ''}), so one GPU runs the capture's frame time; "
+                   "split across GPUs the overlap is assumed to survive (approximated: the model has "
+                   "no queue per scene pass)")
+    return out
+
+
+# ----- async compute ---------------------------------------------------------------------------
+def exposed_times(gpu: pd.DataFrame) -> pd.DataFrame:
+    """The slices with each compute-queue slice's `ms` cut to the time it added to the GPU's
+    busy time: the part of it when no graphics slice (of any frame: async work may run on into
+    the next frame's), nor a compute slice that started before it, was running (whole ns);
+    `ran_ms` keeps what it ran.
+
+    Why: the schedules run a frame's passes one after the other on one queue (the scene has no
+    queue per pass), so a pass that overlapped graphics work on an async-compute queue would add
+    its whole time to the frame. Cut to what it added, the one-GPU frame takes the capture's
+    busy time; split across GPUs, the pass keeps only that part of its cost (the overlap is
+    assumed to survive the split), which the import notes. Without start times (a CSV) nothing
+    is cut: a CSV's compute rows are taken as run in turn."""
+    compute = (gpu["queue"] == "compute").to_numpy()
+    out = gpu.assign(ran_ms=gpu["ms"])
+    if not compute.any() or compute.all() or gpu["start_ns"].isna().any():
+        return out
+    starts, ends = out["start_ns"].to_numpy(), out["end_ns"].to_numpy()
+    lo, hi = _union(starts[~compute], ends[~compute])
+    below = _covered_below(lo, hi)
+    rows = np.flatnonzero(compute)
+    rows = rows[np.argsort(starts[rows], kind="stable")]  # in start order (ties: capture order)
+    s, e = starts[rows], ends[rows]
+    reach = np.maximum.accumulate(np.concatenate(([-np.inf], e[:-1])))  # latest end of those before
+    c = np.clip(reach, s, e)  # [s, c): under an earlier compute slice
+    hidden = np.round((c - s) + below(e) - below(c))
+    ms = out["ms"].to_numpy(copy=True)
+    ms[rows] = np.where(hidden > 0, np.maximum(0.0, ms[rows] - hidden / 1e6), ms[rows])
+    out["ms"] = ms
+    return out
+
+
+def _union(starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Intervals as their union: sorted, disjoint (starts, ends)."""
+    order = np.argsort(starts, kind="stable")
+    s, e = starts[order], np.maximum.accumulate(ends[order])
+    new = np.concatenate(([True], s[1:] > e[:-1]))  # starts after all before it ended
+    first = np.flatnonzero(new)
+    last = np.concatenate((first[1:] - 1, [len(s) - 1]))
+    return s[first], e[last]
+
+
+def _covered_below(lo: np.ndarray, hi: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """x -> how much of the disjoint sorted intervals [lo, hi) lies below x (vectorised)."""
+    before = np.concatenate(([0.0], np.cumsum(hi - lo)))
+
+    def below(x: np.ndarray) -> np.ndarray:
+        i = np.searchsorted(lo, x, side="right") - 1  # the last interval starting at or before x
+        at = np.maximum(i, 0)
+        inside = np.clip(x - lo[at], 0.0, hi[at] - lo[at])
+        return np.where(i >= 0, before[at] + inside, 0.0)
+    return below
 
 
 def _gpu_span(gpu: pd.DataFrame) -> float | None:
@@ -304,7 +385,7 @@ def experiment_text(frame: CapturedFrame, profile: Path, out: Path, frames: int 
     """The experiment file of `frame` (TOML), naming `profile` relative to `out`'s folder."""
     ref = _profile_ref(profile, out)
     lines = [f"# Imported by `mgpusim frame import` from {_c(frame.source)}",
-             f"# {frame.frames} captured frame(s); every pass's gpu_ms is its median over them "
+             f"# {frame.frames} {frame.frames_are}; every pass's gpu_ms is its median over them "
              f"({'one eye of two views' if frame.views == 2 else 'one view'}).",
              f"# The passes sum to {frame.gpu_ms:.3f} ms of GPU time per frame"
              + (f"; the GPU was busy {frame.gpu_span_ms:.3f} ms per frame." if frame.gpu_span_ms else "."),
@@ -327,7 +408,10 @@ def experiment_text(frame: CapturedFrame, profile: Path, out: Path, frames: int 
             lines.append(f"output_bytes = {p.output_bytes}")
         if p.reads:
             lines.append("reads = [" + ", ".join(_q(r) for r in p.reads) + "]")
-        if p.queue != "graphics":
+        if p.ran_ms is not None:
+            lines.append(f"# ran {ms_text(p.ran_ms)} ms on the {p.queue} queue in the capture, overlapping "
+                         f"graphics work; gpu_ms is the {ms_text(p.gpu_ms)} ms it added to the frame")
+        elif p.queue != "graphics":
             lines.append(f"# ran on the {p.queue} queue in the capture")
     lines += ["", "[schedule]"] + schedule_lines(frame, frames, warmup)
     return "\n".join(lines) + "\n"

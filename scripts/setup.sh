@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
 # Idempotent set-up on a fresh Debian machine: system packages (lavapipe, Vulkan loader,
-# shader compiler, validation layers; Xvfb for the vmgpu tool's tests), a virtual environment
+# shader compiler, validation layers; Xvfb for the vmgpu tool's tests; RenderDoc's Python module
+# for the frame import's replay of .rdc captures), a virtual environment
 # in .venv, and the package.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-pkgs="python3 python3-venv mesa-vulkan-drivers libvulkan1 vulkan-tools glslc spirv-tools vulkan-validationlayers xvfb"
+pkgs="python3 python3-venv mesa-vulkan-drivers libvulkan1 vulkan-tools glslc spirv-tools vulkan-validationlayers xvfb python3-renderdoc"
 sudo_cmd=""
 [ "$(id -u)" != 0 ] && command -v sudo >/dev/null && sudo_cmd="sudo"
 apt_install() {  # apt_install PKG...: update the lists, then install (exit status of apt)

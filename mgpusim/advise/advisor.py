@@ -428,7 +428,7 @@ def run_options(path: str, base: Mapping[str, Any], items: list[tuple[int, Mappi
         workers = 1
     pool, own = workers_of(workers)
     try:
-        return Batch(pool, path, base, items, fidelity, band, Tally(progress, stage)).rows()
+        return Batch(pool, path, base, items, fidelity, band, Tally(progress, stage, len(items))).rows()
     finally:
         if own:
             pool.close()
@@ -470,7 +470,7 @@ def _search(path: str, base: dict[str, Any], exp: Experiment, opts: list[Option]
     opts, full, refast = _full_level(path, base, opts, chosen, workers, band, progress)
     if refast:  # the analytic row of a paced option at the cadence it kept
         again = Batch(workers, path, base, [(i, opts[i].overrides) for i in refast], fast,
-                      tally=Tally(progress, f"{fast} level, paced again")).rows()
+                      tally=Tally(progress, f"{fast} level, paced again", len(refast))).rows()
         table = _refresh_fast(table, by_option(again))
     link_order = {link.name: k for k, link in enumerate(links)}
     table = _merge_full(table, full, link_order)
@@ -515,13 +515,15 @@ def cadences(mean_ms: float) -> list[float]:
 
 class Cadences:
     """The cadences of :func:`cadences` tried for each unpaced AFR option (index -> its mean
-    interval at `fidelity`), handed to the workers; :meth:`best` waits for them."""
+    interval at `fidelity`), handed to the workers; :meth:`best` waits for them. `stage`:
+    the progress callback and the stage it reports as."""
 
     def __init__(self, workers: Workers, path: str, base: Mapping[str, Any], opts: Sequence[Option],
-                 means: Mapping[int, float], fidelity: str, band: bool = False, tally: Tally | None = None):
+                 means: Mapping[int, float], fidelity: str, band: bool = False,
+                 stage: tuple[Progress | None, str] = (None, "")):
         self.tried = [(u, pace) for u, mean in means.items() for pace in cadences(mean)]
         items = [(k, paced(opts[u], u, pace).overrides) for k, (u, pace) in enumerate(self.tried)]
-        self.batch = Batch(workers, path, base, items, fidelity, band, tally)
+        self.batch = Batch(workers, path, base, items, fidelity, band, Tally(*stage, len(items)))
 
     def best(self) -> dict[int, tuple[float, dict[str, Any]]]:
         """For each option, the cadence whose paced run ranks best (measure, then latency, then
@@ -575,13 +577,12 @@ def _fast_level(path: str, base: Mapping[str, Any], opts: list[Option], fidelity
     at its best cadence. The AFR options are handed in first, so that their paced runs are
     queued while the rest still run."""
     items = list(enumerate(o.overrides for o in opts))
-    tally = Tally(progress, f"{fidelity} level")
+    tally = Tally(progress, f"{fidelity} level", len(items))
     afr = Batch(workers, path, base, [(i, o) for i, o in items if _paces(opts[i])], fidelity, tally=tally)
     rest = Batch(workers, path, base, [(i, o) for i, o in items if not _paces(opts[i])], fidelity, tally=tally)
     afr_rows = afr.rows()
     means = _pace_sources(opts, by_option(afr_rows)) if afr_rows else {}
-    pacing = Cadences(workers, path, base, opts, means, fidelity,
-                      tally=Tally(progress, f"even pacing, {fidelity} level"))
+    pacing = Cadences(workers, path, base, opts, means, fidelity, stage=(progress, f"even pacing, {fidelity} level"))
     rows = by_option(sorted(afr_rows + rest.rows(), key=lambda r: r["option"]))
     opts = list(opts)
     extra = []
@@ -601,14 +602,14 @@ def _full_level(path: str, base: Mapping[str, Any], opts: list[Option], chosen: 
     first, so that the cadences are queued while the rest still run."""
     plain = [i for i in sorted(chosen) if opts[i].paced_from is None]
     sources = paced_sources(opts, sorted(chosen - set(plain)))
-    tally = Tally(progress, "full fidelity")
+    tally = Tally(progress, "full fidelity", len(plain))
     first = Batch(workers, path, base, [(i, opts[i].overrides) for i in plain if i in sources], "full", band, tally)
     rest = Batch(workers, path, base, [(i, opts[i].overrides) for i in plain if i not in sources], "full", band,
                  tally)
     ran_first = {row["option"]: row for row in first.rows()}
     means = {u: float(ran_first[u]["frame_time_ms"]) for u in sources
              if u in ran_first and ran_first[u]["error"] is None}
-    pacing = Cadences(workers, path, base, opts, means, "full", band, Tally(progress, "even pacing, full fidelity"))
+    pacing = Cadences(workers, path, base, opts, means, "full", band, (progress, "even pacing, full fidelity"))
     full = by_option(sorted([*ran_first.values(), *rest.rows()], key=lambda r: r["option"]))
     found = pacing.best()
     opts, moved = list(opts), []

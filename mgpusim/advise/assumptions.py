@@ -135,7 +135,8 @@ class _Rerun:
         plain = sorted({i for i in picks if opts[i].paced_from is None}
                        | {u for i in picks if (u := opts[i].paced_from) is not None})
         items: list[tuple[int, Mapping[str, Any]]] = [(i, _on_scene(opts[i].overrides, passes)) for i in plain]
-        self.plain = Batch(workers, advice.experiment, self.base, items, "full", tally=Tally(progress, stage))
+        self.plain = Batch(workers, advice.experiment, self.base, items, "full",
+                           tally=Tally(progress, stage, len(items)))
         self.rows = pd.DataFrame()
         self.cadences: Cadences | None = None
 
@@ -149,7 +150,7 @@ class _Rerun:
                         type(o)(o.family, o.gpus, o.link, o.settings, _on_scene(o.overrides, self.passes),
                                 o.paced_from, o.detail) for o in opts]
         self.cadences = Cadences(self.workers, self.advice.experiment, self.base, shifted_opts, means, "full",
-                                 tally=Tally(self.progress, f"{self.stage}, even pacing"))
+                                 stage=(self.progress, f"{self.stage}, even pacing"))
 
     def ranked(self) -> pd.DataFrame:
         """The picked options that ran, best first, with the search's ranking columns."""

@@ -160,7 +160,7 @@ class Timelines:
         self.labels = [advice.options[index].label for index in self.picks]
         self.root = root
         self.folders = [root / f"{k}_{_slug(label)}" for k, label in enumerate(self.labels)]
-        self.tally = Tally(progress, "timelines")
+        self.tally = Tally(progress, "timelines", len(self.picks))
         self.tasks = []
         for index, label, folder in zip(self.picks, self.labels, self.folders):
             self.tasks.append(workers.submit(_timeline, advice.experiment, advice.overrides(index), label, folder))

@@ -60,20 +60,21 @@ def workers_of(workers: int | Workers) -> tuple[Workers, bool]:
 
 
 class Tally:
-    """How far one stage has come: the options of its tasks done out of those handed in
-    (the total grows as tasks join), reported by the caller that waits for them as each task
+    """How far one stage has come: the options of its tasks done out of `total` (or of those
+    handed in, where more), reported by the caller that waits for them as each task
     ends (or as it is handed in, where it ran here). Why only then: the stages' tasks run side
     by side, and a bar is drawn for the stage the command is waiting on."""
 
-    def __init__(self, progress: Progress | None, stage: str):
+    def __init__(self, progress: Progress | None, stage: str, total: int = 0):
         self.progress, self.stage = progress, stage
-        self.total = self.done = 0
+        self.total, self.added, self.done = total, 0, 0
         self.started = False
         self.pending: dict[Future, int] = {}
 
     def add(self, task: Future, size: int) -> None:
         """A task of `size` options joins the stage."""
-        self.total += size
+        self.added += size
+        self.total = max(self.total, self.added)
         self.pending[task] = size
         if task.done():  # it ran here as it was handed in: the stage is under way
             if not self.started and self.progress is not None:

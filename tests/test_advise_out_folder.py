@@ -4,6 +4,7 @@ refused before any work; progress reported in every stage of the search; one set
 serving every stage, with work done alongside the timelines."""
 from __future__ import annotations
 
+import gc
 import json
 import os
 import signal
@@ -16,7 +17,7 @@ import pytest
 
 from mgpusim.advise.advisor import LINKS, MAX_PASSES, check_frame, run_options, search
 from mgpusim.advise.report import OUTPUTS, STAGING, write_advice
-from mgpusim.advise.workers import Workers
+from mgpusim.advise.workers import GC_THRESHOLD, Workers, fewer_collections
 from mgpusim.cli import main
 from mgpusim.io.out_folder import LOCK_FILE
 from mgpusim.io.progress import Stages
@@ -185,3 +186,13 @@ def test_work_alongside_the_timelines_is_in_the_answer(frames, tmp_path):
     assert [t["option"] for t in answer["timelines"]][0] == 0 and len(answer["timelines"]) == 2
     assert all((tmp_path / t["timeline"]).is_file() and (tmp_path / t["perfetto"]).is_file()
                for t in answer["timelines"])
+
+
+def test_the_collector_runs_less_often_only_while_a_command_searches(frames, tmp_path):
+    before = gc.get_threshold()
+    with fewer_collections():
+        assert gc.get_threshold()[0] == GC_THRESHOLD and gc.get_freeze_count() > 0
+    assert gc.get_threshold() == before
+    first, _ = frames
+    assert main(["advise", str(first), "--out", str(tmp_path / "a"), *SMALL]) == 0
+    assert gc.get_threshold() == before  # the command gives the test's process its settings back

@@ -18,6 +18,7 @@ from __future__ import annotations
 import os
 import re
 import shutil
+from concurrent.futures import Future
 from pathlib import Path
 from typing import Any, Callable
 
@@ -161,10 +162,15 @@ class Timelines:
         self.root = root
         self.folders = [root / f"{k}_{_slug(label)}" for k, label in enumerate(self.labels)]
         self.tally = Tally(progress, "timelines", len(self.picks))
-        self.tasks = []
-        for index, label, folder in zip(self.picks, self.labels, self.folders):
-            self.tasks.append(workers.submit(_timeline, advice.experiment, advice.overrides(index), label, folder))
-            self.tally.add(self.tasks[-1], 1)
+        # the most GPUs first (their timelines have the most rows to draw), so that the
+        # workers end about together
+        order = sorted(range(len(self.picks)), key=lambda k: -advice.options[self.picks[k]].gpus)
+        tasks: dict[int, Future] = {}
+        for k in order:
+            tasks[k] = workers.submit(_timeline, advice.experiment, advice.overrides(self.picks[k]),
+                                      self.labels[k], self.folders[k])
+            self.tally.add(tasks[k], 1)
+        self.tasks = [tasks[k] for k in range(len(self.picks))]
 
     def shown(self) -> list[dict[str, Any]]:
         """Each timeline drawn: its option, label, folder, picture and Perfetto trace."""

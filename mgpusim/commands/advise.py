@@ -63,19 +63,20 @@ def run(args: argparse.Namespace) -> int:
 def _advise(args: argparse.Namespace, path: Path, overrides: dict[str, Any], out: Path) -> int:
     """The search, the report and the summary lines, with `out` held by this process. One
     set of worker processes serves every stage; the assumed shares are checked while the
-    timelines are drawn (both need only the search)."""
+    timelines are drawn (both need only the search); the garbage collector runs less often."""
     import os  # noqa: PLC0415
     import time  # noqa: PLC0415
 
     from mgpusim.advise.advisor import search  # noqa: PLC0415
     from mgpusim.advise.assumptions import check_shares  # noqa: PLC0415
     from mgpusim.advise.report import discard_stale, write_advice  # noqa: PLC0415
-    from mgpusim.advise.workers import Workers  # noqa: PLC0415
+    from mgpusim.advise.workers import Workers, fewer_collections  # noqa: PLC0415
     from mgpusim.io.progress import Stages  # noqa: PLC0415
     discard_stale(out)
     t0 = time.perf_counter()
     searched: list[float] = []
-    with Stages("advise", unit="option") as progress, Workers(args.workers or os.cpu_count() or 1) as workers:
+    with (fewer_collections(), Stages("advise", unit="option") as progress,
+          Workers(args.workers or os.cpu_count() or 1) as workers):
         advice = search(path, overrides, max_gpus=args.max_gpus, confirm=args.confirm,
                         workers=workers, progress=progress)
 

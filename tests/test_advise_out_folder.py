@@ -17,7 +17,7 @@ import pytest
 
 from mgpusim.advise.advisor import LINKS, MAX_PASSES, check_frame, run_options, search
 from mgpusim.advise.report import OUTPUTS, STAGING, write_advice
-from mgpusim.advise.workers import GC_THRESHOLD, Workers, fewer_collections
+from mgpusim.advise.worker_set import GC_THRESHOLD, Workers, fewer_collections
 from mgpusim.cli import main
 from mgpusim.io.out_folder import LOCK_FILE
 from mgpusim.io.progress import Stages

@@ -43,7 +43,7 @@ from typing import Any, Iterable, Mapping, Sequence, cast
 import numpy as np
 import pandas as pd
 
-from mgpusim.advise.workers import Progress, Tally, Workers, workers_of
+from mgpusim.advise.worker_set import Progress, Tally, Workers, workers_of
 from mgpusim.model.errors import InputError, MgpusimError
 from mgpusim.model.overrides import set_dotted, split_profile
 from mgpusim.model.profile import HardwareProfile, load_profile, require_gpus

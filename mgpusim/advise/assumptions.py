@@ -30,7 +30,7 @@ from mgpusim.advise.advisor import (
     ranking,
     two_eye_passes,
 )
-from mgpusim.advise.workers import Tally, Workers, workers_of
+from mgpusim.advise.worker_set import Tally, Workers, workers_of
 from mgpusim.frames.shares import Share, recorded_shares
 
 #: How far the assumed shares are moved, each way.

@@ -25,7 +25,7 @@ from typing import Any, Callable
 import pandas as pd
 
 from mgpusim.advise.advisor import PACE_MARGINS, PACED, RANK_MEASURE, TIE, Advice, Progress, option_command
-from mgpusim.advise.workers import Tally, Workers, workers_of
+from mgpusim.advise.worker_set import Tally, Workers, workers_of
 from mgpusim.io.plot import pareto_png
 from mgpusim.io.report_page import Section, write_page
 from mgpusim.io.writers import write_json, write_result, write_table

@@ -70,7 +70,7 @@ def _advise(args: argparse.Namespace, path: Path, overrides: dict[str, Any], out
     from mgpusim.advise.advisor import search  # noqa: PLC0415
     from mgpusim.advise.assumptions import check_shares  # noqa: PLC0415
     from mgpusim.advise.report import discard_stale, write_advice  # noqa: PLC0415
-    from mgpusim.advise.workers import Workers, fewer_collections  # noqa: PLC0415
+    from mgpusim.advise.worker_set import Workers, fewer_collections  # noqa: PLC0415
     from mgpusim.io.progress import Stages  # noqa: PLC0415
     discard_stale(out)
     t0 = time.perf_counter()

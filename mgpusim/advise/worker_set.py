@@ -1,5 +1,6 @@
-"""The processes one `mgpusim advise` runs its work on, started once for all its stages, and
-the progress of a stage over the tasks handed to them.
+"""The processes one `mgpusim advise` runs its work on, started once for all its stages, the
+progress of a stage over the tasks handed to them, and the garbage collector's settings while
+the command runs (:func:`fewer_collections`).
 
 Why one set for the whole command: each stage (the analytic level, even pacing, full fidelity,
 the assumed shares, the timelines) used to start processes of its own, whose caches (the frame

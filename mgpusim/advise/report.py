@@ -69,7 +69,7 @@ def _remove(path: Path) -> None:
 
 def write_advice(advice: Advice, out: Path, experiment: str, timelines: int = 3,
                  progress: Progress | None = None, workers: int | Workers | None = None,
-                 alongside: Callable[[], None] | None = None) -> dict[str, Path]:
+                 alongside: Callable[[], object] | None = None) -> dict[str, Path]:
     """Everything in `out` (see the module doc); `experiment` is how the user named it.
     `progress(stage, done, total)`: the timelines drawn so far. `workers`: where the timelines
     are drawn (a count, default the search's, or a command's :class:`Workers`). `alongside`:
@@ -95,7 +95,7 @@ def write_advice(advice: Advice, out: Path, experiment: str, timelines: int = 3,
 
 
 def _write_set(advice: Advice, out: Path, experiment: str, drawn: Timelines,
-               alongside: Callable[[], None] | None) -> dict[str, Path]:
+               alongside: Callable[[], object] | None) -> dict[str, Path]:
     """The advice's files in `out` (the staging folder), while the workers draw the timelines."""
     table = advice.table.reset_index()
     table["command"] = [option_command(experiment, advice.overrides(i)) for i in table["option"]]

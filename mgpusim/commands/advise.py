@@ -74,17 +74,14 @@ def _advise(args: argparse.Namespace, path: Path, overrides: dict[str, Any], out
     from mgpusim.io.progress import Stages  # noqa: PLC0415
     discard_stale(out)
     t0 = time.perf_counter()
-    searched: list[float] = []
     with (fewer_collections(), Stages("advise", unit="option") as progress,
           Workers(args.workers or os.cpu_count() or 1) as workers):
         advice = search(path, overrides, max_gpus=args.max_gpus, confirm=args.confirm,
                         workers=workers, progress=progress)
-
-        def shares() -> None:
-            check_shares(advice, workers, progress=progress)
-            searched.append(time.perf_counter() - t0)
-        files = write_advice(advice, out, str(args.experiment), args.timelines, progress, workers, shares)
-    _summary(advice, path, out, files, searched[0])
+        searched = time.perf_counter() - t0
+        files = write_advice(advice, out, str(args.experiment), args.timelines, progress, workers,
+                             lambda: check_shares(advice, workers, progress=progress))
+    _summary(advice, path, out, files, searched + advice.timings.get("shares_s", 0.0))
     return 0
 
 

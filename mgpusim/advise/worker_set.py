@@ -20,9 +20,10 @@ T = TypeVar("T")
 #: `progress(stage, done, total)`: how far a stage has come (a command draws it).
 Progress = Callable[[str, int, int], None]
 #: Allocations between the cyclic garbage collector's young-generation runs while a command
-#: searches (Python's default: 700). Why: with the default, the collector took 11-13 % of the
-#: 20-pass frame's CPU, most of it going over the same long-lived young objects again; at this
-#: threshold 4-5 %, for about 20 MB more memory at the peak (the garbage itself is the same).
+#: searches (Python's default: 700). Why: with the default, the collector took 11-15 % of the
+#: 20-pass frame's CPU in one process, most of it going over the same long-lived young objects
+#: again; at this threshold 4-7 %, for about 20 MB more memory at the peak (the garbage itself
+#: is the same).
 GC_THRESHOLD = 50_000
 
 

@@ -1,8 +1,11 @@
 """`mgpusim advise` and its output folder: one advise at a time in a folder, a killed run leaves
 no report that reads as complete, a rerun gives the same advice; frames past the pass limit
-refused before any work; progress reported in every stage of the search."""
+refused before any work; progress reported in every stage of the search; one set of workers
+serving every stage, with work done alongside the timelines."""
 from __future__ import annotations
 
+import gc
+import json
 import os
 import signal
 import subprocess
@@ -13,7 +16,8 @@ from pathlib import Path
 import pytest
 
 from mgpusim.advise.advisor import LINKS, MAX_PASSES, check_frame, run_options, search
-from mgpusim.advise.report import OUTPUTS, STAGING
+from mgpusim.advise.report import OUTPUTS, STAGING, write_advice
+from mgpusim.advise.worker_set import GC_THRESHOLD, Workers, fewer_collections
 from mgpusim.cli import main
 from mgpusim.io.out_folder import LOCK_FILE
 from mgpusim.io.progress import Stages
@@ -150,3 +154,45 @@ def test_the_progress_has_one_bar_per_stage_each_to_its_end():
     with stages:
         pass
     assert stages.bar is None and stages.stage is None
+
+
+def _results(advice) -> str:
+    """An advice's table without the columns that time it, as CSV (NaN equal to NaN)."""
+    return advice.table.drop(columns=[c for c in advice.table if c.endswith("wall_s")]).to_csv()
+
+
+def test_one_set_of_workers_serves_every_stage_and_the_next_search(frames):
+    first, second = frames
+    here = [search(f, max_gpus=2, links=LINKS[:1], workers=1, confirm=2) for f in (first, second)]
+    with Workers(2) as workers:
+        kept = [search(f, max_gpus=2, links=LINKS[:1], workers=workers, confirm=2) for f in (first, second)]
+        assert workers._pool is not None  # the processes of the first search served the second
+    assert [_results(a) for a in kept] == [_results(a) for a in here]
+    assert [a.counts["workers"] for a in kept] == [2, 2]
+
+
+def test_work_alongside_the_timelines_is_in_the_answer(frames, tmp_path):
+    first, _ = frames
+    advice = search(first, max_gpus=2, links=LINKS[:1], workers=1, confirm=2)
+    calls: list[int] = []
+
+    def alongside() -> None:  # as the command checks the assumed shares while they are drawn
+        calls.append(len(list((tmp_path / STAGING).glob("*.csv"))))
+        advice.notes.append("checked alongside the timelines")
+    with Workers(2) as workers:
+        files = write_advice(advice, tmp_path, "first.toml", timelines=1, workers=workers, alongside=alongside)
+    answer = json.loads(files["answer"].read_text())
+    assert calls == [1] and "checked alongside the timelines" in answer["notes"]
+    assert [t["option"] for t in answer["timelines"]][0] == 0 and len(answer["timelines"]) == 2
+    assert all((tmp_path / t["timeline"]).is_file() and (tmp_path / t["perfetto"]).is_file()
+               for t in answer["timelines"])
+
+
+def test_the_collector_runs_less_often_only_while_a_command_searches(frames, tmp_path):
+    before = gc.get_threshold()
+    with fewer_collections():
+        assert gc.get_threshold()[0] == GC_THRESHOLD and gc.get_freeze_count() > 0
+    assert gc.get_threshold() == before
+    first, _ = frames
+    assert main(["advise", str(first), "--out", str(tmp_path / "a"), *SMALL]) == 0
+    assert gc.get_threshold() == before  # the command gives the test's process its settings back

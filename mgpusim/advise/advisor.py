@@ -36,14 +36,14 @@ import json
 import math
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping, Sequence, cast
+from typing import Any, Iterable, Mapping, Sequence, cast
 
 import numpy as np
 import pandas as pd
 
+from mgpusim.advise.worker_set import Progress, Tally, Workers, workers_of
 from mgpusim.model.errors import InputError, MgpusimError
 from mgpusim.model.overrides import set_dotted, split_profile
 from mgpusim.model.profile import HardwareProfile, load_profile, require_gpus
@@ -84,8 +84,6 @@ PACED = "AFR, even pacing"
 #: 25-32 s, 64 passes about 100 s; 200 passes (12,800 pipelining options) would take over
 #: 10 minutes, so such a frame is refused before any work rather than left to run.
 MAX_PASSES = 64
-#: `progress(stage, done, total)`: how far the search has come (a command draws it).
-Progress = Callable[[str, int, int], None]
 
 
 @dataclass(frozen=True)
@@ -392,19 +390,48 @@ def steady_intervals(presents: np.ndarray, summary: Mapping[str, Any]) -> dict[s
 TASK_OPTIONS = 32
 
 
-def run_options(path: str, base: Mapping[str, Any], items: list[tuple[int, Mapping[str, Any]]],
-                fidelity: str, workers: int, band: bool = False, progress: Progress | None = None,
-                stage: str = "") -> list[dict[str, Any]]:
-    """`evaluate` over the items, spread over `workers` processes (1: here), in the items'
-    order; `progress(stage, done, total)` after each task."""
-    if fidelity != "full":  # the options of one schedule over every link side by side (load_like)
-        order = sorted(range(len(items)), key=lambda k: _without_profile(items[k][1]))
-        rows = _run_in_order(path, base, [items[k] for k in order], fidelity, workers, band, progress, stage)
-        back: list[dict[str, Any]] = [{}] * len(items)
-        for k, row in zip(order, rows):
+class Batch:
+    """Options handed to the workers in tasks of up to :data:`TASK_OPTIONS`; :meth:`rows`
+    waits for them. At the fast levels the options of one schedule over every link are handed
+    in side by side (they share a program and a model: `load_like`)."""
+
+    def __init__(self, workers: Workers, path: str, base: Mapping[str, Any],
+                 items: Sequence[tuple[int, Mapping[str, Any]]], fidelity: str, band: bool = False,
+                 tally: Tally | None = None):
+        self.order = (sorted(range(len(items)), key=lambda k: _without_profile(items[k][1]))
+                      if fidelity != "full" else list(range(len(items))))
+        self.tally = tally if tally is not None else Tally(None, "")
+        ordered = [items[k] for k in self.order]
+        size = max(1, min(TASK_OPTIONS, math.ceil(len(items) / (4 * workers.count))))
+        self.tasks = []
+        for start in range(0, len(ordered), size):
+            chunk = ordered[start:start + size]
+            self.tasks.append(workers.submit(evaluate, path, dict(base), chunk, fidelity, band))
+            self.tally.add(self.tasks[-1], len(chunk))
+
+    def rows(self) -> list[dict[str, Any]]:
+        """`evaluate`'s rows, in the order of the items handed in."""
+        self.tally.wait(self.tasks)
+        back: list[dict[str, Any]] = [{}] * len(self.order)
+        for k, row in zip(self.order, (row for task in self.tasks for row in task.result())):
             back[k] = row
         return back
-    return _run_in_order(path, base, items, fidelity, workers, band, progress, stage)
+
+
+def run_options(path: str, base: Mapping[str, Any], items: list[tuple[int, Mapping[str, Any]]],
+                fidelity: str, workers: int | Workers, band: bool = False, progress: Progress | None = None,
+                stage: str = "") -> list[dict[str, Any]]:
+    """`evaluate` over the items, spread over the workers (`workers` processes started for
+    them, where there are enough items to share: else here), in the items' order;
+    `progress(stage, done, total)` as tasks end."""
+    if not isinstance(workers, Workers) and len(items) < 2 * workers:
+        workers = 1
+    pool, own = workers_of(workers)
+    try:
+        return Batch(pool, path, base, items, fidelity, band, Tally(progress, stage, len(items))).rows()
+    finally:
+        if own:
+            pool.close()
 
 
 def _without_profile(overrides: Mapping[str, Any]) -> str:
@@ -412,66 +439,38 @@ def _without_profile(overrides: Mapping[str, Any]) -> str:
     return json.dumps(split_profile(overrides)[0], sort_keys=True, default=str)
 
 
-def _run_in_order(path: str, base: Mapping[str, Any], items: list[tuple[int, Mapping[str, Any]]],
-                  fidelity: str, workers: int, band: bool = False, progress: Progress | None = None,
-                  stage: str = "") -> list[dict[str, Any]]:
-    """`evaluate` over the items in their order, spread over `workers` processes (1: here)."""
-    report = _reporter(progress, stage, len(items))
-    if workers <= 1 or len(items) < 2 * workers:
-        size = min(TASK_OPTIONS, max(1, len(items)))
-        out: list[dict[str, Any]] = []
-        for start in range(0, len(items), size):
-            out += evaluate(path, base, items[start:start + size], fidelity, band)
-            report(len(out))
-        return out
-    size = max(1, min(TASK_OPTIONS, math.ceil(len(items) / (4 * workers))))
-    chunks = [items[i:i + size] for i in range(0, len(items), size)]
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        tasks = [pool.submit(evaluate, path, base, chunk, fidelity, band) for chunk in chunks]
-        done = 0
-        for task in as_completed(tasks):
-            done += len(task.result())
-            report(done)
-        return [row for task in tasks for row in task.result()]
-
-
-def _reporter(progress: Progress | None, stage: str, total: int) -> Callable[[int], None]:
-    """`report(done)` for one stage of `total` options (nothing where no one listens)."""
-    if progress is None:
-        return lambda done: None
-    progress(stage, 0, total)
-    return lambda done: progress(stage, done, total)
-
-
 def search(path: str | Path, overrides: Mapping[str, Any] | None = None, *, max_gpus: int = 8,
-           links: Sequence[Link] = LINKS, confirm: int = CONFIRM, workers: int | None = None,
+           links: Sequence[Link] = LINKS, confirm: int = CONFIRM, workers: int | Workers | None = None,
            band: bool = True, progress: Progress | None = None) -> Advice:
     """Search every option of the experiment at `path` (see the module doc). How the answer
     moves if the passes' assumed pixel shares are off is a second step on the result
-    (:func:`mgpusim.advise.assumptions.check_shares`). `progress(stage, done, total)`: the
-    options evaluated so far in each stage of the search."""
+    (:func:`mgpusim.advise.assumptions.check_shares`). `workers`: a count of processes (default:
+    one per CPU) or a command's :class:`Workers`, left running for its next stages.
+    `progress(stage, done, total)`: the options evaluated so far in each stage of the search."""
     path, base = str(path), dict(overrides or {})
     exp = check_frame(path, base, max_gpus)
-    workers = workers or os.cpu_count() or 1
-    opts = options(exp, max_gpus, links)
+    pool, own = workers_of(workers or os.cpu_count() or 1)
+    try:
+        return _search(path, base, exp, options(exp, max_gpus, links), links, confirm, pool, band, progress)
+    finally:
+        if own:
+            pool.close()
+
+
+def _search(path: str, base: dict[str, Any], exp: Experiment, opts: list[Option], links: Sequence[Link],
+            confirm: int, workers: Workers, band: bool, progress: Progress | None) -> Advice:
     fast = "queues" if exp.schedule.refresh_hz else "analytic"  # the analytic level has no vsync
     t0 = time.perf_counter()
-    first = by_option(run_options(path, base, list(enumerate(o.overrides for o in opts)), fast, workers,
-                                  progress=progress, stage=f"{fast} level"))
-    opts, first = _with_paced(path, base, opts, first, fast, workers, progress)
+    opts, first = _fast_level(path, base, opts, fast, workers, progress)
     table = _table(opts, first)
     t1 = time.perf_counter()
     chosen = _to_confirm(table, confirm)
     # a paced option's cadence comes from its unpaced option's mean at the same level
     chosen |= {u for i in chosen if (u := opts[i].paced_from) is not None}
-    plain = [i for i in sorted(chosen) if opts[i].paced_from is None]
-    full = by_option(run_options(path, base, [(i, opts[i].overrides) for i in plain], "full", workers, band,
-                                 progress, "full fidelity"))
-    opts, full, refast = _paced_at_full(path, base, opts, full, sorted(chosen - set(plain)), workers, band,
-                                        progress)
+    opts, full, refast = _full_level(path, base, opts, chosen, workers, band, progress)
     if refast:  # the analytic row of a paced option at the cadence it kept
-        again = run_options(path, base, [(i, opts[i].overrides) for i in refast], fast, workers,
-                            progress=progress, stage=f"{fast} level, paced again")
+        again = Batch(workers, path, base, [(i, opts[i].overrides) for i in refast], fast,
+                      tally=Tally(progress, f"{fast} level, paced again", len(refast))).rows()
         table = _refresh_fast(table, by_option(again))
     link_order = {link.name: k for k, link in enumerate(links)}
     table = _merge_full(table, full, link_order)
@@ -489,7 +488,7 @@ def search(path: str | Path, overrides: Mapping[str, Any] | None = None, *, max_
                               "CPU, which it leaves out): options outside the confirmed ones may do better"]
     notes += settle_notes(table)
     counts = {"options": len(opts), "failed": int(table["error"].notna().sum()),
-              "confirmed": int(table["confirmed"].sum()), "workers": workers,
+              "confirmed": int(table["confirmed"].sum()), "workers": workers.count,
               "paced": sum(o.paced_from is not None for o in opts)}
     return Advice(path, opts, table, baseline, bound, _open(table) if bound else -1,
                   {f"{fast}_s": t1 - t0, "full_s": t2 - t1}, counts, notes, base, link_order)
@@ -514,25 +513,31 @@ def cadences(mean_ms: float) -> list[float]:
     return [math.ceil(mean_ms * 1e6 * (1 + m)) / 1000 for m in PACE_MARGINS]
 
 
-def best_cadence(path: str, base: Mapping[str, Any], opts: Sequence[Option], means: Mapping[int, float],
-                 fidelity: str, workers: int, band: bool = False, progress: Progress | None = None,
-                 stage: str = "even pacing") -> dict[int, tuple[float, dict[str, Any]]]:
-    """For each unpaced AFR option (index -> its mean interval at `fidelity`): the cadence of
-    :func:`cadences` whose paced run ranks best (measure, then latency, then the slower cadence
-    is not preferred), with that run's row."""
-    tried: list[tuple[int, float]] = [(u, pace) for u, mean in means.items() for pace in cadences(mean)]
-    items = [(k, paced(opts[u], u, pace).overrides) for k, (u, pace) in enumerate(tried)]
-    rows = run_options(path, base, items, fidelity, workers, band, progress, stage)
-    out: dict[int, tuple[float, dict[str, Any]]] = {}
-    for (u, pace), row in zip(tried, sorted(rows, key=lambda r: r["option"])):
-        if row["error"] is not None:
-            out.setdefault(u, (pace, row))
-            continue
-        key = (rank_of(row), row["latency_ms"], pace)
-        held = out.get(u)
-        if held is None or held[1]["error"] is not None or key < (rank_of(held[1]), held[1]["latency_ms"], held[0]):
-            out[u] = (pace, row)
-    return out
+class Cadences:
+    """The cadences of :func:`cadences` tried for each unpaced AFR option (index -> its mean
+    interval at `fidelity`), handed to the workers; :meth:`best` waits for them. `stage`:
+    the progress callback and the stage it reports as."""
+
+    def __init__(self, workers: Workers, path: str, base: Mapping[str, Any], opts: Sequence[Option],
+                 means: Mapping[int, float], fidelity: str, band: bool = False,
+                 stage: tuple[Progress | None, str] = (None, "")):
+        self.tried = [(u, pace) for u, mean in means.items() for pace in cadences(mean)]
+        items = [(k, paced(opts[u], u, pace).overrides) for k, (u, pace) in enumerate(self.tried)]
+        self.batch = Batch(workers, path, base, items, fidelity, band, Tally(*stage, len(items)))
+
+    def best(self) -> dict[int, tuple[float, dict[str, Any]]]:
+        """For each option, the cadence whose paced run ranks best (measure, then latency, then
+        the slower cadence is not preferred), with that run's row."""
+        out: dict[int, tuple[float, dict[str, Any]]] = {}
+        for (u, pace), row in zip(self.tried, sorted(self.batch.rows(), key=lambda r: r["option"])):
+            if row["error"] is not None:
+                out.setdefault(u, (pace, row))
+                continue
+            key = (rank_of(row), row["latency_ms"], pace)
+            held = out.get(u)
+            if held is None or held[1]["error"] is not None or key < (rank_of(held[1]), held[1]["latency_ms"], held[0]):
+                out[u] = (pace, row)
+        return out
 
 
 def rank_of(row: Mapping[str, Any]) -> float:
@@ -556,20 +561,32 @@ def paced_sources(opts: Sequence[Option], picks: Iterable[int]) -> dict[int, int
     return {u: p for p in picks if (u := opts[p].paced_from) is not None}
 
 
+def _paces(option: Option) -> bool:
+    """Whether the option is an unpaced AFR option on several GPUs (one that is paced too)."""
+    return option.family == "AFR" and option.gpus > 1 and option.paced_from is None
+
+
 def _pace_sources(opts: Sequence[Option], rows: pd.DataFrame) -> dict[int, float]:
     """Unpaced AFR options on several GPUs that ran, with their mean intervals."""
-    return {i: float(cell(rows, i, "frame_time_ms")) for i, o in enumerate(opts)
-            if o.family == "AFR" and o.gpus > 1 and o.paced_from is None and ran(rows, i)}
+    return {i: float(cell(rows, i, "frame_time_ms")) for i, o in enumerate(opts) if _paces(o) and ran(rows, i)}
 
 
-def _with_paced(path: str, base: Mapping[str, Any], opts: list[Option], rows: pd.DataFrame, fidelity: str,
-                workers: int, progress: Progress | None = None) -> tuple[list[Option], pd.DataFrame]:
-    """Every AFR option on several GPUs again, evenly paced at its best cadence (fast level)."""
-    found = best_cadence(path, base, opts, _pace_sources(opts, rows), fidelity, workers,
-                         progress=progress, stage=f"even pacing, {fidelity} level")
+def _fast_level(path: str, base: Mapping[str, Any], opts: list[Option], fidelity: str, workers: Workers,
+                progress: Progress | None = None) -> tuple[list[Option], pd.DataFrame]:
+    """Every option at the fast level, and every AFR option on several GPUs again, evenly paced
+    at its best cadence. The AFR options are handed in first, so that their paced runs are
+    queued while the rest still run."""
+    items = list(enumerate(o.overrides for o in opts))
+    tally = Tally(progress, f"{fidelity} level", len(items))
+    afr = Batch(workers, path, base, [(i, o) for i, o in items if _paces(opts[i])], fidelity, tally=tally)
+    rest = Batch(workers, path, base, [(i, o) for i, o in items if not _paces(opts[i])], fidelity, tally=tally)
+    afr_rows = afr.rows()
+    means = _pace_sources(opts, by_option(afr_rows)) if afr_rows else {}
+    pacing = Cadences(workers, path, base, opts, means, fidelity, stage=(progress, f"even pacing, {fidelity} level"))
+    rows = by_option(sorted(afr_rows + rest.rows(), key=lambda r: r["option"]))
     opts = list(opts)
     extra = []
-    for u, (pace, row) in found.items():
+    for u, (pace, row) in pacing.best().items():
         extra.append({**row, "option": len(opts)})
         opts.append(paced(opts[u], u, pace))
     if not extra:
@@ -577,15 +594,24 @@ def _with_paced(path: str, base: Mapping[str, Any], opts: list[Option], rows: pd
     return opts, pd.concat([rows, by_option(extra)])
 
 
-def _paced_at_full(path: str, base: Mapping[str, Any], opts: list[Option], full: pd.DataFrame,
-                   chosen: list[int], workers: int, band: bool, progress: Progress | None = None
-                   ) -> tuple[list[Option], pd.DataFrame, list[int]]:
-    """The paced options to confirm, their cadence found again from their unpaced option's
-    full-fidelity mean (the fast level's may be shorter); those whose cadence moved, to be run
-    again at the fast level."""
-    sources = paced_sources(opts, chosen)
-    means = {u: float(cell(full, u, "frame_time_ms")) for u in sources if ran(full, u)}
-    found = best_cadence(path, base, opts, means, "full", workers, band, progress, "even pacing, full fidelity")
+def _full_level(path: str, base: Mapping[str, Any], opts: list[Option], chosen: set[int], workers: Workers,
+                band: bool, progress: Progress | None = None) -> tuple[list[Option], pd.DataFrame, list[int]]:
+    """The chosen options at full fidelity, a paced one at its cadence found again from its
+    unpaced option's full-fidelity mean (the fast level's may be shorter); those whose cadence
+    moved, to be run again at the fast level. The unpaced options of paced ones are handed in
+    first, so that the cadences are queued while the rest still run."""
+    plain = [i for i in sorted(chosen) if opts[i].paced_from is None]
+    sources = paced_sources(opts, sorted(chosen - set(plain)))
+    tally = Tally(progress, "full fidelity", len(plain))
+    first = Batch(workers, path, base, [(i, opts[i].overrides) for i in plain if i in sources], "full", band, tally)
+    rest = Batch(workers, path, base, [(i, opts[i].overrides) for i in plain if i not in sources], "full", band,
+                 tally)
+    ran_first = {row["option"]: row for row in first.rows()}
+    means = {u: float(ran_first[u]["frame_time_ms"]) for u in sources
+             if u in ran_first and ran_first[u]["error"] is None}
+    pacing = Cadences(workers, path, base, opts, means, "full", band, (progress, "even pacing, full fidelity"))
+    full = by_option(sorted([*ran_first.values(), *rest.rows()], key=lambda r: r["option"]))
+    found = pacing.best()
     opts, moved = list(opts), []
     rows: list[dict[str, Any]] = []
     for u, p in sources.items():

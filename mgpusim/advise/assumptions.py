@@ -19,17 +19,18 @@ import pandas as pd
 
 from mgpusim.advise.advisor import (
     Advice,
+    Batch,
+    Cadences,
     Progress,
-    best_cadence,
     by_option,
     cell,
     paced,
     paced_sources,
     ran,
     ranking,
-    run_options,
     two_eye_passes,
 )
+from mgpusim.advise.worker_set import Tally, Workers, workers_of
 from mgpusim.frames.shares import Share, recorded_shares
 
 #: How far the assumed shares are moved, each way.
@@ -67,19 +68,26 @@ def candidates(advice: Advice) -> list[int]:
     return sorted(int(i) for i in chosen)
 
 
-def check_shares(advice: Advice, workers: int = 1, delta: float = SHARE_DELTA,
+def check_shares(advice: Advice, workers: int | Workers = 1, delta: float = SHARE_DELTA,
                  progress: Progress | None = None) -> dict[str, Any]:
     """Every captured pass's share and its source (`passes`), and per direction (`shifts`) the
     best option with the assumed shares moved by -`delta` and +`delta`, where today's best
     lands then, and each schedule's best measure today and then (`families`). Kept in
-    `advice.assumptions` (which the report shows) and returned; its time in `advice.timings`."""
+    `advice.assumptions` (which the report shows) and returned; its time in `advice.timings`.
+    `workers`: a count of processes, or a command's :class:`Workers` (both directions' runs
+    are handed to them together)."""
     t0 = time.perf_counter()
-    advice.assumptions = _check(advice, workers, delta, progress)
+    pool, own = workers_of(workers)
+    try:
+        advice.assumptions = _check(advice, pool, delta, progress)
+    finally:
+        if own:
+            pool.close()
     advice.timings["shares_s"] = time.perf_counter() - t0
     return advice.assumptions
 
 
-def _check(advice: Advice, workers: int, delta: float, progress: Progress | None) -> dict[str, Any]:
+def _check(advice: Advice, workers: Workers, delta: float, progress: Progress | None) -> dict[str, Any]:
     table = shares(advice)
     listed = [{"pass": name, "pixel_share": s.value, "geometry_share": 1 - s.value, "source": s.source,
                "why": s.why} for name, s in table.items()]
@@ -89,9 +97,12 @@ def _check(advice: Advice, workers: int, delta: float, progress: Progress | None
         return out
     scene = advice_scene(advice)
     best = advice.ranked.iloc[0]
-    for sign in (-1, 1):
-        got = _rerun(advice, candidates(advice), shifted(scene, assumed, sign * delta), workers,
-                     progress, f"assumed shares {sign * delta:+g}")
+    runs = {sign: _Rerun(advice, candidates(advice), shifted(scene, assumed, sign * delta), workers,
+                         progress, f"assumed shares {sign * delta:+g}") for sign in (-1, 1)}
+    for run in runs.values():  # each direction's cadences queued as soon as its means are in
+        run.pace()
+    for sign, run in runs.items():
+        got = run.ranked()
         if got.empty:
             continue
         first = got.iloc[0]
@@ -110,41 +121,62 @@ def _check(advice: Advice, workers: int, delta: float, progress: Progress | None
     return out
 
 
-def _rerun(advice: Advice, picks: list[int], passes: list[dict[str, Any]], workers: int,
-           progress: Progress | None = None, stage: str = "assumed shares") -> pd.DataFrame:
-    """The picked options at full fidelity on the scene `passes`, ranked as the search ranks."""
-    base = {**advice.base, "scene.passes": passes}
-    opts = list(advice.options)
-    plain = sorted({i for i in picks if opts[i].paced_from is None}
-                   | {u for i in picks if (u := opts[i].paced_from) is not None})
-    items: list[tuple[int, Mapping[str, Any]]] = [(i, _on_scene(opts[i].overrides, passes)) for i in plain]
-    rows = by_option(run_options(advice.experiment, base, items, "full", workers, progress=progress, stage=stage))
-    # evenly paced AFR: its cadence again, from its unpaced option's mean on this scene
-    sources = paced_sources(opts, picks)
-    means = {u: float(cell(rows, u, "frame_time_ms")) for u in sources if ran(rows, u)}
-    shifted_opts = [o if "scene.passes" not in o.overrides else
-                    type(o)(o.family, o.gpus, o.link, o.settings, _on_scene(o.overrides, passes),
-                            o.paced_from, o.detail) for o in opts]
-    found = best_cadence(advice.experiment, base, shifted_opts, means, "full", workers, progress=progress,
-                         stage=f"{stage}, even pacing")
-    extra = []
-    labels = {i: opts[i].label for i in picks}
-    for u, (pace, row) in found.items():
-        extra.append({**row, "option": sources[u]})
-        labels[sources[u]] = paced(opts[u], u, pace).label
-    if extra:
-        rows = pd.concat([rows.drop(index=[i for i in sources.values() if i in rows.index]), by_option(extra)])
-    rows = rows.loc[[i for i in picks if i in rows.index]]
-    rows = rows[rows["error"].isna()].copy()
-    if rows.empty:
-        return rows
-    meta = advice.table.loc[rows.index, ["family", "gpus", "link", "settings"]]
-    rows = rows.join(meta)
-    rows["label"] = [labels[int(i)] for i in rows.index]
-    rows["rank_ms"] = rows[["frame_time_ms", "interval_p99_ms"]].max(axis=1)
-    order = ranking(rows, advice.link_order)
-    rows = rows.join(order)
-    return rows.sort_values("order")
+class _Rerun:
+    """The picked options at full fidelity on the scene `passes`, handed to the workers:
+    :meth:`pace` hands in the paced options' cadences once their unpaced options' means are
+    in, :meth:`ranked` ranks what came back as the search ranks."""
+
+    def __init__(self, advice: Advice, picks: list[int], passes: list[dict[str, Any]], workers: Workers,
+                 progress: Progress | None = None, stage: str = "assumed shares"):
+        self.advice, self.picks, self.passes, self.workers = advice, picks, passes, workers
+        self.progress, self.stage = progress, stage
+        self.base = {**advice.base, "scene.passes": passes}
+        opts = advice.options
+        plain = sorted({i for i in picks if opts[i].paced_from is None}
+                       | {u for i in picks if (u := opts[i].paced_from) is not None})
+        items: list[tuple[int, Mapping[str, Any]]] = [(i, _on_scene(opts[i].overrides, passes)) for i in plain]
+        self.plain = Batch(workers, advice.experiment, self.base, items, "full",
+                           tally=Tally(progress, stage, len(items)))
+        self.rows = pd.DataFrame()
+        self.cadences: Cadences | None = None
+
+    def pace(self) -> None:
+        """Evenly paced AFR: its cadence again, from its unpaced option's mean on this scene."""
+        opts = self.advice.options
+        self.rows = by_option(self.plain.rows())
+        means = {u: float(cell(self.rows, u, "frame_time_ms")) for u in paced_sources(opts, self.picks)
+                 if ran(self.rows, u)}
+        shifted_opts = [o if "scene.passes" not in o.overrides else
+                        type(o)(o.family, o.gpus, o.link, o.settings, _on_scene(o.overrides, self.passes),
+                                o.paced_from, o.detail) for o in opts]
+        self.cadences = Cadences(self.workers, self.advice.experiment, self.base, shifted_opts, means, "full",
+                                 stage=(self.progress, f"{self.stage}, even pacing"))
+
+    def ranked(self) -> pd.DataFrame:
+        """The picked options that ran, best first, with the search's ranking columns."""
+        if self.cadences is None:
+            self.pace()
+        assert self.cadences is not None
+        advice, opts, rows = self.advice, self.advice.options, self.rows
+        sources = paced_sources(opts, self.picks)
+        extra = []
+        labels = {i: opts[i].label for i in self.picks}
+        for u, (pace, row) in self.cadences.best().items():
+            extra.append({**row, "option": sources[u]})
+            labels[sources[u]] = paced(opts[u], u, pace).label
+        if extra:
+            rows = pd.concat([rows.drop(index=[i for i in sources.values() if i in rows.index]), by_option(extra)])
+        rows = rows.loc[[i for i in self.picks if i in rows.index]]
+        rows = rows[rows["error"].isna()].copy()
+        if rows.empty:
+            return rows
+        meta = advice.table.loc[rows.index, ["family", "gpus", "link", "settings"]]
+        rows = rows.join(meta)
+        rows["label"] = [labels[int(i)] for i in rows.index]
+        rows["rank_ms"] = rows[["frame_time_ms", "interval_p99_ms"]].max(axis=1)
+        order = ranking(rows, advice.link_order)
+        rows = rows.join(order)
+        return rows.sort_values("order")
 
 
 def _on_scene(overrides: Mapping[str, Any], passes: list[dict[str, Any]]) -> dict[str, Any]:

@@ -18,13 +18,14 @@ from __future__ import annotations
 import os
 import re
 import shutil
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import Future
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import pandas as pd
 
 from mgpusim.advise.advisor import PACE_MARGINS, PACED, RANK_MEASURE, TIE, Advice, Progress, option_command
+from mgpusim.advise.worker_set import Tally, Workers, workers_of
 from mgpusim.io.plot import pareto_png
 from mgpusim.io.report_page import Section, write_page
 from mgpusim.io.writers import write_json, write_result, write_table
@@ -67,14 +68,25 @@ def _remove(path: Path) -> None:
 
 
 def write_advice(advice: Advice, out: Path, experiment: str, timelines: int = 3,
-                 progress: Progress | None = None) -> dict[str, Path]:
+                 progress: Progress | None = None, workers: int | Workers | None = None,
+                 alongside: Callable[[], object] | None = None) -> dict[str, Path]:
     """Everything in `out` (see the module doc); `experiment` is how the user named it.
-    `progress(stage, done, total)`: the timelines drawn so far."""
+    `progress(stage, done, total)`: the timelines drawn so far. `workers`: where the timelines
+    are drawn (a count, default the search's, or a command's :class:`Workers`). `alongside`:
+    work done while they are drawn, before the answer is written (the command checks the
+    assumed shares then, on the same workers: the timelines need only the ranking)."""
     out.mkdir(parents=True, exist_ok=True)
     discard_stale(out)
     staging = out / STAGING
     staging.mkdir()
-    files = _write_set(advice, staging, experiment, timelines, progress)
+    pool, own = workers_of(workers if workers is not None else
+                           min(int(advice.counts.get("workers", 1)), 1 + max(timelines, 0)))
+    try:
+        files = _write_set(advice, staging, experiment, Timelines(advice, staging / "timelines", timelines, pool,
+                                                                  progress), alongside)
+    finally:
+        if own:
+            pool.close()
     for name in OUTPUTS:  # the report last: until it is there, the folder has no answer
         if (staging / name).exists():
             os.replace(staging / name, out / name)
@@ -82,9 +94,9 @@ def write_advice(advice: Advice, out: Path, experiment: str, timelines: int = 3,
     return {key: out / path.relative_to(staging) for key, path in files.items()}
 
 
-def _write_set(advice: Advice, out: Path, experiment: str, timelines: int,
-               progress: Progress | None) -> dict[str, Path]:
-    """The advice's files in `out` (the staging folder)."""
+def _write_set(advice: Advice, out: Path, experiment: str, drawn: Timelines,
+               alongside: Callable[[], object] | None) -> dict[str, Path]:
+    """The advice's files in `out` (the staging folder), while the workers draw the timelines."""
     table = advice.table.reset_index()
     table["command"] = [option_command(experiment, advice.overrides(i)) for i in table["option"]]
     files = {"table": write_table(table[["option", *[c for c in _COLUMNS if c in table], "command"]],
@@ -94,7 +106,9 @@ def _write_set(advice: Advice, out: Path, experiment: str, timelines: int,
     files["pareto"] = pareto_png(plotted, out / "pareto.png",
                                  f"{Path(experiment).stem}: {advice.counts['options']} options; x: the p99 "
                                  "interval between presents (ms)")
-    shown = _timelines(advice, out / "timelines", timelines, progress)
+    if alongside is not None:
+        alongside()
+    shown = drawn.shown()
     files["answer"] = write_json(answer(advice, table, shown), out / "advice.json")
     files["report"] = write_page(out / "report.html", f"mgpusim advise: {Path(experiment).stem}",
                                  sections(advice, table, shown, experiment),
@@ -135,36 +149,38 @@ def _by_mean(ranked: pd.DataFrame) -> pd.Series:
     return ranked.sort_values(["frame_time_ms", "order"], kind="stable").iloc[0]
 
 
-def _timelines(advice: Advice, root: Path, count: int, progress: Progress | None = None) -> list[dict[str, Any]]:
-    """The baseline and the `count` best options at full fidelity with their traces, written
-    by the search's worker processes side by side (drawing a timeline costs more than
-    simulating it; each goes to a folder of its own, so the files are those one process
-    writes)."""
-    rows = _rows(advice.ranked)
-    picks = [0] + [int(i) for i in rows.index if i != 0][:count]
-    jobs = [(advice.experiment, advice.overrides(index), advice.options[index].label,
-             root / f"{k}_{_slug(advice.options[index].label)}") for k, index in enumerate(picks)]
-    workers = min(int(advice.counts.get("workers", 1)), len(jobs))
-    if progress is not None:
-        progress("timelines", 0, len(jobs))
-    if workers <= 1:
-        written = []
-        for k, job in enumerate(jobs):
-            written.append(_timeline(*job))
-            if progress is not None:
-                progress("timelines", k + 1, len(jobs))
-    else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            tasks = [pool.submit(_timeline, *job) for job in jobs]
-            for k, _ in enumerate(as_completed(tasks)):
-                if progress is not None:
-                    progress("timelines", k + 1, len(jobs))
-            written = [task.result() for task in tasks]
-    return [{"option": index, "label": advice.options[index].label,
-             "folder": folder.relative_to(root.parent).as_posix(),
-             "timeline": files["timeline"].relative_to(root.parent).as_posix(),
-             "perfetto": files["perfetto"].relative_to(root.parent).as_posix()}
-            for index, (_, _, _, folder), files in zip(picks, jobs, written)]
+class Timelines:
+    """The baseline and the `count` best rows at full fidelity with their traces, handed to
+    the workers (drawing a timeline costs more than simulating it; each goes to a folder of
+    its own under `root`, so the files are those one process writes); :meth:`shown` waits
+    for them. Only the options the report shows are drawn."""
+
+    def __init__(self, advice: Advice, root: Path, count: int, workers: Workers, progress: Progress | None = None):
+        rows = _rows(advice.ranked)
+        self.picks = [0] + [int(i) for i in rows.index if i != 0][:count]
+        self.labels = [advice.options[index].label for index in self.picks]
+        self.root = root
+        self.folders = [root / f"{k}_{_slug(label)}" for k, label in enumerate(self.labels)]
+        self.tally = Tally(progress, "timelines", len(self.picks))
+        # the most GPUs first (their timelines have the most rows to draw), so that the
+        # workers end about together
+        order = sorted(range(len(self.picks)), key=lambda k: -advice.options[self.picks[k]].gpus)
+        tasks: dict[int, Future] = {}
+        for k in order:
+            tasks[k] = workers.submit(_timeline, advice.experiment, advice.overrides(self.picks[k]),
+                                      self.labels[k], self.folders[k])
+            self.tally.add(tasks[k], 1)
+        self.tasks = [tasks[k] for k in range(len(self.picks))]
+
+    def shown(self) -> list[dict[str, Any]]:
+        """Each timeline drawn: its option, label, folder, picture and Perfetto trace."""
+        self.tally.wait(self.tasks)
+        top = self.root.parent
+        return [{"option": index, "label": label, "folder": folder.relative_to(top).as_posix(),
+                 "timeline": files["timeline"].relative_to(top).as_posix(),
+                 "perfetto": files["perfetto"].relative_to(top).as_posix()}
+                for index, label, folder, files in zip(self.picks, self.labels, self.folders,
+                                                       (task.result() for task in self.tasks))]
 
 
 def _timeline(experiment: str, overrides: dict[str, Any], label: str, folder: Path) -> dict[str, Path]:

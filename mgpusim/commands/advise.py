@@ -61,22 +61,27 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _advise(args: argparse.Namespace, path: Path, overrides: dict[str, Any], out: Path) -> int:
-    """The search, the report and the summary lines, with `out` held by this process."""
+    """The search, the report and the summary lines, with `out` held by this process. One
+    set of worker processes serves every stage; the assumed shares are checked while the
+    timelines are drawn (both need only the search); the garbage collector runs less often."""
+    import os  # noqa: PLC0415
     import time  # noqa: PLC0415
 
     from mgpusim.advise.advisor import search  # noqa: PLC0415
     from mgpusim.advise.assumptions import check_shares  # noqa: PLC0415
     from mgpusim.advise.report import discard_stale, write_advice  # noqa: PLC0415
+    from mgpusim.advise.worker_set import Workers, fewer_collections  # noqa: PLC0415
     from mgpusim.io.progress import Stages  # noqa: PLC0415
     discard_stale(out)
     t0 = time.perf_counter()
-    with Stages("advise", unit="option") as progress:
+    with (fewer_collections(), Stages("advise", unit="option") as progress,
+          Workers(args.workers or os.cpu_count() or 1) as workers):
         advice = search(path, overrides, max_gpus=args.max_gpus, confirm=args.confirm,
-                        workers=args.workers, progress=progress)
-        check_shares(advice, advice.counts["workers"], progress=progress)
+                        workers=workers, progress=progress)
         searched = time.perf_counter() - t0
-        files = write_advice(advice, out, str(args.experiment), args.timelines, progress)
-    _summary(advice, path, out, files, searched)
+        files = write_advice(advice, out, str(args.experiment), args.timelines, progress, workers,
+                             lambda: check_shares(advice, workers, progress=progress))
+    _summary(advice, path, out, files, searched + advice.timings.get("shares_s", 0.0))
     return 0
 
 

@@ -284,8 +284,9 @@ def build(group: Group, path: Path, base: Mapping[str, Any], fidelity: str,
         program = build_program(exp)
         if program.refresh_hz:
             return "vsync"
-        chosen = choose_effects(program, exp.profile, fidelity)
-        model = Analytic(program, CostModel(exp.profile), chosen)
+        needed = choose_effects(program, exp.profile)  # (once: the effects' tests read the program)
+        chosen = choose_effects(program, exp.profile, fidelity, needed=needed)
+        model = Analytic(program, CostModel(exp.profile), chosen, needed)
         refusal = lanes_mod.lanes_refusal(model)
         if refusal is not None:
             return refusal
@@ -293,7 +294,7 @@ def build(group: Group, path: Path, base: Mapping[str, Any], fidelity: str,
         if "memory_capacity" in chosen:
             check_memory(program, exp)  # an overflow is the point's error (simulate's check)
         static = _static_fields(program, chosen, model, fidelity,
-                                memory_report(program, exp) if "memory_capacity" in chosen else None)
+                                memory_report(program, exp) if "memory_capacity" in chosen else None, needed)
         key = (signature, tuple(sorted(static)))
         template = templates.get(key) if templates is not None else None
         summary = _from_template(template, static) if template is not None else None
@@ -316,7 +317,7 @@ LANE_NAMES = frozenset((*LANE_FIELDS, "settled"))
 
 
 def _static_fields(program: Any, chosen: frozenset[str], model: Analytic, fidelity: str,
-                   memory: Mapping[str, Any] | None) -> dict[str, Any]:
+                   memory: Mapping[str, Any] | None, needed: frozenset[str] | None = None) -> dict[str, Any]:
     """The flattened summary fields of a point that no lane computes, as simulate() gives them
     at the analytic level for a program without skippable tasks (no tied skip decisions)."""
     out: dict[str, Any] = {"frames": program.frames, "warmup_frames": program.warmup_frames}
@@ -326,7 +327,7 @@ def _static_fields(program: Any, chosen: frozenset[str], model: Analytic, fideli
     if memory is not None:
         out["memory"] = memory
     out.update(fidelity=fidelity, modelled_effects=sorted(chosen))
-    out["approximations"] = left_out(program, model.costs.profile, chosen)  # (never full here)
+    out["approximations"] = left_out(program, model.costs.profile, chosen, needed)  # (never full here)
     return flatten(out)
 
 

@@ -118,12 +118,19 @@ class PointStore:
         return out
 
     def finish(self, df: pd.DataFrame, keys: list[str], metric: str, spec: dict[str, Any]) -> dict[str, Path]:
-        """Write the table, the plot and the description, each atomically."""
-        from mgpusim.io.plot import sweep_png  # noqa: PLC0415 - matplotlib only when a folder is written
+        """Write the table, the plot and the description, each atomically (the plot by the
+        sweep command's plotter where it has one, :mod:`mgpusim.sweeps.plotter`, while the
+        table is written)."""
+        from mgpusim.sweeps.plotter import draw_ahead  # noqa: PLC0415
 
         failed = int(df["error"].notna().sum())
+        plotter = draw_ahead(df, keys, self.out / "sweep.png", metric)  # drawn beside the table
         files = {"table": atomic_write(self.out / "sweep.parquet", lambda tmp: df.to_parquet(tmp, index=False))}
-        files["plot"] = atomic_write(self.out / "sweep.png", lambda tmp: sweep_png(df, keys, tmp, metric))
+        if plotter is None or not plotter.drawn():
+            from mgpusim.io.plot import sweep_png  # noqa: PLC0415 - matplotlib only when a folder is written
+
+            atomic_write(self.out / "sweep.png", lambda tmp: sweep_png(df, keys, tmp, metric))
+        files["plot"] = self.out / "sweep.png"
         desc = json.dumps({**spec, "failed": failed, "metric": metric}, indent=2, sort_keys=True, default=str)
         files["description"] = atomic_write(self.out / "sweep.json", lambda tmp: tmp.write_text(desc + "\n"))
         return files

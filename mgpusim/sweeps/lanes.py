@@ -432,13 +432,14 @@ def run_batch(batch: Batch, plan_: Plan) -> tuple[pd.DataFrame, list[Any]]:
     if plan_.lane_keys:
         built = [group_lanes(g, plan_) for g in batch.groups]
         lanes = lanes_mod.concat([b[0] for b in built])
+        oks = [b[1] for b in built]
     else:  # every lane is its group's model as it is
-        built = [(None, np.ones(len(g.points), dtype=bool)) for g in batch.groups]
         lanes = repeated_lanes([_model(g) for g in batch.groups], [len(g.points) for g in batch.groups])
+        oks = [np.ones(len(g.points), dtype=bool) for g in batch.groups]
     result = _run_lanes(batch.model, lanes)
     parts: list[dict[str, Any]] = []
     fallback, at = [], 0
-    for g, (_, ok) in zip(batch.groups, built):
+    for g, ok in zip(batch.groups, oks):
         n = len(g.points)
         mine = {k: v[at:at + n] for k, v in result.items()}
         at += n

@@ -44,9 +44,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mgpusim.sweeps.grid import parse_grid  # noqa: PLC0415, F401 - the sweep's modules, then
     from mgpusim.sweeps.plotter import ahead  # noqa: PLC0415
 
-    with ahead():  # the plot's process, forked before the model is imported (see plotter's doc)
+    with ahead():  # the plot's process, forked before matplotlib is imported (see plotter's doc)
         return _run(args)
 
 

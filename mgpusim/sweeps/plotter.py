@@ -1,23 +1,28 @@
-"""A sweep's plot drawn by a process of its own, forked before the sweep imports its model.
+"""A sweep's plot drawn by a process of its own, forked before matplotlib is imported.
 
 Why: drawing `sweep.png` needs matplotlib, whose import (about 0.8 s of CPU) was half of a
-short sweep's fixed cost, paid after its points had run. `mgpusim sweep` forks a plotter
-first (:func:`ahead`, before numpy, pandas or the model are imported, before the folder is
-locked): it imports the plotting module while the sweep imports, checks and runs its points,
-then draws the table the sweep hands it (pickled through a pipe, length first) while the sweep
-writes the table and description. The picture is drawn by the same code from the same table;
-only the process differs. Where no plotter runs (the Python API, a system without `fork`) or
+short sweep's fixed cost, paid after its points had run. `mgpusim sweep` forks a plotter once
+it has imported its own modules (numpy, pandas and the model, which the plotter then shares
+rather than imports again) and before it locks the folder (:func:`ahead`): the plotter
+imports matplotlib while the sweep checks and runs its points, then draws the table the
+sweep hands it (pickled through a pipe, length first) while the sweep writes the table. The
+picture is drawn by the same code from the same table; only the process differs. Where no
+plotter runs (the Python API, a system without `fork`, a process running other threads) or
 the plotter failed, the sweep draws the plot itself, as before.
 
-The plotter holds no lock and writes only the plot (atomically, as the sweep would). It exits
-when the sweep hands it a table and it has drawn it, or when its pipe reaches its end without
-one: the sweep ended early (an error, Ctrl-C) or was killed, its worker processes with it.
+The plotter holds no lock and writes only the plot, into a temporary file of the folder that
+the sweep moves into place (atomically, as it writes every file) once the table is written,
+so a table that fails to be written leaves no new plot. It exits when it has drawn the table
+it was handed; a sweep that ends without handing it one (an error, Ctrl-C) stops it at once,
+and one killed leaves it to the end of its pipe (once the sweep's worker processes, which exit
+with the sweep, are gone too).
 """
 from __future__ import annotations
 
 import contextlib
 import os
 import pickle
+import signal
 import struct
 import sys
 import threading
@@ -48,9 +53,11 @@ class Plotter:
         os.close(reply_w)
         self.pid, self._request, self._reply = pid, request_w, reply_r
         self._sent = self._closed = False
+        self._answer: bool | None = None
 
     def submit(self, table: Any, keys: Sequence[str], path: Path, metric: str) -> bool:
-        """Hand the plotter the table to draw into `path` (False: it is gone; draw it here)."""
+        """Hand the plotter the table to draw into the file `path` (False: it is gone; draw
+        it here). The sweep moves the file into place once the table is written."""
         if self._sent:
             return False
         self._sent = True
@@ -62,19 +69,26 @@ class Plotter:
         return True
 
     def drawn(self) -> bool:
-        """Wait for the plotter: whether it drew the plot it was handed."""
-        reply = _read_all(self._reply)
-        self.close()
-        return reply == b"ok"
+        """Wait for the plotter: whether it drew the plot it was handed (asked again, the
+        same answer)."""
+        if self._answer is None:
+            self._answer = self._sent and not self._closed and _read_all(self._reply) == b"ok"
+            self.close()
+        return self._answer
 
     def close(self) -> None:
-        """End the plotter (a plotter handed no table exits at the end of its pipe)."""
+        """End the plotter: one handed a table is waited for; one handed none is stopped at
+        once (it holds no lock and has written nothing), so that a command that fails early
+        does not wait for its import of matplotlib."""
         if self._closed:
             return
         self._closed = True
         for fd in (self._request, self._reply):
             with contextlib.suppress(OSError):
                 os.close(fd)
+        if not self._sent:
+            with contextlib.suppress(OSError):
+                os.kill(self.pid, signal.SIGKILL)
         with contextlib.suppress(ChildProcessError):
             os.waitpid(self.pid, 0)
 
@@ -83,7 +97,6 @@ def _serve(request: int, reply: int) -> int:
     """The plotter's life: import, wait for a table, draw it, say whether it did."""
     try:
         from mgpusim.io.plot import sweep_png  # noqa: PLC0415 - the import done ahead
-        from mgpusim.sweeps.store import atomic_write  # noqa: PLC0415
     except BaseException:  # noqa: BLE001 - (Ctrl-C during the import too): the sweep draws it
         return 1
     try:
@@ -94,7 +107,7 @@ def _serve(request: int, reply: int) -> int:
         if data is None:
             return 0
         table, keys, path, metric = pickle.loads(data)
-        atomic_write(Path(path), lambda tmp: sweep_png(table, keys, tmp, metric))
+        sweep_png(table, keys, Path(path), metric)
         _write_all(reply, b"ok")
         return 0
     except BaseException:  # noqa: BLE001 - the sweep draws it itself, and so reports what is wrong

@@ -124,13 +124,20 @@ class PointStore:
         from mgpusim.sweeps.plotter import draw_ahead  # noqa: PLC0415
 
         failed = int(df["error"].notna().sum())
-        plotter = draw_ahead(df, keys, self.out / "sweep.png", metric)  # drawn beside the table
-        files = {"table": atomic_write(self.out / "sweep.parquet", lambda tmp: df.to_parquet(tmp, index=False))}
-        if plotter is None or not plotter.drawn():
-            from mgpusim.io.plot import sweep_png  # noqa: PLC0415 - matplotlib only when a folder is written
+        drawn = self.out / f".sweep.png.{os.getpid()}.drawn.tmp"
+        plotter = draw_ahead(df, keys, drawn, metric)  # drawn while the table is written
+        try:
+            files = {"table": atomic_write(self.out / "sweep.parquet", lambda tmp: df.to_parquet(tmp, index=False))}
+            if plotter is not None and plotter.drawn():
+                files["plot"] = atomic_write(self.out / "sweep.png", lambda tmp: os.replace(drawn, tmp))
+            else:
+                from mgpusim.io.plot import sweep_png  # noqa: PLC0415 - matplotlib only when a folder is written
 
-            atomic_write(self.out / "sweep.png", lambda tmp: sweep_png(df, keys, tmp, metric))
-        files["plot"] = self.out / "sweep.png"
+                files["plot"] = atomic_write(self.out / "sweep.png", lambda tmp: sweep_png(df, keys, tmp, metric))
+        finally:
+            if plotter is not None:
+                plotter.drawn()  # (waited for before its file is removed)
+            drawn.unlink(missing_ok=True)
         desc = json.dumps({**spec, "failed": failed, "metric": metric}, indent=2, sort_keys=True, default=str)
         files["description"] = atomic_write(self.out / "sweep.json", lambda tmp: tmp.write_text(desc + "\n"))
         return files

@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import pandas as pd
+import pytest
 
 from mgpusim.io.plot import sweep_png
 
@@ -25,14 +26,17 @@ def _sweep(*args: str) -> subprocess.CompletedProcess:
                           timeout=120)
 
 
-def test_the_plotter_draws_the_picture_the_sweep_would(tmp_path):
+@pytest.mark.parametrize("grid", [  # a heatmap of two keys; lines over the first of three
+    {"scene.width": "640,1024", "schedule.gpus": "1,2"},
+    {"scene.width": "640,1024", "schedule.gpus": "1,2", "schedule.frames_in_flight": "1,2"}])
+def test_the_plotter_draws_the_picture_the_sweep_would(tmp_path, grid):
     out = tmp_path / "sw"
-    done = _sweep("--grid", "scene.width=640,1024", "--grid", "schedule.gpus=1,2", "--fidelity", "analytic",
-                  "--workers", "1", "--out", str(out))
+    keys = [arg for key, values in grid.items() for arg in ("--grid", f"{key}={values}")]
+    done = _sweep(*keys, "--fidelity", "analytic", "--workers", "1", "--out", str(out))
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip().splitlines()[-1] == "False"  # the sweep's process never drew it
     df = pd.read_parquet(out / "sweep.parquet")
-    here = sweep_png(df, ["scene.width", "schedule.gpus"], tmp_path / "here.png")
+    here = sweep_png(df, list(grid), tmp_path / "here.png")
     assert (out / "sweep.png").read_bytes() == here.read_bytes()
     assert not list(out.glob(".*.tmp"))
 

@@ -125,7 +125,8 @@ class PointStore:
 
         failed = int(df["error"].notna().sum())
         drawn = self.out / f".sweep.png.{os.getpid()}.drawn.tmp"
-        plotter = draw_ahead(df, keys, drawn, metric)  # drawn while the table is written
+        plotted = df[[c for c in dict.fromkeys([*keys, metric, "error"]) if c in df]]  # what the plot reads
+        plotter = draw_ahead(plotted, keys, drawn, metric)  # drawn while the table is written
         try:
             files = {"table": atomic_write(self.out / "sweep.parquet", lambda tmp: df.to_parquet(tmp, index=False))}
             if plotter is not None and plotter.drawn():

@@ -117,7 +117,7 @@ def sweep_points_per_s(experiment: Path, grid: list[str], extra: list[str]) -> d
             args += ["--grid", item]
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         t0 = time.perf_counter()
-        subprocess.run(args, check=True, capture_output=True, env=_env())
+        subprocess.run(args, check=True, capture_output=True, env=_env(), cwd=ROOT)  # (-m: cwd first on the path)
         wall = time.perf_counter() - t0
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
     points = 1

@@ -61,3 +61,24 @@ def test_each_profile_is_parsed_once(monkeypatch):
 def test_a_missing_experiment_file_is_the_same_error(tmp_path):
     path = tmp_path / "none.toml"
     assert _outcome(lambda: ExperimentLoader(path).load({})) == _outcome(lambda: load_experiment(path))
+
+
+def test_each_scene_and_schedule_table_is_parsed_once_per_set_of_its_overrides(monkeypatch):
+    from mgpusim.sweeps import loader as loader_mod
+
+    scenes, schedules = [], []
+    scene, schedule = loader_mod.parse_scene, loader_mod.parse_schedule_config
+    monkeypatch.setattr(loader_mod, "parse_scene", lambda *a: scenes.append(a) or scene(*a))
+    monkeypatch.setattr(loader_mod, "parse_schedule_config", lambda *a: schedules.append(a) or schedule(*a))
+    path = ROOT / "experiments" / "sort_first_tc1.toml"
+    loader = ExperimentLoader(path)
+    for width in (800, 900):
+        for gpus in (1, 2, 3):
+            exp = loader.load({"scene.width": width, "schedule.gpus": gpus, "profile.gpus.*.speed": 2.0})
+            assert exp == load_experiment(path, {"scene.width": width, "schedule.gpus": gpus,
+                                                 "profile.gpus.*.speed": 2.0})
+    assert len(scenes) == 2 and len(schedules) == 3
+    for _ in range(2):  # a table that fails to parse fails again with the same error, unparsed
+        with pytest.raises(InputError, match="scene.width"):
+            loader.load({"scene.width": -3})
+    assert len(scenes) == 3

@@ -1,5 +1,6 @@
 """The speeds a user feels, in one place (`mgpusim bench --what figures`): sweep points per
-second (analytic and full fidelity with the fast-forward), the start-up of `mgpusim --version`,
+second (analytic, over pass-cost lanes and over scene keys alone, and full fidelity with the
+fast-forward), the start-up of `mgpusim --version`,
 one `simulate()` call of the shipped sort-first experiments (the experiment loaded once, and
 loaded afresh each call), AFR's cost over its GPU count with the fast-forward and, behind a
 flag, `mgpusim advise` on the 20-pass frame (:mod:`.advise_frame`).
@@ -29,19 +30,34 @@ EXPERIMENTS = ROOT / "experiments"
 #: The sort-first experiments whose simulate() call is timed (TC1, and lavapipe's shared cores).
 SORT_FIRST = {"sort_first_tc1": EXPERIMENTS / "sort_first_tc1.toml",
               "lavapipe_sort_first": EXPERIMENTS / "lavapipe" / "sort_first.toml"}
-#: The sweeps timed: name -> (experiment, grid arguments, other arguments).
+#: Pass-cost lane values (10 each) over 10 widths: 10^5 points of TC1 sort-first.
+_WIDTHS = "scene.width=640,800,960,1024,1280,1440,1600,1920,2560,3840"
+_LANE_KEYS = ["profile.gpus.*.speed=0.5,0.75,1,1.25,1.5,2,2.5,3,4,5",
+              "profile.gpus.*.costs.fragment_loop.ns_per_pixel_iteration="
+              "0.0008,0.001,0.0012,0.0014,0.0016,0.0018,0.002,0.0024,0.003,0.004",
+              "profile.gpus.*.costs.fragment_loop.fixed_ns=0,5000,10000,20000,30000,40000,50000,60000,80000,100000",
+              "profile.gpus.*.costs.composite_sort_first.fixed_ns=0,2500,5000,10000,15000,20000,30000,40000,60000,80000"]
+#: The sweeps timed: name -> (experiment, grid arguments, other arguments). Grids as large as
+#: a user's (10^3-10^5 points), so that a sweep's fixed cost (about 1 s: imports, the table)
+#: counts as it does for them.
 SWEEPS: dict[str, tuple[Path, list[str], list[str]]] = {
-    "analytic": (SORT_FIRST["sort_first_tc1"],
-                 ["scene.width=640,800,960,1024,1280,1440,1600,1920,2560,3840",
-                  "profile.gpus.*.speed=0.5,0.75,1,1.25,1.5,2,2.5,3,4,5",
-                  "profile.gpus.*.costs.fragment_loop.ns_per_pixel_iteration="
-                  "0.0008,0.001,0.0012,0.0014,0.0016,0.0018,0.002,0.0024,0.003,0.004",
-                  "profile.gpus.*.costs.fragment_loop.fixed_ns=0,5000,10000,20000,30000,40000,50000,60000,80000,100000"],
-                 ["--fidelity", "analytic"]),
+    # 10 widths (groups) x 10^4 pass-cost combinations (lanes)
+    "analytic": (SORT_FIRST["sort_first_tc1"], [_WIDTHS, *_LANE_KEYS], ["--fidelity", "analytic"]),
+    # scene and schedule keys alone: every point a program of its own (3 structures)
+    "analytic_scene": (SORT_FIRST["sort_first_tc1"],
+                       ["scene.width=" + ",".join(str(600 + 8 * i) for i in range(40)),
+                        "scene.height=" + ",".join(str(400 + 6 * i) for i in range(25)), "schedule.gpus=1,2,3"],
+                       ["--fidelity", "analytic"]),
+    # full fidelity with the fast-forward: 1,000 frames, the state repeats from frame 92
     "full": (SORT_FIRST["sort_first_tc1"],
              ["profile.gpus.*.speed=" + ",".join(f"{0.5 + 0.1 * i:g}" for i in range(10)),
-              "scene.width=" + ",".join(str(700 + 10 * i) for i in range(8))],
+              "scene.width=" + ",".join(str(700 + 10 * i) for i in range(40))],
              ["--set", "schedule.frames=1000"]),
+    # full fidelity, AFR on one GPU, 10,000 frames (repeats from frame 1): a point's set-up
+    "full_afr": (EXPERIMENTS / "afr_tc1.toml",
+                 ["profile.gpus.*.speed=" + ",".join(f"{0.5 + 0.01 * i:g}" for i in range(100)),
+                  "scene.width=" + ",".join(str(700 + 10 * i) for i in range(40))],
+                 ["--set", "schedule.gpus=1", "--set", "schedule.frames=10000"]),
 }
 AFR_GPUS = (1, 2, 4, 8)
 AFR_FRAMES = 1000
@@ -101,7 +117,7 @@ def sweep_points_per_s(experiment: Path, grid: list[str], extra: list[str]) -> d
             args += ["--grid", item]
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         t0 = time.perf_counter()
-        subprocess.run(args, check=True, capture_output=True, env=_env())
+        subprocess.run(args, check=True, capture_output=True, env=_env(), cwd=ROOT)  # (-m: cwd first on the path)
         wall = time.perf_counter() - t0
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
     points = 1

@@ -44,6 +44,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mgpusim.sweeps.grid import parse_grid  # noqa: PLC0415, F401 - the sweep's modules, then
+    from mgpusim.sweeps.plotter import ahead  # noqa: PLC0415
+
+    with ahead():  # the plot's process, forked before matplotlib is imported (see plotter's doc)
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     from mgpusim.schedules.experiment import parse_overrides  # noqa: PLC0415
     from mgpusim.sweeps.grid import parse_grid, sweep  # noqa: PLC0415
     path = resolve_experiment(args.experiment)

@@ -49,7 +49,8 @@ from mgpusim.sim.simulation import simulate
 from mgpusim.sweeps.lanes import LaneRun, flatten
 from mgpusim.sweeps.loader import fresh as fresh_loader
 from mgpusim.sweeps.loader import shared as loader
-from mgpusim.sweeps.pool import local_pool
+from mgpusim.sweeps.pool import fewer_collections, local_pool
+from mgpusim.sweeps.reads import share_recording
 
 #: How long to try reaching a Dask scheduler before giving up.
 DASK_CONNECT_TIMEOUT = "10s"
@@ -240,7 +241,9 @@ def run_point(experiment: str, overrides: Mapping[str, Any], options: Mapping[st
     memory: the same experiment and errors as `load_experiment`)."""
     t0 = time.perf_counter()
     try:
-        result = simulate(loader(experiment).load(dict(overrides)), **options)
+        exp = loader(experiment).load(dict(overrides))
+        share_recording(exp, options.get("fidelity", "full"))  # (one copy per profile, not per point)
+        result = simulate(exp, **options)
         summary, error = flatten(result.summary), None
     except MgpusimError as exc:
         summary, error = {}, str(exc)
@@ -289,7 +292,7 @@ def sweep(experiment: str | Path, grid: Mapping[str, Sequence[Any]], out: str | 
         batches = store.load_batches(wanted) if store else []
         done = set(records).union(*(b["id"] for b in batches))
         todo = [p for p in points if p.id not in done]
-        with _bar(len(points), len(points) - len(todo), progress) as bar:
+        with _bar(len(points), len(points) - len(todo), progress) as bar, fewer_collections():
             lanes = LaneRun(path, base, grid, todo if client is None else [], fidelity, loader=loader(path),
                             workers=local_workers(workers), store=store)
             for batch in lanes:  # the analytic level over many points at once, saved per batch

@@ -284,8 +284,9 @@ def build(group: Group, path: Path, base: Mapping[str, Any], fidelity: str,
         program = build_program(exp)
         if program.refresh_hz:
             return "vsync"
-        chosen = choose_effects(program, exp.profile, fidelity)
-        model = Analytic(program, CostModel(exp.profile), chosen)
+        needed = choose_effects(program, exp.profile)  # (once: the effects' tests read the program)
+        chosen = choose_effects(program, exp.profile, fidelity, needed=needed)
+        model = Analytic(program, CostModel(exp.profile), chosen, needed)
         refusal = lanes_mod.lanes_refusal(model)
         if refusal is not None:
             return refusal
@@ -293,7 +294,7 @@ def build(group: Group, path: Path, base: Mapping[str, Any], fidelity: str,
         if "memory_capacity" in chosen:
             check_memory(program, exp)  # an overflow is the point's error (simulate's check)
         static = _static_fields(program, chosen, model, fidelity,
-                                memory_report(program, exp) if "memory_capacity" in chosen else None)
+                                memory_report(program, exp) if "memory_capacity" in chosen else None, needed)
         key = (signature, tuple(sorted(static)))
         template = templates.get(key) if templates is not None else None
         summary = _from_template(template, static) if template is not None else None
@@ -316,7 +317,7 @@ LANE_NAMES = frozenset((*LANE_FIELDS, "settled"))
 
 
 def _static_fields(program: Any, chosen: frozenset[str], model: Analytic, fidelity: str,
-                   memory: Mapping[str, Any] | None) -> dict[str, Any]:
+                   memory: Mapping[str, Any] | None, needed: frozenset[str] | None = None) -> dict[str, Any]:
     """The flattened summary fields of a point that no lane computes, as simulate() gives them
     at the analytic level for a program without skippable tasks (no tied skip decisions)."""
     out: dict[str, Any] = {"frames": program.frames, "warmup_frames": program.warmup_frames}
@@ -326,7 +327,7 @@ def _static_fields(program: Any, chosen: frozenset[str], model: Analytic, fideli
     if memory is not None:
         out["memory"] = memory
     out.update(fidelity=fidelity, modelled_effects=sorted(chosen))
-    out["approximations"] = left_out(program, model.costs.profile, chosen)  # (never full here)
+    out["approximations"] = left_out(program, model.costs.profile, chosen, needed)  # (never full here)
     return flatten(out)
 
 
@@ -428,11 +429,17 @@ def run_batch(batch: Batch, plan_: Plan) -> tuple[pd.DataFrame, list[Any]]:
     """The batch's records as one table (column `id`, then `error`, `wall_s` and the summary
     columns) and the points that must run point by point instead."""
     t0 = time.perf_counter()
-    built = [group_lanes(g, plan_) for g in batch.groups]
-    result = _run_lanes(batch.model, lanes_mod.concat([b[0] for b in built]))
+    if plan_.lane_keys:
+        built = [group_lanes(g, plan_) for g in batch.groups]
+        lanes = lanes_mod.concat([b[0] for b in built])
+        oks = [b[1] for b in built]
+    else:  # every lane is its group's model as it is
+        lanes = repeated_lanes([_model(g) for g in batch.groups], [len(g.points) for g in batch.groups])
+        oks = [np.ones(len(g.points), dtype=bool) for g in batch.groups]
+    result = _run_lanes(batch.model, lanes)
     parts: list[dict[str, Any]] = []
     fallback, at = [], 0
-    for g, (_, ok) in zip(batch.groups, built):
+    for g, ok in zip(batch.groups, oks):
         n = len(g.points)
         mine = {k: v[at:at + n] for k, v in result.items()}
         at += n
@@ -449,6 +456,27 @@ def run_batch(batch: Batch, plan_: Plan) -> tuple[pd.DataFrame, list[Any]]:
     if len(df):
         df["wall_s"] = round((time.perf_counter() - t0) / len(df), 9)
     return df, fallback
+
+
+def repeated_lanes(models: Sequence[Analytic], sizes: Sequence[int]) -> lanes_mod.Lanes:
+    """``concat([base_lanes(m, n) for m, n in zip(models, sizes)])`` for models of one
+    structure, an array per node rather than one per node and model (a batch of one-lane
+    groups, as a grid of scene keys alone makes, would otherwise build thousands of arrays
+    of one value)."""
+    counts = np.asarray(sizes, dtype=np.int64)
+
+    def per_lane(values: list[int]) -> np.ndarray:
+        return np.repeat(np.array(values, dtype=np.int64), counts)
+    phases = [m.phases for m in models]
+    time_: list[list[Any]] = []
+    gap: list[list[np.ndarray]] = []
+    for ph, phase in enumerate(models[0].phases):
+        time_.append([[per_lane([p[ph][i].part_times[k][1] for p in phases]) for k in range(len(node.part_times))]
+                      if node.stream == "host" else per_lane([p[ph][i].time for p in phases])
+                      for i, node in enumerate(phase)])
+        gap.append([per_lane([p[ph][i].gap for p in phases]) for i in range(len(phase))])
+    return lanes_mod.Lanes(int(counts.sum()), time_, gap, per_lane([m.dispatch for m in models]),
+                           per_lane([m.submit for m in models]), per_lane([m.copy_wake for m in models]))
 
 
 def _run_lanes(model: Analytic, lanes: lanes_mod.Lanes) -> dict[str, np.ndarray]:
@@ -523,19 +551,18 @@ def _as_array(values: Any, n: int) -> np.ndarray:
         return values
     if isinstance(values, list) and values and all(v is values[0] for v in values):
         v = values[0]
-        if isinstance(v, (bool, int, float)) and not (isinstance(v, int) and not isinstance(v, bool)
-                                                        and not -2**63 <= v < 2**63):
-            return np.full(n, v)
-        return np.full(n, v, dtype=object)
+        return np.full(n, v) if _typed(v) else np.full(n, v, dtype=object)
     return pd.Series(values).to_numpy()
 
 
 def _records(group: Group, lane: Mapping[str, np.ndarray], ok: np.ndarray) -> dict[str, Any]:
     """The group's good lanes as records (columns): the first point's summary with each
     lane's own timing, utilization and fast-forward fields."""
-    keep = np.flatnonzero(ok)
-    n = len(keep)
-    cols: dict[str, Any] = {"id": [group.points[i].id for i in keep], "error": [None] * n}
+    whole = bool(ok.all())  # (the commonest case: slices, no copies)
+    rows: Sequence[int] = range(len(ok)) if whole else np.flatnonzero(ok).tolist()
+    keep: slice | np.ndarray = slice(None) if whole else np.asarray(rows, dtype=np.int64)
+    n = len(rows)
+    cols: dict[str, Any] = {"id": [group.points[i].id for i in rows], "error": _constant(None, n)}
     lane_cols = {k: v[keep] for k, v in lane.items() if not k.startswith("fast_forward.")}
     lane_cols = {k: v for k, v in lane_cols.items()
                  if not (k.startswith("utilization.") and np.isnan(v).all())}
@@ -543,9 +570,9 @@ def _records(group: Group, lane: Mapping[str, np.ndarray], ok: np.ndarray) -> di
     summary = {k: v for k, v in first.items()
                if not k.startswith(("utilization.", "fast_forward.", "task_rates_hz.", "warnings."))}
     for key, value in summary.items():
-        cols[key] = lane_cols.pop(key) if key in lane_cols else [value] * n
+        cols[key] = lane_cols.pop(key) if key in lane_cols else _constant(value, n)
     cols.update(lane_cols)
-    cols.update(_warnings(first, [group.points[i].keys for i in keep]))
+    cols.update(_warnings(first, [group.points[i].keys for i in rows]))
     cols.update(_fast_forward(lane, keep))
     program = _model(group).program
     if program.rate_tasks:  # none skipped (lanes have no skippable tasks): every frame counts
@@ -560,16 +587,39 @@ def _records(group: Group, lane: Mapping[str, np.ndarray], ok: np.ndarray) -> di
 def _warnings(first: Mapping[str, Any], keys: Sequence[Mapping[str, Any]]) -> dict[str, list[Any]]:
     """Each point's `warnings.<i>` columns, as its own simulate() would give them: the first
     point's warnings about the base overrides, then those about this point's grid values (a
-    lane's pass costs differ from the first point's)."""
+    lane's pass costs differ from the first point's), in the grid's order of keys.
+    :func:`~mgpusim.model.profile_reads.outside_shipped` judges each override alone, so each
+    key's each value is judged once (a value is one object of the grid's list, at every point
+    that has it); most grids have no value outside the shipped profiles at all."""
     grid = tuple(keys[0]) if keys else ()
     base = [w for k, w in first.items() if k.startswith("warnings.")
             and not any(str(w).startswith(f"{g} = ") for g in grid)]
-    per_point = [base + outside_shipped(k, shipped_profiles()) for k in keys]
+    judged: dict[str, dict[int, list[str]]] = {}
+    for key in grid:
+        values = {id(point[key]): point[key] for point in keys}
+        judged[key] = {at: outside_shipped({key: v}, shipped_profiles()) for at, v in values.items()}
+    if any(w for by_value in judged.values() for w in by_value.values()):
+        per_point = [base + [w for key in grid for w in judged[key][id(point[key])]] for point in keys]
+    else:
+        per_point = [base] * len(keys)
     width = max((len(w) for w in per_point), default=0)
     return {f"warnings.{j}": [w[j] if j < len(w) else None for w in per_point] for j in range(width)}
 
 
-def _fast_forward(lane: Mapping[str, np.ndarray], keep: np.ndarray) -> dict[str, Any]:
+def _constant(value: Any, n: int) -> np.ndarray:
+    """``_as_array([value] * n, n)``: the column of `n` copies of one value, as a record's
+    column of them is made (without a list of `n` items to look through)."""
+    return _as_array([value], 1) if n == 1 else np.full(n, value) if _typed(value) \
+        else np.full(n, value, dtype=object)
+
+
+def _typed(value: Any) -> bool:
+    """Whether :func:`_as_array` gives a column of `value` a type of its own (else objects)."""
+    return isinstance(value, (bool, int, float)) and not (isinstance(value, int) and not isinstance(value, bool)
+                                                          and not -2**63 <= value < 2**63)
+
+
+def _fast_forward(lane: Mapping[str, np.ndarray], keep: slice | np.ndarray) -> dict[str, Any]:
     """The summary's fast_forward fields per lane, as the analytic level words them."""
     used = lane["fast_forward.used"][keep]
     p, ns, f1 = (lane[f"fast_forward.{k}"][keep] for k in ("period_frames", "period_ns", "from_frame"))

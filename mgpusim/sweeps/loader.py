@@ -23,6 +23,7 @@ import copy
 import hashlib
 import json
 import os
+from collections import OrderedDict
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Callable, Iterable, Mapping, TypeVar
@@ -66,6 +67,8 @@ class ExperimentLoader:
         self._profile_tables: dict[str, dict[str, Any] | InputError] = {}
         #: file -> sha256 of its bytes, for every input file read (experiment, profiles)
         self._digests: dict[str, str] = {}
+        #: (table, its overrides) -> the parsed scene or schedule, or its error
+        self._sections: OrderedDict[tuple, Any] = OrderedDict()
 
     def load(self, overrides: Mapping[str, Any] | None = None) -> Experiment:
         raw = self._table()
@@ -76,7 +79,7 @@ class ExperimentLoader:
                 data[top] = copy.deepcopy(raw[top])
         for key, value in experiment_overrides.items():
             set_dotted(data, key, value, self.file)
-        return self._parse(data, profile_overrides)
+        return self._parse(data, profile_overrides, experiment_overrides)
 
     def profile(self, ref: str, overrides: Mapping[str, Any]) -> HardwareProfile:
         """The profile `ref` names (relative to the experiment, else the current directory)
@@ -125,9 +128,12 @@ class ExperimentLoader:
     def _resolved(self, ref: str) -> Path:
         return _once(self._refs, ref, lambda: _resolve(Path(ref), self.path.parent, self.file))
 
-    def _parse(self, data: dict, profile_overrides: Mapping[str, Any]) -> Experiment:
+    def _parse(self, data: dict, profile_overrides: Mapping[str, Any],
+               overrides: Mapping[str, Any] | None = None) -> Experiment:
         """`parse_experiment(data, file, base=path.parent, profile_overrides=...)`, step for
-        step, with the profile from :meth:`profile`."""
+        step, with the profile from :meth:`profile` and the scene and schedule each parsed once
+        per set of `overrides` (the experiment's, as set on `data`) that reach its table
+        (:meth:`_section`)."""
         file = self.file
         top = Table(data, file)
         if {"gpus", "host"} <= set(data) and not {"scene", "schedule"} & set(data):
@@ -136,12 +142,45 @@ class ExperimentLoader:
         name = top.name("name", Path(file).stem)
         top.get("description", str, "")
         prof = self.profile(top.get("profile", str), profile_overrides)
-        scene = parse_scene(top.table("scene"), PASS_PARAMS, COMMON_PARAMS, REQUIRED_PARAMS, PARAM_BOUNDS)
-        sched = parse_schedule_config(top.table("schedule"))
+        scene_table = top.table("scene")
+        scene = self._section("scene", overrides, lambda: parse_scene(
+            scene_table, PASS_PARAMS, COMMON_PARAMS, REQUIRED_PARAMS, PARAM_BOUNDS))
+        schedule_table = top.table("schedule")
+        sched = self._section("schedule", overrides, lambda: parse_schedule_config(schedule_table))
         top.finish()
         require_gpus(prof, sched.gpus, file)
         what_if = MappingProxyType({f"profile.{k}": v for k, v in profile_overrides.items()})
         return Experiment(name, file, prof, scene, sched, data, what_if)
+
+
+    def _section(self, name: str, overrides: Mapping[str, Any] | None, parse: Callable[[], T]) -> T:
+        """`parse()` of the table `name` (scene, schedule), once per set of the overrides that
+        reach it, in their order (the table is the file's with those set, nothing else: the
+        parse of one set is the parse of every load with it, value or error). Why: a sweep's
+        points share most of their tables (a grid over the width has one schedule table),
+        and parsing one costs a tenth of a point at the analytic level. The SECTIONS_KEPT
+        most recently used sets are kept."""
+        if overrides is None:
+            return parse()
+        key = (name, *((k, _canonical(v)) for k, v in overrides.items() if k.split(".", 1)[0] == name))
+        found = self._sections.get(key)
+        if found is None:
+            try:
+                found = parse()
+            except InputError as exc:
+                found = exc
+            self._sections[key] = found
+            while len(self._sections) > SECTIONS_KEPT:
+                self._sections.popitem(last=False)
+        else:
+            self._sections.move_to_end(key)
+        if isinstance(found, InputError):
+            raise found.with_traceback(None)
+        return found
+
+
+#: Parsed scene and schedule tables a loader keeps (:meth:`ExperimentLoader._section`).
+SECTIONS_KEPT = 4096
 
 
 def _canonical(value: Any) -> str:

@@ -118,12 +118,27 @@ class PointStore:
         return out
 
     def finish(self, df: pd.DataFrame, keys: list[str], metric: str, spec: dict[str, Any]) -> dict[str, Path]:
-        """Write the table, the plot and the description, each atomically."""
-        from mgpusim.io.plot import sweep_png  # noqa: PLC0415 - matplotlib only when a folder is written
+        """Write the table, the plot and the description, each atomically (the plot by the
+        sweep command's plotter where it has one, :mod:`mgpusim.sweeps.plotter`, while the
+        table is written)."""
+        from mgpusim.sweeps.plotter import draw_ahead  # noqa: PLC0415
 
         failed = int(df["error"].notna().sum())
-        files = {"table": atomic_write(self.out / "sweep.parquet", lambda tmp: df.to_parquet(tmp, index=False))}
-        files["plot"] = atomic_write(self.out / "sweep.png", lambda tmp: sweep_png(df, keys, tmp, metric))
+        drawn = self.out / f".sweep.png.{os.getpid()}.drawn.tmp"
+        plotted = df[[c for c in dict.fromkeys([*keys, metric, "error"]) if c in df]]  # what the plot reads
+        plotter = draw_ahead(plotted, keys, drawn, metric)  # drawn while the table is written
+        try:
+            files = {"table": atomic_write(self.out / "sweep.parquet", lambda tmp: df.to_parquet(tmp, index=False))}
+            if plotter is not None and plotter.drawn():
+                files["plot"] = atomic_write(self.out / "sweep.png", lambda tmp: os.replace(drawn, tmp))
+            else:
+                from mgpusim.io.plot import sweep_png  # noqa: PLC0415 - matplotlib only when a folder is written
+
+                files["plot"] = atomic_write(self.out / "sweep.png", lambda tmp: sweep_png(df, keys, tmp, metric))
+        finally:
+            if plotter is not None:
+                plotter.drawn()  # (waited for before its file is removed)
+            drawn.unlink(missing_ok=True)
         desc = json.dumps({**spec, "failed": failed, "metric": metric}, indent=2, sort_keys=True, default=str)
         files["description"] = atomic_write(self.out / "sweep.json", lambda tmp: tmp.write_text(desc + "\n"))
         return files

@@ -25,9 +25,10 @@ configurations of one program at once with numpy (one array lane per configurati
 from __future__ import annotations
 
 import copy
+from collections import deque
 from dataclasses import dataclass
 from fractions import Fraction
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -39,6 +40,7 @@ from mgpusim.model.tasks import CopyTask, CpuTask, HostCopyTask, Task
 from mgpusim.schedules.base import FrameProgram, leads_chain, wakes_host
 from mgpusim.schedules.skipping import SkipChains
 from mgpusim.schedules.task_inputs import TaskInputs
+from mgpusim.sim import affine
 from mgpusim.sim.channel import FixedRateChannel
 from mgpusim.sim.effects import choose_effects
 from mgpusim.sim.engine import RawResult
@@ -282,6 +284,8 @@ class Analytic:
                 repeat = rec.look_for_repeat(f)
                 if repeat is not None:
                     horizon = frames - repeat.copies * repeat.frames
+                elif rec.found is None and rec.stretch_to_end(f):
+                    break  # every frame after f filled in from one period (mgpusim.sim.affine)
             rec.forget_before(f - self.lag)
             f += 1
         if progress is not None:
@@ -344,6 +348,11 @@ class _Recurrence:
         #: (phase, queues' clocks relative to the present) -> [snapshot, its state or None]
         self.seen: dict[tuple, list[list]] = {}
         self.found: dict[str, int] | None = None
+        #: the snapshots of the last two periods and one frame (:meth:`stretch_to_end` reads them)
+        self.recent: deque[tuple] = deque(maxlen=2 * len(model.phases) + 1)
+        #: the first frame at which to look for an affine stretch again
+        self.next_try = 0
+        self.gap = 1
 
     # ----- one frame ---------------------------------------------------------------------
     def frame(self, f: int) -> None:
@@ -485,6 +494,7 @@ class _Recurrence:
         needed. Same repeat, found at the same frame, as writing every frame's state."""
         ref = int(self.present[f])
         snap = self._snapshot(f, ref)
+        self.recent.append(snap)
         cheap = (f % len(self.m.phases), tuple(map(ref.__rsub__, self.queue_end.values())))
         candidates = self.seen.get(cheap)
         if candidates is None:
@@ -511,6 +521,94 @@ class _Recurrence:
             return None
         return Repeat(p, shift, copies, f1 + 1, (r1, len(self.rows)),
                       skipped={n: (m1.get(n, 0), k) for n, k in marks.items()})
+
+    # ----- an affine stretch to the end of the run ----------------------------------------
+    def stretch_to_end(self, f: int) -> bool:
+        """Fill in every frame after f from one period of the recurrence on lines
+        (:mod:`mgpusim.sim.affine`), where the last two periods moved every state value by the
+        same amount each and the period, run on lines over the frames left, keeps its
+        decisions and leads from each step to the next. True where it did (the run is then
+        whole); False leaves the run as it was. Why only to the end of the run: the frames it
+        fills are never looked at for a repeat, so it also checks that none of them would have
+        been found as one (no state of the stretch equals an earlier one, and none equals
+        another), and then the run reports what frame by frame would have: the same rows,
+        presents, skips, ties and repeat (none)."""
+        if f < self.next_try:
+            return False
+        p, frames = len(self.m.phases), self.m.program.frames
+        steps, left = divmod(frames - 1 - f, p)
+        recent = self.recent
+        if steps + (left > 0) < 2 or len(recent) < 2 * p + 1 or not _steady(recent[-1], recent[-1 - p],
+                                                                             recent[-1 - 2 * p]):
+            self._later(self.gap)
+            return False
+        try:
+            out = self._stretch(f, self.recent[-1], self.recent[-1 - p], steps if left else steps - 1)
+        except affine.Indefinite as exc:  # a decision flips after exc.last periods: no use before
+            self._later(max(self.gap, (exc.last + 1) * p))
+            return False
+        if out is None:
+            self._later(self.gap)
+            return False
+        self._fill(f, *out)
+        return True
+
+    def _later(self, frames: int) -> None:
+        self.next_try = len(self.ends) + frames
+        self.gap = min(2 * self.gap, 64)
+
+    def _stretch(self, f: int, now: tuple, before: tuple, span: int) -> tuple | None:
+        """One period after frame f on lines over j = 0..span, from the snapshots of frames f
+        and f - P: (the run on lines, its ties per frame) where it continues itself and no
+        state in it could be a repeat; None where not. Raises affine.Indefinite."""
+        m, p = self.m, len(self.m.phases)
+        sym: Any = _Recurrence.__new__(_Recurrence)  # its times are lines (affine.Lin), not ints
+        sym.m, sym.record, sym.rows = m, self.record, []
+        sym.start, sym.present = {}, {}  # lines per frame
+        ends = [{k: affine.lifted(v, old[k], span) for k, v in new.items()} for new, old in zip(now[4], before[4])]
+        sym.ends = [{}] * (f + 1 - len(ends)) + ends
+        sym.queue_end = _lines(now[5], before[5], span)
+        sym.sub = _lines(now[6], before[6], span)
+        sym.threads = [affine.lifted(a, b, span) for a, b in zip(now[7], before[7])]
+        sym.host_prev = affine.lifted(now[8], before[8], span)
+        sym.skips = _Skips()
+        sym.skips.busy_until = _lines(now[9][0], before[9][0], span)
+        sym.skips.last_ready = _lines(now[9][1], before[9][1], span)
+        start = dict(queue=dict(sym.queue_end), sub=dict(sym.sub), threads=list(sym.threads),
+                     host=sym.host_prev, busy=dict(sym.skips.busy_until), last=dict(sym.skips.last_ready))
+        ties, states = [], []
+        for g in range(f + 1, f + p + 1):
+            before_ties = sym.skips.ties
+            sym.frame(g)
+            ties.append(sym.skips.ties - before_ties)
+            states.append(sym._state(sym._snapshot(g, sym.present[g])))
+        if not _continues(sym, start, ends, f, p) or not all(map(affine.drifts, states)):
+            return None
+        for candidates in self.seen.values():  # a state of the stretch met before: a repeat
+            for entry in candidates:
+                if entry[1] is None:
+                    entry[1] = self._state(entry[0])
+                if any(s[0] == entry[1][0] and affine.solve(s, entry[1], span) != set() for s in states):
+                    return None
+        return sym, ties
+
+    def _fill(self, f: int, sym: Any, ties: list[int]) -> None:
+        """Frames f + 1 .. the last from the period on lines `sym` (see :meth:`stretch_to_end`)."""
+        p, frames = len(self.m.phases), self.m.program.frames
+        for g in range(f + 1, f + p + 1):
+            idx = np.arange(g, frames, p, dtype=np.int64)
+            j = np.arange(len(idx), dtype=np.int64)
+            for mine, lines in ((self.start, sym.start), (self.present, sym.present)):
+                if g in lines:
+                    a, b = affine.parts(lines[g])
+                    mine[idx] = a + b * j
+            self.skips.ties += ties[g - f - 1] * len(idx)
+        steps = (frames - 1 - f + p - 1) // p
+        for name, skipped in sym.skips.frames.items():
+            self.skips.frames.setdefault(name, []).extend(
+                g + j * p for j in range(steps) for g in skipped if g + j * p < frames)
+        if self.record:
+            self.rows.extend(affine.rows_over(sym.rows, p, steps, frames - 1))
 
     def _snapshot(self, f: int, ref: int) -> tuple:
         """Frame f's state as it is (absolute times): (frame, its present, rows so far,
@@ -583,6 +681,48 @@ class _Skips:
         def rel(x: int) -> int:
             return x - ref if x > NEG else NEG
         return (tuple(sorted((k, rel(v)) for k, v in busy)), tuple(sorted((k, rel(v)) for k, v in last)))
+
+
+def _steady(now: tuple, before: tuple, earlier: tuple) -> bool:
+    """Whether the last two periods moved every state value of three snapshots (one period
+    apart) by the same amount each, the names alike: worth trying a stretch from."""
+    flat = [_values(s) for s in (now, before, earlier)]
+    if flat[0][0] != flat[1][0] or flat[1][0] != flat[2][0]:
+        return False
+    (_, a), (_, b), (_, c) = flat
+    return all(x - y == y - z for x, y, z in zip(a, b, c))
+
+
+def _values(snap: tuple) -> tuple[tuple, list[int]]:
+    """(the names and sizes, every value) of a snapshot's state."""
+    ends, queues, subs, threads, host_prev, (busy, last) = snap[4:10]
+    names = (tuple(map(len, ends)), tuple(k for k, _ in queues), tuple(k for k, _ in subs), len(threads),
+             tuple(k for k, _ in busy), tuple(k for k, _ in last))
+    values = [v for e in ends for v in e.values()]
+    for items in (queues, subs, busy, last):
+        values += [v for _k, v in items]
+    return names, values + list(threads) + [host_prev]
+
+
+def _lines(now: tuple, before: tuple, span: int) -> dict[str, affine.Lin]:
+    """A snapshot's (name, value) items as lines, from the same items one period earlier."""
+    old = dict(before)
+    return {k: affine.lifted(v, old[k], span) for k, v in now}
+
+
+def _continues(sym: Any, start: dict, ends: list[dict], f: int, p: int) -> bool:
+    """Whether the period on lines `sym` ends in its start state one step on: every value
+    after it is the line it started from, moved by its slope, under the same names."""
+    def same(out: dict, was: dict) -> bool:
+        return list(out) == list(was) and all(affine.continues(out[k], was[k]) for k in was)
+    lag = len(ends)
+    if not all(same(sym.ends[f + p - lag + 1 + i], ends[i]) for i in range(lag)):
+        return False
+    if not (same(sym.queue_end, start["queue"]) and same(sym.sub, start["sub"])
+            and same(sym.skips.busy_until, start["busy"]) and same(sym.skips.last_ready, start["last"])):
+        return False
+    return (all(map(affine.continues, sym.threads, start["threads"]))
+            and affine.continues(sym.host_prev, start["host"]))
 
 
 def _skip_chains(nodes: list[_Node]) -> dict[str, tuple[str, tuple[str, ...] | None]]:

@@ -55,6 +55,21 @@ def _encode(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return rank[codes], names[order]
 
 
+class RowColumns:
+    """Trace rows held as columns (each a sequence in TRACE_COLUMNS' order of names; the
+    number columns int64 arrays): the log of a run that filled frames in by arithmetic
+    (:mod:`mgpusim.sim.affine`), which needs no tuple per row. :class:`RepeatedRows` takes it
+    where it takes a list of rows."""
+
+    __slots__ = ("columns",)
+
+    def __init__(self, columns: dict[str, Sequence[Any]]):
+        self.columns = columns
+
+    def __len__(self) -> int:
+        return len(self.columns["frame"])
+
+
 class RepeatedRows:
     """The trace rows of a fast-forwarded run (see the module doc); a run without a repeat is
     the same with an empty block. What the summary reads (per-frame starts and presents, busy
@@ -63,12 +78,14 @@ class RepeatedRows:
     order), `waits_for` as the task ids the engine logged, with `labels()` giving each id's
     text (None: the rows carry the text, which is then coded like the others)."""
 
-    def __init__(self, rows: list[tuple], split: tuple[int, int], shift: Shift,
+    def __init__(self, rows: list[tuple] | RowColumns, split: tuple[int, int], shift: Shift,
                  labels: Callable[[], Sequence[str]] | None = None):
         self._rows, self._split, self.shift, self._given_labels = rows, split, shift, labels
-        cols = list(zip(*rows)) if rows else [()] * len(TRACE_COLUMNS)
-        self._text = dict(zip(TRACE_COLUMNS, cols))
-        self._numbers = {c: np.array(self._text[c], dtype=np.int64) for c in _INT}
+        if isinstance(rows, RowColumns):
+            self._text: dict[str, Sequence[Any]] = dict(rows.columns)
+        else:
+            self._text = dict(zip(TRACE_COLUMNS, list(zip(*rows)) if rows else [()] * len(TRACE_COLUMNS)))
+        self._numbers = {c: np.asarray(self._text[c], dtype=np.int64) for c in _INT}
 
     def _parts(self, cols: dict[str, np.ndarray]) -> tuple[dict, dict, dict]:
         """Prefix, block and rest (shifted by the skipped steps) of whole-log columns."""

@@ -37,6 +37,8 @@ from mgpusim.model.errors import InputError, ScheduleError
 from mgpusim.model.geometry import even_split
 from mgpusim.model.profile import HostProfile
 from mgpusim.model.tasks import CopyTask, CpuTask, HostCopyTask, Task
+from mgpusim.results.periodic import RowColumns
+from mgpusim.results.trace import TRACE_COLUMNS
 from mgpusim.schedules.base import FrameProgram, leads_chain, wakes_host
 from mgpusim.schedules.skipping import SkipChains
 from mgpusim.schedules.task_inputs import TaskInputs
@@ -290,7 +292,8 @@ class Analytic:
             f += 1
         if progress is not None:
             progress(horizon, horizon)
-        run = _Run(rec.rows, rec.start, rec.present, repeat, rec.found, rec.skips.ties, rec.skips.frames)
+        rows = rec.rows if rec.columns is None else rec.columns
+        run = _Run(rows, rec.start, rec.present, repeat, rec.found, rec.skips.ties, rec.skips.frames)
         return self._extended(run, horizon, record)
 
     def _extended(self, run: "_Run", computed: int, record: bool) -> "_Run":
@@ -318,7 +321,7 @@ class Analytic:
 class _Run:
     """One evaluation of the recurrence (see :meth:`Analytic.evaluate`)."""
 
-    rows: list[tuple]
+    rows: list[tuple] | RowColumns
     start: np.ndarray
     present: np.ndarray
     repeat: Repeat | None
@@ -342,6 +345,8 @@ class _Recurrence:
         self.threads = [0] * model.threads
         self.host_prev = NEG
         self.rows: list[tuple] = []
+        #: every row as columns, where a stretch filled the frames after the rows in (else None)
+        self.columns: RowColumns | None = None
         self.start = np.full(frames, NO_START, dtype=np.int64)
         self.present = np.full(frames, -1, dtype=np.int64)
         self.skips = _Skips()
@@ -608,7 +613,7 @@ class _Recurrence:
             self.skips.frames.setdefault(name, []).extend(
                 g + j * p for j in range(steps) for g in skipped if g + j * p < frames)
         if self.record:
-            self.rows.extend(affine.rows_over(sym.rows, p, steps, frames - 1))
+            self.columns = _columns(self.rows, sym.rows, p, steps, frames - 1)
 
     def _snapshot(self, f: int, ref: int) -> tuple:
         """Frame f's state as it is (absolute times): (frame, its present, rows so far,
@@ -681,6 +686,31 @@ class _Skips:
         def rel(x: int) -> int:
             return x - ref if x > NEG else NEG
         return (tuple(sorted((k, rel(v)) for k, v in busy)), tuple(sorted((k, rel(v)) for k, v in last)))
+
+
+def _columns(prefix: list[tuple], block: list[tuple], p: int, steps: int, last: int) -> RowColumns:
+    """The rows logged so far, then `steps` periods of the rows of one period on lines
+    (`block`: start and end as affine.Lin), each `p` frames and each row's slopes later, those
+    of frames after `last` left out: as columns (no tuple per row)."""
+    n = len(block)
+    kept = (steps - 1) * n + sum(1 for row in block if row[0] + (steps - 1) * p <= last)
+    j = np.repeat(np.arange(steps, dtype=np.int64), n)[:kept]
+    head = list(zip(*prefix)) if prefix else [()] * len(TRACE_COLUMNS)
+    body = list(zip(*block))
+    cols: dict[str, Any] = {}
+    for k, name in enumerate(TRACE_COLUMNS):
+        if k in (5, 6):  # start, end: lines
+            a, b = (np.array(v, dtype=np.int64) for v in zip(*map(affine.parts, body[k])))
+            values = np.tile(a, steps)[:kept] + np.tile(b, steps)[:kept] * j
+        elif name in ("frame", "bytes", "waits_for"):
+            values = np.tile(np.array(body[k], dtype=np.int64), steps)[:kept]
+            if k == 0:
+                values += j * p
+        else:
+            cols[name] = list(head[k]) + (list(body[k]) * steps)[:kept]
+            continue
+        cols[name] = np.concatenate([np.array(head[k], dtype=np.int64), values])
+    return RowColumns(cols)
 
 
 def _steady(now: tuple, before: tuple, earlier: tuple) -> bool:

@@ -23,7 +23,7 @@ from array import array
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 from fractions import Fraction
-from typing import Callable, Iterable, Mapping
+from typing import TYPE_CHECKING, Callable, Iterable, Mapping
 
 import numpy as np
 import simpy
@@ -42,6 +42,9 @@ from mgpusim.sim.effects import choose_effects
 from mgpusim.sim.executors import Executor, make_executors
 from mgpusim.sim.ops import Key, Op, OpBuilder, RunChannel
 from mgpusim.sim.snapshot import Callback, Environment, Relative, StreamProcess
+
+if TYPE_CHECKING:
+    from mgpusim.results.periodic import RowColumns
 
 _heappop, _heappush = heapq.heappop, heapq.heappush  # (looked up once: used per host-copy part)
 
@@ -74,7 +77,7 @@ DEPS, COPY_WAKE, TURN, DISPATCH, SUBMIT, GAP, BUSY_WAKE, RUN, TRANSFER = (
 class RawResult:
     """What the engine observed; :mod:`mgpusim.results.summary` turns it into tables."""
 
-    rows: list[tuple]
+    rows: list[tuple] | RowColumns  # (columns: the analytic level's filled-in frames)
     frame_start: np.ndarray
     present_end: np.ndarray
     channels: dict[str, RunChannel]

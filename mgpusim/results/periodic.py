@@ -61,10 +61,12 @@ class RowColumns:
     (:mod:`mgpusim.sim.affine`), which needs no tuple per row. :class:`RepeatedRows` takes it
     where it takes a list of rows."""
 
-    __slots__ = ("columns",)
+    __slots__ = ("columns", "queues")
 
-    def __init__(self, columns: dict[str, Sequence[Any]]):
-        self.columns = columns
+    def __init__(self, columns: dict[str, Sequence[Any]], queues: tuple[np.ndarray, list[str]] | None = None):
+        """`queues`: what :attr:`RepeatedRows._queues` would find (each row's queue code,
+        the names), where the caller has it from the rows' pattern."""
+        self.columns, self.queues = columns, queues
 
     def __len__(self) -> int:
         return len(self.columns["frame"])
@@ -179,6 +181,8 @@ class RepeatedRows:
         """(code per row, names): each row's queue or host thread, `device.engine`, coded in
         order of first appearance. (A dictionary pass: a run's log names a few dozen queues,
         and hashing pairs of the same few strings costs less than sorting codes in numpy.)"""
+        if isinstance(self._rows, RowColumns) and self._rows.queues is not None:
+            return self._rows.queues
         pairs = list(zip(self._text["device"], self._text["engine"]))
         index = {k: i for i, k in enumerate(dict.fromkeys(pairs))}
         codes = np.array(list(map(index.__getitem__, pairs)), dtype=np.int64)

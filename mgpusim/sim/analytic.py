@@ -710,7 +710,11 @@ def _columns(prefix: list[tuple], block: list[tuple], p: int, steps: int, last: 
             cols[name] = list(head[k]) + (list(body[k]) * steps)[:kept]
             continue
         cols[name] = np.concatenate([np.array(head[k], dtype=np.int64), values])
-    return RowColumns(cols)
+    pairs = list(zip(head[1], head[2])), list(zip(body[1], body[2]))  # (device, engine)
+    index = {pair: i for i, pair in enumerate(dict.fromkeys(pairs[0] + pairs[1]))}
+    codes = np.concatenate([np.array([index[q] for q in pairs[0]], dtype=np.int64),
+                            np.tile(np.array([index[q] for q in pairs[1]], dtype=np.int64), steps)[:kept]])
+    return RowColumns(cols, (codes, [f"{device}.{engine}" for device, engine in index]))
 
 
 def _steady(now: tuple, before: tuple, earlier: tuple) -> bool:

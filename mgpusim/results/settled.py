@@ -50,19 +50,34 @@ def settling(start: np.ndarray, present: np.ndarray, warmup_frames: int) -> dict
     :func:`settling_arrays` gives its one lane, computed on the run's own arrays (the same
     numpy reductions over the same values, so the same bits; a fifth of the cost on a short
     run, where the calls, not the values, are the work)."""
-    presents = present[warmup_frames:].astype(np.float64)
-    latency = (present - start)[warmup_frames:].astype(np.float64)
-    n = len(presents)
+    n = len(present) - warmup_frames if len(present) > warmup_frames else 0
     m = int(n * TAIL_SHARE)
     if m < MIN_TAIL:
         lanes = settling_arrays(start.reshape(-1, 1), present.reshape(-1, 1), warmup_frames)
         return {key: _scalar(lanes[key][0]) for key in FIELDS}
-    periods = presents[1:] - presents[:-1]
+    periods = _difference(present[warmup_frames + 1:], present[warmup_frames:-1], in_ints=False)
+    latency = _difference(present[warmup_frames:], start[warmup_frames:], in_ints=True)
     ft = _figure_one(periods[-m:], np.add.reduce(periods) / len(periods))
     lat = _figure_one(latency[-m:], np.add.reduce(latency) / n)
     note = _note(m, n, [("frame time", *ft), ("latency", *lat)])
     return {"tail_frames": m, "frame_time_tail_ms": _scalar(ft[0] / 1e6), "latency_tail_ms": _scalar(lat[0] / 1e6),
             "frame_time_settled": bool(ft[2] and ft[3]), "latency_settled": bool(lat[2] and lat[3]), "note": note}
+
+
+def _difference(later: np.ndarray, earlier: np.ndarray, in_ints: bool) -> np.ndarray:
+    """later - earlier (int64 ns) as float64, as :func:`settling_arrays` computes it: in
+    integers then converted (`in_ints`), or in floats of the times. A long run's is subtracted
+    in place, which gives the same values where every time is below 2^53 ns (each then
+    converts exactly, and so does the difference): one 80 MB array less at 10^7 frames."""
+    if len(later) < 1 << 16 or max(-int(earlier.min()), int(earlier.max()), -int(later.min()),
+                                   int(later.max())) >= 1 << 53:
+        if in_ints:
+            return (later - earlier).astype(np.float64)
+        return later.astype(np.float64) - earlier.astype(np.float64)
+    out = later.astype(np.float64)
+    for lo in range(0, len(out), 1 << 16):  # (a whole-array cast of `earlier` would be the 80 MB)
+        out[lo:lo + (1 << 16)] -= earlier[lo:lo + (1 << 16)]
+    return out
 
 
 def _figure_one(tail: np.ndarray, whole: np.floating) -> tuple[Any, ...]:

@@ -347,7 +347,7 @@ class Wake(Callback, tuple):
 
     def __call__(self, _event: simpy.Event) -> None:
         if self[1] == self[0]._gen:
-            self[0]._settle()
+            self[0]._settle(shares_stand=True)
 
     def state(self, rel: Relative) -> tuple:
         return ("wake", self[0].name, self[1] == self[0]._gen)

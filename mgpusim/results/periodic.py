@@ -153,15 +153,14 @@ class RepeatedRows:
             np.minimum.at(start, part["frame"], part["start_ns"])
             mask = part["present"]
             np.maximum.at(present, part["frame"][mask], part["end_ns"][mask])
-        steps = np.arange(self.shift.copies + 1, dtype=np.int64)
-        for frame in np.unique(b["frame"]):
-            idx = frame + self.shift.frames * steps
+        p, copies = self.shift.frames, self.shift.copies
+        for frame in np.unique(b["frame"]).tolist():
             in_frame = b["frame"] == frame
-            first = b["start_ns"][in_frame].min()
-            start[idx] = np.minimum(start[idx], first + self.shift.ns * steps)
+            steps = slice(frame, frame + p * copies + 1, p)  # the frame in each copy of the block
+            _stepped(np.minimum, start[steps], int(b["start_ns"][in_frame].min()), self.shift.ns)
             ends = b["end_ns"][in_frame & b["present"]]
             if len(ends):
-                present[idx] = np.maximum(present[idx], ends.max() + self.shift.ns * steps)
+                _stepped(np.maximum, present[steps], int(ends.max()), self.shift.ns)
         return start, present
 
     def rows_per_frame(self, frames: int) -> np.ndarray:
@@ -377,6 +376,15 @@ class _SteadyOrder:
         out["start_ns"] += j * t
         out["end_ns"] += j * t
         return out
+
+
+def _stepped(pick: np.ufunc, values: np.ndarray, first: int, ns: int, chunk: int = 1 << 16) -> None:
+    """values[j] = pick(values[j], first + j ns) for every j, in place, a chunk at a time (a
+    10^7-copy block's steps, shifts and picks would be 80 MB arrays each)."""
+    assert values.base is not None  # (a view into the frame arrays: written through)
+    for lo in range(0, len(values), chunk):
+        part = values[lo:lo + chunk]
+        pick(part, first + ns * np.arange(lo, lo + len(part), dtype=np.int64), out=part)
 
 
 def _tiled(block: dict[str, np.ndarray], j0: int, j1: int, shift: Shift, a: int, b: int) -> dict[str, np.ndarray]:

@@ -19,8 +19,11 @@ decided from times. The summary lists the approximations made.
 The recurrence's state at a frame boundary (recent task ends, queue clocks, thread free times),
 relative to the frame's present, repeats once it is periodic; from then on frames are
 extrapolated (the same composition as the event model's fast-forward), so a 10^6-frame run costs
-what its first periodic frames cost. :mod:`mgpusim.sim.analytic_lanes` evaluates many
-configurations of one program at once with numpy (one array lane per configuration).
+what its first periodic frames cost. Where no state repeats but each period moves every state
+value by its own constant (a pipeline still filling), one period run on lines fills the frames
+to the end of the run in (:mod:`mgpusim.sim.affine`, :meth:`_Recurrence.stretch_to_end`).
+:mod:`mgpusim.sim.analytic_lanes` evaluates many configurations of one program at once with
+numpy (one array lane per configuration).
 """
 from __future__ import annotations
 

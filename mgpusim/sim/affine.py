@@ -19,7 +19,7 @@ period is the one before it with each time moved by its own constant.
 """
 from __future__ import annotations
 
-from typing import Any, Iterable
+from typing import Any
 
 
 class Indefinite(Exception):
@@ -149,20 +149,3 @@ def solve(line: Any, value: Any, span: int) -> set[int] | None:
                 return out
         return out
     return None if line == value else set()
-
-
-def rows_over(block: Iterable[tuple], frames_per: int, steps: int, last_frame: int) -> list[tuple]:
-    """The trace rows of `steps` periods from the rows of one (frame, ..., start, end, ...
-    with start and end as lines): period j's rows are the block's, `j * frames_per` frames and
-    each row's own slopes later, period after period (the order the recurrence logs them),
-    those of frames after `last_frame` left out."""
-    plain = []
-    for row in block:
-        (sa, sb), (ea, eb) = parts(row[5]), parts(row[6])
-        plain.append((row[0], row[1:5], sa, sb, ea, eb, row[7:]))
-    out = []
-    for j in range(steps):
-        shift = j * frames_per
-        out.extend([(f + shift, *text, sa + sb * j, ea + eb * j, *tail)
-                    for f, text, sa, sb, ea, eb, tail in plain if f + shift <= last_frame])
-    return out

@@ -56,6 +56,10 @@ from mgpusim.sim.snapshot import Environment
 
 NEG = -(1 << 62)  # "no constraint" (before time 0)
 NO_START = np.iinfo(np.int64).max  # a frame with no task run yet (its start array's fill)
+#: The fewest whole periods left for a stretch to be tried (:meth:`_Recurrence.stretch_to_end`):
+#: a try runs a period on lines and checks it, several frames' work, which fewer frames left
+#: would not repay.
+STRETCH_PERIODS = 8
 
 
 @dataclass(frozen=True)
@@ -546,7 +550,7 @@ class _Recurrence:
         p, frames = len(self.m.phases), self.m.program.frames
         steps, left = divmod(frames - 1 - f, p)
         recent = self.recent
-        if steps + (left > 0) < 2 or len(recent) < 2 * p + 1 or not _steady(recent[-1], recent[-1 - p],
+        if steps < STRETCH_PERIODS or len(recent) < 2 * p + 1 or not _steady(recent[-1], recent[-1 - p],
                                                                              recent[-1 - 2 * p]):
             self._later(self.gap)
             return False
@@ -592,11 +596,13 @@ class _Recurrence:
             states.append(sym._state(sym._snapshot(g, sym.present[g])))
         if not _continues(sym, start, ends, f, p) or not all(map(affine.drifts, states)):
             return None
-        for candidates in self.seen.values():  # a state of the stretch met before: a repeat
-            for entry in candidates:
+        for (phase, clocks), candidates in self.seen.items():  # a state met before: a repeat
+            # (first the quick key, which an equal state has: its phase and queues' clocks)
+            like = [s for s in states if s[0] == phase and affine.solve(s[3], clocks, span) != set()]
+            for entry in candidates if like else ():
                 if entry[1] is None:
                     entry[1] = self._state(entry[0])
-                if any(s[0] == entry[1][0] and affine.solve(s, entry[1], span) != set() for s in states):
+                if any(affine.solve(s, entry[1], span) != set() for s in like):
                     return None
         return sym, ties
 

@@ -4,12 +4,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
-from mgpusim.results.summary import summarize
+from mgpusim.model.costs import CostModel
+from mgpusim.results.summary import build_result, frame_figures, summarize, summarize_arrays
 from mgpusim.schedules.experiment import load_experiment
-from mgpusim.sim.simulation import simulate
+from mgpusim.sim import fastforward
+from mgpusim.sim.engine import Engine
+from mgpusim.sim.simulation import build_program, simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = [("sort_first_tc1.toml", "full", False), ("sort_first_tc1.toml", "analytic", True),
@@ -35,3 +39,22 @@ def test_a_run_without_a_trace_still_summarizes():
     result = simulate(exp, record_trace=False, fast_forward=False)
     assert len(result.trace) == 0 and "utilization" not in result.summary
     assert len(result.frames) == exp.schedule.frames
+
+
+@pytest.mark.parametrize("name", ["sort_first_tc1", "afr_tc1", "lavapipe/particles"])
+def test_frame_figures_are_the_results_own(name):
+    """What a band's end reads (frame_figures: the frames alone, no Result built) is what the
+    whole Result's summary says; a simulated run's frames need no array of frame numbers."""
+    exp = load_experiment(ROOT / "experiments" / f"{name}.toml", {"schedule.frames": 300})
+    program = build_program(exp)
+
+    def raw():
+        return fastforward.run(Engine(program, CostModel(exp.profile), record_trace=True), True, False)
+    whole = build_result(raw(), program.warmup_frames, {}).summary
+    alone = frame_figures(raw(), program.warmup_frames)
+    assert alone == {k: whole[k] for k in alone}
+    start, present = simulate(exp).frame_arrays
+    numbered = summarize_arrays(np.arange(len(start)), start, present, program.warmup_frames)
+    assert summarize_arrays(None, start, present, program.warmup_frames) == numbered
+    assert summarize_arrays(None, start, present, 5, leave_out=[7, 9]) == \
+        summarize_arrays(np.arange(len(start)), start, present, 5, leave_out=[7, 9])

@@ -72,6 +72,24 @@ def test_many_lanes_give_what_each_lane_gives_alone():
             pytest.approx(alone, nan_ok=True)
 
 
+def test_one_run_is_its_lane_bit_for_bit():
+    """settling() computes one run on its own arrays: the same values, to the bit, and the same
+    types as the lanes give (a sweep's lane is checked against its point's summary)."""
+    rng = np.random.default_rng(7)
+    for n in [5, 17, 18, 60, 61, 130, 1001]:
+        for periods in (rng.integers(10**6, 2 * 10**7, n), 6_378_567 + (np.arange(n) % 3) * 997,
+                        6_378_567 + np.arange(n) * 3):
+            present = np.cumsum(periods)
+            start = present - rng.integers(10**5, 3 * 10**7, n)
+            for warmup in (0, 1, 10):
+                lanes = settling_arrays(start.reshape(-1, 1), present.reshape(-1, 1), warmup)
+                lane = {k: (None if isinstance(v[0], float) and v[0] != v[0] else
+                            v[0].item() if isinstance(v[0], np.generic) else v[0]) for k, v in lanes.items()}
+                alone = settling(start, present, warmup)
+                assert alone == lane
+                assert [type(v) for v in alone.values()] == [type(v) for v in lane.values()]
+
+
 def test_simulate_says_when_the_latency_has_not_settled(tmp_path: Path, capsys):
     """The README's example: 60 frames of sort_first_tc1 report 9.0 ms of latency, still
     rising; the run settles at 12.8 ms from frame 92."""

@@ -55,6 +55,23 @@ def _encode(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return rank[codes], names[order]
 
 
+class RowColumns:
+    """Trace rows held as columns (each a sequence in TRACE_COLUMNS' order of names; the
+    number columns int64 arrays): the log of a run that filled frames in by arithmetic
+    (:mod:`mgpusim.sim.affine`), which needs no tuple per row. :class:`RepeatedRows` takes it
+    where it takes a list of rows."""
+
+    __slots__ = ("columns", "queues")
+
+    def __init__(self, columns: dict[str, Sequence[Any]], queues: tuple[np.ndarray, list[str]] | None = None):
+        """`queues`: what :attr:`RepeatedRows._queues` would find (each row's queue code,
+        the names), where the caller has it from the rows' pattern."""
+        self.columns, self.queues = columns, queues
+
+    def __len__(self) -> int:
+        return len(self.columns["frame"])
+
+
 class RepeatedRows:
     """The trace rows of a fast-forwarded run (see the module doc); a run without a repeat is
     the same with an empty block. What the summary reads (per-frame starts and presents, busy
@@ -63,12 +80,14 @@ class RepeatedRows:
     order), `waits_for` as the task ids the engine logged, with `labels()` giving each id's
     text (None: the rows carry the text, which is then coded like the others)."""
 
-    def __init__(self, rows: list[tuple], split: tuple[int, int], shift: Shift,
+    def __init__(self, rows: list[tuple] | RowColumns, split: tuple[int, int], shift: Shift,
                  labels: Callable[[], Sequence[str]] | None = None):
         self._rows, self._split, self.shift, self._given_labels = rows, split, shift, labels
-        cols = list(zip(*rows)) if rows else [()] * len(TRACE_COLUMNS)
-        self._text = dict(zip(TRACE_COLUMNS, cols))
-        self._numbers = {c: np.array(self._text[c], dtype=np.int64) for c in _INT}
+        if isinstance(rows, RowColumns):
+            self._text: dict[str, Sequence[Any]] = dict(rows.columns)
+        else:
+            self._text = dict(zip(TRACE_COLUMNS, list(zip(*rows)) if rows else [()] * len(TRACE_COLUMNS)))
+        self._numbers = {c: np.asarray(self._text[c], dtype=np.int64) for c in _INT}
 
     def _parts(self, cols: dict[str, np.ndarray]) -> tuple[dict, dict, dict]:
         """Prefix, block and rest (shifted by the skipped steps) of whole-log columns."""
@@ -134,15 +153,14 @@ class RepeatedRows:
             np.minimum.at(start, part["frame"], part["start_ns"])
             mask = part["present"]
             np.maximum.at(present, part["frame"][mask], part["end_ns"][mask])
-        steps = np.arange(self.shift.copies + 1, dtype=np.int64)
-        for frame in np.unique(b["frame"]):
-            idx = frame + self.shift.frames * steps
+        p, copies = self.shift.frames, self.shift.copies
+        for frame in np.unique(b["frame"]).tolist():
             in_frame = b["frame"] == frame
-            first = b["start_ns"][in_frame].min()
-            start[idx] = np.minimum(start[idx], first + self.shift.ns * steps)
+            steps = slice(frame, frame + p * copies + 1, p)  # the frame in each copy of the block
+            _stepped(np.minimum, start[steps], int(b["start_ns"][in_frame].min()), self.shift.ns)
             ends = b["end_ns"][in_frame & b["present"]]
             if len(ends):
-                present[idx] = np.maximum(present[idx], ends.max() + self.shift.ns * steps)
+                _stepped(np.maximum, present[steps], int(ends.max()), self.shift.ns)
         return start, present
 
     def rows_per_frame(self, frames: int) -> np.ndarray:
@@ -162,6 +180,8 @@ class RepeatedRows:
         """(code per row, names): each row's queue or host thread, `device.engine`, coded in
         order of first appearance. (A dictionary pass: a run's log names a few dozen queues,
         and hashing pairs of the same few strings costs less than sorting codes in numpy.)"""
+        if isinstance(self._rows, RowColumns) and self._rows.queues is not None:
+            return self._rows.queues
         pairs = list(zip(self._text["device"], self._text["engine"]))
         index = {k: i for i, k in enumerate(dict.fromkeys(pairs))}
         codes = np.array(list(map(index.__getitem__, pairs)), dtype=np.int64)
@@ -356,6 +376,15 @@ class _SteadyOrder:
         out["start_ns"] += j * t
         out["end_ns"] += j * t
         return out
+
+
+def _stepped(pick: np.ufunc, values: np.ndarray, first: int, ns: int, chunk: int = 1 << 16) -> None:
+    """values[j] = pick(values[j], first + j ns) for every j, in place, a chunk at a time (a
+    10^7-copy block's steps, shifts and picks would be 80 MB arrays each)."""
+    assert values.base is not None  # (a view into the frame arrays: written through)
+    for lo in range(0, len(values), chunk):
+        part = values[lo:lo + chunk]
+        pick(part, first + ns * np.arange(lo, lo + len(part), dtype=np.int64), out=part)
 
 
 def _tiled(block: dict[str, np.ndarray], j0: int, j1: int, shift: Shift, a: int, b: int) -> dict[str, np.ndarray]:

@@ -119,11 +119,14 @@ class Result:
 
 
 def frames_table(frame_start: np.ndarray, present_end: np.ndarray) -> pd.DataFrame:
+    """The per-frame table, on columns of its own (each made here, so the table shares no
+    memory with the arrays; `copy=False` spares pandas copying them once more: a 10^7-frame
+    table peaks at its own 305 MB, not twice that)."""
     frames = np.arange(len(present_end), dtype=np.int64)
     return pd.DataFrame({"frame": frames, "start_ns": frame_start.astype(np.int64),
                          "present_ns": present_end.astype(np.int64),
                          "latency_ns": (present_end - frame_start).astype(np.int64)},
-                        columns=list(FRAME_COLUMNS))
+                        columns=list(FRAME_COLUMNS), copy=False)
 
 
 def frames_from_trace(trace: pd.DataFrame, present_step: str = "present") -> pd.DataFrame:
@@ -148,40 +151,52 @@ def summarize(frames: pd.DataFrame, trace: pd.DataFrame | None, warmup_frames: i
                             frames["present_ns"].to_numpy(np.int64), warmup_frames, busy, leave_out)
 
 
-def summarize_arrays(frame: np.ndarray, start: np.ndarray, present: np.ndarray, warmup_frames: int,
+def summarize_arrays(frame: np.ndarray | None, start: np.ndarray, present: np.ndarray, warmup_frames: int,
                      busy: Callable[[int, int], dict[str, int]] | None = None,
                      leave_out: Collection[int] = ()) -> dict[str, Any]:
     """Steady-state figures after `warmup_frames`, from per-frame arrays (frame number, first
-    start, present): frame time = mean period between presents. With a single steady frame its
+    start, present; frame None: frames 0, 1, ... in order, a simulated run's, with no array
+    of them): frame time = mean period between presents. With a single steady frame its
     period is measured from the last warm-up frame's present (or, with no warm-up, from its
     own start). Utilization: `busy(lo, hi)` over the window, when given. `leave_out`: frames
     whose period and latency the figures skip (a measured run's stalls). Arrays, no tables:
     a run's summary costs microseconds."""
-    steady = frame >= warmup_frames
-    if not steady.any():
-        raise InputError(f"no frame presents after the {warmup_frames} warm-up frames "
-                         f"(the run has {len(frame)})", field="schedule.warmup_frames")
+    if frame is None:
+        frame = np.arange(len(present), dtype=np.int64) if leave_out else None
+    if frame is None:  # (a view, not a copy: 80 MB each at 10^7 frames)
+        steady: np.ndarray | slice = slice(warmup_frames, None)
+        if warmup_frames >= len(present):
+            raise InputError(f"no frame presents after the {warmup_frames} warm-up frames "
+                             f"(the run has {len(present)})", field="schedule.warmup_frames")
+    else:
+        steady = frame >= warmup_frames
+        if not steady.any():
+            raise InputError(f"no frame presents after the {warmup_frames} warm-up frames "
+                             f"(the run has {len(frame)})", field="schedule.warmup_frames")
     presents = present[steady].astype(np.int64, copy=False)
-    latency = (present - start)[steady]
+    latency = present[steady] - start[steady]
     if len(presents) == 1:
-        before = present[frame < warmup_frames]
+        before = present[:warmup_frames] if frame is None else present[frame < warmup_frames]
         origin = int(before[-1]) if len(before) else int(start[steady][0])
         presents = np.array([origin, presents[0]], dtype=np.int64)
     periods = np.diff(presents)
     window = (int(presents[0]), int(presents[-1]))
     if leave_out:
+        assert frame is not None  # (made above where frames are to be left out)
         out_of = np.isin(frame[steady], list(leave_out))
         periods = periods[~out_of[1:]]
         latency = latency[~out_of]
+    latency_ns = float(latency.mean())
+    del presents, latency  # (each 80 MB in a 10^7-frame run: gone before the jitter's temporary)
     frame_time = float(periods.mean())
     out: dict[str, Any] = {
         "frame_time_ms": frame_time / 1e6,
         "fps": 1e9 / frame_time if frame_time > 0 else float("inf"),
-        "latency_ms": float(latency.mean()) / 1e6,
+        "latency_ms": latency_ns / 1e6,
         "frame_time_jitter_ms": float(periods.std()) / 1e6,
         "frame_time_min_ms": float(periods.min()) / 1e6,
         "frame_time_max_ms": float(periods.max()) / 1e6,
-        "frames": int(len(frame)),
+        "frames": int(len(present)),
         "warmup_frames": int(warmup_frames),
         "window_ns": list(window),
     }
@@ -245,12 +260,8 @@ def _labels(raw) -> Callable[[], Sequence[str]] | None:
     return None if inputs is None else (lambda: inputs.labels)
 
 
-def build_result(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
-    """A run's Result from what the engine (or the analytic level) observed: the summary from
-    arrays at once; the trace, frames and links tables built only when read. A fast-forwarded
-    run's logs are kept compact (:mod:`mgpusim.results.periodic`); a run without a repeat is
-    the same form with nothing repeated. `settled` and `settling`: whether the run's frame time
-    and latency had settled by its end (:mod:`mgpusim.results.settled`)."""
+def _frame_logs(raw) -> tuple[Shift, RepeatedRows, np.ndarray, np.ndarray]:
+    """(the repeat's shift, the compact rows, every frame's start and present) of a run."""
     r = raw.repeat
     shift = Shift(r.frames, r.ns, r.copies) if r is not None else Shift(1, 0, 0)
     rows = RepeatedRows(raw.rows, r.rows if r is not None else (len(raw.rows),) * 2, shift, _labels(raw))
@@ -258,6 +269,26 @@ def build_result(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
         start, present = rows.frame_arrays(len(raw.frame_start), raw.present_task)
     else:
         start, present = raw.frame_start, raw.present_end
+    return shift, rows, start, present
+
+
+def frame_figures(raw, warmup_frames: int) -> dict[str, Any]:
+    """:func:`summarize_arrays` of a run's frames alone: what its Result's summary says of
+    the frame time and latency, without utilization, settling, skips or tables. Why: a band's
+    ends (`simulate(band=True)`) read two figures; a 10^7-frame run's whole Result would hold
+    its skipped-frame lists and more beside the main run's."""
+    _shift, _rows, start, present = _frame_logs(raw)
+    return summarize_arrays(None, start, present, warmup_frames)
+
+
+def build_result(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
+    """A run's Result from what the engine (or the analytic level) observed: the summary from
+    arrays at once; the trace, frames and links tables built only when read. A fast-forwarded
+    run's logs are kept compact (:mod:`mgpusim.results.periodic`); a run without a repeat is
+    the same form with nothing repeated. `settled` and `settling`: whether the run's frame time
+    and latency had settled by its end (:mod:`mgpusim.results.settled`)."""
+    r = raw.repeat
+    shift, rows, start, present = _frame_logs(raw)
     links = {name: RepeatedIntervals(ch.busy, r.busy.get(name, (len(ch.busy),) * 2) if r is not None
                                      else (len(ch.busy),) * 2, shift,
                                      r.held_open.get(name) if r is not None else None)
@@ -274,7 +305,7 @@ def build_result(raw, warmup_frames: int, config: dict[str, Any]) -> Result:
     def frames() -> pd.DataFrame:
         return frames_table(start, present)
 
-    summary = summarize_arrays(np.arange(len(start), dtype=np.int64), start, present, warmup_frames,
+    summary = summarize_arrays(None, start, present, warmup_frames,
                                busy=busy if len(rows) and raw.recorded else None)
     summary["settled"] = False
     summary["settling"] = settling(start, present, warmup_frames)  # mgpusim/results/settled.py

@@ -19,15 +19,19 @@ decided from times. The summary lists the approximations made.
 The recurrence's state at a frame boundary (recent task ends, queue clocks, thread free times),
 relative to the frame's present, repeats once it is periodic; from then on frames are
 extrapolated (the same composition as the event model's fast-forward), so a 10^6-frame run costs
-what its first periodic frames cost. :mod:`mgpusim.sim.analytic_lanes` evaluates many
-configurations of one program at once with numpy (one array lane per configuration).
+what its first periodic frames cost. Where no state repeats but each period moves every state
+value by its own constant (a pipeline still filling), one period run on lines fills the frames
+to the end of the run in (:mod:`mgpusim.sim.affine`, :meth:`_Recurrence.stretch_to_end`).
+:mod:`mgpusim.sim.analytic_lanes` evaluates many configurations of one program at once with
+numpy (one array lane per configuration).
 """
 from __future__ import annotations
 
 import copy
+from collections import deque
 from dataclasses import dataclass
 from fractions import Fraction
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -36,9 +40,12 @@ from mgpusim.model.errors import InputError, ScheduleError
 from mgpusim.model.geometry import even_split
 from mgpusim.model.profile import HostProfile
 from mgpusim.model.tasks import CopyTask, CpuTask, HostCopyTask, Task
+from mgpusim.results.periodic import RowColumns
+from mgpusim.results.trace import TRACE_COLUMNS
 from mgpusim.schedules.base import FrameProgram, leads_chain, wakes_host
 from mgpusim.schedules.skipping import SkipChains
 from mgpusim.schedules.task_inputs import TaskInputs
+from mgpusim.sim import affine
 from mgpusim.sim.channel import FixedRateChannel
 from mgpusim.sim.effects import choose_effects
 from mgpusim.sim.engine import RawResult
@@ -49,6 +56,10 @@ from mgpusim.sim.snapshot import Environment
 
 NEG = -(1 << 62)  # "no constraint" (before time 0)
 NO_START = np.iinfo(np.int64).max  # a frame with no task run yet (its start array's fill)
+#: The fewest whole periods left for a stretch to be tried (:meth:`_Recurrence.stretch_to_end`):
+#: a try runs a period on lines and checks it, several frames' work, which fewer frames left
+#: would not repay.
+STRETCH_PERIODS = 8
 
 
 @dataclass(frozen=True)
@@ -282,11 +293,14 @@ class Analytic:
                 repeat = rec.look_for_repeat(f)
                 if repeat is not None:
                     horizon = frames - repeat.copies * repeat.frames
+                elif rec.found is None and rec.stretch_to_end(f):
+                    break  # every frame after f filled in from one period (mgpusim.sim.affine)
             rec.forget_before(f - self.lag)
             f += 1
         if progress is not None:
             progress(horizon, horizon)
-        run = _Run(rec.rows, rec.start, rec.present, repeat, rec.found, rec.skips.ties, rec.skips.frames)
+        rows = rec.rows if rec.columns is None else rec.columns
+        run = _Run(rows, rec.start, rec.present, repeat, rec.found, rec.skips.ties, rec.skips.frames)
         return self._extended(run, horizon, record)
 
     def _extended(self, run: "_Run", computed: int, record: bool) -> "_Run":
@@ -314,7 +328,7 @@ class Analytic:
 class _Run:
     """One evaluation of the recurrence (see :meth:`Analytic.evaluate`)."""
 
-    rows: list[tuple]
+    rows: list[tuple] | RowColumns
     start: np.ndarray
     present: np.ndarray
     repeat: Repeat | None
@@ -338,12 +352,19 @@ class _Recurrence:
         self.threads = [0] * model.threads
         self.host_prev = NEG
         self.rows: list[tuple] = []
+        #: every row as columns, where a stretch filled the frames after the rows in (else None)
+        self.columns: RowColumns | None = None
         self.start = np.full(frames, NO_START, dtype=np.int64)
         self.present = np.full(frames, -1, dtype=np.int64)
         self.skips = _Skips()
         #: (phase, queues' clocks relative to the present) -> [snapshot, its state or None]
         self.seen: dict[tuple, list[list]] = {}
         self.found: dict[str, int] | None = None
+        #: the snapshots of the last two periods and one frame (:meth:`stretch_to_end` reads them)
+        self.recent: deque[tuple] = deque(maxlen=2 * len(model.phases) + 1)
+        #: the first frame at which to look for an affine stretch again
+        self.next_try = 0
+        self.gap = 1
 
     # ----- one frame ---------------------------------------------------------------------
     def frame(self, f: int) -> None:
@@ -485,6 +506,7 @@ class _Recurrence:
         needed. Same repeat, found at the same frame, as writing every frame's state."""
         ref = int(self.present[f])
         snap = self._snapshot(f, ref)
+        self.recent.append(snap)
         cheap = (f % len(self.m.phases), tuple(map(ref.__rsub__, self.queue_end.values())))
         candidates = self.seen.get(cheap)
         if candidates is None:
@@ -511,6 +533,96 @@ class _Recurrence:
             return None
         return Repeat(p, shift, copies, f1 + 1, (r1, len(self.rows)),
                       skipped={n: (m1.get(n, 0), k) for n, k in marks.items()})
+
+    # ----- an affine stretch to the end of the run ----------------------------------------
+    def stretch_to_end(self, f: int) -> bool:
+        """Fill in every frame after f from one period of the recurrence on lines
+        (:mod:`mgpusim.sim.affine`), where the last two periods moved every state value by the
+        same amount each and the period, run on lines over the frames left, keeps its
+        decisions and leads from each step to the next. True where it did (the run is then
+        whole); False leaves the run as it was. Why only to the end of the run: the frames it
+        fills are never looked at for a repeat, so it also checks that none of them would have
+        been found as one (no state of the stretch equals an earlier one, and none equals
+        another), and then the run reports what frame by frame would have: the same rows,
+        presents, skips, ties and repeat (none)."""
+        if f < self.next_try:
+            return False
+        p, frames = len(self.m.phases), self.m.program.frames
+        steps, left = divmod(frames - 1 - f, p)
+        recent = self.recent
+        if steps < STRETCH_PERIODS or len(recent) < 2 * p + 1 or not _steady(recent[-1], recent[-1 - p],
+                                                                             recent[-1 - 2 * p]):
+            self._later(self.gap)
+            return False
+        try:
+            out = self._stretch(f, self.recent[-1], self.recent[-1 - p], steps if left else steps - 1)
+        except affine.Indefinite as exc:  # a decision flips after exc.last periods: no use before
+            self._later(max(self.gap, (exc.last + 1) * p))
+            return False
+        if out is None:
+            self._later(self.gap)
+            return False
+        self._fill(f, *out)
+        return True
+
+    def _later(self, frames: int) -> None:
+        self.next_try = len(self.ends) + frames
+        self.gap = min(2 * self.gap, 64)
+
+    def _stretch(self, f: int, now: tuple, before: tuple, span: int) -> tuple | None:
+        """One period after frame f on lines over j = 0..span, from the snapshots of frames f
+        and f - P: (the run on lines, its ties per frame) where it continues itself and no
+        state in it could be a repeat; None where not. Raises affine.Indefinite."""
+        m, p = self.m, len(self.m.phases)
+        sym: Any = _Recurrence.__new__(_Recurrence)  # its times are lines (affine.Lin), not ints
+        sym.m, sym.record, sym.rows = m, self.record, []
+        sym.start, sym.present = {}, {}  # lines per frame
+        ends = [{k: affine.lifted(v, old[k], span) for k, v in new.items()} for new, old in zip(now[4], before[4])]
+        sym.ends = [{}] * (f + 1 - len(ends)) + ends
+        sym.queue_end = _lines(now[5], before[5], span)
+        sym.sub = _lines(now[6], before[6], span)
+        sym.threads = [affine.lifted(a, b, span) for a, b in zip(now[7], before[7])]
+        sym.host_prev = affine.lifted(now[8], before[8], span)
+        sym.skips = _Skips()
+        sym.skips.busy_until = _lines(now[9][0], before[9][0], span)
+        sym.skips.last_ready = _lines(now[9][1], before[9][1], span)
+        start = dict(queue=dict(sym.queue_end), sub=dict(sym.sub), threads=list(sym.threads),
+                     host=sym.host_prev, busy=dict(sym.skips.busy_until), last=dict(sym.skips.last_ready))
+        ties, states = [], []
+        for g in range(f + 1, f + p + 1):
+            before_ties = sym.skips.ties
+            sym.frame(g)
+            ties.append(sym.skips.ties - before_ties)
+            states.append(sym._state(sym._snapshot(g, sym.present[g])))
+        if not _continues(sym, start, ends, f, p) or not all(map(affine.drifts, states)):
+            return None
+        for (phase, clocks), candidates in self.seen.items():  # a state met before: a repeat
+            # (first the quick key, which an equal state has: its phase and queues' clocks)
+            like = [s for s in states if s[0] == phase and affine.solve(s[3], clocks, span) != set()]
+            for entry in candidates if like else ():
+                if entry[1] is None:
+                    entry[1] = self._state(entry[0])
+                if any(affine.solve(s, entry[1], span) != set() for s in like):
+                    return None
+        return sym, ties
+
+    def _fill(self, f: int, sym: Any, ties: list[int]) -> None:
+        """Frames f + 1 .. the last from the period on lines `sym` (see :meth:`stretch_to_end`)."""
+        p, frames = len(self.m.phases), self.m.program.frames
+        for g in range(f + 1, f + p + 1):
+            idx = np.arange(g, frames, p, dtype=np.int64)
+            j = np.arange(len(idx), dtype=np.int64)
+            for mine, lines in ((self.start, sym.start), (self.present, sym.present)):
+                if g in lines:
+                    a, b = affine.parts(lines[g])
+                    mine[idx] = a + b * j
+            self.skips.ties += ties[g - f - 1] * len(idx)
+        steps = (frames - 1 - f + p - 1) // p
+        for name, skipped in sym.skips.frames.items():
+            self.skips.frames.setdefault(name, []).extend(
+                g + j * p for j in range(steps) for g in skipped if g + j * p < frames)
+        if self.record:
+            self.columns = _columns(self.rows, sym.rows, p, steps, frames - 1)
 
     def _snapshot(self, f: int, ref: int) -> tuple:
         """Frame f's state as it is (absolute times): (frame, its present, rows so far,
@@ -583,6 +695,77 @@ class _Skips:
         def rel(x: int) -> int:
             return x - ref if x > NEG else NEG
         return (tuple(sorted((k, rel(v)) for k, v in busy)), tuple(sorted((k, rel(v)) for k, v in last)))
+
+
+def _columns(prefix: list[tuple], block: list[tuple], p: int, steps: int, last: int) -> RowColumns:
+    """The rows logged so far, then `steps` periods of the rows of one period on lines
+    (`block`: start and end as affine.Lin), each `p` frames and each row's slopes later, those
+    of frames after `last` left out: as columns (no tuple per row)."""
+    n = len(block)
+    kept = (steps - 1) * n + sum(1 for row in block if row[0] + (steps - 1) * p <= last)
+    j = np.repeat(np.arange(steps, dtype=np.int64), n)[:kept]
+    head = list(zip(*prefix)) if prefix else [()] * len(TRACE_COLUMNS)
+    body = list(zip(*block))
+    cols: dict[str, Any] = {}
+    for k, name in enumerate(TRACE_COLUMNS):
+        if k in (5, 6):  # start, end: lines
+            a, b = (np.array(v, dtype=np.int64) for v in zip(*map(affine.parts, body[k])))
+            values = np.tile(a, steps)[:kept] + np.tile(b, steps)[:kept] * j
+        elif name in ("frame", "bytes", "waits_for"):
+            values = np.tile(np.array(body[k], dtype=np.int64), steps)[:kept]
+            if k == 0:
+                values += j * p
+        else:
+            cols[name] = list(head[k]) + (list(body[k]) * steps)[:kept]
+            continue
+        cols[name] = np.concatenate([np.array(head[k], dtype=np.int64), values])
+    pairs = list(zip(head[1], head[2])), list(zip(body[1], body[2]))  # (device, engine)
+    index = {pair: i for i, pair in enumerate(dict.fromkeys(pairs[0] + pairs[1]))}
+    codes = np.concatenate([np.array([index[q] for q in pairs[0]], dtype=np.int64),
+                            np.tile(np.array([index[q] for q in pairs[1]], dtype=np.int64), steps)[:kept]])
+    return RowColumns(cols, (codes, [f"{device}.{engine}" for device, engine in index]))
+
+
+def _steady(now: tuple, before: tuple, earlier: tuple) -> bool:
+    """Whether the last two periods moved every state value of three snapshots (one period
+    apart) by the same amount each, the names alike: worth trying a stretch from."""
+    flat = [_values(s) for s in (now, before, earlier)]
+    if flat[0][0] != flat[1][0] or flat[1][0] != flat[2][0]:
+        return False
+    (_, a), (_, b), (_, c) = flat
+    return all(x - y == y - z for x, y, z in zip(a, b, c))
+
+
+def _values(snap: tuple) -> tuple[tuple, list[int]]:
+    """(the names and sizes, every value) of a snapshot's state."""
+    ends, queues, subs, threads, host_prev, (busy, last) = snap[4:10]
+    names = (tuple(map(len, ends)), tuple(k for k, _ in queues), tuple(k for k, _ in subs), len(threads),
+             tuple(k for k, _ in busy), tuple(k for k, _ in last))
+    values = [v for e in ends for v in e.values()]
+    for items in (queues, subs, busy, last):
+        values += [v for _k, v in items]
+    return names, values + list(threads) + [host_prev]
+
+
+def _lines(now: tuple, before: tuple, span: int) -> dict[str, affine.Lin]:
+    """A snapshot's (name, value) items as lines, from the same items one period earlier."""
+    old = dict(before)
+    return {k: affine.lifted(v, old[k], span) for k, v in now}
+
+
+def _continues(sym: Any, start: dict, ends: list[dict], f: int, p: int) -> bool:
+    """Whether the period on lines `sym` ends in its start state one step on: every value
+    after it is the line it started from, moved by its slope, under the same names."""
+    def same(out: dict, was: dict) -> bool:
+        return list(out) == list(was) and all(affine.continues(out[k], was[k]) for k in was)
+    lag = len(ends)
+    if not all(same(sym.ends[f + p - lag + 1 + i], ends[i]) for i in range(lag)):
+        return False
+    if not (same(sym.queue_end, start["queue"]) and same(sym.sub, start["sub"])
+            and same(sym.skips.busy_until, start["busy"]) and same(sym.skips.last_ready, start["last"])):
+        return False
+    return (all(map(affine.continues, sym.threads, start["threads"]))
+            and affine.continues(sym.host_prev, start["host"]))
 
 
 def _skip_chains(nodes: list[_Node]) -> dict[str, tuple[str, tuple[str, ...] | None]]:

@@ -54,7 +54,9 @@ class _Flow:
         self.remaining = 0  # in 1/S bytes, set when the solver takes over
         self.rate = 0  # in 1/S bytes per ns
         self.cap_s: int | None = None
-        self.solo_rate: Fraction = _ZERO  # non-zero while the flow runs on the fast path
+        #: the flow's rate while it runs on the fast path (never 0), else _ZERO itself: tested
+        #: by identity in the hot paths (`bool` of a Fraction is a Python call)
+        self.solo_rate: Fraction = _ZERO
 
 
 class Channel(FluidChannel):
@@ -91,6 +93,8 @@ class Channel(FluidChannel):
         if self.oversubscribed is not None:
             self._denoms = math.lcm(self._denoms, self.oversubscribed.denominator)
         self._scale = self._denoms * math.lcm(*range(1, self._crowd + 1))
+        #: (scale, bandwidth x scale, oversubscribed capacity x scale or None)
+        self._capacity_s: tuple[int, int, int | None] = (0, 0, None)
 
     def transfer(self, nbytes: int, cap: Fraction | None = None, tag: object = None) -> simpy.Event:
         """An event that fires when `nbytes` have crossed the channel. `tag`: what the flow is
@@ -103,7 +107,7 @@ class Channel(FluidChannel):
         if not self.flows or self._fits(flow):
             self._start_solo(flow, now)
             return done
-        if self.flows[0].solo_rate:  # the fast path ends here: the solver takes every flow
+        if self.flows[0].solo_rate is not _ZERO:  # the fast path ends here: the solver takes every flow
             self._epoch += 1
             for running in self.flows:
                 self._to_fluid(running, now)
@@ -128,7 +132,7 @@ class Channel(FluidChannel):
     def release(self, flow: object) -> None:
         """The occupant `flow` (from :meth:`occupy`) leaves; the others share anew."""
         assert isinstance(flow, _Flow)
-        if flow.solo_rate:  # on the fast path: it has no planned end to drop
+        if flow.solo_rate is not _ZERO:  # on the fast path: it has no planned end to drop
             self.flows.remove(flow)
             if not self.flows:
                 self.busy.append((self._busy_since, self.env.now))
@@ -150,7 +154,7 @@ class Channel(FluidChannel):
         capped, and their caps with its own add up to no more than the bandwidth (max-min
         fairness then gives each its cap)."""
         cap = flow.cap
-        if not self.shares_caps_freely or cap is None or not self.flows[0].solo_rate:
+        if not self.shares_caps_freely or cap is None or self.flows[0].solo_rate is _ZERO:
             return False
         for running in self.flows:
             if running.cap is not cap:
@@ -233,9 +237,12 @@ class Channel(FluidChannel):
         scaled integers (S divides into every cap, the bandwidth and `oversubscribed`): exactly
         floor(capacity x S), without a Fraction per reshare (the solver's hottest line)."""
         scale = self._scale
-        bw = self.bandwidth
-        b_s = bw.numerator * (scale // bw.denominator)
-        if self.oversubscribed is None:
+        if self._capacity_s[0] != scale:  # (the scaled capacities, once per scale: the Fractions'
+            bw, over = self.bandwidth, self.oversubscribed  # numerator and denominator are Python calls)
+            self._capacity_s = (scale, bw.numerator * (scale // bw.denominator),
+                                None if over is None else over.numerator * (scale // over.denominator))
+        _scale, b_s, o_s = self._capacity_s
+        if o_s is None:
             return b_s
         self._scale_caps()
         demand, lossless, uncapped = 0, 0, False
@@ -251,10 +258,8 @@ class Channel(FluidChannel):
         if demand <= b_s:
             return b_s  # the threads fit the cores: nothing to lose
         first = self.flows[0].tag
-        if isinstance(first, PassWork) and all(f.tag == first for f in self.flows):
+        if isinstance(first, PassWork) and all(f.tag is first or f.tag == first for f in self.flows):
             return b_s  # one kind of pass alone: its threads take turns without loss
-        over = self.oversubscribed
-        o_s = over.numerator * (scale // over.denominator)
         excess = min(demand - b_s, b_s)
         num, den = (b_s - o_s) * excess, b_s  # the loss, x S
         if lossless:
@@ -270,7 +275,7 @@ class Channel(FluidChannel):
 
     def _idle(self) -> bool:
         # released empty (an occupant), maybe on the fast path since: nothing to share
-        return not self.flows or bool(self.flows[0].solo_rate)
+        return not self.flows or self.flows[0].solo_rate is not _ZERO
 
     def _plan(self) -> None:
         self._gen += 1
@@ -347,7 +352,7 @@ class Wake(Callback, tuple):
 
     def __call__(self, _event: simpy.Event) -> None:
         if self[1] == self[0]._gen:
-            self[0]._settle()
+            self[0]._settle(shares_stand=True)
 
     def state(self, rel: Relative) -> tuple:
         return ("wake", self[0].name, self[1] == self[0]._gen)

@@ -46,13 +46,18 @@ class FluidChannel:
         """Whether there is nothing for the solver to share now."""
         return not self.flows
 
-    def _settle(self, _event: object = None) -> None:
-        """Complete the flows due now, share the capacity anew and plan the next wake-up."""
+    def _settle(self, _event: object = None, shares_stand: bool = False) -> None:
+        """Complete the flows due now, share the capacity anew and plan the next wake-up.
+        `shares_stand`: the planned wake-up (:class:`~.channel.Wake`), still current, so no
+        flow joined or left since the shares were worked out (each such change moves the
+        generation on) and they are what sharing anew would give: only the flows that end
+        now change them."""
         self._settle_pending = False
         if self._idle():
             return
         self._advance()
-        self._reshare()
+        if not shares_stand:
+            self._reshare()
         finished = [f for f in self.flows if 2 * f.remaining < f.rate]
         if finished:
             self.flows = [f for f in self.flows if 2 * f.remaining >= f.rate]

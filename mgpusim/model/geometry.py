@@ -38,9 +38,9 @@ SHAPES = ("torus", "sphere")
 #: runner), `back` drops the triangles that face away from the camera after their setup and
 #: before they are binned or rasterized (Vulkan's VK_CULL_MODE_BACK_BIT, bp's default).
 CULLS = ("none", "back")
-#: A pass's options that are names, not amounts: for each pass kind, option -> (default, the
-#: names it takes). A mesh pass's mesh and what its pipeline culls; our runner draws only the
-#: defaults.
+#: A pass's options that are names, not amounts: for each pass kind, option -> the names it
+#: takes, the first its default. A mesh pass's mesh and what its pipeline culls; our runner
+#: draws only the defaults.
 PASS_OPTIONS: dict[str, dict[str, tuple[str, ...]]] = {"mesh": {"shape": SHAPES, "cull": CULLS}}
 
 

@@ -23,10 +23,10 @@ def test_collections_are_fewer_inside_and_as_before_after():
 def test_a_callers_freeze_stays_theirs():
     gc.freeze()
     try:
-        frozen = gc.get_freeze_count()
         with pool.fewer_collections():
             pass
-        assert gc.get_freeze_count() >= frozen
+        # still frozen (unfrozen, the count would be 0; a frozen object freed since lowers it)
+        assert gc.get_freeze_count() > 0
     finally:
         gc.unfreeze()
 

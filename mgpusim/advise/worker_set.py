@@ -11,10 +11,11 @@ beside the assumed shares), so a worker waits only where the next work needs eve
 """
 from __future__ import annotations
 
-import gc
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from contextlib import contextmanager
-from typing import Any, Callable, Iterable, Iterator, TypeVar
+from contextlib import AbstractContextManager
+from typing import Any, Callable, Iterable, TypeVar
+
+from mgpusim.io import collector
 
 T = TypeVar("T")
 #: `progress(stage, done, total)`: how far a stage has come (a command draws it).
@@ -27,22 +28,12 @@ Progress = Callable[[str, int, int], None]
 GC_THRESHOLD = 50_000
 
 
-@contextmanager
-def fewer_collections() -> Iterator[None]:
+def fewer_collections() -> AbstractContextManager[None]:
     """The cyclic garbage collector run less often (:data:`GC_THRESHOLD`), and what is loaded
     so far (modules, the frame) frozen out of its runs, in this process and the workers forked
-    from it, until the block ends. For a command's process: a library caller keeps Python's
-    settings."""
-    before, freeze = gc.get_threshold(), gc.get_freeze_count() == 0  # (another's freeze is left alone)
-    if freeze:
-        gc.freeze()
-    gc.set_threshold(GC_THRESHOLD, *before[1:])
-    try:
-        yield
-    finally:
-        gc.set_threshold(*before)
-        if freeze:
-            gc.unfreeze()
+    from it, until the block ends (:func:`mgpusim.io.collector.fewer_collections`). For a
+    command's process: a library caller keeps Python's settings."""
+    return collector.fewer_collections(GC_THRESHOLD)
 
 
 class Workers:

@@ -14,31 +14,20 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any, Iterator
 
+from mgpusim.io import collector
+
 #: The collector's thresholds while points run (gen0 allocations, then gen1 and gen2 sweeps).
 POINT_GC_THRESHOLDS = (50_000, 50, 100)
 
 
-@contextlib.contextmanager
-def fewer_collections() -> Iterator[None]:
+def fewer_collections() -> contextlib.AbstractContextManager[None]:
     """Points run with the objects that exist now (modules, the parsed experiment) frozen out
-    of the cyclic collector and fewer collections, the collector as it was afterwards.
-
-    Why: a point at the analytic level allocates thousands of small objects (its program,
-    model, summary), and the collector's default thresholds swept them, and every object
-    alive, so often that it took about a quarter of a sweep over scene keys (min of 4 runs,
-    in one process: 1.93 s CPU by default, 1.35 s so, 1.35 s with the collector off).
-    Nothing a point computes depends on when garbage is collected; cyclic garbage still is,
-    a few ten thousand allocations later."""
-    before, ours = gc.get_threshold(), not gc.get_freeze_count()  # (a caller's freeze stays theirs)
-    if ours:
-        gc.freeze()
-    gc.set_threshold(*POINT_GC_THRESHOLDS)
-    try:
-        yield
-    finally:
-        gc.set_threshold(*before)
-        if ours:
-            gc.unfreeze()
+    of the cyclic collector and collections at :data:`POINT_GC_THRESHOLDS`, the collector as it
+    was afterwards (:func:`mgpusim.io.collector.fewer_collections`). A point at the analytic
+    level allocates thousands of small objects: with the default thresholds the collector took
+    about a quarter of a sweep over scene keys (min of 4 runs, in one process: 1.93 s CPU by
+    default, 1.35 s so, 1.35 s with the collector off)."""
+    return collector.fewer_collections(POINT_GC_THRESHOLDS[0], POINT_GC_THRESHOLDS[1:])
 
 
 @contextlib.contextmanager

@@ -373,7 +373,8 @@ class GpuChannel(Channel):
                  shares_of: Callable[[tuple], tuple[Fraction, ...]]):
         super().__init__(env, name, Fraction(1))
         self._shares_of = shares_of
-        self._shares: dict[tuple, tuple[tuple, tuple[Fraction, ...], int]] = {}
+        #: each sorted tuple of tags met: each tag's speed, and their denominators' lcm
+        self._shares: dict[tuple, tuple[dict[object, Fraction], int]] = {}
 
     def _reshare(self) -> None:
         """Each flow at its tag's share (exact: the scale is grown to every share's denominator)."""
@@ -381,11 +382,10 @@ class GpuChannel(Channel):
         found = self._shares.get(key)
         if found is None:
             speeds = self._shares_of(key)
-            found = self._shares[key] = (key, speeds, math.lcm(*(s.denominator for s in speeds)))
-        tags, speeds, denominator = found
+            found = self._shares[key] = (dict(zip(key, speeds)), math.lcm(*(s.denominator for s in speeds)))
+        by_tag, denominator = found
         self._grow_scale(denominator)
         scale = self._scale
-        by_tag = dict(zip(tags, speeds))
         for flow in self.flows:
             speed = by_tag[flow.tag]
             flow.rate = speed.numerator * (scale // speed.denominator)

@@ -15,9 +15,14 @@ from mgpusim.model.profile import parse_profile
 from mgpusim.model.tasks import QueueRef
 from mgpusim.schedules.experiment import parse_experiment
 from mgpusim.sim.effects import choose_effects
-from mgpusim.sim.executors import capacity
+from mgpusim.sim.executors import shares
 from mgpusim.sim.simulation import build_program
 from tests.conftest import experiment_dict, make_experiment, profile_dict
+
+
+def capacity(profile, tags) -> Fraction:
+    """What the pieces `tags` deliver together, in units of one alone."""
+    return sum(shares(profile, tags), Fraction(0))
 
 
 def _profile(overlap: dict | None = None, physical: int | None = None, gpus: int = 2) -> dict:
@@ -217,7 +222,6 @@ def test_work_that_takes_turns_is_not_sped_up_by_a_copy_beside_it():
     # engine (graphics_transfer 2: another unit) runs beside them at full speed and leaves the
     # renders' turn-taking as it was (the mean over mixed pairs would have given every piece
     # 1 + 3 x mean(-0.5, -0.5, -0.5, 1, 1, 1) / 4 = 1.75 / 4, the renders 2.6x faster)
-    from mgpusim.sim.executors import shares
     prof = parse_profile(_profile({"devices": 0.5, "graphics_transfer": 2.0}, physical=0, gpus=3), "p")
     renders = tuple((QueueRef(d, "graphics"), "mesh") for d in range(3))
     up = (QueueRef(0, "transfer"), "copy")
@@ -246,7 +250,6 @@ def test_three_and_four_vkdevices_take_turns_as_two_do_on_the_h200():
     (N pieces taking turns deliver the pair's efficiency, each 1 / N of it)."""
     import pandas as pd
 
-    from mgpusim.sim.executors import shares
     table = pd.read_parquet(Path(__file__).parent.parent / "data/vmgpu/h200_x1/devices_at_once/passes.parquet")
     keys = ["pass", "triangles", "iterations", "width", "height"]
     slowest = (table.fillna({"triangles": 0, "iterations": 0})

@@ -262,12 +262,6 @@ def pair_efficiency(profile: HardwareProfile, a: WorkTag, b: WorkTag) -> float:
     return gpu.overlap(pair, (ka, kb))
 
 
-def capacity(profile: HardwareProfile, tags: tuple[WorkTag, ...]) -> Fraction:
-    """What n pieces of work (tagged by queue and kind) deliver together, in units of one alone
-    (the sum of their :func:`shares`)."""
-    return sum(shares(profile, tags), Fraction(0))
-
-
 def shares(profile: HardwareProfile, tags: tuple[WorkTag, ...]) -> tuple[Fraction, ...]:
     """Each piece's speed, in units of its speed alone, while the pieces `tags` run at once on
     one physical GPU.

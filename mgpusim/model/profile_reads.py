@@ -6,10 +6,10 @@ faster than the copies need), and that is an answer; one of a value it never rea
 experiment (host memory bandwidth where host copies are work on CPU-emulated GPUs' cores, a
 pass kind's cost where the scene has no such pass) gives the unchanged figures as if they
 were the what-if's. The model cannot tell the two apart from its output, so it is watched:
-:func:`recording` copies a profile into objects that note each field and mapping key read
-while :func:`reading` is on (the model's build and run, the choice of its effects: a value
-that switches an effect off is used; not validation or reports, which read every value
-whether the model uses it or not), by path
+:func:`recording` copies a profile into objects that note each field and mapping key read,
+into the set given to the innermost :func:`reading` block, while it is on (the model's
+build and run, the choice of its effects: a value that switches an effect off is used; not
+validation or reports, which read every value whether the model uses it or not), by path
 (``host.memory_bandwidth_gbps``, ``gpus.*.costs.fragment_loop.fixed_ns``: every GPU is
 ``gpus.*``). :func:`unused` maps the user's override keys onto those paths.
 """
@@ -23,15 +23,17 @@ from typing import Any, Iterator, Sequence
 
 from mgpusim.model.profile import HardwareProfile
 
-#: Nesting of reading() (on) and not_reading() (off) blocks; recording happens while the
-#: innermost is on.
-_STATE: list[bool] = []
+#: Nesting of reading(reads) (on: the set reads go to) and not_reading() (off: None) blocks;
+#: recording happens into the innermost's set. Why the set is the block's and not the copy's:
+#: one recording copy of a profile serves every experiment that shares the profile (a sweep's
+#: points), each run noting its own reads.
+_STATE: list[set[str] | None] = []
 
 
 @contextlib.contextmanager
-def reading() -> Iterator[None]:
-    """Record reads of :func:`recording` profiles inside this block."""
-    _STATE.append(True)
+def reading(reads: set[str]) -> Iterator[None]:
+    """Record reads of :func:`recording` profiles inside this block, into `reads`."""
+    _STATE.append(reads)
     try:
         yield
     finally:
@@ -42,34 +44,27 @@ def reading() -> Iterator[None]:
 def not_reading() -> Iterator[None]:
     """Inside a :func:`reading` block: reads that do not make a value used (a channel built
     only to be reported), not recorded."""
-    _STATE.append(False)
+    _STATE.append(None)
     try:
         yield
     finally:
         _STATE.pop()
 
 
-def _on() -> bool:
-    return bool(_STATE) and _STATE[-1]
-
-
-class _Reads(set):
-    """The paths read, and the recording classes made for them (one per dataclass path)."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.classes: dict[tuple[type, str], type] = {}
+def _note(path: str) -> None:
+    """`path` read: noted where the innermost block records."""
+    if _STATE and _STATE[-1] is not None:
+        _STATE[-1].add(path)
 
 
 class RecordingMapping(Mapping):
     """A read-only mapping that notes `path.key` for each key read."""
 
-    def __init__(self, data: Mapping[str, Any], path: str, reads: _Reads):
-        self._data, self._path, self._reads = data, path, reads
+    def __init__(self, data: Mapping[str, Any], path: str):
+        self._data, self._path = data, path
 
     def __getitem__(self, key: str) -> Any:
-        if _on():
-            self._reads.add(f"{self._path}.{key}")
+        _note(f"{self._path}.{key}")
         return self._data[key]
 
     def __iter__(self) -> Iterator[str]:
@@ -79,51 +74,46 @@ class RecordingMapping(Mapping):
         return len(self._data)
 
     def __contains__(self, key: object) -> bool:
-        if _on():
-            self._reads.add(f"{self._path}.{key}")
+        _note(f"{self._path}.{key}")
         return key in self._data
 
     def __repr__(self) -> str:
         return repr(dict(self._data))
 
 
-def _recording_class(cls: type, path: str, reads: _Reads) -> type:
+@functools.cache
+def _recording_class(cls: type, path: str) -> type:
     """A subclass of dataclass `cls` whose instances note `path.<field>` on each field read
-    (one class per path and set: `dataclasses.replace` keeps recording)."""
-    key = (cls, path)
-    found = reads.classes.get(key)
-    if found is not None:
-        return found
+    (one class per path, shared by every copy: `dataclasses.replace` keeps recording)."""
     names = frozenset(f.name for f in dataclasses.fields(cls))
+    paths = {name: f"{path}.{name}" if path else name for name in names}
+    state = _STATE
 
     def __getattribute__(self: Any, name: str) -> Any:  # noqa: N807 - the hook itself
-        if name in names and _on():
-            reads.add(f"{path}.{name}" if path else name)
+        if name in names and state and state[-1] is not None:
+            state[-1].add(paths[name])
         return object.__getattribute__(self, name)
 
-    made = type(f"Recording{cls.__name__}", (cls,), {"__getattribute__": __getattribute__,
+    return type(f"Recording{cls.__name__}", (cls,), {"__getattribute__": __getattribute__,
                                                       "__module__": __name__})
-    reads.classes[key] = made
-    return made
 
 
-def recording(profile: HardwareProfile) -> tuple[HardwareProfile, set[str]]:
-    """A copy of `profile` equal in every value whose reads are noted, and the set they go
-    into (see the module doc)."""
-    reads = _Reads()
-    return _copy(profile, "", reads), reads
+def recording(profile: HardwareProfile) -> HardwareProfile:
+    """A copy of `profile` equal in every value, whose reads are noted into the set of the
+    :func:`reading` block they happen in (see the module doc)."""
+    return _copy(profile, "")
 
 
-def _copy(value: Any, path: str, reads: _Reads) -> Any:
+def _copy(value: Any, path: str) -> Any:
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        cls = _recording_class(type(value), path, reads)
-        kwargs = {f.name: _copy(getattr(value, f.name), _join(path, f.name), reads)
+        cls = _recording_class(type(value), path)
+        kwargs = {f.name: _copy(getattr(value, f.name), _join(path, f.name))
                   for f in dataclasses.fields(value) if f.init}
         return cls(**kwargs)
     if isinstance(value, tuple) and path in ("gpus", "peer_links"):
-        return tuple(_copy(v, f"{path}.*", reads) for v in value)
+        return tuple(_copy(v, f"{path}.*") for v in value)
     if isinstance(value, Mapping):
-        return RecordingMapping({k: _copy(v, f"{path}.{k}", reads) for k, v in value.items()}, path, reads)
+        return RecordingMapping({k: _copy(v, f"{path}.{k}") for k, v in value.items()}, path)
     return value
 
 

@@ -45,7 +45,7 @@ def simulate(exp: Experiment, record_trace: bool = True, fidelity: str = "full",
     caller that sets one value on a family of runs, some of which have no use for it (a case's
     parameters)."""
     exp, reads = _watched(exp, fidelity, effects) if check_unused else (exp, None)
-    with reading() if reads is not None else contextlib.nullcontext():
+    with reading(reads) if reads is not None else contextlib.nullcontext():
         program, chosen, analytic = _prepare(exp, queues, fidelity, effects)
         if "memory_capacity" in chosen:
             check_memory(program, exp)  # overflow is an input error, reported before time 0
@@ -80,15 +80,15 @@ def _watched(exp: Experiment, fidelity: str, effects: dict[str, bool] | None
              ) -> tuple[Experiment, set[str] | None]:
     """With ``profile.`` overrides: the experiment on a copy of its profile that notes what the
     model reads (:mod:`mgpusim.model.profile_reads`), one per level and forced effects (kept
-    with the experiment, so that its program and effects stay cached), and the reads."""
+    with the experiment, so that its program and effects stay cached), and the set its runs'
+    reads go to. The copy is made once per profile object, whatever experiments share it (a
+    sweep's points: one profile per distinct set of profile overrides, a new experiment per
+    point); each watched experiment notes its own reads."""
     if not exp.profile_overrides:
         return exp, None
     force = tuple(sorted(effects.items())) if effects else ()
-
-    def make() -> tuple[Experiment, set[str]]:
-        profile, reads = recording(exp.profile)
-        return replace(exp, profile=profile), reads
-    return cached(exp, ("watched", fidelity, force), make)
+    copy = cached(exp.profile, ("recording",), lambda: recording(exp.profile))
+    return cached(exp, ("watched", fidelity, force), lambda: (replace(exp, profile=copy), set()))
 
 
 def _check_used(exp: Experiment, reads: set[str], fidelity: str) -> None:

@@ -50,7 +50,6 @@ from mgpusim.sweeps.lanes import LaneRun, flatten
 from mgpusim.sweeps.loader import fresh as fresh_loader
 from mgpusim.sweeps.loader import shared as loader
 from mgpusim.sweeps.pool import fewer_collections, local_pool
-from mgpusim.sweeps.reads import share_recording
 
 #: How long to try reaching a Dask scheduler before giving up.
 DASK_CONNECT_TIMEOUT = "10s"
@@ -242,7 +241,6 @@ def run_point(experiment: str, overrides: Mapping[str, Any], options: Mapping[st
     t0 = time.perf_counter()
     try:
         exp = loader(experiment).load(dict(overrides))
-        share_recording(exp, options.get("fidelity", "full"))  # (one copy per profile, not per point)
         result = simulate(exp, **options)
         summary, error = flatten(result.summary), None
     except MgpusimError as exc:

@@ -1,6 +1,7 @@
-"""A sweep's points share one recording copy per profile for simulate()'s unused-override
-check (mgpusim/sweeps/reads.py): each point's summary and error are those of simulate() on
-the point's own experiment, a point whose override its run does not read included."""
+"""Experiments that share a profile object (a sweep's points) share one recording copy of it
+for simulate()'s unused-override check (mgpusim/sim/simulation.py, `_watched`), each noting
+its own reads: each point's summary and error are those of simulate() on the point's own
+experiment, a point whose override its run does not read included."""
 from __future__ import annotations
 
 import itertools
@@ -11,8 +12,8 @@ import pytest
 
 from mgpusim import load_experiment, simulate
 from mgpusim.model.errors import MgpusimError
+from mgpusim.sim import simulation
 from mgpusim.sweeps import grid as sweeps
-from mgpusim.sweeps import reads
 
 ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENT = ROOT / "experiments" / "sort_first_tc1.toml"
@@ -34,7 +35,12 @@ def test_points_on_a_shared_copy_give_their_own_results_and_errors(fidelity):
     points = [{**dict(zip(GRID, values)), "schedule.frames": 40} for values in itertools.product(*GRID.values())]
     sweeps.loader(EXPERIMENT)  # (the points' loader: one profile object per set of profile overrides)
     got = [sweeps.run_point(str(EXPERIMENT), p, {"fidelity": fidelity}) for p in points]
-    assert len({id(e[0]) for e in reads._COPIES.values()}) >= 4  # one copy per profile, shared
+    shared = sweeps.loader(EXPERIMENT)
+    one, two = (shared.load(dict(p)) for p in (points[0], points[4]))  # same profile overrides, other host_copy
+    assert one is not two and one.profile is two.profile
+    watched = [simulation._watched(e, fidelity, None) for e in (one, two)]
+    assert watched[0][0].profile is watched[1][0].profile  # one copy per profile, shared
+    assert watched[0][1] is not watched[1][1]  # each experiment its own reads
     for point, record in zip(points, got):
         summary, error = _own(point, fidelity)
         assert record["error"] == error

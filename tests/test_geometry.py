@@ -178,12 +178,3 @@ def test_shape_and_cull_are_read_and_checked_from_the_scene(tmp_path):
     bad.write_text(text.replace('"../../hardware_profiles/', f'"{Path.cwd()}/hardware_profiles/'))
     with pytest.raises(InputError, match="shape"):
         load_experiment(bad)
-
-
-def test_the_runner_refuses_a_mesh_it_would_not_draw():
-    """The runner draws its torus unculled: an experiment of vmgpu's sphere is refused before
-    any GPU opens, not measured as if it were the torus."""
-    from mgpusim.model.errors import ScheduleError
-    from mgpusim.real.runner.execute import run_experiment
-    with pytest.raises(ScheduleError, match="model only"):
-        run_experiment(load_experiment("experiments/vmgpu/vmgpu.toml"))

@@ -20,7 +20,7 @@ from mgpusim.calibration.measure_tables import check_measure_table
 from mgpusim.calibration.overlap_fit import fit_overlap
 from mgpusim.measure import run_archive
 from mgpusim.model.errors import InputError
-from mgpusim.model.geometry import MESH_PLACE, mesh_placement
+from mgpusim.model.geometry import MESH_OPTIONS, MESH_PLACE, mesh_placement
 from mgpusim.model.scene import PassSpec
 from mgpusim.model.work_terms import PLACED_TERMS, REFERENCE_KINDS, UNPRICED_OK, WORK_TERMS
 from mgpusim.model.work_terms import pass_work as pass_work_placed
@@ -35,7 +35,7 @@ COPY_PASSES = {"copy_d2h": "d2h", "copy_h2d": "h2d", "copy_d2d": "d2d"}
 #: Pass parameters that enter the work terms, and all columns that identify one measured
 #: configuration of a pass.
 WORK_PARAMS = ("iterations", "triangles", "inputs", "particles")
-PARAM_COLUMNS = ("width", "height") + WORK_PARAMS + tuple(MESH_PLACE)
+PARAM_COLUMNS = ("width", "height") + WORK_PARAMS + tuple(MESH_PLACE) + tuple(MESH_OPTIONS)
 
 
 @dataclass
@@ -79,10 +79,11 @@ def pass_work(row: pd.Series) -> dict[str, float]:
     params = {k: float(row[k]) for k in WORK_PARAMS if k in row and pd.notna(row[k])}
     if kind == "composite_sort_last":
         pixels *= params.get("inputs", 1)  # one full-screen quad per input
-    spec = PassSpec(kind, kind, params)
+    options = {k: str(row[k]) for k in MESH_OPTIONS if kind == "mesh" and k in row and pd.notna(row[k])}
+    spec = PassSpec(kind, kind, params, options=options)
     if kind == "mesh" and all(k in row and pd.notna(row[k]) for k in MESH_PLACE):
         place = mesh_placement(cast(dict[str, Any], row.to_dict()))
-        view = place.mesh_view(int(params["triangles"]))
+        view = place.mesh_view(int(params["triangles"]), spec.option("shape"), spec.option("cull"))
         assert view.count is not None  # mesh_view counts the triangles it draws
         return pass_work_placed(spec, place.pixels, view.count / view.triangles, place)
     return WORK_TERMS[kind](spec, pixels, 1.0)

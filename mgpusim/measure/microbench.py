@@ -19,7 +19,7 @@ import pandas as pd
 
 from mgpusim.measure import overlap as overlap
 from mgpusim.model.errors import InputError
-from mgpusim.model.geometry import MESH_PLACE, mesh_placement
+from mgpusim.model.geometry import MESH_OPTIONS, MESH_PLACE, PASS_OPTIONS, mesh_placement
 from mgpusim.real.host.memcpy import HostCopy
 from mgpusim.real.passes.particle_update import ParticleUpdate
 from mgpusim.real.passes.standalone import (
@@ -37,9 +37,12 @@ from mgpusim.real.vulkan.device import Gpu
 
 def _mesh(gpu: Gpu, p: dict[str, Any]) -> Mesh:
     place = mesh_placement(p)
-    view = place.mesh_view(int(p["triangles"]))
+    for key, names in PASS_OPTIONS["mesh"].items():
+        if p[key] not in names:
+            raise InputError(f"expected one of {', '.join(names)}, got {p[key]!r}", field=key)
+    view = place.mesh_view(int(p["triangles"]), p["shape"], p["cull"])
     return Mesh(gpu, int(p["width"]), int(p["height"]), view.triangles, first=view.first,
-                count=view.count, eye=view.eye, rect=place.rect)
+                count=view.count, eye=view.eye, rect=place.rect, shape=view.shape, cull=view.cull)
 
 
 @dataclass(frozen=True)
@@ -57,11 +60,12 @@ PASSES: dict[str, PassSpec] = {s.name: s for s in (
     PassSpec("fragment_loop", {"width": 1024, "height": 768, "iterations": 1000},
              lambda g, p: FragmentLoop(g, p["width"], p["height"], p["iterations"]),
              "full-screen rectangle, fragment shader loops ITER times"),
-    PassSpec("mesh", {"width": 1024, "height": 768, "triangles": 100_000, **MESH_PLACE},
+    PassSpec("mesh", {"width": 1024, "height": 768, "triangles": 100_000, **MESH_PLACE, **MESH_OPTIONS},
              lambda g, p: _mesh(g, p),
-             "T triangles of a generated torus into RGBA8 + D16, drawn where PLACE says: whole, "
+             "T triangles of a mesh into RGBA8 + D16, drawn where PLACE says: whole, "
              "or share=K/N;eye=left|right;column=K/N;row=K/N (sort-last share, stereo eye, XR "
-             "half-eye columns, sort-first strip)"),
+             "half-eye columns, sort-first strip); SHAPE torus (ours) or sphere (vmgpu's mesh, "
+             "drawn as vmgpu draws it), CULL none or back"),
     PassSpec("composite_sort_first", {"width": 1024, "height": 768, "inputs": 2},
              lambda g, p: CompositeSortFirst(g, p["width"], p["height"], p["inputs"]),
              "one rectangle per contribution sampling its tile"),

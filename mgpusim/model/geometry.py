@@ -42,6 +42,9 @@ CULLS = ("none", "back")
 #: takes, the first its default. A mesh pass's mesh and what its pipeline culls; our runner
 #: draws only the defaults.
 PASS_OPTIONS: dict[str, dict[str, tuple[str, ...]]] = {"mesh": {"shape": SHAPES, "cull": CULLS}}
+#: A measured mesh's options and their defaults (columns of its measure table; a table
+#: without them measured the torus, unculled).
+MESH_OPTIONS: dict[str, str] = {key: names[0] for key, names in PASS_OPTIONS["mesh"].items()}
 
 
 def even_split(total: int, parts: int) -> list[int]:

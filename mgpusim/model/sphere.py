@@ -52,6 +52,13 @@ def sphere_arrays(shape: SphereLayout) -> tuple[np.ndarray, np.ndarray]:
     return _split(positions, faces, shape)
 
 
+def sphere_normals(positions: np.ndarray) -> np.ndarray:
+    """Each vertex's unit normal: its direction from the centre (a unit sphere's), +z for the
+    hidden centre triangle's vertices at or near the centre (which have none)."""
+    lengths = np.linalg.norm(positions, axis=1, keepdims=True)
+    return np.where(lengths > 0.5, positions / np.maximum(lengths, 1e-12), [0.0, 0.0, 1.0])
+
+
 def _ring_positions(shape: SphereLayout) -> np.ndarray:
     """The vertices of the stacks - 1 rings between the poles, ring by ring."""
     theta = np.arange(1, shape.stacks) * math.pi / shape.stacks

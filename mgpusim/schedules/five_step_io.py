@@ -181,7 +181,7 @@ def _render_params(spec: PassSpec, scene: Scene, rect: Rect, origin: tuple[int, 
     sort-last GPU i draws triangles [first, first + count) of the scene's mesh: units
     [begin, end) of `part` = (begin, end, units)."""
     params: dict[str, Any] = {"rect": rect, "origin": origin, "frame": (scene.width, scene.height),
-                              "depth": depth, **{k: v for k, v in spec.params.items()}}
+                              "depth": depth, **{k: v for k, v in spec.params.items()}, **spec.options}
     if "triangles" in spec.params:
         total = int(spec.params["triangles"])
         begin, end, units = part

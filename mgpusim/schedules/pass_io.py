@@ -34,7 +34,7 @@ def frame_params(spec: PassSpec, scene: Scene, **extra: Any) -> Mapping[str, Any
     pass's own parameters (iterations, triangles: the whole mesh)."""
     w, h = scene.width, scene.height
     params: dict[str, Any] = {"frame": (w, h), "rect": (0, 0, w, h), "origin": (0, 0),
-                              "clear": True, **spec.params}
+                              "clear": True, **spec.params, **spec.options}
     if "triangles" in spec.params:
         total = int(spec.params["triangles"])
         params.update(triangles=total, first=0, count=total)

@@ -138,7 +138,7 @@ def _bind_view(task: PassTask, scene: Scene, v: int, gpu: int,
     spec = next(s for s in scene.passes if task.name == f"render{v}.{s.name}")
     params: dict[str, Any] = {"frame": (scene.width, scene.height),
                               "rect": (x0, 0, width, scene.height), "origin": (x0, 0), "eye": eye,
-                              "clear": spec is scene.passes[0], **spec.params}
+                              "clear": spec is scene.passes[0], **spec.params, **spec.options}
     if "triangles" in spec.params:
         params.update(triangles=int(spec.params["triangles"]), first=0,
                       count=int(spec.params["triangles"]))

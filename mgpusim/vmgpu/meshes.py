@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mgpusim.model.sphere import SphereLayout, sphere_arrays, sphere_layout
+from mgpusim.model.sphere import SphereLayout, sphere_arrays, sphere_layout, sphere_normals
 from mgpusim.vmgpu.failures import VmgpuMeasureError
 
 MIN_TRIANGLES = 10_000
@@ -44,8 +44,7 @@ def write_sphere(path: Path, triangles: int) -> MeshFile:
     a half-written mesh is never read as whole)."""
     shape = layout(triangles)
     positions, faces = sphere_arrays(shape)
-    lengths = np.linalg.norm(positions, axis=1, keepdims=True)
-    normals = np.where(lengths > 0.5, positions / np.maximum(lengths, 1e-12), [0.0, 0.0, 1.0])
+    normals = sphere_normals(positions)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     with tmp.open("w") as out:

@@ -118,3 +118,20 @@ def test_the_runner_runs_the_simulators_tasks(schedule, gpus, passes, options):
     images to the program's tasks, they added none; every dependency was honoured."""
     exp = experiment(schedule, gpus, passes, frames=4, **options)
     assert_runs_the_simulators_tasks(exp, run_experiment(exp, prewarm_frames=0).trace)
+
+
+def sphere_passes() -> list[dict[str, Any]]:
+    """vmgpu's mesh as vmgpu draws it: the sphere, its back faces culled."""
+    return [{"name": "sphere", "kind": "mesh", "triangles": 4000, "shape": "sphere", "cull": "back",
+             "output_bytes": COLOUR}]
+
+
+@pytest.mark.parametrize("schedule, gpus", [("sort_last", 2), ("sort_first", 3)])
+def test_vmgpus_sphere_runs_split_as_on_one_gpu(schedule, gpus):
+    """The runner draws the sphere (no longer refused as the model's only): split by sort-last
+    index ranges or sort-first tiles, the frame is the one-GPU frame (tiles up to the rounding
+    of interpolated colours), and not the torus's."""
+    ref = run("sort_first", 1, sphere_passes()).image
+    assert not np.array_equal(ref, run("sort_first", 1, mesh_passes()).image)
+    off = np.abs(run(schedule, gpus, sphere_passes()).image.astype(int) - ref).max(axis=2)
+    assert off.max() <= 1 and np.count_nonzero(off) <= off.size // 200

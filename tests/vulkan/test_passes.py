@@ -197,3 +197,45 @@ def test_stereo_eyes_see_the_scene_from_two_places(gpu):
     assert not np.array_equal(*eyes)
     cols = [np.nonzero(e.any(axis=0))[0] for e in eyes]
     assert cols[0][0] > cols[1][0]  # the left eye sees the torus further right
+
+
+def test_vmgpus_sphere_culls_only_faces_that_the_depth_test_hides(gpu):
+    """Culling back faces leaves the picture as it is (the depth test hid them) and draws as
+    many pixels as the model's coverage of that view says: the runner culls the faces the
+    model counts as culled, not the front ones."""
+    from mgpusim.model.geometry import MeshView, coverage
+    w, h, t = 96, 64, 4000
+    drawn = {}
+    for cull in ("none", "back"):
+        p = Mesh(gpu, w, h, t, shape="sphere", cull=cull)
+        gpu.run(p.queue, p.record)
+        drawn[cull] = _rgba(gpu, p.target.color)
+        p.destroy()
+    assert np.abs(drawn["none"].astype(int) - drawn["back"].astype(int)).max() <= 1
+    covered = (drawn["back"][..., 3] == 255).sum()
+    model = coverage(MeshView(t, (w, h), shape="sphere", cull="back")).fragments
+    assert covered == pytest.approx(model, rel=0.03)
+    lit = drawn["back"][..., 0][drawn["back"][..., 3] == 255]
+    assert lit.min() >= int(0.15 * 255) - 1 and lit.max() > 200  # vmgpu's ambient + light
+
+
+def test_a_sphere_share_draws_only_its_triangles(gpu):
+    """Sort-last's share of the sphere: the first half's pixels and the second's together are
+    the whole sphere's (vmgpu's index ranges, split in order)."""
+    w, h, t = 64, 64, 2000
+    whole = Mesh(gpu, w, h, t, shape="sphere", cull="back")
+    halves = [Mesh(gpu, w, h, t, first=k * t // 2, count=t // 2, shape="sphere", cull="back")
+              for k in (0, 1)]
+    covered = []
+    for p in (whole, *halves):
+        gpu.run(p.queue, p.record)
+        covered.append(_rgba(gpu, p.target.color)[..., 3] == 255)
+        p.destroy()
+    assert covered[1].any() and covered[2].any() and not np.array_equal(covered[1], covered[2])
+    assert np.array_equal(covered[1] | covered[2], covered[0])
+
+
+def test_a_mesh_of_an_unknown_shape_is_refused(gpu):
+    from mgpusim.model.errors import InputError
+    with pytest.raises(InputError, match="shape"):
+        Mesh(gpu, 16, 16, 100, shape="cube")

@@ -15,8 +15,20 @@ from __future__ import annotations
 import itertools
 from typing import TYPE_CHECKING, Any, Sequence, cast
 
+import numpy as np
+
 from mgpusim.model.errors import InputError
-from mgpusim.real.passes.draw import draw_vertices, quad_pc, stages, torus_mesh, view_matrix
+from mgpusim.model.geometry import PASS_OPTIONS
+from mgpusim.real.passes.draw import (
+    draw_indexed,
+    draw_vertices,
+    quad_pc,
+    sphere_geometry,
+    sphere_matrices,
+    stages,
+    torus_mesh,
+    view_matrix,
+)
 from mgpusim.real.vulkan.buffers import Image
 from mgpusim.real.vulkan.copies import upload
 from mgpusim.real.vulkan.pipelines import Pipeline, RenderTarget, graphics_pipeline
@@ -113,38 +125,68 @@ class FragmentLoopTile(_FramePass):
         v.vkCmdEndRenderPass(cmd)
 
 
+def check_mesh_options(shape: str, cull: str) -> None:
+    """Refuse a mesh the runner cannot draw, before anything is allocated for it."""
+    for key, value in (("shape", shape), ("cull", cull)):
+        if value not in PASS_OPTIONS["mesh"][key]:
+            raise InputError(f"the runner draws a mesh of {key} {' or '.join(PASS_OPTIONS['mesh'][key])}, "
+                             f"not {value!r}", field=key)
+
+
 class MeshShare(_FramePass):
-    """Triangles [first, first + count) of the generated torus of `triangles` triangles, drawn
-    with depth: sort-last's geometry share (only the share is uploaded). `rect` (default: the
-    whole frame) is the part of the frame rendered, into targets whose pixel (0, 0) is frame
-    pixel `origin` (exact, as the fragment loop's tiles); `eye` 0 / 1 picks a stereo camera."""
+    """Triangles [first, first + count) of a mesh of `triangles` triangles, drawn with depth:
+    sort-last's geometry share (only the share is drawn). `shape` picks the mesh and its camera
+    (`torus`: our generated torus, one interleaved vertex buffer, not indexed; `sphere`: the
+    sphere the vmgpu tool writes, drawn as vmgpu draws it, see :func:`sphere_geometry`), `cull`
+    what the pipeline culls (`none`, `back`). `rect` (default: the whole frame) is the part of
+    the frame rendered, into targets whose pixel (0, 0) is frame pixel `origin` (exact, as the
+    fragment loop's tiles); `eye` 0 / 1 picks a stereo camera."""
 
     def __init__(self, gpu: "Gpu", targets: Sequence[RenderTarget], frame: tuple[int, int],
                  triangles: int, first: int, count: int, *, rect: Rect | None = None,
-                 origin: tuple[int, int] = (0, 0), eye: int | None = None):
+                 origin: tuple[int, int] = (0, 0), eye: int | None = None,
+                 shape: str = "torus", cull: str = "none"):
         super().__init__(gpu, targets)
         if self.targets[0].depth is None:
             raise InputError("a mesh pass needs a target with depth", field="depth")
-        self.count, self.frame = count, frame
+        check_mesh_options(shape, cull)
+        self.count, self.frame, self.shape = count, frame, shape
         self.area, self.viewport, _ = _placement(frame, rect, origin)  # clears even if empty
-        self.vertices = None
+        self.buffers: list[Any] = []
         if count > 0:
-            verts = torus_mesh(triangles)[3 * first:3 * (first + count)]
-            self.vertices = gpu.buffer(verts.nbytes, host_visible=False)
-            upload(gpu, self.vertices, verts)
-            self._owned.insert(0, self.vertices)
+            self._upload(gpu, triangles, first, count)
+        attributes = [(0, "R32G32B32_SFLOAT", 0), (1, "R32G32B32_SFLOAT", 12 if shape == "torus" else 0)]
         self.pipeline = graphics_pipeline(
-            gpu, self.targets[0], "mesh.vert", "mesh.frag", push_size=64, stride=24,
-            vertex_attributes=[(0, "R32G32B32_SFLOAT", 0), (1, "R32G32B32_SFLOAT", 12)],
-            depth_test=True)
+            gpu, self.targets[0], "mesh.vert" if shape == "torus" else "sphere.vert",
+            "mesh.frag" if shape == "torus" else "sphere.frag", push_size=64 if shape == "torus" else 128,
+            vertex_attributes=attributes, stride=24, strides=(12, 12) if shape == "sphere" else (),
+            depth_test=True, cull_back=cull == "back")
         self._owned.append(self.pipeline)
-        self._mvp = view_matrix(eye)
+        self._push = view_matrix(eye) if shape == "torus" else sphere_matrices(frame, eye)
+
+    def _upload(self, gpu: "Gpu", triangles: int, first: int, count: int) -> None:
+        """The share's geometry in device-local buffers: the torus's vertices, or the sphere's
+        positions, normals and indices."""
+        if self.shape == "torus":
+            arrays = [torus_mesh(triangles)[3 * first:3 * (first + count)]]
+        else:
+            arrays = list(sphere_geometry(triangles, first, count))
+        v = vk()
+        indices = v.VK_BUFFER_USAGE_INDEX_BUFFER_BIT | v.VK_BUFFER_USAGE_TRANSFER_DST_BIT
+        for data in arrays:  # the indices last, 32-bit
+            buffer = gpu.buffer(data.nbytes, host_visible=False,
+                                usage=indices if data.dtype == np.uint32 else None)
+            self._owned.insert(0, buffer)
+            upload(gpu, buffer, data)
+            self.buffers.append(buffer)
 
     def record(self, cmd: Any, slot: int = 0) -> None:
         v = vk()
         begin(self.targets[slot], cmd, self.area, self.viewport)  # clears even an empty share
-        if self.vertices is not None:
-            draw_vertices(cmd, self.pipeline, self._mvp, self.vertices, 3 * self.count)
+        if self.buffers and self.shape == "torus":
+            draw_vertices(cmd, self.pipeline, self._push, self.buffers[0], 3 * self.count)
+        elif self.buffers:
+            draw_indexed(cmd, self.pipeline, self._push, self.buffers[:2], self.buffers[2], 3 * self.count)
         v.vkCmdEndRenderPass(cmd)
 
 

@@ -20,7 +20,15 @@ from mgpusim.model.errors import InputError
 from mgpusim.model.geometry import even_split
 from mgpusim.real.passes.draw import torus_mesh  # noqa: F401  (re-exported: the tests build meshes with it)
 from mgpusim.real.passes.particle_update import ParticleUpdate
-from mgpusim.real.passes.recorders import CompositeInto, Filter, FragmentLoopTile, MeshShare, ParticleDraw, copy_image
+from mgpusim.real.passes.recorders import (
+    CompositeInto,
+    Filter,
+    FragmentLoopTile,
+    MeshShare,
+    ParticleDraw,
+    check_mesh_options,
+    copy_image,
+)
 from mgpusim.real.vulkan.buffers import DEPTH_FORMAT, Buffer, Image
 from mgpusim.real.vulkan.copies import clear_images, upload
 from mgpusim.real.vulkan.pipelines import RenderTarget
@@ -86,22 +94,26 @@ class FragmentLoop(_GraphicsPass):
 
 
 class Mesh(_GraphicsPass):
-    """T triangles of a generated torus into colour RGBA8 + depth D16 (`first`..: a share), as
-    the runner's sort-last share; `eye` 0 / 1 renders one view of the stereo camera (XR);
-    `rect` (x, y, w, h) renders only those pixels of the frame, into a target of their size
-    (an XR half-eye view, a sort-first strip)."""
+    """T triangles of a mesh (`shape`: our torus, or vmgpu's sphere as vmgpu draws it; `cull`:
+    none or back faces) into colour RGBA8 + depth D16 (`first`..: a share), as the runner's
+    sort-last share; `eye` 0 / 1 renders one view of the stereo camera (XR); `rect` (x, y, w,
+    h) renders only those pixels of the frame, into a target of their size (an XR half-eye
+    view, a sort-first strip)."""
 
     def __init__(self, gpu: "Gpu", width: int, height: int, triangles: int, *,
                  first: int = 0, count: int | None = None, eye: int | None = None,
-                 rect: tuple[int, int, int, int] | None = None):
+                 rect: tuple[int, int, int, int] | None = None, shape: str = "torus",
+                 cull: str = "none"):
         super().__init__(gpu)
         _positive(width=width, height=height, triangles=triangles)
+        check_mesh_options(shape, cull)
         self.width, self.height, self.triangles = width, height, triangles
         self.first, self.count = first, (triangles - first if count is None else count)
         rect = rect or (0, 0, width, height)
         self.target = RenderTarget(gpu, rect[2], rect[3], depth=True)
         self.work = MeshShare(gpu, [self.target], (width, height), triangles, self.first,
-                              self.count, eye=eye, rect=rect, origin=(rect[0], rect[1]))
+                              self.count, eye=eye, rect=rect, origin=(rect[0], rect[1]),
+                              shape=shape, cull=cull)
         self._owned.append(self.work)
         self.bytes = rect[2] * rect[3] * 6
 

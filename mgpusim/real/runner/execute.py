@@ -17,7 +17,6 @@ import numpy as np
 import pandas as pd
 
 from mgpusim.model.errors import InputError, MgpusimError, ScheduleError
-from mgpusim.model.geometry import PASS_OPTIONS
 from mgpusim.model.profile import HardwareProfile
 from mgpusim.real.runner import native
 from mgpusim.real.runner.executor import Executor
@@ -178,18 +177,6 @@ def profile_lp_threads(profile: HardwareProfile, gpus: int) -> list[int | None] 
     return threads if any(t is not None for t in threads) else None
 
 
-def _check_drawable(exp: Experiment) -> None:
-    """Refuse a pass the runner would draw otherwise than the model prices it: the runner's
-    mesh is its torus, unculled (a `sphere` mesh or a culling pipeline is another renderer's,
-    for the model only)."""
-    for spec in exp.scene.passes:
-        for key, names in PASS_OPTIONS.get(spec.kind, {}).items():
-            if spec.option(key) != names[0]:
-                raise ScheduleError(f"pass {spec.name!r}: {key} = {spec.option(key)!r} is for the "
-                                    f"model only: the runner draws a {spec.kind} pass as {key} = "
-                                    f"{names[0]!r}")
-
-
 def run_experiment(exp: Experiment, *, devices: Sequence[int] | None = None,
                    lp_threads: Sequence[int | None] | None = None, host_threads: int | None = None,
                    prewarm_frames: int | None = None, validation: bool | None = None,
@@ -204,7 +191,6 @@ def run_experiment(exp: Experiment, *, devices: Sequence[int] | None = None,
     from mgpusim.real.runner.gpu_map import open_gpus  # noqa: PLC0415
     from mgpusim.real.vulkan.machine import close_gpus, machine_record  # noqa: PLC0415
 
-    _check_drawable(exp)
     program = build_program(exp)
     threads = exp.profile.host.memcpy_threads if host_threads is None else host_threads
     if lp_threads is None:

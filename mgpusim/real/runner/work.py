@@ -198,7 +198,8 @@ def _frame_pass(task: PassTask, gpu: Gpu, res: Resources, targets: list[Any],
     if task.kind == "mesh":
         return MeshShare(gpu, targets, frame_size, int(p["triangles"]), int(p.get("first", 0)),
                          int(p.get("count", p["triangles"])), rect=p.get("rect"),
-                         origin=tuple(p.get("origin", (0, 0))), eye=eye)
+                         origin=tuple(p.get("origin", (0, 0))), eye=eye,
+                         shape=p.get("shape", "torus"), cull=p.get("cull", "none"))
     if task.kind == "filter":
         inputs = [[c for c, _d in res.images(r)] for r in task.reads]
         return Filter(gpu, targets, frame_size, int(p.get("iterations", 0)), inputs,

@@ -218,12 +218,34 @@ def _building(gpu: "Gpu", set_layout: Any, layout: Any) -> Iterator[list[Any]]:
             v.vkDestroyShaderModule(gpu.device, module, None)
 
 
+def _vertex_input(attributes: Sequence[tuple[int, str, int]], stride: int,
+                  strides: Sequence[int]) -> tuple[list[Any], list[Any]]:
+    """The vertex bindings and attributes: all in binding 0 of `stride`, or attribute k in
+    binding k of `strides[k]`."""
+    v = vk()
+    if not attributes:
+        return [], []
+    if strides and len(strides) != len(attributes):
+        raise ValueError(f"{len(strides)} vertex buffer strides for {len(attributes)} attributes")
+    sizes = list(strides) or [stride]
+    bindings = [v.VkVertexInputBindingDescription(binding=k, stride=size,
+                                                  inputRate=v.VK_VERTEX_INPUT_RATE_VERTEX)
+                for k, size in enumerate(sizes)]
+    attrs = [v.VkVertexInputAttributeDescription(location=loc, binding=k if strides else 0,
+                                                 format=getattr(v, f"VK_FORMAT_{fmt}"), offset=off)
+             for k, (loc, fmt, off) in enumerate(attributes)]
+    return bindings, attrs
+
+
 def graphics_pipeline(gpu: "Gpu", target: RenderTarget, vert: str, frag: str, *,
                       samplers: int = 0, push_size: int = 48,
                       vertex_attributes: Sequence[tuple[int, str, int]] = (), stride: int = 0,
-                      depth_test: bool = False, blend_add: bool = False,
+                      strides: Sequence[int] = (), depth_test: bool = False,
+                      blend_add: bool = False, cull_back: bool = False,
                       max_sets: int = 64) -> Pipeline:
-    """A pipeline for `target`'s render pass; attributes are (location, VK_FORMAT suffix, offset)."""
+    """A pipeline for `target`'s render pass; attributes are (location, VK_FORMAT suffix,
+    offset) in one vertex buffer of `stride` bytes, or with `strides` one buffer per attribute
+    (attribute k in binding k). `cull_back`: back faces culled, counter-clockwise in front."""
     v = vk()
     stage_v, stage_f = v.VK_SHADER_STAGE_VERTEX_BIT, v.VK_SHADER_STAGE_FRAGMENT_BIT
     dtype = v.VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER
@@ -235,12 +257,7 @@ def graphics_pipeline(gpu: "Gpu", target: RenderTarget, vert: str, frag: str, *,
         entry = "main"
         stages = [v.VkPipelineShaderStageCreateInfo(stage=stage_v, module=vmod, pName=entry),
                   v.VkPipelineShaderStageCreateInfo(stage=stage_f, module=fmod, pName=entry)]
-        binding = v.VkVertexInputBindingDescription(binding=0, stride=stride,
-                                                    inputRate=v.VK_VERTEX_INPUT_RATE_VERTEX)
-        vbindings = [binding] if vertex_attributes else []
-        attrs = [v.VkVertexInputAttributeDescription(location=loc, binding=0,
-                                                     format=getattr(v, f"VK_FORMAT_{fmt}"), offset=off)
-                 for loc, fmt, off in vertex_attributes]
+        vbindings, attrs = _vertex_input(vertex_attributes, stride, strides)
         vinput = v.VkPipelineVertexInputStateCreateInfo(
             vertexBindingDescriptionCount=len(vbindings), pVertexBindingDescriptions=vbindings or None,
             vertexAttributeDescriptionCount=len(attrs), pVertexAttributeDescriptions=attrs or None)
@@ -248,7 +265,8 @@ def graphics_pipeline(gpu: "Gpu", target: RenderTarget, vert: str, frag: str, *,
             topology=v.VK_PRIMITIVE_TOPOLOGY_TRIANGLE_LIST, primitiveRestartEnable=v.VK_FALSE)
         viewport = v.VkPipelineViewportStateCreateInfo(viewportCount=1, scissorCount=1)
         raster = v.VkPipelineRasterizationStateCreateInfo(
-            polygonMode=v.VK_POLYGON_MODE_FILL, cullMode=v.VK_CULL_MODE_NONE,
+            polygonMode=v.VK_POLYGON_MODE_FILL,
+            cullMode=v.VK_CULL_MODE_BACK_BIT if cull_back else v.VK_CULL_MODE_NONE,
             frontFace=v.VK_FRONT_FACE_COUNTER_CLOCKWISE, lineWidth=1.0)
         multisample = v.VkPipelineMultisampleStateCreateInfo(
             rasterizationSamples=v.VK_SAMPLE_COUNT_1_BIT)

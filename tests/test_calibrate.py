@@ -107,6 +107,54 @@ def test_cores_per_pass_from_cpu_time_against_pass_time():
     assert not calibrate(df.drop(columns="cpu_ns"), {}).cores
 
 
+def _mesh_rows(shape: str, cull: str, slowdown) -> list[dict]:
+    """Mesh rows alone and two at once, their times from fixed coefficients, the pairs'
+    slowdown given by `slowdown(queue-thread ns, total ns)`."""
+    from mgpusim.calibration.pass_fit import pass_work
+    coef = {"triangle": 15.0, "visible_triangle": 75.0, "triangle_edge": 25.0, "fragment": 3.0}
+    rows = []
+    for width, height in ((128, 96), (320, 240)):
+        for triangles in (2000, 10000, 40000):
+            key = {"pass": "mesh", "width": width, "height": height, "triangles": triangles,
+                   "place": "whole", "shape": shape, "cull": cull, "lp_threads": 4}
+            work = pass_work(pd.Series(key))
+            thread = coef["triangle"] * work["triangle"]
+            alone = 2e5 + sum(coef.get(t, 0.0) * a for t, a in work.items())
+            for gpus in (1, 2):
+                duration = alone * (slowdown(thread, alone) if gpus == 2 else 1.0)
+                for gpu in range(gpus):
+                    rows.append({**key, "gpus": gpus, "gpu": f"gpu{gpu}", "repetition": 0,
+                                 "duration_ns": duration, "cpu_ns": 1.2 * duration})
+    return rows
+
+
+def test_a_meshs_queue_thread_cores_are_told_apart_where_pairs_mix_them():
+    """Pairs of torus draws (every triangle rasterized) and of culled sphere draws (81 % of the
+    triangles culled on the queue thread) whose slowdowns follow 1 core for the triangles'
+    queue-thread work and 1.9 for the rest: the fit finds both and writes them; with the torus
+    alone (one mix) the mesh keeps one `cores`."""
+    def slowdown(thread, total):
+        return (1.0 * thread + 1.9 * (total - thread)) / total
+    df = pd.DataFrame(_mesh_rows("torus", "none", slowdown) + _mesh_rows("sphere", "back", slowdown))
+    df["source"] = "t"
+    cal = calibrate(df, {})
+    assert cal.term_cores["mesh"]["triangle"] == pytest.approx(1.0, abs=0.02)
+    assert cal.cores["mesh"][0] == pytest.approx(1.9, abs=0.02)
+    written = apply(cal, lavapipe_base({"cpu_count": 2}), "test")["gpus"][0]["costs"]["mesh"]
+    assert written["term_cores"] == {"triangle": pytest.approx(1.0, abs=0.02)}
+    load = parse_profile_dict(apply(cal, lavapipe_base({"cpu_count": 2}), "test"))
+    assert load.gpus[0].costs["mesh"].term_cores["triangle"] == pytest.approx(1.0, abs=0.02)
+    torus = pd.DataFrame(_mesh_rows("torus", "none", slowdown))
+    torus["source"] = "t"
+    alone = calibrate(torus, {})
+    assert "mesh" not in alone.term_cores and 1.0 < alone.cores["mesh"][0] < 1.9
+
+
+def parse_profile_dict(data: dict):
+    from mgpusim.model.profile import parse_profile
+    return parse_profile(data, "test")
+
+
 def test_cores_of_a_kind_measured_in_pairs_are_its_slowdown_two_at_once():
     """Where a table has a kind on two GPUs at once as well as alone (pair sweeps), its cores
     are the median over sizes of time together / time alone, whatever its CPU time says; the

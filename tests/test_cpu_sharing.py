@@ -94,6 +94,35 @@ def test_a_pass_that_keeps_fewer_cores_busy_is_slowed_less():
     assert alone == {"render0": 1600}  # alone, the measured time whatever the cores
 
 
+def test_a_pass_keeps_its_terms_cores_busy_weighted_by_their_time():
+    """`term_cores`: the work of a listed term keeps its own cores busy, the fixed part and the
+    other terms the pass's `cores`. 1600 ns of pixel iterations at 1 core beside 800 ns fixed
+    at 2 cores keep (1600 + 1600) / 2400 = 4/3 cores busy: two such renders at once on 2 cores
+    each run at 3/4 of their speed alone, 2400 -> 3200 ns; all of it at 1 core, no slowdown."""
+    prof = lavapipe_profile(2, None)
+    prof["gpus"][0]["costs"]["fragment_loop"].update(cores=2.0, term_cores={"pixel_iteration": 1.0})
+    assert renders(make_experiment(prof, gpus=2, iterations=100)) == {"render0": 1600, "render1": 1600}
+    prof["gpus"][0]["costs"]["fragment_loop"]["fixed_ns"] = 800
+    assert renders(make_experiment(prof, gpus=2, iterations=100)) == {"render0": 3200, "render1": 3200}
+    cost = parse_profile(prof, "t").gpus[0].costs["fragment_loop"]
+    assert cost.cores_of({"pixel_iteration": 1600}) == (800 * 2 + 1600) / 2400
+    assert cost.cores_of({}) == 2.0  # the fixed part alone
+
+
+def test_term_cores_are_checked():
+    import pytest
+
+    from mgpusim.model.errors import InputError
+    prof = lavapipe_profile(2, None)
+    prof["gpus"][0]["costs"]["fragment_loop"].update(cores=2.0, term_cores={"pixel_iteraton": 1.0})
+    with pytest.raises(InputError, match="did you mean 'pixel_iteration'"):
+        parse_profile(prof, "t")
+    prof["gpus"][0]["costs"]["fragment_loop"] = {"ns_per_pixel_iteration": 1.0,
+                                                 "term_cores": {"pixel_iteration": 1.0}}
+    with pytest.raises(InputError, match="needs the pass's own `cores`"):
+        parse_profile(prof, "t")
+
+
 def test_driver_overhead_takes_a_core_from_the_other_gpu():
     """Each render keeps 1 core busy and costs 800 core-ns of driver work outside it: two GPUs
     at once put four flows on the two cores, half a core each, until the overheads end at

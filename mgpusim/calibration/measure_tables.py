@@ -6,6 +6,7 @@ from __future__ import annotations
 import pandas as pd
 
 from mgpusim.model.errors import InputError
+from mgpusim.model.geometry import MESH_OPTIONS, PASS_OPTIONS
 from mgpusim.model.limits import MAX_TASK_NS, MAX_WORK
 from mgpusim.model.toml_checks import did_you_mean
 from mgpusim.validation.measured_check import number_column, unknown_names
@@ -32,10 +33,12 @@ NUMERIC_COLUMNS = ("width", "height", "iterations", "triangles", "inputs", "part
                    "threads", "gpus", "lp_threads", "cpu_ns", "alone_a_ns", "alone_b_ns")
 
 #: Every other column the measure library and its probes write: what a row identifies (the
-#: device, GPU, pass and repetition), where a copy or mesh ran, the overlap probe's pair, and
-#: the file a row came from once tables are read together (`source`).
+#: device, GPU, pass and repetition), where a copy or mesh ran, the mesh drawn (`shape`,
+#: `cull`), the overlap probe's pair, and the file a row came from once tables are read
+#: together (`source`).
 RECORD_COLUMNS = ("device", "gpu", "pass", "repetition", "duration_ns", "queue", "place", "pair",
-                  "queue_a", "queue_b", "copy", "graphics", "efficiency", "missing", "source")
+                  "queue_a", "queue_b", "copy", "graphics", "efficiency", "missing", "source",
+                  *MESH_OPTIONS)
 #: The columns a measure table may have: a column beyond these is a renamed or mistyped one,
 #: whose values the fit would otherwise ignore without a word.
 KNOWN_COLUMNS = tuple(dict.fromkeys((*RECORD_COLUMNS, *NUMERIC_COLUMNS,
@@ -56,6 +59,11 @@ def check_measure_table(df: pd.DataFrame, file: str) -> pd.DataFrame:
         raise InputError(f"unknown column {strange[0]!r}{did_you_mean(strange[0], KNOWN_COLUMNS)} "
                          f"(a measure table's columns: {', '.join(KNOWN_COLUMNS)})", file=file,
                          field=strange[0])
+    for key, names in PASS_OPTIONS["mesh"].items():
+        odd = unknown_names(df[key].dropna(), names) if key in df.columns else []
+        if odd:
+            raise InputError(f"unknown {key} {odd[0]!r}{did_you_mean(odd[0], names)} (a mesh's "
+                             f"{key}: {', '.join(names)})", file=file, field=key)
     unknown = unknown_names(df["pass"], MEASURED_PASSES)
     if unknown:
         raise InputError(f"unknown pass {unknown[0]!r}{did_you_mean(unknown[0], MEASURED_PASSES)} "

@@ -22,7 +22,13 @@ from mgpusim.measure import run_archive
 from mgpusim.model.errors import InputError
 from mgpusim.model.geometry import MESH_OPTIONS, MESH_PLACE, mesh_placement
 from mgpusim.model.scene import PassSpec
-from mgpusim.model.work_terms import PLACED_TERMS, REFERENCE_KINDS, UNPRICED_OK, WORK_TERMS
+from mgpusim.model.work_terms import (
+    PLACED_TERMS,
+    QUEUE_THREAD_TERMS,
+    REFERENCE_KINDS,
+    UNPRICED_OK,
+    WORK_TERMS,
+)
 from mgpusim.model.work_terms import pass_work as pass_work_placed
 from mgpusim.validation.measured_check import read_json_object, read_table
 
@@ -45,6 +51,9 @@ class Calibration:
     cores: dict[str, tuple[float, list[float]]] = field(default_factory=dict)
     #: lavapipe: how each kind's cores were measured, where not by CPU time
     cores_method: dict[str, str] = field(default_factory=dict)
+    #: lavapipe: cores of a kind's queue-thread terms where pairs told them from the rest's
+    #: (`cores` then holds for the rest), with the per-size slowdowns they were fitted on
+    term_cores: dict[str, dict[str, float]] = field(default_factory=dict)
     #: lavapipe: per pass kind, CPU time of a submission outside the pass (the fit's intercept)
     submission_cpu_ns: dict[str, float] = field(default_factory=dict)
     copy_fits: dict[tuple[str, str], Fit] = field(default_factory=dict)
@@ -155,6 +164,7 @@ def fit_cores(df: pd.DataFrame, cal: Calibration) -> None:
         if pair is not None:
             cal.cores[kind] = (float(np.clip(pair.median(), 1.0, most)), [float(r) for r in pair])
             cal.cores_method[kind] = "slowdown of two at once"
+            _fit_term_cores(cal, kind, pair, keys, most)
         sizes = mine.groupby(keys)[["duration_ns", "cpu_ns"]].median()
         if sizes["duration_ns"].nunique() < 2:
             if pair is None:
@@ -166,6 +176,40 @@ def fit_cores(df: pd.DataFrame, cal: Calibration) -> None:
         if pair is None:
             per_size = (sizes["cpu_ns"] - overhead) / sizes["duration_ns"]
             cal.cores[kind] = (float(np.clip(slope, 1.0, most)), [float(r) for r in per_size])
+
+
+def _fit_term_cores(cal: Calibration, kind: str, pair: pd.Series, keys: list[str],
+                    most: float) -> None:
+    """Where the pairs' sizes mix the kind's queue-thread terms (QUEUE_THREAD_TERMS) and its
+    other work in different shares (a mesh whose triangles are mostly culled beside one whose
+    triangles are all rasterized), fit the cores of each part: two passes that each keep c
+    cores busy take c times as long together, and a pass's c is its parts' cores weighted by
+    their time, so slowdown x time = c_thread x its queue-thread time + c_rest x the rest's,
+    linear in the two (least squares, each kept in [1, the GPU's threads]). Where the cost fit
+    could not tell its terms apart (our torus alone: every triangle it draws is rasterized, so
+    its triangles and rasterized triangles go together) or the shares do not differ enough
+    (less than 0.2 between the pairs' extremes), the kind keeps one `cores`."""
+    fit, terms = cal.pass_fits.get(kind), QUEUE_THREAD_TERMS.get(kind, ())
+    if fit is None or not terms or any("cannot tell" in w for w in fit.warnings):
+        return
+    coef = dict(zip(fit.names, fit.coef))
+    thread, total = [], []
+    for size in pair.index:
+        row = pd.Series({"pass": kind, **dict(zip(keys, size if isinstance(size, tuple) else (size,)))})
+        work = pass_work(row)
+        parts = {t: coef.get(f"ns_per_{t}", 0.0) * a for t, a in work.items()}
+        thread.append(sum(v for t, v in parts.items() if t in terms))
+        total.append(coef.get("fixed_ns", 0.0) + sum(parts.values()))
+    a, t = np.array(thread), np.array(total)
+    share = a / t
+    if share.max() - share.min() < 0.2:
+        return
+    X, y = np.column_stack([a, t - a]), pair.to_numpy(dtype=float) * t
+    (c_thread, c_rest), *_ = np.linalg.lstsq(X, y, rcond=None)
+    c_thread = float(np.clip(c_thread, 1.0, most))
+    c_rest = float(np.clip(np.sum((y - c_thread * a) * (t - a)) / np.sum((t - a) ** 2), 1.0, most))
+    cal.term_cores[kind] = {term: c_thread for term in terms}
+    cal.cores[kind] = (c_rest, cal.cores[kind][1])
 
 
 def _pair_slowdowns(df: pd.DataFrame, kind: str, keys: list[str]) -> pd.Series | None:

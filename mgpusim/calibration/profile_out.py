@@ -54,6 +54,8 @@ def apply(cal: Calibration, base: dict[str, Any], command: str) -> dict[str, Any
                 costs[kind]["cores"] = round(cal.cores[kind][0], 3)
                 if kind in cal.cores_method:
                     costs[kind]["cores_from_pairs"] = True
+                if kind in cal.term_cores:
+                    costs[kind]["term_cores"] = {t: round(c, 3) for t, c in cal.term_cores[kind].items()}
                 overhead = cal.submission_cpu_ns.get(kind, 0.0)
                 if overhead > 0:
                     costs[kind]["cpu_overhead_ns"] = round(overhead)
@@ -148,7 +150,8 @@ def report(cal: Calibration) -> str:
                      f"{bw:.3g} GB/s; rms {fit.rel_rms:.1%}")
     for kind, (value, ratios) in cal.cores.items():
         method = cal.cores_method.get(kind, "slope of CPU time on pass time")
-        lines.append(f"  {kind}: cores={value:.3g} ({method}; submission "
+        split = "".join(f", {t}'s {c:.3g}" for t, c in cal.term_cores.get(kind, {}).items())
+        lines.append(f"  {kind}: cores={value:.3g}{split} ({method}; submission "
                      f"{cal.submission_cpu_ns.get(kind, 0) / 1e3:.0f} us; per size: "
                      + ", ".join(f"{r:.2f}" for r in ratios) + ")")
     if cal.host:

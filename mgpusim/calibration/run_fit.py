@@ -247,7 +247,7 @@ def with_pass_fits(profile_data: dict[str, Any], fits: dict[str, Fit]) -> dict[s
             if any("cannot tell" in w for w in fit.warnings):
                 continue
             kept = {k: v for k, v in gpu["costs"].get(kind, {}).items()
-                    if k in ("cores", "cpu_overhead_ns", "cores_from_pairs")}
+                    if k in ("cores", "cpu_overhead_ns", "cores_from_pairs", "term_cores")}
             gpu["costs"][kind] = {**cost_table(fit), **kept}
     return out
 

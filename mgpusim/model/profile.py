@@ -177,6 +177,30 @@ class PassCost:
     #: The calibration's standard errors of `fixed_ns` ("fixed_ns") and of each `ns_per` term
     #: (by term): simulate carries them into results as a band (empty: no band).
     stderr: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
+    #: CPU-emulated GPUs only: the cores the work of each listed term keeps busy, where it is
+    #: not `cores` (which then holds for the fixed part and the other terms); a pass keeps busy
+    #: the mean of its parts' cores weighted by their time (:meth:`cores_of`). Why: llvmpipe
+    #: shades, clips, culls and bins a draw's triangles on the thread that runs the command
+    #: buffer and rasterizes on its rasterizer threads, so a mesh whose triangles are mostly
+    #: culled (vmgpu's sphere) keeps about one core busy where our torus, every triangle
+    #: rasterized, keeps about one and a half: one `cores` per kind cannot be both.
+    term_cores: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
+
+    def cores_of(self, work: Mapping[str, float]) -> float | None:
+        """The cores a pass of this cost with `work` keeps busy: `cores`, or with `term_cores`
+        the time-weighted mean of its parts' (None: not measured)."""
+        if self.cores is None or not self.term_cores:
+            return self.cores
+        rest, listed, busy = self.fixed_ns, 0.0, 0.0
+        for term, amount in work.items():
+            ns = self.ns_per.get(term, 0.0) * amount
+            cores = self.term_cores.get(term)
+            if cores is None:
+                rest += ns
+            else:
+                listed, busy = listed + ns, busy + cores * ns
+        total = rest + listed
+        return self.cores if total <= 0 else (busy + self.cores * rest) / total
 
     def shifted(self, sigmas: float) -> "PassCost":
         """The cost with every coefficient moved by `sigmas` standard errors (kept >= 0)."""
@@ -509,12 +533,14 @@ def _parse_costs(t: Table) -> Mapping[str, PassCost]:
         from_pairs = kt.get("cores_from_pairs", bool, False)
         known = [f"ns_per_{term}" for term in work_terms(kind)]
         stderr = _parse_stderr(kt.table("stderr", {}), known) if kt.has("stderr") else {}
+        term_cores = _parse_term_cores(kt, kind, cores) if kt.has("term_cores") else {}
         ns_per: dict[str, float] = {}
         for key in list(kt.rest()):
-            if key == "stderr":
+            if key in ("stderr", "term_cores"):
                 continue
             if key not in known:
-                extra = ['fixed_ns', 'cores', 'cpu_overhead_ns', 'cores_from_pairs', 'stderr']
+                extra = ['fixed_ns', 'cores', 'cpu_overhead_ns', 'cores_from_pairs', 'stderr',
+                         'term_cores']
                 raise kt.error(key, f"unknown cost key{did_you_mean(key, [*known, *extra])}"
                                     f" ({kind} takes {', '.join(extra)}, "
                                     f"{', '.join(known)})")
@@ -522,8 +548,26 @@ def _parse_costs(t: Table) -> Mapping[str, PassCost]:
                                                          maximum=L.MAX_COEFFICIENT)
         kt.finish()
         costs[kind] = PassCost(fixed, MappingProxyType(ns_per), cores, overhead, from_pairs,
-                               MappingProxyType(stderr))
+                               MappingProxyType(stderr), MappingProxyType(term_cores))
     return MappingProxyType(costs)
+
+
+def _parse_term_cores(kt: Table, kind: str, cores: float | None) -> dict[str, float]:
+    """A cost's cores per term (`[gpus.costs.<kind>.term_cores]`, keyed by work term): only
+    beside the pass's own `cores`, which holds for the rest of its work."""
+    t = kt.table("term_cores")
+    if cores is None:
+        raise kt.error("term_cores", "needs the pass's own `cores` beside it (the cores of its "
+                                     "fixed part and of the terms not listed)")
+    terms = work_terms(kind)
+    out = {}
+    for key in list(t.data):
+        if key not in terms:
+            raise t.error(key, f"unknown work term{did_you_mean(key, terms)} ({kind}'s: "
+                               f"{', '.join(terms)})")
+        out[key] = t.get(key, float, minimum=0.01, maximum=L.MAX_THREADS, why=L.WHY_ALLOC)
+    t.finish()
+    return out
 
 
 def _parse_stderr(t: Table, known: list[str]) -> dict[str, float]:

@@ -87,6 +87,13 @@ PLACED_TERMS: dict[str, tuple[str, ...]] = {
     "mesh": ("visible_triangle", "triangle_edge", "fragment"),
 }
 
+#: On CPU-emulated GPUs, the terms of a pass kind whose work runs on the thread that executes
+#: the command buffer, not on the rasterizer threads: llvmpipe's draw module shades, clips and
+#: culls every triangle and sets it up there (Mesa's `draw` and `lp_setup`), and only the
+#: binned triangles go on to its rasterizer threads. The calibration fits these terms' cores
+#: apart from the rest of the pass where its pairs of passes mix them differently.
+QUEUE_THREAD_TERMS: dict[str, tuple[str, ...]] = {"mesh": ("triangle",)}
+
 #: Terms whose coefficient a profile may lack: a profile calibrated before the term was
 #: modelled keeps its older model (the term costs nothing there). The placed terms, and a
 #: particle draw's fragments (`particle_pixel`).

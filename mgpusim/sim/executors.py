@@ -230,16 +230,18 @@ WorkTag = tuple[QueueRef, str]
 
 def task_cores(profile: HardwareProfile, task: Task) -> Fraction:
     """Cores a task of CPU-emulated GPUs keeps busy: a copy or a CPU task its thread, a pass its
-    kind's measured `cores`, else the GPU's rasterizer threads (never more than the host's cores)."""
+    kind's measured `cores` (with `term_cores`, weighted by its work's terms), else the GPU's
+    rasterizer threads (never more than the host's cores)."""
     host = profile.host
     if isinstance(task, (CopyTask, HostCopyTask, CpuTask)):
         return Fraction(1)
     gpu = profile.gpus[task.queue.device]
     threads = Fraction(min(gpu.cpu_threads or host.cpu_cores, host.cpu_cores))
     cost = gpu.costs.get(task.kind) if isinstance(task, PassTask) else None
-    if cost is None or cost.cores is None:
+    cores = None if cost is None else cost.cores_of(task.work)
+    if cores is None:
         return threads
-    return min(Fraction(repr(cost.cores)).limit_denominator(1000), threads)
+    return min(Fraction(repr(cores)).limit_denominator(1000), threads)
 
 
 def work_tag(task: Task) -> WorkTag:

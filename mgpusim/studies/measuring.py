@@ -98,9 +98,11 @@ def _round_probe(out: Path, point: str, prober: speed.Prober | None,
     return rows
 
 
-def _sweep_of(sweeps: tuple, name: str) -> dict[str, list[Any]]:
-    """Pass `name`'s sweep among `sweeps` as plain lists ({} if it has none)."""
-    return {k: list(v) for n, sweep in sweeps if n == name for k, v in sweep.items()}
+def _sweep_of(sweeps: tuple, name: str) -> dict[str, list[Any]] | list[dict[str, list[Any]]]:
+    """Pass `name`'s sweep among `sweeps` as plain lists ({} if it has none; a list of them
+    where it has several)."""
+    mine = [{k: list(v) for k, v in sweep.items()} for n, sweep in sweeps if n == name]
+    return mine[0] if len(mine) == 1 else mine if mine else {}
 
 
 def measure_runs(study: Study, entries: tuple[Entry, ...], profile: Path, out: Path,

@@ -46,7 +46,8 @@ class Entry:
 
 @dataclass(frozen=True)
 class Microbenchmarks:
-    """Pass sweeps to measure (`rounds` x `reps` repetitions each), or committed `tables`.
+    """Pass sweeps to measure (`rounds` x `reps` repetitions each; a pass may have several, as
+    the mesh has our torus and vmgpu's culled sphere), or committed `tables`.
     `pairs`: sweeps measured alone and on two simulated GPUs at once, for the kinds whose
     `cores` is fitted from how much two of them slow each other (lavapipe)."""
 
@@ -284,10 +285,12 @@ def _sweeps(t: Table) -> tuple[tuple[str, Mapping[str, tuple[Any, ...]]], ...]:
         if name not in MEASURED_PASSES:
             raise t.error(name, f"not a pass of the measure library{did_you_mean(name, MEASURED_PASSES)}; "
                                 f"it has {', '.join(MEASURED_PASSES)}")
-        sweep = t.table(name)
-        if not sweep.data:
-            raise sweep.error("", "an empty sweep: give each parameter's values")
-        out.append((name, MappingProxyType({k: _values(sweep, k) for k in list(sweep.data)})))
+        # one sweep, or several of one pass (an array: their products measured one after another)
+        several = isinstance(t.data[name], list)
+        for sweep in (t.tables(name) if several else [t.table(name)]):
+            if not sweep.data:
+                raise sweep.error("", "an empty sweep: give each parameter's values")
+            out.append((name, MappingProxyType({k: _values(sweep, k) for k in list(sweep.data)})))
     return tuple(out)
 
 

@@ -91,8 +91,8 @@ SET_CASES = [
     ("sf", "schedule.gpus=inf", "schedule.gpus"),
     ("sf", "schedule.gpus=4", "profile.gpu_count=4"),
     ("sf", "schedule.gpus=1000", "<= 64"),
-    ("sf", "schedule.frames=100000000", "<= 1e+06"),
-    ("sf", "schedule.frames=1000001", "<= 1e+06"),
+    ("sf", "schedule.frames=100000000", "<= 1e+07"),
+    ("sf", "schedule.frames=10000001", "<= 1e+07"),
     ("sf", "schedule.frames=0", ">= 1"),
     ("sf", "scene.width=nan", "scene.width"),
     ("sf", "scene.width=1e400", "scene.width"),
@@ -201,7 +201,7 @@ EXPERIMENT_CASES: list[tuple[str, Callable[[dict], None], tuple[str, ...]]] = [
     ("sf", _put("schedule.gpus", 0), ("schedule.gpus", ">= 1")),
     ("sf", _put("schedule.gpus", "two"), ("schedule.gpus", "integer")),
     ("sf", _put("schedule.frames", 2.5), ("schedule.frames", "integer")),
-    ("sf", _put("schedule.frames", 10**8), ("schedule.frames", "<= 1e+06")),
+    ("sf", _put("schedule.frames", 10**8), ("schedule.frames", "<= 1e+07")),
     ("sf", _put("schedule.warmup_frames", 60), ("warmup_frames", "< frames")),
     ("sf", _put("schedule.warmup_frames", -1), ("warmup_frames", ">= 0")),
     ("sf", _put("schedule.frames_in_flight", 0), ("frames_in_flight", ">= 1")),
@@ -1020,8 +1020,8 @@ for _i, _frames in enumerate(SIMULATE_FRAMES):
     CASES.append(Case(f"cli-simulate-frames-{_i}", _make, ("--frames",)))
 
 CASE_FRAMES = [("99999999999999999999999", "18 digits"), ("\u0661\u0662", "ASCII digits"),
-               ("\uff11\uff12", "ASCII digits"), ("\u00b2", "ASCII digits"), ("1", "2..1e+06"), ("0", "2..1e+06"),
-               ("-5", "2..1e+06"), ("10000001", "2..1e+06"), ("1e3", "invalid int"), ("x", "invalid int"),
+               ("\uff11\uff12", "ASCII digits"), ("\u00b2", "ASCII digits"), ("1", "2..1e+07"), ("0", "2..1e+07"),
+               ("-5", "2..1e+07"), ("10000001", "2..1e+07"), ("1e3", "invalid int"), ("x", "invalid int"),
                ("", "invalid int"), (" 12 ", None)]
 for _i, (_frames, _words) in enumerate(CASE_FRAMES):
     if _words is None:  # the control below: spaces around digits are a number
@@ -1147,8 +1147,8 @@ CASE_CASES: list[tuple[str, Callable[[Path], list[str]], tuple[str, ...]]] = [
     ("column-kind", _case('[[columns]]\nname = "c"\nlabel = "c"\nkind = "utilisation"\nselect = "gpu*"\n'),
      ("columns[0].kind",)),
     ("unknown-top", _case(top="colums = 1\n"), ("colums", "unknown key")),
-    ("frames-one", _case("", "", "--frames", "1"), ("--frames", "2..1e+06")),
-    ("frames-huge", _case("", "", "--frames", "100000000"), ("--frames", "1e+06")),
+    ("frames-one", _case("", "", "--frames", "1"), ("--frames", "2..1e+07")),
+    ("frames-huge", _case("", "", "--frames", "100000000"), ("--frames", "1e+07")),
     ("no-case", lambda tmp: ["case", "nope", "--out", str(tmp / "out")], ("no case of that name",)),
 ]
 

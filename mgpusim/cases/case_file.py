@@ -383,7 +383,12 @@ def run_case(case: Case, frames: int | None = None, values: Mapping[str, float] 
             if progress is not None:
                 progress(r.name)
             # a parameter is set on every run it names; a variant with no use for it is no what-if
-            results[r.name] = simulate(exps[r.name], check_unused=False)
+            try:
+                results[r.name] = simulate(exps[r.name], check_unused=False)
+            except InputError as exc:  # (a run too long to simulate frame by frame: `frames`' doing)
+                if frames is None or exc.field != "schedule.frames":
+                    raise
+                raise InputError(f"run {r.name!r} of {case.file}: {exc.detail}", field="--frames") from None
     out = CaseResult(case, results, exps)
     for run in runs:
         out.columns[run.name] = {c.name: column_value(c, results.get(run.name), exps[run.name])

@@ -11,19 +11,33 @@ INT64_MAX = 2 ** 63 - 1
 
 #: One task (a pass, a copy, a host copy: its bytes at the slower of a memcpy thread and host
 #: memory) and every fixed time in a profile (latency, fixed cost, dispatch, submit, gap) may
-#: last at most this: 10^12 ns = 1000 s. With at most MAX_FRAMES frames a run stays far from
-#: int64 unless thousands of such tasks follow each other. A task an override pushes past it is
-#: refused naming that override.
+#: last at most this: 10^12 ns = 1000 s. A run of MAX_FRAMES frames passes int64 only where
+#: its frames take nearly a whole such task each, one after another (the run is then refused,
+#: naming the int64 limit). A task an override pushes past it is refused naming that override.
 MAX_TASK_NS = 10 ** 12
 WHY_TIME = "keeps simulated time within int64 ns"
 
-#: Frames of one run. Why 10^6: a run whose state never repeats simulates every frame (10^6
-#: take minutes), and a fast-forwarded one still holds a few arrays per frame and writes a
-#: table row per frame, task and link transfer; at 10^6 frames every shipped experiment runs
-#: with its default outputs in at most 415 MiB (`benchmarks/largest_run_memory.py --all`:
-#: lavapipe/particles the largest), where 10^7 took 2-5 GB.
-MAX_FRAMES = 1_000_000
-WHY_FRAMES = "a run holds a few arrays per frame and writes rows per frame; 10^6 fit in 0.4 GiB"
+#: Frames of one run, as read (`schedule.frames`, `mgpusim case --frames`). Why 10^7: a run
+#: past MAX_RECORDED_FRAMES goes on only once it has fast-forwarded (below), and a
+#: fast-forwarded run holds two arrays per frame and writes a table row per frame, task and
+#: link transfer; at 10^7 frames every shipped experiment that fast-forwards runs with its
+#: default outputs in under 1 GiB (`benchmarks/largest_run_memory.py --all`: `sort_last_tc1`
+#: the largest, 947-966 MiB); that memory grows with the frames (10^8: about ten times it).
+MAX_FRAMES = 10_000_000
+WHY_FRAMES = "a fast-forwarded run holds two arrays and writes rows per frame; 10^7 fit in 1 GiB"
+
+#: Frames a run may simulate without having fast-forwarded (its state repeating: the exact
+#: fast-forward, :mod:`mgpusim.sim.fastforward`, or the analytic level's repeat; not the
+#: analytic level's affine stretch, which fills in a run whose state never repeats and holds
+#: every frame's rows). Why 10^6: a run whose state does not repeat simulates every frame and
+#: keeps every frame's records (its trace rows, link intervals and skipped frames: what its
+#: tables are built from), so its memory grows with each frame; vmgpu
+#: (`experiments/vmgpu/vmgpu.toml`, which does not repeat at that length) reached 1.4 GiB at
+#: 1.15 x 10^6 frames, and 10^6 frames one by one take a minute or more. A longer run that has
+#: not fast-forwarded by the time that is known (the fast-forward gave up, or is off) is
+#: refused then, before it runs on and before anything is written.
+MAX_RECORDED_FRAMES = 1_000_000
+WHY_RECORDED = "1.4 GiB at 1.15 x 10^6 frames of a run that does not repeat"
 
 #: GPUs of a profile or a schedule, queues of one family, memcpy threads, CPU cores: the
 #: engine builds one process per queue and thread, schedules build tasks per GPU pair.

@@ -38,6 +38,7 @@ import numpy as np
 from mgpusim.model.costs import CostModel
 from mgpusim.model.errors import InputError, ScheduleError
 from mgpusim.model.geometry import even_split
+from mgpusim.model.limits import MAX_RECORDED_FRAMES
 from mgpusim.model.profile import HostProfile
 from mgpusim.model.tasks import CopyTask, CpuTask, HostCopyTask, Task
 from mgpusim.results.periodic import RowColumns
@@ -50,7 +51,7 @@ from mgpusim.sim.channel import FixedRateChannel
 from mgpusim.sim.effects import choose_effects
 from mgpusim.sim.engine import RawResult
 from mgpusim.sim.executors import make_executors
-from mgpusim.sim.fastforward import Repeat
+from mgpusim.sim.fastforward import Repeat, Unrepeated
 from mgpusim.sim.ops import Op, OpBuilder
 from mgpusim.sim.snapshot import Environment
 
@@ -278,25 +279,31 @@ class Analytic:
         """One run of the recurrence: rows, frame starts, presents, the repeat (None: every
         frame computed, or the arrays already extended when no rows were asked for), the
         repeat found, skipped frames and tied skip decisions, with the frames past those
-        computed filled in (:meth:`_extended`). The model itself is left as it was built, so
+        computed filled in (:meth:`_extended`). A run of more than MAX_RECORDED_FRAMES frames
+        whose state has not repeated by then raises :class:`~.fastforward.Unrepeated` there
+        (the loop's own bound: no test per frame). The model itself is left as it was built, so
         that one model serves many runs (simulate() keeps it per experiment,
         :mod:`mgpusim.sim.prepared`)."""
         rec = _Recurrence(self, record)
         frames = self.program.frames
         horizon, repeat, f = frames, None, 0
+        stop = min(horizon, MAX_RECORDED_FRAMES)  # (past it only once a repeat shortened the run)
         step = max(1, frames // 200)
-        while f < horizon:
+        while f < stop:
             if progress is not None and f % step == 0:
                 progress(f, horizon)
             rec.frame(f)
             if repeat is None and f >= self.lag:
                 repeat = rec.look_for_repeat(f)
                 if repeat is not None:
-                    horizon = frames - repeat.copies * repeat.frames
+                    horizon = stop = frames - repeat.copies * repeat.frames
                 elif rec.found is None and rec.stretch_to_end(f):
                     break  # every frame after f filled in from one period (mgpusim.sim.affine)
             rec.forget_before(f - self.lag)
             f += 1
+        else:
+            if f < horizon:
+                raise Unrepeated(f"no repeat within the first {f:,} frames")
         if progress is not None:
             progress(horizon, horizon)
         rows = rec.rows if rec.columns is None else rec.columns
@@ -544,7 +551,9 @@ class _Recurrence:
         fills are never looked at for a repeat, so it also checks that none of them would have
         been found as one (no state of the stretch equals an earlier one, and none equals
         another), and then the run reports what frame by frame would have: the same rows,
-        presents, skips, ties and repeat (none)."""
+        presents, skips, ties and repeat (none). So a run of more than MAX_RECORDED_FRAMES
+        frames, which may go on only once it has repeated, is refused here (Unrepeated): it
+        never will, and the stretch would hold every frame's rows."""
         if f < self.next_try:
             return False
         p, frames = len(self.m.phases), self.m.program.frames
@@ -562,6 +571,9 @@ class _Recurrence:
         if out is None:
             self._later(self.gap)
             return False
+        if frames > MAX_RECORDED_FRAMES:  # no state repeats to the end: it would keep every frame's rows
+            raise Unrepeated(f"the state never repeats (from frame {f + 1} every period moves each "
+                             "time by its own constant)")
         self._fill(f, *out)
         return True
 

@@ -32,14 +32,35 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import simpy
 
+from mgpusim.model.errors import InputError
+from mgpusim.model.limits import MAX_RECORDED_FRAMES, WHY_RECORDED
 from mgpusim.sim.executors import Dedicated, Interpreter, SharedCores, SharedGpu
 from mgpusim.sim.snapshot import Callback, Relative, Unsupported
 
 if TYPE_CHECKING:
     from mgpusim.sim.engine import Engine
 
-#: Stop looking for a repeat after this many frames (the run then simply continues).
+#: Stop looking for a repeat after this many frames (the run then simply continues, up to
+#: MAX_RECORDED_FRAMES: a longer one is refused there, see :class:`Unrepeated`).
 PROBE_FRAMES = 4000
+
+
+class Unrepeated(Exception):
+    """A run of more than MAX_RECORDED_FRAMES frames that has not fast-forwarded, where that is
+    known: its fast-forward is off, or gave up (the run would keep every frame's records).
+    Raised before the run goes past the frames it looks at, from inside the run where it gives
+    up there; `simulate()` turns it into the user's error. Its one argument says why no repeat
+    was found (positional only: SimPy re-raises a copy made from the arguments)."""
+
+
+def unrepeated_error(frames: int, why: str, file: str | None = None, key: str = "schedule.frames") -> InputError:
+    """The error of a run of more than MAX_RECORDED_FRAMES frames that has not fast-forwarded
+    (:class:`Unrepeated`, `why` its argument), naming `key`."""
+    return InputError(f"{frames:,} frames, but above {MAX_RECORDED_FRAMES:,} a run must fast-forward "
+                      f"(its state must repeat) and this one did not ({why}): frame by frame it would "
+                      f"keep every frame's records, more than fit in memory ({WHY_RECORDED}); give at "
+                      f"most {MAX_RECORDED_FRAMES:,} frames, or a schedule whose state repeats (with the "
+                      "fast-forward on)", file=file, field=key)
 
 
 @dataclass
@@ -66,12 +87,13 @@ class Repeat:
 class FastForward:
     """Watches an engine's presents, finds a repeat, shortens the run (see the module doc)."""
 
-    def __init__(self, engine: Engine, probe_frames: int = PROBE_FRAMES, keep_rows: bool = True):
-        """`keep_rows`: the caller wants the trace; if not, the rows the engine records for the
-        fast-forward are dropped, and no longer recorded, once it gives up."""
+    def __init__(self, engine: Engine, probe_frames: int | None = None, keep_rows: bool = True):
+        """`probe_frames`: frames to look for a repeat in (default PROBE_FRAMES). `keep_rows`: the
+        caller wants the trace; if not, the rows the engine records for the fast-forward are
+        dropped, and no longer recorded, once it gives up."""
         self.engine = engine
         self.keep_rows = keep_rows
-        self.probe_frames = probe_frames
+        self.probe_frames = PROBE_FRAMES if probe_frames is None else probe_frames
         self.seen: dict[tuple, tuple[int, int, tuple]] = {}
         #: cheap keys met so far: the full description is only written for a moment whose
         #: cheap key was met before (a repeat is then found one period later than it could be)
@@ -144,6 +166,8 @@ class FastForward:
     def _give_up(self, reason: str) -> None:
         self._stop()
         self.reason = reason
+        if self.engine.horizon > MAX_RECORDED_FRAMES:  # it will not fast-forward now
+            raise Unrepeated(reason)
         if not self.keep_rows:  # memory stays flat for the rest of a long run
             self.engine.record = False
             self.engine.rows.clear()
@@ -186,10 +210,14 @@ class FastForward:
 def run(engine: Engine, enabled: bool = True, record_trace: bool = True,
         progress: Callable[[int, int], None] | None = None) -> Any:
     """Run `engine` (built with record_trace=True when `enabled`), fast-forwarding if its state
-    repeats; the RawResult carries the repeat and what the fast-forward did. `progress(done,
+    repeats; the RawResult carries the repeat and what the fast-forward did. A run of more than
+    MAX_RECORDED_FRAMES frames raises :class:`Unrepeated` once it is known not to fast-forward
+    (before it starts, or where the fast-forward gives up). `progress(done,
     total)`: called as frames present (about 200 times in a run), with the frames presented
     and the frames the run will simulate (fewer once a repeat is found)."""
     ff = FastForward(engine, keep_rows=record_trace) if enabled else None
+    if engine.horizon > MAX_RECORDED_FRAMES and (ff is None or not ff.active):
+        raise Unrepeated("the fast-forward is off" if ff is None else ff.reason)
     hooks: list[Callable[[int], None]] = []
     if ff is not None and ff.active:
         hooks.append(ff.on_present)

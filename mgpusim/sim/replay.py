@@ -70,7 +70,10 @@ def replay(exp: Experiment, durations: Durations, frames: int,
     pool = (lambda env: measured_executors(env, costs)) if exp.profile.host.gpus_share_cpu else None
     engine = Engine(program, costs, record_trace=True, effects=effects, executors=pool,
                     durations=filled(program, durations), skips=skipped)
-    raw = fastforward.run(engine, enabled=False, record_trace=True)
+    try:
+        raw = fastforward.run(engine, enabled=False, record_trace=True)
+    except fastforward.Unrepeated as exc:  # (a measured run of over 10^6 frames)
+        raise fastforward.unrepeated_error(frames, exc.args[0], exp.file, key="frames") from None
     result = build_result(raw, program.warmup_frames, run_config(exp, program))
     result.summary.update(fidelity="replay", modelled_effects=sorted(effects), fast_forward=raw.fast_forward)
     return result

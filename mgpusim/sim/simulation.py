@@ -31,7 +31,10 @@ def simulate(exp: Experiment, record_trace: bool = True, fidelity: str = "full",
     """Run `exp` in the model. Same experiment, same result, bit for bit.
 
     `fidelity`: "full", "queues" or "analytic" (mgpusim.sim.effects); `effects`: effects forced
-    on (True) or off (False); `fast_forward`: skip repeats of the model's state (exact).
+    on (True) or off (False); `fast_forward`: skip repeats of the model's state (exact). A run
+    of more than MAX_RECORDED_FRAMES (10^6) frames goes on only once it has fast-forwarded; one
+    that has not by the time that is known is an InputError naming `schedule.frames`
+    (:mod:`mgpusim.model.limits`).
     `band`: where the profile carries its calibration's standard errors, also simulate every
     pass cost one standard error lower and higher, and report the summary's
     frame_time_ms_lo/hi and latency_ms_lo/hi (the calibration's uncertainty carried through).
@@ -198,14 +201,17 @@ def _run_model(exp: Experiment, program: FrameProgram, chosen: frozenset[str], f
     `analytic`: gives the recurrence's model already built (else it is built here)."""
     costs = CostModel(exp.profile)
     try:
-        if fidelity == "analytic":
-            from mgpusim.sim.analytic import Analytic, model_raw  # noqa: PLC0415 (only this level needs it)
-            model = analytic() if analytic is not None else Analytic(program, costs, chosen)
-            return model_raw(model, record_trace, progress)
-        engine = Engine(program, costs, record_trace=record_trace or fast_forward, effects=chosen)
-    except TimeBoundError as exc:  # the profile's rates times the experiment's work
-        raise _bound_error(exp, program, chosen, fidelity, exc) from None
-    return fastforward.run(engine, fast_forward, record_trace, progress)
+        try:
+            if fidelity == "analytic":
+                from mgpusim.sim.analytic import Analytic, model_raw  # noqa: PLC0415 (only this level needs it)
+                model = analytic() if analytic is not None else Analytic(program, costs, chosen)
+                return model_raw(model, record_trace, progress)
+            engine = Engine(program, costs, record_trace=record_trace or fast_forward, effects=chosen)
+        except TimeBoundError as exc:  # the profile's rates times the experiment's work
+            raise _bound_error(exp, program, chosen, fidelity, exc) from None
+        return fastforward.run(engine, fast_forward, record_trace, progress)
+    except fastforward.Unrepeated as exc:
+        raise fastforward.unrepeated_error(program.frames, exc.args[0], exp.file) from None
 
 
 def _bound_error(exp: Experiment, program: FrameProgram, chosen: frozenset[str], fidelity: str,

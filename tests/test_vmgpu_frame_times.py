@@ -147,3 +147,28 @@ def test_targets_met_needs_every_target_on_the_half() -> None:
     assert not targets_met(study, table.assign(error=[0.0, 0.0, med / 2, worst * 1.5]))
     assert not targets_met(study, table.assign(error=[med * 1.5, med * 1.5, med / 2, med * 1.5],
                                                amdahl_error=[float("nan"), float("nan"), 1.0, 1.0]))
+
+
+MEASURED = """
+[measured_costs]
+table = "../../data/vmgpu/h200_x1/mesh_draw/passes.parquet"
+pass = "mesh"
+where = { shape = "sphere", gpus = 1 }
+why = "vmgpu's sphere"
+"""
+
+
+@pytest.mark.parametrize("change, message", [
+    (("passes.parquet", "none.parquet"), "no measure table"),
+    (('shape = "sphere"', 'shap = "sphere"'), "no column 'shap'"),
+    (('shape = "sphere"', 'shape = "cube"'), "no 'mesh' rows"),
+])
+def test_measured_costs_that_cannot_be_fitted_are_refused(tmp_path: Path, change, message) -> None:
+    """The measured costs' table must exist, hold the columns `where` names, and have rows of
+    the pass on one GPU there; the fit replaces the profile's costs of that pass only."""
+    good = _study_copy(tmp_path / "g", STUDY.read_text() + MEASURED)
+    sets, line = fts.measured_cost_sets(fts.load_study(good))
+    assert sets and all(s.startswith("profile.gpus.*.costs.mesh.") for s in sets) and "160 rows" in line
+    bad = _study_copy(tmp_path / "b", (STUDY.read_text() + MEASURED).replace(*change))
+    with pytest.raises(InputError, match=message):
+        fts.measured_cost_sets(fts.load_study(bad))

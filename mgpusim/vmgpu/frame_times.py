@@ -17,7 +17,7 @@ resolution): a model that cannot beat it has learnt nothing about what each adde
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -57,6 +57,20 @@ class Fit:
 
 
 @dataclass(frozen=True)
+class MeasuredCosts:
+    """A pass kind's costs fitted on our microbenchmark of the renderer's own draw (a measure
+    table's rows where every `where` column holds one of its values), in place of the
+    profile's: `why` says what the rows drew. Why: a renderer's draw is not our runner's (its
+    mesh, vertex layout, shaders), and measuring it is better than fitting a parameter to the
+    renderer's frame times."""
+
+    table: Path
+    kind: str
+    where: dict[str, tuple[Any, ...]]
+    why: str
+
+
+@dataclass(frozen=True)
 class FrameTimeStudy:
     name: str
     description: str
@@ -66,6 +80,7 @@ class FrameTimeStudy:
     sets: tuple[str, ...]
     fits: tuple[Fit, ...]
     targets: dict[str, float]
+    measured_costs: MeasuredCosts | None = None
 
 
 def is_frame_time_study(path: Path) -> bool:
@@ -78,21 +93,65 @@ def load_study(path: Path) -> FrameTimeStudy:
     t = Table(read_toml(path), str(path))
     base = path.parent
     t.get("kind", str, choices=(KIND,))
-    fits = t.tables("fit")
+    fits = t.tables("fit") if t.has("fit") else []
     targets = t.table("targets", None)
+    costs = t.table("measured_costs") if t.has("measured_costs") else None
     study = FrameTimeStudy(
         name=t.get("name", str), description=t.get("description", str, ""), path=path,
         experiment=base / t.get("experiment", str), runs=base / t.get("runs", str),
         sets=tuple(str(s) for s in t.get("sets", list, [])),
         fits=tuple(_fit(f) for f in fits),
         targets={"median_error": targets.get("median_error", float, 0.05, minimum=0.0),
-                 "worst_error": targets.get("worst_error", float, 0.10, minimum=0.0)})
-    for table in (t, *fits, targets):
+                 "worst_error": targets.get("worst_error", float, 0.10, minimum=0.0)},
+        measured_costs=None if costs is None else _measured_costs(costs, base))
+    for table in (t, *fits, targets, *([] if costs is None else [costs])):
         table.finish()
     strategies = [f.strategy for f in study.fits]
     if len(set(strategies)) < len(strategies):
         raise InputError("at most one fitted parameter per strategy", file=str(path), field="fit")
     return study
+
+
+def _measured_costs(t: Table, base: Path) -> MeasuredCosts:
+    where = t.table("where", {})
+    chosen = {key: tuple(v if isinstance(v, list) else [v]) for key, v in where.data.items()}
+    for key in chosen:
+        where.get(key, object)
+    where.finish()
+    return MeasuredCosts(base / t.get("table", str), t.get("pass", str), chosen, t.get("why", str))
+
+
+def measured_cost_sets(study: FrameTimeStudy) -> tuple[tuple[str, ...], str]:
+    """The `--set` overrides of the study's measured costs (none where it has none) and a line
+    that says what was fitted on what, with the fit's residual."""
+    from mgpusim.calibration.measure_tables import check_measure_table  # noqa: PLC0415
+    from mgpusim.calibration.pass_fit import Calibration, fit_passes  # noqa: PLC0415
+    costs = study.measured_costs
+    if costs is None:
+        return (), ""
+    if not costs.table.is_file():
+        raise InputError(f"no measure table at {costs.table}", file=str(study.path),
+                         field="measured_costs.table")
+    rows = check_measure_table(table_files.read_parquet(costs.table), str(costs.table))
+    for key, chosen in costs.where.items():
+        if key not in rows.columns:
+            raise InputError(f"the table has no column {key!r}", file=str(study.path),
+                             field=f"measured_costs.where.{key}")
+        rows = rows[rows[key].isin(chosen)]
+    rows = rows[rows["pass"] == costs.kind].assign(source=costs.table.name)
+    cal = Calibration()
+    fit_passes(rows, cal)
+    if costs.kind not in cal.pass_fits:
+        raise InputError(f"no {costs.kind!r} rows on one GPU where {dict(costs.where)}",
+                         file=str(study.path), field="measured_costs.where")
+    fit = cal.pass_fits[costs.kind]
+    coef = dict(zip(fit.names, (float(c) for c in fit.coef)))
+    sets = tuple(f"profile.gpus.*.costs.{costs.kind}.{name}={value!r}" for name, value in coef.items())
+    shown = ", ".join(f"{name} {value:.4g}" for name, value in coef.items())
+    line = (f"Measured, not fitted to the frame times: the {costs.kind} costs of {costs.why}, "
+            f"fitted on {len(rows)} rows of {costs.table.name} ({shown}; rms {fit.rel_rms:.1%} of a "
+            f"draw), in place of the profile's.")
+    return sets, line
 
 
 def _fit(f: Table) -> Fit:
@@ -276,6 +335,8 @@ class Validation:
     study: FrameTimeStudy
     fitted: dict[str, Fitted]
     halves: dict[str, pd.DataFrame]
+    #: what the study's measured costs are and where from ("" where it has none)
+    measured: str = ""
 
     @property
     def values(self) -> dict[str, float]:
@@ -295,12 +356,14 @@ def validate(study: FrameTimeStudy, held_out: bool,
     """Fit the study's parameters on the calibration half, then compare the calibration half
     and (`held_out`) the held-out half with the model."""
     table = measured(study)
+    sets, line = measured_cost_sets(study)
+    study = replace(study, sets=study.sets + sets)
     fitted = fit_values(study, table, progress)
     values = values_of(fitted)
     halves = {"calibration": compared(study, table[table.half == "calibration"], values)}
     if held_out:
         halves["held-out"] = compared(study, table[table.half == "held-out"], values)
-    return Validation(study, fitted, halves)
+    return Validation(study, fitted, halves, line)
 
 
 def markdown(v: Validation) -> str:
@@ -310,7 +373,8 @@ def markdown(v: Validation) -> str:
              "Named in the study file before any comparison, each fitted on the calibration half "
              "only (in this order, the earlier ones in place):", ""]
     lines += [f"- `{f.key}` = {v.values[f.key]:.4g}{_bound_note(f, v.fitted[f.key])} on the "
-              f"{f.strategy} runs on {f.gpus} GPU(s): {f.why}" for f in s.fits]
+              f"{f.strategy} runs on {f.gpus} GPU(s): {f.why}" for f in s.fits] or ["- none"]
+    lines += ["", v.measured] if v.measured else []
     lines += ["", "Replay level: none (vmgpu writes no per-task timestamps)."]
     gap = gap_line(v)
     lines += ([gap] if gap else []) + [""]

@@ -83,3 +83,23 @@ def test_two_vkdevices_drawing_at_once_take_turns(table, alone):
         else:
             assert ratio < 2.3
     assert overlapped >= 5
+
+
+def test_a_sort_first_strip_of_vmgpus_mesh_costs_about_a_whole_draw(alone):
+    """bands.parquet: at 5M triangles a strip of 1/2-1/4 of the frame costs 85-100 % of the
+    whole draw (the triangles outside the strip are shaded and set up all the same), and N
+    strips on N VkDevices at once take N / c as long as one, c 0.93-0.99: the turn-taking the
+    model's `devices` efficiency says."""
+    bands = pd.read_parquet(DATA / "mesh_draw" / "bands.parquet")
+    assert set(bands.place) == {f"row={k}/{n}" for n in (2, 3, 4) for k in range(n)} | {"whole"}
+    solo = bands[bands.gpus == 1].groupby(["width", "height", "triangles", "place"]).duration_ns.median() / 1e6
+    for w, h in RESOLUTIONS:
+        whole = alone[("sphere", "back", w, h, 5_000_000)]
+        strips = solo.loc[(w, h, 5_000_000)]
+        assert (strips.drop("row=3/4", errors="ignore") > 0.85 * whole).all()
+        assert (strips < 1.0 * whole).sum() >= len(strips) - 1  # one slow outlier at most
+        for n in (2, 3, 4):
+            many = bands[(bands.gpus == n) & (bands.width == w) & (bands.triangles == 5_000_000)
+                         & (bands.place == f"row=0/{n}")]
+            slowest = many.groupby("repetition").duration_ns.max().median() / 1e6
+            assert 0.93 < n * strips[f"row=0/{n}"] / slowest < 0.99

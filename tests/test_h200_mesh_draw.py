@@ -103,3 +103,26 @@ def test_a_sort_first_strip_of_vmgpus_mesh_costs_about_a_whole_draw(alone):
                          & (bands.place == f"row=0/{n}")]
             slowest = many.groupby("repetition").duration_ns.max().median() / 1e6
             assert 0.93 < n * strips[f"row=0/{n}"] / slowest < 0.99
+
+
+def test_our_runners_as_built_loop_grows_as_vmgpus_does():
+    """runner_as_built/: our runner's as-built loop on 1-4 VkDevices of the one H200 at 5M
+    triangles, 4K: its frame time within 15 % of vmgpu's busy time at every device count, and
+    in its trace each added device's strip adds 3.9-4.9 ms of renders, which run one after the
+    other on the GPU."""
+    folder = DATA / "runner_as_built"
+    trace = pd.read_parquet(folder / "trace.parquet")
+    runs = pd.read_parquet(DATA / "runs.parquet")
+    busy = runs.groupby(["strategy", "gpus", "triangles", "width"]).busy_median_ms.median()
+    summaries = pd.read_json(folder / "runs.json")
+    spans = []
+    for n in (1, 2, 3, 4):
+        run = f"sf{n}_5000000_3840"
+        frame_ms = summaries[run]["summary"]["frame_time_ms"]
+        assert frame_ms == pytest.approx(busy[("single" if n == 1 else "sort-first", n, 5_000_000, 3840)],
+                                         rel=0.15)
+        mine = trace[(trace.run == run) & trace.task.str.startswith("render")]
+        per_frame = mine.groupby("frame").agg(first=("start_ns", "min"), last=("end_ns", "max"))
+        spans.append(float((per_frame["last"] - per_frame["first"]).median()) / 1e6)
+    steps = np.diff(spans)
+    assert ((3.9 < steps) & (steps < 4.9)).all()

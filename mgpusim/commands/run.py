@@ -12,7 +12,7 @@ from pathlib import Path
 
 from mgpusim.io.out_folder import check_out_dir
 from mgpusim.model.errors import InputError
-from mgpusim.model.limits import MAX_FRAMES, MAX_THREADS
+from mgpusim.model.limits import MAX_RECORDED_FRAMES, MAX_THREADS
 from mgpusim.model.toml_checks import int_list
 
 
@@ -59,8 +59,8 @@ def _check_counts(args: argparse.Namespace, devices: list[int] | None) -> None:
         raise InputError(f"must be in 1..{MAX_THREADS}, got {args.lp_threads}", field="--lp-threads")
     if args.host_threads is not None and not 1 <= args.host_threads <= MAX_THREADS:
         raise InputError(f"must be in 1..{MAX_THREADS}, got {args.host_threads}", field="--host-threads")
-    if args.prewarm is not None and not 0 <= args.prewarm <= MAX_FRAMES:
-        raise InputError(f"must be in 0..{MAX_FRAMES}, got {args.prewarm}", field="--prewarm")
+    if args.prewarm is not None and not 0 <= args.prewarm <= MAX_RECORDED_FRAMES:
+        raise InputError(f"must be in 0..{MAX_RECORDED_FRAMES}, got {args.prewarm}", field="--prewarm")
 
 
 def _write_png(image, path: Path) -> None:

@@ -99,3 +99,16 @@ def test_a_run_uses_the_rasterizer_threads_its_lavapipe_profile_was_calibrated_w
     assert [g["lp_num_threads"] for g in run_experiment(exp).machine["gpus"]] == [3, 3]
     told = run_experiment(exp, lp_threads=[1, 2]).machine["gpus"]
     assert [g["lp_num_threads"] for g in told] == [1, 2]
+
+
+def test_a_measured_run_keeps_every_frame_so_it_is_bounded_below_the_models(tmp_path):
+    """The model runs up to 10^7 frames where it fast-forwards; hardware never does, so a
+    measured run (and its untimed pre-warm) stops at 10^6 with one error, nothing opened or
+    written."""
+    from mgpusim.cli import main
+    out = tmp_path / "o"
+    assert main(["run", "experiments/lavapipe/sort_first.toml", "--set", "schedule.frames=1000001",
+                 "--out", str(out)]) == 2
+    assert main(["run", "experiments/lavapipe/sort_first.toml", "--prewarm", "1000001",
+                 "--out", str(out)]) == 2
+    assert not out.exists()

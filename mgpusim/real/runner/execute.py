@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 
 from mgpusim.model.errors import InputError, MgpusimError, ScheduleError
+from mgpusim.model.limits import MAX_RECORDED_FRAMES, WHY_RECORDED
 from mgpusim.model.profile import HardwareProfile
 from mgpusim.real.runner import native
 from mgpusim.real.runner.executor import Executor
@@ -191,6 +192,10 @@ def run_experiment(exp: Experiment, *, devices: Sequence[int] | None = None,
     from mgpusim.real.runner.gpu_map import open_gpus  # noqa: PLC0415
     from mgpusim.real.vulkan.machine import close_gpus, machine_record  # noqa: PLC0415
 
+    if exp.schedule.frames > MAX_RECORDED_FRAMES:  # hardware never fast-forwards: every frame is kept
+        raise InputError(f"{exp.schedule.frames:,} frames: a measured run keeps every frame's "
+                         f"records, at most {MAX_RECORDED_FRAMES:,} ({WHY_RECORDED})",
+                         file=exp.file, field="schedule.frames")
     program = build_program(exp)
     threads = exp.profile.host.memcpy_threads if host_threads is None else host_threads
     if lp_threads is None:

@@ -87,3 +87,31 @@ def test_one_program_and_retimed_model_per_link_family(frame, schedule):
         assert retimed.phases == own.phases
         assert retimed.approximations == own.approximations
     assert len(first) == 2  # PCIe (through host memory) and NVLink (a peer link)
+
+
+def test_links_of_one_rate_are_one_run_handed_in_once(frame):
+    """PCIe 3.0 x16 and 4.0 x8 carry one rate, so do 4.0 x16 and 5.0 x8: their options are one
+    run of the model (each row is still the option's own: the test above compares them)."""
+    same = advisor.SameRuns(str(frame))
+    schedule = {"name": "afr", "gpus": 2, "frames_in_flight": 2}
+    key = {link.name: same.key({"schedule": schedule, "profile.gpu_count": 2, **link.overrides})
+           for link in LINKS}
+    assert key["PCIe 3.0 x16"] == key["PCIe 4.0 x8"] and key["PCIe 4.0 x16"] == key["PCIe 5.0 x8"]
+    assert len(set(key.values())) == len(LINKS) - 2
+    assert same.key({"schedule": {**schedule, "gpus": 3}, "profile.gpu_count": 3, **LINKS[1].overrides}) \
+        != key[LINKS[1].name]
+
+    ran: list[int] = []
+
+    class Counting(advisor.Workers):
+        def submit(self, fn, *args):
+            ran.extend(index for index, _ in args[2])
+            return super().submit(fn, *args)
+
+    items = [(k, {"schedule": schedule, "profile.gpu_count": 2, **link.overrides}) for k, link in enumerate(LINKS)]
+    rows = advisor.Batch(Counting(1), str(frame), {}, items, "analytic").rows()
+    assert [r["option"] for r in rows] == list(range(len(LINKS)))
+    assert len(ran) == len(LINKS) - 2
+    names = [link.name for link in LINKS]
+    twin = rows[names.index("PCIe 4.0 x8")]
+    assert {**twin, "option": 0} == {**rows[names.index("PCIe 3.0 x16")], "option": 0}

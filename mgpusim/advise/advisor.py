@@ -38,7 +38,7 @@ import os
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence, cast
+from typing import Any, Hashable, Iterable, Mapping, Sequence, cast
 
 import numpy as np
 import pandas as pd
@@ -46,7 +46,7 @@ import pandas as pd
 from mgpusim.advise.worker_set import Progress, Tally, Workers, workers_of
 from mgpusim.model.errors import InputError, MgpusimError
 from mgpusim.model.overrides import set_dotted, split_profile
-from mgpusim.model.profile import HardwareProfile, load_profile, require_gpus
+from mgpusim.model.profile import HardwareProfile, links_as_rates, load_profile, require_gpus
 from mgpusim.model.scene import temporal_reads
 from mgpusim.model.toml_checks import read_toml
 from mgpusim.schedules.experiment import Experiment, load_experiment, parse_experiment
@@ -393,21 +393,25 @@ TASK_OPTIONS = 32
 class Batch:
     """Options handed to the workers in tasks of up to :data:`TASK_OPTIONS`; :meth:`rows`
     waits for them. At the fast levels the options of one schedule over every link are handed
-    in side by side (they share a program and a model: `load_like`)."""
+    in side by side (they share a program and a model: `load_like`). Options that are one run
+    of the model (:class:`SameRuns`) are handed in once, and each gets that run's row."""
 
     def __init__(self, workers: Workers, path: str, base: Mapping[str, Any],
                  items: Sequence[tuple[int, Mapping[str, Any]]], fidelity: str, band: bool = False,
                  tally: Tally | None = None):
-        self.order = (sorted(range(len(items)), key=lambda k: _without_profile(items[k][1]))
-                      if fidelity != "full" else list(range(len(items))))
+        self.items = items
+        #: for each item, the place of the one that runs for it among `runs`
+        self.run_of, runs = _one_per_run(path, base, items)
+        stands = np.bincount(self.run_of, minlength=len(runs)) if runs else np.zeros(0, dtype=int)
+        self.order = (sorted(range(len(runs)), key=lambda k: _without_profile(runs[k][1]))
+                      if fidelity != "full" else list(range(len(runs))))
         self.tally = tally if tally is not None else Tally(None, "")
-        ordered = [items[k] for k in self.order]
-        size = max(1, min(TASK_OPTIONS, math.ceil(len(items) / (4 * workers.count))))
+        size = max(1, min(TASK_OPTIONS, math.ceil(len(runs) / (4 * workers.count))))
         self.tasks = []
-        for start in range(0, len(ordered), size):
-            chunk = ordered[start:start + size]
-            self.tasks.append(workers.submit(evaluate, path, dict(base), chunk, fidelity, band))
-            self.tally.add(self.tasks[-1], len(chunk))
+        for start in range(0, len(self.order), size):
+            chunk = self.order[start:start + size]
+            self.tasks.append(workers.submit(evaluate, path, dict(base), [runs[k] for k in chunk], fidelity, band))
+            self.tally.add(self.tasks[-1], int(stands[chunk].sum()))
 
     def rows(self) -> list[dict[str, Any]]:
         """`evaluate`'s rows, in the order of the items handed in."""
@@ -415,7 +419,66 @@ class Batch:
         back: list[dict[str, Any]] = [{}] * len(self.order)
         for k, row in zip(self.order, (row for task in self.tasks for row in task.result())):
             back[k] = row
-        return back
+        return [back[run] if back[run]["option"] == index else {**back[run], "option": index}
+                for (index, _), run in zip(self.items, self.run_of)]
+
+
+def _one_per_run(path: str, base: Mapping[str, Any], items: Sequence[tuple[int, Mapping[str, Any]]]
+                 ) -> tuple[list[int], list[tuple[int, Mapping[str, Any]]]]:
+    """For each item the place of the item that runs for it, and those items (the first of
+    each run of the model, in order)."""
+    same = _same_runs(path, Path(path).stat().st_mtime_ns)
+    place: dict[Hashable, int] = {}
+    runs: list[tuple[int, Mapping[str, Any]]] = []
+    run_of = []
+    for item in items:
+        key = same.key({**base, **item[1]})
+        if key not in place:
+            place[key] = len(runs)
+            runs.append(item)
+        run_of.append(place[key])
+    return run_of, runs
+
+
+class SameRuns:
+    """Which options are one run of the model: the same overrides but the profile's, on
+    profiles that differ in nothing the model reads. Why: links of one rate and latency are
+    one run (PCIe 3.0 x16 and 4.0 x8 both carry 0.985 x 16 GB/s; so do 4.0 x16 and 5.0 x8,
+    :func:`mgpusim.model.profile.links_as_rates`), and a search over links would run each
+    twice: a quarter of the options of every schedule searched over all eight links."""
+
+    def __init__(self, path: str):
+        self.profile_file = load_experiment(path).profile.source
+        #: profile overrides (as text) -> the place of the profile they give among `seen`
+        self.place: dict[str, int] = {}
+        self.seen: list[HardwareProfile] = []
+
+    def key(self, overrides: Mapping[str, Any]) -> tuple[str, int]:
+        """Equal for options that are one run of the model (see the class doc)."""
+        ours, theirs = split_profile(overrides)
+        text = json.dumps(theirs, sort_keys=True, default=str)
+        if text not in self.place:
+            self.place[text] = self._place(theirs)
+        return json.dumps(ours, sort_keys=True, default=str), self.place[text]
+
+    def _place(self, theirs: Mapping[str, Any]) -> int:
+        """The place of the profile `theirs` gives among those seen (a new one is added); a
+        profile that fails to load is one of its own (its options report the error)."""
+        try:
+            profile = links_as_rates(load_profile(self.profile_file, theirs))
+        except MgpusimError:
+            return -1 - len(self.place)
+        for k, seen in enumerate(self.seen):
+            if seen == profile:
+                return k
+        self.seen.append(profile)
+        return len(self.seen) - 1
+
+
+@functools.lru_cache(maxsize=4)
+def _same_runs(path: str, stamp: int) -> SameRuns:
+    """The :class:`SameRuns` of `path` as it is now (`stamp`: its modification time)."""
+    return SameRuns(path)
 
 
 def run_options(path: str, base: Mapping[str, Any], items: list[tuple[int, Mapping[str, Any]]],

@@ -50,7 +50,7 @@ from mgpusim.model.profile import HardwareProfile, links_as_rates, load_profile,
 from mgpusim.model.scene import temporal_reads
 from mgpusim.model.toml_checks import read_toml
 from mgpusim.schedules.experiment import Experiment, load_experiment, parse_experiment
-from mgpusim.sim.simulation import prepare_like, simulate
+from mgpusim.sim.simulation import prepare_like, simulate, without_pace
 
 #: Pipelining's chunks per copy, searched at every split point.
 CHUNKS = tuple(range(1, 9))
@@ -289,42 +289,52 @@ class _Loader:
         self.path, self.raw = path, read_toml(Path(path))
         self.profile_file = load_experiment(path).profile.source
         self.profiles: dict[str, HardwareProfile] = {}
-        #: the options loaded last, by their overrides but the profile's (see `load_like`)
-        self.last: dict[str, list[Experiment]] = {}
+        #: the options loaded last, by their overrides but the profile's and the cadence, each
+        #: with those overrides but the profile's as text (see `load_like`)
+        self.last: dict[str, list[tuple[str, Experiment]]] = {}
 
     def load(self, overrides: Mapping[str, Any]) -> Experiment:
         ours, theirs = split_profile(overrides)
         data = copy.deepcopy(self.raw)
         for key, value in ours.items():
             set_dotted(data, key, value, self.path)
-        key = json.dumps(theirs, sort_keys=True, default=str)
-        if key not in self.profiles:
-            self.profiles[key] = load_profile(self.profile_file, theirs)
-        return parse_experiment(data, self.path, base=Path(self.path).parent, profile=self.profiles[key])
+        return parse_experiment(data, self.path, base=Path(self.path).parent, profile=self._profile(theirs))
 
     def load_like(self, overrides: Mapping[str, Any], fidelity: str) -> Experiment:
         """`load(overrides)`, sharing the program and model of an option loaded before with the
-        same overrides but for the profile's (another link: :func:`prepare_like`). Why: the
-        options of one schedule over eight links would otherwise build one program each. The
-        options of the last such overrides are kept (one per program: PCIe, NVLink)."""
+        same overrides but for the profile's (another link) and the cadence (an evenly paced
+        AFR option's `pace_us`): :func:`prepare_like`. Why: the options of one schedule over
+        eight links, and each AFR option at four cadences, would otherwise build one program
+        and model each. The options of the last such overrides are kept (one per program:
+        PCIe, NVLink)."""
         ours, theirs = split_profile(overrides)
-        key = json.dumps(ours, sort_keys=True, default=str)
-        sources = self.last.get(key)
+        text = json.dumps(ours, sort_keys=True, default=str)
+        family = json.dumps(without_pace(ours), sort_keys=True, default=str)
+        sources = self.last.get(family)
         if sources is None:
-            self.last = {key: [self.load(overrides)]}
-            return self.last[key][0]
-        pkey = json.dumps(theirs, sort_keys=True, default=str)
-        if pkey not in self.profiles:
-            self.profiles[pkey] = load_profile(self.profile_file, theirs)
-        profile = self.profiles[pkey]
-        for source in sources:
+            exp = self.load(overrides)
+            self.last = {family: [(text, exp)]}
+            return exp
+        profile = self._profile(theirs)
+        same = [source for at, source in sources if at == text]
+        for source in same:
             if profile is source.profile:
                 return source
-        require_gpus(profile, sources[0].schedule.gpus, self.path)
-        exp = replace(sources[0], profile=profile)
-        if not any(prepare_like(exp, source, fidelity) for source in sources):
-            sources.append(exp)
+        if same:
+            require_gpus(profile, same[0].schedule.gpus, self.path)
+            exp = replace(same[0], profile=profile)
+        else:  # another cadence
+            exp = self.load(overrides)
+        if not any(prepare_like(exp, source, fidelity) for _, source in sources):
+            sources.append((text, exp))
         return exp
+
+    def _profile(self, theirs: Mapping[str, Any]) -> HardwareProfile:
+        """The profile under the overrides `theirs` (loaded once)."""
+        key = json.dumps(theirs, sort_keys=True, default=str)
+        if key not in self.profiles:
+            self.profiles[key] = load_profile(self.profile_file, theirs)
+        return self.profiles[key]
 
 
 @functools.lru_cache(maxsize=4)

@@ -157,3 +157,21 @@ def test_an_afr_option_at_several_cadences_builds_one_program_per_link_family(fr
     advisor._loader.cache_clear()
     run_options(str(frame), {}, items, "analytic", 1)
     assert len(built) == 2  # PCIe (through host memory) and NVLink (a peer link)
+
+
+def test_full_fidelity_loads_are_load_experiments_what_ifs_and_all(frame):
+    """At full fidelity an option is the experiment load_experiment gives (its what-ifs
+    recorded), on a profile loaded once per set of profile overrides; an override the model
+    never reads is still refused as `simulate` refuses it."""
+    import mgpusim
+    loader = advisor._Loader(str(frame))
+    opts = options(load_experiment(frame), max_gpus=3, links=LINKS)
+    for option in opts[::7]:
+        assert loader.load_as_given(option.overrides) == load_experiment(frame, option.overrides)
+    twins = [loader.load_as_given(o.overrides) for o in opts if o.link == LINKS[0].name and o.gpus == 2][:2]
+    assert twins[0].profile is twins[1].profile
+    unused = {**opts[0].overrides, "profile.gpus.*.link.pcie_gen": 5}  # one GPU copies nothing
+    row = evaluate(str(frame), {}, [(0, unused)], "full")[0]
+    with pytest.raises(mgpusim.MgpusimError) as alone:
+        mgpusim.simulate(load_experiment(frame, unused))
+    assert row["error"] == str(alone.value)

@@ -38,6 +38,7 @@ import os
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any, Hashable, Iterable, Mapping, Sequence, cast
 
 import numpy as np
@@ -287,6 +288,7 @@ class _Loader:
 
     def __init__(self, path: str):
         self.path, self.raw = path, read_toml(Path(path))
+        self.file = str(Path(path))  # (as load_experiment names it)
         self.profile_file = load_experiment(path).profile.source
         self.profiles: dict[str, HardwareProfile] = {}
         #: the options loaded last, by their overrides but the profile's and the cadence, each
@@ -299,6 +301,20 @@ class _Loader:
         for key, value in ours.items():
             set_dotted(data, key, value, self.path)
         return parse_experiment(data, self.path, base=Path(self.path).parent, profile=self._profile(theirs))
+
+    def load_as_given(self, overrides: Mapping[str, Any]) -> Experiment:
+        """`load_experiment(path, overrides)`, its what-ifs recorded (so that `simulate` refuses
+        a ``profile.`` override it never reads), on the profile loaded once for those
+        overrides. Why: `simulate` watches what is read of each profile object through a copy
+        of it made once per object (:mod:`mgpusim.model.profile_reads`), which a profile loaded
+        for every option would make again each time. (An override of the experiment's
+        `profile` itself is loaded by `load_experiment`.)"""
+        ours, theirs = split_profile(overrides)
+        if "profile" in ours:
+            return load_experiment(self.path, overrides)
+        exp = self.load(overrides)
+        return replace(exp, file=self.file, profile_overrides=MappingProxyType(
+            {f"profile.{k}": v for k, v in theirs.items()}))
 
     def load_like(self, overrides: Mapping[str, Any], fidelity: str) -> Experiment:
         """`load(overrides)`, sharing the program and model of an option loaded before with the
@@ -352,8 +368,9 @@ def evaluate(path: str, base: Mapping[str, Any], items: Sequence[tuple[int, Mapp
         t0 = time.perf_counter()
         row: dict[str, Any] = {"option": index}
         try:
-            exp = (_loader(path, Path(path).stat().st_mtime_ns).load_like({**base, **overrides}, fidelity)
-                   if fidelity != "full" else load_experiment(path, {**base, **overrides}))
+            loader = _loader(path, Path(path).stat().st_mtime_ns)
+            exp = (loader.load_like({**base, **overrides}, fidelity) if fidelity != "full"
+                   else loader.load_as_given({**base, **overrides}))
             result = simulate(exp, record_trace=False, fidelity=fidelity, band=band)
             s = result.summary
             row.update(frame_time_ms=s["frame_time_ms"], latency_ms=s["latency_ms"], error=None,

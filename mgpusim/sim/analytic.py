@@ -92,6 +92,17 @@ class _Node:
         object.__setattr__(self, "step", self.task.step)
 
 
+def _with_times(node: _Node, times: _Node) -> _Node:
+    """`node` with the times of `times` (its fixed time, bytes, rate, gap and whole time): a
+    copy's node on other links. Made as a copy of its fields, not through `__init__`: a
+    retimed model makes one per copy node, and the constructor took most of its time."""
+    new = object.__new__(_Node)
+    fields = new.__dict__
+    fields.update(node.__dict__)
+    fields.update(fixed=times.fixed, nbytes=times.nbytes, rate=times.rate, gap=times.gap, time=times.time)
+    return new
+
+
 def _round_div(nbytes: int, rate: Fraction) -> int:
     """bytes / rate, rounded half up, as the link channel computes it."""
     num, den = rate.numerator, rate.denominator
@@ -232,9 +243,7 @@ class Analytic:
             done = alike.get(key)
             if done is None:
                 done = alike[key] = self._timed(builder.op(phase, task), node.deps)
-            return _Node(node.name, task, node.stream, node.deps, done.fixed, done.nbytes, done.rate, done.gap,
-                         node.parts, node.device, node.engine, node.waits_for, node.cpu, done.time,
-                         node.part_times)
+            return _with_times(node, done)
         new = copy.copy(self)
         new.costs, new.program, new.task_of = costs, program, task_of
         new.phases = [[timed(ph, n) for n in phase] for ph, phase in enumerate(self.phases)]

@@ -87,3 +87,91 @@ def test_one_program_and_retimed_model_per_link_family(frame, schedule):
         assert retimed.phases == own.phases
         assert retimed.approximations == own.approximations
     assert len(first) == 2  # PCIe (through host memory) and NVLink (a peer link)
+
+
+def test_links_of_one_rate_are_one_run_handed_in_once(frame):
+    """PCIe 3.0 x16 and 4.0 x8 carry one rate, so do 4.0 x16 and 5.0 x8: their options are one
+    run of the model (each row is still the option's own: the test above compares them)."""
+    same = advisor.SameRuns(str(frame))
+    schedule = {"name": "afr", "gpus": 2, "frames_in_flight": 2}
+    key = {link.name: same.key({"schedule": schedule, "profile.gpu_count": 2, **link.overrides})
+           for link in LINKS}
+    assert key["PCIe 3.0 x16"] == key["PCIe 4.0 x8"] and key["PCIe 4.0 x16"] == key["PCIe 5.0 x8"]
+    assert len(set(key.values())) == len(LINKS) - 2
+    assert same.key({"schedule": {**schedule, "gpus": 3}, "profile.gpu_count": 3, **LINKS[1].overrides}) \
+        != key[LINKS[1].name]
+
+    ran: list[int] = []
+
+    class Counting(advisor.Workers):
+        def submit(self, fn, *args):
+            ran.extend(index for index, _ in args[2])
+            return super().submit(fn, *args)
+
+    items = [(k, {"schedule": schedule, "profile.gpu_count": 2, **link.overrides}) for k, link in enumerate(LINKS)]
+    rows = advisor.Batch(Counting(1), str(frame), {}, items, "analytic").rows()
+    assert [r["option"] for r in rows] == list(range(len(LINKS)))
+    assert len(ran) == len(LINKS) - 2
+    names = [link.name for link in LINKS]
+    twin = rows[names.index("PCIe 4.0 x8")]
+    assert {**twin, "option": 0} == {**rows[names.index("PCIe 3.0 x16")], "option": 0}
+
+
+@pytest.mark.parametrize("schedule", [
+    {"name": "afr", "gpus": 1, "frames_in_flight": 2},
+    {"name": "afr", "gpus": 3, "frames_in_flight": 3, "temporal_pass": "taa", "history_bytes": 8294400},
+    {"name": "afr", "gpus": 2, "frames_in_flight": 2, "cpu_frame_us": 500.0},
+    {"name": "afr", "gpus": 2, "frames_in_flight": 2, "refresh_hz": 144.0},
+])
+def test_an_afr_program_at_another_cadence_is_the_one_built_at_it(frame, schedule):
+    from mgpusim.schedules.afr import with_pace
+    paced = [load_experiment(frame, {"schedule": {**schedule, "pace_us": pace}, "profile.gpu_count": 3})
+             for pace in (1234.567, 2000.0, 7.001)]
+    first = build_program(paced[0])
+    for exp in paced[1:]:
+        assert with_pace(first, exp.schedule.opt("pace_us")) == build_program(exp)
+    with pytest.raises(ValueError, match="pace.gap"):
+        with_pace(build_program(load_experiment(frame, {"schedule": schedule, "profile.gpu_count": 3})), 10.0)
+
+
+def test_paced_rows_shared_over_links_and_cadences_are_each_options_own(frame):
+    opts = [o for o in options(load_experiment(frame), max_gpus=3, links=LINKS) if o.family == "AFR"]
+    items = [(k, advisor.paced(o, 0, pace).overrides) for k, (o, pace) in
+             enumerate((o, pace) for o in opts for pace in (4100.0, 4141.0 + o.gpus, 4182.5))]
+    shared = run_options(str(frame), {}, items, "analytic", 1)
+    assert [r["option"] for r in shared] == [i for i, _ in items]
+    for item, row in zip(items, shared):
+        advisor._loader.cache_clear()
+        alone = evaluate(str(frame), {}, [item], "analytic")[0]
+        assert _same(row, alone), (item, row, alone)
+
+
+def test_an_afr_option_at_several_cadences_builds_one_program_per_link_family(frame, monkeypatch):
+    import mgpusim.sim.simulation as simulation
+    built: list[str] = []
+    real = simulation.build_program
+    monkeypatch.setattr(simulation, "build_program", lambda exp: built.append(exp.file) or real(exp))
+    afr = next(o for o in options(load_experiment(frame), max_gpus=2, links=LINKS) if o.family == "AFR")
+    items = [(k, {**advisor.paced(afr, 0, pace).overrides, **link.overrides})
+             for k, (link, pace) in enumerate((link, pace) for link in LINKS for pace in (4100.0, 4177.0))]
+    advisor._loader.cache_clear()
+    run_options(str(frame), {}, items, "analytic", 1)
+    assert len(built) == 2  # PCIe (through host memory) and NVLink (a peer link)
+
+
+def test_full_fidelity_loads_are_load_experiments_what_ifs_and_all(frame):
+    """At full fidelity an option is the experiment load_experiment gives (its what-ifs
+    recorded), on a profile loaded once per set of profile overrides; an override the model
+    never reads is still refused as `simulate` refuses it."""
+    import mgpusim
+    loader = advisor._Loader(str(frame))
+    opts = options(load_experiment(frame), max_gpus=3, links=LINKS)
+    for option in opts[::7]:
+        assert loader.load_as_given(option.overrides) == load_experiment(frame, option.overrides)
+    twins = [loader.load_as_given(o.overrides) for o in opts if o.link == LINKS[0].name and o.gpus == 2][:2]
+    assert twins[0].profile is twins[1].profile
+    unused = {**opts[0].overrides, "profile.gpus.*.link.pcie_gen": 5}  # one GPU copies nothing
+    row = evaluate(str(frame), {}, [(0, unused)], "full")[0]
+    with pytest.raises(mgpusim.MgpusimError) as alone:
+        mgpusim.simulate(load_experiment(frame, unused))
+    assert row["error"] == str(alone.value)

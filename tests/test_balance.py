@@ -53,3 +53,16 @@ def test_balance_on_tc2_is_never_worse():
     balanced = simulate(load_experiment(path, {"schedule.balance": True}, profile=prof))
     assert balanced.summary["frame_time_ms"] <= equal.summary["frame_time_ms"]
     assert sum(balanced.config["tile_rows"]) == 768
+
+
+def test_gpus_alike_are_balanced_once_and_as_each_alone(monkeypatch):
+    """GPUs of one profile share their loads in the bisections (the first of them stands for
+    the rest); the heights are those of the search over every GPU on its own."""
+    from mgpusim.schedules import five_step
+    slow = dict(COSTS, fragment_loop={"ns_per_pixel": 0.0, "ns_per_pixel_iteration": 3.0})
+    mixed = profile([gpu(), gpu(costs=slow), gpu(), gpu(costs=slow), gpu()])
+    assert five_step._alike_gpus(mixed, 5) == [0, 1, 2, 1, 2]
+    exp = experiment(mixed, "sort_first", LOOP, width=3, height=97, frames=4, balance=True)
+    shared = balanced_rows(exp.scene, exp.profile, 5)
+    monkeypatch.setattr(five_step, "_alike_gpus", lambda _profile, n: list(range(n)))
+    assert balanced_rows(exp.scene, exp.profile, 5) == shared

@@ -58,3 +58,22 @@ def test_frame_figures_are_the_results_own(name):
     assert summarize_arrays(None, start, present, program.warmup_frames) == numbered
     assert summarize_arrays(None, start, present, 5, leave_out=[7, 9]) == \
         summarize_arrays(np.arange(len(start)), start, present, 5, leave_out=[7, 9])
+
+
+def test_a_fast_forwarded_runs_links_come_in_chunks_of_channels(tmp_path):
+    """links_chunks joins the channels' pieces into chunks of up to `rows` rows, channel after
+    channel: the links file holds the links table (one row group for a short run)."""
+    import pyarrow.parquet as pq
+
+    from mgpusim.io.writers import write_links
+    exp = load_experiment(ROOT / "experiments" / "sort_first_tc1.toml", {"schedule.frames": 400})
+    result = simulate(exp)
+    assert result.link_logs is not None and len(result.link_logs) > 1
+    small = list(result.links_chunks(rows=7))  # (before the table is built: from the logs)
+    write_links(result, tmp_path / "links.parquet")
+    whole = result.links.reset_index(drop=True)
+    assert all(len(chunk) >= 7 for chunk in small[:-1]) and len(small) > len(result.link_logs)
+    assert pd.concat(small, ignore_index=True).equals(whole)
+    assert pq.ParquetFile(tmp_path / "links.parquet").num_row_groups == 1
+    read = pd.read_parquet(tmp_path / "links.parquet")
+    assert read.astype(whole.dtypes.to_dict()).equals(whole)  # (read back, its strings' NA is NaN)

@@ -90,3 +90,23 @@ def test_a_peer_copy_without_a_peer_is_a_schedule_error():
 def test_a_cpu_task_keeps_one_core_busy():
     profile = parse_profile(profile_dict(), "p")
     assert task_cores(profile, CpuTask("work", "cpu", "main", fixed_ns=1000.0)) == 1
+
+
+def test_a_copys_time_bound_is_the_exact_one():
+    """check_transfer compares in integers where it can: exactly the Fraction rule, at the
+    bound and one ns past it, and a float setup falls back to it."""
+    from fractions import Fraction
+
+    from mgpusim.model import limits
+    from mgpusim.model.errors import TimeBoundError
+    costs = CostModel(parse_profile(profile_dict(), "p.toml"))
+    rate = Fraction(7, 3)  # bytes per ns
+    nbytes = 3 * 10 ** 9  # 1.286e9 ns at that rate
+    left = limits.MAX_TASK_NS - nbytes / rate
+    for setup, refused in ((int(left), False), (int(left) + 1, True), (float(int(left)), False)):
+        assert (setup + nbytes / rate > limits.MAX_TASK_NS) == refused
+        if refused:
+            with pytest.raises(TimeBoundError, match="one task may last"):
+                costs.check_transfer("c", nbytes, rate, setup, "f")
+        else:
+            costs.check_transfer("c", nbytes, rate, setup, "f")

@@ -280,3 +280,29 @@ def test_comparison_draws_the_simulations_last_frames_beside_a_later_measured_wi
     simulated = pd.DataFrame({"frame": list(range(24))})
     assert comparison_frames(measured, simulated, [30, 31, 32, 33]) == ([30, 31, 32, 33], [20, 21, 22, 23])
     assert comparison_frames(measured, simulated, [10, 11]) == ([10, 11], [10, 11])
+
+
+@pytest.mark.parametrize("label", ["a short title", "a title far wider than its figure " * 6])
+def test_a_timeline_drawn_once_is_the_tight_picture_savefig_draws(tmp_path, label):
+    """save_tight renders once and cuts the picture to the padded tight box: the size savefig's
+    tight box gives, every pixel within a sub-pixel shift of its; past the figure, savefig's."""
+    import numpy as np
+    from matplotlib.figure import Figure
+    from PIL import Image
+
+    from mgpusim.io.plot import draw_timeline, save_tight
+
+    result = mgpusim.simulate(mgpusim.load_experiment(ROOT / "experiments" / "particles_machine.toml",
+                                                      {"schedule.frames": 12}))
+    pictures = []
+    for name in ("once", "savefig"):
+        fig = Figure(figsize=(9, 4))
+        draw_timeline(fig.subplots(), result.trace, result.links, label, frames=range(8, 11))
+        path = tmp_path / f"{name}.png"
+        save_tight(fig, path, 110) if name == "once" else fig.savefig(path, dpi=110, bbox_inches="tight")
+        pictures.append(np.asarray(Image.open(path).convert("RGB")).astype(int))
+    once, theirs = pictures
+    assert once.shape == theirs.shape
+    near = [np.abs(np.roll(once, (dy, dx), axis=(0, 1)) - theirs).max(axis=2) <= 8
+            for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
+    assert np.logical_or.reduce(near)[2:-2, 2:-2].mean() > 0.999

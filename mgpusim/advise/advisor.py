@@ -38,7 +38,8 @@ import os
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence, cast
+from types import MappingProxyType
+from typing import Any, Hashable, Iterable, Mapping, Sequence, cast
 
 import numpy as np
 import pandas as pd
@@ -46,11 +47,11 @@ import pandas as pd
 from mgpusim.advise.worker_set import Progress, Tally, Workers, workers_of
 from mgpusim.model.errors import InputError, MgpusimError
 from mgpusim.model.overrides import set_dotted, split_profile
-from mgpusim.model.profile import HardwareProfile, load_profile, require_gpus
+from mgpusim.model.profile import HardwareProfile, links_as_rates, load_profile, require_gpus
 from mgpusim.model.scene import temporal_reads
 from mgpusim.model.toml_checks import read_toml
 from mgpusim.schedules.experiment import Experiment, load_experiment, parse_experiment
-from mgpusim.sim.simulation import prepare_like, simulate
+from mgpusim.sim.simulation import prepare_like, simulate, without_pace
 
 #: Pipelining's chunks per copy, searched at every split point.
 CHUNKS = tuple(range(1, 9))
@@ -287,44 +288,69 @@ class _Loader:
 
     def __init__(self, path: str):
         self.path, self.raw = path, read_toml(Path(path))
+        self.file = str(Path(path))  # (as load_experiment names it)
         self.profile_file = load_experiment(path).profile.source
         self.profiles: dict[str, HardwareProfile] = {}
-        #: the options loaded last, by their overrides but the profile's (see `load_like`)
-        self.last: dict[str, list[Experiment]] = {}
+        #: the options loaded last, by their overrides but the profile's and the cadence, each
+        #: with those overrides but the profile's as text (see `load_like`)
+        self.last: dict[str, list[tuple[str, Experiment]]] = {}
 
     def load(self, overrides: Mapping[str, Any]) -> Experiment:
         ours, theirs = split_profile(overrides)
         data = copy.deepcopy(self.raw)
         for key, value in ours.items():
             set_dotted(data, key, value, self.path)
-        key = json.dumps(theirs, sort_keys=True, default=str)
-        if key not in self.profiles:
-            self.profiles[key] = load_profile(self.profile_file, theirs)
-        return parse_experiment(data, self.path, base=Path(self.path).parent, profile=self.profiles[key])
+        return parse_experiment(data, self.path, base=Path(self.path).parent, profile=self._profile(theirs))
+
+    def load_as_given(self, overrides: Mapping[str, Any]) -> Experiment:
+        """`load_experiment(path, overrides)`, its what-ifs recorded (so that `simulate` refuses
+        a ``profile.`` override it never reads), on the profile loaded once for those
+        overrides. Why: `simulate` watches what is read of each profile object through a copy
+        of it made once per object (:mod:`mgpusim.model.profile_reads`), which a profile loaded
+        for every option would make again each time. (An override of the experiment's
+        `profile` itself is loaded by `load_experiment`.)"""
+        ours, theirs = split_profile(overrides)
+        if "profile" in ours:
+            return load_experiment(self.path, overrides)
+        exp = self.load(overrides)
+        return replace(exp, file=self.file, profile_overrides=MappingProxyType(
+            {f"profile.{k}": v for k, v in theirs.items()}))
 
     def load_like(self, overrides: Mapping[str, Any], fidelity: str) -> Experiment:
         """`load(overrides)`, sharing the program and model of an option loaded before with the
-        same overrides but for the profile's (another link: :func:`prepare_like`). Why: the
-        options of one schedule over eight links would otherwise build one program each. The
-        options of the last such overrides are kept (one per program: PCIe, NVLink)."""
+        same overrides but for the profile's (another link) and the cadence (an evenly paced
+        AFR option's `pace_us`): :func:`prepare_like`. Why: the options of one schedule over
+        eight links, and each AFR option at four cadences, would otherwise build one program
+        and model each. The options of the last such overrides are kept (one per program:
+        PCIe, NVLink)."""
         ours, theirs = split_profile(overrides)
-        key = json.dumps(ours, sort_keys=True, default=str)
-        sources = self.last.get(key)
+        text = json.dumps(ours, sort_keys=True, default=str)
+        family = json.dumps(without_pace(ours), sort_keys=True, default=str)
+        sources = self.last.get(family)
         if sources is None:
-            self.last = {key: [self.load(overrides)]}
-            return self.last[key][0]
-        pkey = json.dumps(theirs, sort_keys=True, default=str)
-        if pkey not in self.profiles:
-            self.profiles[pkey] = load_profile(self.profile_file, theirs)
-        profile = self.profiles[pkey]
-        for source in sources:
+            exp = self.load(overrides)
+            self.last = {family: [(text, exp)]}
+            return exp
+        profile = self._profile(theirs)
+        same = [source for at, source in sources if at == text]
+        for source in same:
             if profile is source.profile:
                 return source
-        require_gpus(profile, sources[0].schedule.gpus, self.path)
-        exp = replace(sources[0], profile=profile)
-        if not any(prepare_like(exp, source, fidelity) for source in sources):
-            sources.append(exp)
+        if same:
+            require_gpus(profile, same[0].schedule.gpus, self.path)
+            exp = replace(same[0], profile=profile)
+        else:  # another cadence
+            exp = self.load(overrides)
+        if not any(prepare_like(exp, source, fidelity) for _, source in sources):
+            sources.append((text, exp))
         return exp
+
+    def _profile(self, theirs: Mapping[str, Any]) -> HardwareProfile:
+        """The profile under the overrides `theirs` (loaded once)."""
+        key = json.dumps(theirs, sort_keys=True, default=str)
+        if key not in self.profiles:
+            self.profiles[key] = load_profile(self.profile_file, theirs)
+        return self.profiles[key]
 
 
 @functools.lru_cache(maxsize=4)
@@ -342,8 +368,9 @@ def evaluate(path: str, base: Mapping[str, Any], items: Sequence[tuple[int, Mapp
         t0 = time.perf_counter()
         row: dict[str, Any] = {"option": index}
         try:
-            exp = (_loader(path, Path(path).stat().st_mtime_ns).load_like({**base, **overrides}, fidelity)
-                   if fidelity != "full" else load_experiment(path, {**base, **overrides}))
+            loader = _loader(path, Path(path).stat().st_mtime_ns)
+            exp = (loader.load_like({**base, **overrides}, fidelity) if fidelity != "full"
+                   else loader.load_as_given({**base, **overrides}))
             result = simulate(exp, record_trace=False, fidelity=fidelity, band=band)
             s = result.summary
             row.update(frame_time_ms=s["frame_time_ms"], latency_ms=s["latency_ms"], error=None,
@@ -393,21 +420,25 @@ TASK_OPTIONS = 32
 class Batch:
     """Options handed to the workers in tasks of up to :data:`TASK_OPTIONS`; :meth:`rows`
     waits for them. At the fast levels the options of one schedule over every link are handed
-    in side by side (they share a program and a model: `load_like`)."""
+    in side by side (they share a program and a model: `load_like`). Options that are one run
+    of the model (:class:`SameRuns`) are handed in once, and each gets that run's row."""
 
     def __init__(self, workers: Workers, path: str, base: Mapping[str, Any],
                  items: Sequence[tuple[int, Mapping[str, Any]]], fidelity: str, band: bool = False,
                  tally: Tally | None = None):
-        self.order = (sorted(range(len(items)), key=lambda k: _without_profile(items[k][1]))
-                      if fidelity != "full" else list(range(len(items))))
+        self.items = items
+        #: for each item, the place of the one that runs for it among `runs`
+        self.run_of, runs = _one_per_run(path, base, items)
+        stands = np.bincount(self.run_of, minlength=len(runs)) if runs else np.zeros(0, dtype=int)
+        self.order = (sorted(range(len(runs)), key=lambda k: _without_profile(runs[k][1]))
+                      if fidelity != "full" else list(range(len(runs))))
         self.tally = tally if tally is not None else Tally(None, "")
-        ordered = [items[k] for k in self.order]
-        size = max(1, min(TASK_OPTIONS, math.ceil(len(items) / (4 * workers.count))))
+        size = max(1, min(TASK_OPTIONS, math.ceil(len(runs) / (4 * workers.count))))
         self.tasks = []
-        for start in range(0, len(ordered), size):
-            chunk = ordered[start:start + size]
-            self.tasks.append(workers.submit(evaluate, path, dict(base), chunk, fidelity, band))
-            self.tally.add(self.tasks[-1], len(chunk))
+        for start in range(0, len(self.order), size):
+            chunk = self.order[start:start + size]
+            self.tasks.append(workers.submit(evaluate, path, dict(base), [runs[k] for k in chunk], fidelity, band))
+            self.tally.add(self.tasks[-1], int(stands[chunk].sum()))
 
     def rows(self) -> list[dict[str, Any]]:
         """`evaluate`'s rows, in the order of the items handed in."""
@@ -415,7 +446,66 @@ class Batch:
         back: list[dict[str, Any]] = [{}] * len(self.order)
         for k, row in zip(self.order, (row for task in self.tasks for row in task.result())):
             back[k] = row
-        return back
+        return [back[run] if back[run]["option"] == index else {**back[run], "option": index}
+                for (index, _), run in zip(self.items, self.run_of)]
+
+
+def _one_per_run(path: str, base: Mapping[str, Any], items: Sequence[tuple[int, Mapping[str, Any]]]
+                 ) -> tuple[list[int], list[tuple[int, Mapping[str, Any]]]]:
+    """For each item the place of the item that runs for it, and those items (the first of
+    each run of the model, in order)."""
+    same = _same_runs(path, Path(path).stat().st_mtime_ns)
+    place: dict[Hashable, int] = {}
+    runs: list[tuple[int, Mapping[str, Any]]] = []
+    run_of = []
+    for item in items:
+        key = same.key({**base, **item[1]})
+        if key not in place:
+            place[key] = len(runs)
+            runs.append(item)
+        run_of.append(place[key])
+    return run_of, runs
+
+
+class SameRuns:
+    """Which options are one run of the model: the same overrides but the profile's, on
+    profiles that differ in nothing the model reads. Why: links of one rate and latency are
+    one run (PCIe 3.0 x16 and 4.0 x8 both carry 0.985 x 16 GB/s; so do 4.0 x16 and 5.0 x8,
+    :func:`mgpusim.model.profile.links_as_rates`), and a search over links would run each
+    twice: a quarter of the options of every schedule searched over all eight links."""
+
+    def __init__(self, path: str):
+        self.profile_file = load_experiment(path).profile.source
+        #: profile overrides (as text) -> the place of the profile they give among `seen`
+        self.place: dict[str, int] = {}
+        self.seen: list[HardwareProfile] = []
+
+    def key(self, overrides: Mapping[str, Any]) -> tuple[str, int]:
+        """Equal for options that are one run of the model (see the class doc)."""
+        ours, theirs = split_profile(overrides)
+        text = json.dumps(theirs, sort_keys=True, default=str)
+        if text not in self.place:
+            self.place[text] = self._place(theirs)
+        return json.dumps(ours, sort_keys=True, default=str), self.place[text]
+
+    def _place(self, theirs: Mapping[str, Any]) -> int:
+        """The place of the profile `theirs` gives among those seen (a new one is added); a
+        profile that fails to load is one of its own (its options report the error)."""
+        try:
+            profile = links_as_rates(load_profile(self.profile_file, theirs))
+        except MgpusimError:
+            return -1 - len(self.place)
+        for k, seen in enumerate(self.seen):
+            if seen == profile:
+                return k
+        self.seen.append(profile)
+        return len(self.seen) - 1
+
+
+@functools.lru_cache(maxsize=4)
+def _same_runs(path: str, stamp: int) -> SameRuns:
+    """The :class:`SameRuns` of `path` as it is now (`stamp`: its modification time)."""
+    return SameRuns(path)
 
 
 def run_options(path: str, base: Mapping[str, Any], items: list[tuple[int, Mapping[str, Any]]],

@@ -248,7 +248,8 @@ def _peer_channels(rows: pd.DataFrame, links: pd.DataFrame | None) -> pd.Series:
     out = pd.Series(None, index=rows.index, dtype=object)
     if links is None:  # no link crossed: none to name
         return out
-    names = sorted(set(links["channel"].astype(str)))
+    channels = links["channel"].astype(str)
+    names = sorted(set(channels))
     device = rows["device"].astype(str)
     end = rows["end_ns"].to_numpy(np.int64)
     for dev in device.unique():
@@ -258,7 +259,7 @@ def _peer_channels(rows: pd.DataFrame, links: pd.DataFrame | None) -> pd.Series:
             out[sel] = mine[0]
             continue
         for name in mine:
-            busy = links[links["channel"].astype(str) == name]
+            busy = links[channels == name]
             s, e = busy["start_ns"].to_numpy(np.int64), busy["end_ns"].to_numpy(np.int64)
             if not len(s):
                 continue
@@ -270,13 +271,18 @@ def _peer_channels(rows: pd.DataFrame, links: pd.DataFrame | None) -> pd.Series:
 def busy_fraction(slices: pd.DataFrame, edges: np.ndarray) -> pd.DataFrame:
     """Per resource (device, track), the busy fraction of each interval between `edges`
     (ns): overlapping slices count once."""
-    rows = []
+    keys, fracs = [], []
     width = np.diff(edges).astype(float)
-    for (dev, track), g in slices.groupby(["device", "track"], sort=True):
+    for key, g in slices.groupby(["device", "track"], sort=True):
         s, e = _merge(g["start_ns"].to_numpy(np.int64), g["end_ns"].to_numpy(np.int64))
-        frac = np.diff(_busy_until(s, e, edges)) / width
-        rows.append(pd.DataFrame({"device": dev, "track": track, "ts_ns": edges[:-1], "busy": frac.round(4)}))
-    return pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=["device", "track", "ts_ns", "busy"])
+        keys.append(key)
+        fracs.append((np.diff(_busy_until(s, e, edges)) / width).round(4))
+    if not keys:
+        return pd.DataFrame(columns=["device", "track", "ts_ns", "busy"])
+    bins = len(edges) - 1  # (one table for all the resources: a frame each cost more than its rows)
+    return pd.DataFrame({"device": np.repeat(np.array([k[0] for k in keys], dtype=object), bins),
+                         "track": np.repeat(np.array([k[1] for k in keys], dtype=object), bins),
+                         "ts_ns": np.tile(edges[:-1], len(keys)), "busy": np.concatenate(fracs)})
 
 
 def _busy_until(s: np.ndarray, e: np.ndarray, t: np.ndarray) -> np.ndarray:

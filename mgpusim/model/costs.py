@@ -91,7 +91,13 @@ class CostModel:
 
     def check_transfer(self, name: str, nbytes: int, rate: Fraction, setup_ns: int, field: str) -> None:
         """A copy of `nbytes` at `rate` bytes/ns (alone on its channel) must end within
-        MAX_TASK_NS, so that simulated time fits int64; `field` is the rate's profile field."""
+        MAX_TASK_NS, so that simulated time fits int64; `field` is the rate's profile field.
+        (Compared in integers, `setup + bytes x den / num` against the bound: Fraction
+        arithmetic cost more than the rest of building a copy's op.)"""
+        num, den = rate.numerator, rate.denominator
+        exact = type(setup_ns) is int and type(nbytes) is int  # (else as Fraction arithmetic rounds)
+        if exact and num > 0 and setup_ns * num + nbytes * den <= L.MAX_TASK_NS * num:
+            return
         total = setup_ns + nbytes / rate
         if total > L.MAX_TASK_NS:
             raise TimeBoundError(f"copy {name!r} of {nbytes} bytes at {float(rate):.3g} GB/s would "

@@ -302,6 +302,17 @@ class HardwareProfile:
         return None
 
 
+def links_as_rates(profile: HardwareProfile) -> HardwareProfile:
+    """`profile` with every GPU's link given as what the model reads of it: its rate each
+    way and its latency (:meth:`LinkProfile.bandwidth_gbps`, `latency_ns`), not the
+    generation and lanes that give the rate. Two profiles equal so differ in nothing the model
+    reads (PCIe 3.0 x16 and 4.0 x8 are one link): `mgpusim advise` runs their options once."""
+    def rates(link: LinkProfile) -> LinkProfile:
+        return LinkProfile(pcie_gen=0, lanes=0, latency_ns=link.latency_ns,
+                           h2d_gbps=link.bandwidth_gbps("h2d"), d2h_gbps=link.bandwidth_gbps("d2h"))
+    return replace(profile, gpus=tuple(replace(g, link=rates(g.link)) for g in profile.gpus))
+
+
 def load_profile(path: str | Path, overrides: Mapping[str, object] | None = None) -> HardwareProfile:
     """Read and validate a hardware profile TOML file; `overrides` (dotted keys relative to the
     profile, e.g. ``gpus.0.link.pcie_gen``) change the raw file first (hardware what-ifs), so

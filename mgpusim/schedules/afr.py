@@ -221,6 +221,21 @@ def pacing(ready: str, pace_us: float) -> tuple[CpuTask, CpuTask]:
     return hold, gap
 
 
+def with_pace(program: FrameProgram, pace_us: float) -> FrameProgram:
+    """An evenly paced AFR program at another cadence: every frame's `pace.gap` lasting
+    `pace_us`, as :func:`build_afr` makes it (nothing else of the program depends on the
+    cadence: the pacer's tasks come last before the present, and the CPU frame and vsync
+    leave them as they are; a test compares it with the program built at that cadence). Why:
+    `mgpusim advise` tries every AFR option at four cadences, and building the program again
+    for each costs more than its run. `program` must be paced (have the pacer's tasks)."""
+    if not any(t.name == "pace.gap" for t in program.templates[0]):
+        raise ValueError("not an evenly paced AFR program: it has no pace.gap task")
+    fixed = pace_us * 1000
+    templates = tuple(tuple(replace(t, fixed_ns=fixed) if t.name == "pace.gap" and isinstance(t, CpuTask) else t
+                            for t in tasks) for tasks in program.templates)
+    return replace(program, templates=templates)
+
+
 _SIM_ONLY = MappingProxyType({"unsupported": "frame pacing (schedule.pace_us) is simulated only: "
                                              "the Vulkan runner presents into an offscreen image"})
 

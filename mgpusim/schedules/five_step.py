@@ -185,13 +185,19 @@ def balanced_rows(scene: Scene, profile: HardwareProfile, n: int) -> list[int]:
     other queues and overlap the next frame, so they do not enter the balance."""
     costs, h = CostModel(profile), scene.height
     known: dict[tuple[int, int], int] = {}  # (gpu, rows) -> load: the bisections revisit rows
+    within: dict[tuple[int, int], int] = {}  # (gpu, time) -> rows
+    alike = _alike_gpus(profile, n)
 
     def load(gpu: int, rows: int) -> int:
+        gpu = alike[gpu]
         if (gpu, rows) not in known:
             known[gpu, rows] = _graphics_load(scene, costs, gpu, rows, n)
         return known[gpu, rows]
 
     def rows_within(gpu: int, t: int) -> int:
+        gpu = alike[gpu]
+        if (gpu, t) in within:
+            return within[gpu, t]
         lo, hi = -1, h  # largest r in [0, h] with load <= t, or -1
         while lo < hi:
             mid = (lo + hi + 1) // 2
@@ -199,6 +205,7 @@ def balanced_rows(scene: Scene, profile: HardwareProfile, n: int) -> list[int]:
                 lo = mid
             else:
                 hi = mid - 1
+        within[gpu, t] = lo
         return lo
 
     lo, hi = 0, max(load(g, h) for g in range(n))
@@ -213,6 +220,17 @@ def balanced_rows(scene: Scene, profile: HardwareProfile, n: int) -> list[int]:
         cut = min(rows[g], sum(rows) - h)
         rows[g] -= cut
     return rows
+
+
+def _alike_gpus(profile: HardwareProfile, n: int) -> list[int]:
+    """For each of the first `n` GPUs, the first GPU from GPU 1 on with the same profile (GPU 0
+    itself: it composites). Why: GPUs alike have one load for each tile height, so the
+    balance's bisections need it once; the first is the one whose load the search would
+    have computed (and failed on) first."""
+    out = [0]
+    for g in range(1, n):
+        out.append(next(k for k in range(1, g + 1) if profile.gpus[k] == profile.gpus[g]))
+    return out
 
 
 @register("sort_last", "Five-step sort-last pipeline: geometry split evenly (or in whole objects), "

@@ -92,6 +92,17 @@ class _Node:
         object.__setattr__(self, "step", self.task.step)
 
 
+def _with_times(node: _Node, times: _Node) -> _Node:
+    """`node` with the times of `times` (its fixed time, bytes, rate, gap and whole time): a
+    copy's node on other links. Made as a copy of its fields, not through `__init__`: a
+    retimed model makes one per copy node, and the constructor took most of its time."""
+    new = object.__new__(_Node)
+    fields = new.__dict__
+    fields.update(node.__dict__)
+    fields.update(fixed=times.fixed, nbytes=times.nbytes, rate=times.rate, gap=times.gap, time=times.time)
+    return new
+
+
 def _round_div(nbytes: int, rate: Fraction) -> int:
     """bytes / rate, rounded half up, as the link channel computes it."""
     num, den = rate.numerator, rate.denominator
@@ -202,32 +213,39 @@ class Analytic:
         return _Node(task.name, task, str(task.queue), deps, op.duration, op.nbytes, rate, op.gap, (),
                      op.device, op.engine, op.waits_for, time=op.duration + moved)
 
-    def retimed(self, costs: CostModel, needed: frozenset[str] | None = None) -> "Analytic":
+    def retimed(self, costs: CostModel, needed: frozenset[str] | None = None,
+                program: FrameProgram | None = None) -> "Analytic":
         """This model on `costs`, a cost model whose profile differs from this one's only in its
         links' rates and latencies (the caller checks that: same GPUs, costs, host and peer
-        topology). Why: `advise` runs one program over many links, and only the copies' times
-        change with the link; the task graph, its order, the frame lag and the skip chains are
-        kept, and each copy's node is built again by the engine's own rules on `costs` (so its
-        time, and the time bound it is checked against, are those a fresh model would have;
-        copies alike in queue, path, peer and size are built once). Host copies stay: host
-        memory and memcpy threads set their times, not a link. `needed`:
-        `choose_effects(program, costs.profile)` where the caller has it already."""
-        builder = _builder(self.program, costs, self.effects, self.inputs)
+        topology), and on `program` where given: this model's program with some tasks' costs
+        changed but none of their names, queues or inputs (an AFR program at another cadence,
+        :func:`~mgpusim.schedules.afr.with_pace`). Why: `advise` runs one program over many
+        links and cadences, and only the copies' times (and the pacer's) change; the task
+        graph, its order, the frame lag and the skip chains are kept, and each copy's node and
+        each changed task's is built again by the engine's own rules on `costs` (so its time,
+        and the time bound it is checked against, are those a fresh model would have; copies
+        alike in queue, path, peer and size are built once). Host copies stay: host memory and
+        memcpy threads set their times, not a link. `needed`: `choose_effects(program,
+        costs.profile)` where the caller has it already."""
+        program = self.program if program is None else program
+        builder = _builder(program, costs, self.effects, self.inputs)
+        task_of = (self.task_of if program is self.program else
+                   [{t.name: t for t in tasks} for tasks in program.templates])
         alike: dict[tuple, _Node] = {}
 
         def timed(phase: int, node: _Node) -> _Node:
-            task = node.task
+            task = task_of[phase][node.name]
+            if task is not node.task and task != node.task:  # its cost changed (the program's)
+                return self._timed(builder.op(phase, task), node.deps)
             if not isinstance(task, CopyTask):
                 return node
             key = (task.queue, task.path, task.peer, task.bytes)
             done = alike.get(key)
             if done is None:
                 done = alike[key] = self._timed(builder.op(phase, task), node.deps)
-            return _Node(node.name, task, node.stream, node.deps, done.fixed, done.nbytes, done.rate, done.gap,
-                         node.parts, node.device, node.engine, node.waits_for, node.cpu, done.time,
-                         node.part_times)
+            return _with_times(node, done)
         new = copy.copy(self)
-        new.costs = costs
+        new.costs, new.program, new.task_of = costs, program, task_of
         new.phases = [[timed(ph, n) for n in phase] for ph, phase in enumerate(self.phases)]
         new.approximations = new._approximations(needed)
         return new

@@ -12,7 +12,8 @@ from mgpusim.model.profile import HardwareProfile, LinkProfile, has_cost_stderr,
 from mgpusim.model.profile_reads import outside_shipped, reading, recording, shipped_profiles, unused
 from mgpusim.model.tasks import QueueRef
 from mgpusim.results.summary import Result, build_result, frame_figures, task_rates
-from mgpusim.schedules.base import FrameProgram
+from mgpusim.schedules.afr import with_pace
+from mgpusim.schedules.base import FrameProgram, check_program
 from mgpusim.schedules.experiment import Experiment
 from mgpusim.schedules.memory_check import check_memory, memory_report
 from mgpusim.schedules.program import build_program, on_queues, run_config
@@ -143,27 +144,40 @@ def prepare_like(exp: Experiment, source: Experiment, fidelity: str) -> bool:
     """Give `exp` the program of `source` and (analytic level) `source`'s recurrence model
     retimed on `exp`'s links, where the two differ only in their links (:func:`link_free`) and
     choose the same effects; else leave `exp` to be prepared as usual. True where it gave them.
-    Why: a search over links (`mgpusim advise`) would build the same program and task graph
-    once per link. The effects are chosen on `exp`'s own profile, and a copy's node is built
-    again on `exp`'s costs (with its time bound), so a run of `exp` is the one it would be on
-    its own. Where building any of it fails here, nothing is given: `simulate(exp)` then
-    builds it and reports the error."""
-    if exp.profile is source.profile or exp.profile_overrides or source.profile_overrides:
+    Two evenly paced AFR experiments may differ in their cadence too (`schedule.pace_us`): `exp`
+    gets `source`'s program at its own cadence (:func:`~mgpusim.schedules.afr.with_pace`) and
+    the model with the pacer's nodes built again. Why: a search over links and cadences
+    (`mgpusim advise`) would build the same program and task graph once per link and cadence.
+    The effects are chosen on `exp`'s own profile (and program), and a copy's node (and a
+    pacer's) is built again on `exp`'s costs (with its time bound), so a run of `exp` is the
+    one it would be on its own. Where building any of it fails here, nothing is given:
+    `simulate(exp)` then builds it and reports the error."""
+    if exp.profile_overrides or source.profile_overrides:
         return False
-    if exp.raw != source.raw or link_free(exp.profile) != link_free(source.profile):
+    cadence = exp.raw != source.raw
+    if (exp.profile is source.profile and not cadence) or (cadence and not _other_cadence(exp, source)):
+        return False
+    if link_free(exp.profile) != link_free(source.profile):
         return False
     try:
-        program = cached(source, "program", lambda: build_program(source))
-        needed = needed_on_links(program, exp.profile, _needed(source, program))
+        source_program = program = cached(source, "program", lambda: build_program(source))
+        if cadence:
+            program = with_pace(source_program, exp.schedule.opt("pace_us"))
+            check_program(program, exp.profile)
+            needed = choose_effects(program, exp.profile)
+        else:
+            needed = needed_on_links(program, exp.profile, _needed(source, source_program))
         chosen = choose_effects(program, exp.profile, fidelity, None, needed)
         model = None
         if fidelity == "analytic" and not program.refresh_hz:
             theirs = cached(source, ("effects", fidelity, ()),
-                            lambda: choose_effects(program, source.profile, fidelity, None, _needed(source, program)))
+                            lambda: choose_effects(source_program, source.profile, fidelity, None,
+                                                   _needed(source, source_program)))
             if theirs != chosen:
                 return False
             model = cached(source, ("analytic", chosen),
-                           lambda: _analytic_model(source, program, chosen)).retimed(CostModel(exp.profile), needed)
+                           lambda: _analytic_model(source, source_program, chosen)
+                           ).retimed(CostModel(exp.profile), needed, program if cadence else None)
     except MgpusimError:
         return False
     cached(exp, "program", lambda: program)
@@ -173,6 +187,24 @@ def prepare_like(exp: Experiment, source: Experiment, fidelity: str) -> bool:
     if model is not None:
         cached(exp, ("analytic", chosen), lambda: model)
     return True
+
+
+def _other_cadence(exp: Experiment, source: Experiment) -> bool:
+    """Whether the two are evenly paced AFR experiments that differ at most in their cadence
+    (`schedule.pace_us` of their files as loaded)."""
+    if exp.schedule.name != "afr" or source.schedule.name != "afr":
+        return False
+    if not (exp.schedule.opt("pace_us") and source.schedule.opt("pace_us")):
+        return False
+    return without_pace(exp.raw) == without_pace(source.raw)
+
+
+def without_pace(data: Mapping[str, Any]) -> dict[str, Any]:
+    """An experiment file's contents (or overrides) without its schedule table's `pace_us`."""
+    schedule = data.get("schedule")
+    if not isinstance(schedule, Mapping) or "pace_us" not in schedule:
+        return dict(data)
+    return {**data, "schedule": {k: v for k, v in schedule.items() if k != "pace_us"}}
 
 
 def _analytic_model(exp: Experiment, program: FrameProgram, chosen: frozenset[str]) -> Any:

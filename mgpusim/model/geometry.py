@@ -39,8 +39,8 @@ SHAPES = ("torus", "sphere")
 #: before they are binned or rasterized (Vulkan's VK_CULL_MODE_BACK_BIT, bp's default).
 CULLS = ("none", "back")
 #: A pass's options that are names, not amounts: for each pass kind, option -> the names it
-#: takes, the first its default. A mesh pass's mesh and what its pipeline culls; our runner
-#: draws only the defaults.
+#: takes, the first its default. A mesh pass's mesh and what its pipeline culls (our runner
+#: draws every combination).
 PASS_OPTIONS: dict[str, dict[str, tuple[str, ...]]] = {"mesh": {"shape": SHAPES, "cull": CULLS}}
 #: A measured mesh's options and their defaults (columns of its measure table; a table
 #: without them measured the torus, unculled).

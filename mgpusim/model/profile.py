@@ -182,8 +182,9 @@ class PassCost:
     #: the mean of its parts' cores weighted by their time (:meth:`cores_of`). Why: llvmpipe
     #: shades, clips, culls and bins a draw's triangles on the thread that runs the command
     #: buffer and rasterizes on its rasterizer threads, so a mesh whose triangles are mostly
-    #: culled (vmgpu's sphere) keeps about one core busy where our torus, every triangle
-    #: rasterized, keeps about one and a half: one `cores` per kind cannot be both.
+    #: culled (vmgpu's sphere) keeps fewer cores busy than our torus, every triangle
+    #: rasterized (a main job: 1.31 cores for the triangles' part, 1.49 for the rest): one
+    #: `cores` per kind cannot be both.
     term_cores: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
 
     def cores_of(self, work: Mapping[str, float]) -> float | None:

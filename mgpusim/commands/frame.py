@@ -14,7 +14,6 @@ targets and reads; the file says which, pass by pass.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import re
 from pathlib import Path
 
@@ -104,9 +103,8 @@ def run(args: argparse.Namespace) -> int:
     frame = frame_from_slices(slices, name=args.name or out.stem, source=str(args.capture),
                               width=width, height=height, pixel_share=args.pixel_share,
                               left_out=meta.get("left_out"), origin=meta.get("source"),
-                              share_why=meta.get("share_why"), read_notes=meta.get("notes", ()))
-    if "frames_are" in meta:  # a RenderDoc capture: replays of its one frame
-        frame = dataclasses.replace(frame, frames_are=meta["frames_are"])
+                              share_why=meta.get("share_why"), read_notes=meta.get("notes", ()),
+                              frames_are=meta.get("frames_are", "captured frame(s)"))
     text = experiment_text(frame, profile, out)
     exp = check_experiment(text, out)
     out.parent.mkdir(parents=True, exist_ok=True)

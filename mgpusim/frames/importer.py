@@ -86,12 +86,14 @@ class CapturedFrame:
 def frame_from_slices(slices: pd.DataFrame, *, name: str, source: str, width: int, height: int,
                       pixel_share: float | None = None, left_out: Mapping[str, float] | None = None,
                       origin: Mapping[str, Any] | None = None,
-                      share_why: Mapping[str, str] | None = None, read_notes: Sequence[str] = ()) -> CapturedFrame:
+                      share_why: Mapping[str, str] | None = None, read_notes: Sequence[str] = (),
+                      frames_are: str = "captured frame(s)") -> CapturedFrame:
     """The frame the slices make (see the module doc); `pixel_share` for passes whose capture
     does not say how much of their time scales with pixels (None: inferred from the pass,
     :mod:`mgpusim.frames.shares`); `share_why`: why the capture states a pass's share, where it
     says (a measured run's pass kinds); `read_notes`: what the reader noted (which run of a
-    study's folder, where a multi-GPU run's passes ran), first among the frame's notes."""
+    study's folder, where a multi-GPU run's passes ran), first among the frame's notes;
+    `frames_are`: what the capture's frames are (a RenderDoc capture's: replays of its one frame)."""
     gpu = slices[slices["queue"].isin(["graphics", "compute"])]
     if gpu.empty:
         raise InputError("no GPU passes in the capture (queues graphics or compute)", file=source)
@@ -115,7 +117,7 @@ def frame_from_slices(slices: pd.DataFrame, *, name: str, source: str, width: in
                      f"the passes sum to {sum(p.gpu_ms for p in passes[0]):.3f} ms; the schedules "
                      "run them one after the other")
     return CapturedFrame(name, source, width, height, passes[0], len(frames), cpu_ms, views, span,
-                         tuple(notes + list(passes[1])), dict(origin or {}))
+                         tuple(notes + list(passes[1])), dict(origin or {}), frames_are)
 
 
 def _occurrences(gpu: pd.DataFrame) -> pd.DataFrame:

@@ -299,7 +299,7 @@ class Channel(FluidChannel):
     def state(self, rel: Relative) -> tuple:
         """The flows (exact remaining bytes, rates, caps, start, what they are), the solver's
         clock while it shares, and its scale."""
-        fluid = any(not f.solo_rate for f in self.flows)
+        fluid = any(f.solo_rate is _ZERO for f in self.flows)
         flows = tuple((f.remaining, f.cap, f.cap_s, f.rate, rel.t(f.start), f.nbytes, f.solo_rate,
                        rel.event(f.done), f.tag) for f in self.flows)
         return (self.name, flows, rel.t(self._t) if fluid else None, self._settle_pending,

@@ -550,8 +550,7 @@ def _as_array(values: Any, n: int) -> np.ndarray:
     if isinstance(values, np.ndarray):
         return values
     if isinstance(values, list) and values and all(v is values[0] for v in values):
-        v = values[0]
-        return np.full(n, v) if _typed(v) else np.full(n, v, dtype=object)
+        return _constant(values[0], n)
     return pd.Series(values).to_numpy()
 
 
@@ -609,8 +608,7 @@ def _warnings(first: Mapping[str, Any], keys: Sequence[Mapping[str, Any]]) -> di
 def _constant(value: Any, n: int) -> np.ndarray:
     """``_as_array([value] * n, n)``: the column of `n` copies of one value, as a record's
     column of them is made (without a list of `n` items to look through)."""
-    return _as_array([value], 1) if n == 1 else np.full(n, value) if _typed(value) \
-        else np.full(n, value, dtype=object)
+    return np.full(n, value) if _typed(value) else np.full(n, value, dtype=object)
 
 
 def _typed(value: Any) -> bool:

@@ -262,8 +262,9 @@ def _projected(triangles: int, eye: int | None, shape: str = "torus",
     which of them face the camera (their outward normal towards it)."""
     if shape == "sphere":
         positions, faces = sphere_arrays(sphere_layout(triangles))
-        verts = positions[faces].reshape(-1, 3)
-        outward = positions[faces].mean(axis=1)  # a unit sphere's normal is its position
+        corners = positions[faces]  # (T, 3, 3)
+        verts = corners.reshape(-1, 3)
+        outward = corners.mean(axis=1)  # a unit sphere's normal is its position
         matrix = bounds_mvp(aspect or 1.0, eye)
     else:
         mesh = torus_mesh(triangles).astype(np.float64)

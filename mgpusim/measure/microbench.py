@@ -19,7 +19,7 @@ import pandas as pd
 
 from mgpusim.measure import overlap as overlap
 from mgpusim.model.errors import InputError
-from mgpusim.model.geometry import MESH_OPTIONS, MESH_PLACE, PASS_OPTIONS, mesh_placement
+from mgpusim.model.geometry import MESH_OPTIONS, MESH_PLACE, mesh_placement
 from mgpusim.real.host.memcpy import HostCopy
 from mgpusim.real.passes.particle_update import ParticleUpdate
 from mgpusim.real.passes.standalone import (
@@ -36,10 +36,7 @@ from mgpusim.real.vulkan.device import Gpu
 
 
 def _mesh(gpu: Gpu, p: dict[str, Any]) -> Mesh:
-    place = mesh_placement(p)
-    for key, names in PASS_OPTIONS["mesh"].items():
-        if p[key] not in names:
-            raise InputError(f"expected one of {', '.join(names)}, got {p[key]!r}", field=key)
+    place = mesh_placement(p)  # (Mesh refuses a shape or cull it cannot draw, before allocating)
     view = place.mesh_view(int(p["triangles"]), p["shape"], p["cull"])
     return Mesh(gpu, int(p["width"]), int(p["height"]), view.triangles, first=view.first,
                 count=view.count, eye=view.eye, rect=place.rect, shape=view.shape, cull=view.cull)

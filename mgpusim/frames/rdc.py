@@ -110,15 +110,17 @@ def rows_from_record(record: dict[str, Any], file: str) -> tuple[list[dict[str, 
         raise InputError("the capture's frame has no GPU work (no draw, dispatch, copy or clear)", file=file)
     passes = _passes(actions)
     replays = len(actions[0]["seconds"])
+    # what a pass reads, writes and its bytes are the same in every replay: only its time is not
+    known = [(name, group, _names(group, "reads", resources, exclude="writes"),
+              _names(group, "writes", resources), _bytes(_ids(group, "writes"), resources))
+             for name, group in passes]
     rows = []
     for frame in range(replays):
-        for name, group in passes:
-            reads = _names(group, "reads", resources, exclude="writes")
-            writes = _names(group, "writes", resources)
+        for name, group, reads, writes, nbytes in known:
             rows.append({"frame": frame, "queue": "graphics", "name": name,
                          "ms": sum(a["seconds"][frame] for a in group) * 1000.0,
                          "start_ns": math.nan, "end_ns": math.nan, "reads": reads, "writes": writes,
-                         "bytes": _bytes(_ids(group, "writes"), resources), "view": -1, "pixel_share": math.nan})
+                         "bytes": nbytes, "view": -1, "pixel_share": math.nan})
     meta: dict[str, Any] = {"left_out": {}, "notes": [_replay_note(record, len(passes))],
                             "frames_are": "replay(s) of its one frame", **_size(passes, resources)}
     return rows, meta

@@ -516,12 +516,8 @@ def run_options(path: str, base: Mapping[str, Any], items: list[tuple[int, Mappi
     `progress(stage, done, total)` as tasks end."""
     if not isinstance(workers, Workers) and len(items) < 2 * workers:
         workers = 1
-    pool, own = workers_of(workers)
-    try:
+    with workers_of(workers) as pool:
         return Batch(pool, path, base, items, fidelity, band, Tally(progress, stage, len(items))).rows()
-    finally:
-        if own:
-            pool.close()
 
 
 def _without_profile(overrides: Mapping[str, Any]) -> str:
@@ -539,12 +535,8 @@ def search(path: str | Path, overrides: Mapping[str, Any] | None = None, *, max_
     `progress(stage, done, total)`: the options evaluated so far in each stage of the search."""
     path, base = str(path), dict(overrides or {})
     exp = check_frame(path, base, max_gpus)
-    pool, own = workers_of(workers or os.cpu_count() or 1)
-    try:
+    with workers_of(workers or os.cpu_count() or 1) as pool:
         return _search(path, base, exp, options(exp, max_gpus, links), links, confirm, pool, band, progress)
-    finally:
-        if own:
-            pool.close()
 
 
 def _search(path: str, base: dict[str, Any], exp: Experiment, opts: list[Option], links: Sequence[Link],

@@ -77,12 +77,8 @@ def check_shares(advice: Advice, workers: int | Workers = 1, delta: float = SHAR
     `workers`: a count of processes, or a command's :class:`Workers` (both directions' runs
     are handed to them together)."""
     t0 = time.perf_counter()
-    pool, own = workers_of(workers)
-    try:
+    with workers_of(workers) as pool:
         advice.assumptions = _check(advice, pool, delta, progress)
-    finally:
-        if own:
-            pool.close()
     advice.timings["shares_s"] = time.perf_counter() - t0
     return advice.assumptions
 

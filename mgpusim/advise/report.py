@@ -79,14 +79,10 @@ def write_advice(advice: Advice, out: Path, experiment: str, timelines: int = 3,
     discard_stale(out)
     staging = out / STAGING
     staging.mkdir()
-    pool, own = workers_of(workers if workers is not None else
-                           min(int(advice.counts.get("workers", 1)), 1 + max(timelines, 0)))
-    try:
+    with workers_of(workers if workers is not None else
+                    min(int(advice.counts.get("workers", 1)), 1 + max(timelines, 0))) as pool:
         files = _write_set(advice, staging, experiment, Timelines(advice, staging / "timelines", timelines, pool,
                                                                   progress), alongside)
-    finally:
-        if own:
-            pool.close()
     for name in OUTPUTS:  # the report last: until it is there, the folder has no answer
         if (staging / name).exists():
             os.replace(staging / name, out / name)

@@ -12,8 +12,8 @@ beside the assumed shares), so a worker waits only where the next work needs eve
 from __future__ import annotations
 
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from contextlib import AbstractContextManager
-from typing import Any, Callable, Iterable, TypeVar
+from contextlib import AbstractContextManager, contextmanager
+from typing import Any, Callable, Iterable, Iterator, TypeVar
 
 from mgpusim.io import collector
 
@@ -70,11 +70,15 @@ class Workers:
         self.close()
 
 
-def workers_of(workers: int | Workers) -> tuple[Workers, bool]:
-    """`workers` as a set of processes, and whether the caller made it (and closes it)."""
+@contextmanager
+def workers_of(workers: int | Workers) -> Iterator[Workers]:
+    """`workers` as a set of processes: a set given is used as it is (its owner closes it), a
+    count makes one that is closed on leaving the block."""
     if isinstance(workers, Workers):
-        return workers, False
-    return Workers(workers), True
+        yield workers
+        return
+    with Workers(workers) as made:
+        yield made
 
 
 class Tally:

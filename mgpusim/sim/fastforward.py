@@ -108,8 +108,7 @@ class FastForward:
         unknown = sorted({type(ex).__name__ for ex in engine.executors.values()
                           if type(ex) not in (Dedicated, Interpreter, SharedCores, SharedGpu)})
         if unknown:  # its state is not written down: a repeat could not be trusted
-            self.active = False
-            self.reason = f"executor {', '.join(unknown)} has state this fast-forward does not describe"
+            self._give_up(f"executor {', '.join(unknown)} has state this fast-forward does not describe")
         if engine.refresh_period is not None:  # the refresh grid's phase is not in the state
             self._give_up("vsync (schedule.refresh_hz): presents follow the display's refresh, "
                           "whose phase the fast-forward does not describe")
@@ -216,8 +215,8 @@ def run(engine: Engine, enabled: bool = True, record_trace: bool = True,
     total)`: called as frames present (about 200 times in a run), with the frames presented
     and the frames the run will simulate (fewer once a repeat is found)."""
     ff = FastForward(engine, keep_rows=record_trace) if enabled else None
-    if engine.horizon > MAX_RECORDED_FRAMES and (ff is None or not ff.active):
-        raise Unrepeated("the fast-forward is off" if ff is None else ff.reason)
+    if ff is None and engine.horizon > MAX_RECORDED_FRAMES:  # (one that gave up at once raised)
+        raise Unrepeated("the fast-forward is off")
     hooks: list[Callable[[int], None]] = []
     if ff is not None and ff.active:
         hooks.append(ff.on_present)

@@ -262,15 +262,31 @@ class Channel(FluidChannel):
             cap_s = flow.cap_s
             flow.rate = left if cap_s is None or cap_s >= left else cap_s
             return
-        if n == 2:  # (the sort and the loop below, written out for two)
-            a, b = flows
-            ca, cb = a.cap_s, b.cap_s
-            if cb is not None and (ca is None or ca > cb):
-                a, b, ca, cb = b, a, cb, ca
-            fair = left // 2  # exact: see the module docstring
-            a.rate = fair if ca is None or ca >= fair else ca
+        if n <= 3:  # (the sort and the loop below, written out: an insertion sort, stable)
+            if n == 2:
+                a, b = flows
+                if b.order < a.order:
+                    a, b = b, a
+            else:
+                a, b, c = flows
+                if b.order < a.order:
+                    a, b = b, a
+                if c.order < b.order:
+                    b, c = c, b
+                    if b.order < a.order:
+                        a, b = b, a
+                cap_s = a.cap_s
+                fair = left // 3  # exact: see the module docstring
+                a.rate = fair if cap_s is None or cap_s >= fair else cap_s
+                left -= a.rate
+                a = b
+                b = c
+            cap_s = a.cap_s
+            fair = left // 2
+            a.rate = fair if cap_s is None or cap_s >= fair else cap_s
             left -= a.rate
-            b.rate = left if cb is None or cb >= left else cb
+            cap_s = b.cap_s
+            b.rate = left if cap_s is None or cap_s >= left else cap_s
             return
         for k, flow in enumerate(sorted(flows, key=_by_order)):
             fair = left // (n - k)

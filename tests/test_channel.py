@@ -188,3 +188,39 @@ def test_three_capped_copies_that_fit_never_start_the_solver():
     assert not any(f.solo_rate for f in ch.flows)
     env.run()
     assert ch.busy and ch.max_concurrent == 4
+
+
+def _reference_rates(ch: Channel) -> list[int]:
+    """Water-filling as written plainly (the order of the scaled caps, uncapped last, equal
+    ones as they came; each at the fair split of what is left or its cap if lower): what the
+    solver's written-out cases for one and two flows must give."""
+    left = ch._left_now()
+    order = sorted(range(len(ch.flows)), key=lambda i: (ch.flows[i].cap is None, ch.flows[i].cap or 0))
+    rates = [0] * len(order)
+    for k, i in enumerate(order):
+        cap_s = ch.flows[i].cap_s
+        fair = left // (len(order) - k)
+        rates[i] = fair if cap_s is None or cap_s >= fair else cap_s
+        left -= rates[i]
+    return rates
+
+
+@settings(max_examples=300, deadline=None)
+@given(flows=st.lists(st.tuples(st.integers(1, 10 ** 6),
+                                st.sampled_from([None, Fraction(1), Fraction(3, 2), Fraction(2),
+                                                 Fraction(5, 3), Fraction(7, 3)])), min_size=2, max_size=6),
+       bw=st.sampled_from([Fraction(3), Fraction(7, 2), Fraction(10)]),
+       over=st.sampled_from([None, Fraction(5, 2)]))
+def test_shares_are_water_filling_for_every_crowd(flows, bw, over):
+    """The solver's shares (after every settle, as flows end one by one: three, two, one;
+    capped, uncapped, equal caps; on oversubscribed cores too) are plain water-filling's,
+    exactly."""
+    env = simpy.Environment()
+    ch = Channel(env, "host.cpu", bw, over if over is not None and over < bw else None)
+    for nbytes, cap in flows:
+        ch.transfer(nbytes, cap, PassWork("x") if cap == Fraction(2) else None)
+    while env.peek() != simpy.core.Infinity:
+        env.step()
+        if ch.flows and not ch._settle_pending and ch.flows[0].solo_rate == 0:
+            assert [f.rate for f in ch.flows] == _reference_rates(ch)
+            assert sum(f.rate for f in ch.flows) <= ch._left_now()

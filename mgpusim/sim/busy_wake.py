@@ -28,16 +28,27 @@ FILLS_CORES = Fraction(9, 10)
 
 class BusyWake:
     """The effect's state in one simulation: which GPUs' core-filling passes are running, since
-    when and with how much work, which (pass, GPU) pairs have counted, and the credit."""
+    when and with how much work, which (pass, GPU) pairs have counted, and the credit.
+
+    Kept in integers where the hot path touches it (a pass starts, a copy is about to): the
+    credit in units of 1 / the share's denominator, a pass's work as its cores and its time
+    alone (its core-ns are their product). `state()` gives the same Fractions as before."""
 
     def __init__(self, share: float, ns: int, window_ns: int, host_cores: int) -> None:
         self.share, self.ns, self.window_ns = Fraction(repr(share)), ns, window_ns
         self._filling_cores = FILLS_CORES * host_cores
-        self._credit = Fraction(0)
+        #: the credit x the share's denominator (`_unit`); the share adds `_step` of them
+        self._step, self._unit = self.share.numerator, self.share.denominator
+        self._credit_units = 0
         self._running: dict[str, int] = defaultdict(int)  # device -> filling passes running
-        #: device -> its latest filling pass: (start, cores, work in core-ns)
-        self._latest: dict[str, tuple[int, Fraction, Fraction]] = {}
+        #: device -> its latest filling pass: (start, cores, duration alone in ns)
+        self._latest: dict[str, tuple[int, Fraction, int]] = {}
         self._counted: set[tuple[str, str]] = set()  # (pass device, copy device)
+
+    @property
+    def credit(self) -> Fraction:
+        """The running credit (each pair that counts adds the share; a wait takes 1 off)."""
+        return Fraction(self._credit_units, self._unit)
 
     def fills(self, cores: Fraction, duration_ns: int) -> bool:
         """Whether a pass keeping `cores` busy for `duration_ns` (alone) counts as filling."""
@@ -45,8 +56,9 @@ class BusyWake:
 
     def pass_started(self, device: str, now: int, cores: Fraction, duration_ns: int) -> None:
         self._running[device] += 1
-        self._latest[device] = (now, cores, cores * duration_ns)
-        self._counted = {p for p in self._counted if p[0] != device}
+        self._latest[device] = (now, cores, duration_ns)
+        if self._counted:
+            self._counted = {p for p in self._counted if p[0] != device}
 
     def pass_ended(self, device: str) -> None:
         self._running[device] -= 1
@@ -55,20 +67,26 @@ class BusyWake:
         """The wait (ns of one core's time) of a copy of `device` about to start at `now`: 0, or
         for the pair whose share brings the credit to 1, `ns` or the young pass's work left
         (taken as done at full speed so far) if less: once the pass is done its threads sleep."""
-        young = [(self._latest[d][0], d) for d in self._young(now) if d != device]
-        if not young:
+        latest, window = self._latest, self.window_ns
+        young = None  # (start, device) of the latest young pass of another GPU
+        for d, n in self._running.items():  # (`_young`, inline)
+            if n and d != device:
+                start = latest[d][0]
+                if now - start <= window and (young is None or (start, d) > young):
+                    young = (start, d)
+        if young is None:
             return 0
-        pass_device = max(young)[1]
+        pass_device = young[1]
         pair = (pass_device, device)
         if pair in self._counted:
             return 0
         self._counted.add(pair)
-        self._credit += self.share
-        if self._credit < 1:
+        self._credit_units += self._step
+        if self._credit_units < self._unit:
             return 0
-        self._credit -= 1
-        start, cores, work = self._latest[pass_device]
-        left = max(work - cores * (now - start), Fraction(0))
+        self._credit_units -= self._unit
+        start, cores, duration = latest[pass_device]
+        left = max(cores * (duration - (now - start)), Fraction(0))  # its core-ns left
         return min(self.ns, round_half_up(left))
 
     def _young(self, now: int) -> list[str]:
@@ -76,10 +94,13 @@ class BusyWake:
                 if n and now - self._latest[d][0] <= self.window_ns]
 
     def state(self, now: int) -> tuple:
-        """What decides its future, relative to `now` (for the fast-forward's repeat check)."""
+        """What decides its future, relative to `now` (for the fast-forward's repeat check): the
+        credit, the running passes (the young ones with their start, cores and core-ns) and the
+        young passes' pairs that counted."""
         young = set(self._young(now))
-        return (self._credit,
-                tuple(sorted((d, n) + ((now - self._latest[d][0],) + self._latest[d][1:]
+        return (self.credit,
+                tuple(sorted((d, n) + ((now - self._latest[d][0], self._latest[d][1],
+                                        self._latest[d][1] * self._latest[d][2])
                                        if d in young else ())
                              for d, n in self._running.items() if n)),
                 tuple(sorted(p for p in self._counted if p[0] in young)))

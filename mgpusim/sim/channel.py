@@ -21,6 +21,7 @@ nanosecond are settled together, so a burst of N transfers costs one rate comput
 from __future__ import annotations
 
 import math
+import operator
 from dataclasses import dataclass
 from fractions import Fraction
 from typing import Callable
@@ -31,6 +32,7 @@ from mgpusim.sim.fluid import FluidChannel
 from mgpusim.sim.snapshot import Callback, Environment, Relative
 
 _ZERO = Fraction(0)
+_UNCAPPED = math.inf
 #: An occupant's amount (:meth:`Channel.occupy`): more than any run can use up.
 OCCUPANT = 1 << 80
 
@@ -46,7 +48,8 @@ class PassWork:
 
 
 class _Flow:
-    __slots__ = ("remaining", "cap", "cap_s", "rate", "done", "start", "nbytes", "solo_rate", "tag")
+    __slots__ = ("remaining", "cap", "cap_s", "rate", "done", "start", "nbytes", "solo_rate", "tag",
+                 "order")
 
     def __init__(self, nbytes: int, cap: Fraction | None, done: simpy.Event, start: int,
                  tag: object = None):
@@ -54,6 +57,8 @@ class _Flow:
         self.remaining = 0  # in 1/S bytes, set when the solver takes over
         self.rate = 0  # in 1/S bytes per ns
         self.cap_s: int | None = None
+        #: where the solver sorts it: its scaled cap (set with `cap_s`), uncapped ones last
+        self.order: int | float = _UNCAPPED
         #: the flow's rate while it runs on the fast path (never 0), else _ZERO itself: tested
         #: by identity in the hot paths (`bool` of a Fraction is a Python call)
         self.solo_rate: Fraction = _ZERO
@@ -88,38 +93,57 @@ class Channel(FluidChannel):
         #: how a fast-path end triggers its flow's event: the model's Environment processes it
         #: at once where nothing else is due (same order); plain SimPy's schedules it
         self._succeed: Callable[[simpy.Event], object] = getattr(env, "succeed_now", simpy.Event.succeed)
+        #: how the solver triggers the events of flows it completes: the model's Environment
+        #: schedules them as `succeed` does, without its check (only the channel triggers them)
+        self._trigger: Callable[[simpy.Event], object] = getattr(env, "trigger", simpy.Event.succeed)
         self._crowd = 4  # flows the scale can split among exactly
         self._denoms = self.bandwidth.denominator
         if self.oversubscribed is not None:
             self._denoms = math.lcm(self._denoms, self.oversubscribed.denominator)
         self._scale = self._denoms * math.lcm(*range(1, self._crowd + 1))
-        #: (scale, bandwidth x scale, oversubscribed capacity x scale or None)
-        self._capacity_s: tuple[int, int, int | None] = (0, 0, None)
+        #: the bandwidth and the oversubscribed capacity (or None) x S: set with every S
+        #: (:meth:`_scaled_capacity`), so a reshare reads them without a check
+        self._bw_s = 0
+        self._over_s: int | None = None
+        self._scaled_capacity()
+        #: the one callback every settle of this channel gets (it holds nothing else)
+        self._settle_cb = Settle((self,))
 
     def transfer(self, nbytes: int, cap: Fraction | None = None, tag: object = None) -> simpy.Event:
         """An event that fires when `nbytes` have crossed the channel. `tag`: what the flow is
         (a channel whose capacity depends on who shares it reads it; see GpuChannel)."""
-        done = self.env.event()
+        env = self.env
+        done = env.event()
         if nbytes <= 0:
             return done.succeed()
-        now = self.env.now
+        now = env.now
         flow = _Flow(nbytes, cap, done, now, tag)
-        if not self.flows or self._fits(flow):
+        flows = self.flows
+        # (_fits says no at once while the solver shares the channel: not asked then)
+        if not flows or (flows[0].solo_rate is not _ZERO and self._fits(flow)):
             self._start_solo(flow, now)
             return done
-        if self.flows[0].solo_rate is not _ZERO:  # the fast path ends here: the solver takes every flow
+        if flows[0].solo_rate is not _ZERO:  # the fast path ends here: the solver takes every flow
             self._epoch += 1
-            for running in self.flows:
+            for running in flows:
                 self._to_fluid(running, now)
-        self._advance()
-        self.flows.append(flow)
-        self._fit_scale(flow)
+        dt = now - self._t  # (_advance, inline)
+        if dt:
+            for running in flows:
+                running.remaining -= running.rate * dt
+            self._t = now
+        flows.append(flow)
+        # (_fit_scale, inline: S grows only for a cap's new denominator or a larger crowd)
+        denominator = 1 if cap is None else cap.denominator
+        if len(flows) > self._crowd or self._denoms % denominator:
+            self._grow_scale(denominator)
         flow.remaining = nbytes * self._scale
-        self.max_concurrent = max(self.max_concurrent, len(self.flows))
+        if len(flows) > self.max_concurrent:
+            self.max_concurrent = len(flows)
         if not self._settle_pending:
             self._settle_pending = True
             self._gen += 1  # any planned wake-up is stale now
-            self.env.timeout(0).callbacks.append(Settle((self,)))
+            env.timeout(0).callbacks.append(self._settle_cb)
         return done
 
     def occupy(self, cap: Fraction, tag: object = None) -> object:
@@ -146,7 +170,7 @@ class Channel(FluidChannel):
         if not self._settle_pending:
             self._settle_pending = True
             self._gen += 1
-            self.env.timeout(0).callbacks.append(Settle((self,)))
+            self.env.timeout(0).callbacks.append(self._settle_cb)
 
     # ----- the fast path: nothing shared -----------------------------------------------------
     def _fits(self, flow: _Flow) -> bool:
@@ -211,17 +235,61 @@ class Channel(FluidChannel):
         for f in self.flows:
             f.remaining *= factor
         self._denoms, self._crowd, self._scale = need_denoms, crowd, new_scale
+        self._scaled_capacity()
         for f in self.flows:
             f.cap_s = None
 
+    def _scaled_capacity(self) -> None:
+        """The bandwidth and the oversubscribed capacity in 1/S bytes per ns, at the current S
+        (which divides into both): once per scale, not per reshare (the Fractions' numerator
+        and denominator are Python calls)."""
+        scale, bw, over = self._scale, self.bandwidth, self.oversubscribed
+        self._bw_s = bw.numerator * (scale // bw.denominator)
+        self._over_s = None if over is None else over.numerator * (scale // over.denominator)
+
     def _reshare(self) -> None:
-        """Max-min fair shares with per-flow caps (water-filling), all in integers."""
-        left = self._left_now()  # (may grow the scale, which drops the scaled caps)
-        self._scale_caps()
-        flows = self.flows if len(self.flows) == 1 else sorted(self.flows, key=_cap_key)
+        """Max-min fair shares with per-flow caps (water-filling), all in integers: the flows
+        in the order of their scaled caps (uncapped last, equal ones in the order they came),
+        each at the fair split of what is left, or at its cap where that is lower."""
+        flows, scale = self.flows, self._scale
+        for f in flows:  # (_scale_caps, inline)
+            if f.cap_s is None and f.cap is not None:
+                f.cap_s = f.order = f.cap.numerator * (scale // f.cap.denominator)
+        left = self._bw_s if self._over_s is None else self._left_now()
         n = len(flows)
-        for k, flow in enumerate(flows):
-            fair = left // (n - k)  # exact: see the module docstring
+        if n == 1:
+            flow = flows[0]
+            cap_s = flow.cap_s
+            flow.rate = left if cap_s is None or cap_s >= left else cap_s
+            return
+        if n <= 3:  # (the sort and the loop below, written out: an insertion sort, stable)
+            if n == 2:
+                a, b = flows
+                if b.order < a.order:
+                    a, b = b, a
+            else:
+                a, b, c = flows
+                if b.order < a.order:
+                    a, b = b, a
+                if c.order < b.order:
+                    b, c = c, b
+                    if b.order < a.order:
+                        a, b = b, a
+                cap_s = a.cap_s
+                fair = left // 3  # exact: see the module docstring
+                a.rate = fair if cap_s is None or cap_s >= fair else cap_s
+                left -= a.rate
+                a = b
+                b = c
+            cap_s = a.cap_s
+            fair = left // 2
+            a.rate = fair if cap_s is None or cap_s >= fair else cap_s
+            left -= a.rate
+            cap_s = b.cap_s
+            b.rate = left if cap_s is None or cap_s >= left else cap_s
+            return
+        for k, flow in enumerate(sorted(flows, key=_by_order)):
+            fair = left // (n - k)
             flow.rate = fair if flow.cap_s is None or flow.cap_s >= fair else flow.cap_s
             left -= flow.rate
 
@@ -236,12 +304,7 @@ class Channel(FluidChannel):
         from twice it, only the demand of work that is not `lossless` losing. Computed on the
         scaled integers (S divides into every cap, the bandwidth and `oversubscribed`): exactly
         floor(capacity x S), without a Fraction per reshare (the solver's hottest line)."""
-        scale = self._scale
-        if self._capacity_s[0] != scale:  # (the scaled capacities, once per scale: the Fractions'
-            bw, over = self.bandwidth, self.oversubscribed  # numerator and denominator are Python calls)
-            self._capacity_s = (scale, bw.numerator * (scale // bw.denominator),
-                                None if over is None else over.numerator * (scale // over.denominator))
-        _scale, b_s, o_s = self._capacity_s
+        b_s, o_s = self._bw_s, self._over_s
         if o_s is None:
             return b_s
         self._scale_caps()
@@ -271,24 +334,51 @@ class Channel(FluidChannel):
         scale = self._scale
         for f in self.flows:
             if f.cap is not None and f.cap_s is None:
-                f.cap_s = f.cap.numerator * (scale // f.cap.denominator)
+                f.cap_s = f.order = f.cap.numerator * (scale // f.cap.denominator)
 
-    def _idle(self) -> bool:
-        # released empty (an occupant), maybe on the fast path since: nothing to share
-        return not self.flows or self.flows[0].solo_rate is not _ZERO
-
-    def _plan(self) -> None:
+    def _settle(self, _event: object = None, shares_stand: bool = False) -> None:
+        """:meth:`FluidChannel._settle`, its steps inline (`_idle`, `_advance`, `_plan`; the
+        solver's hottest path): the same steps in the same order."""
+        self._settle_pending = False
+        flows = self.flows
+        if not flows or flows[0].solo_rate is not _ZERO:
+            return  # released empty (an occupant), maybe on the fast path since: nothing to share
+        env = self.env
+        now = env.now
+        dt = now - self._t
+        if dt:
+            for flow in flows:
+                flow.remaining -= flow.rate * dt
+            self._t = now
+        if not shares_stand:
+            self._reshare()
+        for flow in flows:
+            if 2 * flow.remaining < flow.rate:  # flows end now (within half a ns): in one pass,
+                trigger, left = self._trigger, []  # each one's event triggered in order
+                for f in flows:
+                    if 2 * f.remaining < f.rate:
+                        trigger(f.done)
+                    else:
+                        left.append(f)
+                flows = self.flows = left
+                if not flows:
+                    self.busy.append((self._busy_since, now))
+                    self._gen += 1
+                    return
+                self._reshare()
+                break
         self._gen += 1
         wake = None
-        for f in self.flows:
+        for f in flows:
             if f.nbytes != OCCUPANT:
-                at = (2 * f.remaining + f.rate) // (2 * f.rate)
+                rate = f.rate
+                at = (2 * f.remaining + rate) // (2 * rate)
                 if wake is None or at < wake:
                     wake = at
         if wake is None:
             return  # only occupants: nothing ends until one is released
-        wake = max(self._t + wake, self.env.now)
-        self.env.timeout(wake - self.env.now).callbacks.append(Wake((self, self._gen)))
+        # (the clock was advanced to now: _plan's max(self._t + wake, now) - now)
+        env.timeout(wake if wake > 0 else 0).callbacks.append(Wake((self, self._gen)))
 
     # ----- state (for the fast-forward) -----------------------------------------------------
     @property
@@ -403,8 +493,9 @@ def _add(total: tuple[int, int], value: Fraction) -> tuple[int, int]:
     return num // g, den // g
 
 
-def _cap_key(flow: _Flow) -> tuple[int, int]:
-    return (1, 0) if flow.cap_s is None else (0, flow.cap_s)
+#: the solver's sort key, read at C speed (`_Flow.order`: an int compares with the infinity of
+#: an uncapped flow exactly)
+_by_order = operator.attrgetter("order")
 
 
 class FixedRateChannel:

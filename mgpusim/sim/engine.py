@@ -239,7 +239,7 @@ class Engine:
               and not any(op.gap for ops in plan for op in ops)):  # (fill_cores needs busy_wake)
             proc = self._lean_stream_proc(plan, stream, box)
         else:
-            proc = self._stream_proc(plan, stream)
+            proc = self._stream_proc(plan, stream, box)
         box.append(StreamProcess(self.env, proc))
         self.processes.append(box[0])
 
@@ -349,13 +349,16 @@ class Engine:
                 self._ready.add(key)
 
     # ----- processes ---------------------------------------------------------------------
-    def _stream_proc(self, plan: list[list[Op]], st: _Stream):
+    def _stream_proc(self, plan: list[list[Op]], st: _Stream, proc: list[StreamProcess]):
         """One in-order stream: a queue, or (`st.host`) the host thread that dispatches host
         copies. Each task runs after its dependencies and any host dispatch it owes; a queue
         task then spends its pass or copy time and crosses its channel, a host copy is handed
         to the memcpy threads. Before each wait it writes in `st` where it stands. (One loop
-        for both, inlined: this is the hot path.)"""
+        for both, inlined: this is the hot path.) It waits by itself, as
+        :meth:`_lean_stream_proc` does (`resume` on the event, written down in `st.target`,
+        then a bare yield). `proc`: [its process], filled before it runs."""
         env, period, skip, ready, host = self.env, self.period, self._skip, self._ready, st.host
+        resume = proc[0].resume_direct
         cross_done, copy_wake, timeline = self._cross_done, self._copy_wake_ns, self._host_timeline
         busy_wake, finish = self._busy_wake, self._finish
         submitted = 0  # the queue's host submit thread: when it submitted the last task
@@ -368,9 +371,10 @@ class Engine:
                 if key in ready:  # the common case: dependencies already met
                     ready.discard(key)
                 elif not self._check_ready(key, op.task):
-                    ev = self._waiters[key] = env.event()
+                    ev = st.target = self._waiters[key] = env.event()
                     st.at = DEPS
-                    yield ev
+                    ev.callbacks.append(resume)
+                    yield
                 if skip and key in skip:
                     self._skip_task(key, op.task)
                     continue
@@ -383,7 +387,9 @@ class Engine:
                     wait = self._copy_wake(key) - env.now
                     if wait > 0:  # the host-copy thread's wake latency (not CPU work)
                         st.at = COPY_WAKE
-                        yield env.timeout(wait)
+                        ev = st.target = env.timeout(wait)
+                        ev.callbacks.append(resume)
+                        yield
                     wait = 0
                 if cross_done and (host or timeline):
                     wait = self._dispatch_wait(key, keep=not host)
@@ -392,9 +398,13 @@ class Engine:
                     turn = self._interpreter_turn()
                     if turn is not None:
                         st.at = TURN
-                        yield turn
+                        st.target = turn
+                        turn.callbacks.append(resume)
+                        yield
                     st.at = DISPATCH
-                    yield self._host_work(wait)
+                    ev = st.target = self._host_work(wait)
+                    ev.callbacks.append(resume)
+                    yield
                     self._interpreter_done()
                 if host:
                     self._dispatch_host_copy(frame, op)
@@ -408,32 +418,44 @@ class Engine:
                         submitted = st.submitted = self._submitted(key, submitted, env.now if wait else 0)
                         if submitted > env.now:
                             st.at = SUBMIT
-                            yield env.timeout(submitted - env.now)
+                            ev = st.target = env.timeout(submitted - env.now)
+                            ev.callbacks.append(resume)
+                            yield
                         if self._submit_load is not None:
                             self._submit_load(self._submit_ns)  # the submit thread's cores
                 gap_run = op.gap_run  # (set where the task has a gap: one read either way)
                 if gap_run is not None:
                     st.at = GAP
-                    yield gap_run(op.gap)
+                    ev = st.target = gap_run(op.gap)
+                    ev.callbacks.append(resume)
+                    yield
                 if busy_wake is not None and isinstance(op.task, CopyTask):
                     wait = busy_wake.copy_wait(op.device, env.now)
                     if wait:  # the copy's thread waits behind the pass; a core idles meanwhile
                         st.at = BUSY_WAKE
-                        yield self._host_work(wait)
+                        ev = st.target = self._host_work(wait)
+                        ev.callbacks.append(resume)
+                        yield
                 start = st.start = env.now
                 fills = op.fill_cores  # (set only where busy_wake is on)
                 if fills is not None and busy_wake is not None:
                     busy_wake.pass_started(op.device, start, fills, op.duration)
                 if op.run is not None:
                     st.at = RUN
-                    yield op.run(op.amount)
+                    ev = st.target = op.run(op.amount)
+                    ev.callbacks.append(resume)
+                    yield
                 if fills is not None and busy_wake is not None:
                     busy_wake.pass_ended(op.device)
                 if op.cross is not None:
                     st.at = TRANSFER
-                    yield op.cross()
+                    ev = st.target = op.cross()
+                    ev.callbacks.append(resume)
+                    yield
                 finish(frame, op, op.engine, start, op.nbytes)
             frame += 1
+        proc[0].finish()
+        yield  # (never resumed)
 
     def _lean_stream_proc(self, plan: list[list[Op]], st: _Stream, proc: list[StreamProcess],
                           host: bool = False):

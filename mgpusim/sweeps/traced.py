@@ -191,8 +191,6 @@ class Traced:
 
 
 # ----- experiments as trees of numbers ---------------------------------------------------------
-_LEAF_NUMBERS = (int, float)
-
 
 def differences(a: Any, b: Any, path: Path = (), out: dict | None = None) -> dict[Path, Any] | None:
     """{path: b's value} of every number where `b` differs from `a`, both trees of dataclasses,
@@ -208,7 +206,13 @@ def _diff(a: Any, b: Any, path: Path, out: dict) -> bool:
     kind = type(a)
     if kind is not type(b):
         return False
-    if kind in _LEAF_NUMBERS:
+    if kind is int:
+        if a != b:
+            out[path] = b
+        return True
+    if kind is str:
+        return a == b
+    if kind is float:
         if not _same([a, b]):
             out[path] = b
         return True

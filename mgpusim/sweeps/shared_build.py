@@ -173,28 +173,35 @@ def traced_sets(todo: Sequence[Any], path: Path, base: Mapping[str, Any], fideli
         except MgpusimError:
             exps.append(None)  # its own build reports why
     left = [i for i, e in enumerate(exps) if e is None]
-    work = [[i for i, e in enumerate(exps) if e is not None]]
-    out: list[TracedSet] = []
-    traces = 0
-    while work:
-        idx = work.pop(0)
-        if len(idx) < MIN_POINTS or traces >= MAX_TRACES:
-            left.extend(idx)
-            continue
-        t0 = time.perf_counter()
-        probe = exps[idx[0]]
+    #: per point, its probe (the first point of its shape) and its numbers that differ from it
+    probe_of: dict[int, Experiment] = {}
+    diff_of: dict[int, dict[tuple, Any]] = {}
+    work: list[list[int]] = []
+    rest = [i for i, e in enumerate(exps) if e is not None]
+    while rest and len(work) < MAX_TRACES:  # the points by shape, each diffed once
+        probe, other = exps[rest[0]], []
         assert probe is not None
-        mine, diffs, other = [], [], []
-        for i in idx:
+        work.append([])
+        for i in rest:
             d = experiment_differences(probe, exps[i])  # type: ignore[arg-type]
             if d is None:
                 other.append(i)
             else:
-                mine.append(i)
-                diffs.append(d)
-        if other:
-            work.append(other)
+                probe_of[i], diff_of[i] = probe, d
+                work[-1].append(i)
+        rest = other
+    left.extend(rest)
+    out: list[TracedSet] = []
+    traces = 0
+    while work:
+        mine = work.pop(0)
+        if len(mine) < MIN_POINTS or traces >= MAX_TRACES:
+            left.extend(mine)
+            continue
+        t0 = time.perf_counter()
         traces += 1
+        probe = probe_of[mine[0]]  # (the one of every point of `mine`: parts of one shape)
+        diffs = [diff_of[i] for i in mine]
         inputs = T.traced_inputs(diffs, probe)
         texp = T.substituted(probe, inputs)
         try:
@@ -203,10 +210,14 @@ def traced_sets(todo: Sequence[Any], path: Path, base: Mapping[str, Any], fideli
             work.append([i for i, a in zip(mine, split.answers) if a])
             work.append([i for i, a in zip(mine, split.answers) if not a])
             continue
-        except T.Untraceable as why:
+        except T.Untraceable as why:  # the points of each value it needed apart
             by: dict[str, list[int]] = {}
-            for i, d in zip(mine, diffs):
-                by.setdefault(repr([d.get(p) for p in sorted(why.paths, key=repr)]), []).append(i)
+            if why.values is not None and len(why.values) == len(mine):
+                keys = [f"{type(v).__name__}:{v!r}" for v in why.values]
+            else:
+                keys = [repr([d.get(p) for p in sorted(why.paths, key=repr)]) for d in diffs]
+            for i, key in zip(mine, keys):
+                by.setdefault(key, []).append(i)
             if len(by) == 1:
                 left.extend(mine)
             else:

@@ -43,11 +43,12 @@ Path = tuple
 
 class Untraceable(BaseException):
     """A traced number was used where one concrete value is needed. `paths`: the inputs it
-    came from (the caller builds their values' points apart)."""
+    came from; `values`: its value at each point, where one traced number was so used (the
+    caller builds the points of each value apart), else None."""
 
-    def __init__(self, what: str, paths: frozenset):
+    def __init__(self, what: str, paths: frozenset, values: list[Any] | None = None):
         super().__init__(what)
-        self.paths = paths
+        self.paths, self.values = paths, values
 
 
 class Split(BaseException):
@@ -114,7 +115,7 @@ def _number(x: Any) -> bool:
 
 def _refuse(what: str) -> Callable[..., Any]:
     def method(self: "Traced", *args: Any, **kwargs: Any) -> Any:
-        raise Untraceable(what, self.paths)
+        raise Untraceable(what, self.paths, self.v)
     return method
 
 
@@ -258,14 +259,15 @@ def substituted(tree: Any, at: Mapping[Path, Any]) -> Any:
     return new
 
 
-def traced_inputs(diffs: Sequence[Mapping[Path, Any]], probe: Any) -> dict[Path, Traced]:
-    """Per path any point's value differs at, a Traced of every point's value there (the
-    probe's where the point's equals it). `diffs[i]`: :func:`differences` of point i."""
+def traced_inputs(diffs: Sequence[Mapping[Path, Any]], probe: Any) -> dict[Path, Any]:
+    """Per path any point's value differs at from the probe's, every point's value there (the
+    probe's where the point's equals it): a Traced, or the one value they all have.
+    `diffs[i]`: :func:`differences` of point i from the probe."""
     paths = sorted({p for d in diffs for p in d}, key=repr)
     out = {}
     for p in paths:
         base = _at(probe, p)
-        out[p] = Traced([d.get(p, base) for d in diffs], frozenset([p]))
+        out[p] = make([d.get(p, base) for d in diffs], frozenset([p]))
     return out
 
 
@@ -311,9 +313,9 @@ def conversions(prefix: str = "mgpusim.") -> Iterator[None]:
     (but the sweep's own, :mod:`mgpusim.sweeps`) are :class:`_Conversion` types, so that
     ``int(x)`` and ``float(x)`` of a Traced are each point's conversion; each module's own
     names are as they were afterwards.
-    (The sweep runs its points in one thread.) Where a module compares ``type(x) is int``
-    the check is False for plain ints meanwhile: the modules a trace builds through do so only
-    to take a faster path to the same answer (`CostModel.check_transfer`)."""
+    (The sweep runs its points in one thread.) A module that compared ``type(x) is int``
+    would find it False for plain ints meanwhile: the modules a trace builds through use
+    isinstance() instead."""
     patched: list[tuple[dict, str, Any]] = []
     missing = object()
     try:

@@ -58,7 +58,8 @@ def test_traced_sets_are_built(monkeypatch):
     grid = {"scene.width": [600 + 8 * i for i in range(10)], "scene.height": [400 + 6 * i for i in range(8)]}
     plan = lanes.plan(loader.path, grid, {}, loader)
     groups = lanes.groups(plan, grid_points(grid, {}), grid)
-    sets, left = shared_build.traced_sets(groups, loader.path, {}, "analytic", loader, {})
+    sets, left = shared_build.traced_sets(groups, loader.path, {}, "analytic", loader, {}, lanes.build,
+                                             lanes._static_fields)
     assert sets and not left
     assert sum(len(s.groups) for s in sets) == 80
 

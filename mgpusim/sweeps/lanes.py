@@ -753,8 +753,9 @@ def run_groups(path: str, base: Mapping[str, Any], fidelity: str, plan_: Plan, t
     templates: dict[tuple, dict[str, Any]] = {}
     frames: list[Any] = []
     if not plan_.lane_keys and shared_build.enabled() and len(todo) >= shared_build.MIN_POINTS:
-        sets, todo = shared_build.traced_sets(todo, Path(path), base, fidelity, loader, templates)
-        done, back = shared_build.run_sets(sets)
+        sets, todo = shared_build.traced_sets(todo, Path(path), base, fidelity, loader, templates,
+                                              build, _static_fields)
+        done, back = run_traced(sets)
         todo = sorted([*todo, *back], key=lambda g: g.points[0].index)
         frames.extend(df if points is None else save_batch(points, df) for df in done)
     for g in todo:
@@ -768,6 +769,30 @@ def run_groups(path: str, base: Mapping[str, Any], fidelity: str, plan_: Plan, t
         if len(df):
             frames.append(df if points is None else save_batch(points, df))
     return frames, fallback
+
+
+def run_traced(sets: list[shared_build.TracedSet]) -> tuple[list[pd.DataFrame], list[Group]]:
+    """Each traced set's records as one table (as :func:`run_batch` makes a batch's), and the
+    groups of any set whose first lane does not reproduce its probe's simulate() summary,
+    handed back to be built one by one."""
+    frames: list[pd.DataFrame] = []
+    back: list[Group] = []
+    for s in sets:
+        t0 = time.perf_counter()
+        first, n = s.first, len(s.groups)
+        result = _run_lanes(_model(first), s.lanes)
+        if first.checked and not _first_matches(_summary(first), {k: v[:1] for k, v in result.items()}):
+            for g in s.groups:
+                g.model = None
+            back.extend(s.groups)
+            continue
+        summary = {k: s.static[k] if k in s.static else v for k, v in _summary(first).items()}
+        whole = Group([g.points[0] for g in s.groups], np.zeros((n, 0), dtype=np.int64), first.model,
+                      summary, first.signature)
+        df = _joined([_records(whole, result, np.ones(n, dtype=bool))])
+        df["wall_s"] = round((time.perf_counter() - t0 + s.seconds) / len(df), 9)
+        frames.append(df)
+    return frames, back
 
 
 #: Most groups one task of a pool builds (it also runs them: a task's batches are its own).

@@ -24,10 +24,9 @@ from __future__ import annotations
 import os
 import time
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
-import pandas as pd
 
 from mgpusim.model.costs import CostModel
 from mgpusim.model.errors import MgpusimError
@@ -98,12 +97,12 @@ def lanes_of(model: Analytic, n: int) -> lanes_mod.Lanes:
     return lanes_mod.Lanes(n, time_, gap, arr(model.dispatch), arr(model.submit), arr(model.copy_wake))
 
 
-def trace(texp: Experiment, fidelity: str, n: int) -> tuple[Analytic, tuple, dict[str, Any], lanes_mod.Lanes]:
+def trace(texp: Experiment, fidelity: str, n: int, static_fields: Callable[..., dict[str, Any]]
+          ) -> tuple[Analytic, tuple, dict[str, Any], lanes_mod.Lanes]:
     """The traced build (what :func:`lanes.build` does for one point): the model, its structure,
-    the summary fields no lane computes, and the lanes. Raises Split, Untraceable, _NoLanes
-    or the build's own error."""
+    the summary fields no lane computes (`static_fields`: :func:`lanes._static_fields`), and
+    the lanes. Raises Split, Untraceable, _NoLanes or the build's own error."""
     from mgpusim.schedules.memory_check import check_memory, memory_report  # noqa: PLC0415
-    from mgpusim.sweeps.lanes import _static_fields  # noqa: PLC0415
 
     with T.conversions():
         program = build_program(texp)
@@ -120,7 +119,7 @@ def trace(texp: Experiment, fidelity: str, n: int) -> tuple[Analytic, tuple, dic
         if "memory_capacity" in chosen:
             check_memory(program, texp)
             memory = memory_report(program, texp)
-        static = _static_fields(program, chosen, model, fidelity, memory, needed)
+        static = static_fields(program, chosen, model, fidelity, memory, needed)
         hash(tuple(static))
     lanes = lanes_of(model, n)
     return model, signature, static, lanes
@@ -160,11 +159,12 @@ class TracedSet:
 
 
 def traced_sets(todo: Sequence[Any], path: Path, base: Mapping[str, Any], fidelity: str,
-                loader: ExperimentLoader, templates: dict[tuple, dict[str, Any]]
+                loader: ExperimentLoader, templates: dict[tuple, dict[str, Any]],
+                build: Callable[..., str | None], static_fields: Callable[..., dict[str, Any]]
                 ) -> tuple[list[TracedSet], list[Any]]:
     """The one-point groups of `todo` built as traced sets where they can be, and the groups
-    left to build one by one (in `todo`'s order)."""
-    from mgpusim.sweeps.lanes import build  # noqa: PLC0415
+    left to build one by one (in `todo`'s order). `build`: :func:`lanes.build`, which builds
+    one group by itself; `static_fields`: :func:`lanes._static_fields`."""
 
     exps: list[Experiment | None] = []
     for g in todo:
@@ -205,7 +205,7 @@ def traced_sets(todo: Sequence[Any], path: Path, base: Mapping[str, Any], fideli
         inputs = T.traced_inputs(diffs, probe)
         texp = T.substituted(probe, inputs)
         try:
-            model, signature, static, lanes = trace(texp, fidelity, len(mine))
+            model, signature, static, lanes = trace(texp, fidelity, len(mine), static_fields)
         except T.Split as split:
             work.append([i for i, a in zip(mine, split.answers) if a])
             work.append([i for i, a in zip(mine, split.answers) if not a])
@@ -237,45 +237,3 @@ def traced_sets(todo: Sequence[Any], path: Path, base: Mapping[str, Any], fideli
         out.append(TracedSet([todo[i] for i in mine], first, static, lanes, time.perf_counter() - t0))
     left.sort()
     return out, [todo[i] for i in left]
-
-
-def run(sets: list[TracedSet]) -> list[pd.DataFrame]:
-    """Each traced set's records as a table (as :func:`lanes.run_batch` makes them), or its
-    groups back to be built one by one where its first lane does not reproduce its probe."""
-    from mgpusim.sweeps.lanes import Group, _first_matches, _joined, _records, _run_lanes  # noqa: PLC0415
-
-    frames = []
-    for s in sets:
-        t0 = time.perf_counter()
-        first = s.first
-        result = _run_lanes(first.model, s.lanes)
-        if first.checked and not _first_matches(first.summary, {k: v[:1] for k, v in result.items()}):
-            raise _Mismatch(s)
-        summary = {k: s.static.get(k, v) if k in s.static else v for k, v in first.summary.items()}
-        whole = Group([g.points[0] for g in s.groups], np.zeros((len(s.groups), 0), dtype=np.int64),
-                      first.model, summary, first.signature)
-        df = _joined([_records(whole, result, np.ones(len(s.groups), dtype=bool))])
-        df["wall_s"] = round((time.perf_counter() - t0 + s.seconds) / len(df), 9)
-        frames.append(df)
-    return frames
-
-
-class _Mismatch(Exception):
-    def __init__(self, traced: TracedSet):
-        super().__init__("a traced set's first lane does not reproduce its probe")
-        self.traced = traced
-
-
-def run_sets(sets: list[TracedSet]) -> tuple[list[pd.DataFrame], list[Any]]:
-    """:func:`run` over every set; the groups of a set whose first lane does not match its
-    probe's own summary are handed back to be built one by one."""
-    frames: list[pd.DataFrame] = []
-    back: list[Any] = []
-    for s in sets:
-        try:
-            frames.extend(run([s]))
-        except _Mismatch:
-            for g in s.groups:
-                g.model = None
-            back.extend(s.groups)
-    return frames, back

@@ -9,6 +9,8 @@ fresh process (imports, points, the table, plot and description written), on six
   program, built and run as a lane of its own (the rate the group keys alone give);
 - `scene-gpus`: 3,000 points over two scene keys and the GPU count (40 x 25 x 3): every
   point its own program, of three structures;
+- `scene-large`: 20,000 points over two scene keys (200 x 100): the rate past the command's
+  fixed cost (imports, the plot's matplotlib, the table: about 0.8 s);
 - `full`: 400 points at `--fidelity full` (the default) with the fast-forward, 1,000 frames
   each (TC1 sort-first: the state repeats from frame 92), over a pass cost and the width: one
   event simulation per point, on every CPU;
@@ -55,6 +57,8 @@ GRIDS: dict[str, tuple[list[str], list[str]]] = {  # name -> (grids, other argum
     "scene-gpus": (["scene.width=" + ",".join(str(600 + 8 * i) for i in range(40)),
                     "scene.height=" + ",".join(str(400 + 6 * i) for i in range(25)), "schedule.gpus=1,2,3"],
                    ["--fidelity", "analytic"]),
+    "scene-large": (["scene.width=" + ",".join(str(600 + 4 * i) for i in range(200)),
+                     "scene.height=" + ",".join(str(400 + 3 * i) for i in range(100))], ["--fidelity", "analytic"]),
     "full": (["profile.gpus.*.speed=" + ",".join(f"{0.5 + 0.1 * i:g}" for i in range(10)),
               "scene.width=" + ",".join(str(700 + 10 * i) for i in range(40))],
              ["--set", "schedule.frames=1000"]),

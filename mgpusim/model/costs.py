@@ -95,7 +95,7 @@ class CostModel:
         (Compared in integers, `setup + bytes x den / num` against the bound: Fraction
         arithmetic cost more than the rest of building a copy's op.)"""
         num, den = rate.numerator, rate.denominator
-        exact = type(setup_ns) is int and type(nbytes) is int  # (else as Fraction arithmetic rounds)
+        exact = isinstance(setup_ns, int) and isinstance(nbytes, int)  # (else as Fraction arithmetic rounds)
         if exact and num > 0 and setup_ns * num + nbytes * den <= L.MAX_TASK_NS * num:
             return
         total = setup_ns + nbytes / rate

@@ -63,8 +63,10 @@ from mgpusim.sim import analytic_lanes as lanes_mod
 from mgpusim.sim.analytic import Analytic
 from mgpusim.sim.effects import approximations as left_out
 from mgpusim.sim.effects import choose_effects
+from mgpusim.sweeps import shared_build
 from mgpusim.sweeps.loader import _SHARED, ExperimentLoader, shared
 from mgpusim.sweeps.store import save_batch
+from mgpusim.sweeps.traced import Traced
 
 #: A coefficient a lane key sets: (GPU index, "speed") or (GPU index, kind, "fixed_ns" | term).
 Coef = tuple
@@ -569,7 +571,12 @@ def _records(group: Group, lane: Mapping[str, np.ndarray], ok: np.ndarray) -> di
     summary = {k: v for k, v in first.items()
                if not k.startswith(("utilization.", "fast_forward.", "task_rates_hz.", "warnings."))}
     for key, value in summary.items():
-        cols[key] = lane_cols.pop(key) if key in lane_cols else _constant(value, n)
+        if key in lane_cols:
+            cols[key] = lane_cols.pop(key)
+        elif type(value) is Traced:  # one value per point (a traced build's)
+            cols[key] = _per_point(value.v)[keep]
+        else:
+            cols[key] = _constant(value, n)
     cols.update(lane_cols)
     cols.update(_warnings(first, [group.points[i].keys for i in rows]))
     cols.update(_fast_forward(lane, keep))
@@ -609,6 +616,27 @@ def _constant(value: Any, n: int) -> np.ndarray:
     """``_as_array([value] * n, n)``: the column of `n` copies of one value, as a record's
     column of them is made (without a list of `n` items to look through)."""
     return np.full(n, value) if _typed(value) else np.full(n, value, dtype=object)
+
+
+def _per_point(values: Sequence[Any]) -> np.ndarray:
+    """The column of one value per point as :func:`_joined` makes it of one-point groups'
+    columns (each :func:`_constant` of its value): of the values' one type where they have
+    one, as floats where they are all numbers that are not bools, else objects."""
+    kinds = {_kind(v) for v in values}
+    if len(kinds) == 1 and None not in kinds:
+        return np.array(values, dtype=kinds.pop())
+    if kinds <= {np.int64, np.float64}:
+        return np.array([float(v) for v in values], dtype=np.float64)
+    out = np.empty(len(values), dtype=object)
+    out[:] = list(values)
+    return out
+
+
+def _kind(value: Any) -> Any:
+    """The dtype :func:`_constant` gives a column of `value` (None: objects)."""
+    if not _typed(value):
+        return None
+    return np.bool_ if isinstance(value, bool) else np.int64 if isinstance(value, int) else np.float64
 
 
 def _typed(value: Any) -> bool:
@@ -683,7 +711,8 @@ class LaneRun:
     def _lanes(self) -> Iterator[pd.DataFrame]:
         plan_ = self.plan
         assert plan_ is not None  # planned by __iter__
-        tasks = split(groups(plan_, self.todo, self.grid), self.workers, self.max_lanes)
+        per_task = TRACED_PER_TASK if not plan_.lane_keys and shared_build.enabled() else GROUPS_PER_TASK
+        tasks = split(groups(plan_, self.todo, self.grid), self.workers, self.max_lanes, per_task)
         args = [(str(self.path), self.base, self.fidelity, plan_, t, self.max_lanes) for t in tasks]
         _SHARED.setdefault(str(self.path), self.loader)  # run_groups' here and in forked workers
         if self.workers == 1 or len(tasks) == 1:
@@ -722,12 +751,18 @@ def run_groups(path: str, base: Mapping[str, Any], fidelity: str, plan_: Plan, t
     built: list[Group] = []
     fallback: list[Any] = []
     templates: dict[tuple, dict[str, Any]] = {}
+    frames: list[Any] = []
+    if not plan_.lane_keys and shared_build.enabled() and len(todo) >= shared_build.MIN_POINTS:
+        sets, todo = shared_build.traced_sets(todo, Path(path), base, fidelity, loader, templates,
+                                              build, _static_fields)
+        done, back = run_traced(sets)
+        todo = sorted([*todo, *back], key=lambda g: g.points[0].index)
+        frames.extend(df if points is None else save_batch(points, df) for df in done)
     for g in todo:
         if build(g, Path(path), base, fidelity, loader, templates) is None:
             built.append(g)
         else:
             fallback.extend(g.points)
-    frames: list[Any] = []
     for batch in batches(built, max_lanes):
         df, left = run_batch(batch, plan_)
         fallback.extend(left)
@@ -736,18 +771,47 @@ def run_groups(path: str, base: Mapping[str, Any], fidelity: str, plan_: Plan, t
     return frames, fallback
 
 
+def run_traced(sets: list[shared_build.TracedSet]) -> tuple[list[pd.DataFrame], list[Group]]:
+    """Each traced set's records as one table (as :func:`run_batch` makes a batch's), and the
+    groups of any set whose first lane does not reproduce its probe's simulate() summary,
+    handed back to be built one by one."""
+    frames: list[pd.DataFrame] = []
+    back: list[Group] = []
+    for s in sets:
+        t0 = time.perf_counter()
+        first, n = s.first, len(s.groups)
+        result = _run_lanes(_model(first), s.lanes)
+        if first.checked and not _first_matches(_summary(first), {k: v[:1] for k, v in result.items()}):
+            for g in s.groups:
+                g.model = None
+            back.extend(s.groups)
+            continue
+        summary = {k: s.static[k] if k in s.static else v for k, v in _summary(first).items()}
+        whole = Group([g.points[0] for g in s.groups], np.zeros((n, 0), dtype=np.int64), first.model,
+                      summary, first.signature)
+        df = _joined([_records(whole, result, np.ones(n, dtype=bool))])
+        df["wall_s"] = round((time.perf_counter() - t0 + s.seconds) / len(df), 9)
+        frames.append(df)
+    return frames, back
+
+
 #: Most groups one task of a pool builds (it also runs them: a task's batches are its own).
 GROUPS_PER_TASK = 256
+#: The same for one-point groups built together (:mod:`.shared_build`): a task builds each
+#: structure of its points once, so fewer larger tasks (about two per worker).
+TRACED_PER_TASK = 4096
 
 
-def split(todo: list[Group], workers: int, max_lanes: int) -> list[list[Group]]:
-    """The groups in consecutive runs, one per task: about four per worker, each at most
-    `max_lanes` lanes and GROUPS_PER_TASK groups (one run for a single worker)."""
+def split(todo: list[Group], workers: int, max_lanes: int, per_task: int = GROUPS_PER_TASK) -> list[list[Group]]:
+    """The groups in consecutive runs, one per task: about four per worker (two where
+    `per_task` is TRACED_PER_TASK), each at most `max_lanes` lanes and `per_task` groups (one
+    run for a single worker)."""
     if workers <= 1:
         return [todo] if todo else []
     lanes_total = sum(len(g.points) for g in todo)
     per_lanes = min(max_lanes, max(4096, -(-lanes_total // (4 * workers))))
-    per_groups = min(GROUPS_PER_TASK, max(1, -(-len(todo) // (4 * workers))))
+    runs = 2 if per_task == TRACED_PER_TASK else 4
+    per_groups = min(per_task, max(1, -(-len(todo) // (runs * workers))))
     out: list[list[Group]] = []
     run: list[Group] = []
     size = 0

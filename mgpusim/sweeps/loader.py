@@ -76,7 +76,7 @@ class ExperimentLoader:
         experiment_overrides, profile_overrides = split_profile(overrides)
         for top in {key.split(".", 1)[0] for key in experiment_overrides}:
             if top in raw:
-                data[top] = copy.deepcopy(raw[top])
+                data[top] = _copied(raw[top])
         for key, value in experiment_overrides.items():
             set_dotted(data, key, value, self.file)
         return self._parse(data, profile_overrides, experiment_overrides)
@@ -179,12 +179,29 @@ class ExperimentLoader:
         return found
 
 
+def _copied(value: Any) -> Any:
+    """`copy.deepcopy` of a parsed TOML table: its tables and arrays copied, its values (text,
+    numbers, dates: immutable) shared. (deepcopy's memo cost a tenth of a point's load.)"""
+    kind = type(value)
+    if kind is dict:
+        return {k: _copied(v) for k, v in value.items()}
+    if kind is list:
+        return [_copied(v) for v in value]
+    if kind in (str, int, float, bool):
+        return value
+    return copy.deepcopy(value)
+
+
 #: Parsed scene and schedule tables a loader keeps (:meth:`ExperimentLoader._section`).
 SECTIONS_KEPT = 4096
 
 
 def _canonical(value: Any) -> str:
-    """A value as text that tells apart what TOML tells apart (1, 1.0, true, "1")."""
+    """A value as text that tells apart what TOML tells apart (1, 1.0, true, "1"). (A key of
+    this process's caches only: a plain number or text as its repr and type, without json.)"""
+    kind = type(value)
+    if kind is int or kind is float or kind is bool or kind is str:
+        return f"{value!r}{kind.__name__}"
     return json.dumps(value, sort_keys=True, default=repr) + type(value).__name__
 
 
